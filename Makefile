@@ -1,0 +1,26 @@
+# Two set-up commands for a fresh machine: `make demo` and `make test`.
+# Each creates .venv and installs torchcal (with its dev extra) when missing.
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test bench clean
+
+$(STAMP): pyproject.toml
+	python3 -m venv $(VENV)
+	# a local CPU build of torch, when the machine has one, is taken before the range below
+	-$(PY) -m pip install -q --no-index torch==2.13.0 2>/dev/null
+	$(PY) -m pip install -q -e '.[dev]'
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/torchcal demo
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+bench: $(STAMP)
+	for b in benchmarks/bench_*.py; do $(PY) $$b || exit 1; done
+
+clean:
+	rm -rf $(VENV) build *.egg-info

@@ -1,0 +1,11 @@
+"""torchcal: batched, GPU-optional calibration of industrial robots.
+
+Millimetres and degrees at the edges (files, command line, reports); millimetres and
+radians inside; float64 by default.
+"""
+
+from torchcal.errors import InputError
+from torchcal.robot import PRESETS, Robot, robot
+
+__version__ = "0.1.0"
+__all__ = ["InputError", "PRESETS", "Robot", "robot", "__version__"]

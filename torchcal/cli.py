@@ -1,0 +1,55 @@
+"""The `torchcal` command line: one entry point, one sub-command per module.
+
+Each sub-command lives in `torchcal/commands/<name>.py` and exposes
+`add_parser(subparsers)` (which sets `func=run` on its parser) and `run(args) -> int`.
+This module only composes them and turns user mistakes into one line on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from torchcal.errors import InputError
+
+COMMANDS = (
+    "demo", "simulate", "fit", "evaluate", "diagnose", "discover",
+    "sweep", "partition", "calibrate", "compensate",
+)
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, exit 2, as for every other user mistake
+        sys.stderr.write(f"torchcal: error: {message}\n")
+        raise SystemExit(2)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="torchcal", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    for name in COMMANDS:
+        try:
+            module = importlib.import_module(f"torchcal.commands.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"torchcal.commands.{name}":
+                raise
+            continue  # command not built yet
+        module.add_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (InputError, ValueError, FileNotFoundError, FileExistsError, IsADirectoryError) as exc:
+        sys.stderr.write(f"torchcal {args.command}: error: {exc}\n")
+        return 2
+    except KeyboardInterrupt:
+        sys.stderr.write("torchcal: interrupted\n")
+        return 130
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

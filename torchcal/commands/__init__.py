@@ -1,0 +1,1 @@
+"""Sub-commands of the `torchcal` command line, one module each."""

@@ -1,0 +1,11 @@
+"""The one exception type for user mistakes.
+
+`InputError` is a `ValueError`: library callers can catch either. The command line
+turns it into one line on stderr and exit status 2, never a traceback. Its message must
+name what is wrong and where (file, row, column, option or argument) and what was
+expected.
+"""
+
+
+class InputError(ValueError):
+    """Bad input from a user: a file, an option, an argument."""

@@ -1,0 +1,214 @@
+"""Batched MD-H kinematics: pure tensor kernels.
+
+MD-H link transform (PAPER.md eqs. 5-7), per joint i::
+
+    A_i = Rot(z, theta_i) Trans(z, d_i) Trans(x, a_i) Rot(x, alpha_i) Rot(y, beta_i)
+
+Conventions (inside torchcal): millimetres and radians, float64 unless the caller
+passes float32. Shapes, batch dims first:
+
+- ``table (n, 5)``: nominal [theta_offset rad, d mm, a mm, alpha rad, beta rad];
+- ``q (..., n)`` rad: joint angles; the actual joint rotation is q + theta_offset + dtheta;
+- ``params (..., n, 5)``: deviations [dtheta rad, dd mm, da mm, dalpha rad, dbeta rad]
+  that broadcast against the batch dims of ``q``;
+- ``base (4, 4)`` and ``tool (4, 4)`` homogeneous transforms (mm), world <- joint-1
+  frame and flange <- TCP.
+
+The kernels check nothing: `torchcal.robot.Robot` validates user input once and calls
+them. `fk_positions` chunks its work along the largest broadcast batch dim so that the
+temporaries stay bounded (and cache-sized) whatever the batch.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+PARAM_NAMES = ("dtheta", "dd", "da", "dalpha", "dbeta")
+PARAM_UNITS = ("rad", "mm", "mm", "rad", "rad")
+
+# elements per chunk of the position kernel: small enough for the temporaries to stay
+# in the CPU caches, large enough to amortise the per-op overhead of torch.
+DEFAULT_CHUNK = 1 << 16
+
+
+def _effective(table: torch.Tensor, params: torch.Tensor | None):
+    """Actual [theta_offset, d, a, alpha, beta] per joint: nominal + deviation.
+
+    table (n, 5), params (..., n, 5) or None -> tuple of 5 tensors (..., n)
+    """
+    eff = table if params is None else table + params
+    return eff.unbind(-1)
+
+
+def link_transforms(q: torch.Tensor, table: torch.Tensor, params: torch.Tensor | None = None) -> torch.Tensor:
+    """The MD-H link transforms A_i.
+
+    q (..., n) rad, table (n, 5), params (..., n, 5) or None -> (..., n, 4, 4) mm
+    """
+    off, d, a, alpha, beta = _effective(table, params)
+    theta = q + off
+    ct, st = torch.cos(theta), torch.sin(theta)
+    ca, sa = torch.cos(alpha), torch.sin(alpha)
+    cb, sb = torch.cos(beta), torch.sin(beta)
+    ct, st, ca, sa, cb, sb, d, a = torch.broadcast_tensors(ct, st, ca, sa, cb, sb, d, a)
+    zero, one = torch.zeros_like(ct), torch.ones_like(ct)
+    # Rz(theta) Rx(alpha) columns, then Ry(beta) mixes columns 0 and 2
+    c0 = (ct, st, zero)
+    c1 = (-st * ca, ct * ca, sa)
+    c2 = (st * sa, -ct * sa, ca)
+    r0 = [cb * x - sb * z for x, z in zip(c0, c2)]
+    r2 = [sb * x + cb * z for x, z in zip(c0, c2)]
+    rows = [
+        torch.stack([r0[k], c1[k], r2[k], t], dim=-1)
+        for k, t in enumerate((a * ct, a * st, d))
+    ]
+    rows.append(torch.stack([zero, zero, zero, one], dim=-1))
+    return torch.stack(rows, dim=-2)
+
+
+def fk_frames(q, table, params=None, base=None, tool=None) -> torch.Tensor:
+    """World poses of every joint frame and of the TCP.
+
+    q (..., n) rad, params (..., n, 5) or None, base/tool (4, 4) or None
+    -> (..., n + 2, 4, 4): index 0 is the base (frame of joint 1's axis), index i the
+    frame after link i, index n + 1 the TCP (last frame times tool).
+    """
+    A = link_transforms(q, table, params)  # (..., n, 4, 4)
+    batch = A.shape[:-3]
+    eye = torch.eye(4, dtype=A.dtype, device=A.device)
+    T = (eye if base is None else base.to(A)).expand(*batch, 4, 4)
+    frames = [T]
+    for i in range(A.shape[-3]):
+        T = T @ A[..., i, :, :]
+        frames.append(T)
+    frames.append(T if tool is None else T @ tool.to(A))
+    return torch.stack(frames, dim=-3)
+
+
+def fk_pose(q, table, params=None, base=None, tool=None) -> torch.Tensor:
+    """TCP pose. q (..., n) rad, params (..., n, 5) -> (..., 4, 4) mm."""
+    A = link_transforms(q, table, params)
+    T = A[..., 0, :, :]
+    for i in range(1, A.shape[-3]):
+        T = T @ A[..., i, :, :]
+    if base is not None:
+        T = base.to(T) @ T
+    if tool is not None:
+        T = T @ tool.to(T)
+    return T
+
+
+def _positions_kernel(q, table, params, base, tool_point):
+    """TCP positions by the backward recursion v <- Rz(theta) (Rx(alpha) Ry(beta) v + [a, 0, d]).
+
+    Only the theta terms carry the pose batch; alpha, beta, a, d trig stays on the
+    (usually much smaller) parameter batch. q (..., n), params (..., n, 5) or None,
+    tool_point (3,) -> (..., 3) mm.
+    """
+    n = table.shape[0]
+    off, d, a, alpha, beta = _effective(table, params)  # each (..., n) or (n,)
+    cq, sq = torch.cos(q), torch.sin(q)
+    co, so = torch.cos(off), torch.sin(off)
+    ca, sa = torch.cos(alpha), torch.sin(alpha)
+    cb, sb = torch.cos(beta), torch.sin(beta)
+    vx, vy, vz = tool_point.unbind(-1)
+    for i in range(n - 1, -1, -1):
+        # theta = q + off: angle sum keeps trig off the full broadcast batch
+        ct = cq[..., i] * co[..., i] - sq[..., i] * so[..., i]
+        st = sq[..., i] * co[..., i] + cq[..., i] * so[..., i]
+        cbi, sbi = cb[..., i], sb[..., i]
+        wx = cbi * vx + sbi * vz
+        wz = cbi * vz - sbi * vx
+        cai, sai = ca[..., i], sa[..., i]
+        ux = wx + a[..., i]
+        uy = cai * vy - sai * wz
+        uz = sai * vy + cai * wz + d[..., i]
+        vx = ct * ux - st * uy
+        vy = st * ux + ct * uy
+        vz = uz
+    v = torch.stack(torch.broadcast_tensors(vx, vy, vz), dim=-1)
+    if base is not None:
+        v = v @ base[:3, :3].T + base[:3, 3]
+    return v
+
+
+def fk_positions(q, table, params=None, base=None, tool=None, chunk: int = DEFAULT_CHUNK) -> torch.Tensor:
+    """TCP positions for every (pose, parameter set) of the broadcast batch.
+
+    q (..., n) rad, params (..., n, 5) or None -> (..., 3) mm.
+    Work is cut along the largest broadcast batch dim into pieces of about `chunk`
+    evaluations, so temporaries stay bounded; the output is the full (..., 3).
+    """
+    tool_point = (torch.zeros(3, dtype=table.dtype, device=table.device) if tool is None
+                  else tool[:3, 3].to(table))
+    base = None if base is None else base.to(table)
+    qb = q.shape[:-1]
+    pb = () if params is None else params.shape[:-2]
+    batch = torch.broadcast_shapes(qb, pb)
+    total = math.prod(batch)
+    if total <= chunk or len(batch) == 0:
+        return _positions_kernel(q, table, params, base, tool_point)
+    # align leading dims, pick the largest batch dim to cut along
+    q = q.reshape((1,) * (len(batch) - len(qb)) + q.shape)
+    if params is not None:
+        params = params.reshape((1,) * (len(batch) - len(pb)) + params.shape)
+    dim = max(range(len(batch)), key=lambda k: batch[k])
+    step = max(1, chunk * batch[dim] // total)
+    out = torch.empty(*batch, 3, dtype=table.dtype, device=table.device)
+    for start in range(0, batch[dim], step):
+        sl = slice(start, start + step)
+        qc = q.narrow(dim, start, min(step, batch[dim] - start)) if q.shape[dim] > 1 else q
+        pc = params
+        if params is not None and params.shape[dim] > 1:
+            pc = params.narrow(dim, start, min(step, batch[dim] - start))
+        idx = (slice(None),) * dim + (sl,)
+        out[idx] = _positions_kernel(qc, table, pc, base, tool_point)
+    return out
+
+
+def param_jacobian(q, table, params=None, base=None, tool=None) -> torch.Tensor:
+    """Analytic position Jacobian dP/d[params] (PAPER.md eqs. 14-18).
+
+    q (..., n) rad, params (..., n, 5) or None -> (..., 3, 5n), columns ordered as
+    ``params.reshape(..., 5n)``: joint 1's [dtheta, dd, da, dalpha, dbeta], joint 2's...
+    Units: mm/rad for angle columns, mm/mm for length columns.
+
+    For link i with input frame F (world pose of joint i's axis) and TCP p:
+    dtheta rotates about z_F through o_F, dd translates along z_F, da along the x axis
+    after Rz(theta), dalpha rotates about that x axis and dbeta about the y axis after
+    Rx(alpha), both through the link's end origin o_i.
+    """
+    frames = fk_frames(q, table, params, base, tool)  # (..., n+2, 4, 4)
+    n = table.shape[0]
+    p = frames[..., -1, :3, 3].unsqueeze(-2)  # (..., 1, 3)
+    F = frames[..., :n, :, :]  # input frame of each link (..., n, 4, 4)
+    z, o = F[..., :3, 2], F[..., :3, 3]
+    off, d, a, alpha, beta = _effective(table, params)
+    theta = q + off
+    ct, st = torch.cos(theta), torch.sin(theta)
+    ca, sa = torch.cos(alpha), torch.sin(alpha)
+    x_mid = F[..., :3, 0] * ct.unsqueeze(-1) + F[..., :3, 1] * st.unsqueeze(-1)  # R Rz(theta) e_x
+    y_rz = -F[..., :3, 0] * st.unsqueeze(-1) + F[..., :3, 1] * ct.unsqueeze(-1)  # R Rz(theta) e_y
+    y_mid = y_rz * ca.unsqueeze(-1) + z * sa.unsqueeze(-1)  # R Rz Rx(alpha) e_y
+    o_end = frames[..., 1:n + 1, :3, 3]
+    x_mid, y_mid, z, o, o_end, p = torch.broadcast_tensors(x_mid, y_mid, z, o, o_end, p)
+    cols = torch.stack([
+        torch.linalg.cross(z, p - o),
+        z,
+        x_mid,
+        torch.linalg.cross(x_mid, p - o_end),
+        torch.linalg.cross(y_mid, p - o_end),
+    ], dim=-1)  # (..., n, 3, 5)
+    return cols.movedim(-3, -2).reshape(*cols.shape[:-3], 3, 5 * n)
+
+
+def joint_jacobian(q, table, params=None, base=None, tool=None) -> torch.Tensor:
+    """Position Jacobian dP/dq. q (..., n) rad -> (..., 3, n) mm/rad."""
+    frames = fk_frames(q, table, params, base, tool)
+    n = table.shape[0]
+    p = frames[..., -1, :3, 3].unsqueeze(-2)
+    z, o = frames[..., :n, :3, 2], frames[..., :n, :3, 3]
+    z, o, p = torch.broadcast_tensors(z, o, p)
+    return torch.linalg.cross(z, p - o).transpose(-1, -2)

@@ -1,0 +1,65 @@
+"""Files: measurement CSV (DESIGN.md), JSON reports, atomic writes.
+
+Every write goes through `atomic_write`: a temporary file in the target's folder, then
+`os.replace`, so a failure never leaves a half-written output. An existing output is
+only replaced with ``force=True``; an input file is never written over.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+from torchcal.errors import InputError
+
+
+def atomic_write(path, data: str | bytes, force: bool = False, inputs=()) -> Path:
+    """Write `data` to `path` atomically.
+
+    Raises InputError if `path` exists and not `force`, or if `path` is one of `inputs`.
+    """
+    path = Path(path)
+    for src in inputs:
+        if src is not None and Path(src).exists() and path.exists() and path.resolve() == Path(src).resolve():
+            raise InputError(f"{path}: refusing to write over the input file")
+    if path.exists() and not force:
+        raise InputError(f"{path}: output exists; pass --force to replace it")
+    if not path.parent.exists():
+        raise InputError(f"{path}: folder {path.parent} does not exist")
+    mode = "wb" if isinstance(data, bytes) else "w"
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, mode) as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def dumps_json(obj) -> str:
+    """Deterministic JSON text (sorted keys, fixed float repr) for reports and models."""
+    return json.dumps(obj, indent=2, sort_keys=True, allow_nan=False) + "\n"
+
+
+def write_json(path, obj, force: bool = False, inputs=()) -> Path:
+    """Atomically write `obj` as deterministic JSON."""
+    return atomic_write(path, dumps_json(obj), force=force, inputs=inputs)
+
+
+def read_json(path, what: str = "JSON file") -> dict:
+    """Read a JSON object; one clear InputError for a missing file or bad JSON."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: {what} does not exist")
+    try:
+        obj = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a valid {what}: {exc}") from None
+    if not isinstance(obj, dict):
+        raise InputError(f"{path}: expected a JSON object in the {what}")
+    return obj

@@ -1,0 +1,30 @@
+"""The physical-effects vocabulary (DESIGN.md): one module per effect.
+
+`build(spec, robot)` turns an `EffectSpec` (or its text, e.g. 'joint_compliance:2,3')
+into an `Effect`. Joints are 1-based everywhere a person sees them.
+"""
+
+from torchcal.effects.backlash import Backlash
+from torchcal.effects.base import Context, Effect, make_context
+from torchcal.effects.base_frame import BaseFrame
+from torchcal.effects.encoder_scale import EncoderScale
+from torchcal.effects.gear_periodic import GearPeriodic
+from torchcal.effects.joint_clearance import JointClearance
+from torchcal.effects.joint_compliance import JointCompliance
+from torchcal.effects.thermal_expansion import ThermalExpansion
+from torchcal.effects.tool_offset import ToolOffset
+
+REGISTRY = {cls.name: cls for cls in (BaseFrame, ToolOffset, JointCompliance, GearPeriodic,
+                                      Backlash, EncoderScale, ThermalExpansion, JointClearance)}
+
+
+def build(spec, robot) -> Effect:
+    """An effect from a spec ('name' or 'name:J,J') or an EffectSpec, for `robot`."""
+    from torchcal.spec import parse_spec
+
+    if isinstance(spec, str):
+        spec = parse_spec(spec, robot.n)
+    return REGISTRY[spec.name](robot, spec.joints)
+
+
+__all__ = ["Context", "Effect", "REGISTRY", "build", "make_context"]

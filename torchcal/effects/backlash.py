@@ -1,0 +1,24 @@
+"""`backlash:J`: lost motion that depends on the approach direction.
+
+Parameters (1 per joint): ``backlash_J`` rad, the full lost motion. A joint that last
+moved in the + direction stops ``backlash_J / 2`` past the mean position, one that came
+from the - direction ``backlash_J / 2`` before it: offset ``approach * backlash_J / 2``.
+The approach direction comes from the measurement order (`Context.approach`).
+"""
+
+from torchcal.effects.base import Effect, scatter_joints
+
+
+class Backlash(Effect):
+    name = "backlash"
+    takes_joints = True
+
+    def param_names(self):
+        return [f"backlash_{j}" for j in self.joints]
+
+    def param_units(self):
+        return ["rad"] * len(self.joints)
+
+    def joint_offset(self, p, ctx):
+        cols = ctx.approach[:, [j - 1 for j in self.joints]] * (0.5 * p)  # (N, J)
+        return scatter_joints(cols, self.joints, ctx.q.shape[1])

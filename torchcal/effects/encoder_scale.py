@@ -1,0 +1,22 @@
+"""`encoder_scale:J`: joint angle scale (gear ratio) error.
+
+Parameters (1 per joint): ``scale_J`` (dimensionless); the joint turns
+``q * (1 + scale_J)``, i.e. an offset ``scale_J * q`` rad.
+"""
+
+from torchcal.effects.base import Effect, scatter_joints
+
+
+class EncoderScale(Effect):
+    name = "encoder_scale"
+    takes_joints = True
+
+    def param_names(self):
+        return [f"scale_{j}" for j in self.joints]
+
+    def param_units(self):
+        return ["1"] * len(self.joints)
+
+    def joint_offset(self, p, ctx):
+        cols = ctx.q[:, [j - 1 for j in self.joints]] * p  # (N, J)
+        return scatter_joints(cols, self.joints, ctx.q.shape[1])

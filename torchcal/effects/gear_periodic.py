@@ -1,0 +1,36 @@
+"""`gear_periodic:J`: periodic transmission error, harmonics of the joint angle.
+
+Parameters (2 H per joint, H = len(HARMONICS)): ``gear_J_sinK``, ``gear_J_cosK`` rad, the
+offset ``sum_K s_K sin(K q) + c_K cos(K q)``. Harmonics 1..3 of the output revolution
+(eccentricity, ovality, three-lobe errors of the output stage). The constant term is
+joint J's dtheta and is not repeated here.
+"""
+
+import torch
+
+from torchcal.effects.base import Effect, scatter_joints
+
+HARMONICS = (1, 2, 3)
+
+
+class GearPeriodic(Effect):
+    name = "gear_periodic"
+    takes_joints = True
+
+    def __init__(self, robot, joints=(), harmonics=HARMONICS):
+        super().__init__(robot, joints)
+        self.harmonics = tuple(harmonics)
+
+    def param_names(self):
+        return [f"gear_{j}_{f}{k}" for j in self.joints for k in self.harmonics for f in ("sin", "cos")]
+
+    def param_units(self):
+        return ["rad"] * self.n_params
+
+    def joint_offset(self, p, ctx):
+        k = torch.tensor(self.harmonics, dtype=ctx.q.dtype, device=ctx.q.device)
+        q = ctx.q[:, [j - 1 for j in self.joints]]  # (N, J)
+        arg = q.unsqueeze(-1) * k  # (N, J, H)
+        basis = torch.stack([torch.sin(arg), torch.cos(arg)], dim=-1)  # (N, J, H, 2)
+        coef = p.reshape(len(self.joints), len(self.harmonics), 2)
+        return scatter_joints((basis * coef).sum((-1, -2)), self.joints, ctx.q.shape[1])

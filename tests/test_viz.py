@@ -1,0 +1,291 @@
+"""viz: rerun recordings read back with rerun.chunk.RrdReader; PNG figures checked on disk."""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pytest
+import rerun as rr
+import torch
+from rerun.chunk import RrdReader
+
+from torchcal.errors import InputError
+from viz import figures
+from viz.recording import (RESIDUAL_ARROW_SCALE, RecordingWriter, default_blueprint, log_discover_history,
+                           log_discover_round, log_error_intervals, log_residuals, log_summary, log_workspace,
+                           recording_id, summary_markdown)
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+# --------------------------------------------------------------------------- data
+def _data(seed: int = 0, n: int = 60, zones: int = 4, t: int = 5):
+    rng = np.random.default_rng(seed)
+    pos = rng.uniform([500, -2000, 0], [3000, 2000, 3000], (n, 3))  # mm
+    zs = np.arange(n) % zones
+    r_set = np.clip(1.0 - 0.1 * zs + 0.01 * rng.standard_normal(n), 0, 1)
+    b_lo = -rng.uniform(0.2, 1.5, (t, 3))
+    b_hi = rng.uniform(0.2, 1.5, (t, 3))
+    measured = pos[:10]
+    model = measured - rng.normal(0, 0.5, (10, 3))
+    return dict(pos=pos, zones=zs, r_set=r_set, b_lo=b_lo, b_hi=b_hi, a_lo=0.4 * b_lo, a_hi=0.4 * b_hi,
+                measured=measured, model_before=model, model_after=measured - 0.01)
+
+
+def _chunks(path) -> dict[str, list]:
+    """entity path -> list of record-batch dicts (static and temporal chunks)."""
+    out: dict[str, list] = {}
+    for ch in RrdReader(path).stream():
+        out.setdefault(ch.entity_path, []).append(ch.to_record_batch().to_pydict())
+    return out
+
+
+def _column(chunks, entity, column):
+    for rb in chunks[entity]:
+        if column in rb:
+            return rb
+    raise KeyError(f"{entity}:{column}")
+
+
+@pytest.fixture(scope="module")
+def full_recording(tmp_path_factory):
+    d = _data()
+    path = tmp_path_factory.mktemp("rrd") / "full.rrd"
+    with RecordingWriter(path, seed=7) as rec:
+        log_workspace(rec, d["pos"], d["r_set"], d["zones"])
+        log_residuals(rec, "before", d["measured"], d["model_before"])
+        log_residuals(rec, "after", d["measured"], d["model_after"])
+        log_error_intervals(rec, d["b_lo"], d["b_hi"], d["a_lo"], d["a_hi"])
+        log_discover_history(rec, [0.9, 0.4, 0.12], [1.0, 0.45, 0.13], [None, "joint_compliance:2,3", "backlash"])
+        log_summary(rec, summary_markdown("Test run", {"RMS after (mm)": 0.123456, "zones": 4}, ["a note"]))
+    return path, d
+
+
+# --------------------------------------------------------------------------- recordings
+def test_recording_is_finalised_and_has_all_entities(full_recording):
+    path, _ = full_recording
+    reader = RrdReader(path)
+    store = reader.store()  # only works when the file has its footer (flushed and disconnected)
+    entities = {line.split()[0] for line in store.summary().splitlines()}
+    expected = {"/workspace", "/workspace/rset", "/workspace/zones", "/workspace/centres",
+                "/residuals/before/measured", "/residuals/before/model", "/residuals/before/residual",
+                "/residuals/after/measured", "/residuals/after/model", "/residuals/after/residual",
+                "/discover/rms_mm", "/discover/cv_rms_mm", "/discover/added", "/summary"}
+    expected |= {f"/error_intervals/{a}/{s}/{b}" for a in "xyz" for s in ("before", "after", "allowed")
+                 for b in ("lower", "upper")}
+    assert expected <= entities
+    [recording] = reader.recordings()
+    assert recording.application_id == "torchcal"
+    assert recording.recording_id == recording_id(7)
+    assert len(reader.blueprints()) == 1
+    assert "log_time" not in store.summary()  # no wall-clock timeline
+
+
+def test_recording_workspace_values(full_recording):
+    path, d = full_recording
+    ch = _chunks(path)
+    rset = _column(ch, "/workspace/rset", "Points3D:positions")
+    np.testing.assert_allclose(np.array(rset["Points3D:positions"][0]), d["pos"], rtol=1e-6)
+    assert len(rset["Points3D:colors"][0]) == len(d["pos"])
+    zones = _column(ch, "/workspace/zones", "Points3D:class_ids")
+    assert zones["Points3D:class_ids"][0] == d["zones"].tolist()
+    centres = _column(ch, "/workspace/centres", "Points3D:positions")
+    want = np.array([d["pos"][d["zones"] == z].mean(axis=0) for z in range(4)])
+    np.testing.assert_allclose(np.array(centres["Points3D:positions"][0]), want, rtol=1e-6)
+    assert centres["Points3D:labels"][0][0].startswith("zone 1: R_set ")
+    [ctx] = _column(ch, "/workspace", "AnnotationContext:context")["AnnotationContext:context"][0]
+    assert [c["class_description"]["info"]["label"] for c in ctx] == ["zone 1", "zone 2", "zone 3", "zone 4"]
+
+
+def test_recording_residual_arrows_are_scaled(full_recording):
+    path, d = full_recording
+    ch = _chunks(path)
+    arrows = _column(ch, "/residuals/before/residual", "Arrows3D:vectors")
+    vec = np.array(arrows["Arrows3D:vectors"][0])
+    np.testing.assert_allclose(vec, (d["measured"] - d["model_before"]) * RESIDUAL_ARROW_SCALE, rtol=1e-5)
+    np.testing.assert_allclose(np.array(arrows["Arrows3D:origins"][0]), d["model_before"], rtol=1e-6)
+    norm0 = np.linalg.norm(d["measured"][0] - d["model_before"][0])
+    assert arrows["Arrows3D:labels"][0][0].startswith(f"point 0: {norm0:.3f} mm")
+    meas = _column(ch, "/residuals/after/measured", "Points3D:positions")
+    assert len(meas["Points3D:positions"][0]) == 10
+
+
+def test_recording_scalars(full_recording):
+    path, d = full_recording
+    ch = _chunks(path)
+    rms = _column(ch, "/discover/rms_mm", "Scalars:scalars")
+    rounds = {r: v[0] for rb in ch["/discover/rms_mm"] if "round" in rb
+              for r, v in zip(rb["round"], rb["Scalars:scalars"])}
+    assert rounds == {0: 0.9, 1: 0.4, 2: 0.12}
+    assert "round" in rms
+    texts = [t for rb in ch["/discover/added"] for row in rb["TextLog:text"] for t in row]
+    assert any("added joint_compliance:2,3" in t for t in texts)
+    lo = _column(ch, "/error_intervals/y/before/lower", "Scalars:scalars")
+    assert lo["test_point"] == [1, 2, 3, 4, 5]
+    np.testing.assert_allclose([v[0] for v in lo["Scalars:scalars"]], d["b_lo"][:, 1])
+    band = _column(ch, "/error_intervals/z/allowed/upper", "Scalars:scalars")
+    assert [v[0] for v in band["Scalars:scalars"]] == [1.0] * 5
+    [doc] = _column(ch, "/summary", "TextDocument:text")["TextDocument:text"][0]
+    assert doc.startswith("# Test run") and "| RMS after (mm) | 0.1235 |" in doc and "- a note" in doc
+
+
+def test_log_into_plain_stream_and_torch_input(tmp_path):
+    d = _data()
+    path = tmp_path / "plain.rrd"
+    stream = rr.RecordingStream("torchcal-test", recording_id="fixed")
+    stream.save(path)
+    log_workspace(stream, torch.as_tensor(d["pos"], dtype=torch.float32), torch.as_tensor(d["r_set"]),
+                  torch.as_tensor(d["zones"]), max_points=25)
+    log_discover_round(stream, 0, 1.5)
+    stream.flush()
+    stream.disconnect()
+    ch = _chunks(path)
+    assert len(_column(ch, "/workspace/rset", "Points3D:positions")["Points3D:positions"][0]) == 25
+    assert _column(ch, "/discover/rms_mm", "Scalars:scalars")["Scalars:scalars"] == [[1.5]]
+    assert "/discover/cv_rms_mm" not in {k for k, v in ch.items() if any("Scalars:scalars" in rb for rb in v)}
+
+
+def test_writer_is_atomic_and_refuses_to_overwrite(tmp_path):
+    path = tmp_path / "out.rrd"
+    with pytest.raises(RuntimeError, match="boom"):
+        with RecordingWriter(path) as rec:
+            log_summary(rec, "# partial")
+            raise RuntimeError("boom")
+    assert list(tmp_path.iterdir()) == []  # neither the target nor a temporary file
+    with RecordingWriter(path) as rec:
+        log_summary(rec, "# first")
+    with pytest.raises(InputError, match="output exists"):
+        RecordingWriter(path).open()
+    with RecordingWriter(path, force=True) as rec:
+        log_summary(rec, "# second")
+    assert _column(_chunks(path), "/summary", "TextDocument:text")["TextDocument:text"] == [["# second"]]
+    assert [p.name for p in tmp_path.iterdir()] == ["out.rrd"]
+    with pytest.raises(InputError, match="does not exist"):
+        RecordingWriter(tmp_path / "missing" / "x.rrd").open()
+
+
+def test_recording_id_is_deterministic():
+    assert recording_id(3) == recording_id(3) != recording_id(4)
+    assert recording_id(3, "other") != recording_id(3)
+
+
+def test_recording_input_errors(tmp_path):
+    d = _data()
+    stream = rr.RecordingStream("torchcal-test")  # no sink: nothing is written
+    with pytest.raises(InputError, match=r"positions_mm: expected shape \(N, 3\) in mm, got \(60, 2\)"):
+        log_workspace(stream, d["pos"][:, :2], d["r_set"], d["zones"])
+    with pytest.raises(InputError, match="r_set: expected 60 values"):
+        log_workspace(stream, d["pos"], d["r_set"][:5], d["zones"])
+    with pytest.raises(InputError, match="zones: expected non-negative integer"):
+        log_workspace(stream, d["pos"], d["r_set"], d["zones"] - 0.5)
+    with pytest.raises(InputError, match="stage: expected one of"):
+        log_residuals(stream, "during", d["measured"], d["model_before"])
+    with pytest.raises(InputError, match="model_mm: expected 10 rows"):
+        log_residuals(stream, "before", d["measured"], d["model_before"][:3])
+    with pytest.raises(InputError, match="before_lower_mm: lower bound above upper bound at test point 1, axis x"):
+        log_error_intervals(stream, d["b_hi"], d["b_lo"])
+    with pytest.raises(InputError, match="give both or neither"):
+        log_error_intervals(stream, d["b_lo"], d["b_hi"], d["a_lo"])
+    with pytest.raises(InputError, match="round_index: expected a non-negative integer"):
+        log_discover_round(stream, -1, 0.3)
+    with pytest.raises(InputError, match="rec: expected a rerun.RecordingStream"):
+        log_summary("not a stream", "# x")
+    with pytest.raises(InputError, match="sections: unknown"):
+        default_blueprint({"workspace", "plots"})
+
+
+def test_default_blueprint_only_logged_sections():
+    assert default_blueprint({"summary"}) is not None
+    assert default_blueprint(set()) is not None
+    assert default_blueprint() is not None
+
+
+# --------------------------------------------------------------------------- figures
+def _png_size(path) -> tuple[int, int]:
+    data = path.read_bytes()
+    assert data[:8] == PNG_MAGIC
+    assert data[12:16] == b"IHDR"
+    return struct.unpack(">II", data[16:24])
+
+
+def _visible_axes(fig) -> int:
+    return len(fig.axes)  # unused grid cells are removed, so this counts the drawn subplots
+
+
+@pytest.fixture(scope="module")
+def figure_data():
+    d = _data(n=120, zones=5, t=8)
+    rng = np.random.default_rng(1)
+    q = rng.uniform(-2.0, 2.0, (80, 6))
+    res = np.c_[0.3 * np.sin(q[:, 1]), 0.1 * q[:, 2], 0.05 * rng.standard_normal(80)]
+    return d, q, res
+
+
+def test_zone_map(tmp_path, figure_data):
+    d, _, _ = figure_data
+    out = figures.zone_map(tmp_path / "zones.png", d["pos"], d["zones"])
+    assert out == tmp_path / "zones.png"
+    w, h = _png_size(out)
+    assert (w, h) == (round(15.0 * figures.DPI), round(5.4 * figures.DPI))
+    assert out.stat().st_size > 20_000
+    assert _visible_axes(figures.zone_map_figure(d["pos"], d["zones"])) == 3
+
+
+def test_rset_histogram(tmp_path, figure_data):
+    d, _, _ = figure_data
+    out = figures.rset_histogram(tmp_path / "rset.png", d["r_set"])
+    _png_size(out)
+    assert out.stat().st_size > 10_000
+    assert _visible_axes(figures.rset_histogram_figure(d["r_set"])) == 1
+    assert _visible_axes(figures.rset_histogram_figure(np.ones(5))) == 1  # constant R_set
+
+
+def test_error_intervals_figure(tmp_path, figure_data):
+    d, _, _ = figure_data
+    out = figures.error_intervals(tmp_path / "iv.png", torch.as_tensor(d["b_lo"]), d["b_hi"], d["a_lo"], d["a_hi"])
+    _png_size(out)
+    assert out.stat().st_size > 10_000
+    fig = figures.error_intervals_figure(d["b_lo"], d["b_hi"])  # before only
+    assert _visible_axes(fig) == 3
+    assert [ax.get_ylabel() for ax in fig.axes] == ["x error (mm)", "y error (mm)", "z error (mm)"]
+
+
+@pytest.mark.parametrize("n_joints", [6, 4])
+def test_residual_vs_joints(tmp_path, figure_data, n_joints):
+    _, q, res = figure_data
+    if n_joints == 6:
+        out = figures.residual_vs_joints(tmp_path / "rj.png", q, res)
+        _png_size(out)
+        assert out.stat().st_size > 10_000
+    fig = figures.residual_vs_joints_figure(q[:, :n_joints], np.linalg.norm(res, axis=1))
+    assert _visible_axes(fig) == n_joints
+    assert fig.axes[1].get_xlabel() == "q2 (deg)"
+
+
+def test_figures_are_deterministic_and_not_overwritten(tmp_path, figure_data):
+    d, _, _ = figure_data
+    a = figures.rset_histogram(tmp_path / "a.png", d["r_set"])
+    b = figures.rset_histogram(tmp_path / "b.png", d["r_set"])
+    assert a.read_bytes() == b.read_bytes()
+    with pytest.raises(InputError, match="output exists"):
+        figures.rset_histogram(a, d["r_set"])
+    figures.rset_histogram(a, d["r_set"][:50], force=True)
+    assert a.read_bytes() != b.read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png", "b.png"]  # no temporary files left
+
+
+def test_figure_input_errors(figure_data):
+    d, q, res = figure_data
+    with pytest.raises(InputError, match=r"residual_mm: expected shape \(80,\) or \(80, 3\)"):
+        figures.residual_vs_joints_figure(q, res[:10])
+    with pytest.raises(InputError, match="joint_names: expected 6 names"):
+        figures.residual_vs_joints_figure(q, res, joint_names=["a"])
+    with pytest.raises(InputError, match="zones: expected 120 labels"):
+        figures.zone_map_figure(d["pos"], d["zones"][:3])
+    with pytest.raises(InputError, match="zone_names: expected at least 5 names"):
+        figures.zone_map_figure(d["pos"], d["zones"], zone_names=["a", "b"])
+    with pytest.raises(InputError, match="bins: expected a positive integer"):
+        figures.rset_histogram_figure(d["r_set"], bins=0)
+    with pytest.raises(InputError, match="allowed_mm: expected a positive number"):
+        figures.error_intervals_figure(d["b_lo"], d["b_hi"], allowed_mm=-1.0)

@@ -1,0 +1,176 @@
+"""Shared helpers of `viz`: array conversion and checks, colours, atomic output paths.
+
+Everything here is plain numpy; torch tensors (any device, any float dtype) are accepted
+and copied to host float64 once, at the entry of each public function.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from torchcal.errors import InputError
+
+AXES = ("x", "y", "z")
+
+# Fixed colours (RGB 0-255) shared by the recordings and the figures.
+BEFORE_RGB = (214, 39, 40)  # red: before calibration / compensation
+AFTER_RGB = (44, 160, 44)  # green: after
+MEASURED_RGB = (31, 119, 180)  # blue: measured positions
+MODEL_BEFORE_RGB = (255, 127, 14)  # orange: model positions before
+MODEL_AFTER_RGB = (148, 103, 189)  # purple: model positions after
+ALLOWED_RGB = (127, 127, 127)  # grey: allowed error band
+RSET_CMAP = "RdYlGn"  # R_set colormap: red = unreliable, green = reliable
+
+
+def to_numpy(x, name: str) -> np.ndarray:
+    """`x` (torch tensor, numpy array, nested list) as a float64 numpy array on the host."""
+    try:
+        import torch
+
+        if isinstance(x, torch.Tensor):
+            x = x.detach().to("cpu", torch.float64).numpy()
+    except ImportError:  # pragma: no cover - torch is a dependency
+        pass
+    try:
+        arr = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{name}: expected an array of numbers, got {type(x).__name__} ({exc})") from None
+    return arr
+
+
+def points(x, name: str, n: int | None = None) -> np.ndarray:
+    """`x` as finite (N, 3) float64; `n` checks N."""
+    arr = to_numpy(x, name)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise InputError(f"{name}: expected shape (N, 3) in mm, got {tuple(arr.shape)}")
+    if n is not None and arr.shape[0] != n:
+        raise InputError(f"{name}: expected {n} rows (one per point), got {arr.shape[0]}")
+    if not np.isfinite(arr).all():
+        raise InputError(f"{name}: contains NaN or infinite values")
+    return arr
+
+
+def vector(x, name: str, n: int | None = None) -> np.ndarray:
+    """`x` as finite (N,) float64; `n` checks N."""
+    arr = to_numpy(x, name)
+    if arr.ndim != 1:
+        raise InputError(f"{name}: expected shape (N,), got {tuple(arr.shape)}")
+    if n is not None and arr.shape[0] != n:
+        raise InputError(f"{name}: expected {n} values (one per point), got {arr.shape[0]}")
+    if not np.isfinite(arr).all():
+        raise InputError(f"{name}: contains NaN or infinite values")
+    return arr
+
+
+def labels(x, name: str, n: int | None = None) -> np.ndarray:
+    """`x` as (N,) int64 zone labels (non-negative integers)."""
+    arr = to_numpy(x, name)
+    if arr.ndim != 1:
+        raise InputError(f"{name}: expected shape (N,), got {tuple(arr.shape)}")
+    if n is not None and arr.shape[0] != n:
+        raise InputError(f"{name}: expected {n} labels (one per point), got {arr.shape[0]}")
+    if arr.size and (not np.isfinite(arr).all() or (arr != np.round(arr)).any() or arr.min() < 0):
+        raise InputError(f"{name}: expected non-negative integer zone labels")
+    return arr.astype(np.int64)
+
+
+def names_for(ids: np.ndarray, names, name: str) -> list[str]:
+    """Display names for zone ids 0..max(ids): `names[i]`, or ``"zone {i + 1}"``.
+
+    Zone ids are 0-based in arrays and shown 1-based to people (the paper's zones 1..10).
+    """
+    count = int(ids.max()) + 1 if ids.size else 0
+    if names is None:
+        return [f"zone {i + 1}" for i in range(count)]
+    names = [str(s) for s in names]
+    if len(names) < count:
+        raise InputError(f"{name}: expected at least {count} names (zone ids go up to {count - 1}), got {len(names)}")
+    return names
+
+
+def subsample(n: int, max_points: int | None) -> np.ndarray:
+    """Indices of at most `max_points` of `n` points, evenly spaced (deterministic)."""
+    if max_points is None or n <= max_points:
+        return np.arange(n)
+    if max_points < 1:
+        raise InputError(f"max_points: expected a positive integer or None, got {max_points}")
+    return np.unique(np.linspace(0, n - 1, max_points).round().astype(np.int64))
+
+
+def zone_rgb(count: int) -> np.ndarray:
+    """(count, 3) uint8 distinct colours for zones 0..count-1 (tab10, then tab20)."""
+    from matplotlib import colormaps
+
+    cmap = colormaps["tab10"] if count <= 10 else colormaps["tab20"]
+    k = cmap.N
+    rgba = np.array([cmap(i % k) for i in range(count)]).reshape(count, 4)
+    return (rgba[:, :3] * 255).round().astype(np.uint8)
+
+
+def rset_rgb(r_set: np.ndarray, vmin: float, vmax: float) -> np.ndarray:
+    """(N, 3) uint8 colours of R_set values on `RSET_CMAP` over [vmin, vmax]."""
+    from matplotlib import colormaps
+
+    span = vmax - vmin
+    t = np.clip((r_set - vmin) / span, 0.0, 1.0) if span > 0 else np.ones_like(r_set)
+    return (colormaps[RSET_CMAP](t)[:, :3] * 255).round().astype(np.uint8)
+
+
+def rset_range(r_set: np.ndarray, given) -> tuple[float, float]:
+    """Colour range of R_set: `given` (lo, hi), or the data range ([0, 1] when all equal)."""
+    if given is not None:
+        lo, hi = (float(v) for v in given)
+        if not hi > lo:
+            raise InputError(f"rset_range: expected (low, high) with high > low, got {given}")
+        return lo, hi
+    if r_set.size == 0:
+        return 0.0, 1.0
+    lo, hi = float(r_set.min()), float(r_set.max())
+    if hi > lo:
+        return lo, hi
+    return (0.0, 1.0) if 0.0 <= lo <= 1.0 else (lo - 0.5, lo + 0.5)
+
+
+def intervals(lower, upper, name: str, n: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """`lower`, `upper` as (T, 3) float64 with lower <= upper; `n` checks T; `name` prefixes errors."""
+    lo = to_numpy(lower, f"{name}_lower_mm")
+    hi = to_numpy(upper, f"{name}_upper_mm")
+    for arr, what in ((lo, "lower"), (hi, "upper")):
+        if arr.ndim != 2 or arr.shape[1] != 3 or (n is not None and arr.shape[0] != n):
+            want = "(T, 3)" if n is None else f"({n}, 3)"
+            raise InputError(f"{name}_{what}_mm: expected shape {want} (test points x axes, mm), got {tuple(arr.shape)}")
+        if not np.isfinite(arr).all():
+            raise InputError(f"{name}_{what}_mm: contains NaN or infinite values")
+    if lo.shape != hi.shape:
+        raise InputError(f"{name}_upper_mm: expected the shape of {name}_lower_mm {lo.shape}, got {hi.shape}")
+    if (lo > hi).any():
+        t, a = np.argwhere(lo > hi)[0]
+        raise InputError(f"{name}_lower_mm: lower bound above upper bound at test point {t + 1}, axis {AXES[a]} "
+                         f"({lo[t, a]:.6g} > {hi[t, a]:.6g} mm)")
+    return lo, hi
+
+
+def check_output(path, force: bool) -> Path:
+    """Check that `path` may be written: its folder exists, and it is absent or `force`."""
+    path = Path(path)
+    if path.exists() and not force:
+        raise InputError(f"{path}: output exists; pass --force to replace it")
+    if path.exists() and path.is_dir():
+        raise InputError(f"{path}: is a folder, expected a file name")
+    if not path.parent.exists():
+        raise InputError(f"{path}: folder {path.parent} does not exist")
+    return path
+
+
+def temp_beside(path: Path) -> Path:
+    """A new empty temporary file in `path`'s folder (same file system, for os.replace)."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it 0600; the output gets the usual mode
+    return Path(tmp)

@@ -1,0 +1,343 @@
+"""Static PNG figures (matplotlib, Agg, no screen, no pyplot global state).
+
+Each function takes plain arrays (numpy or torch, any device), draws one figure, writes it
+atomically (temporary file beside the target, then ``os.replace``) and returns the path.
+An existing file is replaced only with ``force=True``. Each has a ``*_figure`` twin that
+returns the `matplotlib.figure.Figure` instead of writing it (for tests and for callers
+that add to it; write it with `save_figure`). Output is deterministic: fixed size
+and dpi, no timestamps or version in the PNG metadata, subsampling (when a cap is hit) by
+evenly spaced indices.
+
+====================  ======================================================  ======
+function              what                                                    axes
+====================  ======================================================  ======
+`zone_map`            workspace points by zone in x-y, x-z, y-z; centres      3
+`rset_histogram`      histogram of R_set over the workspace points            1
+`error_intervals`     error interval per test point and axis, before/after    3
+                      compensation, with the allowed band (paper's Fig. 11)
+`residual_vs_joints`  residual against each joint angle (for ``diagnose``)    n
+====================  ======================================================  ======
+
+Units: positions and errors in mm, joint angles given in rad and drawn in degrees.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+
+from torchcal.errors import InputError
+from torchcal.io import atomic_write
+from viz import _common as C
+
+DPI = 110
+MAX_SCATTER = 20_000
+"""Default cap on points drawn in a scatter (evenly spaced subsample beyond it)."""
+
+
+def _rgb(c) -> tuple[float, float, float]:
+    return tuple(float(v) / 255.0 for v in c)
+
+
+def _new_figure(width_in: float, height_in: float) -> Figure:
+    fig = Figure(figsize=(width_in, height_in), dpi=DPI, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def save_figure(fig: Figure, path, force: bool = False) -> Path:
+    """Render `fig` to PNG bytes and write them atomically to `path`; returns the path."""
+    path = C.check_output(path, force)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI, metadata={"Software": None})
+    return atomic_write(path, buf.getvalue(), force=force)
+
+
+# --------------------------------------------------------------------------- zone map
+def _tagged(k: int, name: str) -> str:
+    """Legend text of zone id `k`: its name, prefixed by its marker ``k + 1`` unless it says it."""
+    tag = f"zone {k + 1}"
+    return name if name == tag or name.startswith(tag + " ") else f"{k + 1}: {name}"
+
+
+def zone_map(path, positions_mm, zones, *, centres_mm=None, zone_names=None, title: str = "Workspace zones",
+             max_points: int | None = MAX_SCATTER, force: bool = False) -> Path:
+    """Write `zone_map_figure` to the PNG `path` (atomically); returns the path.
+
+    ``force`` replaces an existing file; the other arguments are `zone_map_figure`'s.
+    """
+    C.check_output(path, force)  # fail before drawing
+    fig = zone_map_figure(positions_mm, zones, centres_mm=centres_mm, zone_names=zone_names, title=title,
+                          max_points=max_points)
+    return save_figure(fig, path, force)
+
+
+def zone_map_figure(positions_mm, zones, *, centres_mm=None, zone_names=None, title: str = "Workspace zones",
+                    max_points: int | None = MAX_SCATTER) -> Figure:
+    """Zone map in three views: x-y (top), x-z (side), y-z (front), coloured by zone.
+
+    Args:
+        positions_mm: (N, 3) workspace points, mm, robot base frame.
+        zones: (N,) integer zone id per point (0-based).
+        centres_mm: (Z, 3) zone centres, mm; default: mean of each zone's points.
+        zone_names: display name per zone id; default ``"zone k"`` (1-based, as in the paper).
+        title: figure title.
+        max_points: draw at most this many points (evenly spaced); None: all.
+
+    Zone id k (0-based in the arrays) is marked ``k + 1`` at its centre and in the legend.
+        force: replace an existing file.
+
+    Returns the figure (3 axes).
+    """
+    pos = C.points(positions_mm, "positions_mm")
+    zs = C.labels(zones, "zones", pos.shape[0])
+    names = C.names_for(zs, zone_names, "zone_names")
+    count = len(names)
+    if centres_mm is None:
+        centres = np.array([pos[zs == z].mean(axis=0) if (zs == z).any() else np.full(3, np.nan)
+                            for z in range(count)]).reshape(count, 3)
+    else:
+        centres = C.points(centres_mm, "centres_mm")
+        if centres.shape[0] < count:
+            raise InputError(f"centres_mm: expected one row per zone ({count} zones), got {centres.shape[0]}")
+        count = centres.shape[0]
+        names = C.names_for(np.arange(count), zone_names, "zone_names")
+    rgb = C.zone_rgb(count) / 255.0
+    idx = C.subsample(pos.shape[0], max_points)
+    p, z = pos[idx], zs[idx]
+
+    fig = _new_figure(15.0, 5.4)
+    axes = fig.subplots(1, 3)
+    views = (("x-y (top)", 0, 1), ("x-z (side)", 0, 2), ("y-z (front)", 1, 2))
+    size = 14 if len(idx) <= 2000 else 4
+    for ax, (label, i, j) in zip(axes, views):
+        for k in range(count):
+            m = z == k
+            if m.any():
+                ax.scatter(p[m, i], p[m, j], s=size, color=rgb[k], alpha=0.75, linewidths=0, rasterized=False)
+        ok = np.isfinite(centres).all(axis=1)
+        ax.scatter(centres[ok, i], centres[ok, j], s=150, marker="X", c=rgb[ok], edgecolors="black",
+                   linewidths=1.2, zorder=3)
+        for k in np.flatnonzero(ok):
+            ax.annotate(str(k + 1), (centres[k, i], centres[k, j]), xytext=(6, 6), textcoords="offset points",
+                        fontsize=9, fontweight="bold", zorder=4)
+        ax.set_title(label)
+        ax.set_xlabel(f"{C.AXES[i]} (mm)")
+        ax.set_ylabel(f"{C.AXES[j]} (mm)")
+        ax.set_aspect("equal", adjustable="box")
+        ax.grid(True, alpha=0.3)
+    handles = [Line2D([], [], marker="o", linestyle="", color=rgb[k], markersize=7, label=_tagged(k, names[k]))
+               for k in range(count)]
+    handles.append(Line2D([], [], marker="X", linestyle="", markerfacecolor="white", markeredgecolor="black",
+                          markersize=10, label="zone centre"))
+    fig.legend(handles=handles, loc="outside right center", frameon=False)
+    fig.suptitle(f"{title} ({pos.shape[0]} points, {count} zones)")
+    return fig
+
+
+# --------------------------------------------------------------------------- R_set histogram
+def rset_histogram(path, r_set, *, bins: int = 20, title: str = "Set reliability R_set over the workspace",
+                   force: bool = False) -> Path:
+    """Write `rset_histogram_figure` to the PNG `path` (atomically); returns the path."""
+    C.check_output(path, force)  # fail before drawing
+    return save_figure(rset_histogram_figure(r_set, bins=bins, title=title), path, force)
+
+
+def rset_histogram_figure(r_set, *, bins: int = 20,
+                          title: str = "Set reliability R_set over the workspace") -> Figure:
+    """Histogram of R_set (1 = fully reliable), bars coloured red (low) to green (high).
+
+    Args:
+        r_set: (N,) set reliability per workspace point, in [0, 1].
+        bins: number of bins over the data range.
+        title: figure title.
+
+    Returns the figure (1 axes).
+    """
+    rs = C.vector(r_set, "r_set")
+    if rs.size == 0:
+        raise InputError("r_set: expected at least one value, got none")
+    if isinstance(bins, bool) or not isinstance(bins, (int, np.integer)) or bins < 1:
+        raise InputError(f"bins: expected a positive integer, got {bins!r}")
+    lo, hi = C.rset_range(rs, None)
+    fig = _new_figure(7.5, 4.5)
+    ax = fig.subplots()
+    edges = np.linspace(lo, hi, bins + 1) if rs.max() > rs.min() else np.linspace(rs.min() - 0.01,
+                                                                                     rs.max() + 0.01, bins + 1)
+    counts, edges = np.histogram(rs, bins=edges)
+    centre = (edges[:-1] + edges[1:]) / 2
+    ax.bar(centre, counts, width=np.diff(edges), color=C.rset_rgb(centre, lo, hi) / 255.0,
+           edgecolor="black", linewidth=0.5)
+    ax.axvline(rs.mean(), color="black", linestyle="--", linewidth=1.2, label=f"mean {rs.mean():.3f}")
+    share = float((rs >= 1.0 - 1e-12).mean())
+    ax.plot([], [], linestyle="", label=f"min {rs.min():.3f}, max {rs.max():.3f}")
+    ax.plot([], [], linestyle="", label=f"R_set = 1: {100 * share:.1f}% of points")
+    ax.set_xlabel("R_set (set reliability, 1 = fully reliable)")
+    ax.set_ylabel("number of workspace points")
+    ax.set_title(f"{title} ({rs.size} points)")
+    ax.legend(loc="upper left", frameon=False)
+    ax.grid(True, axis="y", alpha=0.3)
+    return fig
+
+
+# --------------------------------------------------------------------------- error intervals (Fig. 11)
+def error_intervals(path, before_lower_mm, before_upper_mm, after_lower_mm=None, after_upper_mm=None, *,
+                    allowed_mm: float | None = 1.0,
+                    title: str = "Error interval per test point, before and after compensation",
+                    force: bool = False) -> Path:
+    """Write `error_intervals_figure` to the PNG `path` (atomically); returns the path."""
+    C.check_output(path, force)  # fail before drawing
+    fig = error_intervals_figure(before_lower_mm, before_upper_mm, after_lower_mm, after_upper_mm,
+                                 allowed_mm=allowed_mm, title=title)
+    return save_figure(fig, path, force)
+
+
+def error_intervals_figure(before_lower_mm, before_upper_mm, after_lower_mm=None, after_upper_mm=None, *,
+                           allowed_mm: float | None = 1.0,
+                           title: str = "Error interval per test point, before and after compensation") -> Figure:
+    """Error-interval bars per test point and axis, before and after compensation (Fig. 11).
+
+    Args:
+        before_lower_mm, before_upper_mm: (T, 3) lower / upper x, y, z error per test
+            point before compensation, mm.
+        after_lower_mm, after_upper_mm: (T, 3) the same after compensation, or both None.
+        allowed_mm: allowed component error, shaded as the band +-allowed_mm; None: none.
+        title: figure title.
+
+    Returns the figure: 3 axes (x, y, z), test points numbered 1..T.
+    """
+    b_lo, b_hi = C.intervals(before_lower_mm, before_upper_mm, "before", None)
+    if (after_lower_mm is None) != (after_upper_mm is None):
+        raise InputError("after_lower_mm, after_upper_mm: give both or neither")
+    stages = [("before", b_lo, b_hi, _rgb(C.BEFORE_RGB))]
+    if after_lower_mm is not None:
+        a_lo, a_hi = C.intervals(after_lower_mm, after_upper_mm, "after", b_lo.shape[0])
+        stages.append(("after", a_lo, a_hi, _rgb(C.AFTER_RGB)))
+    if allowed_mm is not None and not (np.isfinite(allowed_mm) and allowed_mm > 0):
+        raise InputError(f"allowed_mm: expected a positive number of mm or None, got {allowed_mm!r}")
+    t = np.arange(1, b_lo.shape[0] + 1)
+    n_t = len(t)
+    fig = _new_figure(max(8.0, min(16.0, 0.45 * n_t + 3.0)), 8.0)
+    axes = fig.subplots(3, 1, sharex=True)
+    offset = 0.17 if len(stages) == 2 else 0.0
+    for a, ax in enumerate(axes):
+        if allowed_mm is not None:
+            ax.axhspan(-allowed_mm, allowed_mm, color=_rgb(C.ALLOWED_RGB), alpha=0.15, linewidth=0,
+                       label=f"allowed ±{allowed_mm:g} mm")
+            for s in (-1, 1):
+                ax.axhline(s * allowed_mm, color=_rgb(C.ALLOWED_RGB), linestyle="--", linewidth=0.9)
+        ax.axhline(0.0, color="black", linewidth=0.6)
+        for s, (stage, lo, hi, col) in enumerate(stages):
+            x = t + (s - (len(stages) - 1) / 2) * 2 * offset
+            ax.vlines(x, lo[:, a], hi[:, a], color=col, linewidth=3.0, label=stage)
+            ax.scatter(np.r_[x, x], np.r_[lo[:, a], hi[:, a]], marker="_", s=60, color=col, linewidths=1.5)
+        ax.set_ylabel(f"{C.AXES[a]} error (mm)")
+        ax.grid(True, axis="y", alpha=0.3)
+    axes[-1].set_xlabel("test point")
+    if n_t <= 40:
+        axes[-1].set_xticks(t)
+    axes[-1].set_xlim(0.4, n_t + 0.6)
+    handles, labels_ = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels_, loc="outside lower center", ncols=len(handles), frameon=False)
+    fig.suptitle(title)
+    return fig
+
+
+# --------------------------------------------------------------------------- residual vs joints
+def residual_vs_joints(path, q_rad, residual_mm, *, joint_names: Sequence[str] | None = None, bins: int = 12,
+                       title: str = "Residual against each joint angle", max_points: int | None = MAX_SCATTER,
+                       force: bool = False) -> Path:
+    """Write `residual_vs_joints_figure` to the PNG `path` (atomically); returns the path."""
+    C.check_output(path, force)  # fail before drawing
+    fig = residual_vs_joints_figure(q_rad, residual_mm, joint_names=joint_names, bins=bins, title=title,
+                                    max_points=max_points)
+    return save_figure(fig, path, force)
+
+
+def residual_vs_joints_figure(q_rad, residual_mm, *, joint_names: Sequence[str] | None = None, bins: int = 12,
+                              title: str = "Residual against each joint angle",
+                              max_points: int | None = MAX_SCATTER) -> Figure:
+    """Residual against each joint angle, one subplot per joint (for ``diagnose``).
+
+    A trend here points at a missing joint effect: a slope or bow against q2/q3 at
+    compliance, a sinusoid at a periodic gear error, two bands at backlash.
+
+    Args:
+        q_rad: (N, n) joint angles, rad (drawn in degrees).
+        residual_mm: (N,) residual length, or (N, 3) residual vector (measured - model), mm.
+            Components are drawn as x/y/z dots; the black line is the RMS residual length
+            per bin of the joint angle.
+        joint_names: n names; default ``"q1".."qn"``.
+        bins: number of joint-angle bins for the RMS line.
+        title: figure title.
+        max_points: draw at most this many dots per subplot (evenly spaced); None: all.
+
+    Returns the figure (n axes).
+    """
+    q = C.to_numpy(q_rad, "q_rad")
+    if q.ndim != 2 or q.shape[1] < 1:
+        raise InputError(f"q_rad: expected shape (N, n) in rad, got {tuple(q.shape)}")
+    if not np.isfinite(q).all():
+        raise InputError("q_rad: contains NaN or infinite values")
+    n_pts, n_j = q.shape
+    r = C.to_numpy(residual_mm, "residual_mm")
+    if r.ndim == 1 and r.shape[0] == n_pts:
+        comps, norm = None, np.abs(r)
+    elif r.ndim == 2 and r.shape == (n_pts, 3):
+        comps, norm = r, np.linalg.norm(r, axis=1)
+    else:
+        raise InputError(f"residual_mm: expected shape ({n_pts},) or ({n_pts}, 3) in mm (one row per row of q_rad), "
+                         f"got {tuple(r.shape)}")
+    if not np.isfinite(r).all():
+        raise InputError("residual_mm: contains NaN or infinite values")
+    if joint_names is None:
+        joint_names = [f"q{j + 1}" for j in range(n_j)]
+    elif len(joint_names) != n_j:
+        raise InputError(f"joint_names: expected {n_j} names (one per joint), got {len(joint_names)}")
+    if isinstance(bins, bool) or not isinstance(bins, (int, np.integer)) or bins < 1:
+        raise InputError(f"bins: expected a positive integer, got {bins!r}")
+    q_deg = np.degrees(q)
+    idx = C.subsample(n_pts, max_points)
+    ncols = min(3, n_j)
+    nrows = -(-n_j // ncols)
+    fig = _new_figure(4.6 * ncols, 3.4 * nrows + 0.6)
+    axes = np.atleast_1d(fig.subplots(nrows, ncols, sharey=True, squeeze=False)).ravel()
+    for extra in axes[n_j:]:
+        fig.delaxes(extra)
+    comp_rgb = [_rgb(C.MEASURED_RGB), _rgb(C.MODEL_BEFORE_RGB), _rgb(C.AFTER_RGB)]
+    size = 10 if len(idx) <= 2000 else 3
+    for j in range(n_j):
+        ax = axes[j]
+        x = q_deg[idx, j]
+        if comps is None:
+            ax.scatter(x, norm[idx], s=size, color="0.55", alpha=0.7, linewidths=0, label="|residual|")
+        else:
+            for a in range(3):
+                ax.scatter(x, comps[idx, a], s=size, color=comp_rgb[a], alpha=0.6, linewidths=0,
+                           label=f"{C.AXES[a]} component")
+        lo, hi = q_deg[:, j].min(), q_deg[:, j].max()
+        if hi > lo:
+            edges = np.linspace(lo, hi, bins + 1)
+            which = np.clip(np.digitize(q_deg[:, j], edges) - 1, 0, bins - 1)
+            ms = np.bincount(which, weights=norm ** 2, minlength=bins)
+            cnt = np.bincount(which, minlength=bins)
+            ok = cnt > 0
+            centre = (edges[:-1] + edges[1:]) / 2
+            ax.plot(centre[ok], np.sqrt(ms[ok] / cnt[ok]), color="black", linewidth=1.8, marker="o",
+                    markersize=3, label="RMS |residual| per bin")
+        ax.axhline(0.0, color="black", linewidth=0.5)
+        ax.set_xlabel(f"{joint_names[j]} (deg)")
+        if j % ncols == 0:
+            ax.set_ylabel("residual (mm)")
+        ax.set_title(f"joint {j + 1}" if joint_names[j] == f"q{j + 1}" else joint_names[j])
+        ax.grid(True, alpha=0.3)
+    handles, labels_ = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels_, loc="outside lower center", ncols=len(handles), frameon=False, markerscale=2.0)
+    fig.suptitle(f"{title} ({n_pts} poses, RMS {np.sqrt(np.mean(norm ** 2)):.3f} mm)")
+    return fig

@@ -1,0 +1,488 @@
+"""Rerun recordings (``.rrd``) of a calibration, written to a file without a viewer.
+
+Open one with ``rerun FILE.rrd``. Two layers:
+
+- ``log_*`` functions log plain arrays (numpy or torch, any device) into a
+  ``rerun.RecordingStream``: no files, no viewer, no global recording;
+- `RecordingWriter` opens the file, hands out its stream, and on close lays out the
+  default blueprint for what was logged, finalises the file (flush, then disconnect, which
+  writes the footer) and moves it into place atomically. On an error the half-written
+  file is removed and nothing appears at the target path.
+
+Example::
+
+    from viz.recording import RecordingWriter, log_workspace, log_summary
+    with RecordingWriter("demo.rrd", seed=0) as rec:
+        log_workspace(rec, positions_mm, r_set, zones)
+        log_summary(rec, "# torchcal demo\\n...")
+
+Entity paths (positions in mm in the robot base frame, z up; rerun scene units are mm):
+
+- ``workspace``: AnnotationContext, zone id -> name (``"zone k+1"``) and colour.
+- ``workspace/rset``: Points3D coloured by R_set on ``RdYlGn`` (red = low) over the data range.
+- ``workspace/zones``: Points3D with ``class_ids`` = zone id (colour and name from ``workspace``).
+- ``workspace/centres``: Points3D, one per zone, labelled with the zone's mean R_set and size.
+- ``residuals/{before,after}/measured``: Points3D, measured TCP positions.
+- ``residuals/{before,after}/model``: Points3D, the model's (predicted) positions.
+- ``residuals/{before,after}/residual``: Arrows3D from model to measured, drawn
+  ``arrow_scale`` times the residual (default `RESIDUAL_ARROW_SCALE` = 100: a 1 mm residual
+  is a 100 mm arrow); each label gives the true length in mm.
+- ``error_intervals/{x,y,z}/{before,after}/{lower,upper}``: Scalars in mm on the sequence
+  timeline ``test_point`` (1, 2, ...): the paper's Fig. 11, one time-series plot per axis.
+- ``error_intervals/{x,y,z}/allowed/{lower,upper}``: Scalars, the allowed band (+-1 mm).
+- ``discover/rms_mm``, ``discover/cv_rms_mm``: Scalars in mm on the sequence timeline
+  ``round`` (0 = the starting model, k = after the k-th added effect).
+- ``discover/added``: TextLog per round, the effect added.
+- ``summary``: TextDocument, markdown.
+
+Error intervals are time series (x axis = test point number) rather than 3D line strips:
+bounds per test point are read most easily as a plot, as in the paper. A time-series view
+shows the timeline selected in the time panel; the default blueprint selects
+``test_point`` when error intervals were logged, else ``round``.
+
+Recordings are deterministic in content: the recording id is derived from ``seed``
+(`recording_id`), and the ``log_time``/``log_tick`` timelines and the wall-clock start
+time property are not written.
+"""
+
+from __future__ import annotations
+
+import os
+import uuid
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from torchcal.errors import InputError
+from viz import _common as C
+
+APPLICATION_ID = "torchcal"
+RESIDUAL_ARROW_SCALE = 100.0
+"""Default factor from residual length (mm) to drawn arrow length (mm): a 0.5 mm residual
+is drawn 50 mm long, visible next to a 3 m robot."""
+MAX_POINTS = 200_000
+"""Default cap on logged workspace points (evenly spaced subsample beyond it)."""
+MAX_LABELS = 5_000
+"""Per-point labels are written only up to this many points (they cost file size)."""
+STAGES = ("before", "after")
+TEST_POINT_TIMELINE = "test_point"
+ROUND_TIMELINE = "round"
+
+
+def recording_id(seed: int, application_id: str = APPLICATION_ID) -> str:
+    """Deterministic recording id (a UUID string) for `application_id` and `seed`."""
+    return str(uuid.uuid5(uuid.NAMESPACE_URL, f"torchcal:{application_id}:{int(seed)}"))
+
+
+def _stream(rec, section: str) -> rr.RecordingStream:
+    """The stream behind `rec` (a RecordingStream or a RecordingWriter); notes `section`."""
+    if isinstance(rec, RecordingWriter):
+        rec.sections.add(section)
+        return rec.stream
+    if isinstance(rec, rr.RecordingStream):
+        return rec
+    raise InputError(f"rec: expected a rerun.RecordingStream or a viz.recording.RecordingWriter, "
+                     f"got {type(rec).__name__}")
+
+
+def _columns(stream: rr.RecordingStream, entity: str, timeline: str, steps, values) -> None:
+    """Send one scalar series `values` at sequence indices `steps` on `timeline`."""
+    stream.send_columns(entity, indexes=[rr.TimeColumn(timeline, sequence=np.asarray(steps, dtype=np.int64))],
+                        columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=np.float64)))
+
+
+# --------------------------------------------------------------------------- workspace
+def log_workspace(rec, positions_mm, r_set, zones, *, centres_mm=None, zone_names=None,
+                  rset_range=None, max_points: int | None = MAX_POINTS, point_radius_ui: float = 3.0) -> None:
+    """Log workspace points coloured by R_set and by zone, and the zone centres.
+
+    Args:
+        rec: a `rerun.RecordingStream` or a `RecordingWriter`.
+        positions_mm: (N, 3) workspace points, mm, robot base frame.
+        r_set: (N,) set reliability per point, in [0, 1] (1 = fully reliable).
+        zones: (N,) integer zone id per point (0-based).
+        centres_mm: (Z, 3) zone centres in space, mm; default: mean of each zone's points.
+        zone_names: display name per zone id; default ``"zone k+1"`` (ids are 0-based in
+            arrays and shown 1-based, as the paper's zones 1..10).
+        rset_range: (low, high) R_set mapped to red..green; default: the data range.
+        max_points: log at most this many points (evenly spaced subsample); None: all.
+        point_radius_ui: point radius in UI points (independent of the robot's size).
+
+    Logs ``workspace`` (AnnotationContext: zone id -> name, colour), ``workspace/rset``,
+    ``workspace/zones`` and ``workspace/centres`` (all static).
+    """
+    stream = _stream(rec, "workspace")
+    pos = C.points(positions_mm, "positions_mm")
+    n = pos.shape[0]
+    rs = C.vector(r_set, "r_set", n)
+    zs = C.labels(zones, "zones", n)
+    names = C.names_for(zs, zone_names, "zone_names")
+    count = len(names)
+    if centres_mm is None:
+        centres = np.array([pos[zs == z].mean(axis=0) if (zs == z).any() else np.full(3, np.nan)
+                            for z in range(count)]).reshape(count, 3)
+    else:
+        centres = C.points(centres_mm, "centres_mm")
+        if centres.shape[0] < count:
+            raise InputError(f"centres_mm: expected one row per zone ({count} zones), got {centres.shape[0]}")
+        count = centres.shape[0]
+        names = C.names_for(np.arange(count), zone_names, "zone_names")
+    lo, hi = C.rset_range(rs, rset_range)
+    rgb = C.zone_rgb(count)
+    stream.log("workspace", rr.AnnotationContext(
+        [rr.AnnotationInfo(id=z, label=names[z], color=tuple(int(c) for c in rgb[z])) for z in range(count)]),
+        static=True)
+
+    idx = C.subsample(n, max_points)
+    p, r, z = pos[idx], rs[idx], zs[idx]
+    radius = rr.Radius.ui_points(point_radius_ui)
+    with_labels = len(idx) <= MAX_LABELS
+    rset_labels = [f"{names[zi]}, R_set {ri:.3f}" for zi, ri in zip(z, r)] if with_labels else None
+    stream.log("workspace/rset", rr.Points3D(p, colors=C.rset_rgb(r, lo, hi), radii=radius,
+                                             labels=rset_labels, show_labels=False), static=True)
+    stream.log("workspace/zones", rr.Points3D(p, class_ids=z.astype(np.uint16), radii=radius,
+                                              labels=rset_labels, show_labels=False), static=True)
+
+    keep = np.isfinite(centres).all(axis=1)
+    centre_labels = []
+    for k in range(count):
+        members = zs == k
+        if members.any():
+            centre_labels.append(f"{names[k]}: R_set {rs[members].mean():.3f}, {int(members.sum())} pts")
+        else:
+            centre_labels.append(f"{names[k]}: no points")
+    stream.log("workspace/centres", rr.Points3D(
+        centres[keep], class_ids=np.arange(count, dtype=np.uint16)[keep],
+        radii=rr.Radius.ui_points(3.0 * point_radius_ui), labels=[s for s, k in zip(centre_labels, keep) if k],
+        show_labels=True), static=True)
+
+
+# --------------------------------------------------------------------------- residuals
+def log_residuals(rec, stage: str, measured_mm, model_mm, *, arrow_scale: float = RESIDUAL_ARROW_SCALE,
+                  point_names: Sequence[str] | None = None, point_radius_ui: float = 3.0) -> None:
+    """Log measured and model positions and the residual arrows of one stage.
+
+    Args:
+        rec: a `rerun.RecordingStream` or a `RecordingWriter`.
+        stage: ``"before"`` or ``"after"`` (calibration / compensation).
+        measured_mm: (N, 3) measured TCP positions, mm.
+        model_mm: (N, 3) positions the model predicts for the same poses, mm.
+        arrow_scale: drawn arrow length per mm of residual (default 100: 1 mm -> 100 mm).
+        point_names: (N,) names for the labels (e.g. ``"pose 12"``); default ``"point i"``.
+        point_radius_ui: point radius in UI points.
+
+    Logs ``residuals/{stage}/measured``, ``/model`` (Points3D) and ``/residual`` (Arrows3D
+    from model to measured, vectors = (measured - model) * arrow_scale; each label gives
+    the true residual length in mm), all static.
+    """
+    if stage not in STAGES:
+        raise InputError(f"stage: expected one of {STAGES}, got {stage!r}")
+    if not (isinstance(arrow_scale, (int, float)) and np.isfinite(arrow_scale) and arrow_scale > 0):
+        raise InputError(f"arrow_scale: expected a positive number, got {arrow_scale!r}")
+    stream = _stream(rec, f"residuals/{stage}")
+    if isinstance(rec, RecordingWriter):
+        rec.arrow_scale = float(arrow_scale)
+    meas = C.points(measured_mm, "measured_mm")
+    model = C.points(model_mm, "model_mm", meas.shape[0])
+    n = meas.shape[0]
+    if point_names is None:
+        point_names = [f"point {i}" for i in range(n)]
+    elif len(point_names) != n:
+        raise InputError(f"point_names: expected {n} names (one per point), got {len(point_names)}")
+    res = meas - model  # (N, 3) mm
+    norm = np.linalg.norm(res, axis=1)
+    radius = rr.Radius.ui_points(point_radius_ui)
+    base = f"residuals/{stage}"
+    stream.log(f"{base}/measured", rr.Points3D(meas, colors=C.MEASURED_RGB, radii=radius,
+                                               labels=[f"{s} measured" for s in point_names],
+                                               show_labels=False), static=True)
+    model_rgb = C.MODEL_BEFORE_RGB if stage == "before" else C.MODEL_AFTER_RGB
+    stream.log(f"{base}/model", rr.Points3D(model, colors=model_rgb, radii=radius,
+                                            labels=[f"{s} model ({stage})" for s in point_names],
+                                            show_labels=False), static=True)
+    arrow_rgb = C.BEFORE_RGB if stage == "before" else C.AFTER_RGB
+    stream.log(f"{base}/residual", rr.Arrows3D(
+        origins=model, vectors=res * float(arrow_scale), colors=arrow_rgb,
+        radii=rr.Radius.ui_points(1.5),
+        labels=[f"{s}: {v:.3f} mm (drawn x{arrow_scale:g})" for s, v in zip(point_names, norm)],
+        show_labels=False), static=True)
+
+
+# --------------------------------------------------------------------------- error intervals (Fig. 11)
+def log_error_intervals(rec, before_lower_mm, before_upper_mm, after_lower_mm=None, after_upper_mm=None, *,
+                        allowed_mm: float | None = 1.0) -> None:
+    """Log error intervals per test point before and after compensation (the paper's Fig. 11).
+
+    Args:
+        rec: a `rerun.RecordingStream` or a `RecordingWriter`.
+        before_lower_mm, before_upper_mm: (T, 3) lower / upper bound of the x, y, z error of
+            each test point before compensation, mm.
+        after_lower_mm, after_upper_mm: (T, 3) the same after compensation, or both None.
+        allowed_mm: the allowed component error, drawn as the band +-allowed_mm; None: none.
+
+    Logs Scalars on the sequence timeline ``test_point`` (1..T) at
+    ``error_intervals/{axis}/{stage}/{lower,upper}`` and ``error_intervals/{axis}/allowed/...``,
+    with SeriesLines/SeriesPoints styles (before red, after green, allowed grey).
+    """
+    stream = _stream(rec, "error_intervals")
+    b_lo, b_hi = C.intervals(before_lower_mm, before_upper_mm, "before", None)
+    stages = [("before", b_lo, b_hi, C.BEFORE_RGB)]
+    if (after_lower_mm is None) != (after_upper_mm is None):
+        raise InputError("after_lower_mm, after_upper_mm: give both or neither")
+    if after_lower_mm is not None:
+        a_lo, a_hi = C.intervals(after_lower_mm, after_upper_mm, "after", b_lo.shape[0])
+        stages.append(("after", a_lo, a_hi, C.AFTER_RGB))
+    if allowed_mm is not None and not (np.isfinite(allowed_mm) and allowed_mm > 0):
+        raise InputError(f"allowed_mm: expected a positive number of mm or None, got {allowed_mm!r}")
+    steps = np.arange(1, b_lo.shape[0] + 1)
+    for a, axis in enumerate(C.AXES):
+        for stage, lo, hi, rgb in stages:
+            for bound, vals in (("lower", lo[:, a]), ("upper", hi[:, a])):
+                path = f"error_intervals/{axis}/{stage}/{bound}"
+                label = f"{stage} {bound}"
+                stream.log(path, rr.SeriesLines(colors=rgb, names=label, widths=2.0),
+                           rr.SeriesPoints(colors=rgb, names=label, markers="circle", marker_sizes=3.0),
+                           static=True)
+                _columns(stream, path, TEST_POINT_TIMELINE, steps, vals)
+        if allowed_mm is not None:
+            for bound, sign in (("lower", -1.0), ("upper", 1.0)):
+                path = f"error_intervals/{axis}/allowed/{bound}"
+                stream.log(path, rr.SeriesLines(colors=C.ALLOWED_RGB, names=f"allowed {sign * allowed_mm:+g} mm",
+                                                widths=1.0), static=True)
+                _columns(stream, path, TEST_POINT_TIMELINE, steps, np.full(len(steps), sign * allowed_mm))
+
+
+# --------------------------------------------------------------------------- discover
+def _discover_styles(stream: rr.RecordingStream) -> None:
+    stream.log("discover/rms_mm", rr.SeriesLines(colors=C.BEFORE_RGB, names="RMS error, training (mm)", widths=2.0),
+               rr.SeriesPoints(colors=C.BEFORE_RGB, names="RMS error, training (mm)", markers="circle",
+                               marker_sizes=4.0), static=True)
+    stream.log("discover/cv_rms_mm", rr.SeriesLines(colors=C.MEASURED_RGB, names="RMS error, held out (mm)",
+                                                    widths=2.0),
+               rr.SeriesPoints(colors=C.MEASURED_RGB, names="RMS error, held out (mm)", markers="diamond",
+                               marker_sizes=4.0), static=True)
+
+
+def log_discover_round(rec, round_index: int, rms_mm: float, cv_rms_mm: float | None = None,
+                       added: str | None = None) -> None:
+    """Log the error after one round of ``discover`` (call once per round, as it runs).
+
+    Args:
+        rec: a `rerun.RecordingStream` or a `RecordingWriter`.
+        round_index: 0 for the starting model, k after the k-th added effect.
+        rms_mm: RMS position error on the training poses after this round, mm.
+        cv_rms_mm: cross-validated (held-out) RMS error, mm, or None.
+        added: the effect added in this round (e.g. ``"joint_compliance:2,3"``), or None.
+
+    Logs ``discover/rms_mm``, ``discover/cv_rms_mm`` (Scalars) and ``discover/added``
+    (TextLog) at ``round = round_index``; round 0 also logs the series styles (names,
+    colours), so a history should start at round 0.
+    """
+    stream = _stream(rec, "discover")
+    if isinstance(round_index, bool) or not isinstance(round_index, (int, np.integer)) or round_index < 0:
+        raise InputError(f"round_index: expected a non-negative integer, got {round_index!r}")
+    values = {"rms_mm": rms_mm, "cv_rms_mm": cv_rms_mm}
+    for key, v in values.items():
+        if v is not None and not np.isfinite(float(v)):
+            raise InputError(f"{key}: expected a finite number of mm, got {v!r}")
+    if round_index == 0:
+        _discover_styles(stream)
+    for key, v in values.items():
+        if v is not None:
+            _columns(stream, f"discover/{key}", ROUND_TIMELINE, [int(round_index)], [float(v)])
+    text = f"round {int(round_index)}: " + (f"added {added}, " if added else "") + f"RMS {float(rms_mm):.4f} mm"
+    if cv_rms_mm is not None:
+        text += f", held-out RMS {float(cv_rms_mm):.4f} mm"
+    stream.send_columns("discover/added", indexes=[rr.TimeColumn(ROUND_TIMELINE, sequence=[int(round_index)])],
+                        columns=rr.TextLog.columns(text=[text], level=["INFO"]))
+
+
+def log_discover_history(rec, rms_mm, cv_rms_mm=None, added: Sequence[str | None] | None = None) -> None:
+    """Log a whole ``discover`` history: `log_discover_round` for rounds 0..R-1.
+
+    Args:
+        rms_mm: (R,) training RMS error after each round, mm (round 0 = starting model).
+        cv_rms_mm: (R,) held-out RMS error, mm, or None.
+        added: (R,) effect added in each round (None or "" for round 0), or None.
+    """
+    rms = C.vector(rms_mm, "rms_mm")
+    cv = None if cv_rms_mm is None else C.vector(cv_rms_mm, "cv_rms_mm", rms.shape[0])
+    if added is not None and len(added) != rms.shape[0]:
+        raise InputError(f"added: expected {rms.shape[0]} entries (one per round), got {len(added)}")
+    for k in range(rms.shape[0]):
+        log_discover_round(rec, k, float(rms[k]), None if cv is None else float(cv[k]),
+                           None if added is None else added[k])
+
+
+# --------------------------------------------------------------------------- summary
+def summary_markdown(title: str, facts: Mapping[str, object] | None = None, notes: Sequence[str] = ()) -> str:
+    """A markdown summary: a title, a two-column table of `facts`, then `notes` as bullets.
+
+    Floats are written with 4 significant digits; put the unit in the key (``"RMS (mm)"``).
+    """
+    lines = [f"# {title}", ""]
+    if facts:
+        lines += ["| quantity | value |", "|---|---|"]
+        for key, value in facts.items():
+            text = f"{value:.4g}" if isinstance(value, (float, np.floating)) else str(value)
+            lines.append(f"| {key} | {text} |")
+        lines.append("")
+    lines += [f"- {note}" for note in notes]
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def log_summary(rec, markdown: str) -> None:
+    """Log a markdown text summary at ``summary`` (static TextDocument)."""
+    stream = _stream(rec, "summary")
+    if not isinstance(markdown, str):
+        raise InputError(f"markdown: expected a str, got {type(markdown).__name__}")
+    stream.log("summary", rr.TextDocument(markdown, media_type=rr.MediaType.MARKDOWN), static=True)
+
+
+# --------------------------------------------------------------------------- blueprint
+ALL_SECTIONS = frozenset({"workspace", "residuals/before", "residuals/after", "error_intervals", "discover",
+                          "summary"})
+
+
+def default_blueprint(sections=ALL_SECTIONS, *, arrow_scale: float = RESIDUAL_ARROW_SCALE) -> rrb.Blueprint:
+    """The layout a recording opens on, with views only for the logged `sections`.
+
+    Left: 3D views (workspace by R_set, workspace by zone, residuals before, after).
+    Right: error intervals per axis (tabs x, y, z), the ``discover`` error per round, the
+    summary. The time panel selects ``test_point`` when error intervals are present,
+    else ``round``.
+    """
+    sections = set(sections)
+    unknown = sections - ALL_SECTIONS
+    if unknown:
+        raise InputError(f"sections: unknown {sorted(unknown)}; expected a subset of {sorted(ALL_SECTIONS)}")
+    spatial = []
+    if "workspace" in sections:
+        spatial.append(rrb.Spatial3DView(origin="/", name="Workspace: R_set (red = low)",
+                                         contents=["+ /workspace/rset", "+ /workspace/centres"]))
+        spatial.append(rrb.Spatial3DView(origin="/", name="Workspace: zones",
+                                         contents=["+ /workspace/zones", "+ /workspace/centres"]))
+    for stage in STAGES:
+        if f"residuals/{stage}" in sections:
+            spatial.append(rrb.Spatial3DView(origin="/", name=f"Residuals {stage} (arrows x{arrow_scale:g})",
+                                             contents=[f"+ /residuals/{stage}/**"]))
+    panels = []
+    if "error_intervals" in sections:
+        panels.append(rrb.Tabs(*[rrb.TimeSeriesView(origin=f"/error_intervals/{axis}",
+                                                    name=f"Error interval {axis} (mm) per test point")
+                                 for axis in C.AXES], name="Error intervals"))
+    if "discover" in sections:
+        panels.append(rrb.TimeSeriesView(origin="/discover", name="discover: RMS error (mm) per round"))
+    if "summary" in sections:
+        panels.append(rrb.TextDocumentView(origin="/summary", name="Summary"))
+    columns = []
+    if spatial:
+        columns.append(rrb.Grid(*spatial, grid_columns=2 if len(spatial) > 1 else 1, name="3D"))
+    if panels:
+        columns.append(rrb.Vertical(*panels, name="Plots"))
+    timeline = TEST_POINT_TIMELINE if "error_intervals" in sections else ROUND_TIMELINE
+    if not columns:
+        return rrb.Blueprint(rrb.TimePanel(timeline=timeline))
+    shares = [3, 2] if len(columns) == 2 else None
+    return rrb.Blueprint(rrb.Horizontal(*columns, column_shares=shares), rrb.TimePanel(timeline=timeline))
+
+
+# --------------------------------------------------------------------------- writer
+class RecordingWriter:
+    """Open an ``.rrd`` file for logging; finalise it and move it into place on close.
+
+    Args:
+        path: target ``.rrd`` file; its folder must exist.
+        seed: makes the recording id deterministic (`recording_id`).
+        application_id: rerun application id (default ``"torchcal"``).
+        name: recording name shown by the viewer (default: the file name).
+        blueprint: a ``rerun.blueprint.Blueprint`` to open on; default: `default_blueprint`
+            for the sections logged through this writer.
+        force: replace an existing file at `path`.
+
+    Attributes:
+        stream: the ``rerun.RecordingStream`` (pass the writer or the stream to ``log_*``).
+        sections: the sections logged through this writer (for the default blueprint).
+        path: the target path.
+
+    Use as a context manager, or call `open` and then `close` (or `abort`).
+    """
+
+    def __init__(self, path, *, seed: int = 0, application_id: str = APPLICATION_ID, name: str | None = None,
+                 blueprint: rrb.Blueprint | None = None, force: bool = False):
+        self.path = Path(path)
+        self.seed = int(seed)
+        self.application_id = application_id
+        self.name = name if name is not None else self.path.stem
+        self.blueprint = blueprint
+        self.force = force
+        self.sections: set[str] = set()
+        self.arrow_scale = RESIDUAL_ARROW_SCALE
+        self.stream: rr.RecordingStream | None = None
+        self._tmp: Path | None = None
+
+    def open(self) -> "RecordingWriter":
+        """Check the target, start the stream and its file sink (a temporary file beside it)."""
+        if self.stream is not None:
+            raise InputError(f"{self.path}: recording is already open")
+        C.check_output(self.path, self.force)
+        self._tmp = C.temp_beside(self.path)
+        stream = rr.RecordingStream(self.application_id, recording_id=recording_id(self.seed, self.application_id),
+                                    send_properties=False)
+        stream.set_log_time_enabled(False)  # no wall-clock timeline: deterministic content
+        stream.set_log_tick_enabled(False)
+        stream.save(self._tmp)
+        stream.send_recording_name(self.name)
+        stream.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)  # robot base frame, z up
+        self.stream = stream
+        return self
+
+    def close(self) -> Path:
+        """Send the blueprint, flush, disconnect (writes the footer), move into place."""
+        if self.stream is None:
+            raise InputError(f"{self.path}: recording is not open")
+        stream, tmp = self.stream, self._tmp
+        try:
+            bp = self.blueprint if self.blueprint is not None else default_blueprint(
+                self.sections, arrow_scale=self.arrow_scale)
+            stream.send_blueprint(bp, make_active=True, make_default=True)
+            stream.flush()
+            stream.disconnect()  # drops the FileSink: the file gets its footer and is complete
+            C.check_output(self.path, self.force)  # nobody created it meanwhile
+            os.replace(tmp, self.path)
+        except BaseException:
+            self._discard()
+            raise
+        self.stream, self._tmp = None, None
+        return self.path
+
+    def abort(self) -> None:
+        """Stop without writing the target; remove the temporary file."""
+        if self.stream is not None:
+            self._discard()
+
+    def _discard(self) -> None:
+        stream, tmp = self.stream, self._tmp
+        self.stream, self._tmp = None, None
+        try:
+            if stream is not None:
+                stream.disconnect()
+        finally:
+            if tmp is not None and tmp.exists():
+                tmp.unlink()
+
+    def __enter__(self) -> "RecordingWriter":
+        return self.open()
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+    def __repr__(self) -> str:
+        state = "open" if self.stream is not None else "closed"
+        return f"RecordingWriter({str(self.path)!r}, seed={self.seed}, {state})"

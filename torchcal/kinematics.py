@@ -100,38 +100,70 @@ def fk_pose(q, table, params=None, base=None, tool=None) -> torch.Tensor:
     return T
 
 
-def _positions_kernel(q, table, params, base, tool_point):
-    """TCP positions by the backward recursion v <- Rz(theta) (Rx(alpha) Ry(beta) v + [a, 0, d]).
+def _rotate(R, i, w, start=None):
+    """u = R_i w (+ start): rows of R (3 x 3 tensors (..., n)) at joint i, w 3 tensors."""
+    u = []
+    for r in range(3):
+        acc = R[r][0][..., i] * w[0] if start is None else torch.addcmul(start[r], R[r][0][..., i], w[0])
+        acc = torch.addcmul(acc, R[r][1][..., i], w[1])
+        u.append(torch.addcmul(acc, R[r][2][..., i], w[2]))
+    return u
 
-    Only the theta terms carry the pose batch; alpha, beta, a, d trig stays on the
-    (usually much smaller) parameter batch. q (..., n), params (..., n, 5) or None,
-    tool_point (3,) -> (..., 3) mm.
+
+def _positions_kernel(q, table, params, base, tool_point, out=None):
+    """TCP positions by a backward recursion over the links, 3-vectors only.
+
+    With the offsets and deviations folded into R_i = Rz(off_i) Rx(alpha_i) Ry(beta_i),
+    t_i = Rz(off_i) [a_i, 0, d_i] and k_i = R_i^T t_i, link i maps a point v of its end
+    frame to Rz(q_i) R_i (v + k_i). From w = tool point + k_n::
+
+        u = R_i w;  w <- Rz(q_i) u + k_(i-1)   for i = n .. 2
+        p = B (R_1 w + B^T b),  B = R_base Rz(q_1)
+
+    Only Rz(q_i) (and B) carry the pose batch, only R_i, k_i the parameter batch, so the
+    full broadcast batch sees 14 multiply-adds per joint, each a single fused torch op
+    with at most one operand broadcast along the innermost dim (vectorised on CPU).
+
+    q (..., n) rad, table (n, 5), params (..., n, 5) or None, base (4, 4) or None,
+    tool_point (..., 3) mm -> (..., 3) mm. With `out` (a (..., 3) view of the broadcast
+    shape) the result is written there instead of stacked (saves a copy; not for vmap).
     """
     n = table.shape[0]
     off, d, a, alpha, beta = _effective(table, params)  # each (..., n) or (n,)
-    cq, sq = torch.cos(q), torch.sin(q)
     co, so = torch.cos(off), torch.sin(off)
     ca, sa = torch.cos(alpha), torch.sin(alpha)
     cb, sb = torch.cos(beta), torch.sin(beta)
-    vx, vy, vz = tool_point.unbind(-1)
-    for i in range(n - 1, -1, -1):
-        # theta = q + off: angle sum keeps trig off the full broadcast batch
-        ct = cq[..., i] * co[..., i] - sq[..., i] * so[..., i]
-        st = sq[..., i] * co[..., i] + cq[..., i] * so[..., i]
-        cbi, sbi = cb[..., i], sb[..., i]
-        wx = cbi * vx + sbi * vz
-        wz = cbi * vz - sbi * vx
-        cai, sai = ca[..., i], sa[..., i]
-        ux = wx + a[..., i]
-        uy = cai * vy - sai * wz
-        uz = sai * vy + cai * wz + d[..., i]
-        vx = ct * ux - st * uy
-        vy = st * ux + ct * uy
-        vz = uz
-    v = torch.stack(torch.broadcast_tensors(vx, vy, vz), dim=-1)
-    if base is not None:
-        v = v @ base[:3, :3].T + base[:3, 3]
-    return v
+    sasb, sacb = sa * sb, sa * cb
+    # rows of Rz(off) Rx(alpha) Ry(beta); Rx Ry = [[cb, 0, sb], [sa sb, ca, -sa cb], [-ca sb, sa, ca cb]]
+    R = ((co * cb - so * sasb, -so * ca, co * sb + so * sacb),
+         (so * cb + co * sasb, co * ca, so * sb - co * sacb),
+         (-ca * sb, sa, ca * cb))  # each (..., n)
+    tx, ty = co * a, so * a  # t = Rz(off) [a, 0, d]
+    k = [R[0][c] * tx + R[1][c] * ty + R[2][c] * d for c in range(3)]  # R^T t, each (..., n)
+    qj = q.movedim(-1, 0)  # (n, ...): one contiguous block of angles per joint
+    cq, sq = torch.cos(qj).contiguous(), torch.sin(qj).contiguous()
+    w = [p + kc[..., n - 1] for p, kc in zip(tool_point.unbind(-1), k)]
+    for i in range(n - 1, 0, -1):
+        u = _rotate(R, i, w)
+        c, s = cq[i], sq[i]
+        w = [torch.addcmul(torch.addcmul(k[0][..., i - 1], c, u[0]), s, u[1], value=-1.0),
+             torch.addcmul(torch.addcmul(k[1][..., i - 1], s, u[0]), c, u[1]),
+             u[2] + k[2][..., i - 1]]
+    c, s = cq[0], sq[0]
+    if base is None:
+        u = _rotate(R, 0, w)
+        v = [torch.addcmul(c * u[0], s, u[1], value=-1.0), torch.addcmul(s * u[0], c, u[1]), u[2]]
+    else:
+        Rb, b = base[:3, :3], base[:3, 3]
+        B = [(Rb[r, 0] * c + Rb[r, 1] * s, Rb[r, 1] * c - Rb[r, 0] * s, Rb[r, 2]) for r in range(3)]
+        h = [B[0][j] * b[0] + B[1][j] * b[1] + B[2][j] * b[2] for j in range(3)]  # B^T b, pose batch
+        u = _rotate(R, 0, w, start=h)
+        v = [torch.addcmul(torch.addcmul(Br[0] * u[0], Br[1], u[1]), Br[2], u[2]) for Br in B]
+    if out is None:
+        return torch.stack(torch.broadcast_tensors(*v), dim=-1)
+    for j in range(3):
+        out[..., j].copy_(v[j])
+    return out
 
 
 def fk_positions(q, table, params=None, base=None, tool=None, chunk: int = DEFAULT_CHUNK) -> torch.Tensor:
@@ -144,6 +176,8 @@ def fk_positions(q, table, params=None, base=None, tool=None, chunk: int = DEFAU
     tool_point = (torch.zeros(3, dtype=table.dtype, device=table.device) if tool is None
                   else tool[:3, 3].to(table))
     base = None if base is None else base.to(table)
+    if base is not None and torch.equal(base, torch.eye(4, dtype=base.dtype, device=base.device)):
+        base = None  # the usual case: skip the base rotation on the full batch
     qb = q.shape[:-1]
     pb = () if params is None else params.shape[:-2]
     batch = torch.broadcast_shapes(qb, pb)
@@ -158,13 +192,12 @@ def fk_positions(q, table, params=None, base=None, tool=None, chunk: int = DEFAU
     step = max(1, chunk * batch[dim] // total)
     out = torch.empty(*batch, 3, dtype=table.dtype, device=table.device)
     for start in range(0, batch[dim], step):
-        sl = slice(start, start + step)
-        qc = q.narrow(dim, start, min(step, batch[dim] - start)) if q.shape[dim] > 1 else q
+        size = min(step, batch[dim] - start)
+        qc = q.narrow(dim, start, size) if q.shape[dim] > 1 else q
         pc = params
         if params is not None and params.shape[dim] > 1:
-            pc = params.narrow(dim, start, min(step, batch[dim] - start))
-        idx = (slice(None),) * dim + (sl,)
-        out[idx] = _positions_kernel(qc, table, pc, base, tool_point)
+            pc = params.narrow(dim, start, size)
+        _positions_kernel(qc, table, pc, base, tool_point, out=out.narrow(dim, start, size))
     return out
 
 

@@ -47,6 +47,9 @@ def atomic_write(path, data: str | bytes, force: bool = False, inputs=()) -> Pat
     mode = "wb" if isinstance(data, bytes) else "w"
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        umask = os.umask(0o022)  # read the umask (there is no getter), then put it back
+        os.umask(umask)
+        os.fchmod(fd, 0o666 & ~umask)  # normal file permissions, not mkstemp's 0600
         with os.fdopen(fd, mode) as fh:
             fh.write(data)
         os.replace(tmp, path)

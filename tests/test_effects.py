@@ -310,6 +310,7 @@ def test_model_is_differentiable_with_every_effect(kr):
     assert J.shape == (6, 3, model.n_params)
     assert torch.isfinite(J).all()
     assert_close(model.jacobian(theta, ctx), J)
+    assert torch.isfinite(model.jacobian(model.zeros(), ctx)).all()  # where fits start (rotvec 0)
     # every effect has some parameter that moves the TCP
     for sl in model.slices[1:]:
         assert J[..., sl].abs().max() > 0

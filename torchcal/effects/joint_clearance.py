@@ -44,8 +44,8 @@ def random_basis(ctx, joint: int, v: torch.Tensor) -> torch.Tensor:
     """TCP displacement (N, 3, 2) mm per rad of tilt of joint `joint` about the two unit
     directions perpendicular to its axis; v (N, 3) the base-frame TCP positions."""
     _, _, z, o = load_directions(ctx, joint)
-    helper = torch.where((z[:, :1].abs() < 0.9), torch.tensor([1.0, 0, 0], dtype=z.dtype),
-                         torch.tensor([0, 1.0, 0], dtype=z.dtype))
+    helper = torch.where((z[:, :1].abs() < 0.9), torch.tensor([1.0, 0, 0], dtype=z.dtype, device=z.device),
+                         torch.tensor([0, 1.0, 0], dtype=z.dtype, device=z.device))
     e1 = _unit(torch.linalg.cross(z, helper), 1e-12)
     e2 = torch.linalg.cross(z, e1)
     lever = v - o

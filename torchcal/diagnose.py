@@ -16,9 +16,10 @@
      (alpha = 1e-3), *and* a cross-validated RMS gain of at least `min_gain` (2 %).
      Pure noise passes both with probability well under 1e-3.
 4. Candidates are reported best first (lowest cross-validated RMS). The verdict is the
-   best significant one; for a joint effect, further joints of the same effect are added
-   while each is significant given the ones before (forward selection), so a hidden
-   ``joint_compliance:2,3`` is named with both joints.
+   best significant one; for a joint effect, a further joint of the same effect is added
+   while, given the joints chosen so far, it is the best significant candidate of all
+   (forward selection), so a hidden ``joint_compliance:2,3`` is named with both joints
+   but a second, different effect is left to the next round of `discover`.
 
 Everything is deterministic for a given seed (fold assignment).
 """
@@ -243,15 +244,15 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
             A2 = np.hstack([lin.A, C_in])
             lin2 = _Linear(lin.r, A2, fold_ids(m.pose, folds, seed))
             rss0_2, cv0_2 = lin2.rss(np.zeros((n_eq, 0))), lin2.cv_rms(np.zeros((n_eq, 0)))
-            best = None
-            for j in range(1, robot.n + 1):
-                if j in chosen or (verdict.effect, (j,)) not in columns:
+            best = None  # the best significant candidate of any effect, given the chosen
+            for (name, joints), C in columns.items():
+                if name == verdict.effect and joints[0] in chosen:
                     continue
-                c = judge(lin2, rss0_2, A2.shape[1], cv0_2, verdict.effect, (j,), columns[(verdict.effect, (j,))])
+                c = judge(lin2, rss0_2, A2.shape[1], cv0_2, name, joints, C)
                 if c.significant and (best is None or c.cv_rms_mm < best.cv_rms_mm):
                     best = c
-            if best is None:
-                break
+            if best is None or best.effect != verdict.effect:
+                break  # another effect explains more: it is the next round's business
             chosen.append(best.joints[0])
             C_in = np.hstack([C_in, columns[(verdict.effect, best.joints)]])
         if len(chosen) > 1:

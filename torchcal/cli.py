@@ -46,6 +46,10 @@ def main(argv: list[str] | None = None) -> int:
     except (InputError, ValueError, FileNotFoundError, FileExistsError, IsADirectoryError) as exc:
         sys.stderr.write(f"torchcal {args.command}: error: {exc}\n")
         return 2
+    except OSError as exc:  # permission denied, disk full, ...: one line, not a traceback
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        sys.stderr.write(f"torchcal {args.command}: error: {where}{exc.strerror or exc}\n")
+        return 2
     except KeyboardInterrupt:
         sys.stderr.write("torchcal: interrupted\n")
         return 130

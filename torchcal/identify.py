@@ -114,6 +114,23 @@ def _robust_weights(dist: torch.Tensor, kind: str) -> torch.Tensor:
     raise InputError(f"--robust: unknown loss {kind!r}; expected 'huber' or 'cauchy'")
 
 
+def _generic_rank(model: CalibrationModel, ctx: Context, cand, rank_tol: float) -> int:
+    """Number of parameters identifiable at random poses inside the joint limits (the
+    data's payload / temperature values reused in turn): what enough poses would give."""
+    from torchcal.effects import make_context
+    from torchcal.sim import random_poses
+
+    robot = model.robot
+    n = int(cand.sum()) + 16
+    q = random_poses(robot, n, torch.Generator().manual_seed(0)).to(ctx.q)
+    idx = torch.arange(n, device=ctx.q.device) % ctx.q.shape[0]
+    temp = None if ctx.temp_c is None else ctx.temp_c[idx]
+    payload = None if ctx.payload_kg is None else ctx.payload_kg[idx]
+    g = make_context(robot, q, payload, temp)
+    J = model.jacobian(model.zeros(), g)
+    return identifiability(J, model.param_names(), cand, rank_tol).rank
+
+
 def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, free=None,
         robust: str | None = None, max_iter: int = 60, rank_tol: float = RANK_TOL) -> FitResult:
     """Fit model parameters to measured TCP positions xyz (N, 3) mm.
@@ -129,10 +146,14 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     report = identifiability(J0, model.param_names(), cand, rank_tol)
     n_rows = xyz.shape[0]
     if 3 * n_rows <= report.rank:
-        raise InputError(f"too few poses: {n_rows} poses give {3 * n_rows} equations for "
-                         f"{report.rank} identifiable parameters; need at least "
-                         f"{report.rank // 3 + 1} poses (more, in practice, than "
-                         f"{2 * report.rank // 3 + 1})")
+        # the equations, not the model, bound the rank here: count the identifiable
+        # parameters at generic poses (seeded, so the message is reproducible)
+        k = _generic_rank(model, ctx, cand, rank_tol)
+        need = k // 3 + 1
+        raise InputError(f"too few poses: {n_rows} poses give {3 * n_rows} equations (3 per pose) "
+                         f"but the model [{', '.join(model.specs()) or 'geometric only'}] has {k} "
+                         f"identifiable parameters (of {n_cand}); need at least {need} poses, "
+                         f"in practice {max(2 * need, need + 10)} or more spread over the workspace")
     if n_cand and report.rank == 0:
         raise InputError("no parameter is identifiable from these poses")
 

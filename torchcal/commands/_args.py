@@ -37,3 +37,38 @@ def add_force(p):
 def add_viz(p):
     p.add_argument("--rrd", help="write a rerun recording (.rrd) here")
     p.add_argument("--plots", help="write PNG figures into this folder")
+
+
+def check_outputs(outputs, force: bool, inputs=()) -> None:
+    """Fail before any work (and before any file is written) when an output cannot be
+    written: it exists without --force, it is an input file, two outputs share a path, or
+    its folder does not exist. `outputs`: (option, path or None) pairs."""
+    from pathlib import Path
+
+    from torchcal.errors import InputError
+
+    seen = {}
+    ins = {Path(p).resolve(): p for p in inputs if p is not None}
+    for opt, path in outputs:
+        if path is None:
+            continue
+        p = Path(path)
+        r = p.resolve()
+        if r in ins:
+            raise InputError(f"{path}: {opt} names the input file {ins[r]}; refusing to write over it")
+        if r in seen:
+            raise InputError(f"{path}: {opt} and {seen[r]} name the same file")
+        seen[r] = opt
+        if p.is_dir():
+            raise InputError(f"{path}: {opt} names a folder; expected a file")
+        if p.exists() and not force:
+            raise InputError(f"{path}: output exists; pass --force to replace it")
+        if not p.parent.exists():
+            raise InputError(f"{path}: {opt}: folder {p.parent} does not exist")
+
+
+def read_data(path, robot):
+    """The measurement CSV for `robot`; joint angles outside its limits are an error."""
+    from torchcal.io import read_measurements
+
+    return read_measurements(path, robot=robot, strict_limits=True)

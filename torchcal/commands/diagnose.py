@@ -4,9 +4,9 @@ the model fails and which physical effect it is missing (see torchcal.diagnose).
 from __future__ import annotations
 
 from torchcal import modelfile
-from torchcal.commands._args import add_force, add_viz, positive_int
+from torchcal.commands._args import add_force, add_viz, check_outputs, positive_int, read_data
 from torchcal.diagnose import diagnose
-from torchcal.io import read_measurements, write_json
+from torchcal.io import write_json
 from torchcal.robot import robot as make_robot
 
 
@@ -43,12 +43,14 @@ def print_table(d) -> None:
 
 
 def run(args) -> int:
+    check_outputs([("--json", args.json), ("--rrd", args.rrd)], args.force,
+                  inputs=[args.data, args.model])
     robot = make_robot(args.robot)
     effects = args.effects or []
     if args.model:
         model, _ = modelfile.load(args.model, robot_name=robot.name)
         effects = model.specs()
-    m = read_measurements(args.data, robot=robot)
+    m = read_data(args.data, robot)
     d = diagnose(robot, m, effects, folds=args.folds, seed=args.seed)
     print_table(d)
     if args.json:

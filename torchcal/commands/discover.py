@@ -4,9 +4,9 @@ best significant effect each round until none is left; the error falls at each r
 from __future__ import annotations
 
 from torchcal import modelfile
-from torchcal.commands._args import add_force, add_viz, positive_int
+from torchcal.commands._args import add_force, add_viz, check_outputs, positive_int, read_data
 from torchcal.diagnose import discover
-from torchcal.io import read_measurements, write_json
+from torchcal.io import write_json
 from torchcal.robot import robot as make_robot
 
 
@@ -25,8 +25,10 @@ def add_parser(sub):
 
 
 def run(args) -> int:
+    check_outputs([("--json", args.json), ("--out", args.out), ("--rrd", args.rrd)], args.force,
+                  inputs=[args.data])
     robot = make_robot(args.robot)
-    m = read_measurements(args.data, robot=robot)
+    m = read_data(args.data, robot)
     res = discover(robot, m, args.effects, folds=args.folds, seed=args.seed)
     for i, h in enumerate(res.history):
         print(f"round {i}: [{', '.join(h['effects']) or 'geometric only'}] rms {h['rms_mm']:.4f} mm, "

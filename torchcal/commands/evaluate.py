@@ -3,15 +3,16 @@
 from __future__ import annotations
 
 from torchcal import modelfile
-from torchcal.commands._args import add_force
+from torchcal.commands._args import add_force, check_outputs, read_data
 from torchcal.effects import make_context
-from torchcal.io import read_measurements, write_json
+from torchcal.io import write_json
 
 
 def add_parser(sub):
     p = sub.add_parser("evaluate", help="errors of a fitted model on a measurement CSV", description=__doc__)
     p.add_argument("data", help="measurement CSV")
     p.add_argument("--model", required=True, help="MODEL.json from `torchcal fit`")
+    p.add_argument("--robot", help="check that the model file is for this robot")
     p.add_argument("--json", help="write the report here")
     add_force(p)
     p.set_defaults(func=run)
@@ -28,8 +29,12 @@ def evaluate(model, theta, m) -> dict:
 
 
 def run(args) -> int:
-    model, theta = modelfile.load(args.model)
-    m = read_measurements(args.data, robot=model.robot)
+    check_outputs([("--json", args.json)], args.force, inputs=[args.data, args.model])
+    if args.robot is not None:
+        from torchcal.robot import robot as make_robot
+        make_robot(args.robot)  # unknown robot: its own clear message
+    model, theta = modelfile.load(args.model, robot_name=args.robot)
+    m = read_data(args.data, model.robot)
     rep = evaluate(model, theta, m)
     if args.json:
         write_json(args.json, rep, force=args.force, inputs=[args.data, args.model])

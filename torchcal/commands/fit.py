@@ -6,10 +6,10 @@ outliers by IRLS and lists their pose ids."""
 from __future__ import annotations
 
 from torchcal import modelfile
-from torchcal.commands._args import add_force
+from torchcal.commands._args import add_force, check_outputs, read_data
 from torchcal.effects import make_context
 from torchcal.identify import fit
-from torchcal.io import read_measurements, write_json
+from torchcal.io import write_json
 from torchcal.model import CalibrationModel
 from torchcal.robot import robot as make_robot
 from torchcal.spec import parse_specs
@@ -32,13 +32,21 @@ def fit_file(args):
     """Read, fit; returns (measurements, FitResult)."""
     robot = make_robot(args.robot)
     specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
-    m = read_measurements(args.data, robot=robot)
+    m = read_data(args.data, robot)
     model = CalibrationModel(robot, specs)
     ctx = make_context(robot, m.q, m.payload_kg, m.temp_c)
     return m, fit(model, ctx, m.xyz, robust=args.robust)
 
 
+def _still_joints(m) -> list[str]:
+    """'qJ (constant X deg)' for each joint that never moves in these rows."""
+    qd = m.q_deg
+    span = (qd.max(0).values - qd.min(0).values).tolist()
+    return [f"q{j + 1} (constant {qd[0, j].item():.6g} deg)" for j, s in enumerate(span) if s < 1e-9]
+
+
 def run(args) -> int:
+    check_outputs([("--out", args.out)], args.force, inputs=[args.data])
     m, res = fit_file(args)
     obj = modelfile.to_dict(res, source=args.data, seed=args.seed, robust=args.robust, pose_ids=m.pose.tolist())
     write_json(args.out, obj, force=args.force, inputs=[args.data])
@@ -48,6 +56,9 @@ def run(args) -> int:
           f"{rep.rank} identified parameters, condition {rep.condition:.3g}")
     if rep.held:
         print(f"held at nominal (not identifiable from these poses): {', '.join(rep.held)}")
+        still = _still_joints(m)
+        if still:
+            print(f"joints that never move in {args.data}: {', '.join(still)}; move them to identify more")
     if res.outliers:
         print(f"outliers (pose ids): {', '.join(map(str, obj['fit']['outlier_poses']))}")
     print(f"wrote {args.out}")

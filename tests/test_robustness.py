@@ -1,0 +1,404 @@
+"""Robustness of the command line (issue 9): every bad input gives one clear line on
+stderr naming the file / row / column or the option, a non-zero exit, no traceback and no
+output file (an existing output is left untouched); too few poses and rank-deficient data
+are explained; the same inputs and seed give byte-identical JSON."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+import torch
+
+import torchcal
+from torchcal import sim
+from torchcal.cli import main
+from torchcal.io import Measurements, write_measurements
+
+ROBOT = "kr1000titan"
+
+
+# --------------------------------------------------------------------------------------
+# data, made once per module
+# --------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    d = tmp_path_factory.mktemp("robust")
+    robot = torchcal.robot(ROBOT)
+    vr = sim.VirtualRobot(robot, [], seed=1)
+    q = sim.random_poses(robot, 30, torch.Generator().manual_seed(2))
+    m = vr.measure(q, noise_mm=0.02)
+    write_measurements(d / "good.csv", m)
+    m3 = m.subset(slice(0, 3))
+    write_measurements(d / "three.csv", Measurements(m3.pose, m3.q, m3.xyz))
+    qc = q.clone()
+    qc[:, 5] = 0.3  # joint 6 never moves
+    write_measurements(d / "still6.csv", vr.measure(qc, noise_mm=0.02))
+    assert main(["fit", str(d / "good.csv"), "--robot", ROBOT, "--out", str(d / "model.json")]) == 0
+    return d
+
+
+def _lines(work):
+    return (work / "good.csv").read_text().splitlines()
+
+
+def _write(work, name, text):
+    p = work / name
+    p.write_text(text)
+    return p
+
+
+def _cells(line):
+    return line.split(",")
+
+
+def _bad(capsys, argv, *must, created=(), untouched=()):
+    """Run the CLI on a bad input; check one clean line on stderr; return it."""
+    before = {Path(p): Path(p).read_bytes() for p in untouched}
+    try:
+        rc = main([str(a) for a in argv])
+    except SystemExit as exc:  # argparse errors
+        rc = exc.code
+    out, err = capsys.readouterr()
+    assert rc not in (0, None), f"expected a failure for {argv}"
+    assert "Traceback" not in err and "Traceback" not in out
+    lines = [ln for ln in err.splitlines()]
+    assert len(lines) == 1 and lines[0].strip(), f"expected one line on stderr, got {err!r}"
+    msg = lines[0]
+    for s in must:
+        assert s in msg, f"{s!r} not in {msg!r}"
+    for p in created:
+        assert not Path(p).exists(), f"{p} was written"
+    for p, data in before.items():
+        assert p.read_bytes() == data, f"{p} was changed"
+    return msg
+
+
+def _cmd(command, data, work, out):
+    """argv of `command` on `data` writing `out`."""
+    if command == "fit":
+        return ["fit", data, "--robot", ROBOT, "--out", out]
+    if command == "evaluate":
+        return ["evaluate", data, "--model", work / "model.json", "--json", out]
+    if command == "diagnose":
+        return ["diagnose", data, "--robot", ROBOT, "--json", out]
+    return ["discover", data, "--robot", ROBOT, "--json", out]
+
+
+COMMANDS = ["fit", "evaluate", "diagnose", "discover"]
+
+
+# --------------------------------------------------------------------------------------
+# bad measurement files (every command that reads one)
+# --------------------------------------------------------------------------------------
+
+def _missing_column(lines):
+    return "\n".join(",".join(_cells(ln)[:-1]) for ln in lines), ["line 1", "missing column z"]
+
+
+def _extra_column(lines):
+    return "\n".join(ln + (",wobble" if i == 0 else ",1") for i, ln in enumerate(lines)), \
+        ["line 1", "'wobble'", "unknown column"]
+
+
+def _wrong_joint_count(lines):
+    return "\n".join(",".join(_cells(ln)[:6] + _cells(ln)[7:]) for ln in lines), \
+        ["line 1", "expected 6 joints", "found 5"]
+
+
+def _replace_cell(lines, row, col, value):
+    cells = _cells(lines[row])
+    cells[col] = value
+    return "\n".join(lines[:row] + [",".join(cells)] + lines[row + 1:])
+
+
+def _text_in_number(lines):
+    return _replace_cell(lines, 2, 3, "twelve"), ["line 3 (data row 2), column q3", "'twelve'"]
+
+
+def _nan(lines):
+    return _replace_cell(lines, 4, 8, "nan"), ["line 5 (data row 4), column y", "finite"]
+
+
+def _inf(lines):
+    return _replace_cell(lines, 5, 9, "-inf"), ["line 6 (data row 5), column z", "finite"]
+
+
+def _empty(lines):
+    return "", ["empty file"]
+
+
+def _duplicated_header(lines):
+    return "\n".join(ln + (",q2" if i == 0 else ",0") for i, ln in enumerate(lines)), \
+        ["line 1", "'q2'", "duplicated"]
+
+
+def _negative_payload(lines):
+    return "\n".join(ln + (",payload_kg" if i == 0 else (",-5" if i == 7 else ",100"))
+                     for i, ln in enumerate(lines)), ["line 8 (data row 7), column payload_kg", ">= 0"]
+
+
+def _joint_out_of_range(lines):
+    return _replace_cell(lines, 3, 1, "400"), ["line 4", "q1=400", "limits"]
+
+
+def _header_only(lines):
+    return lines[0], ["no data rows"]
+
+
+def _short_row(lines):
+    return "\n".join(lines[:6] + [",".join(_cells(lines[6])[:-2])] + lines[7:]), \
+        ["line 7 (data row 6)", "expected 10 fields"]
+
+
+BAD_CSV = {f.__name__[1:]: f for f in (
+    _missing_column, _extra_column, _wrong_joint_count, _text_in_number, _nan, _inf, _empty,
+    _duplicated_header, _negative_payload, _joint_out_of_range, _header_only, _short_row)}
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+@pytest.mark.parametrize("case", sorted(BAD_CSV))
+def test_bad_measurement_file(work, capsys, case, command):
+    text, must = BAD_CSV[case](_lines(work))
+    data = _write(work, f"{case}.csv", text + ("\n" if text else ""))
+    out = work / f"{case}-{command}.json"
+    _bad(capsys, _cmd(command, data, work, out), str(data), *must, created=[out], untouched=[data])
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_data_file_does_not_exist(work, capsys, command):
+    data, out = work / "nope.csv", work / f"nope-{command}.json"
+    _bad(capsys, _cmd(command, data, work, out), str(data), "does not exist", created=[out, data])
+
+
+def test_data_file_is_a_folder(work, capsys):
+    out = work / "folder.json"
+    _bad(capsys, ["fit", work, "--robot", ROBOT, "--out", out], str(work), created=[out])
+
+
+# --------------------------------------------------------------------------------------
+# bad options: robot, effects
+# --------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("command", ["fit", "diagnose", "discover"])
+def test_unknown_robot(work, capsys, command):
+    argv = _cmd(command, work / "good.csv", work, work / f"robot-{command}.json")
+    argv[argv.index("--robot") + 1] = "marvin"
+    _bad(capsys, argv, "unknown robot 'marvin'", "kr1000titan", created=[work / f"robot-{command}.json"])
+
+
+@pytest.mark.parametrize("command", ["fit", "diagnose", "discover"])
+def test_unknown_effect(work, capsys, command):
+    out = work / f"effect-{command}.json"
+    argv = _cmd(command, work / "good.csv", work, out) + ["--effects", "joint_wobble:2"]
+    _bad(capsys, argv, "'joint_wobble:2'", "unknown effect", "joint_compliance", created=[out])
+
+
+@pytest.mark.parametrize("spec, must", [
+    ("joint_compliance:2,,3", "empty joint"),
+    ("joint_compliance:x", "'joint_compliance:x'"),
+    ("joint_compliance:9", "joint 9"),
+    ("joint_compliance:0", "'joint_compliance:0'"),
+    ("thermal_expansion:2", "'thermal_expansion:2'"),
+    (":2", "':2'"),
+    ("gear_periodic:", "'gear_periodic:'"),
+])
+def test_malformed_effect_spec(work, capsys, spec, must):
+    out = work / "spec.json"
+    _bad(capsys, ["fit", work / "good.csv", "--robot", ROBOT, "--effects", spec, "--out", out],
+         "effect spec", must, created=[out])
+
+
+def test_effect_needs_a_missing_column(work, capsys):
+    out = work / "thermal.json"
+    _bad(capsys, ["fit", work / "good.csv", "--robot", ROBOT, "--effects", "thermal_expansion", "--out", out],
+         "temp_c", created=[out])
+
+
+def test_robust_choice(work, capsys):
+    out = work / "robust.json"
+    _bad(capsys, ["fit", work / "good.csv", "--robot", ROBOT, "--robust", "tukey", "--out", out],
+         "--robust", created=[out])
+
+
+# --------------------------------------------------------------------------------------
+# model files
+# --------------------------------------------------------------------------------------
+
+def test_model_from_another_robot_diagnose(work, capsys):
+    out = work / "other-diag.json"
+    _bad(capsys, ["diagnose", work / "good.csv", "--robot", "puma560", "--model", work / "model.json",
+                  "--json", out], str(work / "model.json"), "kr1000titan", "puma560", created=[out])
+
+
+def test_model_from_another_robot_evaluate(work, capsys):
+    out = work / "other-eval.json"
+    _bad(capsys, ["evaluate", work / "good.csv", "--model", work / "model.json", "--robot", "puma560",
+                  "--json", out], str(work / "model.json"), "kr1000titan", "puma560", created=[out])
+
+
+def test_model_on_data_of_another_joint_count(work, capsys):
+    text, _ = _wrong_joint_count(_lines(work))
+    data = _write(work, "five.csv", text + "\n")
+    out = work / "five-eval.json"
+    _bad(capsys, ["evaluate", data, "--model", work / "model.json", "--json", out],
+         str(data), "expected 6 joints", created=[out])
+
+
+@pytest.mark.parametrize("text, must", [
+    ("{not json", "not a valid model file"),
+    ("", "not a valid model file"),
+    ("[1, 2, 3]", "JSON object"),
+    ('{"format": "something/else"}', "not a torchcal model file"),
+    ('{"format": "torchcal-model/1", "robot": "kr1000titan"}', "bad field"),
+    (b"\xff\xfe\x00garbage", "not a valid model file"),
+])
+def test_model_file_not_a_model(work, capsys, text, must):
+    model = work / "bad-model.json"
+    if isinstance(text, bytes):
+        model.write_bytes(text)
+    else:
+        model.write_text(text)
+    out = work / "badmodel.json"
+    _bad(capsys, ["evaluate", work / "good.csv", "--model", model, "--json", out],
+         str(model), must, created=[out], untouched=[model])
+    _bad(capsys, ["diagnose", work / "good.csv", "--robot", ROBOT, "--model", model, "--json", out],
+         str(model), must, created=[out], untouched=[model])
+
+
+def test_model_file_does_not_exist(work, capsys):
+    model, out = work / "no-model.json", work / "nomodel.json"
+    _bad(capsys, ["evaluate", work / "good.csv", "--model", model, "--json", out],
+         str(model), "does not exist", created=[out, model])
+
+
+def test_model_with_tampered_parameters(work, capsys):
+    obj = json.loads((work / "model.json").read_text())
+    obj["parameters"] = obj["parameters"][:-1]
+    model = _write(work, "short-model.json", json.dumps(obj))
+    _bad(capsys, ["evaluate", work / "good.csv", "--model", model], str(model), "parameters")
+
+
+# --------------------------------------------------------------------------------------
+# outputs: --force, inputs never overwritten
+# --------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_output_exists_without_force(work, capsys, command):
+    out = _write(work, f"exists-{command}.json", '{"keep": "me"}\n')
+    _bad(capsys, _cmd(command, work / "good.csv", work, out), str(out), "--force", untouched=[out])
+
+
+def test_fit_out_is_the_input(work, capsys):
+    data = work / "good.csv"
+    _bad(capsys, ["fit", data, "--robot", ROBOT, "--out", data, "--force"], str(data), "input",
+         untouched=[data])
+
+
+def test_evaluate_json_is_the_model(work, capsys):
+    model = work / "model.json"
+    _bad(capsys, ["evaluate", work / "good.csv", "--model", model, "--json", model, "--force"],
+         str(model), "input", untouched=[model, work / "good.csv"])
+
+
+def test_evaluate_json_is_the_data(work, capsys):
+    data = work / "good.csv"
+    _bad(capsys, ["evaluate", data, "--model", work / "model.json", "--json", data, "--force"],
+         str(data), "input", untouched=[data])
+
+
+def test_diagnose_json_is_the_data(work, capsys):
+    data = work / "good.csv"
+    _bad(capsys, ["diagnose", data, "--robot", ROBOT, "--json", data, "--force"], str(data), "input",
+         untouched=[data])
+
+
+def test_discover_two_outputs_one_file(work, capsys):
+    out = work / "same.json"
+    _bad(capsys, ["discover", work / "good.csv", "--robot", ROBOT, "--json", out, "--out", out],
+         str(out), "same file", created=[out])
+
+
+def test_discover_second_output_exists_nothing_written(work, capsys):
+    first = work / "disc-history.json"
+    second = _write(work, "disc-model.json", "keep\n")
+    _bad(capsys, ["discover", work / "good.csv", "--robot", ROBOT, "--json", first, "--out", second],
+         str(second), "--force", created=[first], untouched=[second])
+
+
+def test_output_folder_missing(work, capsys):
+    out = work / "no-such-folder" / "model.json"
+    _bad(capsys, ["fit", work / "good.csv", "--robot", ROBOT, "--out", out], "does not exist", created=[out])
+
+
+# --------------------------------------------------------------------------------------
+# too few poses, rank deficiency
+# --------------------------------------------------------------------------------------
+
+def test_too_few_poses_says_how_many(work, capsys):
+    out = work / "three-model.json"
+    msg = _bad(capsys, ["fit", work / "three.csv", "--robot", ROBOT, "--out", out],
+               "too few poses", "3 poses", created=[out])
+    k = int(re.search(r"(\d+) identifiable parameters", msg).group(1))
+    need = int(re.search(r"need at least (\d+) poses", msg).group(1))
+    assert k > 9  # the model's count, not the 9 equations of 3 poses
+    assert need == k // 3 + 1
+
+
+def test_constant_joint_names_unidentifiable(work, capsys):
+    out = work / "still6-model.json"
+    assert main(["fit", str(work / "still6.csv"), "--robot", ROBOT, "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    held_line = next(ln for ln in text.splitlines() if ln.startswith("held at nominal"))
+    held = set(held_line.split(": ", 1)[1].split(", "))
+    ref = set(json.loads((work / "model.json").read_text())["identifiability"]["held_at_nominal"])
+    extra = held - ref
+    assert extra and all(name.endswith("6") for name in extra), (held, ref)
+    assert "q6 (constant" in text
+    obj = json.loads(out.read_text())
+    assert set(obj["identifiability"]["held_at_nominal"]) == held
+    for p in obj["parameters"]:
+        if p["name"] in held:
+            assert p["value"] == 0.0 and p["std"] == 0.0 and not p["identified"]
+
+
+# --------------------------------------------------------------------------------------
+# reproducibility: same inputs and seed -> byte-identical JSON
+# --------------------------------------------------------------------------------------
+
+def _twice(work, capsys, argv_of):
+    outs = []
+    for k in (1, 2):
+        out = work / f"repro-{argv_of.__name__}-{k}.json"
+        assert main([str(a) for a in argv_of(out)]) == 0
+        outs.append(out.read_bytes())
+    capsys.readouterr()
+    assert outs[0] == outs[1]
+    json.loads(outs[0])
+
+
+def test_reproducible_fit(work, capsys):
+    def fit(out):
+        return ["fit", work / "good.csv", "--robot", ROBOT, "--robust", "huber", "--seed", "3", "--out", out]
+    _twice(work, capsys, fit)
+
+
+def test_reproducible_evaluate(work, capsys):
+    def evaluate(out):
+        return ["evaluate", work / "good.csv", "--model", work / "model.json", "--json", out]
+    _twice(work, capsys, evaluate)
+
+
+def test_reproducible_diagnose(work, capsys):
+    def diagnose(out):
+        return ["diagnose", work / "good.csv", "--robot", ROBOT, "--folds", "3", "--seed", "5", "--json", out]
+    _twice(work, capsys, diagnose)
+
+
+def test_reproducible_discover(work, capsys):
+    def discover(out):
+        return ["discover", work / "good.csv", "--robot", ROBOT, "--folds", "3", "--seed", "5", "--json", out]
+    _twice(work, capsys, discover)

@@ -329,6 +329,19 @@ def test_discover_second_output_exists_nothing_written(work, capsys):
          str(second), "--force", created=[first], untouched=[second])
 
 
+@pytest.mark.parametrize("command", ["diagnose", "discover"])
+def test_plots_names_a_file(work, capsys, command):
+    out = work / f"plots-{command}.json"
+    argv = _cmd(command, work / "good.csv", work, out) + ["--plots", work / "good.csv"]
+    _bad(capsys, argv, "--plots", "folder", created=[out], untouched=[work / "good.csv"])
+
+
+def test_diagnose_model_and_effects_both(work, capsys):
+    out = work / "both.json"
+    _bad(capsys, ["diagnose", work / "good.csv", "--robot", ROBOT, "--model", work / "model.json",
+                  "--effects", "joint_compliance:2", "--json", out], "--model", "--effects", created=[out])
+
+
 def test_output_folder_missing(work, capsys):
     out = work / "no-such-folder" / "model.json"
     _bad(capsys, ["fit", work / "good.csv", "--robot", ROBOT, "--out", out], "does not exist", created=[out])

@@ -67,6 +67,16 @@ def check_outputs(outputs, force: bool, inputs=()) -> None:
             raise InputError(f"{path}: {opt}: folder {p.parent} does not exist")
 
 
+def check_folder(opt: str, path) -> None:
+    """Fail before any work when an output folder option names an existing file."""
+    from pathlib import Path
+
+    from torchcal.errors import InputError
+
+    if path is not None and Path(path).exists() and not Path(path).is_dir():
+        raise InputError(f"{path}: {opt} expects a folder, but this is a file")
+
+
 def read_data(path, robot):
     """The measurement CSV for `robot`; joint angles outside its limits are an error."""
     from torchcal.io import read_measurements

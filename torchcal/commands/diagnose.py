@@ -4,8 +4,9 @@ the model fails and which physical effect it is missing (see torchcal.diagnose).
 from __future__ import annotations
 
 from torchcal import modelfile
-from torchcal.commands._args import add_force, add_viz, check_outputs, positive_int, read_data
+from torchcal.commands._args import add_force, add_viz, check_folder, check_outputs, positive_int, read_data
 from torchcal.diagnose import diagnose
+from torchcal.errors import InputError
 from torchcal.io import write_json
 from torchcal.robot import robot as make_robot
 
@@ -45,6 +46,9 @@ def print_table(d) -> None:
 def run(args) -> int:
     check_outputs([("--json", args.json), ("--rrd", args.rrd)], args.force,
                   inputs=[args.data, args.model])
+    check_folder("--plots", args.plots)
+    if args.model and args.effects is not None:
+        raise InputError("--model and --effects both give the baseline effects; pass one of them")
     robot = make_robot(args.robot)
     effects = args.effects or []
     if args.model:

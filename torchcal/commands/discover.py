@@ -4,7 +4,7 @@ best significant effect each round until none is left; the error falls at each r
 from __future__ import annotations
 
 from torchcal import modelfile
-from torchcal.commands._args import add_force, add_viz, check_outputs, positive_int, read_data
+from torchcal.commands._args import add_force, add_viz, check_folder, check_outputs, positive_int, read_data
 from torchcal.diagnose import discover
 from torchcal.io import write_json
 from torchcal.robot import robot as make_robot
@@ -27,6 +27,7 @@ def add_parser(sub):
 def run(args) -> int:
     check_outputs([("--json", args.json), ("--out", args.out), ("--rrd", args.rrd)], args.force,
                   inputs=[args.data])
+    check_folder("--plots", args.plots)
     robot = make_robot(args.robot)
     m = read_data(args.data, robot)
     res = discover(robot, m, args.effects, folds=args.folds, seed=args.seed)

@@ -1,0 +1,409 @@
+"""Tests of the workspace sweep (torchcal.sweep), the clearance model behind it
+(torchcal.uncertainty) and the `torchcal sweep` command.
+
+What is checked, and against what:
+
+- clearance -> MD-H deviations against an explicit chain that inserts the shifted and
+  tilted joint axes as rigid transforms: equal up to second order (the difference falls
+  100x for clearances 10x smaller), for the KR 1000 Titan and for robots with parallel
+  axes (UR5e, PUMA 560); the deviation box is attained by a clearance state; Table 2 as
+  transcribed is self-consistent (limits = nominal + tolerance);
+- the sampled envelope lies inside the linearised interval hull up to O(|box|^2), and the
+  hull is attained (to second order) by the box vertex that the Jacobian's signs pick;
+- the default KR 1000 Titan sweep gives R_set from about 0.7 to 1 (the paper's Table 3);
+- determinism by seed, chunked == unchunked, the CSV round trip and its errors;
+- the command line: a bad option or value -> exit 2 with one line on stderr.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+import torchcal
+from torchcal import cli
+from torchcal import kinematics as K
+from torchcal.errors import InputError
+from torchcal.interval import Interval
+from torchcal.sweep import SweepResult, Workspace, linear_bounds, sample_workspace, sweep
+from torchcal.uncertainty import (KR1000_BEARING_LENGTH_MM, KR1000_CLEARANCE_MM, KR1000_LIMITS_MM,
+                                  KR1000_RADII_MM, KR1000_TOLERANCE_MM, ClearanceModel, box,
+                                  deviation_map, sample_states, states_to_deviations)
+
+DEVICES = ("cpu",) + (("cuda",) if torch.cuda.is_available() else ())
+
+
+@pytest.fixture(scope="module")
+def kr():
+    return torchcal.robot("kr1000titan")
+
+
+def _generic_model(robot, clearance=0.03, length=80.0):
+    n = robot.n
+    return ClearanceModel((50.0,) * 2 * n, (clearance,) * 2 * n, (length,) * n)
+
+
+def _rotvec(w):
+    W = torch.zeros(3, 3, dtype=torch.float64)
+    W[0, 1], W[0, 2], W[1, 2] = -w[2], w[1], -w[0]
+    W = W - W.T
+    return torch.linalg.matrix_exp(W)
+
+
+def _explicit_tcp(robot, model, q, states):
+    """TCP with each joint axis moved as a rigid body (the model's definition, exact)."""
+    table = robot.table
+    A = K.link_transforms(q, table)  # (n, 4, 4)
+    L = model.bearing_length_mm
+    T = torch.eye(4, dtype=torch.float64)
+    for j in range(robot.n):
+        u1, u2 = states[2 * j], states[2 * j + 1]
+        t, d = (u1 + u2) / 2, (u2 - u1) / L[j]
+        E = torch.eye(4, dtype=torch.float64)
+        E[:3, :3] = _rotvec(torch.stack([-d[1], d[0], torch.zeros((), dtype=torch.float64)]))
+        E[:2, 3] = t
+        if j == 0:  # joint 1: pivot at the base origin, in the frame turning with q1
+            Rz = torch.eye(4, dtype=torch.float64)
+            c, s = torch.cos(q[0] + table[0, 0]), torch.sin(q[0] + table[0, 0])
+            Rz[0, 0], Rz[0, 1], Rz[1, 0], Rz[1, 1] = c, -s, s, c
+            S = K.link_transforms(-table[:1, 0], table[:1])[0]
+            T = T @ Rz @ E @ S
+        else:  # joint j: pivot at the origin of frame j-1, fixed to link j-1
+            T = T @ E @ A[j]
+    return (T @ robot.tool)[:3, 3]
+
+
+# -- clearance model ------------------------------------------------------------------------
+def test_table2_constants_are_consistent():
+    assert len(KR1000_RADII_MM) == len(KR1000_CLEARANCE_MM) == len(KR1000_TOLERANCE_MM) == 12
+    for r, tol, (lo, hi) in zip(KR1000_RADII_MM, KR1000_TOLERANCE_MM, KR1000_LIMITS_MM):
+        assert hi - lo == pytest.approx(tol, abs=1e-9)
+        assert r in (lo, hi)
+    assert KR1000_CLEARANCE_MM[10] == 0.0  # DV11 as printed
+    assert len(KR1000_BEARING_LENGTH_MM) == 6
+    # default bearing length = shaft diameter
+    assert KR1000_BEARING_LENGTH_MM == pytest.approx([2 * r for r in KR1000_RADII_MM[::2]])
+
+
+@pytest.mark.parametrize("name", ("kr1000titan", "ur5e", "puma560"))
+def test_deviations_match_the_moved_axes_to_second_order(name):
+    robot = torchcal.robot(name)
+    model = ClearanceModel.defaults(robot) if name == "kr1000titan" else _generic_model(robot)
+    g = torch.Generator().manual_seed(11)
+    lo, hi = robot.limits[:, 0], robot.limits[:, 1]
+    worst = {}
+    for scale in (1.0, 0.1):
+        gaps, sizes = [], []
+        for _ in range(8):
+            q = lo + (hi - lo) * torch.rand(robot.n, generator=g, dtype=torch.float64)
+            st = sample_states(model, 1, g)[0] * scale
+            p0 = robot.fk(q)
+            exact = _explicit_tcp(robot, model, q, st)
+            lin = robot.fk(q, states_to_deviations(robot, model, st))
+            gaps.append((lin - exact).norm().item())
+            sizes.append((exact - p0).norm().item())
+        worst[scale] = max(gaps)
+        assert max(gaps) < 1e-3 * max(sizes)  # first order right
+    assert worst[0.1] < 0.02 * worst[1.0]  # the rest is second order
+
+
+def test_eq14_twist_columns_match_autograd():
+    """G of PAPER.md eq. 14 = A^-1 dA/dp (body twist in the link's end frame), any theta."""
+    from torchcal.uncertainty import _link_twist_columns
+    g = torch.Generator().manual_seed(0)
+    scale = torch.tensor([1.0, 300.0, 300.0, 1.0, 0.3], dtype=torch.float64)
+    for _ in range(5):
+        row = torch.randn(5, generator=g, dtype=torch.float64) * scale
+        q = torch.randn(1, generator=g, dtype=torch.float64)
+
+        def A(p):
+            return K.link_transforms(q, row[None], p[None])[0]
+
+        p0 = torch.zeros(5, dtype=torch.float64)
+        dA = torch.autograd.functional.jacobian(A, p0)  # (4, 4, 5)
+        D = torch.einsum("ij,jkp->ikp", torch.linalg.inv(A(p0)), dA)
+        G = torch.cat([D[:3, 3, :], torch.stack([D[2, 1], D[0, 2], D[1, 0]])])
+        torch.testing.assert_close(_link_twist_columns(row), G, rtol=1e-12, atol=1e-12)
+
+
+def test_kr1000_mapping_uses_the_documented_parameters(kr):
+    model = ClearanceModel.defaults(kr)
+    D = deviation_map(kr, model).reshape(6, 5, 12, 2)
+    # joint 4 (host link 3): tilt -> dalpha3 / dbeta3, shift -> da3 / dd3, no dtheta3
+    c7, c8, L4 = KR1000_CLEARANCE_MM[6], KR1000_CLEARANCE_MM[7], KR1000_BEARING_LENGTH_MM[3]
+    u = torch.zeros(12, 2, dtype=torch.float64)
+    u[6, 0], u[7, 0] = -c7, c8  # opposite contact: the largest tilt
+    dev = states_to_deviations(kr, model, u)
+    tilt = dev[2, 3:].norm().item()
+    assert tilt == pytest.approx((c7 + c8) / L4)
+    assert tilt == pytest.approx(model.max_tilt_rad()[3].item())
+    assert D[2, 0, 6:8].abs().max().item() == 0.0  # dtheta-free
+    # joint 3's host link 2 has alpha = 0 (parallel axes 2, 3): its y-shift needs dtheta2
+    assert D[1, 0, 4:6].abs().max().item() > 0
+
+
+def test_box_is_attained_and_contains_samples(kr):
+    model = ClearanceModel.defaults(kr)
+    b = box(kr, model)
+    D = deviation_map(kr, model).reshape(30, 12, 2)
+    c = torch.tensor(KR1000_CLEARANCE_MM, dtype=torch.float64)
+    for k in range(30):
+        norm = D[k].norm(dim=-1, keepdim=True)
+        u = torch.where(norm > 0, D[k] / norm.clamp_min(1e-300), torch.zeros_like(D[k])) * c[:, None]
+        dev = states_to_deviations(kr, model, u).reshape(30)
+        assert dev[k].item() == pytest.approx(b.upper.reshape(30)[k].item(), abs=1e-15)
+    for mode in ("contact", "disc"):
+        m = ClearanceModel(KR1000_RADII_MM, KR1000_CLEARANCE_MM, KR1000_BEARING_LENGTH_MM, mode=mode)
+        st = sample_states(m, 500, torch.Generator().manual_seed(0))
+        r = st.norm(dim=-1)
+        if mode == "contact":
+            torch.testing.assert_close(r, c.expand(500, 12))
+        else:
+            assert bool((r <= c + 1e-15).all()) and r.min() < 0.5 * c.max()
+        assert bool(b.contains(states_to_deviations(kr, m, st), atol=1e-15).all())
+
+
+def test_tolerance_box_adds_to_the_box(kr):
+    tol = ((1e-5, 0.01, 0.01, 1e-5, 1e-5),) * 6
+    m = ClearanceModel(KR1000_RADII_MM, KR1000_CLEARANCE_MM, KR1000_BEARING_LENGTH_MM, tolerance=tol)
+    plain = box(kr, ClearanceModel.defaults(kr))
+    torch.testing.assert_close(box(kr, m).upper, plain.upper + torch.tensor(tol, dtype=torch.float64))
+    dev = m.sample(kr, 200, torch.Generator().manual_seed(1))
+    assert bool(box(kr, m).contains(dev, atol=1e-15).all())
+
+
+def test_clearance_model_errors(kr):
+    with pytest.raises(InputError, match=r"expected 2n = 12 seat radii and clearances for 6 joints, got 10"):
+        ClearanceModel((1.0,) * 10, (0.01,) * 10, (100.0,) * 6)
+    with pytest.raises(InputError, match="clearance_mm: must be >= 0"):
+        ClearanceModel((1.0,) * 12, (-0.01,) * 12, (100.0,) * 6)
+    with pytest.raises(InputError, match="bearing_length_mm: must be > 0"):
+        ClearanceModel((1.0,) * 12, (0.01,) * 12, (0.0,) * 6)
+    with pytest.raises(InputError, match="mode: expected one of contact, disc, got 'loose'"):
+        ClearanceModel((1.0,) * 12, (0.01,) * 12, (1.0,) * 6, mode="loose")
+    with pytest.raises(InputError, match="no default clearance model for robot 'ur5e'"):
+        ClearanceModel.defaults(torchcal.robot("ur5e"))
+    with pytest.raises(InputError, match="clearance model has 6 joints but robot 'x' has"):
+        deviation_map(torchcal.Robot("x", kr.table[:5], kr.has_beta[:5], kr.limits[:5]), ClearanceModel.defaults(kr))
+
+
+# -- workspace sampling -----------------------------------------------------------------------
+def test_workspace_sample_is_inside_limits_and_filters(kr):
+    ws = Workspace()
+    q = sample_workspace(kr, 300, seed=5, workspace=ws)
+    assert q.shape == (300, 6) and q.dtype == torch.float64
+    assert bool(kr.within_limits(q).all())
+    assert bool(ws.accept(kr, q).all())
+    p = kr.fk(q)
+    assert bool((p[:, 2] > 0).all())
+    assert bool(((p[:, :2].norm(dim=-1) >= 350) | (p[:, 2] >= 1100)).all())
+    torch.testing.assert_close(q, sample_workspace(kr, 300, seed=5), rtol=0, atol=0)
+    assert not torch.equal(q, sample_workspace(kr, 300, seed=6))
+
+
+def test_workspace_errors(kr):
+    with pytest.raises(InputError, match="positive integer, got 0"):
+        sample_workspace(kr, 0)
+    with pytest.raises(InputError, match="workspace filter too strict"):
+        sample_workspace(kr, 10, workspace=Workspace(floor_z_mm=1e6), max_rounds=3)
+
+
+# -- the sweep --------------------------------------------------------------------------------
+def test_default_kr1000_reliability_spread_as_in_table3(kr):
+    """PAPER.md Table 3: R_set from 0.685 to 1 at an allowed distance error of 2.5 mm."""
+    r = sweep(kr, n_points=100, n_samples=300, allowed_mm=2.5, seed=0)
+    assert 0.65 <= r.r_set.min().item() <= 0.8
+    assert r.r_set.max().item() == 1.0
+    assert 0.2 <= (r.r_set == 1).double().mean().item() <= 0.8
+    torch.testing.assert_close(r.r_set, (2.5 / r.dist_upper).clamp(max=1.0))
+    assert bool((r.dist_lower == 0).all())  # the nominal state belongs to the set
+    assert bool((r.err_lower <= 0).all() and (r.err_upper >= 0).all())
+    # eta > 1 exactly where the whole interval is safe
+    assert torch.equal(r.eta > 1, r.dist_upper < 2.5)
+
+
+def test_sweep_is_deterministic_by_seed(kr):
+    a = sweep(kr, n_points=20, n_samples=40, seed=3)
+    b = sweep(kr, n_points=20, n_samples=40, seed=3)
+    c = sweep(kr, n_points=20, n_samples=40, seed=4)
+    for name in ("q", "err_lower", "err_upper", "dist_upper", "r_set", "eta", "lin_upper"):
+        assert torch.equal(getattr(a, name), getattr(b, name)), name
+    assert not torch.equal(a.q, c.q) and not torch.equal(a.dist_upper, c.dist_upper)
+
+
+@pytest.mark.parametrize("chunk", (13, 64, 120, 1000))
+def test_chunked_equals_unchunked(kr, chunk):
+    q = sample_workspace(kr, 7, seed=1)
+    ref = sweep(kr, q, n_samples=50, seed=2, chunk=1 << 20)
+    got = sweep(kr, q, n_samples=50, seed=2, chunk=chunk)
+    for name in ("err_lower", "err_upper", "dist_lower", "dist_upper", "r_set", "eta"):
+        torch.testing.assert_close(getattr(got, name), getattr(ref, name), rtol=1e-12, atol=1e-12)
+
+
+def test_envelope_equals_brute_force(kr):
+    q = sample_workspace(kr, 5, seed=8)
+    dev = ClearanceModel.defaults(kr).sample(kr, 30, torch.Generator().manual_seed(0))
+    r = sweep(kr, q, deviations=dev, include_nominal=False)
+    err = kr.fk(q[:, None], dev[None]) - kr.fk(q)[:, None]  # (5, 30, 3)
+    torch.testing.assert_close(r.err_lower, err.amin(1))
+    torch.testing.assert_close(r.err_upper, err.amax(1))
+    torch.testing.assert_close(r.dist_lower, err.norm(dim=-1).amin(1))
+    torch.testing.assert_close(r.dist_upper, err.norm(dim=-1).amax(1))
+
+
+@pytest.mark.parametrize("threads", (1, 3))
+def test_envelope_with_base_and_tool_frames_and_threads(kr, threads):
+    """The in-place chain kernel against Robot.fk, with a rotated base and a tool offset."""
+    import dataclasses
+    base = torch.eye(4, dtype=torch.float64)
+    base[:3, :3] = torch.linalg.matrix_exp(torch.tensor([[0.0, -0.3, 0.2], [0.3, 0.0, -0.1],
+                                                          [-0.2, 0.1, 0.0]], dtype=torch.float64))
+    base[:3, 3] = torch.tensor([100.0, -50.0, 20.0])
+    tool = torch.eye(4, dtype=torch.float64)
+    tool[:3, 3] = torch.tensor([30.0, -20.0, 250.0])
+    robot = dataclasses.replace(kr, base=base, tool=tool)
+    q = sample_workspace(kr, 9, seed=8)
+    dev = ClearanceModel.defaults(kr).sample(kr, 40, torch.Generator().manual_seed(0))
+    r = sweep(robot, q, deviations=dev, include_nominal=False, chunk=100, threads=threads)
+    err = robot.fk(q[:, None], dev[None]) - robot.fk(q)[:, None]  # (9, 40, 3)
+    torch.testing.assert_close(r.err_lower, err.amin(1))
+    torch.testing.assert_close(r.err_upper, err.amax(1))
+    torch.testing.assert_close(r.dist_upper, err.norm(dim=-1).amax(1))
+
+
+def test_envelope_inside_linear_hull_up_to_second_order(kr):
+    """Deviation box of half-widths s x (1e-3 rad, 1 mm): the sampled envelope (box
+    vertices that maximise each axis plus random points) lies inside the linearised hull
+    up to C s^2, and touches it to within C s^2 (the hull is attained)."""
+    q = sample_workspace(kr, 4, seed=3)
+    rad = torch.tensor([1e-3, 1.0, 1.0, 1e-3, 1e-3], dtype=torch.float64).expand(6, 5)
+    g = torch.Generator().manual_seed(0)
+    C = 0.1  # mm per unit s^2 (observed: 0.036)
+    gaps = {}
+    for s in (1.0, 0.1, 0.01):
+        b = Interval(-rad * s, rad * s)
+        worst = 0.0
+        for i in range(q.shape[0]):
+            sg = torch.sign(kr.param_jacobian(q[i])).reshape(3, 6, 5)
+            verts = torch.cat([sg, -sg]) * rad * s  # the maximising / minimising vertices
+            rnd = (2 * torch.rand(200, 6, 5, generator=g, dtype=torch.float64) - 1) * rad * s
+            r = sweep(kr, q[i:i + 1], deviations=torch.cat([verts, rnd]), linear=False)
+            hull, _ = linear_bounds(kr, q[i:i + 1], b)
+            assert bool(hull.contains(r.err_lower, atol=C * s * s).all())
+            assert bool(hull.contains(r.err_upper, atol=C * s * s).all())
+            gap = torch.cat([(r.err_upper - hull.upper).abs(), (r.err_lower - hull.lower).abs()]).max()
+            worst = max(worst, gap.item())
+        assert worst <= C * s * s
+        gaps[s] = worst
+    assert gaps[0.1] < 0.02 * gaps[1.0]  # quadratic, not linear
+    # and the default clearance model, whose box hull is loose: envelope strictly inside
+    r = sweep(kr, n_points=30, n_samples=200, seed=1)
+    assert bool(r.linear.contains(r.err_lower).all() and r.linear.contains(r.err_upper).all())
+    assert bool((r.dist_upper <= r.lin_dist_upper).all())
+    assert 0.2 < r.linear_ratio().median().item() < 1.0
+
+
+def test_per_axis_reliability(kr):
+    r = sweep(kr, n_points=10, n_samples=30, seed=0, allowed_axis_mm=1.0)
+    assert r.r_set_axis.shape == (10, 3) and r.eta_axis.shape == (10, 3)
+    from torchcal.reliability import r_set
+    torch.testing.assert_close(r.r_set_axis, r_set((-1.0, 1.0), (r.err_lower, r.err_upper)))
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_device_and_dtype(kr, device):
+    r = sweep(kr, n_points=6, n_samples=20, seed=0, device=device, dtype=torch.float32)
+    for name in ("q", "positions", "err_lower", "dist_upper", "r_set", "eta", "lin_upper"):
+        t = getattr(r, name)
+        assert t.device.type == device and t.dtype == torch.float32, name
+    ref = sweep(kr, n_points=6, n_samples=20, seed=0)
+    torch.testing.assert_close(r.dist_upper.double().cpu(), ref.dist_upper, rtol=0, atol=2e-3)
+
+
+def test_sweep_argument_errors(kr):
+    with pytest.raises(InputError, match="allowed distance error must be a positive number"):
+        sweep(kr, n_points=2, allowed_mm=-1.0)
+    with pytest.raises(InputError, match="number of samples must be a positive integer"):
+        sweep(kr, n_points=2, n_samples=0)
+    with pytest.raises(InputError, match=r"deviations: expected shape \(M, 6, 5\)"):
+        sweep(kr, n_points=2, deviations=torch.zeros(6, 5))
+    with pytest.raises(InputError, match=r"q: expected workspace points of shape \(N, 6\)"):
+        sweep(kr, torch.zeros(2, 3, 6))
+
+
+# -- CSV --------------------------------------------------------------------------------------
+def test_csv_round_trip(kr, tmp_path):
+    r = sweep(kr, n_points=12, n_samples=20, seed=0)
+    path = tmp_path / "sweep.csv"
+    r.to_csv(path)
+    header = path.read_text().splitlines()[0]
+    assert header == ("point,q1,q2,q3,q4,q5,q6,x,y,z,ex_lo,ex_hi,ey_lo,ey_hi,ez_lo,ez_hi,"
+                      "dist_lo,dist_hi,eta,r_set")
+    back = SweepResult.from_csv(path)
+    torch.testing.assert_close(back.q, r.q, rtol=1e-15, atol=1e-15)
+    for name in ("positions", "err_lower", "err_upper", "dist_lower", "dist_upper", "eta", "r_set"):
+        assert torch.equal(getattr(back, name), getattr(r, name)), name
+    assert back.lin_lower is None
+    with pytest.raises(InputError, match="output exists; pass --force"):
+        r.to_csv(path)
+    r.to_csv(path, force=True)
+
+
+def test_csv_errors(tmp_path):
+    with pytest.raises(InputError, match="sweep CSV does not exist"):
+        SweepResult.from_csv(tmp_path / "nope.csv")
+    bad = tmp_path / "bad.csv"
+    bad.write_text("point,q1,x\n0,1,2\n")
+    with pytest.raises(InputError, match="header must be point,q1,"):
+        SweepResult.from_csv(bad)
+    cols = "point,q1,q2,x,y,z,ex_lo,ex_hi,ey_lo,ey_hi,ez_lo,ez_hi,dist_lo,dist_hi,eta,r_set"
+    bad.write_text(cols + "\n0," + ",".join(["1"] * 14) + ",abc\n")
+    with pytest.raises(InputError, match="row 2, column r_set: not a number: 'abc'"):
+        SweepResult.from_csv(bad)
+    bad.write_text(cols + "\n0,1,2\n")
+    with pytest.raises(InputError, match="row 2: expected 16 columns, got 3"):
+        SweepResult.from_csv(bad)
+
+
+# -- command line -----------------------------------------------------------------------------
+def _one_line(text: str) -> bool:
+    return len(text.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("argv", (
+    ["sweep", "--bogus", "--out", "x.csv"],
+    ["sweep", "--n", "0", "--out", "x.csv"],
+    ["sweep", "--samples", "many", "--out", "x.csv"],
+    ["sweep", "--allowed", "-2", "--out", "x.csv"],
+    ["sweep", "--n", "5"],  # --out missing
+))
+def test_cli_bad_option_exits_2_with_one_line(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli.main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert _one_line(err) and err.startswith("torchcal: error:")
+
+
+def test_cli_runs_and_refuses_to_overwrite(tmp_path, capsys):
+    out = tmp_path / "s.csv"
+    argv = ["sweep", "--robot", "kr1000titan", "--n", "15", "--samples", "25", "--allowed", "2.5",
+            "--seed", "1", "--out", str(out), "--no-progress"]
+    assert cli.main(argv) == 0
+    captured = capsys.readouterr()
+    assert "R_set min" in captured.out and "R_set = 1 at" in captured.out
+    assert captured.err == ""
+    assert len(out.read_text().splitlines()) == 16
+    first = out.read_text()
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert _one_line(err) and "output exists; pass --force" in err
+    assert cli.main(argv + ["--force"]) == 0
+    assert out.read_text() == first  # same seed, same file
+    assert cli.main(["sweep", "--robot", "ur5e", "--n", "3", "--out", str(tmp_path / "u.csv"),
+                     "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert _one_line(err) and "no default clearance model" in err
+    assert not math.isnan(SweepResult.from_csv(out).r_set.sum().item())

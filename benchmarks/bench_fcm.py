@@ -1,0 +1,91 @@
+"""Tensor FCM (torchcal.fcm) against scikit-fuzzy's cmeans, same data, same start.
+
+    python benchmarks/bench_fcm.py [--n 1000000] [--iters 10] [--repeats 3] [--threads 2]
+
+1e6 points in 1-D and 3-D (4 Gaussian blobs), c = 4, m = 2, float64, the same initial
+memberships for both, a fixed number of iterations for both (eps = 0 / error = 0 never
+stop early). Both run on the same cores: torch with `torch.set_num_threads(threads)`,
+numpy/BLAS limited to the same count, OpenMP told to let idle threads sleep
+(OMP_WAIT_POLICY=PASSIVE unless set: spinning threads on a shared machine turn every torch
+op into a wait for a descheduled thread). Prints the median wall time of `repeats` runs,
+iterations per second, the speed ratio, and how far apart the two results are.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--n", type=int, default=1_000_000, help="points (default 1e6)")
+    ap.add_argument("--iters", type=int, default=10, help="FCM iterations, same for both (default 10)")
+    ap.add_argument("--repeats", type=int, default=3, help="timed runs per method, median reported (default 3)")
+    ap.add_argument("--threads", type=int, default=2, help="CPU threads (default 2)")
+    args = ap.parse_args(argv)
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+        os.environ[var] = str(args.threads)
+    # Idle OpenMP threads sleep instead of spinning: on a machine shared with other jobs a
+    # spinning team waits a scheduler slice at every parallel region (each torch op).
+    # Set OMP_WAIT_POLICY yourself to override.
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+    import numpy as np
+    import skfuzzy
+    import torch
+
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+    from torchcal.fcm import fcm
+
+    torch.set_num_threads(args.threads)
+    c, m, K = 4, 2.0, args.iters
+    print(f"FCM benchmark: N={args.n:,} points, c={c}, m={m}, {K} iterations (fixed), float64, "
+          f"{args.threads} threads (OMP_WAIT_POLICY={os.environ['OMP_WAIT_POLICY']}), median of {args.repeats}; torch {torch.__version__}, "
+          f"scikit-fuzzy {getattr(skfuzzy, '__version__', '?')}, numpy {np.__version__}")
+    print(f"load average before: {' '.join(f'{v:.2f}' for v in os.getloadavg())} (machine shared with other jobs)")
+    print(f"{'d':>2} {'method':<24} {'time s':>8} {'min s':>7} {'iter/s':>8} {'speed-up':>9}   agreement")
+    rng = np.random.default_rng(0)
+    for d in (1, 3):
+        centres = rng.uniform(-10, 10, size=(c, d))
+        x = centres[rng.integers(0, c, args.n)] + rng.standard_normal((args.n, d))  # (N, d)
+        u0 = rng.random((c, args.n))
+        u0 /= u0.sum(axis=0)  # (c, N)
+        xt = torch.from_numpy(x)
+        u0t = torch.from_numpy(u0)
+
+        def run_skfuzzy():
+            cntr, u, *_ = skfuzzy.cluster.cmeans(x.T, c, m, error=0.0, maxiter=K, init=u0)
+            return cntr, u
+
+        def run_torch():
+            res = fcm(xt, c, m=m, eps=0.0, max_iter=K, init_u=u0t)
+            assert res.n_iter == K
+            return res.centers.numpy(), res.memberships.numpy()
+
+        times = {}
+        out = {}
+        for name, fn in (("torchcal.fcm (torch)", run_torch), ("skfuzzy.cluster.cmeans", run_skfuzzy)):
+            fn()  # warm-up (allocator, threads)
+            ts = []
+            for _ in range(args.repeats):
+                t0 = time.perf_counter()
+                out[name] = fn()
+                ts.append(time.perf_counter() - t0)
+            times[name] = (statistics.median(ts), min(ts))
+        (ct, ut), (cs, us) = out["torchcal.fcm (torch)"], out["skfuzzy.cluster.cmeans"]
+        agree = f"max|dV| {np.abs(ct - cs).max():.1e}, max|dU| {np.abs(ut - us).max():.1e}"
+        ref = times["skfuzzy.cluster.cmeans"][0]
+        for name, (t, tmin) in times.items():
+            ratio = ref / t
+            note = agree if name.startswith("torchcal") else "(reference)"
+            print(f"{d:>2} {name:<24} {t:>8.3f} {tmin:>7.3f} {K / t:>8.1f} {ratio:>8.1f}x   {note}")
+    print(f"load average after:  {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,373 @@
+"""Tensor fuzzy c-means (torchcal.fcm), the hierarchical partition (torchcal.partition)
+and `torchcal partition`."""
+
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+from sklearn.base import clone
+from sklearn.metrics import adjusted_rand_score
+
+from torchcal import cli
+from torchcal.errors import InputError
+from torchcal.fcm import (FuzzyCMeans, choose_c, fcm, memberships, objective, partition_coefficient,
+                          partition_entropy, xie_beni)
+from torchcal.partition import Partition, partition_workspace
+
+skfuzzy = pytest.importorskip("skfuzzy")
+
+DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+
+
+def blobs(n_per, centres, std, seed):
+    rng = np.random.default_rng(seed)
+    centres = np.asarray(centres, dtype=np.float64)
+    x = np.concatenate([c + std * rng.standard_normal((n_per, centres.shape[1])) for c in centres])
+    y = np.repeat(np.arange(len(centres)), n_per)
+    return x, y
+
+
+# ------------------------------------------------------------------ FCM vs scikit-fuzzy
+
+@pytest.mark.parametrize("d", [1, 3])
+@pytest.mark.parametrize("m", [2.0, 1.7])
+def test_fcm_matches_skfuzzy_from_same_start(d, m):
+    rng = np.random.default_rng(d)
+    x = rng.standard_normal((600, d))
+    x[:200] += 3.0
+    u0 = rng.random((3, 600))
+    u0 /= u0.sum(axis=0)
+    c_ref, u_ref, _, _, _, p_ref, _ = skfuzzy.cluster.cmeans(x.T, 3, m, 1e-7, 300, init=u0)
+    res = fcm(torch.tensor(x), 3, m=m, eps=1e-7, init_u=u0, chunk_size=97)  # many chunks, a ragged last one
+    torch.testing.assert_close(res.centers, torch.tensor(c_ref), rtol=0, atol=1e-6)
+    torch.testing.assert_close(res.memberships, torch.tensor(u_ref), rtol=0, atol=1e-6)
+    assert res.n_iter == p_ref
+    d2 = ((x[None, :, :] - c_ref[:, None, :]) ** 2).sum(-1)  # (c, N)
+    assert res.objective == pytest.approx(float((u_ref ** m * d2).sum()), rel=1e-9)
+    assert res.objective == pytest.approx(objective(x, res.centers, res.memberships, m), rel=1e-12)
+
+
+def test_chunking_and_default_start_do_not_change_results():
+    x, _ = blobs(100, [[0, 0], [4, 0], [0, 4]], 0.5, 0)
+    a = fcm(x, 3, seed=3, chunk_size=17)
+    b = fcm(x, 3, seed=3)
+    torch.testing.assert_close(a.centers, b.centers)
+    torch.testing.assert_close(a.memberships, b.memberships)
+    assert a.n_iter == b.n_iter
+    c = fcm(x, 3, seed=3)  # explicit generator: reproducible, no global RNG
+    torch.testing.assert_close(b.memberships, c.memberships, rtol=0, atol=0)
+
+
+def test_batched_restarts_keep_the_best_single_run():
+    rng = np.random.default_rng(5)
+    x = rng.standard_normal((300, 2))
+    u0 = rng.random((4, 5, 300))
+    res = fcm(x, 5, eps=1e-8, init_u=u0, restarts=4)
+    singles = [fcm(x, 5, eps=1e-8, init_u=u0[r]) for r in range(4)]
+    best = min(range(4), key=lambda r: singles[r].objective)
+    assert len({s.n_iter for s in singles}) > 1  # restarts converge at different iterations
+    assert res.objective == pytest.approx(singles[best].objective, rel=1e-12)
+    assert res.n_iter == singles[best].n_iter
+    torch.testing.assert_close(res.centers, singles[best].centers)
+    torch.testing.assert_close(res.memberships, singles[best].memberships)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_fcm_keeps_dtype_and_device(device, dtype):
+    x, _ = blobs(50, [[0.0], [5.0]], 0.3, 1)
+    xt = torch.tensor(x, dtype=dtype, device=device)
+    res = fcm(xt, 2, restarts=3)
+    assert res.centers.dtype == dtype and res.centers.device.type == device
+    assert res.memberships.shape == (2, 100)
+    torch.testing.assert_close(res.memberships.sum(0), torch.ones(100, dtype=dtype, device=device))
+
+
+def test_point_exactly_on_a_centre():
+    x = torch.tensor([0.0, 1.0, 2.0, 10.0, 11.0], dtype=torch.float64)
+    u = memberships(x, [[2.0], [10.0], [10.0]])
+    torch.testing.assert_close(u[:, 2], torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64), rtol=0, atol=0)
+    torch.testing.assert_close(u[:, 3], torch.tensor([0.0, 0.5, 0.5], dtype=torch.float64), rtol=0, atol=0)
+    assert torch.isfinite(u).all()
+    # a start whose first centre is exactly the point x=2: eq. 28 hits d = 0 inside fcm
+    u0 = torch.tensor([[0, 0, 1, 0, 0], [1, 1, 0, 1, 1]], dtype=torch.float64)
+    res = fcm(x, 2, init_u=u0, max_iter=1, m=1.5)
+    torch.testing.assert_close(res.centers[0], torch.tensor([2.0], dtype=torch.float64))
+    torch.testing.assert_close(res.memberships[:, 2], torch.tensor([1.0, 0.0], dtype=torch.float64), rtol=0, atol=0)
+    assert torch.isfinite(res.memberships).all() and math.isfinite(res.objective)
+    # many exact duplicates (R_set = 1 saturates): still finite, columns sum to 1
+    r = torch.cat([torch.ones(50), torch.linspace(0.6, 0.99, 50)]).double()
+    res = fcm(r, 4, restarts=3)
+    assert torch.isfinite(res.memberships).all()
+    torch.testing.assert_close(res.memberships.sum(0), torch.ones(100, dtype=torch.float64))
+
+
+@pytest.mark.parametrize("scale", [1e-30, 1e30])
+def test_extreme_scales_take_the_careful_path(scale):
+    # m = 1.1 gives w = d^-20: it under/overflows at these scales, eq. 28 itself does not
+    x, _ = blobs(30, [[0.0, 0.0], [3.0, 1.0]], 0.5, 6)
+    u0 = np.random.default_rng(6).random((2, 60))
+    ref = fcm(x, 2, m=1.1, init_u=u0, max_iter=20)
+    res = fcm(x * scale, 2, m=1.1, init_u=u0, max_iter=20)
+    torch.testing.assert_close(res.memberships, ref.memberships, rtol=0, atol=1e-9)
+    torch.testing.assert_close(res.centers / scale, ref.centers, rtol=1e-9, atol=1e-12)
+    assert res.objective / scale ** 2 == pytest.approx(ref.objective, rel=1e-9)
+
+
+def test_memberships_of_the_result_follow_eq_28():
+    x, _ = blobs(50, [[0.0, 0.0, 0.0], [2.0, 2.0, 0.0]], 0.7, 7)
+    for m in (2.0, 1.5, 3.0):
+        res = fcm(x, 2, m=m, restarts=2)
+        torch.testing.assert_close(memberships(x, res.centers, m), res.memberships, rtol=0, atol=1e-12)
+        v, u = res.centers.numpy(), res.memberships.numpy()
+        d = np.sqrt(((x[None] - v[:, None]) ** 2).sum(-1))  # (c, N)
+        u28 = 1.0 / ((d[:, None, :] / d[None, :, :]) ** (2 / (m - 1))).sum(axis=1)  # eq. 28 literally
+        np.testing.assert_allclose(u, u28, rtol=0, atol=1e-12)
+
+
+# ------------------------------------------------------------------ planted clusters, estimator
+
+@pytest.mark.parametrize("centres", [[[0.0], [5.0], [12.0]], [[0, 0, 0], [6, 0, 0], [0, 6, 3]]])
+def test_planted_blobs_are_recovered(centres):
+    x, y = blobs(80, centres, 0.5, 2)
+    km = FuzzyCMeans(n_clusters=3, n_init=3).fit(x)
+    assert adjusted_rand_score(y, km.labels_.numpy()) == 1.0
+    assert km.centers_.shape == (3, len(centres[0]))
+    assert km.memberships_.shape == (3, 240)
+    assert torch.equal(km.predict(x), km.labels_)
+    found = km.centers_[km.predict(np.asarray(centres, dtype=np.float64))]
+    torch.testing.assert_close(found, torch.tensor(centres, dtype=torch.float64), rtol=0, atol=0.2)
+    assert 0 < km.n_iter_ < 300 and km.objective_ > 0
+    assert km.partition_coefficient_ > 0.8
+    assert clone(km).get_params()["n_clusters"] == 3  # scikit-learn conventions
+    assert torch.equal(km.fit_predict(x), km.labels_)
+
+
+def test_validity_indices():
+    crisp = torch.tensor([[1.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
+    flat = torch.full((4, 10), 0.25)
+    assert partition_coefficient(crisp) == pytest.approx(1.0)
+    assert partition_entropy(crisp) == pytest.approx(0.0)
+    assert partition_coefficient(flat) == pytest.approx(0.25)
+    assert partition_entropy(flat) == pytest.approx(math.log(4))
+    x, _ = blobs(40, [[0, 0], [5, 0]], 0.4, 3)
+    res = fcm(x, 2)
+    u, v = res.memberships.numpy(), res.centers.numpy()
+    d2 = ((x[None] - v[:, None]) ** 2).sum(-1)
+    xb = (u ** 2 * d2).sum() / (len(x) * ((v[0] - v[1]) ** 2).sum())
+    assert xie_beni(x, res.centers, res.memberships) == pytest.approx(xb, rel=1e-12)
+
+
+def test_number_of_clusters_chosen_by_xie_beni():
+    x, y = blobs(60, [[0, 0], [8, 0], [0, 8], [8, 8]], 0.6, 4)
+    c, res, scores = choose_c(x, (2, 6))
+    assert c == 4 and set(scores) == {2, 3, 4, 5, 6}
+    assert scores[4] == min(scores.values())
+    km = FuzzyCMeans(n_clusters="auto", c_range=(2, 6)).fit(x)
+    assert km.n_clusters_ == 4 and km.scores_ == pytest.approx(scores)
+    assert adjusted_rand_score(y, km.labels_.numpy()) == 1.0
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(x=np.arange(5.0), c=5), r"c: 5 clusters need more points than clusters .* 5 points"),
+    (dict(x=np.arange(5.0), c=1), r"c: expected at least 2 clusters, got 1"),
+    (dict(x=np.arange(5.0), c=2, m=1.0), r"m: expected a fuzzifier m > 1, got 1.0"),
+    (dict(x=np.full((6, 2), 3.0), c=2), r"x: all 6 points are identical"),
+    (dict(x=[0.0, 1.0, float("nan"), 3.0], c=2), r"x: contains NaN or inf \(first at row 2"),
+    (dict(x=[0.0, 1.0, float("inf"), 3.0], c=2), r"NaN or inf"),
+    (dict(x=np.zeros((2, 2, 2)), c=2), r"x: expected shape \(N,\) or \(N, d\)"),
+    (dict(x=np.arange(5.0), c=2, init_u=np.ones((3, 5))), r"init_u: expected shape \(2, 5\)"),
+])
+def test_fcm_errors(kwargs, match):
+    with pytest.raises(ValueError, match=match) as info:
+        fcm(**kwargs)
+    assert isinstance(info.value, InputError)
+
+
+def test_estimator_errors():
+    with pytest.raises(ValueError, match="not fitted yet"):
+        FuzzyCMeans().predict([1.0])
+    km = FuzzyCMeans(n_clusters=2).fit(np.array([[0.0, 0], [0, 1], [5, 5], [5, 6]]))
+    with pytest.raises(ValueError, match="x: has 3 features, but the model was fitted on 2"):
+        km.predict(np.zeros((1, 3)))
+    with pytest.raises(ValueError, match="n_clusters: expected an integer >= 2 or 'auto'"):
+        FuzzyCMeans(n_clusters="many").fit([0.0, 1.0, 2.0])
+
+
+# ------------------------------------------------------------------ hierarchical partition
+
+def synthetic_sweep(n=240, seed=0):
+    """Positions (mm) in a box; R_set falls from the middle to the edge, saturates at 1."""
+    g = torch.Generator().manual_seed(seed)
+    pos = torch.rand(n, 3, generator=g, dtype=torch.float64) * torch.tensor([2400.0, 2400.0, 1600.0])
+    pos -= torch.tensor([1200.0, 1200.0, -200.0])
+    radial = (pos[:, :2].norm(dim=1) / 1700.0).clamp(max=1.0)
+    r = (1.03 - 0.35 * radial ** 2).clamp(max=1.0)
+    return pos, r
+
+
+@pytest.fixture(scope="module")
+def paper_partition():
+    pos, r = synthetic_sweep()
+    return partition_workspace(pos, r, 4, [3, 2, 3, 2], seed=0, restarts=3)
+
+
+def test_levels_are_ordered_by_reliability(paper_partition):
+    p = paper_partition
+    assert p.n_levels == 4 and p.n_zones == 10
+    assert p.zone_level.tolist() == [1, 1, 1, 2, 2, 3, 3, 3, 4, 4]
+    assert torch.all(p.level_centers[:-1] > p.level_centers[1:])  # level 1 most reliable
+    lev = p.point_levels
+    for k in range(1, 4):  # 1-D FCM levels are intervals of R_set, in order
+        assert p.r_set[lev == k].min() >= p.r_set[lev == k + 1].max()
+    assert sorted(p.labels.unique().tolist()) == list(range(1, 11))
+    u = p.memberships
+    assert u.shape == (10, 240)
+    torch.testing.assert_close(u.sum(0), torch.ones(240, dtype=torch.float64))
+    summ = p.summary()
+    assert [s["points"] for s in summ] == torch.bincount(p.labels)[1:].tolist()
+    for s in summ:
+        assert s["r_set_min"] <= s["r_set_mean"] <= s["r_set_max"]
+
+
+def test_sub_zones_are_nearest_centres_in_level_features(paper_partition):
+    p = paper_partition
+    for lev in range(1, 5):
+        zones = torch.nonzero(p.zone_level == lev)[:, 0]  # 0-based zone indices of the level
+        sel = p.point_levels == lev
+        d = torch.cdist(p.features(lev)[sel], p.zone_centers[zones])  # (n_level, k)
+        assert torch.equal(zones[d.argmin(dim=1)] + 1, p.labels[sel])
+
+
+def test_r_weight_trades_reliability_against_space():
+    pos, r = synthetic_sweep(200, seed=4)
+
+    def spreads(w):
+        p = partition_workspace(pos, r, 2, [3, 3], r_weight=w, restarts=2)
+        r_sd = torch.stack([p.r_set[p.labels == z].std() for z in range(1, 7)]).mean()
+        xy_sd = torch.stack([p.positions[p.labels == z, :2].std(dim=0).norm() for z in range(1, 7)]).mean()
+        return float(r_sd), float(xy_sd)
+
+    r0, s0 = spreads(0.0)
+    r5, s5 = spreads(5.0)
+    assert r5 < 0.7 * r0 and s5 > s0
+
+
+def test_assign_training_and_new_points(paper_partition):
+    p = paper_partition
+    assert (p.assign(p.positions) == p.labels).float().mean() >= 0.95
+    near = p.positions[:5] + 1e-3
+    assert torch.equal(p.assign(near), p.labels[:5])
+    assert p.assign(p.positions[0].tolist()).shape == (1,)
+    with pytest.raises(ValueError, match=r"points: expected shape \(M, 3\)"):
+        p.assign(np.zeros((4, 2)))
+
+
+def test_json_round_trip(paper_partition, tmp_path):
+    p = paper_partition
+    text = p.to_json()
+    q = Partition.from_json(text)
+    assert q.to_json() == text
+    for name in ("positions", "r_set", "labels", "point_ids", "level_centers", "zone_level", "zone_centers",
+                 "feature_mean", "feature_std"):
+        assert torch.equal(getattr(q, name), getattr(p, name)), name
+    torch.testing.assert_close(q.memberships, p.memberships, rtol=0, atol=0)
+    assert q.summary() == p.summary()
+    probe = torch.tensor([[0.0, 0.0, 800.0], [900.0, -900.0, 300.0]])
+    assert torch.equal(q.assign(probe), p.assign(probe))
+    p.save(tmp_path / "p.json")
+    assert torch.equal(Partition.load(tmp_path / "p.json").labels, p.labels)
+    obj = json.loads(text)
+    obj["colour"] = "red"
+    with pytest.raises(ValueError, match=r"unknown keys \['colour'\]"):
+        Partition.from_dict(obj)
+
+
+def test_partition_auto_and_errors():
+    pos, r = synthetic_sweep(120, seed=1)
+    p = partition_workspace(pos, r, 3, "auto", restarts=1)
+    assert p.n_levels == 3 and all(2 <= (p.zone_level == k).sum() <= 3 for k in (1, 2, 3))
+    p = partition_workspace(pos, r, "auto", "auto", zone_range=(3, 4), restarts=1)
+    assert 2 <= p.n_levels <= 6 and all(3 <= (p.zone_level == k).sum() <= 4 for k in range(1, p.n_levels + 1))
+    assert p.options["levels"] == "auto" and p.options["zone_range"] == [3, 4]
+    with pytest.raises(ValueError, match="zones: 3 sub-zone counts"):
+        partition_workspace(pos, r, 4, [3, 2, 3])
+    with pytest.raises(ValueError, match=r"r_set: only 2 distinct values among 120 points; cannot form 4 levels"):
+        partition_workspace(pos, (r > 0.9).double(), 4, "auto")
+    with pytest.raises(ValueError, match=r"r_set: all 120 values are equal"):
+        partition_workspace(pos, torch.ones(120), 2, "auto")
+    with pytest.raises(ValueError, match=r"zones: level \d has \d+ points, too few for 200 sub-zones"):
+        partition_workspace(pos, r, 2, [200, 2])
+    with pytest.raises(ValueError, match=r"zone_range: expected 2 <= low <= high"):
+        partition_workspace(pos, r, 2, "auto", zone_range=(1, 3))
+    with pytest.raises(ValueError, match=r"r_set: contains NaN or inf"):
+        partition_workspace(pos, torch.where(r > 0.9, torch.nan, r), 2, "auto")
+
+
+# ------------------------------------------------------------------ command line
+
+def write_sweep_csv(path, pos, r, q_count=6):
+    eta = 2 * r - 1
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["point"] + [f"q{i}" for i in range(1, q_count + 1)] +
+                   ["x", "y", "z", "ex_lo", "ex_hi", "ey_lo", "ey_hi", "ez_lo", "ez_hi",
+                    "dist_lo", "dist_hi", "eta", "r_set"])
+        for j in range(len(r)):
+            w.writerow([j + 1] + [f"{10.0 * i:.3f}" for i in range(q_count)] +
+                       [f"{float(v):.6f}" for v in pos[j]] + ["-0.1", "0.1"] * 3 +
+                       ["0", f"{2.5 / float(r[j]):.6f}", f"{float(eta[j]):.6f}", repr(float(r[j]))])
+
+
+def test_cli_partition(tmp_path, capsys):
+    pos, r = synthetic_sweep(160, seed=2)
+    sweep = tmp_path / "sweep.csv"
+    out = tmp_path / "partition.json"
+    write_sweep_csv(sweep, pos, r)
+    argv = ["partition", str(sweep), "--levels", "4", "--zones", "3,2,3,2", "--seed", "1", "--out", str(out)]
+    assert cli.main(argv) == 0
+    text = capsys.readouterr().out
+    assert "160 points -> 4 levels, 10 zones" in text
+    assert len([ln for ln in text.splitlines() if ln.split() and ln.split()[0].isdigit()]) == 10
+    p = Partition.load(out)
+    assert p.n_zones == 10 and p.point_ids.tolist() == list(range(1, 161))
+    torch.testing.assert_close(p.positions, pos, rtol=0, atol=1e-6)
+    assert cli.main(argv) == 2
+    assert "output exists; pass --force" in capsys.readouterr().err
+    assert cli.main(argv + ["--force"]) == 0
+
+
+@pytest.mark.parametrize("edit, match", [
+    (lambda rows: [[c for c in row if c != "r_set"] for row in rows[:1]] + [row[:-1] for row in rows[1:]],
+     r"missing column\(s\) r_set in the header"),
+    (lambda rows: rows[:2] + [rows[2][:7] + ["abc"] + rows[2][8:]] + rows[3:], r"row 3, column x: 'abc' is not a number"),
+    (lambda rows: rows[:3] + [rows[3][:-1] + ["1.5"]] + rows[4:], r"row 4, column r_set: 1.5 is outside \[0, 1\]"),
+    (lambda rows: rows[:2] + [rows[2][:5]] + rows[3:], r"row 3: 5 fields, expected 20"),
+    (lambda rows: rows[:1], r"no data rows"),
+])
+def test_cli_bad_sweep_csv(tmp_path, capsys, edit, match):
+    pos, r = synthetic_sweep(20, seed=3)
+    sweep = tmp_path / "sweep.csv"
+    write_sweep_csv(sweep, pos, r)
+    rows = list(csv.reader(open(sweep)))
+    with open(sweep, "w", newline="") as fh:
+        csv.writer(fh).writerows(edit(rows))
+    assert cli.main(["partition", str(sweep), "--levels", "2", "--out", str(tmp_path / "p.json")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1
+    assert str(sweep) in err
+    import re
+    assert re.search(match, err), err
+
+
+def test_cli_bad_options(tmp_path, capsys):
+    pos, r = synthetic_sweep(20, seed=3)
+    sweep = tmp_path / "sweep.csv"
+    write_sweep_csv(sweep, pos, r)
+    assert cli.main(["partition", str(sweep), "--levels", "4", "--zones", "3,2", "--out", str(tmp_path / "p.json")]) == 2
+    assert "--zones: 2 counts for --levels 4" in capsys.readouterr().err
+    assert cli.main(["partition", str(tmp_path / "nope.csv"), "--out", str(tmp_path / "p.json")]) == 2
+    assert "sweep CSV does not exist" in capsys.readouterr().err

@@ -1,0 +1,151 @@
+"""`torchcal partition`: hierarchical FCM partition of a sweep (PAPER.md section 4).
+
+    torchcal partition SWEEP.csv --levels 4 [--zones 3,2,3,2 | auto] [--seed S]
+                       --out PARTITION.json [--force]
+
+Reads the sweep CSV written by `torchcal sweep` (columns point,q1..qn,x,y,z,ex_lo,ex_hi,
+ey_lo,ey_hi,ez_lo,ez_hi,dist_lo,dist_hi,eta,r_set; only point, x, y, z (mm) and r_set are
+used, other columns are ignored), writes the partition JSON (`torchcal.partition.Partition`)
+and prints one line per zone.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import torch
+
+from torchcal.errors import InputError
+from torchcal.partition import partition_workspace
+
+NEEDED = ("point", "x", "y", "z", "r_set")
+
+
+def add_parser(sub):
+    p = sub.add_parser("partition", help="hierarchical fuzzy c-means partition of a sweep CSV",
+                       description=__doc__.splitlines()[0])
+    p.add_argument("sweep", metavar="SWEEP.csv", help="sweep CSV (point,q1..qn,x,y,z,...,eta,r_set)")
+    p.add_argument("--levels", default="4", help="number of R_set levels (>= 2) or 'auto' (default 4)")
+    p.add_argument("--zones", default="auto",
+                   help="sub-zones per level, comma separated (paper: 3,2,3,2), or 'auto' (default)")
+    p.add_argument("--zone-range", default="2,3", metavar="LO,HI",
+                   help="sub-zone counts tried per level with --zones auto, best Xie-Beni (default 2,3)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the FCM random starts (default 0)")
+    p.add_argument("--restarts", type=int, default=5, help="FCM random starts, best kept (default 5)")
+    p.add_argument("--m", type=float, default=2.0, help="FCM fuzzifier m > 1 (default 2)")
+    p.add_argument("--r-weight", type=float, default=1.0,
+                   help="weight of standardised R_set against standardised x, y, z in the sub-zones (default 1)")
+    p.add_argument("--out", required=True, metavar="PARTITION.json", help="output partition JSON")
+    p.add_argument("--force", action="store_true", help="replace an existing output file")
+    p.set_defaults(func=run)
+    return p
+
+
+def read_sweep(path):
+    """Read point ids (N,) int64, positions (N, 3) mm and r_set (N,) from a sweep CSV.
+
+    Raises InputError naming the file, row (line number) and column of any problem.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: sweep CSV does not exist")
+    ids, rows = [], []
+    try:
+        with path.open(newline="") as fh:
+            reader = csv.reader(fh)
+            header = next(reader, None)
+            if header is None:
+                raise InputError(f"{path}: empty file; expected a header point,q1..qn,x,y,z,...,r_set")
+            header = [h.strip() for h in header]
+            missing = [c for c in NEEDED if c not in header]
+            if missing:
+                raise InputError(f"{path}: missing column(s) {', '.join(missing)} in the header; "
+                                 f"expected point,q1..qn,x,y,z,...,r_set")
+            col = {c: header.index(c) for c in NEEDED}
+            for fields in reader:
+                line = reader.line_num
+                if not fields or all(not f.strip() for f in fields):
+                    continue
+                if len(fields) != len(header):
+                    raise InputError(f"{path}: row {line}: {len(fields)} fields, expected {len(header)} as in the header")
+                vals = []
+                for c in NEEDED:
+                    text = fields[col[c]].strip()
+                    try:
+                        v = int(text) if c == "point" else float(text)
+                    except ValueError:
+                        what = "an integer" if c == "point" else "a number"
+                        raise InputError(f"{path}: row {line}, column {c}: {text!r} is not {what}") from None
+                    if c != "point" and not math.isfinite(v):
+                        raise InputError(f"{path}: row {line}, column {c}: {text!r} is not finite")
+                    vals.append(v)
+                if not 0.0 <= vals[4] <= 1.0:
+                    raise InputError(f"{path}: row {line}, column r_set: {vals[4]} is outside [0, 1]")
+                ids.append(vals[0])
+                rows.append(vals[1:])
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not a text CSV file ({exc})") from None
+    except csv.Error as exc:
+        raise InputError(f"{path}: malformed CSV: {exc}") from None
+    if not rows:
+        raise InputError(f"{path}: no data rows; expected one row per sweep point")
+    data = torch.tensor(rows, dtype=torch.float64)  # (N, 4)
+    return torch.tensor(ids, dtype=torch.int64), data[:, :3].contiguous(), data[:, 3].contiguous()
+
+
+def _levels(text):
+    if text == "auto":
+        return "auto"
+    try:
+        v = int(text)
+    except ValueError:
+        raise InputError(f"--levels: expected an integer >= 2 or 'auto', got {text!r}") from None
+    if v < 2:
+        raise InputError(f"--levels: expected an integer >= 2 or 'auto', got {text!r}")
+    return v
+
+
+def _zones(text, levels):
+    if text == "auto":
+        return "auto"
+    try:
+        ks = [int(t) for t in text.split(",")]
+    except ValueError:
+        raise InputError(f"--zones: expected comma separated integers (e.g. 3,2,3,2) or 'auto', got {text!r}") from None
+    if any(k < 1 for k in ks):
+        raise InputError(f"--zones: expected counts >= 1, got {text!r}")
+    if levels != "auto" and len(ks) != levels:
+        raise InputError(f"--zones: {len(ks)} counts for --levels {levels}; expected one count per level")
+    return ks
+
+
+def _range(text):
+    try:
+        lo, hi = (int(t) for t in text.split(","))
+    except ValueError:
+        raise InputError(f"--zone-range: expected LO,HI integers (e.g. 2,3), got {text!r}") from None
+    if not 2 <= lo <= hi:
+        raise InputError(f"--zone-range: expected 2 <= LO <= HI, got {text!r}")
+    return lo, hi
+
+
+def run(args) -> int:
+    levels = _levels(args.levels)
+    zones = _zones(args.zones, levels)
+    zone_range = _range(args.zone_range)
+    out = Path(args.out)
+    if out.exists() and not args.force:
+        raise InputError(f"{out}: output exists; pass --force to replace it")
+    ids, pos, r = read_sweep(args.sweep)
+    part = partition_workspace(pos, r, levels, zones, m=args.m, r_weight=args.r_weight, seed=args.seed,
+                               restarts=args.restarts, zone_range=zone_range, point_ids=ids)
+    part.save(out, force=args.force, inputs=[args.sweep])
+    print(f"{args.sweep}: {pos.shape[0]} points -> {part.n_levels} levels, {part.n_zones} zones -> {out}")
+    print(f"{'zone':>4} {'level':>5} {'points':>6} {'R_set min':>9} {'mean':>7} {'max':>7} "
+          f"{'centre x mm':>12} {'y mm':>10} {'z mm':>10}")
+    for s in part.summary():
+        print(f"{s['zone']:>4} {s['level']:>5} {s['points']:>6} {s['r_set_min']:>9.4f} {s['r_set_mean']:>7.4f} "
+              f"{s['r_set_max']:>7.4f} {s['center_x_mm']:>12.2f} {s['center_y_mm']:>10.2f} {s['center_z_mm']:>10.2f}")
+    return 0

@@ -225,7 +225,9 @@ def test_default_kr1000_reliability_spread_as_in_table3(kr):
 
 
 def test_sweep_is_deterministic_by_seed(kr):
+    before = torch.get_num_threads()
     a = sweep(kr, n_points=20, n_samples=40, seed=3)
+    assert torch.get_num_threads() == before  # the sweep's serial-ops switch is undone
     b = sweep(kr, n_points=20, n_samples=40, seed=3)
     c = sweep(kr, n_points=20, n_samples=40, seed=4)
     for name in ("q", "err_lower", "err_upper", "dist_upper", "r_set", "eta", "lin_upper"):

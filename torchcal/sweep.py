@@ -47,6 +47,7 @@ import math
 import sys
 import threading
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -89,13 +90,12 @@ class Workspace:
     column_height_mm: float = 1100.0
     reach_fraction: float = 0.95
 
-    def accept(self, robot, q: torch.Tensor, chunk: int = 4096) -> torch.Tensor:
-        """(N,) bool for q (N, n) rad (in chunks: the frames are (N, n + 2, 4, 4))."""
-        if q.shape[0] > chunk:
-            return torch.cat([self.accept(robot, q[a:a + chunk], chunk) for a in range(0, q.shape[0], chunk)])
-        frames = robot.frames(q)  # (N, n + 2, 4, 4)
-        p = frames[:, -1, :3, 3]
-        shoulder = frames[:, 1, :3, 3]
+    def accept(self, robot, q: torch.Tensor) -> torch.Tensor:
+        """(N,) bool for q (N, n) rad."""
+        q = robot.check_q(q)
+        table = robot.table.to(q)
+        p = robot.fk(q)  # (N, 3) TCP
+        shoulder = K.fk_positions(q[:, :1], table[:1], None, robot.base.to(q))  # (N, 3) frame-1 origin
         ok = p[:, 2] > self.floor_z_mm
         radial = p[:, :2].norm(dim=-1)
         ok &= ~((radial < self.column_radius_mm) & (p[:, 2] < self.column_height_mm))
@@ -398,34 +398,63 @@ def _envelope(robot, q, dev, include_nominal, chunk, bar, threads):
         e_lo[a0:a1], e_hi[a0:a1], d_lo[a0:a1], d_hi[a0:a1] = lo, hi, dlo, dhi
         return a1 - a0
 
-    starts = range(0, N, n_step)
-    if threads <= 1:
-        for a0 in starts:
-            bar.update(work(a0))
-    else:
-        with ThreadPoolExecutor(max_workers=threads) as ex:
-            for done in ex.map(work, starts):
-                bar.update(done)
+    for done in _map_chunks(work, range(0, N, n_step), threads):
+        bar.update(done)
     return e_lo, e_hi, d_lo, d_hi
 
 
-def linear_bounds(robot, q: torch.Tensor, dev_box: Interval, chunk: int = 4096):
+def linear_bounds(robot, q: torch.Tensor, dev_box: Interval, chunk: int = 1024, threads: int = 1):
     """Linearised error hull per point: Interval (N, 3) mm and the farthest-corner distance (N,).
 
-    q (N, n) rad, dev_box Interval (n, 5) of MD-H deviations.
+    q (N, n) rad, dev_box Interval (n, 5) of MD-H deviations; chunks of `chunk` points
+    shared among `threads` workers.
     """
     table = robot.table.to(q)
     base, tool = robot.base.to(q), robot.tool.to(q)
     flat = Interval(dev_box.lower.reshape(-1), dev_box.upper.reshape(-1)).to(q.device, q.dtype)
-    lo, hi = [], []
-    for a in range(0, q.shape[0], chunk):
+    N = q.shape[0]
+    lo = torch.empty(N, 3, dtype=q.dtype, device=q.device)
+    hi, far = torch.empty_like(lo), torch.empty(N, dtype=q.dtype, device=q.device)
+
+    def work(a):
         J = K.param_jacobian(q[a:a + chunk], table, None, base, tool)  # (Nc, 3, 5n)
         h = linear_hull(J, flat)
-        lo.append(h.lower)
-        hi.append(h.upper)
-    lo, hi = torch.cat(lo), torch.cat(hi)
-    far = torch.maximum(lo.abs(), hi.abs()).square().sum(-1).sqrt()
+        lo[a:a + chunk], hi[a:a + chunk] = h.lower, h.upper
+        far[a:a + chunk] = torch.maximum(h.lower.abs(), h.upper.abs()).square().sum(-1).sqrt()
+
+    for _ in _map_chunks(work, range(0, N, chunk), threads):
+        pass
     return Interval(lo, hi), far
+
+
+def _map_chunks(fn, starts, threads: int):
+    """fn(start) for every start, in order, on `threads` worker threads (inline for 1)."""
+    if threads <= 1:
+        for a in starts:
+            yield fn(a)
+        return
+    with ThreadPoolExecutor(max_workers=threads) as ex:
+        yield from ex.map(fn, starts)
+
+
+@contextmanager
+def _serial_ops(enabled: bool):
+    """Run torch ops on one core each while the sweep's own workers share the cores.
+
+    torch.set_num_threads is process-wide: it is set to 1 for the duration of the CPU
+    sweep and restored afterwards. Small ops split over intra-op threads (and batched
+    4x4 matmuls over BLAS threads) gain nothing and, on a busy machine, stall for
+    milliseconds on their barriers; the sweep's workers take the cores instead.
+    """
+    if not enabled:
+        yield
+        return
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)
 
 
 def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_mm: float = 2.5,
@@ -455,7 +484,9 @@ def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_m
             of `chunk` floats per thread. Default DEFAULT_CHUNK (16384) on a CPU,
             DEFAULT_CHUNK_GPU on a GPU. Results do not depend on it.
         threads: worker threads over point chunks (default: torch.get_num_threads() on a
-            CPU, 1 on a GPU). Results do not depend on it.
+            CPU, 1 on a GPU). On a CPU torch's own intra-op threads are set to 1 while the
+            sweep runs (and restored after): the workers use the cores instead. Results do
+            not depend on it.
         device, dtype: where and in which float type to compute (float64 default).
         progress: tqdm progress bar on stderr.
 
@@ -489,27 +520,31 @@ def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_m
     if linear:
         dev_box = model.box(robot) if model is not None else Interval(*torch.aminmax(deviations, dim=0))
     deviations = deviations.to(device=device, dtype=dtype)
-    with tqdm(total=q.shape[0], unit="pt", desc="sweep", file=sys.stderr, disable=not progress,
-              dynamic_ncols=True) as bar:
-        gpu = q.device.type != "cpu"
-        chunk = chunk or (DEFAULT_CHUNK_GPU if gpu else DEFAULT_CHUNK)
-        threads = threads or (1 if gpu else torch.get_num_threads())
-        e_lo, e_hi, d_lo, d_hi = _envelope(rb, q, deviations, include_nominal, chunk, bar, threads)
-    positions = rb.fk(q)
-    dist = (d_lo, d_hi)
-    rs = reliability.r_set((0.0, float(allowed_mm)), dist)
-    et = reliability.eta((None, float(allowed_mm)), dist)
-    lin_lo = lin_hi = lin_far = None
-    if linear:
-        hull, lin_far = linear_bounds(rb, q, dev_box)
-        lin_lo, lin_hi = hull.lower, hull.upper
-    rs_axis = et_axis = None
-    if allowed_axis_mm is not None:
-        a = float(allowed_axis_mm)
-        if not (math.isfinite(a) and a > 0):
-            raise InputError(f"allowed axis error must be a positive number of mm, got {allowed_axis_mm!r}")
-        rs_axis = reliability.r_set((-a, a), (e_lo, e_hi))
-        et_axis = reliability.eta((-a, a), (e_lo, e_hi))
+    if allowed_axis_mm is not None and not (isinstance(allowed_axis_mm, (int, float))
+                                            and math.isfinite(allowed_axis_mm) and allowed_axis_mm > 0):
+        raise InputError(f"allowed axis error must be a positive number of mm, got {allowed_axis_mm!r}")
+    gpu = q.device.type != "cpu"
+    chunk = chunk or (DEFAULT_CHUNK_GPU if gpu else DEFAULT_CHUNK)
+    threads = threads or (1 if gpu else torch.get_num_threads())
+    lin_lo = lin_hi = lin_far = rs_axis = et_axis = None
+    with _serial_ops(not gpu):
+        with tqdm(total=q.shape[0], unit="pt", desc="sweep", file=sys.stderr, disable=not progress,
+                  dynamic_ncols=True) as bar:
+            e_lo, e_hi, d_lo, d_hi = _envelope(rb, q, deviations, include_nominal, chunk, bar, threads)
+        if linear:
+            hull, lin_far = linear_bounds(rb, q, dev_box, chunk=1 << 16 if gpu else 1024, threads=threads)
+            lin_lo, lin_hi = hull.lower, hull.upper
+        positions = rb.fk(q)
+        rs, et = torch.empty_like(d_lo), torch.empty_like(d_lo)
+        piece = 1 << 16  # in pieces: the temporaries of eta and R_set stay small
+        for a in range(0, d_lo.shape[0], piece):
+            dist = (d_lo[a:a + piece], d_hi[a:a + piece])
+            rs[a:a + piece] = reliability.r_set((0.0, float(allowed_mm)), dist)
+            et[a:a + piece] = reliability.eta((None, float(allowed_mm)), dist)
+        if allowed_axis_mm is not None:
+            a = float(allowed_axis_mm)
+            rs_axis = reliability.r_set((-a, a), (e_lo, e_hi))
+            et_axis = reliability.eta((-a, a), (e_lo, e_hi))
     return SweepResult(q=q, positions=positions, err_lower=e_lo, err_upper=e_hi, dist_lower=d_lo,
                        dist_upper=d_hi, eta=et, r_set=rs, lin_lower=lin_lo, lin_upper=lin_hi,
                        lin_dist_upper=lin_far, allowed_mm=float(allowed_mm), n_samples=deviations.shape[0],

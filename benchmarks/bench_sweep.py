@@ -1,0 +1,179 @@
+"""Benchmark of the workspace sweep (torchcal.sweep.sweep) on the CPU.
+
+    .venv/bin/python benchmarks/bench_sweep.py            # headline + scaling table
+    .venv/bin/python benchmarks/bench_sweep.py --quick    # small sizes only
+
+Headline: N = 1e5 workspace points x M = 1e3 clearance states of the default KR 1000
+Titan model, on 2 CPU threads (torch.set_num_threads(2) and 2 sweep workers). Then a
+scaling table N = 1e3 .. 1e6 at M = 1e3 (at N = 1e6 M = 1e3 is run if the N = 1e5 time
+predicts less than 3 minutes, else M = 1e2, and the table says so).
+
+Each size runs in its own subprocess, so that its memory is its own (tracemalloc does
+not see torch's allocations). The peak is the kernel's high-water mark of resident memory
+(VmHWM in /proc/self/status), reset just before the sweep by writing 5 to
+/proc/self/clear_refs, so that it measures the sweep alone; where that is not possible,
+resource's ru_maxrss (the whole process) is used and the table says so. Columns:
+
+- t_sample: Latin hypercube + workspace filter of the N points (not in t_sweep);
+- t_sweep: wall time of the sweep (envelopes over N x M, linearised hull, eta, R_set);
+- cpu: CPU seconds (user + system) the process spent in it: on a machine shared with
+  other work, cpu / t_sweep below 2 shows how much of the 2 cores the sweep got;
+- ns/eval: t_sweep per (point, state) pair;
+- rss0: resident memory when the sweep starts (Python, torch, the N points);
+- sweep: peak during the sweep - rss0: what the sweep adds;
+- results: bytes of the returned tensors (O(N), about 250 bytes per point);
+- B/pt: sweep / N: the memory the sweep needs per point, whatever M;
+- dense: what one N x M x 3 float64 tensor of the errors would need (N M 24 bytes).
+Memory per point stays flat: the N x M work runs in fixed buffers (7 x 16384 float64
+per thread), only the per-point results grow with N.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+
+THREADS = 2
+
+
+def _status_mb(key: str) -> float | None:
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith(key + ":"):
+                    return float(line.split()[1]) / 1024.0  # kB
+    except OSError:
+        return None
+    return None
+
+
+def _cpu_s() -> float:
+    u = resource.getrusage(resource.RUSAGE_SELF)
+    return u.ru_utime + u.ru_stime
+
+
+def _reset_peak() -> bool:
+    """Reset the resident high-water mark (Linux >= 4.0); False where not possible."""
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+        return _status_mb("VmHWM") is not None
+    except OSError:
+        return False
+
+
+def _peak_mb(reset_ok: bool) -> float:
+    if reset_ok:
+        return _status_mb("VmHWM")
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
+
+
+def child(n: int, m: int, threads: int) -> dict:
+    import torch
+
+    torch.set_num_threads(threads)
+    import torchcal
+    from torchcal.sweep import sample_workspace, sweep
+
+    robot = torchcal.robot("kr1000titan")
+    sweep(robot, n_points=8, n_samples=16, seed=1, threads=threads)  # warm-up
+    t0 = time.perf_counter()
+    q = sample_workspace(robot, n, seed=0)
+    t_sample = time.perf_counter() - t0
+    reset_ok = _reset_peak()
+    rss0 = _status_mb("VmRSS") if reset_ok else _peak_mb(False)
+    t1, c1 = time.perf_counter(), _cpu_s()
+    r = sweep(robot, q, n_samples=m, seed=0, threads=threads)
+    t2, c2 = time.perf_counter(), _cpu_s()
+    peak = _peak_mb(reset_ok)
+    results = sum(v.nbytes for k, v in vars(r).items() if isinstance(v, torch.Tensor) and k != "q")
+    return {
+        "N": n, "M": m, "threads": threads, "reset_ok": reset_ok,
+        "t_sample_s": t_sample, "t_sweep_s": t2 - t1, "cpu_sweep_s": c2 - c1, "ns_per_eval": (t2 - t1) / (n * m) * 1e9,
+        "peak_mb": peak, "rss0_mb": rss0, "results_mb": results / 2**20,
+        "dense_mb": n * m * 3 * 8 / 2**20,
+        "r_set_min": float(r.r_set.min()), "share_r_set_1": float((r.r_set >= 1).double().mean()),
+    }
+
+
+def run_child(n: int, m: int, threads: int = THREADS) -> dict:
+    env = dict(os.environ, OMP_NUM_THREADS=str(threads), MKL_NUM_THREADS=str(threads))
+    out = subprocess.run([sys.executable, __file__, "--child", str(n), str(m), str(threads)],
+                         capture_output=True, text=True, env=env, check=False)
+    if out.returncode != 0:
+        raise SystemExit(f"child N={n} M={m} failed:\n{out.stderr}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _row(r: dict, note: str = "") -> str:
+    sweep_mb = r["peak_mb"] - r["rss0_mb"]
+    if not r["reset_ok"]:
+        note = (note + "; " if note else "") + "peak = whole process (ru_maxrss)"
+    return (f"{r['N']:>9,d} {r['M']:>6,d} {r['t_sample_s']:>9.2f} {r['t_sweep_s']:>9.2f} "
+            f"{r['cpu_sweep_s']:>8.2f} {r['ns_per_eval']:>8.1f} {r['rss0_mb']:>7.0f} {sweep_mb:>7.1f} {r['results_mb']:>8.1f} "
+            f"{sweep_mb * 2**20 / r['N']:>6.0f} {r['dense_mb']:>10,.0f}  {note}")
+
+
+HEADER = (f"{'N':>9} {'M':>6} {'t_sample':>9} {'t_sweep':>9} {'cpu':>8} {'ns/eval':>8} {'rss0':>7} "
+          f"{'sweep':>7} {'results':>8} {'B/pt':>6} {'dense':>10}\n"
+          f"{'':>9} {'':>6} {'s':>9} {'s':>9} {'s':>8} {'':>8} {'MB':>7} {'MB':>7} {'MB':>8} {'':>6} {'MB':>10}")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="N = 1e3, 1e4 only")
+    ap.add_argument("--child", nargs=3, type=int, metavar=("N", "M", "THREADS"), help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.child:
+        print(json.dumps(child(*args.child)))
+        return 0
+
+    import platform
+
+    import torch
+    print(f"torchcal sweep benchmark: KR 1000 Titan, default clearance model, float64, {THREADS} CPU threads")
+    print(f"torch {torch.__version__}, {platform.processor() or platform.machine()}, "
+          f"{os.cpu_count()} cores visible, load average {os.getloadavg()[0]:.1f} at start")
+    if args.quick:
+        print(HEADER)
+        for n in (1000, 10000):
+            print(_row(run_child(n, 1000)), flush=True)
+        return 0
+
+    head = run_child(100_000, 1000)
+    print("\nheadline: N = 1e5 points x M = 1e3 clearance states")
+    print(f"  time {head['t_sweep_s']:.1f} s for the sweep (+{head['t_sample_s']:.1f} s sampling), "
+          f"{head['ns_per_eval']:.0f} ns per (point, state)")
+    print(f"  memory: {head['rss0_mb']:.0f} MB resident before the sweep (Python, torch, q), the sweep "
+          f"adds {head['peak_mb'] - head['rss0_mb']:.0f} MB at its peak (results {head['results_mb']:.0f} MB); "
+          f"an N x M x 3 float64 error tensor alone would be {head['dense_mb']:,.0f} MB")
+    print(f"  R_set min {head['r_set_min']:.3f}, share of points with R_set = 1: {head['share_r_set_1']:.2f}")
+
+    print("\nscaling (time linear in N, memory per point flat):")
+    print(HEADER)
+    rows = [run_child(1000, 1000), run_child(10000, 1000), head]
+    for r in rows:
+        print(_row(r), flush=True)
+    predicted = head["t_sweep_s"] * 10
+    m_big = 1000 if predicted < 180 else 100
+    if m_big == 100:  # the same N step at M = 1e2, for a like-for-like ratio
+        small = run_child(100_000, 100)
+        print(_row(small, "M = 1e2, for comparison with the next row"), flush=True)
+    big = run_child(1_000_000, m_big)
+    note = "" if m_big == 1000 else f"M = 1e2: M = 1e3 predicted {predicted:.0f} s > 3 min"
+    print(_row(big, note), flush=True)
+    ref = head if m_big == 1000 else small
+    print(f"\nN = 1e3 -> 1e4 -> 1e5 at M = 1e3: t_sweep x{rows[1]['t_sweep_s'] / rows[0]['t_sweep_s']:.1f}, "
+          f"x{rows[2]['t_sweep_s'] / rows[1]['t_sweep_s']:.1f}; N = 1e5 -> 1e6 at M = {m_big}: "
+          f"t_sweep x{big['t_sweep_s'] / ref['t_sweep_s']:.1f}, cpu x{big['cpu_sweep_s'] / ref['cpu_sweep_s']:.1f} "
+          f"(linear: x10)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

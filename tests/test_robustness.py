@@ -156,7 +156,7 @@ def _short_row(lines):
 
 BAD_CSV = {f.__name__[1:]: f for f in (
     _missing_column, _extra_column, _wrong_joint_count, _text_in_number, _nan, _inf, _empty,
-    _duplicated_header, _negative_payload, _joint_out_of_range, _header_only, _short_row)}
+    _duplicated_header, _negative_payload, _header_only, _short_row)}
 
 
 @pytest.mark.parametrize("command", COMMANDS)
@@ -166,6 +166,18 @@ def test_bad_measurement_file(work, capsys, case, command):
     data = _write(work, f"{case}.csv", text + ("\n" if text else ""))
     out = work / f"{case}-{command}.json"
     _bad(capsys, _cmd(command, data, work, out), str(data), *must, created=[out], untouched=[data])
+
+
+def test_joint_out_of_limits_warns_and_goes_on(work, capsys):
+    """Out-of-limit angles are one warning line naming the row, not an error: preset
+    limits are data-sheet values and real sessions reach or pass them."""
+    text, must = _joint_out_of_range(_lines(work))
+    data = _write(work, "limits.csv", text + "\n")
+    out = work / "limits.json"
+    assert main([str(a) for a in ["fit", data, "--robot", ROBOT, "--out", out]]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("torchcal: warning:")
+    assert all(s in err[0] for s in must) and out.exists()
 
 
 @pytest.mark.parametrize("command", COMMANDS)

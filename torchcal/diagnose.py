@@ -9,13 +9,22 @@
    - Only what the model cannot already absorb counts: C is projected off span(J_free)
      and its numerical rank k (relative singular value > 1e-6) is the number of new
      parameters. k = 0 -> absorbed, never credited.
-   - Cross-validated RMS: K folds by pose id (repeats of a pose stay together), the
-     linear problem solved on the other folds, predicted on the held-out one.
+   - Cross-validated: K folds by pose id (repeats of a pose stay together), the linear
+     problem solved on the other folds and predicted on the held-out one; the held-out
+     RMS and the held-out Gaussian log-likelihood (variance fitted on the other folds).
    - Significance: nested-model F-test on all rows, ``F = ((RSS0 - RSS1) / k) /
      (RSS1 / (3N - p0 - k))``, with a Bonferroni-corrected level ``alpha / candidates``
-     (alpha = 1e-3), *and* a cross-validated RMS gain of at least `min_gain` (2 %).
-     Pure noise passes both with probability well under 1e-3.
-4. Candidates are reported best first (lowest cross-validated RMS). The verdict is the
+     (alpha = 1e-3), *and* a held-out RMS gain of at least `min_gain` (2 %).
+   - `joint_clearance` also has a random part per move that no deterministic term can
+     predict. Its candidate adds a variance term: residual covariance
+     ``sigma^2 I + tau_J^2 B_J B_J^T`` with B_J (3, 2) the TCP motion per random tilt of
+     joint J's axis about the two directions perpendicular to it. It is significant when
+     its deterministic part is, or when a likelihood-ratio test of tau_J (boundary
+     mixture 0.5 chi2) passes the same level and the held-out log-likelihood gains at
+     least `MIN_LL_GAIN` nats per pose.
+   Candidates are ranked by the held-out log-likelihood gain per pose (`score`); for
+   deterministic terms that orders them as the held-out RMS does.
+4. Candidates are reported best first (significant ones, then by score). The verdict is the
    best significant one; for a joint effect, a further joint of the same effect is added
    while, given the joints chosen so far, it is the best significant candidate of all
    (forward selection), so a hidden ``joint_compliance:2,3`` is named with both joints
@@ -29,6 +38,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.optimize
 import scipy.stats
 import torch
 
@@ -41,11 +51,22 @@ from torchcal.spec import EFFECTS, parse_specs
 
 ALPHA = 1e-3
 MIN_GAIN = 0.02
+MIN_LL_GAIN = 0.15  # nats per pose, for a variance (random clearance) term: the Gaussian
+# model of a disc-shaped random tilt is misspecified, which alone is worth ~0.06
 RANK_TOL = 1e-6
+MRAD = 1e-3  # random-clearance tilts are fitted in mrad
 
 
 @dataclass
 class Candidate:
+    """One candidate effect and its evidence.
+
+    rms_mm: training distance RMS of the linearised refit with it; cv_rms_mm: held-out;
+    cv_gain: relative held-out RMS gain; score: held-out log-likelihood gain, nats per
+    pose (the ranking); p_value: F-test (deterministic part) or likelihood-ratio test
+    (random part), whichever is smaller; k: new identifiable parameters.
+    """
+
     effect: str
     joints: tuple
     rms_mm: float
@@ -54,6 +75,7 @@ class Candidate:
     p_value: float
     k: int
     significant: bool = False
+    cv_gain: float = 0.0
 
     @property
     def spec(self) -> str:
@@ -62,7 +84,7 @@ class Candidate:
     def to_dict(self) -> dict:
         return {"effect": self.effect, "joints": list(self.joints), "rms_mm": self.rms_mm,
                 "cv_rms_mm": self.cv_rms_mm, "score": self.score, "significant": self.significant,
-                "p_value": self.p_value, "new_parameters": self.k}
+                "p_value": self.p_value, "new_parameters": self.k, "cv_gain": self.cv_gain}
 
 
 @dataclass
@@ -99,6 +121,37 @@ def _rms(r: np.ndarray) -> float:
     return float(np.sqrt((r.reshape(-1, 3) ** 2).sum(-1).mean()))
 
 
+# -- the random part: residual covariance sigma^2 I + sum_j tau_j^2 B_j B_j^T ------------
+
+def _variance_loglik(r3: np.ndarray, Bs: np.ndarray | None, logp: np.ndarray) -> np.ndarray:
+    """Per-row Gaussian log-likelihood (M,) of residuals r3 (M, 3).
+
+    Bs (M, 3, K): TCP displacement per mrad of random tilt; logp = [log sigma^2,
+    log tau_1^2, ...]. Bs None: isotropic sigma^2 only.
+    """
+    S = np.exp(logp[0]) * np.eye(3)[None].repeat(len(r3), 0)
+    if Bs is not None and Bs.shape[-1]:
+        tau = np.exp(logp[1:]).repeat(Bs.shape[-1] // (len(logp) - 1))
+        S = S + np.einsum("mik,k,mjk->mij", Bs, tau, Bs)
+    sign, logdet = np.linalg.slogdet(S)
+    quad = np.einsum("mi,mi->m", r3, np.linalg.solve(S, r3[..., None])[..., 0])
+    return -0.5 * (logdet + quad + 3 * np.log(2 * np.pi))
+
+
+def _fit_variance(r3: np.ndarray, Bs: np.ndarray | None) -> np.ndarray:
+    """Maximum-likelihood log variances for residual rows r3 (M, 3)."""
+    s2 = float((r3 ** 2).mean())
+    if Bs is None or not Bs.shape[-1]:
+        return np.array([np.log(max(s2, 1e-300))])
+    K = Bs.shape[-1] // 2
+    x0 = np.concatenate([[np.log(max(s2, 1e-300))], np.full(K, np.log(max(s2, 1e-300)) - 2 * np.log(
+        max(float(np.sqrt((Bs ** 2).sum((1, 2)).mean())), 1e-12)))])
+    fun = lambda x: -_variance_loglik(r3, Bs, x).sum()  # noqa: E731
+    res = scipy.optimize.minimize(fun, x0, method="L-BFGS-B",
+                                  bounds=[(np.log(s2) - 9, np.log(s2) + 5)] + [(x0[1] - 30, x0[1] + 10)] * K)
+    return res.x
+
+
 class _Linear:
     """The linearised refit around a fit: residual r (3N,), base columns A (3N, p0)."""
 
@@ -108,8 +161,10 @@ class _Linear:
         self.Q, _ = np.linalg.qr(A) if A.size else (np.zeros((len(r), 0)), None)
         self.folds = np.unique(folds)
 
-    def new_columns(self, C: np.ndarray) -> np.ndarray:
+    def new_columns(self, C: np.ndarray | None) -> np.ndarray:
         """An orthonormal basis (3N, k) of what C adds beyond span(A)."""
+        if C is None or not C.size:
+            return np.zeros((len(self.r), 0))
         Cp = C - self.Q @ (self.Q.T @ C)
         norms = np.linalg.norm(C, axis=0)
         Cp = Cp[:, norms > 0] / norms[norms > 0]
@@ -118,23 +173,32 @@ class _Linear:
         U, s, _ = np.linalg.svd(Cp, full_matrices=False)
         return U[:, s > RANK_TOL]  # columns were normalised: s is relative
 
-    def rss(self, B: np.ndarray) -> float:
-        """Residual sum of squares of r on [A B] (B orthogonal to A and orthonormal)."""
+    def residual(self, B: np.ndarray) -> np.ndarray:
+        """Residual (3N,) of r on [A B] over all rows (B orthonormal, orthogonal to A)."""
         e = self.r - self.Q @ (self.Q.T @ self.r)
-        return float(e @ e - ((B.T @ e) ** 2).sum()) if B.size else float(e @ e)
+        return e - B @ (B.T @ e) if B.size else e
 
-    def cv_rms(self, B: np.ndarray) -> float:
-        """Cross-validated distance RMS of r on [A B]."""
+    def cross_validate(self, B: np.ndarray, Bs: np.ndarray | None):
+        """Held-out distance RMS and mean held-out log-likelihood per pose of r on [A B],
+        with the residual covariance model Bs (N, 3, K) (None: isotropic)."""
         X = np.hstack([self.A, B]) if B.size else self.A
-        out = np.empty_like(self.r)
+        held = np.empty_like(self.r)
+        ll = np.empty(len(self.r) // 3)
+        rows3 = self.rows[::3]
         for f in self.folds:
             test = self.rows == f
+            train_res = self.r[~test]
             if X.shape[1]:
                 coef, *_ = np.linalg.lstsq(X[~test], self.r[~test], rcond=1e-10)
-                out[test] = self.r[test] - X[test] @ coef
+                held[test] = self.r[test] - X[test] @ coef
+                train_res = train_res - X[~test] @ coef
             else:
-                out[test] = self.r[test]
-        return _rms(out)
+                held[test] = self.r[test]
+            t3 = rows3 == f
+            Bf = None if Bs is None else Bs[~t3]
+            logp = _fit_variance(train_res.reshape(-1, 3), Bf)
+            ll[t3] = _variance_loglik(held[test].reshape(-1, 3), None if Bs is None else Bs[t3], logp)
+        return _rms(held), float(ll.mean())
 
 
 def _candidate_specs(robot: Robot, present: dict, ctx) -> list[tuple[str, tuple]]:
@@ -195,6 +259,13 @@ def where_it_fails(robot: Robot, m: Measurements, residuals: torch.Tensor, bins:
     return out
 
 
+def random_clearance_basis(robot: Robot, ctx, xyz: torch.Tensor, joint: int) -> np.ndarray:
+    """(N, 3, 2) TCP displacement in mm per mrad of random tilt of `joint`'s axis."""
+    from torchcal.effects.joint_clearance import random_basis
+
+    return (random_basis(ctx, joint, xyz) * MRAD).numpy()
+
+
 def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: int = 0,
              alpha: float = ALPHA, min_gain: float = MIN_GAIN, base_fit: FitResult | None = None) -> Diagnosis:
     """Rank the candidate effects missing from `robot` + `effects` on measurements m."""
@@ -206,67 +277,81 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
     theta = base_fit.theta
     r = base_fit.residuals.reshape(-1).numpy()
     A = model.jacobian(theta, ctx).reshape(-1, model.n_params)[:, base_fit.report.free].detach().numpy()
-    lin = _Linear(r, A, fold_ids(m.pose, folds, seed))
-    base_cv = lin.cv_rms(np.zeros((len(r), 0)))
-    rss0, p0, n_eq = lin.rss(np.zeros((len(r), 0))), A.shape[1], len(r)
+    folds_ = fold_ids(m.pose, folds, seed)
+    lin = _Linear(r, A, folds_)
+    n_eq = len(r)
     present = {s.name: s.joints for s in parse_specs(specs, robot.n)} if specs else {}
     cands_specs = _candidate_specs(robot, present, ctx)
     level = alpha / max(len(cands_specs), 1)
 
-    def judge(lin_, rss0_, p0_, base_cv_, name, joints, C):
+    def judge(name, joints, lin_, Bs_in, C, Bs, base_cv, base_ll):
+        """Evidence for adding (C, Bs) to the linear base lin_ with variance terms Bs_in."""
         B = lin_.new_columns(C)
         k = B.shape[1]
-        rss1 = lin_.rss(B)
-        if k == 0:
-            return Candidate(name, joints, _rms(lin_.r), base_cv_, 0.0, 1.0, 0)
-        dof = max(n_eq - p0_ - k, 1)
-        F = ((rss0_ - rss1) / k) / max(rss1 / dof, 1e-300)
-        pval = float(scipy.stats.f.sf(F, k, dof))
-        cv = lin_.cv_rms(B)
-        score = (base_cv_ - cv) / max(base_cv_, 1e-300)
-        c = Candidate(name, joints, float(np.sqrt(max(rss1, 0) / (n_eq / 3))), cv, float(score), pval, k)
-        c.significant = bool(pval < level and score >= min_gain)
-        return c
+        e0, e1 = lin_.residual(np.zeros((n_eq, 0))), lin_.residual(B)
+        rss0, rss1 = float(e0 @ e0), float(e1 @ e1)
+        p_f = 1.0
+        if k:
+            dof = max(n_eq - lin_.A.shape[1] - k, 1)
+            F = ((rss0 - rss1) / k) / max(rss1 / dof, 1e-300)
+            p_f = float(scipy.stats.f.sf(F, k, dof))
+        Bs_all = Bs_in if Bs is None else (Bs if Bs_in is None else np.concatenate([Bs_in, Bs], -1))
+        cv, ll = lin_.cross_validate(B, Bs_all)
+        gain = (base_cv - cv) / max(base_cv, 1e-300)
+        score = ll - base_ll
+        significant = k > 0 and p_f < level and gain >= min_gain
+        p_lr = 1.0
+        if Bs is not None:  # likelihood-ratio test of the random part, all rows
+            e3 = e1.reshape(-1, 3)
+            ll0 = _variance_loglik(e3, Bs_in, _fit_variance(e3, Bs_in)).sum()
+            ll1 = _variance_loglik(e3, Bs_all, _fit_variance(e3, Bs_all)).sum()
+            p_lr = float(0.5 * scipy.stats.chi2.sf(max(2 * (ll1 - ll0), 0.0), Bs.shape[-1] // 2))
+            significant = significant or (p_lr < level and score >= MIN_LL_GAIN)
+        return Candidate(name, joints, float(np.sqrt(max(rss1, 0) / (n_eq / 3))), cv, float(score),
+                         min(p_f, p_lr), k + (0 if Bs is None else Bs.shape[-1] // 2),
+                         bool(significant), float(gain))
 
-    columns = {}
-    cands = []
+    columns, variance = {}, {}
     for name, joints in cands_specs:
-        C = candidate_columns(robot, model, theta, ctx, _spec(name, joints))
-        columns[(name, joints)] = C
-        cands.append(judge(lin, rss0, p0, base_cv, name, joints, C))
-    cands.sort(key=lambda c: (not c.significant, c.cv_rms_mm))
+        columns[(name, joints)] = candidate_columns(robot, model, theta, ctx, _spec(name, joints))
+        if name == "joint_clearance":
+            variance[(name, joints)] = random_clearance_basis(robot, ctx, m.xyz, joints[0])
+    base_cv, base_ll = lin.cross_validate(np.zeros((n_eq, 0)), None)
+    cands = [judge(n, j, lin, None, C, variance.get((n, j)), base_cv, base_ll)
+             for (n, j), C in columns.items()]
+    cands.sort(key=lambda c: (not c.significant, -c.score))
     verdict = next((c for c in cands if c.significant), None)
     if verdict is not None and verdict.joints:
-        # forward selection of further joints of the same effect
+        # forward selection: add a joint of the same effect while, given the joints chosen
+        # so far, it is the best significant candidate of all
         chosen = list(verdict.joints)
-        C_in = columns[(verdict.effect, verdict.joints)]
         while True:
-            A2 = np.hstack([lin.A, C_in])
-            lin2 = _Linear(lin.r, A2, fold_ids(m.pose, folds, seed))
-            rss0_2, cv0_2 = lin2.rss(np.zeros((n_eq, 0))), lin2.cv_rms(np.zeros((n_eq, 0)))
-            best = None  # the best significant candidate of any effect, given the chosen
-            for (name, joints), C in columns.items():
-                if name == verdict.effect and joints[0] in chosen:
-                    continue
-                c = judge(lin2, rss0_2, A2.shape[1], cv0_2, name, joints, C)
-                if c.significant and (best is None or c.cv_rms_mm < best.cv_rms_mm):
-                    best = c
+            C_in = np.hstack([columns[(verdict.effect, (j,))] for j in chosen])
+            Bs_in = None if verdict.effect != "joint_clearance" else \
+                np.concatenate([variance[(verdict.effect, (j,))] for j in chosen], -1)
+            lin_in = _Linear(r, np.hstack([A, C_in]), folds_)
+            cv_in, ll_in = lin_in.cross_validate(np.zeros((n_eq, 0)), Bs_in)
+            # other effects' random parts are the next round's business: not refitted here
+            step = [judge(n, j, lin_in, Bs_in, C, variance.get((n, j)) if n == verdict.effect else None,
+                          cv_in, ll_in)
+                    for (n, j), C in columns.items() if not (n == verdict.effect and j[0] in chosen)]
+            best = max((c for c in step if c.significant), key=lambda c: c.score, default=None)
             if best is None or best.effect != verdict.effect:
                 break  # another effect explains more: it is the next round's business
             chosen.append(best.joints[0])
-            C_in = np.hstack([C_in, columns[(verdict.effect, best.joints)]])
         if len(chosen) > 1:
-            verdict = Candidate(verdict.effect, tuple(sorted(chosen)), best_rms(lin, C_in),
-                                lin.cv_rms(lin.new_columns(C_in)), verdict.score, verdict.p_value,
-                                lin.new_columns(C_in).shape[1], True)
+            C_all = np.hstack([columns[(verdict.effect, (j,))] for j in chosen])
+            Bs_all = None if verdict.effect != "joint_clearance" else \
+                np.concatenate([variance[(verdict.effect, (j,))] for j in chosen], -1)
+            B = lin.new_columns(C_all)
+            cv, ll = lin.cross_validate(B, Bs_all)
+            e = lin.residual(B)
+            verdict = Candidate(verdict.effect, tuple(sorted(chosen)), float(np.sqrt(e @ e / (n_eq / 3))),
+                                cv, ll - base_ll, verdict.p_value, B.shape[1], True,
+                                (base_cv - cv) / max(base_cv, 1e-300))
             cands.insert(0, verdict)
     where = where_it_fails(robot, m, base_fit.residuals)
     return Diagnosis(specs, base_fit, base_cv, cands, verdict, where)
-
-
-def best_rms(lin: _Linear, C: np.ndarray) -> float:
-    """Training distance RMS of the linear refit with columns C added."""
-    return float(np.sqrt(max(lin.rss(lin.new_columns(C)), 0) / (len(lin.r) / 3)))
 
 
 @dataclass

@@ -6,7 +6,8 @@ each effect's parameters in the order of `effects`. `predict(theta, ctx)` gives 
 positions (N, 3) mm in the measurement frame:
 
 1. joint offsets of the effects are added to the commanded angles;
-2. MD-H chain with the geometric deviations and the tool point (+ tool offsets);
+2. MD-H chain with the geometric deviations (+ per-row ones such as thermal growth)
+   and the tool point (+ tool offsets);
 3. thermal scale of the chain, robot base, load-driven displacements (clearance);
 4. base_frame maps to the measurement frame.
 """
@@ -73,6 +74,9 @@ class CalibrationModel:
             dq = e.joint_offset(p, ctx)
             if dq is not None:
                 q = q + dq
+            g = e.geometric_offset(p, ctx)
+            if g is not None:
+                geo = geo + g  # (N, n, 5): per-row deviations
             t = e.tool_point(p, ctx)
             if t is not None:
                 tool = tool + t

@@ -13,9 +13,12 @@ Sizes (defaults; all drawn from the robot's own seeded generator):
   parameter vector comes from physics where there is some (compliance: link masses and
   centres from the robot's reach, gravity torques; thermal: steel expansion) and is
   random otherwise (harmonic phases, backlash, scale, base and tool);
-- joint_clearance: the load pushes each listed axis to one side (its deterministic
-  part, half the clearance) and the other half is a random tilt per move, uniform in a
-  disk perpendicular to the axis;
+- joint_clearance: each listed axis can tilt up to t_max inside its bearing: for
+  kr1000titan t_max = (c_1 + c_2) / L from PAPER.md Table 2 (`torchcal.uncertainty`),
+  for other robots the tilt that moves the TCP by `effect_mm`. The load pushes the axis
+  to one side by (1 - clearance_random) t_max (the deterministic part) and the rest,
+  clearance_random t_max, is a random tilt per move, uniform in a disk perpendicular to
+  the axis;
 - a session with payload-dependent effects varies the payload per pose from 0 to the
   rated payload; one with thermal expansion drifts the temperature linearly from 20 to
   35 deg C over the session with 0.3 K of noise.
@@ -32,10 +35,12 @@ import torch
 from torchcal.effects import make_context
 from torchcal.effects.joint_clearance import random_basis
 from torchcal.effects.joint_compliance import JointCompliance
+from torchcal.errors import InputError
 from torchcal.io import Measurements
 from torchcal.model import CalibrationModel
 from torchcal.robot import Robot
 from torchcal.spec import parse_specs
+from torchcal.uncertainty import ClearanceModel
 
 GEOMETRIC_SIZE = (2e-2, 0.5, 0.5, 2e-2, 2e-2)  # dtheta deg, dd mm, da mm, dalpha deg, dbeta deg
 
@@ -101,7 +106,10 @@ class VirtualRobot:
         self.model = CalibrationModel(robot, [str(s) for s in self.specs])
         self.seed = seed
         self.gen = torch.Generator().manual_seed(seed)
+        if not 0.0 <= clearance_random <= 1.0:
+            raise InputError(f"clearance_random: expected a share in [0, 1], got {clearance_random}")
         self.clearance_random = clearance_random
+        self.clearance_tilt_max = {}  # joint (1-based) -> largest tilt, rad
         self.theta = self._draw(geometric_scale, effect_mm, values or {})
 
     # -- what the session varies --------------------------------------------------------
@@ -145,9 +153,17 @@ class VirtualRobot:
                 p = JointCompliance.params_from_physics(robot, e.joints, masses, coms,
                                                         torch.ones(robot.n, dtype=torch.float64))
             elif e.name == "thermal_expansion":
-                p = torch.tensor([1.2e-5], dtype=torch.float64)
+                p = torch.full((e.n_params,), 1.2e-5, dtype=torch.float64)
             elif e.name == "joint_clearance":
                 p = torch.tensor([1.0, 0.02] * len(e.joints), dtype=torch.float64)  # tilt rad, shift mm
+                if robot.name == "kr1000titan":  # PAPER.md Table 2, physical size
+                    cm = ClearanceModel.defaults(robot)
+                    tilt, shift = cm.max_tilt_rad(), cm.max_shift_mm()
+                    p = torch.stack([torch.stack([tilt[j - 1], shift[j - 1]]) for j in e.joints]).reshape(-1)
+                    for j in e.joints:
+                        self.clearance_tilt_max[j] = float(tilt[j - 1])
+                    theta[sl] = p * (1 - self.clearance_random)
+                    continue
             else:
                 p = torch.randn(e.n_params, generator=gen, dtype=torch.float64)
             p = p * (1e-9 / p.abs().max().clamp_min(1e-300))  # probe in the linear range
@@ -156,9 +172,13 @@ class VirtualRobot:
             disp = model.predict(trial, ctx) - model.predict(theta, ctx)
             rms = disp.norm(dim=-1).pow(2).mean().sqrt()
             if e.name == "thermal_expansion":  # steel is steel: keep its physical size
-                p = torch.tensor([1.2e-5], dtype=torch.float64)
+                p = torch.full((e.n_params,), 1.2e-5, dtype=torch.float64)
             else:
                 p = p * (effect_mm / rms.clamp_min(1e-300))
+            if e.name == "joint_clearance":
+                for i, j in enumerate(e.joints):
+                    self.clearance_tilt_max[j] = float(p[2 * i].abs())
+                p = p * (1 - self.clearance_random)
             theta[sl] = p
         return theta
 
@@ -172,12 +192,11 @@ class VirtualRobot:
             for e, sl in zip(self.model.effects, self.model.slices[1:]):
                 if e.name != "joint_clearance":
                     continue
-                tilts = self.theta[sl][0::2]
-                for j, tilt in zip(e.joints, tilts):
-                    share = self.clearance_random / max(1e-9, 1 - self.clearance_random)
+                for j in e.joints:
+                    radius = self.clearance_random * self.clearance_tilt_max[j]
                     r = torch.sqrt(torch.rand(len(q), generator=generator, dtype=torch.float64))
                     phi = 2 * torch.pi * torch.rand(len(q), generator=generator, dtype=torch.float64)
-                    u = torch.stack([r * torch.cos(phi), r * torch.sin(phi)], -1) * tilt.abs() * share
+                    u = torch.stack([r * torch.cos(phi), r * torch.sin(phi)], -1) * radius
                     v = v + (random_basis(ctx, j, v) @ u.unsqueeze(-1)).squeeze(-1)
         return v
 

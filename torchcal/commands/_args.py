@@ -78,7 +78,21 @@ def check_folder(opt: str, path) -> None:
 
 
 def read_data(path, robot):
-    """The measurement CSV for `robot`; joint angles outside its limits are an error."""
-    from torchcal.io import read_measurements
+    """The measurement CSV for `robot`.
 
-    return read_measurements(path, robot=robot, strict_limits=True)
+    Joint angles outside the preset's nominal limits are a warning (one line on
+    stderr), not an error: the presets' limits are data-sheet values, and real robots
+    (and other simulators' sessions) are measured at or beyond them.
+    """
+    import sys
+    import warnings
+
+    from torchcal.io import JointLimitWarning, read_measurements
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", JointLimitWarning)
+        m = read_measurements(path, robot=robot)
+    for w in caught:
+        if issubclass(w.category, JointLimitWarning):
+            sys.stderr.write(f"torchcal: warning: {w.message}\n")
+    return m

@@ -9,7 +9,9 @@ vector ``p (k,)`` and the `Context`:
 
 - ``joint_offset(p, ctx) -> (N, n) rad``: added to the commanded joint angles;
 - ``tool_point(p, ctx) -> (3,) mm``: added to the TCP position on the flange;
-- ``chain_scale(p, ctx) -> (N,) or None``: factor on every link length (and the tool);
+- ``geometric_offset(p, ctx) -> (N, n, 5)``: per-row MD-H deviations added to the
+  geometric ones (e.g. thermal growth of the link lengths);
+- ``chain_scale(p, ctx) -> (N,) or None``: factor on the whole chain and tool;
 - ``displacement(p, ctx, v) -> (N, 3) mm``: added to the base-frame TCP position ``v``;
 - ``world(p, ctx, v) -> (N, 3) mm``: maps base-frame positions to the measurement frame.
 
@@ -117,6 +119,9 @@ class Effect:
         return None
 
     def tool_point(self, p, ctx):
+        return None
+
+    def geometric_offset(self, p, ctx):
         return None
 
     def chain_scale(self, p, ctx):

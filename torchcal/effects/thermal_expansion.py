@@ -1,11 +1,17 @@
-"""`thermal_expansion`: link lengths scale with temperature.
+"""`thermal_expansion`: link lengths grow with temperature (`temp_c`).
 
-Parameters (1): ``thermal_coeff`` 1/K. Every MD-H length (a, d) and the tool scale by
-``1 + thermal_coeff * (temp_c - REFERENCE_C)``; since the TCP position is homogeneous of
-degree one in the lengths, that scales the base-frame TCP position about the base origin.
-Needs the ``temp_c`` column. Steel: about 1.2e-5 1/K. A constant temperature is
-absorbed by the geometric lengths; only its variation over the session is identifiable.
+Each non-zero nominal MD-H length L (a_i or d_i) becomes ``L (1 + c_L (temp_c - 20))``:
+one coefficient per length (1/K), because the links of a robot are of different
+materials and warm differently (castings, carbon arms, the base column...). Steel is
+about 1.2e-5 1/K. A uniform expansion is the special case of equal coefficients.
+
+Parameters: ``thermal_a1``, ``thermal_d1``, ... for the non-zero lengths, 1/K.
+Needs the ``temp_c`` column. The part at the session's mean temperature is absorbed by
+the geometric lengths; only the temperature's variation makes the coefficients
+identifiable.
 """
+
+import torch
 
 from torchcal.effects.base import Effect
 from torchcal.errors import InputError
@@ -16,15 +22,27 @@ REFERENCE_C = 20.0
 class ThermalExpansion(Effect):
     name = "thermal_expansion"
 
+    def __init__(self, robot, joints=()):
+        super().__init__(robot, joints)
+        t = robot.table
+        # (joint index, table column) of every non-zero length: column 1 = d, 2 = a
+        self.lengths = [(i, c) for i in range(robot.n) for c in (2, 1) if abs(float(t[i, c])) > 0]
+
     def param_names(self):
-        return ["thermal_coeff"]
+        return [f"thermal_{'a' if c == 2 else 'd'}{i + 1}" for i, c in self.lengths]
 
     def param_units(self):
-        return ["1/K"]
+        return ["1/K"] * len(self.lengths)
 
     def check_context(self, ctx):
         if ctx.temp_c is None:
             raise InputError("thermal_expansion needs the temp_c column in the measurement file")
 
-    def chain_scale(self, p, ctx):
-        return 1.0 + p[0] * (ctx.temp_c - REFERENCE_C)
+    def geometric_offset(self, p, ctx):
+        """(N, n, 5) length deviations dd, da = c_L L (temp_c - 20) in mm."""
+        n = self.robot.n
+        place = p.new_zeros(len(self.lengths), n * 5)
+        for k, (i, c) in enumerate(self.lengths):
+            place[k, 5 * i + c] = float(self.robot.table[i, c])
+        dT = (ctx.temp_c - REFERENCE_C).unsqueeze(-1)  # (N, 1)
+        return ((dT * p) @ place).reshape(-1, n, 5)

@@ -1,0 +1,266 @@
+"""Perturbed forward kinematics: TCP positions per second for (parameter set x pose) pairs.
+
+The sweep of PAPER.md evaluates every workspace point under many perturbed MD-H tables.
+This script times that workload, in one run on one machine, three ways:
+
+- torchcal: `Robot.fk(q, params)` with q (P, n) and params (M, 1, n, 5) -> (M, P, 3) mm;
+- pytorch-kinematics: it cannot batch perturbed link parameters, so one chain per
+  parameter set is built before the clock starts (its build time is reported, not
+  counted) and `forward_kinematics` is called on all P poses per chain; a subset of the
+  M parameter sets is timed and the rate scaled (the work is identical per set);
+- numpy: a plain vectorised implementation, the 4x4 MD-H link matrices of the whole
+  (chunked) batch multiplied along the chain with `np.matmul`.
+
+Figures are the median of several repeats (after one warm-up), printed with the targets:
+torchcal >= 10 M pairs/s in float64 and >= 20 M/s in float32 on 2 CPU cores, and
+>= 50x pytorch-kinematics. `--device cuda` times torchcal (and pytorch-kinematics) on a
+GPU instead (target 1e9 pairs/s on an H100); without CUDA it says so and exits 0.
+
+    python benchmarks/bench_fk.py [--robot kr1000titan] [--params 1000] [--poses 1000]
+                                  [--repeats 5] [--threads 2] [--device cpu|cuda]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import statistics
+import sys
+import time
+
+# the thread count must be fixed before numpy / torch load their thread pools
+_THREADS = "2"
+for _i, _a in enumerate(sys.argv):
+    if _a.startswith("--threads"):
+        _THREADS = _a.split("=", 1)[1] if "=" in _a else sys.argv[_i + 1]
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, _THREADS)
+
+import numpy as np  # noqa: E402
+import pytorch_kinematics as pk  # noqa: E402
+import torch  # noqa: E402
+from pytorch_kinematics import transforms as pk_tf  # noqa: E402
+
+import torchcal  # noqa: E402
+from torchcal import kinematics as K  # noqa: E402
+
+TARGETS_CPU = {torch.float64: 10e6, torch.float32: 20e6}  # pairs/s on 2 CPU cores
+TARGET_GPU = 1e9  # pairs/s on an H100
+TARGET_VS_PK = 50.0
+
+
+# -- the three implementations ----------------------------------------------------------
+def _sync(device):
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def _timed(fn, repeats, device):
+    """Median, min and max wall time (s) of `fn()` over `repeats` runs after a warm-up."""
+    fn()
+    times = []
+    for _ in range(repeats):
+        _sync(device)
+        t0 = time.perf_counter()
+        fn()
+        _sync(device)
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), min(times), max(times)
+
+
+def _md_h_matrix(theta, d, a, alpha, beta):
+    """(..., 4, 4) A = Rz(theta) Tz(d) Tx(a) Rx(alpha) Ry(beta) for broadcastable arrays."""
+    ct, st, ca, sa, cb, sb = (np.cos(theta), np.sin(theta), np.cos(alpha), np.sin(alpha),
+                              np.cos(beta), np.sin(beta))
+    shape = np.broadcast_shapes(*(x.shape for x in (ct, sa, cb, d, a)))
+    A = np.zeros(shape + (4, 4), dtype=ct.dtype)
+    A[..., 0, 0] = ct * cb - st * sa * sb
+    A[..., 0, 1] = -st * ca
+    A[..., 0, 2] = ct * sb + st * sa * cb
+    A[..., 0, 3] = a * ct
+    A[..., 1, 0] = st * cb + ct * sa * sb
+    A[..., 1, 1] = ct * ca
+    A[..., 1, 2] = st * sb - ct * sa * cb
+    A[..., 1, 3] = a * st
+    A[..., 2, 0] = -ca * sb
+    A[..., 2, 1] = sa
+    A[..., 2, 2] = ca * cb
+    A[..., 2, 3] = d
+    A[..., 3, 3] = 1.0
+    return A
+
+
+def numpy_fk(q, table, params, base, tool, chunk=1 << 16):
+    """Plain numpy: q (P, n) rad, params (M, n, 5) -> (M, P, 3) mm, chunked over M."""
+    M, n, _ = params.shape
+    P = q.shape[0]
+    out = np.empty((M, P, 3), dtype=q.dtype)
+    step = max(1, chunk // P)
+    for s in range(0, M, step):
+        eff = table + params[s:s + step]  # (m, n, 5)
+        T = base
+        for i in range(n):
+            e = eff[:, None, i, :]  # (m, 1, 5)
+            A = _md_h_matrix(q[None, :, i] + e[..., 0], e[..., 1], e[..., 2], e[..., 3], e[..., 4])
+            T = np.matmul(T, A)  # (m, P, 4, 4)
+        out[s:s + step] = np.matmul(T, tool)[..., :3, 3]
+    return out
+
+
+def pk_chain(robot, params, dtype, device):
+    """pytorch-kinematics SerialChain of the robot with deviations params (n, 5), in mm.
+
+    One frame per joint: joint i (revolute about z) sits at S_{i-1} Rz(theta_offset_i),
+    S_i = Tz(d) Tx(a) Rx(alpha) Ry(beta), S_0 = base; a fixed joint carries S_n tool.
+    Built from float64 matrices (a URDF would pass through float32)."""
+    eff = (robot.table + params).to(torch.float64)  # (n, 5)
+    zero = torch.zeros(1, dtype=torch.float64)
+
+    def md_h(row):  # (5,) -> (4, 4): A at q = 0
+        return K.link_transforms(zero, row.view(1, 5))[0]
+
+    prev = robot.base.to(torch.float64)
+    origins = []
+    for row in eff:
+        origins.append(prev @ md_h(row * torch.tensor([1.0, 0, 0, 0, 0], dtype=torch.float64)))  # Rz(off)
+        prev = md_h(row * torch.tensor([0.0, 1, 1, 1, 1], dtype=torch.float64))  # S_i
+    origins.append(prev @ robot.tool.to(torch.float64))
+    root = pk.Frame("base", link=pk.Link("base"), joint=pk.Joint(dtype=dtype))
+    parent = root
+    for i, T in enumerate(origins):
+        kind = "revolute" if i < robot.n else "fixed"
+        name = f"link{i + 1}" if i < robot.n else "tcp"
+        joint = pk.Joint(f"joint{i + 1}", offset=pk_tf.Transform3d(matrix=T.to(dtype)),
+                         joint_type=kind, axis=(0.0, 0.0, 1.0), dtype=dtype)
+        child = pk.Frame(name, link=pk.Link(name), joint=joint)
+        parent.children = [child]
+        parent = child
+    return pk.SerialChain(pk.Chain(root, dtype=dtype), "tcp", dtype=dtype).to(dtype=dtype, device=device)
+
+
+# -- reporting --------------------------------------------------------------------------
+def _rate(pairs, t):
+    return pairs / t
+
+
+def _fmt(rate):
+    return f"{rate / 1e6:10.3f} M/s"
+
+
+def _line(label, pairs, timing, target=None, note=""):
+    med, lo, hi = timing
+    r = _rate(pairs, med)
+    spread = f"[{_rate(pairs, hi) / 1e6:.3f} .. {_rate(pairs, lo) / 1e6:.3f}]"
+    tgt = ""
+    if target is not None:
+        tgt = f"target >= {target / 1e6:g} M/s: {'met' if r >= target else 'BELOW TARGET'}"
+    print(f"  {label:<34s}{_fmt(r)}  {spread:<22s}{tgt}{note}")
+    return r
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--robot", default="kr1000titan", help="preset name (default kr1000titan)")
+    ap.add_argument("--params", type=int, default=None,
+                    help="parameter sets M (default 1000 on CPU, 10000 on CUDA)")
+    ap.add_argument("--poses", type=int, default=None,
+                    help="poses P (default 1000 on CPU, 10000 on CUDA)")
+    ap.add_argument("--repeats", type=int, default=5, help="timed repeats, median reported (default 5)")
+    ap.add_argument("--threads", type=int, default=2, help="torch / numpy CPU threads (default 2)")
+    ap.add_argument("--device", default="cpu", choices=("cpu", "cuda"), help="torchcal's device")
+    ap.add_argument("--chunk", type=int, default=None,
+                    help=f"torchcal chunk in pairs (default {K.DEFAULT_CHUNK} on CPU, 2^24 on CUDA)")
+    ap.add_argument("--pk-sets", type=int, default=20,
+                    help="parameter sets timed with pytorch-kinematics, then scaled (default 20)")
+    ap.add_argument("--numpy-sets", type=int, default=None,
+                    help="parameter sets timed with numpy, then scaled (default: 1e6 pairs' worth)")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+
+    if args.device == "cuda" and not torch.cuda.is_available():
+        print("bench_fk: --device cuda asked for, but CUDA is not available here: GPU run skipped.")
+        return 0
+    device = torch.device(args.device)
+    gpu = device.type == "cuda"
+    M = args.params or (10000 if gpu else 1000)
+    P = args.poses or (10000 if gpu else 1000)
+    chunk = args.chunk or ((1 << 24) if gpu else K.DEFAULT_CHUNK)
+    pk_sets = min(args.pk_sets, M)
+    np_sets = min(args.numpy_sets or max(1, 10 ** 6 // P), M)
+    pairs = M * P
+    torch.set_num_threads(args.threads)
+
+    robot = torchcal.robot(args.robot)
+    n = robot.n
+    gen = torch.Generator().manual_seed(args.seed)
+    lo, hi = robot.limits[:, 0], robot.limits[:, 1]
+    q64 = lo + (hi - lo) * torch.rand(P, n, generator=gen, dtype=torch.float64)  # (P, n) rad
+    scale = torch.tensor([1e-3, 0.5, 0.5, 1e-3, 1e-3], dtype=torch.float64)  # rad, mm, mm, rad, rad
+    p64 = torch.randn(M, 1, n, 5, generator=gen, dtype=torch.float64) * scale  # (M, 1, n, 5)
+
+    where = (torch.cuda.get_device_name(device) if gpu
+             else f"CPU ({platform.processor() or platform.machine()}, {os.cpu_count()} cores visible)")
+    print(f"bench_fk: perturbed forward kinematics, {robot.name} (n = {n}), "
+          f"{M} parameter sets x {P} poses = {pairs:,} pairs")
+    print(f"  device: {where}; torch {torch.__version__} with {torch.get_num_threads()} threads, "
+          f"pytorch-kinematics {_version('pytorch_kinematics')}, numpy {np.__version__}")
+    print(f"  median of {args.repeats} repeats after one warm-up; [slowest .. fastest] in brackets")
+    print(f"  torchcal: Robot.fk(q (P, n), params (M, 1, n, 5)) -> (M, P, 3), chunk {chunk}")
+    print(f"  pytorch-kinematics cannot batch perturbed link parameters: one chain per parameter set "
+          f"(built before timing,\n    not counted), forward_kinematics on all {P} poses per chain; "
+          f"{pk_sets} of the {M} sets timed, rate scaled")
+    print(f"  numpy (single-threaded, on the CPU): 4x4 MD-H matrices of the whole batch chained with "
+          f"np.matmul, chunks of 65536 pairs{'' if np_sets == M else f'; {np_sets} of the {M} sets timed, rate scaled'}")
+
+    for dtype in (torch.float64, torch.float32):
+        dname = str(dtype).replace("torch.", "")
+        print(f"\n{dname}:")
+        r = robot.to(device=device, dtype=dtype)
+        q, params = q64.to(device, dtype), p64.to(device, dtype)
+
+        # torchcal
+        t_tc = _timed(lambda: r.fk(q, params, chunk=chunk), args.repeats, device)
+        target = TARGET_GPU if gpu else TARGETS_CPU[dtype]
+        rate_tc = _line("torchcal Robot.fk", pairs, t_tc, target)
+        out_tc = r.fk(q, params, chunk=chunk)  # (M, P, 3)
+
+        # pytorch-kinematics: one chain per parameter set, all poses per call
+        t0 = time.perf_counter()
+        chains = [pk_chain(robot, p64[m, 0], dtype, device) for m in range(pk_sets)]
+        build_ms = (time.perf_counter() - t0) / pk_sets * 1e3
+
+        def run_pk():
+            return [c.forward_kinematics(q).get_matrix()[:, :3, 3] for c in chains]
+
+        t_pk = _timed(run_pk, args.repeats, device)
+        rate_pk = _line(f"pytorch-kinematics ({pk_sets} sets)", pk_sets * P, t_pk,
+                        note=f"chain build {build_ms:.1f} ms per set, not counted")
+        err_pk = (torch.stack(run_pk()) - out_tc[:pk_sets]).abs().max().item()
+
+        # numpy, on the CPU
+        qn, tn = q64.to(dtype).numpy(), robot.table.to(dtype).numpy()
+        pn = p64[:np_sets, 0].to(dtype).numpy()
+        bn, tooln = robot.base.to(dtype).numpy(), robot.tool.to(dtype).numpy()
+        t_np = _timed(lambda: numpy_fk(qn, tn, pn, bn, tooln), args.repeats, torch.device("cpu"))
+        rate_np = _line(f"numpy ({np_sets} sets)" if np_sets < M else "numpy", np_sets * P, t_np)
+        err_np = np.abs(numpy_fk(qn, tn, pn, bn, tooln) - out_tc[:np_sets].cpu().numpy()).max()
+
+        ratio_pk, ratio_np = rate_tc / rate_pk, rate_tc / rate_np
+        ok = "met" if ratio_pk >= TARGET_VS_PK else "BELOW TARGET"
+        print(f"  torchcal / pytorch-kinematics   {ratio_pk:10.1f} x    target >= {TARGET_VS_PK:g} x: {ok}")
+        print(f"  torchcal / numpy                {ratio_np:10.1f} x")
+        print(f"  agreement with torchcal: pytorch-kinematics {err_pk:.2e} mm, numpy {err_np:.2e} mm")
+    return 0
+
+
+def _version(module):
+    try:
+        from importlib.metadata import version
+        return version(module.replace("_", "-"))
+    except Exception:  # pragma: no cover - only for the printout
+        return "?"
+
+
+if __name__ == "__main__":
+    sys.exit(main())

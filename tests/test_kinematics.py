@@ -423,9 +423,6 @@ def test_preset_names_are_case_insensitive():
     assert torchcal.robot("KR1000Titan").name == "kr1000titan"
 
 
-@pytest.mark.xfail(strict=True, raises=RuntimeError,
-                   reason="Robot does not check that q and params broadcast: torch's "
-                          "RuntimeError leaks instead of an InputError")
 def test_non_broadcasting_batches_are_rejected():
     robot = torchcal.robot("kr1000titan")
     with pytest.raises(ValueError, match="broadcast"):

@@ -105,6 +105,12 @@ class Robot:
     def _prep(self, q, params):
         q = self.check_q(q)
         params = self.check_params(params)
+        if params is not None:
+            try:
+                torch.broadcast_shapes(q.shape[:-1], params.shape[:-2])
+            except RuntimeError:
+                raise InputError(f"q batch {tuple(q.shape[:-1])} and params batch "
+                                 f"{tuple(params.shape[:-2])} do not broadcast") from None
         dtype = q.dtype if params is None else torch.promote_types(q.dtype, params.dtype)
         table = self.table.to(dtype)
         return q.to(dtype), None if params is None else params.to(dtype), table

@@ -5,10 +5,13 @@
 1e6 points in 1-D and 3-D (4 Gaussian blobs), c = 4, m = 2, float64, the same initial
 memberships for both, a fixed number of iterations for both (eps = 0 / error = 0 never
 stop early). Both run on the same cores: torch with `torch.set_num_threads(threads)`,
-numpy/BLAS limited to the same count, OpenMP told to let idle threads sleep
-(OMP_WAIT_POLICY=PASSIVE unless set: spinning threads on a shared machine turn every torch
-op into a wait for a descheduled thread). Prints the median wall time of `repeats` runs,
-iterations per second, the speed ratio, and how far apart the two results are.
+numpy/BLAS limited to the same count. Prints the median (and min) wall time of `repeats`
+runs, iterations per second, the speed ratio, and how far apart the two results are.
+
+Timings need cores to themselves: torch's OpenMP threads spin-wait at each op, so on a
+machine shared with other busy jobs (the load average is printed) a descheduled thread
+stalls every op and the torch times inflate far more than the single-threaded numpy ones.
+
 """
 
 from __future__ import annotations
@@ -29,10 +32,6 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ[var] = str(args.threads)
-    # Idle OpenMP threads sleep instead of spinning: on a machine shared with other jobs a
-    # spinning team waits a scheduler slice at every parallel region (each torch op).
-    # Set OMP_WAIT_POLICY yourself to override.
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
     import numpy as np
     import skfuzzy
@@ -44,7 +43,7 @@ def main(argv=None) -> int:
     torch.set_num_threads(args.threads)
     c, m, K = 4, 2.0, args.iters
     print(f"FCM benchmark: N={args.n:,} points, c={c}, m={m}, {K} iterations (fixed), float64, "
-          f"{args.threads} threads (OMP_WAIT_POLICY={os.environ['OMP_WAIT_POLICY']}), median of {args.repeats}; torch {torch.__version__}, "
+          f"{args.threads} threads, median of {args.repeats}; torch {torch.__version__}, "
           f"scikit-fuzzy {getattr(skfuzzy, '__version__', '?')}, numpy {np.__version__}")
     print(f"load average before: {' '.join(f'{v:.2f}' for v in os.getloadavg())} (machine shared with other jobs)")
     print(f"{'d':>2} {'method':<24} {'time s':>8} {'min s':>7} {'iter/s':>8} {'speed-up':>9}   agreement")

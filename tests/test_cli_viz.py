@@ -1,0 +1,130 @@
+"""--rrd/--plots of `torchcal diagnose` and `torchcal discover`: recordings read back with
+rerun.chunk.RrdReader, PNGs checked on disk, existing outputs refused without --force."""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+import numpy as np
+import pytest
+import torch
+from rerun.chunk import RrdReader
+
+import torchcal
+import torchcal.io
+import torchcal.sim
+from torchcal.cli import main
+from torchcal.commands._viz import PLOTS, check_outputs
+from torchcal.errors import InputError
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    robot = torchcal.robot("kr1000titan")
+    vr = torchcal.sim.VirtualRobot(robot, ["backlash:3"], seed=1)
+    m = vr.measure(torchcal.sim.random_poses(robot, 80, torch.Generator().manual_seed(2)), noise_mm=0.02)
+    path = tmp_path_factory.mktemp("cli_viz") / "data.csv"
+    torchcal.io.write_measurements(path, m)
+    return path, torchcal.io.read_measurements(path, robot=robot)
+
+
+def _entities(path) -> set[str]:
+    return {line.split()[0] for line in RrdReader(path).store().summary().splitlines()}
+
+
+def _column(path, entity: str, column: str) -> list:
+    """All values of `column` at `entity`, over the chunks (temporal rows in order)."""
+    out = []
+    for ch in RrdReader(path).stream():
+        if ch.entity_path == entity:
+            rb = ch.to_record_batch().to_pydict()
+            if column in rb:
+                out += rb[column]
+    assert out, f"{entity}:{column} not found"
+    return out
+
+
+def _png_ok(path) -> None:
+    assert path.is_file() and path.stat().st_size > 10_000
+    assert path.read_bytes()[:8] == PNG_MAGIC
+
+
+def test_diagnose_rrd_and_plots(data, tmp_path, capsys):
+    csv, m = data
+    rrd, plots = tmp_path / "diag.rrd", tmp_path / "plots" / "diag"  # nested folder: created
+    assert main(["diagnose", str(csv), "--robot", "kr1000titan", "--rrd", str(rrd), "--plots", str(plots)]) == 0
+    assert f"wrote {rrd}" in capsys.readouterr().out
+    ents = _entities(rrd)
+    assert {"/residuals/before/measured", "/residuals/before/model", "/residuals/before/residual",
+            "/summary"} <= ents
+    assert not any(e.startswith("/residuals/after") for e in ents)
+    measured = np.array(_column(rrd, "/residuals/before/measured", "Points3D:positions")[0])
+    np.testing.assert_allclose(measured, m.xyz.numpy(), atol=1e-3)  # float32 in the file
+    model = np.array(_column(rrd, "/residuals/before/model", "Points3D:positions")[0])
+    rms = float(np.sqrt(np.mean(np.sum((measured - model) ** 2, axis=1))))
+    assert 0.1 < rms < 1.0  # backlash left unmodelled: ~0.25 mm
+    [text] = _column(rrd, "/summary", "TextDocument:text")[0]
+    assert "torchcal diagnose" in text and "missing backlash:3" in text
+    assert os.stat(rrd).st_mode & 0o777 == 0o666 & ~_umask()
+    _png_ok(plots / "residual_vs_joints.png")
+
+
+def test_discover_rrd_and_plots(data, tmp_path):
+    csv, m = data
+    rrd, plots = tmp_path / "disc.rrd", tmp_path / "plots"
+    assert main(["discover", str(csv), "--robot", "kr1000titan", "--rrd", str(rrd), "--plots", str(plots)]) == 0
+    ents = _entities(rrd)
+    assert {"/discover/rms_mm", "/discover/cv_rms_mm", "/discover/added", "/summary"} <= ents
+    assert {f"/residuals/{s}/{k}" for s in ("before", "after") for k in ("measured", "model", "residual")} <= ents
+    rounds = _column(rrd, "/discover/rms_mm", "round")
+    rms = [v[0] for v in _column(rrd, "/discover/rms_mm", "Scalars:scalars")]
+    assert rounds == [0, 1] and rms[0] > 0.2 and rms[1] < 0.06  # backlash found in round 1
+    added = [t[0] for t in _column(rrd, "/discover/added", "TextLog:text")]
+    assert "added backlash:3" in added[1]
+    [text] = _column(rrd, "/summary", "TextDocument:text")[0]
+    assert "final effects | backlash:3" in text
+    for name in PLOTS["discover"]:
+        _png_ok(plots / name)
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def test_existing_outputs_refused_without_force(tmp_path):
+    rrd, plots = tmp_path / "x.rrd", tmp_path / "plots"
+    args = argparse.Namespace(rrd=str(rrd), plots=str(plots), force=False, data=None)
+    assert check_outputs(args, "discover") == (rrd, [plots / n for n in PLOTS["discover"]])
+    assert plots.is_dir()  # created
+    (plots / PLOTS["discover"][1]).write_bytes(b"old")
+    with pytest.raises(InputError, match="output exists; pass --force"):
+        check_outputs(args, "discover")
+    args.force = True
+    check_outputs(args, "discover")
+    rrd.write_bytes(b"old")
+    args.force = False
+    args.plots = None
+    with pytest.raises(InputError, match="x.rrd: output exists"):
+        check_outputs(args, "diagnose")
+    # --plots naming a file, an output over the input, a missing .rrd folder
+    with pytest.raises(InputError, match="expects a folder"):
+        check_outputs(argparse.Namespace(rrd=None, plots=str(rrd), force=True), "diagnose")
+    with pytest.raises(InputError, match="over the input file"):
+        check_outputs(argparse.Namespace(rrd=str(rrd), plots=None, force=True, data=str(rrd)), "diagnose")
+    with pytest.raises(InputError, match="does not exist"):
+        check_outputs(argparse.Namespace(rrd=str(tmp_path / "no" / "x.rrd"), plots=None, force=False), "diagnose")
+
+
+def test_cli_refusal_is_one_line(data, tmp_path, capsys):
+    csv, _ = data
+    rrd = tmp_path / "taken.rrd"
+    rrd.write_bytes(b"old")
+    code = main(["diagnose", str(csv), "--robot", "kr1000titan", "--rrd", str(rrd), "--folds", "2"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "output exists; pass --force" in err
+    assert rrd.read_bytes() == b"old"

@@ -128,3 +128,45 @@ def test_cli_refusal_is_one_line(data, tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "output exists; pass --force" in err
     assert rrd.read_bytes() == b"old"
+
+
+def _fake_demo_result(seed: int = 0, n: int = 60, zones: int = 4, t: int = 6):
+    """The fields of a torchcal.pipeline.PipelineResult that demo_outputs reads (small, fast)."""
+    from types import SimpleNamespace as NS
+
+    g = torch.Generator().manual_seed(seed)
+    pos = torch.rand(n, 3, generator=g, dtype=torch.float64) * 3000.0
+    labels = torch.arange(n) % zones + 1  # 1..Z as Partition.labels
+    r_set = (1.0 - 0.05 * (labels - 1)).to(torch.float64)
+    lo = -torch.rand(t, 3, generator=g, dtype=torch.float64) - 0.5
+
+    def ev(scale):
+        return NS(lower=scale * lo, upper=scale * (lo + 0.3), rms_mm=float(scale),
+                  max_abs_mm=float(scale * lo.abs().max()))
+
+    return NS(config=NS(robot="kr1000titan", seed=seed, allowed_axis_mm=1.0),
+              sweep=NS(positions=pos, r_set=r_set), partition=NS(labels=labels),
+              before=ev(2.0), after={"partitioned": ev(0.2)}, format_report=lambda: "TABLE 5\n...")
+
+
+def test_demo_outputs(tmp_path):
+    from torchcal.commands._viz import demo_outputs
+
+    res = _fake_demo_result()
+    rrd, plots = tmp_path / "demo.rrd", tmp_path / "plots"
+    args = argparse.Namespace(rrd=str(rrd), plots=str(plots), force=False, seed=0)
+    demo_outputs(args, res)
+    ents = _entities(rrd)
+    assert {"/workspace", "/workspace/rset", "/workspace/zones", "/workspace/centres", "/summary"} <= ents
+    assert {f"/error_intervals/{a}/{s}/{b}" for a in "xyz" for s in ("before", "after", "allowed")
+            for b in ("lower", "upper")} <= ents
+    class_ids = _column(rrd, "/workspace/zones", "Points3D:class_ids")[0]
+    np.testing.assert_array_equal(class_ids, (res.partition.labels - 1).numpy())  # 0-based in the file
+    before_lo = [v[0] for v in _column(rrd, "/error_intervals/x/before/lower", "Scalars:scalars")]
+    np.testing.assert_allclose(before_lo, res.before.lower[:, 0].numpy())
+    [text] = _column(rrd, "/summary", "TextDocument:text")[0]
+    assert "torchcal demo" in text and "TABLE 5" in text
+    for name in PLOTS["demo"]:
+        _png_ok(plots / name)
+    with pytest.raises(InputError, match="output exists"):
+        demo_outputs(args, res)

@@ -209,3 +209,64 @@ def discovery_outputs(args, robot, m, res) -> None:
             log_summary(rec, discovery_markdown(robot, m, res))
     for p in ([rrd] if rrd is not None else []) + pngs:
         print(f"wrote {p}")
+
+
+# --------------------------------------------------------------------------- demo
+def _demo_after(result):
+    """The partitioned (per-zone) evaluation after compensation."""
+    after = result.after
+    return after["partitioned"] if isinstance(after, dict) else after
+
+
+def demo_markdown(result) -> str:
+    """The ``demo`` summary as markdown: key numbers, then the printed report verbatim."""
+    from viz.recording import summary_markdown
+
+    before, after = result.before, _demo_after(result)
+    cfg = result.config
+    facts = {"robot": getattr(cfg, "robot", "kr1000titan"), "seed": getattr(cfg, "seed", 0),
+             "sweep points": int(result.sweep.positions.shape[0]), "zones": int(result.partition.labels.max()),
+             "test points": int(before.lower.shape[0]),
+             "test RMS before (mm)": float(before.rms_mm), "test RMS after (mm)": float(after.rms_mm),
+             "max |error| before (mm)": float(before.max_abs_mm), "max |error| after (mm)": float(after.max_abs_mm),
+             "allowed per axis (mm)": float(cfg.allowed_axis_mm)}
+    text = summary_markdown("torchcal demo", facts)
+    report = result.format_report() if hasattr(result, "format_report") else ""
+    if report:
+        text += "\n## Report\n\n```\n" + report.rstrip() + "\n```\n"
+    return text
+
+
+def demo_outputs(args, result) -> None:
+    """``demo --rrd/--plots`` for a finished demo (`result`: `torchcal.pipeline.PipelineResult`).
+
+    Recording: ``workspace/{rset,zones,centres}`` (the sweep points coloured by R_set and by
+    zone, zone centres labelled), ``error_intervals/{x,y,z}/{before,after,allowed}/...`` per
+    test point (the paper's Fig. 11; after = per-zone compensation) and ``summary``.
+    PNGs: ``zone_map.png`` (three views), ``rset_histogram.png``, ``error_intervals.png``.
+    """
+    rrd, pngs = check_outputs(args, "demo")
+    force = bool(args.force)
+    pos = _np(result.sweep.positions)
+    r_set = _np(result.sweep.r_set)
+    zones = _np(result.partition.labels).astype(np.int64) - 1  # 1..Z -> 0-based
+    before, after = result.before, _demo_after(result)
+    b_lo, b_hi, a_lo, a_hi = (_np(t) for t in (before.lower, before.upper, after.lower, after.upper))
+    allowed = float(result.config.allowed_axis_mm)
+    if pngs:
+        from viz import figures
+
+        figures.zone_map(pngs[0], pos, zones, force=force,
+                         title="Workspace zones of the sweep (partition by R_set and position)")
+        figures.rset_histogram(pngs[1], r_set, force=force)
+        figures.error_intervals(pngs[2], b_lo, b_hi, a_lo, a_hi, allowed_mm=allowed, force=force,
+                                title="Error interval per test point, before and after per-zone compensation")
+    if rrd is not None:
+        from viz.recording import RecordingWriter, log_error_intervals, log_summary, log_workspace
+
+        with RecordingWriter(rrd, seed=int(getattr(args, "seed", 0) or 0), force=force) as rec:
+            log_workspace(rec, pos, r_set, zones)
+            log_error_intervals(rec, b_lo, b_hi, a_lo, a_hi, allowed_mm=allowed)
+            log_summary(rec, demo_markdown(result))
+    for p in ([rrd] if rrd is not None else []) + pngs:
+        print(f"wrote {p}")

@@ -286,6 +286,19 @@ def test_json_round_trip(paper_partition, tmp_path):
         Partition.from_dict(obj)
 
 
+def test_saturated_reliability_like_a_real_sweep():
+    # a real KR 1000 sweep has R_set = 1 exactly at most points: level 1 holds them all
+    pos, r = synthetic_sweep(200, seed=5)
+    r = torch.where(torch.arange(200) < 170, torch.ones(200, dtype=torch.float64), 0.7 + 0.25 * r)
+    p = partition_workspace(pos, r, 4, "auto", restarts=2)
+    lev = p.point_levels
+    assert torch.all(lev[:170] == 1) and float(p.level_centers[0]) == pytest.approx(1.0, abs=1e-3)
+    assert torch.isfinite(p.memberships).all() and torch.isfinite(p.level_memberships).all()
+    assert sorted(p.labels.unique().tolist()) == list(range(1, p.n_zones + 1))
+    with pytest.raises(ValueError, match=r"r_set: only 2 distinct values among 200 points; levels='auto'"):
+        partition_workspace(pos, (r > 0.99).double(), "auto", "auto", level_range=(3, 5))
+
+
 def test_partition_auto_and_errors():
     pos, r = synthetic_sweep(120, seed=1)
     p = partition_workspace(pos, r, 3, "auto", restarts=1)

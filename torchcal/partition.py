@@ -334,8 +334,9 @@ def partition_workspace(positions, r_set, levels=4, zones="auto", *, m: float = 
         r_set: (N,) set reliability per point.
         levels: number of levels L >= 2, or "auto" (Xie-Beni minimum in `level_range`).
         zones: sub-zone counts per level, a sequence of L integers >= 1 (paper: [3, 2, 3, 2]),
-            or "auto" (per level, Xie-Beni minimum in `zone_range`, clipped to n_level - 1;
-            a level of fewer than 3 points stays one zone).
+            or "auto" (per level, Xie-Beni minimum in `zone_range`, clipped to n_level - 1
+            and to the number of distinct points; a level where that leaves no c in the
+            range stays one zone).
         level_range, zone_range: inclusive (low, high) ranges for "auto" (defaults (2, 6)
             and (2, 3), the paper's counts; on evenly spread points Xie-Beni tends to fall
             as c grows, so the upper end of the range bounds the answer).
@@ -375,6 +376,9 @@ def partition_workspace(positions, r_set, levels=4, zones="auto", *, m: float = 
     if isinstance(levels, str):
         if levels != "auto":
             raise InputError(f"levels: expected an integer >= 2 or 'auto', got {levels!r}")
+        if n_distinct < level_range[0]:
+            raise InputError(f"r_set: only {n_distinct} distinct values among {N} points; levels='auto' tries "
+                             f"{level_range[0]}..{level_range[1]} levels (expected a smaller level_range)")
         L, res, _ = choose_c(r, (level_range[0], min(level_range[1], n_distinct)), **kw)
     else:
         if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 2:
@@ -408,8 +412,9 @@ def partition_workspace(positions, r_set, levels=4, zones="auto", *, m: float = 
         f[:, 3] *= r_weight
         f_mean.append(mean)
         f_std.append(std)
-        if ks is None:
-            k = 1 if n_l < 3 or bool((f == f[0]).all()) else None
+        if ks is None:  # auto: c in zone_range, below the number of points and of distinct points
+            hi = min(zone_range[1], n_l - 1, int(torch.unique(f, dim=0).shape[0]))
+            k = None if hi >= zone_range[0] else 1
         else:
             k = ks[lev - 1]
             if k > 1 and k >= n_l:
@@ -424,7 +429,7 @@ def partition_workspace(positions, r_set, levels=4, zones="auto", *, m: float = 
         else:
             fd = f.to(pos.device)
             if k is None:
-                k, sub, _ = choose_c(fd, (zone_range[0], min(zone_range[1], n_l - 1)), **kw)
+                k, sub, _ = choose_c(fd, (zone_range[0], hi), **kw)
             else:
                 sub = fcm(fd, k, **kw)
             centers = sub.centers.cpu()

@@ -41,34 +41,21 @@ def _inputs(args) -> list[Path]:
 
 
 def check_outputs(args, command: str) -> tuple[Path | None, list[Path]]:
-    """Check every output of `command` before any is written; create the --plots folder.
+    """Check every visual output of `command` before any is written; create the --plots
+    folder. Returns (rrd path or None, PNG paths, empty without --plots); calling it twice is harmless. Raises
+    InputError (one line) as `torchcal.commands._args.check_outputs` does, and when
+    --plots names a file."""
+    from torchcal.commands._args import check_folder
+    from torchcal.commands._args import check_outputs as check_files
 
-    Returns (rrd path or None, PNG paths, empty without --plots). Raises InputError (one
-    line) when an output exists and ``--force`` is not given, when the .rrd's folder is
-    missing, when --plots names a file, or when an output would replace an input file.
-    """
-    from viz import _common as C
-
-    force = bool(getattr(args, "force", False))
-    inputs = _inputs(args)
     rrd = Path(args.rrd) if getattr(args, "rrd", None) else None
-    pngs: list[Path] = []
-    if rrd is not None:
-        C.check_output(rrd, force)
     plots = getattr(args, "plots", None)
-    if plots:
-        folder = Path(plots)
-        if folder.exists() and not folder.is_dir():
-            raise InputError(f"{folder}: --plots expects a folder, but this is a file")
-        pngs = [folder / name for name in PLOTS[command]]
-        if folder.is_dir():
-            for p in pngs:
-                C.check_output(p, force)
-    for p in ([rrd] if rrd is not None else []) + pngs:
-        if p.resolve() in inputs:
-            raise InputError(f"{p}: refusing to write over the input file")
+    check_folder("--plots", plots)
+    pngs = [Path(plots) / name for name in PLOTS[command]] if plots else []
     if plots and not Path(plots).exists():
         Path(plots).mkdir(parents=True)
+    check_files([("--rrd", rrd)] + [("--plots", p) for p in pngs], bool(getattr(args, "force", False)),
+                inputs=list(_inputs(args)))
     return rrd, pngs
 
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import sys
 
-from torchcal.commands._args import add_force, check_outputs
+from torchcal.commands._args import add_force, add_viz, check_outputs
 
 
 def add_parser(sub):
@@ -33,6 +33,7 @@ def add_viz_options(p) -> None:
     """Options of the visual outputs. Hook: add ``--rrd`` / ``--plots`` here
     (`torchcal.commands._args.add_viz`); `viz_outputs` then calls
     ``torchcal.commands._viz.demo_outputs(args, result)`` when either is given."""
+    add_viz(p)
 
 
 def viz_outputs(args, result) -> None:
@@ -54,6 +55,9 @@ def run(args) -> int:
     from torchcal.pipeline import DemoConfig, run_pipeline
 
     check_outputs([("--json", args.json), *_viz_outputs_to_check(args)], args.force)
+    if args.rrd or args.plots:  # the PNG names too, before the run
+        from torchcal.commands._viz import check_outputs as check_visual_outputs
+        check_visual_outputs(args, "demo")
     steps = ["sweep", "partition", "calibrate", "test"]
     with tqdm(total=len(steps), desc="demo", unit="step", file=sys.stderr, leave=False,
               dynamic_ncols=True) as bar:

@@ -30,10 +30,12 @@ def print_table(d) -> None:
     b = rep["baseline"]
     print(f"baseline [{', '.join(b['effects']) or 'geometric only'}]: rms {b['rms_mm']:.4f} mm, "
           f"cv rms {b['cv_rms_mm']:.4f} mm, max {b['max_mm']:.4f} mm")
-    print(f"{'candidate':<26}{'k':>4}{'rms mm':>10}{'cv rms mm':>11}{'gain %':>8}{'p-value':>10}  significant")
+    print(f"{'candidate':<26}{'k':>4}{'rms mm':>10}{'cv rms mm':>11}{'cv gain %':>10}{'score':>8}"
+          f"{'p-value':>10}  significant")
     for c in d.candidates[:10]:
-        print(f"{c.spec:<26}{c.k:>4}{c.rms_mm:>10.4f}{c.cv_rms_mm:>11.4f}{100 * c.score:>8.1f}"
+        print(f"{c.spec:<26}{c.k:>4}{c.rms_mm:>10.4f}{c.cv_rms_mm:>11.4f}{100 * c.cv_gain:>10.1f}{c.score:>8.2f}"
               f"{c.p_value:>10.2g}  {'yes' if c.significant else 'no'}")
+    print("(k: new identifiable parameters; score: held-out log-likelihood gain, nats per pose)")
     worst = max(rep["where"]["per_region"], key=lambda r: r["rms_mm"], default=None)
     if worst:
         print(f"worst region: reach {worst['reach_mm'][0]:.0f}-{worst['reach_mm'][1]:.0f} mm, {worst['z']} half: "
@@ -47,6 +49,9 @@ def run(args) -> int:
     check_outputs([("--json", args.json), ("--rrd", args.rrd)], args.force,
                   inputs=[args.data, args.model])
     check_folder("--plots", args.plots)
+    if args.rrd or args.plots:  # the PNG names too, before any work
+        from torchcal.commands._viz import check_outputs as check_visual_outputs
+        check_visual_outputs(args, "diagnose")
     if args.model and args.effects is not None:
         raise InputError("--model and --effects both give the baseline effects; pass one of them")
     robot = make_robot(args.robot)

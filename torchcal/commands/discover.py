@@ -28,6 +28,9 @@ def run(args) -> int:
     check_outputs([("--json", args.json), ("--out", args.out), ("--rrd", args.rrd)], args.force,
                   inputs=[args.data])
     check_folder("--plots", args.plots)
+    if args.rrd or args.plots:  # the PNG names too, before any work
+        from torchcal.commands._viz import check_outputs as check_visual_outputs
+        check_visual_outputs(args, "discover")
     robot = make_robot(args.robot)
     m = read_data(args.data, robot)
     res = discover(robot, m, args.effects, folds=args.folds, seed=args.seed)

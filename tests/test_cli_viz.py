@@ -114,7 +114,7 @@ def test_existing_outputs_refused_without_force(tmp_path):
     # --plots naming a file, an output over the input, a missing .rrd folder
     with pytest.raises(InputError, match="expects a folder"):
         check_outputs(argparse.Namespace(rrd=None, plots=str(rrd), force=True), "diagnose")
-    with pytest.raises(InputError, match="over the input file"):
+    with pytest.raises(InputError, match="names the input file .*refusing to write over it"):
         check_outputs(argparse.Namespace(rrd=str(rrd), plots=None, force=True, data=str(rrd)), "diagnose")
     with pytest.raises(InputError, match="does not exist"):
         check_outputs(argparse.Namespace(rrd=str(tmp_path / "no" / "x.rrd"), plots=None, force=False), "diagnose")

@@ -70,7 +70,7 @@ def identifiability(J: torch.Tensor, names, candidate_free, rank_tol: float = RA
     else:
         rank, s = 0, np.ones(1)
     held = [names[i] for i in cand if not free[i]]
-    L, m = max(len(s), 1), max(n_rows, 1)
+    m = max(n_rows, 1)
     obs = {
         "O1": float(np.exp(np.log(s).mean()) / np.sqrt(m)),
         "O2": float(s[-1] / s[0]),

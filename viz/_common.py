@@ -101,6 +101,21 @@ def subsample(n: int, max_points: int | None) -> np.ndarray:
     return np.unique(np.linspace(0, n - 1, max_points).round().astype(np.int64))
 
 
+def zone_centres(pos: np.ndarray, zones: np.ndarray, centres_mm=None, zone_names=None):
+    """(names, centres (count, 3) mm) of the zones: the given centres, or the mean of
+    each zone's points (NaN for an empty zone)."""
+    names = names_for(zones, zone_names, "zone_names")
+    count = len(names)
+    if centres_mm is None:
+        centres = np.array([pos[zones == z].mean(axis=0) if (zones == z).any() else np.full(3, np.nan)
+                            for z in range(count)]).reshape(count, 3)
+        return names, centres
+    centres = points(centres_mm, "centres_mm")
+    if centres.shape[0] < count:
+        raise InputError(f"centres_mm: expected one row per zone ({count} zones), got {centres.shape[0]}")
+    return names_for(np.arange(centres.shape[0]), zone_names, "zone_names"), centres
+
+
 def zone_rgb(count: int) -> np.ndarray:
     """(count, 3) uint8 distinct colours for zones 0..count-1 (tab10, then tab20)."""
     from matplotlib import colormaps

@@ -97,17 +97,8 @@ def zone_map_figure(positions_mm, zones, *, centres_mm=None, zone_names=None, ti
     """
     pos = C.points(positions_mm, "positions_mm")
     zs = C.labels(zones, "zones", pos.shape[0])
-    names = C.names_for(zs, zone_names, "zone_names")
+    names, centres = C.zone_centres(pos, zs, centres_mm, zone_names)
     count = len(names)
-    if centres_mm is None:
-        centres = np.array([pos[zs == z].mean(axis=0) if (zs == z).any() else np.full(3, np.nan)
-                            for z in range(count)]).reshape(count, 3)
-    else:
-        centres = C.points(centres_mm, "centres_mm")
-        if centres.shape[0] < count:
-            raise InputError(f"centres_mm: expected one row per zone ({count} zones), got {centres.shape[0]}")
-        count = centres.shape[0]
-        names = C.names_for(np.arange(count), zone_names, "zone_names")
     rgb = C.zone_rgb(count) / 255.0
     idx = C.subsample(pos.shape[0], max_points)
     p, z = pos[idx], zs[idx]

@@ -119,17 +119,8 @@ def log_workspace(rec, positions_mm, r_set, zones, *, centres_mm=None, zone_name
     n = pos.shape[0]
     rs = C.vector(r_set, "r_set", n)
     zs = C.labels(zones, "zones", n)
-    names = C.names_for(zs, zone_names, "zone_names")
+    names, centres = C.zone_centres(pos, zs, centres_mm, zone_names)
     count = len(names)
-    if centres_mm is None:
-        centres = np.array([pos[zs == z].mean(axis=0) if (zs == z).any() else np.full(3, np.nan)
-                            for z in range(count)]).reshape(count, 3)
-    else:
-        centres = C.points(centres_mm, "centres_mm")
-        if centres.shape[0] < count:
-            raise InputError(f"centres_mm: expected one row per zone ({count} zones), got {centres.shape[0]}")
-        count = centres.shape[0]
-        names = C.names_for(np.arange(count), zone_names, "zone_names")
     lo, hi = C.rset_range(rs, rset_range)
     rgb = C.zone_rgb(count)
     stream.log("workspace", rr.AnnotationContext(

@@ -26,8 +26,14 @@ def positive_float(text: str) -> float:
     return v
 
 
-def add_output(p, name="--out", help="output file", required=True):
-    p.add_argument(name, required=required, help=help)
+def nonneg_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return v
 
 
 def add_force(p):

@@ -25,7 +25,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from torchcal.errors import InputError
 
 # PNG file names in the --plots folder, per command.
 PLOTS = {

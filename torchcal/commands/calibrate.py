@@ -61,7 +61,6 @@ def calibrate(meas, robot, effects=(), partition=None, zone_method: str = "dampe
 
     partition: a `Partition` or None (global only).
     """
-    import torch
 
     from torchcal.interval_identify import IntervalModel, identify_zones, pose_intervals
     from torchcal.model import CalibrationModel

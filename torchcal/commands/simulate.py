@@ -18,30 +18,10 @@ see `CalibrationModel.param_units`).
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 
+from torchcal.commands._args import positive_int, nonneg_float
 from torchcal.errors import InputError
-
-
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return v
-
-
-def _nonneg_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
-    if not (math.isfinite(v) and v >= 0):
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
-    return v
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -50,10 +30,10 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--robot", default="kr1000titan", help="preset robot (default kr1000titan)")
     p.add_argument("--effects", nargs="*", default=[], metavar="SPEC",
                    help="physical effects of the virtual robot, NAME or NAME:J[,J...]")
-    p.add_argument("--n", type=_positive_int, default=50, help="number of poses N (default 50)")
-    p.add_argument("--repeats", type=_positive_int, default=1,
+    p.add_argument("--n", type=positive_int, default=50, help="number of poses N (default 50)")
+    p.add_argument("--repeats", type=positive_int, default=1,
                    help="measurements per pose K (default 1)")
-    p.add_argument("--noise", type=_nonneg_float, default=0.02,
+    p.add_argument("--noise", type=nonneg_float, default=0.02,
                    help="measurement noise, mm (1 sigma per axis; default 0.02)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
     p.add_argument("--out", required=True, help="output measurement CSV")

@@ -16,40 +16,20 @@ summary (R_set min / median / max, share of points with R_set = 1) on stdout.
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 
+from torchcal.commands._args import positive_int, positive_float
 from torchcal.errors import InputError
-
-
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return v
-
-
-def _positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return v
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
     p = sub.add_parser("sweep", help="error envelopes and R_set over the workspace (CSV)",
                        description=__doc__.splitlines()[0])
     p.add_argument("--robot", default="kr1000titan", help="preset robot (default kr1000titan)")
-    p.add_argument("--n", type=_positive_int, default=100, help="workspace points N (default 100)")
-    p.add_argument("--samples", type=_positive_int, default=300,
+    p.add_argument("--n", type=positive_int, default=100, help="workspace points N (default 100)")
+    p.add_argument("--samples", type=positive_int, default=300,
                    help="clearance states M per point (default 300)")
-    p.add_argument("--allowed", type=_positive_float, default=2.5,
+    p.add_argument("--allowed", type=positive_float, default=2.5,
                    help="allowed distance error D in mm: R_set against [0, D] (default 2.5)")
     p.add_argument("--seed", type=int, default=0, help="seed of the Latin hypercube and the states")
     p.add_argument("--out", required=True, help="output CSV")

@@ -11,7 +11,6 @@ the geometric lengths; only the temperature's variation makes the coefficients
 identifiable.
 """
 
-import torch
 
 from torchcal.effects.base import Effect
 from torchcal.errors import InputError

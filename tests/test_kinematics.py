@@ -451,3 +451,20 @@ def test_float32_stays_float32_and_device_is_kept(device):
     assert robot.fk(q32, p64.to(device)).dtype == torch.float64
     # plain lists and integer tensors are accepted and come out in the robot's dtype
     assert robot.fk([0, 0, 0, 0, 0, 0]).dtype == torch.float64
+
+
+def test_outer_positions_equals_fk_positions():
+    """The in-place (points x sets) layout used by the sweep is the same recursion."""
+    from torchcal import kinematics as K
+
+    robot = torchcal.robot("kr1000titan")
+    g = torch.Generator().manual_seed(3)
+    q = torch.rand(7, 6, generator=g, dtype=torch.float64) * 2 - 1
+    dev = torch.randn(5, 6, 5, generator=g, dtype=torch.float64) * 1e-3
+    tool = torch.tensor([10.0, -20.0, 150.0], dtype=torch.float64)
+    F = K.outer_factors(robot.table, dev)
+    bufs = [torch.empty(7, 5, dtype=torch.float64) for _ in range(7)]
+    got = torch.stack(K.outer_positions(torch.cos(q).T.contiguous(), torch.sin(q).T.contiguous(), F, tool, bufs), -1)
+    want = K.fk_positions(q[:, None, :], robot.table, dev[None], tool=torch.eye(4, dtype=torch.float64).index_put(
+        (torch.arange(3), torch.full((3,), 3)), tool))
+    torch.testing.assert_close(got, want, rtol=0, atol=1e-9)

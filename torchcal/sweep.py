@@ -286,62 +286,6 @@ class SweepResult:
                    eta=t[:, k + 11], r_set=t[:, k + 12])
 
 
-def _sample_factors(table: torch.Tensor, dev: torch.Tensor) -> list[torch.Tensor]:
-    """Per-set trig and lengths of the perturbed links: 8 tensors (n, M).
-
-    table (n, 5), dev (M, n, 5) -> cos/sin of (theta_offset + dtheta), of alpha, of beta,
-    then a and d, each transposed to (n, M) so that joint i's row is contiguous.
-    """
-    off, d, a, alpha, beta = (table + dev).unbind(-1)  # each (M, n)
-    return [t.T.contiguous() for t in (torch.cos(off), torch.sin(off), torch.cos(alpha), torch.sin(alpha),
-                                       torch.cos(beta), torch.sin(beta), a, d)]
-
-
-def _chain(cq, sq, F, tool_point, bufs):
-    """TCP positions in the joint-1 frame for (Nc points) x (Mc sets), in place.
-
-    The backward recursion of `torchcal.kinematics._positions_kernel`,
-    v <- Rz(q + off) (Rx(alpha) Ry(beta) v + [a, 0, d]), with every full-size temporary
-    in one of the 7 preallocated buffers (Nc, Mc) and fused multiply-adds (addcmul):
-    18 full-size operations per joint and no allocation, several times faster than the
-    general kernel on a CPU. cq, sq (n, Nc) cos / sin of q; F: `_sample_factors` sliced to
-    the Mc sets; tool_point (3,). Returns three (Nc, Mc) views into `bufs`.
-    """
-    co, so, ca, sa, cb, sb, a, d = F
-    ct, st, b0, b1, b2, b3, b4 = bufs
-    n = cq.shape[0]
-    vx, vy, vz = tool_point[0], tool_point[1], tool_point[2]
-    i = n - 1
-    # last link: v is the tool point, its first half-step is per set only
-    cqi, sqi = cq[i][:, None], sq[i][:, None]
-    torch.mul(cqi, co[i], out=ct).addcmul_(sqi, so[i], value=-1)  # cos(q + off)
-    torch.mul(sqi, co[i], out=st).addcmul_(cqi, so[i])  # sin(q + off)
-    wx = cb[i] * vx + sb[i] * vz  # (Mc,)
-    wz = cb[i] * vz - sb[i] * vx
-    ux = wx + a[i]
-    uy = ca[i] * vy - sa[i] * wz
-    uz = sa[i] * vy + ca[i] * wz + d[i]
-    vx = torch.mul(ct, ux, out=b0).addcmul_(st, uy, value=-1)
-    vy = torch.mul(st, ux, out=b1).addcmul_(ct, uy)
-    vz = b2.copy_(uz.expand_as(b2))
-    free = (b3, b4)
-    for i in range(n - 2, -1, -1):
-        cqi, sqi = cq[i][:, None], sq[i][:, None]
-        torch.mul(cqi, co[i], out=ct).addcmul_(sqi, so[i], value=-1)
-        torch.mul(sqi, co[i], out=st).addcmul_(cqi, so[i])
-        wx, wz = free
-        torch.mul(vx, cb[i], out=wx).addcmul_(vz, sb[i])  # Ry(beta) v
-        torch.mul(vz, cb[i], out=wz).addcmul_(vx, sb[i], value=-1)
-        ux = wx.add_(a[i])
-        uy = torch.mul(vy, ca[i], out=vx).addcmul_(wz, sa[i], value=-1)  # Rx(alpha) ...
-        uz = torch.mul(vy, sa[i], out=vz).addcmul_(wz, ca[i]).add_(d[i])
-        nvx = torch.mul(ct, ux, out=vy).addcmul_(st, uy, value=-1)  # Rz(theta) u
-        nvy = torch.mul(st, ux, out=wz).addcmul_(ct, uy)
-        vx, vy, vz = nvx, nvy, uz
-        free = (ux, uy)
-    return vx, vy, vz
-
-
 def _envelope(robot, q, dev, include_nominal, chunk, bar, threads):
     """Min / max of e and |e| over the sets, chunk by chunk. q (N, n), dev (M, n, 5).
 
@@ -353,7 +297,7 @@ def _envelope(robot, q, dev, include_nominal, chunk, bar, threads):
     base, tool = robot.base.to(q), robot.tool.to(q)
     tool_point = tool[:3, 3]
     N, M = q.shape[0], dev.shape[0]
-    F = _sample_factors(table, dev)
+    F = K.outer_factors(table, dev)
     R = base[:3, :3]
     rotate = not torch.equal(R, torch.eye(3, dtype=R.dtype, device=R.device))
     e_lo = torch.empty(N, 3, dtype=q.dtype, device=q.device)
@@ -377,7 +321,7 @@ def _envelope(robot, q, dev, include_nominal, chunk, bar, threads):
             b1 = min(M, b0 + m_step)
             views = [t[:a1 - a0, :b1 - b0] for t in bufs]
             Fc = [f[:, b0:b1] for f in F]
-            ex, ey, ez = _chain(cq, sq, Fc, tool_point, views)
+            ex, ey, ez = K.outer_positions(cq, sq, Fc, tool_point, views)
             ex.sub_(nom[:, 0:1]), ey.sub_(nom[:, 1:2]), ez.sub_(nom[:, 2:3])
             if rotate:  # error vectors into the world frame
                 ex, ey, ez = (R[k, 0] * ex + R[k, 1] * ey + R[k, 2] * ez for k in range(3))

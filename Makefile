@@ -8,8 +8,9 @@ STAMP := $(VENV)/.installed
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
-	# a local CPU build of torch, when the machine has one, is taken before the range below
-	-$(PY) -m pip install -q --no-index torch==2.13.0 2>/dev/null
+	# a local CPU build of torch (pip's find-links), when the machine has one, goes in first;
+	# its dependencies come with the next line, and the torch range there keeps it
+	-$(PY) -m pip install -q --no-index --no-deps torch==2.13.0 2>/dev/null
 	$(PY) -m pip install -q -e '.[dev]'
 	touch $(STAMP)
 

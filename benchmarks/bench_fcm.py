@@ -11,7 +11,6 @@ runs, iterations per second, the speed ratio, and how far apart the two results 
 Timings need cores to themselves: torch's OpenMP threads spin-wait at each op, so on a
 machine shared with other busy jobs (the load average is printed) a descheduled thread
 stalls every op and the torch times inflate far more than the single-threaded numpy ones.
-
 """
 
 from __future__ import annotations

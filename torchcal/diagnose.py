@@ -25,7 +25,9 @@
    Candidates are ranked by the held-out log-likelihood gain per pose (`score`); for
    deterministic terms that orders them as the held-out RMS does.
 4. Candidates are reported best first (significant ones, then by score). The verdict is the
-   best significant one; for a joint effect, a further joint of the same effect is added
+   best significant one, or a simpler significant one (fewer new parameters) that the
+   best does not beat significantly per pose (paired held-out log-likelihood, two
+   standard errors); for a joint effect, a further joint of the same effect is added
    while, given the joints chosen so far, it is the best significant candidate of all
    (forward selection), so a hidden ``joint_compliance:2,3`` is named with both joints
    but a second, different effect is left to the next round of `discover`.
@@ -64,7 +66,8 @@ class Candidate:
     rms_mm: training distance RMS of the linearised refit with it; cv_rms_mm: held-out;
     cv_gain: relative held-out RMS gain; score: held-out log-likelihood gain, nats per
     pose (the ranking); p_value: F-test (deterministic part) or likelihood-ratio test
-    (random part), whichever is smaller; k: new identifiable parameters.
+    (random part), whichever is smaller; k: new identifiable parameters; held_out_ll:
+    the per-pose held-out log-likelihoods behind `score`.
     """
 
     effect: str
@@ -76,6 +79,7 @@ class Candidate:
     k: int
     significant: bool = False
     cv_gain: float = 0.0
+    held_out_ll: np.ndarray | None = field(default=None, repr=False)  # (poses,) nats
 
     @property
     def spec(self) -> str:
@@ -198,6 +202,7 @@ class _Linear:
             Bf = None if Bs is None else Bs[~t3]
             logp = _fit_variance(train_res.reshape(-1, 3), Bf)
             ll[t3] = _variance_loglik(held[test].reshape(-1, 3), None if Bs is None else Bs[t3], logp)
+        self.last_ll = ll  # per-pose held-out log-likelihood of this call (for parsimony)
         return _rms(held), float(ll.mean())
 
 
@@ -259,6 +264,25 @@ def where_it_fails(robot: Robot, m: Measurements, residuals: torch.Tensor, bins:
     return out
 
 
+def _parsimonious(cands: list) -> Candidate | None:
+    """The best significant candidate, or a simpler one (fewer new parameters) that it
+    does not beat significantly: the paired per-pose held-out log-likelihood difference
+    is below two standard errors. E.g. an encoder scale error over a limited joint range
+    is fitted about as well by three harmonics; the one-parameter effect is named."""
+    sig = [c for c in cands if c.significant]
+    if not sig:
+        return None
+    best = sig[0]
+    close = []
+    for c in sig[1:]:
+        if c.k >= best.k:
+            continue
+        diff = best.held_out_ll - c.held_out_ll
+        if diff.mean() < 2 * diff.std(ddof=1) / np.sqrt(len(diff)):
+            close.append(c)
+    return min(close, key=lambda c: (c.k, -c.score), default=best)
+
+
 def random_clearance_basis(robot: Robot, ctx, xyz: torch.Tensor, joint: int) -> np.ndarray:
     """(N, 3, 2) TCP displacement in mm per mrad of random tilt of `joint`'s axis."""
     from torchcal.effects.joint_clearance import random_basis
@@ -297,6 +321,7 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
             p_f = float(scipy.stats.f.sf(F, k, dof))
         Bs_all = Bs_in if Bs is None else (Bs if Bs_in is None else np.concatenate([Bs_in, Bs], -1))
         cv, ll = lin_.cross_validate(B, Bs_all)
+        ll_rows = lin_.last_ll
         gain = (base_cv - cv) / max(base_cv, 1e-300)
         score = ll - base_ll
         significant = k > 0 and p_f < level and gain >= min_gain
@@ -309,7 +334,7 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
             significant = significant or (p_lr < level and score >= MIN_LL_GAIN)
         return Candidate(name, joints, float(np.sqrt(max(rss1, 0) / (n_eq / 3))), cv, float(score),
                          min(p_f, p_lr), k + (0 if Bs is None else Bs.shape[-1] // 2),
-                         bool(significant), float(gain))
+                         bool(significant), float(gain), ll_rows)
 
     columns, variance = {}, {}
     for name, joints in cands_specs:
@@ -320,7 +345,7 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
     cands = [judge(n, j, lin, None, C, variance.get((n, j)), base_cv, base_ll)
              for (n, j), C in columns.items()]
     cands.sort(key=lambda c: (not c.significant, -c.score))
-    verdict = next((c for c in cands if c.significant), None)
+    verdict = _parsimonious(cands)
     if verdict is not None and verdict.joints:
         # forward selection: add a joint of the same effect while, given the joints chosen
         # so far, it is the best significant candidate of all

@@ -355,10 +355,10 @@ def test_cli_partition(tmp_path, capsys):
 
 @pytest.mark.parametrize("edit, match", [
     (lambda rows: [[c for c in row if c != "r_set"] for row in rows[:1]] + [row[:-1] for row in rows[1:]],
-     r"missing column\(s\) r_set in the header"),
-    (lambda rows: rows[:2] + [rows[2][:7] + ["abc"] + rows[2][8:]] + rows[3:], r"row 3, column x: 'abc' is not a number"),
+     r"header must be point,q1,.*got point,q1,.*,eta$"),
+    (lambda rows: rows[:2] + [rows[2][:7] + ["abc"] + rows[2][8:]] + rows[3:], r"row 3, column x: not a number: 'abc'"),
     (lambda rows: rows[:3] + [rows[3][:-1] + ["1.5"]] + rows[4:], r"row 4, column r_set: 1.5 is outside \[0, 1\]"),
-    (lambda rows: rows[:2] + [rows[2][:5]] + rows[3:], r"row 3: 5 fields, expected 20"),
+    (lambda rows: rows[:2] + [rows[2][:5]] + rows[3:], r"row 3: expected 20 columns, got 5"),
     (lambda rows: rows[:1], r"no data rows"),
 ])
 def test_cli_bad_sweep_csv(tmp_path, capsys, edit, match):

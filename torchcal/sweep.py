@@ -161,6 +161,7 @@ class SweepResult:
         allowed_mm: the allowed distance error D (None if unknown).
         n_samples: M, number of perturbed parameter sets (None if unknown).
         r_set_axis, eta_axis: (N, 3) per axis against an allowed +-a (None unless asked).
+        point: (N,) int64 point ids (None: the row index 0..N-1, as `sweep` writes them).
     """
 
     q: torch.Tensor
@@ -178,6 +179,7 @@ class SweepResult:
     n_samples: int | None = None
     r_set_axis: torch.Tensor | None = None
     eta_axis: torch.Tensor | None = None
+    point: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return self.q.shape[0]
@@ -239,7 +241,8 @@ class SweepResult:
         data = torch.cat([c.detach().to("cpu", torch.float64) for c in cols], dim=1).numpy()
         buf = _io.StringIO()
         buf.write(",".join(self.columns()) + "\n")
-        for i, row in enumerate(data.tolist()):
+        ids = range(len(data)) if self.point is None else self.point.tolist()
+        for i, row in zip(ids, data.tolist()):
             buf.write(f"{i}," + ",".join(map(repr, row)) + "\n")
         return buf.getvalue()
 
@@ -249,13 +252,22 @@ class SweepResult:
 
     @classmethod
     def from_csv(cls, path, device=None) -> "SweepResult":
-        """Read a sweep CSV (linearised bounds, allowed_mm, n_samples are not stored: None)."""
+        """Read a sweep CSV (linearised bounds, allowed_mm, n_samples are not stored: None).
+
+        One InputError naming the file, row (file line) and column for a bad header, a
+        ragged row, a non-numeric or non-finite value, or an R_set outside [0, 1].
+        """
         from pathlib import Path
         path = Path(path)
         if not path.is_file():
             raise InputError(f"{path}: sweep CSV does not exist")
-        with open(path, newline="") as fh:
-            rows = list(csv.reader(fh))
+        try:
+            with open(path, newline="") as fh:
+                rows = list(csv.reader(fh))
+        except UnicodeDecodeError as exc:
+            raise InputError(f"{path}: not a text CSV file ({exc})") from None
+        except csv.Error as exc:
+            raise InputError(f"{path}: malformed CSV: {exc}") from None
         if not rows:
             raise InputError(f"{path}: empty file, expected a sweep CSV header")
         header = [h.strip() for h in rows[0]]
@@ -266,24 +278,35 @@ class SweepResult:
         if n == 0 or header != expected:
             raise InputError(f"{path}: header must be {','.join(expected if n else ['point', 'q1', '...'])}, "
                              f"got {','.join(header)}")
-        if len(rows) < 2:
+        rows = [(line, row) for line, row in enumerate(rows[1:], start=2)
+                if row and any(c.strip() for c in row)]  # blank lines are skipped
+        if not rows:
             raise InputError(f"{path}: no data rows")
-        data = np.empty((len(rows) - 1, len(header) - 1))
-        for r, row in enumerate(rows[1:], start=2):
+        data = np.empty((len(rows), len(header) - 1))
+        ids = np.empty(len(rows), dtype=np.int64)
+        for i, (r, row) in enumerate(rows):
             if len(row) != len(header):
                 raise InputError(f"{path}: row {r}: expected {len(header)} columns, got {len(row)}")
+            try:
+                ids[i] = int(row[0])
+            except ValueError:
+                raise InputError(f"{path}: row {r}, column point: not an integer: {row[0]!r}") from None
             for c, v in enumerate(row[1:], start=1):
                 try:
-                    data[r - 2, c - 1] = float(v)
+                    data[i, c - 1] = float(v)
                 except ValueError:
                     raise InputError(f"{path}: row {r}, column {header[c]}: not a number: {v!r}") from None
+                if not math.isfinite(data[i, c - 1]):
+                    raise InputError(f"{path}: row {r}, column {header[c]}: not finite: {v!r}")
+            if not 0.0 <= data[i, -1] <= 1.0:
+                raise InputError(f"{path}: row {r}, column r_set: {data[i, -1]} is outside [0, 1]")
         t = torch.from_numpy(data).to(device)
         k = n
         q = torch.deg2rad(t[:, :k])
         e = t[:, k + 3:k + 9].reshape(-1, 3, 2)
         return cls(q=q, positions=t[:, k:k + 3], err_lower=e[..., 0].contiguous(),
                    err_upper=e[..., 1].contiguous(), dist_lower=t[:, k + 9], dist_upper=t[:, k + 10],
-                   eta=t[:, k + 11], r_set=t[:, k + 12])
+                   eta=t[:, k + 11], r_set=t[:, k + 12], point=torch.from_numpy(ids).to(device))
 
 
 def _envelope(robot, q, dev, include_nominal, chunk, bar, threads):

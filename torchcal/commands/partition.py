@@ -11,11 +11,8 @@ and prints one line per zone.
 
 from __future__ import annotations
 
-import csv
-import math
 from pathlib import Path
 
-import torch
 
 from torchcal.errors import InputError
 from torchcal.partition import partition_workspace
@@ -44,55 +41,12 @@ def add_parser(sub):
 
 
 def read_sweep(path):
-    """Read point ids (N,) int64, positions (N, 3) mm and r_set (N,) from a sweep CSV.
+    """Point ids (N,) int64, positions (N, 3) mm and r_set (N,) of a sweep CSV
+    (`torchcal.sweep.SweepResult.from_csv`: errors name the file, row and column)."""
+    from torchcal.sweep import SweepResult
 
-    Raises InputError naming the file, row (line number) and column of any problem.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: sweep CSV does not exist")
-    ids, rows = [], []
-    try:
-        with path.open(newline="") as fh:
-            reader = csv.reader(fh)
-            header = next(reader, None)
-            if header is None:
-                raise InputError(f"{path}: empty file; expected a header point,q1..qn,x,y,z,...,r_set")
-            header = [h.strip() for h in header]
-            missing = [c for c in NEEDED if c not in header]
-            if missing:
-                raise InputError(f"{path}: missing column(s) {', '.join(missing)} in the header; "
-                                 f"expected point,q1..qn,x,y,z,...,r_set")
-            col = {c: header.index(c) for c in NEEDED}
-            for fields in reader:
-                line = reader.line_num
-                if not fields or all(not f.strip() for f in fields):
-                    continue
-                if len(fields) != len(header):
-                    raise InputError(f"{path}: row {line}: {len(fields)} fields, expected {len(header)} as in the header")
-                vals = []
-                for c in NEEDED:
-                    text = fields[col[c]].strip()
-                    try:
-                        v = int(text) if c == "point" else float(text)
-                    except ValueError:
-                        what = "an integer" if c == "point" else "a number"
-                        raise InputError(f"{path}: row {line}, column {c}: {text!r} is not {what}") from None
-                    if c != "point" and not math.isfinite(v):
-                        raise InputError(f"{path}: row {line}, column {c}: {text!r} is not finite")
-                    vals.append(v)
-                if not 0.0 <= vals[4] <= 1.0:
-                    raise InputError(f"{path}: row {line}, column r_set: {vals[4]} is outside [0, 1]")
-                ids.append(vals[0])
-                rows.append(vals[1:])
-    except UnicodeDecodeError as exc:
-        raise InputError(f"{path}: not a text CSV file ({exc})") from None
-    except csv.Error as exc:
-        raise InputError(f"{path}: malformed CSV: {exc}") from None
-    if not rows:
-        raise InputError(f"{path}: no data rows; expected one row per sweep point")
-    data = torch.tensor(rows, dtype=torch.float64)  # (N, 4)
-    return torch.tensor(ids, dtype=torch.int64), data[:, :3].contiguous(), data[:, 3].contiguous()
+    res = SweepResult.from_csv(path)
+    return res.point, res.positions, res.r_set
 
 
 def _levels(text):

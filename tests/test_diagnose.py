@@ -99,3 +99,23 @@ def test_simpler_effect_is_named_when_a_richer_one_fits_no_better():
     best = max((c for c in d.candidates if c.significant), key=lambda c: c.score)
     assert best.spec == "gear_periodic:3"  # the richer term scores a hair higher here
     assert d.verdict.spec == "encoder_scale:3"
+
+
+@pytest.mark.parametrize("joint", [2, 5])
+def test_random_clearance_from_another_generator_is_named(joint):
+    """Clearance states drawn by `torchcal.uncertainty` (an independent model: each seat of
+    the joint against its hole wall in a random direction, mapped to MD-H deviations; no
+    load-driven part) per move: the verdict names joint_clearance on that joint."""
+    from torchcal.io import Measurements
+    from torchcal.uncertainty import (KR1000_BEARING_LENGTH_MM, KR1000_CLEARANCE_MM, KR1000_RADII_MM,
+                                      ClearanceModel)
+
+    clear = [c if i // 2 + 1 == joint else 0.0 for i, c in enumerate(KR1000_CLEARANCE_MM)]
+    cm = ClearanceModel(KR1000_RADII_MM, clear, KR1000_BEARING_LENGTH_MM)
+    geo = VirtualRobot(ROBOT, [], seed=1).theta[: 5 * ROBOT.n].reshape(ROBOT.n, 5)
+    q = random_poses(ROBOT, 240, torch.Generator().manual_seed(51))
+    g = torch.Generator().manual_seed(100)
+    xyz = ROBOT.fk(q, geo + cm.sample(ROBOT, 240, generator=g)) \
+        + NOISE * torch.randn(240, 3, generator=g, dtype=torch.float64)
+    d = diagnose(ROBOT, Measurements(torch.arange(240), q, xyz))
+    assert d.verdict is not None and d.verdict.spec == f"joint_clearance:{joint}"

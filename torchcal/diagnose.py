@@ -22,12 +22,13 @@
      its deterministic part is, or when a likelihood-ratio test of tau_J (boundary
      mixture 0.5 chi2) passes the same level and the held-out log-likelihood gains at
      least `MIN_LL_GAIN` nats per pose.
-   Candidates are ranked by the held-out log-likelihood gain per pose (`score`); for
-   deterministic terms that orders them as the held-out RMS does.
-4. Candidates are reported best first (significant ones, then by score). The verdict is the
-   best significant one, or a simpler significant one (fewer new parameters) that the
-   best does not beat significantly per pose (paired held-out log-likelihood, two
-   standard errors); for a joint effect, a further joint of the same effect is added
+4. Candidates are reported best first: significant by a deterministic part (by held-out
+   RMS), then significant by a random part only (by `score`, the held-out
+   log-likelihood gain per pose), then the rest. The verdict is the best of the first
+   tier, or of the second when the first is empty (a variance term can soak up structure
+   a deterministic effect predicts, so a prediction is preferred); within the tier, a
+   simpler candidate (fewer new parameters) that the best does not beat significantly
+   per pose (paired held-out errors, two standard errors) is preferred; for a joint effect, a further joint of the same effect is added
    while, given the joints chosen so far, it is the best significant candidate of all
    (forward selection), so a hidden ``joint_compliance:2,3`` is named with both joints
    but a second, different effect is left to the next round of `discover`.
@@ -66,8 +67,10 @@ class Candidate:
     rms_mm: training distance RMS of the linearised refit with it; cv_rms_mm: held-out;
     cv_gain: relative held-out RMS gain; score: held-out log-likelihood gain, nats per
     pose (the ranking); p_value: F-test (deterministic part) or likelihood-ratio test
-    (random part), whichever is smaller; k: new identifiable parameters; held_out_ll:
-    the per-pose held-out log-likelihoods behind `score`.
+    (random part), whichever is smaller; k: new identifiable parameters; held_out_ll,
+    held_out_sq: per-pose held-out log-likelihood and squared distance error;
+    deterministic: significant by its deterministic part (else, if significant, by its
+    random part only).
     """
 
     effect: str
@@ -80,6 +83,8 @@ class Candidate:
     significant: bool = False
     cv_gain: float = 0.0
     held_out_ll: np.ndarray | None = field(default=None, repr=False)  # (poses,) nats
+    held_out_sq: np.ndarray | None = field(default=None, repr=False)  # (poses,) mm^2
+    deterministic: bool = False  # significant by its deterministic part (F-test + gain)
 
     @property
     def spec(self) -> str:
@@ -203,6 +208,7 @@ class _Linear:
             logp = _fit_variance(train_res.reshape(-1, 3), Bf)
             ll[t3] = _variance_loglik(held[test].reshape(-1, 3), None if Bs is None else Bs[t3], logp)
         self.last_ll = ll  # per-pose held-out log-likelihood of this call (for parsimony)
+        self.last_sq = (held.reshape(-1, 3) ** 2).sum(-1)  # per-pose held-out squared error
         return _rms(held), float(ll.mean())
 
 
@@ -264,23 +270,40 @@ def where_it_fails(robot: Robot, m: Measurements, residuals: torch.Tensor, bins:
     return out
 
 
-def _parsimonious(cands: list) -> Candidate | None:
-    """The best significant candidate, or a simpler one (fewer new parameters) that it
-    does not beat significantly: the paired per-pose held-out log-likelihood difference
-    is below two standard errors. E.g. an encoder scale error over a limited joint range
-    is fitted about as well by three harmonics; the one-parameter effect is named."""
-    sig = [c for c in cands if c.significant]
-    if not sig:
+def _not_better(best, c, attr: str, sign: float) -> bool:
+    """True when `best` does not beat `c` significantly per pose: the paired difference of
+    the per-pose held-out values (sign * (best - c), positive = best better) has a mean
+    below two standard errors."""
+    diff = sign * (getattr(best, attr) - getattr(c, attr))
+    return diff.mean() < 2 * diff.std(ddof=1) / np.sqrt(len(diff))
+
+
+def rank(cands: list) -> list:
+    """Candidates best first: those significant by a deterministic part, by held-out RMS;
+    then those significant by a random part only, by score; then the rest, by score."""
+    return sorted(cands, key=lambda c: (0, c.cv_rms_mm) if c.deterministic else
+                  (1, -c.score) if c.significant else (2, -c.score))
+
+
+def select(cands: list) -> Candidate | None:
+    """The verdict among ranked candidates, or None.
+
+    A predictable (deterministic) explanation comes first: a random-only term (random
+    clearance as a variance) can also soak up structure that some deterministic effect
+    predicts, so it is named only when no deterministic candidate is significant.
+    Within a tier, a simpler candidate (fewer new parameters) that the best does not beat
+    significantly per pose is preferred (held-out squared error for deterministic terms,
+    log-likelihood for random ones): e.g. an encoder-scale error over a limited joint
+    range is fitted about as well by four harmonics, and the one-parameter effect is named.
+    """
+    det = [c for c in cands if c.deterministic]
+    tier = det or [c for c in cands if c.significant]
+    if not tier:
         return None
-    best = sig[0]
-    close = []
-    for c in sig[1:]:
-        if c.k >= best.k:
-            continue
-        diff = best.held_out_ll - c.held_out_ll
-        if diff.mean() < 2 * diff.std(ddof=1) / np.sqrt(len(diff)):
-            close.append(c)
-    return min(close, key=lambda c: (c.k, -c.score), default=best)
+    best = tier[0]
+    attr, sign = ("held_out_sq", -1.0) if det else ("held_out_ll", 1.0)
+    close = [c for c in tier[1:] if c.k < best.k and _not_better(best, c, attr, sign)]
+    return min(close, key=lambda c: (c.k, tier.index(c)), default=best)
 
 
 def random_clearance_basis(robot: Robot, ctx, xyz: torch.Tensor, joint: int) -> np.ndarray:
@@ -321,10 +344,10 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
             p_f = float(scipy.stats.f.sf(F, k, dof))
         Bs_all = Bs_in if Bs is None else (Bs if Bs_in is None else np.concatenate([Bs_in, Bs], -1))
         cv, ll = lin_.cross_validate(B, Bs_all)
-        ll_rows = lin_.last_ll
+        ll_rows, sq_rows = lin_.last_ll, lin_.last_sq
         gain = (base_cv - cv) / max(base_cv, 1e-300)
         score = ll - base_ll
-        significant = k > 0 and p_f < level and gain >= min_gain
+        significant = deterministic = k > 0 and p_f < level and gain >= min_gain
         p_lr = 1.0
         if Bs is not None:  # likelihood-ratio test of the random part, all rows
             e3 = e1.reshape(-1, 3)
@@ -334,7 +357,7 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
             significant = significant or (p_lr < level and score >= MIN_LL_GAIN)
         return Candidate(name, joints, float(np.sqrt(max(rss1, 0) / (n_eq / 3))), cv, float(score),
                          min(p_f, p_lr), k + (0 if Bs is None else Bs.shape[-1] // 2),
-                         bool(significant), float(gain), ll_rows)
+                         bool(significant), float(gain), ll_rows, sq_rows, bool(deterministic))
 
     columns, variance = {}, {}
     for name, joints in cands_specs:
@@ -344,8 +367,8 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
     base_cv, base_ll = lin.cross_validate(np.zeros((n_eq, 0)), None)
     cands = [judge(n, j, lin, None, C, variance.get((n, j)), base_cv, base_ll)
              for (n, j), C in columns.items()]
-    cands.sort(key=lambda c: (not c.significant, -c.score))
-    verdict = _parsimonious(cands)
+    cands = rank(cands)
+    verdict = select(cands)
     if verdict is not None and verdict.joints:
         # forward selection: add a joint of the same effect while, given the joints chosen
         # so far, it is the best significant candidate of all
@@ -360,7 +383,7 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
             step = [judge(n, j, lin_in, Bs_in, C, variance.get((n, j)) if n == verdict.effect else None,
                           cv_in, ll_in)
                     for (n, j), C in columns.items() if not (n == verdict.effect and j[0] in chosen)]
-            best = max((c for c in step if c.significant), key=lambda c: c.score, default=None)
+            best = select(rank(step))
             if best is None or best.effect != verdict.effect:
                 break  # another effect explains more: it is the next round's business
             chosen.append(best.joints[0])
@@ -373,7 +396,7 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
             e = lin.residual(B)
             verdict = Candidate(verdict.effect, tuple(sorted(chosen)), float(np.sqrt(e @ e / (n_eq / 3))),
                                 cv, ll - base_ll, verdict.p_value, B.shape[1], True,
-                                (base_cv - cv) / max(base_cv, 1e-300))
+                                (base_cv - cv) / max(base_cv, 1e-300), deterministic=verdict.deterministic)
             cands.insert(0, verdict)
     where = where_it_fails(robot, m, base_fit.residuals)
     return Diagnosis(specs, base_fit, base_cv, cands, verdict, where)

@@ -1,8 +1,9 @@
 """`gear_periodic:J`: periodic transmission error, harmonics of the joint angle.
 
 Parameters (2 H per joint, H = len(HARMONICS)): ``gear_J_sinK``, ``gear_J_cosK`` rad, the
-offset ``sum_K s_K sin(K q) + c_K cos(K q)``. Harmonics 1..3 of the output revolution
-(eccentricity, ovality, three-lobe errors of the output stage). The constant term is
+offset ``sum_K s_K sin(K q) + c_K cos(K q)``. Harmonics 1..4 of the output revolution
+(eccentricity, ovality, three- and four-lobe errors of the output stage); the
+once-per-tooth errors of the input stages are far above what a few hundred poses resolve. The constant term is
 joint J's dtheta and is not repeated here.
 """
 
@@ -10,7 +11,7 @@ import torch
 
 from torchcal.effects.base import Effect, scatter_joints
 
-HARMONICS = (1, 2, 3)
+HARMONICS = (1, 2, 3, 4)
 
 
 class GearPeriodic(Effect):

@@ -92,7 +92,7 @@ def test_diagnose_reports_where_it_fails():
 
 def test_simpler_effect_is_named_when_a_richer_one_fits_no_better():
     """An encoder scale error of joint 3 over its limited range is fitted about as well by
-    three harmonics (6 parameters): the one-parameter effect is the verdict."""
+    four harmonics (8 parameters): the one-parameter effect is the verdict."""
     vr = VirtualRobot(ROBOT, ["encoder_scale:3"], seed=12)
     m = vr.measure(random_poses(ROBOT, 240, torch.Generator().manual_seed(19)), noise_mm=NOISE)
     d = diagnose(ROBOT, m)

@@ -119,3 +119,20 @@ def test_random_clearance_from_another_generator_is_named(joint):
         + NOISE * torch.randn(240, 3, generator=g, dtype=torch.float64)
     d = diagnose(ROBOT, Measurements(torch.arange(240), q, xyz))
     assert d.verdict is not None and d.verdict.spec == f"joint_clearance:{joint}"
+
+
+def test_structure_a_deterministic_effect_predicts_is_not_called_random():
+    """A fifth-harmonic gear error of joint 1 (outside gear_periodic's harmonics 1..4) is
+    only partly predicted by gear_periodic:1, while a random-clearance variance term could
+    absorb more of the residual: the predictable explanation is named."""
+    from torchcal.io import Measurements
+
+    geo = VirtualRobot(ROBOT, [], seed=3).theta[: 5 * ROBOT.n].reshape(ROBOT.n, 5)
+    q = random_poses(ROBOT, 240, torch.Generator().manual_seed(7))
+    dq = torch.zeros_like(q)
+    dq[:, 0] = 1.5e-4 * torch.sin(5 * q[:, 0] + 0.7)
+    g = torch.Generator().manual_seed(9)
+    xyz = ROBOT.fk(q + dq, geo) + NOISE * torch.randn(240, 3, generator=g, dtype=torch.float64)
+    d = diagnose(ROBOT, Measurements(torch.arange(240), q, xyz))
+    assert d.verdict.spec == "gear_periodic:1"
+    assert any(c.effect == "joint_clearance" and c.significant and not c.deterministic for c in d.candidates)

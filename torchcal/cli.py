@@ -2,13 +2,15 @@
 
 Each sub-command lives in `torchcal/commands/<name>.py` and exposes
 `add_parser(subparsers)` (which sets `func=run` on its parser) and `run(args) -> int`.
-This module only composes them and turns user mistakes into one line on stderr.
+This module only composes them and turns user mistakes into one line on stderr
+(set TORCHCAL_DEBUG=1 to see the traceback of a ValueError that is not an InputError).
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 from torchcal.errors import InputError
@@ -29,13 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="torchcal", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     for name in COMMANDS:
-        try:
-            module = importlib.import_module(f"torchcal.commands.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"torchcal.commands.{name}":
-                raise
-            continue  # command not built yet
-        module.add_parser(sub)
+        importlib.import_module(f"torchcal.commands.{name}").add_parser(sub)
     return parser
 
 
@@ -44,6 +40,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except (InputError, ValueError, FileNotFoundError, FileExistsError, IsADirectoryError) as exc:
+        if os.environ.get("TORCHCAL_DEBUG") and not isinstance(exc, InputError):
+            raise  # developers: the traceback of a ValueError that is not a user mistake
         sys.stderr.write(f"torchcal {args.command}: error: {exc}\n")
         return 2
     except OSError as exc:  # permission denied, disk full, ...: one line, not a traceback

@@ -14,6 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 
 
+from torchcal.commands._args import add_force, check_outputs
 from torchcal.errors import InputError
 from torchcal.partition import partition_workspace
 
@@ -35,7 +36,7 @@ def add_parser(sub):
     p.add_argument("--r-weight", type=float, default=1.0,
                    help="weight of standardised R_set against standardised x, y, z in the sub-zones (default 1)")
     p.add_argument("--out", required=True, metavar="PARTITION.json", help="output partition JSON")
-    p.add_argument("--force", action="store_true", help="replace an existing output file")
+    add_force(p)
     p.set_defaults(func=run)
     return p
 
@@ -89,9 +90,8 @@ def run(args) -> int:
     levels = _levels(args.levels)
     zones = _zones(args.zones, levels)
     zone_range = _range(args.zone_range)
+    check_outputs([("--out", args.out)], args.force, inputs=[args.sweep])
     out = Path(args.out)
-    if out.exists() and not args.force:
-        raise InputError(f"{out}: output exists; pass --force to replace it")
     ids, pos, r = read_sweep(args.sweep)
     part = partition_workspace(pos, r, levels, zones, m=args.m, r_weight=args.r_weight, seed=args.seed,
                                restarts=args.restarts, zone_range=zone_range, point_ids=ids)

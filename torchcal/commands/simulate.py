@@ -20,8 +20,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from torchcal.commands._args import positive_int, nonneg_float
-from torchcal.errors import InputError
+from torchcal.commands._args import add_force, check_outputs, positive_int, nonneg_float
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -38,18 +37,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
     p.add_argument("--out", required=True, help="output measurement CSV")
     p.add_argument("--truth", default=None, help="also write the true parameters (JSON)")
-    p.add_argument("--force", action="store_true", help="replace existing outputs")
+    add_force(p)
     p.set_defaults(func=run)
     return p
-
-
-def _check_out(path, force: bool) -> Path:
-    path = Path(path)
-    if path.exists() and not force:  # fail before the work, not after it
-        raise InputError(f"{path}: output exists; pass --force to replace it")
-    if not path.parent.exists():
-        raise InputError(f"{path}: folder {path.parent} does not exist")
-    return path
 
 
 def run(args) -> int:
@@ -62,10 +52,8 @@ def run(args) -> int:
 
     robot = torchcal.robot(args.robot)
     specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
-    out = _check_out(args.out, args.force)
-    truth = _check_out(args.truth, args.force) if args.truth else None
-    if truth is not None and truth.resolve() == out.resolve():
-        raise InputError(f"{truth}: --truth and --out name the same file")
+    check_outputs([("--out", args.out), ("--truth", args.truth)], args.force)
+    out, truth = Path(args.out), Path(args.truth) if args.truth else None
 
     q = random_poses(robot, args.n, torch.Generator().manual_seed(args.seed))
     vr = VirtualRobot(robot, specs, seed=args.seed)

@@ -18,8 +18,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from torchcal.commands._args import positive_int, positive_float
-from torchcal.errors import InputError
+from torchcal.commands._args import add_force, check_outputs, positive_int, positive_float
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -33,7 +32,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    help="allowed distance error D in mm: R_set against [0, D] (default 2.5)")
     p.add_argument("--seed", type=int, default=0, help="seed of the Latin hypercube and the states")
     p.add_argument("--out", required=True, help="output CSV")
-    p.add_argument("--force", action="store_true", help="replace an existing output")
+    add_force(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
     return p
@@ -43,11 +42,8 @@ def run(args) -> int:
     import torchcal
     from torchcal.sweep import sweep
 
+    check_outputs([("--out", args.out)], args.force)  # fail before the work, not after it
     out = Path(args.out)
-    if out.exists() and not args.force:  # fail before the work, not after it
-        raise InputError(f"{out}: output exists; pass --force to replace it")
-    if not out.parent.exists():
-        raise InputError(f"{out}: folder {out.parent} does not exist")
     robot = torchcal.robot(args.robot)
     result = sweep(robot, n_points=args.n, n_samples=args.samples, allowed_mm=args.allowed,
                    seed=args.seed, progress=not args.no_progress)

@@ -30,15 +30,6 @@ from torchcal.sim import VirtualRobot, default_masses, random_poses
 DEG = math.pi / 180
 
 
-@pytest.fixture(scope="module")
-def kr():
-    return robot("kr1000titan")
-
-
-def poses(r, n, seed):
-    return random_poses(r, n, torch.Generator().manual_seed(seed))
-
-
 def predict_with(model, ctx, spec_index, p):
     """TCP positions with the effect `spec_index` at p and everything else at zero."""
     theta = model.zeros()
@@ -72,7 +63,7 @@ def test_compliance_monotone_in_payload_everywhere(kr):
     """Only the payload loaded (no link masses): deflection proportional to payload_kg."""
     masses, coms = torch.zeros(6), torch.zeros(6, 3)
     p = JointCompliance.params_from_physics(kr, (2, 3, 5), masses, coms, torch.full((6,), 1e9))
-    q = poses(kr, 5, 0)
+    q = random_poses(kr, 5, 0)
     eff = build("joint_compliance:2,3,5", kr)
     offs = [eff.joint_offset(p, make_context(kr, q, torch.full((5,), m))) for m in (0.0, 250.0, 1000.0)]
     assert offs[0].abs().max() == 0
@@ -85,7 +76,7 @@ def test_compliance_vanishes_without_gravity_load(kr):
     no torque, whatever the masses; tilt the gravity and it is loaded. Zero masses and
     zero payload: no deflection at any joint."""
     masses, coms = default_masses(kr)
-    q = poses(kr, 8, 1)
+    q = random_poses(kr, 8, 1)
     payload = torch.linspace(0, 1000, 8)
     eff = build("joint_compliance:1", kr)
     p = JointCompliance.params_from_physics(kr, (1,), masses, coms, torch.full((6,), 1e9))
@@ -105,7 +96,7 @@ def test_compliance_params_from_physics_matches_direct_torque(kr):
     masses = 10 + 100 * torch.rand(6, generator=gen, dtype=torch.float64)
     coms = 300 * torch.randn(6, 3, generator=gen, dtype=torch.float64)
     stiff = 1e6 * (1 + torch.rand(6, generator=gen, dtype=torch.float64))
-    q = poses(kr, 4, 7)
+    q = random_poses(kr, 4, 7)
     payload = torch.tensor([0.0, 100.0, 500.0, 1000.0], dtype=torch.float64)
     tilted = dataclasses.replace(kr, gravity=torch.nn.functional.normalize(
         torch.tensor([0.3, -0.2, -1.0], dtype=torch.float64), dim=0))
@@ -159,7 +150,7 @@ def test_backlash_flips_with_approach_direction(kr):
 # -- thermal_expansion --------------------------------------------------------------------
 
 def test_thermal_expansion_linear_in_temperature(kr):
-    q = poses(kr, 3, 2).repeat_interleave(4, dim=0)
+    q = random_poses(kr, 3, 2).repeat_interleave(4, dim=0)
     temp = torch.tensor([20.0, 25.0, 30.0, 40.0], dtype=torch.float64).repeat(3)
     ctx = make_context(kr, q, temp_c=temp)
     model = CalibrationModel(kr, ["thermal_expansion"])
@@ -179,11 +170,11 @@ def test_thermal_expansion_linear_in_temperature(kr):
 def test_gear_periodic_in_its_joint(kr):
     eff = build("gear_periodic:4", kr)
     p = torch.randn(eff.n_params, generator=torch.Generator().manual_seed(0), dtype=torch.float64) * 1e-4
-    q = poses(kr, 16, 4)
+    q = random_poses(kr, 16, 4)
     shifted = q.clone()
     shifted[:, 3] += 2 * math.pi
     other = q.clone()
-    other[:, [0, 1, 2, 4, 5]] = poses(kr, 16, 5)[:, [0, 1, 2, 4, 5]]  # other joints move
+    other[:, [0, 1, 2, 4, 5]] = random_poses(kr, 16, 5)[:, [0, 1, 2, 4, 5]]  # other joints move
     a = eff.joint_offset(p, make_context(kr, q))
     assert_close(eff.joint_offset(p, make_context(kr, shifted)), a, rtol=0, atol=1e-15)
     assert_close(eff.joint_offset(p, make_context(kr, other)), a, rtol=0, atol=0)
@@ -203,7 +194,7 @@ def test_gear_periodic_in_its_joint(kr):
 def test_encoder_scale_proportional_to_q(kr):
     eff = build("encoder_scale:1,3", kr)
     p = torch.tensor([1e-3, -2e-3], dtype=torch.float64)
-    q = poses(kr, 6, 6)
+    q = random_poses(kr, 6, 6)
     off = eff.joint_offset(p, make_context(kr, q))
     assert_close(off[:, 0], 1e-3 * q[:, 0])
     assert_close(off[:, 2], -2e-3 * q[:, 2])
@@ -214,7 +205,7 @@ def test_encoder_scale_proportional_to_q(kr):
 # -- base_frame / tool_offset -------------------------------------------------------------
 
 def test_base_frame_translation_and_rotation(kr):
-    q = poses(kr, 5, 8)
+    q = random_poses(kr, 5, 8)
     ctx = make_context(kr, q)
     model = CalibrationModel(kr, ["base_frame"])
     v = model.predict(model.zeros(), ctx)
@@ -230,7 +221,7 @@ def test_base_frame_translation_and_rotation(kr):
 
 
 def test_tool_offset_moves_tcp_in_flange_frame(kr):
-    q = poses(kr, 5, 9)
+    q = random_poses(kr, 5, 9)
     ctx = make_context(kr, q)
     model = CalibrationModel(kr, ["tool_offset"])
     t = torch.tensor([5.0, -3.0, 20.0], dtype=torch.float64)
@@ -245,8 +236,8 @@ def test_clearance_spread_within_what_the_clearances_allow(kr):
     """One pose, 20 repeated moves, no noise: the positions spread, and each lies within
     sum_j |tilt_j| x share x |TCP - o_j| of the mean (load-driven) position."""
     vr = VirtualRobot(kr, ["joint_clearance:2,3"], seed=1, clearance_random=0.5)
-    q0 = poses(kr, 1, 11)
-    q = torch.cat([q0, poses(kr, 1, 12)])  # a neighbour, so moves alternate between two poses
+    q0 = random_poses(kr, 1, 11)
+    q = torch.cat([q0, random_poses(kr, 1, 12)])  # a neighbour, so moves alternate between two poses
     m = vr.measure(q, repeats=20, noise_mm=0.0)
     at0 = m.pose == 0
     xyz = m.xyz[at0]
@@ -269,7 +260,7 @@ def test_clearance_spread_within_what_the_clearances_allow(kr):
 def test_clearance_deterministic_part_is_load_driven(kr):
     """The fit-role displacement: tilt about the perpendicular gravity moment and shift
     along the perpendicular gravity force; joint 1 (axis along gravity) gets no shift."""
-    q = poses(kr, 6, 13)
+    q = random_poses(kr, 6, 13)
     ctx = make_context(kr, q)
     eff = build("joint_clearance:1,2", kr)
     model = CalibrationModel(kr, [eff])
@@ -303,7 +294,7 @@ def test_model_is_differentiable_with_every_effect(kr):
     specs = ["base_frame", "tool_offset", "joint_compliance:2,3", "gear_periodic:1", "backlash:2",
              "encoder_scale:3", "thermal_expansion", "joint_clearance:2,3"]
     model = CalibrationModel(kr, specs)
-    q = poses(kr, 6, 14)
+    q = random_poses(kr, 6, 14)
     ctx = make_context(kr, q, torch.linspace(0, 1000, 6), torch.linspace(20, 30, 6))
     theta = 1e-4 * torch.randn(model.n_params, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
     J = torch.func.jacfwd(lambda t: model.predict(t, ctx))(theta)

@@ -17,12 +17,10 @@ geometric deviations the fits are exact (< 1e-9 mm), checked below for two effec
 """
 
 import pytest
-import torch
 
 from torchcal.effects import make_context
 from torchcal.identify import fit
 from torchcal.model import CalibrationModel
-from torchcal.robot import robot
 from torchcal.sim import VirtualRobot, random_poses
 
 NONLINEAR_FLOOR_MM = 2e-4  # RMS / max tolerance with geometric_scale=1 (observed <= 1e-4)
@@ -40,15 +38,6 @@ CASES = [
 ]
 
 
-@pytest.fixture(scope="module")
-def kr():
-    return robot("kr1000titan")
-
-
-def poses(r, n, seed):
-    return random_poses(r, n, torch.Generator().manual_seed(seed))
-
-
 def session(vr, q, seed):
     m = vr.measure(q, repeats=1, noise_mm=0.0, seed=seed)
     return m, make_context(vr.robot, m.q, m.payload_kg, m.temp_c)
@@ -64,7 +53,7 @@ def effect_only(model, theta, ctx):
 @pytest.mark.parametrize("spec, separable", CASES, ids=[c[0] for c in CASES])
 def test_inject_simulate_recover(kr, spec, separable):
     vr = VirtualRobot(kr, [spec], seed=3, geometric_scale=1.0, clearance_random=0.0)
-    m, ctx = session(vr, poses(kr, 240, 5), seed=11)
+    m, ctx = session(vr, random_poses(kr, 240, 5), seed=11)
     model = CalibrationModel(kr, [spec])
     res = fit(model, ctx, m.xyz)
     assert res.rms_mm < NONLINEAR_FLOOR_MM, (spec, res.rms_mm)
@@ -74,7 +63,7 @@ def test_inject_simulate_recover(kr, spec, separable):
     assert true_disp.norm(dim=-1).pow(2).mean().sqrt() > 0.1
 
     # fresh poses (a different session order, payloads and temperatures)
-    m2, ctx2 = session(vr, poses(kr, 80, 6), seed=12)
+    m2, ctx2 = session(vr, random_poses(kr, 80, 6), seed=12)
     pred = model.predict(res.theta, ctx2)
     assert (pred - m2.xyz).norm(dim=-1).max() < 2 * NONLINEAR_FLOOR_MM, spec
     if separable:
@@ -85,7 +74,7 @@ def test_inject_simulate_recover(kr, spec, separable):
 @pytest.mark.parametrize("spec", ["joint_compliance:2", "backlash:2"])
 def test_exact_without_geometric_deviations(kr, spec):
     vr = VirtualRobot(kr, [spec], seed=4, geometric_scale=0.0)
-    m, ctx = session(vr, poses(kr, 120, 7), seed=13)
+    m, ctx = session(vr, random_poses(kr, 120, 7), seed=13)
     res = fit(CalibrationModel(kr, [spec]), ctx, m.xyz)
     assert res.rms_mm < 1e-9, res.rms_mm
     err = effect_only(res.model, res.theta, ctx) - effect_only(vr.model, vr.theta, ctx)

@@ -21,19 +21,9 @@ from torchcal.interval_identify import (PoseIntervals, identify_intervals, ident
                                         pose_intervals, solution_map)
 from torchcal.io import Measurements
 from torchcal.model import CalibrationModel
-from torchcal.robot import robot
 from torchcal.sim import random_poses
 
 DEG = torch.pi / 180
-
-
-@pytest.fixture(scope="module")
-def kr():
-    return robot("kr1000titan")
-
-
-def poses(r, n, seed):
-    return random_poses(r, n, torch.Generator().manual_seed(seed))
 
 
 def exact_intervals(model, theta, q, half_width=None):
@@ -54,7 +44,7 @@ def random_theta(model, free, seed, scale=1.0):
 
 def test_noise_free_recovery(kr):
     model = CalibrationModel(kr)
-    q = poses(kr, 25, 1)
+    q = random_poses(kr, 25, 1)
     # the analysis runs at nominal: it does not depend on the data
     free = identify_intervals(model, exact_intervals(model, model.zeros(), q)).free
     truth = random_theta(model, free, 2, scale=4.0)  # only what the analysis keeps free
@@ -68,7 +58,7 @@ def test_noise_free_recovery(kr):
 
 def test_noise_free_recovery_with_effect(kr):
     model = CalibrationModel(kr, ["base_frame"])
-    q = poses(kr, 25, 3)
+    q = random_poses(kr, 25, 3)
     free = identify_intervals(model, exact_intervals(model, model.zeros(), q)).free
     truth = random_theta(model, free, 4, scale=2.0)
     fit = identify_intervals(model, exact_intervals(model, truth, q))
@@ -80,7 +70,7 @@ def test_noise_free_recovery_with_effect(kr):
 
 def test_unidentifiable_flagged_by_name(kr):
     model = CalibrationModel(kr)
-    fit = identify_intervals(model, exact_intervals(model, model.zeros(), poses(kr, 20, 5)))
+    fit = identify_intervals(model, exact_intervals(model, model.zeros(), random_poses(kr, 20, 5)))
     held = set(fit.report.held)
     # TCP on the z6 axis: turning or twisting the last link does not move it
     assert {"dtheta6", "dalpha6"} <= held
@@ -96,7 +86,7 @@ def test_unidentifiable_flagged_by_name(kr):
 @pytest.fixture(scope="module")
 def noisy_zone(kr):
     model = CalibrationModel(kr)
-    q = poses(kr, 12, 7)
+    q = random_poses(kr, 12, 7)
     g = torch.Generator().manual_seed(8)
     truth = random_theta(model, model.default_free(), 9, scale=3.0)
     p = model.predict(truth, make_context(kr, q))
@@ -161,7 +151,7 @@ def test_batched_over_zones_equals_per_zone(kr, effects):
     truth = random_theta(model, model.default_free(), 13, scale=3.0)
     zones = []
     for z in range(3):
-        q = poses(kr, 11, 20 + z)
+        q = random_poses(kr, 11, 20 + z)
         p = model.predict(truth, make_context(kr, q))
         c = p + 0.05 * torch.randn(p.shape, generator=g, dtype=torch.float64)
         r = 0.1 * torch.rand(p.shape, generator=g, dtype=torch.float64)
@@ -176,7 +166,7 @@ def test_batched_over_zones_equals_per_zone(kr, effects):
 
 
 def test_pose_intervals_groups_repeats(kr):
-    q = poses(kr, 3, 30)
+    q = random_poses(kr, 3, 30)
     pose = torch.tensor([2, 0, 1, 0, 2, 1])
     xyz = torch.arange(18, dtype=torch.float64).reshape(6, 3)
     m = Measurements(pose, q[[2, 0, 1, 0, 2, 1]], xyz)
@@ -194,7 +184,7 @@ def test_pose_intervals_groups_repeats(kr):
 
 def test_too_few_poses_is_an_error(kr):
     model = CalibrationModel(kr)
-    data = exact_intervals(model, model.zeros(), poses(kr, 4, 31))
+    data = exact_intervals(model, model.zeros(), random_poses(kr, 4, 31))
     with pytest.raises(InputError, match="4 poses give 12 equations"):
         identify_intervals(model, data)
 
@@ -202,7 +192,7 @@ def test_too_few_poses_is_an_error(kr):
 @pytest.mark.parametrize("effects", [(), ("base_frame", "joint_clearance")], ids=["analytic", "autograd"])
 def test_compensation_converges(kr, effects):
     model = CalibrationModel(kr, list(effects))
-    q_nom = poses(kr, 16, 40)
+    q_nom = random_poses(kr, 16, 40)
     targets = kr.fk(q_nom)
     thetas = torch.stack([random_theta(model, model.default_free(), 41 + z, scale=4.0) for z in range(3)])
     if effects:  # clearance: realistic size (tilt 1e-4 rad, shift 0.02 mm)
@@ -219,7 +209,7 @@ def test_compensation_converges(kr, effects):
 
 
 def test_nominal_inverse_and_errors(kr):
-    q = poses(kr, 5, 50)
+    q = random_poses(kr, 5, 50)
     t = kr.fk(q)
     ni = nominal_inverse(kr, t, q + 0.05)
     assert ni.converged.all()

@@ -17,17 +17,7 @@ from torch.testing import assert_close
 from torchcal.cli import main
 from torchcal.effects import make_context
 from torchcal.io import read_measurements, write_measurements
-from torchcal.robot import robot
 from torchcal.sim import VirtualRobot, random_poses
-
-
-@pytest.fixture(scope="module")
-def kr():
-    return robot("kr1000titan")
-
-
-def poses(r, n, seed):
-    return random_poses(r, n, torch.Generator().manual_seed(seed))
 
 
 def same(a, b):
@@ -40,7 +30,7 @@ def same(a, b):
 
 def test_determinism_by_seed(kr):
     specs = ["joint_compliance:2,3", "thermal_expansion", "joint_clearance:2"]
-    q = poses(kr, 12, 0)
+    q = random_poses(kr, 12, 0)
     a = VirtualRobot(kr, specs, seed=5).measure(q, repeats=3, noise_mm=0.02)
     b = VirtualRobot(kr, specs, seed=5).measure(q, repeats=3, noise_mm=0.02)
     same(a, b)
@@ -54,8 +44,8 @@ def test_determinism_by_seed(kr):
 
 
 def test_random_poses_deterministic_and_inside_limits(kr):
-    a, b = poses(kr, 50, 3), poses(kr, 50, 3)
-    assert torch.equal(a, b) and not torch.equal(a, poses(kr, 50, 4))
+    a, b = random_poses(kr, 50, 3), random_poses(kr, 50, 3)
+    assert torch.equal(a, b) and not torch.equal(a, random_poses(kr, 50, 4))
     assert kr.within_limits(a).all()
     assert (kr.fk(a)[:, 2] > 0).all()
 
@@ -70,7 +60,7 @@ def test_random_poses_deterministic_and_inside_limits(kr):
 ])
 def test_session_columns(kr, specs, payload, temp):
     vr = VirtualRobot(kr, specs, seed=1)
-    m = vr.measure(poses(kr, 10, 1), repeats=2, noise_mm=0.01)
+    m = vr.measure(random_poses(kr, 10, 1), repeats=2, noise_mm=0.01)
     assert (m.payload_kg is not None) == payload
     assert (m.temp_c is not None) == temp
     if payload:
@@ -84,7 +74,7 @@ def test_session_columns(kr, specs, payload, temp):
 
 
 def test_measure_rows_repeats_and_noise(kr):
-    q = poses(kr, 8, 2)
+    q = random_poses(kr, 8, 2)
     vr = VirtualRobot(kr, ["gear_periodic:2"], seed=2)
     m = vr.measure(q, repeats=4, noise_mm=0.0)
     assert len(m) == 32
@@ -99,7 +89,7 @@ def test_measure_rows_repeats_and_noise(kr):
 
 def test_csv_round_trip_of_simulated_session(kr, tmp_path):
     vr = VirtualRobot(kr, ["joint_compliance:2", "thermal_expansion"], seed=4)
-    m = vr.measure(poses(kr, 15, 4), repeats=2, noise_mm=0.02)
+    m = vr.measure(random_poses(kr, 15, 4), repeats=2, noise_mm=0.02)
     path = write_measurements(tmp_path / "s.csv", m)
     back = read_measurements(path, robot=kr)
     assert torch.equal(back.pose, m.pose)

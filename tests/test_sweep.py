@@ -35,11 +35,6 @@ from torchcal.uncertainty import (KR1000_BEARING_LENGTH_MM, KR1000_CLEARANCE_MM,
 DEVICES = ("cpu",) + (("cuda",) if torch.cuda.is_available() else ())
 
 
-@pytest.fixture(scope="module")
-def kr():
-    return torchcal.robot("kr1000titan")
-
-
 def _generic_model(robot, clearance=0.03, length=80.0):
     n = robot.n
     return ClearanceModel((50.0,) * 2 * n, (clearance,) * 2 * n, (length,) * n)

@@ -45,10 +45,13 @@ from torchcal.uncertainty import ClearanceModel
 GEOMETRIC_SIZE = (2e-2, 0.5, 0.5, 2e-2, 2e-2)  # dtheta deg, dd mm, da mm, dalpha deg, dbeta deg
 
 
-def random_poses(robot: Robot, n: int, generator: torch.Generator, margin: float = 0.1,
+def random_poses(robot: Robot, n: int, generator: torch.Generator | int, margin: float = 0.1,
                  min_z_mm: float | None = 0.0) -> torch.Tensor:
     """n joint vectors (n, dof) rad uniform inside the limits shrunk by `margin` of each
-    range (wrist joints limited to +-180 deg), keeping TCP z > min_z_mm (the floor)."""
+    range (wrist joints limited to +-180 deg), keeping TCP z > min_z_mm (the floor).
+    `generator`: a torch.Generator, or an int seed for a new one."""
+    if isinstance(generator, int):
+        generator = torch.Generator().manual_seed(generator)
     lo, hi = robot.limits[:, 0].clone(), robot.limits[:, 1].clone()
     lo, hi = lo.clamp_min(-torch.pi), hi.clamp_max(torch.pi)
     span = hi - lo

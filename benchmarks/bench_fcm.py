@@ -1,4 +1,4 @@
-"""Tensor FCM (torchcal.fcm) against scikit-fuzzy's cmeans, same data, same start.
+"""Tensor FCM (torchcal.partition.fcm) against scikit-fuzzy's cmeans, same data, same start.
 
     python benchmarks/bench_fcm.py [--n 1000000] [--iters 10] [--repeats 3] [--threads 2]
 
@@ -37,7 +37,7 @@ def main(argv=None) -> int:
     import torch
 
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
-    from torchcal.fcm import fcm
+    from torchcal.partition.fcm import fcm
 
     torch.set_num_threads(args.threads)
     c, m, K = 4, 2.0, args.iters
@@ -66,7 +66,7 @@ def main(argv=None) -> int:
 
         times = {}
         out = {}
-        for name, fn in (("torchcal.fcm (torch)", run_torch), ("skfuzzy.cluster.cmeans", run_skfuzzy)):
+        for name, fn in (("torchcal.partition.fcm (torch)", run_torch), ("skfuzzy.cluster.cmeans", run_skfuzzy)):
             fn()  # warm-up (allocator, threads)
             ts = []
             for _ in range(args.repeats):
@@ -74,7 +74,7 @@ def main(argv=None) -> int:
                 out[name] = fn()
                 ts.append(time.perf_counter() - t0)
             times[name] = (statistics.median(ts), min(ts))
-        (ct, ut), (cs, us) = out["torchcal.fcm (torch)"], out["skfuzzy.cluster.cmeans"]
+        (ct, ut), (cs, us) = out["torchcal.partition.fcm (torch)"], out["skfuzzy.cluster.cmeans"]
         agree = f"max|dV| {np.abs(ct - cs).max():.1e}, max|dU| {np.abs(ut - us).max():.1e}"
         ref = times["skfuzzy.cluster.cmeans"][0]
         for name, (t, tmin) in times.items():

@@ -43,7 +43,7 @@ import torch  # noqa: E402
 from pytorch_kinematics import transforms as pk_tf  # noqa: E402
 
 import torchcal  # noqa: E402
-from torchcal import kinematics as K  # noqa: E402
+from torchcal.kinematics import mdh as K  # noqa: E402
 
 TARGETS_CPU = {torch.float64: 10e6, torch.float32: 20e6}  # pairs/s on 2 CPU cores
 TARGET_GPU = 1e9  # pairs/s on an H100

@@ -13,7 +13,7 @@ Timed, median of --repeat runs each:
 
 - scipy per zone: ``scipy.optimize.least_squares(method='lm', jac=analytic)`` (MINPACK)
   on each zone in turn (torch kernels for residual and Jacobian, converted to numpy);
-- torchcal per zone: `torchcal.lm.levenberg_marquardt` on each zone in turn (B = 1);
+- torchcal per zone: `torchcal.calibration.lm.levenberg_marquardt` on each zone in turn (B = 1);
 - torchcal batched: one `levenberg_marquardt` call with the 10 zones stacked (B = 10);
 - torchcal full batched: `identify_zones` (identifiability + LM + interval radii).
 
@@ -30,13 +30,13 @@ import numpy as np
 import scipy.optimize
 import torch
 
-from torchcal import kinematics as K
-from torchcal.interval_identify import batched_jacobian, batched_predict, identify_zones, pose_intervals
-from torchcal.lm import levenberg_marquardt
-from torchcal.model import CalibrationModel
-from torchcal.robot import robot
-from torchcal.sim import VirtualRobot
-from torchcal.sweep import sample_workspace
+from torchcal.kinematics import mdh as K
+from torchcal.calibration.intervals import batched_jacobian, batched_predict, identify_zones, pose_intervals
+from torchcal.calibration.lm import levenberg_marquardt
+from torchcal.calibration.model import CalibrationModel
+from torchcal.robots.robot import robot
+from torchcal.simulation.virtual_robot import VirtualRobot
+from torchcal.reliability.sweep import sample_workspace
 
 
 def problem(effects=(), n_zones=10, per_zone=10, repeats=10, seed=0):

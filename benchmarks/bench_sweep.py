@@ -1,4 +1,4 @@
-"""Benchmark of the workspace sweep (torchcal.sweep.sweep) on the CPU.
+"""Benchmark of the workspace sweep (torchcal.reliability.sweep.sweep) on the CPU.
 
     .venv/bin/python benchmarks/bench_sweep.py            # headline + scaling table
     .venv/bin/python benchmarks/bench_sweep.py --quick    # small sizes only
@@ -78,7 +78,7 @@ def child(n: int, m: int, threads: int) -> dict:
 
     torch.set_num_threads(threads)
     import torchcal
-    from torchcal.sweep import sample_workspace, sweep
+    from torchcal.reliability.sweep import sample_workspace, sweep
 
     robot = torchcal.robot("kr1000titan")
     sweep(robot, n_points=8, n_samples=16, seed=1, threads=threads)  # warm-up

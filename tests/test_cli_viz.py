@@ -12,10 +12,10 @@ import torch
 from rerun.chunk import RrdReader
 
 import torchcal
-import torchcal.io
-import torchcal.sim
+import torchcal.io.files
+import torchcal.simulation.virtual_robot
 from torchcal.cli import main
-from torchcal.commands._viz import PLOTS, check_outputs
+from torchcal.cli._viz import PLOTS, check_outputs
 from torchcal.errors import InputError
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -24,11 +24,11 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
     robot = torchcal.robot("kr1000titan")
-    vr = torchcal.sim.VirtualRobot(robot, ["backlash:3"], seed=1)
-    m = vr.measure(torchcal.sim.random_poses(robot, 80, torch.Generator().manual_seed(2)), noise_mm=0.02)
+    vr = torchcal.simulation.virtual_robot.VirtualRobot(robot, ["backlash:3"], seed=1)
+    m = vr.measure(torchcal.simulation.virtual_robot.random_poses(robot, 80, torch.Generator().manual_seed(2)), noise_mm=0.02)
     path = tmp_path_factory.mktemp("cli_viz") / "data.csv"
-    torchcal.io.write_measurements(path, m)
-    return path, torchcal.io.read_measurements(path, robot=robot)
+    torchcal.io.files.write_measurements(path, m)
+    return path, torchcal.io.files.read_measurements(path, robot=robot)
 
 
 def _entities(path) -> set[str]:
@@ -131,7 +131,7 @@ def test_cli_refusal_is_one_line(data, tmp_path, capsys):
 
 
 def _fake_demo_result(seed: int = 0, n: int = 60, zones: int = 4, t: int = 6):
-    """The fields of a torchcal.pipeline.PipelineResult that demo_outputs reads (small, fast)."""
+    """The fields of a torchcal.workflows.paper.PipelineResult that demo_outputs reads (small, fast)."""
     from types import SimpleNamespace as NS
 
     g = torch.Generator().manual_seed(seed)
@@ -150,7 +150,7 @@ def _fake_demo_result(seed: int = 0, n: int = 60, zones: int = 4, t: int = 6):
 
 
 def test_demo_outputs(tmp_path):
-    from torchcal.commands._viz import demo_outputs
+    from torchcal.cli._viz import demo_outputs
 
     res = _fake_demo_result()
     rrd, plots = tmp_path / "demo.rrd", tmp_path / "plots"

@@ -1,4 +1,4 @@
-"""`torchcal demo` (torchcal.pipeline) and the `calibrate` / `compensate` commands.
+"""`torchcal demo` (torchcal.workflows.paper) and the `calibrate` / `compensate` commands.
 
 The pipeline runs once per module (fixture). Its JSON must carry the fields of issue 6 and
 meet the targets: every reduction at least the paper's, every test point within +-1 mm
@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from torchcal import cli
-from torchcal.pipeline import PAPER_REDUCTION_PERCENT, DemoConfig, reduction_percent, run_pipeline
+from torchcal.workflows.paper import PAPER_REDUCTION_PERCENT, DemoConfig, reduction_percent, run_pipeline
 
 AXES = ("x", "y", "z")
 
@@ -99,7 +99,7 @@ def test_reduction_formula():
 
 
 def test_demo_command_writes_json(tmp_path, monkeypatch, result, capsys):
-    import torchcal.pipeline as P
+    import torchcal.workflows.paper as P
 
     monkeypatch.setattr(P, "run_pipeline", lambda cfg, progress=None: result)
     out = tmp_path / "demo.json"
@@ -115,11 +115,11 @@ def test_demo_command_writes_json(tmp_path, monkeypatch, result, capsys):
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
     """A small simulated session with repeats, a partition and targets."""
-    from torchcal.io import write_measurements
-    from torchcal.partition import partition_workspace
-    from torchcal.robot import robot
-    from torchcal.sim import VirtualRobot
-    from torchcal.sweep import sample_workspace, sweep
+    from torchcal.io.files import write_measurements
+    from torchcal.partition.zones import partition_workspace
+    from torchcal.robots.robot import robot
+    from torchcal.simulation.virtual_robot import VirtualRobot
+    from torchcal.reliability.sweep import sample_workspace, sweep
 
     d = tmp_path_factory.mktemp("session")
     r = robot("kr1000titan")

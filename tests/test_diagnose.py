@@ -12,11 +12,11 @@ import pytest
 import torch
 
 import torchcal
-from torchcal.diagnose import diagnose, discover
+from torchcal.diagnosis.diagnose import diagnose, discover
 from torchcal.effects import make_context
-from torchcal.identify import fit
-from torchcal.model import CalibrationModel
-from torchcal.sim import VirtualRobot, random_poses
+from torchcal.calibration.fit import fit
+from torchcal.calibration.model import CalibrationModel
+from torchcal.simulation.virtual_robot import VirtualRobot, random_poses
 
 NOISE = 0.02
 TRAIN, HELD = torch.arange(240), torch.arange(240, 360)
@@ -103,11 +103,11 @@ def test_simpler_effect_is_named_when_a_richer_one_fits_no_better():
 
 @pytest.mark.parametrize("joint", [2, 5])
 def test_random_clearance_from_another_generator_is_named(joint):
-    """Clearance states drawn by `torchcal.uncertainty` (an independent model: each seat of
+    """Clearance states drawn by `torchcal.reliability.uncertainty` (an independent model: each seat of
     the joint against its hole wall in a random direction, mapped to MD-H deviations; no
     load-driven part) per move: the verdict names joint_clearance on that joint."""
-    from torchcal.io import Measurements
-    from torchcal.uncertainty import (KR1000_BEARING_LENGTH_MM, KR1000_CLEARANCE_MM, KR1000_RADII_MM,
+    from torchcal.io.files import Measurements
+    from torchcal.reliability.uncertainty import (KR1000_BEARING_LENGTH_MM, KR1000_CLEARANCE_MM, KR1000_RADII_MM,
                                       ClearanceModel)
 
     clear = [c if i // 2 + 1 == joint else 0.0 for i, c in enumerate(KR1000_CLEARANCE_MM)]
@@ -125,7 +125,7 @@ def test_structure_a_deterministic_effect_predicts_is_not_called_random():
     """A fifth-harmonic gear error of joint 1 (outside gear_periodic's harmonics 1..4) is
     only partly predicted by gear_periodic:1, while a random-clearance variance term could
     absorb more of the residual: the predictable explanation is named."""
-    from torchcal.io import Measurements
+    from torchcal.io.files import Measurements
 
     geo = VirtualRobot(ROBOT, [], seed=3).theta[: 5 * ROBOT.n].reshape(ROBOT.n, 5)
     q = random_poses(ROBOT, 240, torch.Generator().manual_seed(7))

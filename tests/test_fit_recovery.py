@@ -1,7 +1,7 @@
 """Inject -> simulate -> recover, for every effect (joint_clearance: its load-driven part).
 
 A `VirtualRobot` with random geometric deviations (geometric_scale=1) and one effect is
-measured without noise at 240 poses; `torchcal.identify.fit` of `CalibrationModel(robot,
+measured without noise at 240 poses; `torchcal.calibration.fit.fit` of `CalibrationModel(robot,
 [spec])` must reproduce the measurements, and its identifiable parameter combination
 must reproduce the true TCP positions at fresh poses. For the effects the geometric
 parameters cannot absorb, the effect's own TCP displacement (the prediction with and
@@ -19,9 +19,9 @@ geometric deviations the fits are exact (< 1e-9 mm), checked below for two effec
 import pytest
 
 from torchcal.effects import make_context
-from torchcal.identify import fit
-from torchcal.model import CalibrationModel
-from torchcal.sim import VirtualRobot, random_poses
+from torchcal.calibration.fit import fit
+from torchcal.calibration.model import CalibrationModel
+from torchcal.simulation.virtual_robot import VirtualRobot, random_poses
 
 NONLINEAR_FLOOR_MM = 2e-4  # RMS / max tolerance with geometric_scale=1 (observed <= 1e-4)
 

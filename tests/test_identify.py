@@ -1,4 +1,4 @@
-"""Interval identification (torchcal.interval_identify) and compensation (torchcal.compensate).
+"""Interval identification (torchcal.calibration.intervals) and compensation (torchcal.calibration.compensate).
 
 - noise-free data -> the injected identifiable deviations come back, residual <= 1e-6 mm;
 - unidentifiable parameters are held and named (dtheta6 / dalpha6 with the TCP on the
@@ -14,14 +14,14 @@ import pytest
 import torch
 from torch.testing import assert_close
 
-from torchcal.compensate import compensate, nominal_inverse
+from torchcal.calibration.compensate import compensate, nominal_inverse
 from torchcal.effects import make_context
 from torchcal.errors import InputError
-from torchcal.interval_identify import (PoseIntervals, identify_intervals, identify_zones,
+from torchcal.calibration.intervals import (PoseIntervals, identify_intervals, identify_zones,
                                         pose_intervals, solution_map)
-from torchcal.io import Measurements
-from torchcal.model import CalibrationModel
-from torchcal.sim import random_poses
+from torchcal.io.files import Measurements
+from torchcal.calibration.model import CalibrationModel
+from torchcal.simulation.virtual_robot import random_poses
 
 DEG = torch.pi / 180
 
@@ -255,7 +255,7 @@ def test_damped_zone_is_the_ridge_solution_and_hull_holds(noisy_zone):
 def test_interval_model_round_trip(noisy_zone):
     import json
 
-    from torchcal.interval_identify import IntervalModel
+    from torchcal.calibration.intervals import IntervalModel
 
     model, data, fit = noisy_zone
     im = IntervalModel.from_fits([fit, fit], levels=[1, 2], poses=[12, 12], method="independent")

@@ -1,4 +1,4 @@
-"""Tests of torchcal.interval: forms, arithmetic, the linear hull, the sample hull.
+"""Tests of torchcal.reliability.interval: forms, arithmetic, the linear hull, the sample hull.
 
 Checked against brute force: the hull of a linear map equals the min / max over every
 vertex of the box (so it is tight, each bound attained at a vertex), and random points
@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from torchcal.errors import InputError
-from torchcal.interval import Interval, linear_hull, sample_hull
+from torchcal.reliability.interval import Interval, linear_hull, sample_hull
 
 BATCHES = ((), (10,), (4, 5))
 DTYPES = (torch.float64, torch.float32)

@@ -11,9 +11,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from torchcal.errors import InputError
-from torchcal.io import (JointLimitWarning, Measurements, format_measurements, read_measurements,
+from torchcal.io.files import (JointLimitWarning, Measurements, format_measurements, read_measurements,
                          write_measurements)
-from torchcal.robot import robot
+from torchcal.robots.robot import robot
 
 HEADER6 = "pose,q1,q2,q3,q4,q5,q6,x,y,z"
 ROW6 = "0,10,-20,30,0,45,90,1500.5,-2.25,1800"

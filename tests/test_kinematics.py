@@ -1,4 +1,4 @@
-"""Tests of the batched MD-H kinematics (torchcal.kinematics, torchcal.robot).
+"""Tests of the batched MD-H kinematics (torchcal.kinematics.mdh, torchcal.robots.robot).
 
 What is checked, and against what:
 
@@ -27,7 +27,7 @@ from pytorch_kinematics import transforms as pk_tf
 from scipy.spatial.transform import Rotation
 
 import torchcal
-from torchcal import kinematics as K
+from torchcal.kinematics import mdh as K
 from torchcal.errors import InputError
 
 PRESETS = ("kr1000titan", "ur5e", "puma560")
@@ -455,8 +455,7 @@ def test_float32_stays_float32_and_device_is_kept(device):
 
 def test_outer_positions_equals_fk_positions():
     """The in-place (points x sets) layout used by the sweep is the same recursion."""
-    from torchcal import kinematics as K
-
+    from torchcal.kinematics import mdh as K
     robot = torchcal.robot("kr1000titan")
     g = torch.Generator().manual_seed(3)
     q = torch.rand(7, 6, generator=g, dtype=torch.float64) * 2 - 1

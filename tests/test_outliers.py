@@ -10,9 +10,9 @@ import pytest
 import torch
 
 import torchcal
-from torchcal import sim
+from torchcal.simulation import virtual_robot as sim
 from torchcal.cli import main
-from torchcal.io import Measurements, write_measurements
+from torchcal.io.files import Measurements, write_measurements
 
 ROBOT = "kr1000titan"
 N_TRAIN, N_TEST, FRACTION, OFFSET_MM = 240, 120, 0.02, 5.0

@@ -1,4 +1,4 @@
-"""Tensor fuzzy c-means (torchcal.fcm), the hierarchical partition (torchcal.partition)
+"""Tensor fuzzy c-means (torchcal.partition.fcm), the hierarchical partition (torchcal.partition.zones)
 and `torchcal partition`."""
 
 import csv
@@ -13,9 +13,9 @@ from sklearn.metrics import adjusted_rand_score
 
 from torchcal import cli
 from torchcal.errors import InputError
-from torchcal.fcm import (FuzzyCMeans, choose_c, fcm, memberships, objective, partition_coefficient,
+from torchcal.partition.fcm import (FuzzyCMeans, choose_c, fcm, memberships, objective, partition_coefficient,
                           partition_entropy, xie_beni)
-from torchcal.partition import Partition, partition_workspace
+from torchcal.partition.zones import Partition, partition_workspace
 
 skfuzzy = pytest.importorskip("skfuzzy")
 

@@ -1,4 +1,4 @@
-"""Tests of torchcal.reliability: eta (eq. 23) and R_set (eq. 24).
+"""Tests of torchcal.reliability.rset: eta (eq. 23) and R_set (eq. 24).
 
 - PAPER.md Table 3: the six rows that agree with R_set = 2.5 / s^u, to the digits the
   paper prints; the two rows that agree with no formula (0.7, 0.685), asserted NOT to
@@ -21,8 +21,8 @@ import pytest
 import torch
 
 from torchcal.errors import InputError
-from torchcal.interval import Interval
-from torchcal.reliability import eta, interference, r_set
+from torchcal.reliability.interval import Interval
+from torchcal.reliability.rset import eta, interference, r_set
 
 DEVICES = ("cpu",) + (("cuda",) if torch.cuda.is_available() else ())
 

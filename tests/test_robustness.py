@@ -13,9 +13,9 @@ import pytest
 import torch
 
 import torchcal
-from torchcal import sim
+from torchcal.simulation import virtual_robot as sim
 from torchcal.cli import main
-from torchcal.io import Measurements, write_measurements
+from torchcal.io.files import Measurements, write_measurements
 
 ROBOT = "kr1000titan"
 

@@ -1,4 +1,4 @@
-"""The virtual robot (torchcal.sim) and `torchcal simulate`.
+"""The virtual robot (torchcal.simulation.virtual_robot) and `torchcal simulate`.
 
 - determinism by seed; different seeds differ;
 - payload_kg present exactly when a payload-driven effect is there, temp_c exactly with
@@ -16,8 +16,8 @@ from torch.testing import assert_close
 
 from torchcal.cli import main
 from torchcal.effects import make_context
-from torchcal.io import read_measurements, write_measurements
-from torchcal.sim import VirtualRobot, random_poses
+from torchcal.io.files import read_measurements, write_measurements
+from torchcal.simulation.virtual_robot import VirtualRobot, random_poses
 
 
 def same(a, b):

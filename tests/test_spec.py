@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from torchcal.errors import InputError
-from torchcal.spec import EFFECTS, EffectSpec, parse_spec, parse_specs
+from torchcal.effects.spec import EFFECTS, EffectSpec, parse_spec, parse_specs
 
 JOINT_EFFECTS = sorted(k for k, v in EFFECTS.items() if v)
 PLAIN_EFFECTS = sorted(k for k, v in EFFECTS.items() if not v)

@@ -1,5 +1,5 @@
-"""Tests of the workspace sweep (torchcal.sweep), the clearance model behind it
-(torchcal.uncertainty) and the `torchcal sweep` command.
+"""Tests of the workspace sweep (torchcal.reliability.sweep), the clearance model behind it
+(torchcal.reliability.uncertainty) and the `torchcal sweep` command.
 
 What is checked, and against what:
 
@@ -24,11 +24,11 @@ import torch
 
 import torchcal
 from torchcal import cli
-from torchcal import kinematics as K
+from torchcal.kinematics import mdh as K
 from torchcal.errors import InputError
-from torchcal.interval import Interval
-from torchcal.sweep import SweepResult, Workspace, linear_bounds, sample_workspace, sweep
-from torchcal.uncertainty import (KR1000_BEARING_LENGTH_MM, KR1000_CLEARANCE_MM, KR1000_LIMITS_MM,
+from torchcal.reliability.interval import Interval
+from torchcal.reliability.sweep import SweepResult, Workspace, linear_bounds, sample_workspace, sweep
+from torchcal.reliability.uncertainty import (KR1000_BEARING_LENGTH_MM, KR1000_CLEARANCE_MM, KR1000_LIMITS_MM,
                                   KR1000_RADII_MM, KR1000_TOLERANCE_MM, ClearanceModel, box,
                                   deviation_map, sample_states, states_to_deviations)
 
@@ -106,7 +106,7 @@ def test_deviations_match_the_moved_axes_to_second_order(name):
 
 def test_eq14_twist_columns_match_autograd():
     """G of PAPER.md eq. 14 = A^-1 dA/dp (body twist in the link's end frame), any theta."""
-    from torchcal.uncertainty import _link_twist_columns
+    from torchcal.reliability.uncertainty import _link_twist_columns
     g = torch.Generator().manual_seed(0)
     scale = torch.tensor([1.0, 300.0, 300.0, 1.0, 0.3], dtype=torch.float64)
     for _ in range(5):
@@ -305,7 +305,7 @@ def test_envelope_inside_linear_hull_up_to_second_order(kr):
 def test_per_axis_reliability(kr):
     r = sweep(kr, n_points=10, n_samples=30, seed=0, allowed_axis_mm=1.0)
     assert r.r_set_axis.shape == (10, 3) and r.eta_axis.shape == (10, 3)
-    from torchcal.reliability import r_set
+    from torchcal.reliability.rset import r_set
     torch.testing.assert_close(r.r_set_axis, r_set((-1.0, 1.0), (r.err_lower, r.err_upper)))
 
 

@@ -5,7 +5,7 @@ radians inside; float64 by default.
 """
 
 from torchcal.errors import InputError
-from torchcal.robot import PRESETS, Robot, robot
+from torchcal.robots.robot import PRESETS, Robot, robot
 
 __version__ = "0.1.0"
 __all__ = ["InputError", "PRESETS", "Robot", "robot", "__version__"]

@@ -2,7 +2,7 @@
 
 Two kinds of output, both plain functions over numpy arrays or torch tensors (any device;
 they are copied to host float64 once), so they depend on no other torchcal module than
-`torchcal.errors` and `torchcal.io.atomic_write`:
+`torchcal.errors` and `torchcal.io.files.atomic_write`:
 
 - `viz.recording`: rerun recordings (``.rrd``), written to a file without a viewer.
   Open one with ``rerun FILE.rrd``::

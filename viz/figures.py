@@ -33,7 +33,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from torchcal.errors import InputError
-from torchcal.io import atomic_write
+from torchcal.io.files import atomic_write
 from viz import _common as C
 
 DPI = 110

@@ -20,7 +20,7 @@ REGISTRY = {cls.name: cls for cls in (BaseFrame, ToolOffset, JointCompliance, Ge
 
 def build(spec, robot) -> Effect:
     """An effect from a spec ('name' or 'name:J,J') or an EffectSpec, for `robot`."""
-    from torchcal.spec import parse_spec
+    from torchcal.effects.spec import parse_spec
 
     if isinstance(spec, str):
         spec = parse_spec(spec, robot.n)

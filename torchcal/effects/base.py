@@ -1,8 +1,8 @@
 """The common shape of a physical effect, and the per-measurement context it reads.
 
 An effect is a small differentiable term with a documented parameter vector. It plays
-two roles with the same code: inside a simulated "real" robot (`torchcal.sim`) with
-chosen values, and inside a fitted model (`torchcal.model`) with unknown values.
+two roles with the same code: inside a simulated "real" robot (`torchcal.simulation.virtual_robot`) with
+chosen values, and inside a fitted model (`torchcal.calibration.model`) with unknown values.
 
 Each effect contributes through one or more hooks, all pure functions of its parameter
 vector ``p (k,)`` and the `Context`:
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import torch
 
-from torchcal.robot import Robot
+from torchcal.robots.robot import Robot
 
 
 @dataclass(frozen=True)

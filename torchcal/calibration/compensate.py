@@ -1,0 +1,217 @@
+"""Compensation: corrected joint commands so that the calibrated model reaches each target.
+
+For targets ``t (M, 3)`` mm and calibrated parameters per target (its zone's centre
+parameters, PAPER.md section 6), find joint commands q with
+
+    model.predict(theta_zone, q) = t
+
+starting from a seed ``q0`` (the nominal inverse: the command that nominally reaches the
+target; in a simulation it is known, otherwise `nominal_inverse` computes it). Position
+needs 3 of the n joint values, so the step is the minimum-norm damped Newton step in
+joint space (Levenberg-Marquardt on the joints)
+
+    dq = J^T (J J^T + lambda I)^-1 (t - p(q)),    J = dp/dq (3, n) mm/rad,
+
+which keeps the redundant joints (the orientation) at the seed's values to first order.
+lambda is 1e-9 of trace(J J^T) / 3 (just enough to stay regular near a singularity); a
+step that increases the residual is halved (up to 30 times), a step longer than
+`max_step_rad` is shortened. J is the analytic joint Jacobian for geometric-only models
+(`torchcal.kinematics.mdh.joint_jacobian` with the zone's deviations) and reverse-mode
+autograd of `CalibrationModel.predict` otherwise. Every target is solved in one batch.
+
+Units: targets mm, joint angles rad inside (the CLI reads and writes degrees).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from torchcal.kinematics import mdh as K
+from torchcal.effects.base import Context, approach_directions
+from torchcal.errors import InputError
+from torchcal.calibration.model import CalibrationModel
+
+__all__ = ["Compensation", "compensate", "predict_rows", "nominal_inverse"]
+
+
+@dataclass(frozen=True, eq=False)
+class Compensation:
+    """Corrected joint commands.
+
+    Attributes:
+        q: (M, n) rad corrected commands.
+        q0: (M, n) rad seeds (nominal inverse).
+        predicted_mm: (M, 3) calibrated-model positions at q.
+        residual_mm: (M, 3) target - predicted (the predicted residual).
+        iterations: (M,) Newton iterations.
+        converged: (M,) bool, |residual| <= tol_mm.
+        within_limits: (M,) bool, q inside the robot's joint limits.
+    """
+
+    q: torch.Tensor
+    q0: torch.Tensor
+    predicted_mm: torch.Tensor
+    residual_mm: torch.Tensor
+    iterations: torch.Tensor
+    converged: torch.Tensor
+    within_limits: torch.Tensor
+
+    @property
+    def correction_rad(self) -> torch.Tensor:
+        """(M, n) q - q0."""
+        return self.q - self.q0
+
+
+def _per_row_theta(model: CalibrationModel, theta, zone, M: int) -> torch.Tensor:
+    theta = torch.as_tensor(theta)
+    if not theta.is_floating_point():
+        theta = theta.to(model.robot.dtype)
+    P = model.n_params
+    if theta.ndim == 1:
+        if theta.shape[0] != P:
+            raise InputError(f"theta: expected ({P},) parameters for this model, got {tuple(theta.shape)}")
+        return theta.expand(M, P)
+    if theta.ndim != 2 or theta.shape[1] != P:
+        raise InputError(f"theta: expected (P,) or (Z, P) with P = {P}, got {tuple(theta.shape)}")
+    if zone is None:
+        if theta.shape[0] != M:
+            raise InputError(f"zone: needed to pick one of {theta.shape[0]} parameter sets per target")
+        return theta
+    zone = torch.as_tensor(zone, dtype=torch.long)
+    if zone.shape != (M,):
+        raise InputError(f"zone: expected ({M},) zone indices, got shape {tuple(zone.shape)}")
+    if M and (zone.min() < 0 or zone.max() >= theta.shape[0]):
+        raise InputError(f"zone: indices must lie in 0..{theta.shape[0] - 1}, got "
+                         f"{int(zone.min())}..{int(zone.max())}")
+    return theta[zone.to(theta.device)]
+
+
+def _context(model: CalibrationModel, q, approach, payload, temp) -> Context:
+    robot = model.robot
+    frames = K.fk_frames(q, robot.table.to(q), None, robot.base.to(q), robot.tool.to(q))
+    return Context(q, payload, temp, approach, frames, robot.gravity.to(q))
+
+
+def predict_rows(model: CalibrationModel, thetas: torch.Tensor, q: torch.Tensor, approach=None,
+                 payload_kg=None, temp_c=None) -> torch.Tensor:
+    """Model positions (M, 3) mm with one parameter set per row: thetas (M, P), q (M, n) rad.
+
+    Differentiable in q. Geometric-only models broadcast the deviations through the MD-H
+    kernel; with effects, rows are grouped by identical parameter sets.
+    """
+    robot = model.robot
+    M = q.shape[0]
+    if not model.effects:
+        geo = thetas[:, : 5 * robot.n].reshape(M, robot.n, 5)
+        return K._positions_kernel(q, robot.table.to(q), geo, robot.base.to(q), robot.tool[:3, 3].to(q))
+    approach = approach_directions(q.detach()) if approach is None else approach
+    payload = torch.zeros(M, dtype=q.dtype, device=q.device) if payload_kg is None else payload_kg
+    ctx = _context(model, q, approach, payload, temp_c)
+    uniq, inv = torch.unique(thetas, dim=0, return_inverse=True)
+    out = []
+    rows_of = []
+    for k in range(uniq.shape[0]):
+        rows = (inv == k).nonzero().flatten()
+        out.append(model.predict(uniq[k], ctx.subset(rows)))
+        rows_of.append(rows)
+    res = torch.cat(out)
+    order = torch.cat(rows_of)
+    return res[torch.argsort(order)]
+
+
+def _joint_jacobian(model, thetas, q, approach, payload, temp):
+    """(M, 3, n) dp/dq mm/rad and p (M, 3)."""
+    robot = model.robot
+    if not model.effects:
+        M = q.shape[0]
+        geo = thetas[:, : 5 * robot.n].reshape(M, robot.n, 5)
+        J = K.joint_jacobian(q, robot.table.to(q), geo, robot.base.to(q), robot.tool.to(q))
+        return J, predict_rows(model, thetas, q)
+    qv = q.detach().clone().requires_grad_(True)
+    with torch.enable_grad():
+        p = predict_rows(model, thetas, qv, approach, payload, temp)  # (M, 3)
+        rows = [torch.autograd.grad(p[:, k].sum(), qv, retain_graph=k < 2)[0] for k in range(3)]
+    return torch.stack(rows, dim=1), p.detach()
+
+
+def compensate(model: CalibrationModel, theta, targets, q0, zone=None, tol_mm: float = 1e-6,
+               max_iter: int = 30, max_step_rad: float = 0.2, payload_kg=None, temp_c=None) -> Compensation:
+    """Corrected joint commands for targets with the calibrated model.
+
+    Args:
+        model: the calibrated model's structure.
+        theta: (P,) one parameter set for every target, or (Z, P) one per zone.
+        targets: (M, 3) mm target positions.
+        q0: (M, n) rad seeds, the nominal inverse of the targets.
+        zone: (M,) int zone of each target when theta is (Z, P).
+        tol_mm: stop when every |target - predicted| <= tol_mm.
+        max_iter: Newton iterations at most.
+        max_step_rad: longest joint step per iteration (norm over joints).
+        payload_kg, temp_c: (M,) conditions of the moves (for load/thermal effects).
+    Returns:
+        `Compensation` (q corrected, predicted residual, convergence).
+    """
+    robot = model.robot
+    q0 = robot.check_q(q0, "q0").to(robot.dtype)
+    if q0.ndim != 2:
+        raise InputError(f"q0: expected (M, {robot.n}) seeds, got shape {tuple(q0.shape)}")
+    t = torch.as_tensor(targets, dtype=q0.dtype, device=q0.device)
+    if t.shape != (q0.shape[0], 3):
+        raise InputError(f"targets: expected ({q0.shape[0]}, 3) mm to match q0, got {tuple(t.shape)}")
+    if not torch.isfinite(t).all():
+        raise InputError("targets: positions must be finite")
+    M = q0.shape[0]
+    thetas = _per_row_theta(model, theta, zone, M).to(q0)
+    approach = approach_directions(q0)
+    q = q0.clone()
+    J, p = _joint_jacobian(model, thetas, q, approach, payload_kg, temp_c)
+    r = t - p
+    err = r.norm(dim=-1)
+    iters = torch.zeros(M, dtype=torch.long)
+    eye = torch.eye(3, dtype=q.dtype, device=q.device)
+    for _ in range(max_iter):
+        active = err > tol_mm
+        if not active.any():
+            break
+        JJt = J @ J.transpose(1, 2)  # (M, 3, 3)
+        lam = 1e-9 * torch.diagonal(JJt, dim1=1, dim2=2).sum(-1) / 3
+        step = (J.transpose(1, 2) @ torch.linalg.solve(JJt + lam[:, None, None] * eye, r.unsqueeze(-1))).squeeze(-1)
+        norm = step.norm(dim=-1, keepdim=True)
+        step = step * (max_step_rad / norm.clamp_min(max_step_rad))
+        step = step * active[:, None]
+        scale = torch.ones(M, 1, dtype=q.dtype, device=q.device)
+        for _ in range(30):  # backtracking per row
+            q_new = q + scale * step
+            p_new = predict_rows(model, thetas, q_new, approach, payload_kg, temp_c)
+            err_new = (t - p_new).norm(dim=-1)
+            worse = (err_new > err) & active
+            if not worse.any():
+                break
+            scale = torch.where(worse[:, None], scale * 0.5, scale)
+        ok = (err_new <= err) & active
+        q = torch.where(ok[:, None], q_new, q)
+        iters = iters + active.long()
+        if not ok.any():
+            break
+        J, p = _joint_jacobian(model, thetas, q, approach, payload_kg, temp_c)
+        r = t - p
+        err = r.norm(dim=-1)
+    return Compensation(q, q0, p, r, iters, err <= tol_mm, robot.within_limits(q))
+
+
+def nominal_inverse(robot, targets, seed_q=None, tol_mm: float = 1e-6, max_iter: int = 100) -> Compensation:
+    """Nominal inverse kinematics (position only) from seeds: the commands that the
+    *nominal* robot needs to reach the targets. targets (M, 3) mm; seed_q (M, n) or (n,)
+    rad (default: the middle of the joint limits). Returns a `Compensation` whose q is the
+    nominal inverse."""
+    t = torch.as_tensor(targets, dtype=robot.dtype)
+    if t.ndim != 2 or t.shape[1] != 3:
+        raise InputError(f"targets: expected (M, 3) mm, got shape {tuple(t.shape)}")
+    if seed_q is None:
+        seed_q = robot.limits.mean(-1)
+    seed = robot.check_q(seed_q, "seed_q").to(robot.dtype)
+    seed = seed.expand(t.shape[0], robot.n).clone() if seed.ndim == 1 else seed
+    return compensate(CalibrationModel(robot), torch.zeros(5 * robot.n, dtype=robot.dtype), t, seed,
+                      tol_mm=tol_mm, max_iter=max_iter)

@@ -1,0 +1,104 @@
+"""Argument types and option groups shared by the sub-commands."""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+
+def positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return v
+
+
+def positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return v
+
+
+def nonneg_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return v
+
+
+def add_force(p):
+    p.add_argument("--force", action="store_true", help="replace existing output files")
+
+
+def add_viz(p):
+    p.add_argument("--rrd", help="write a rerun recording (.rrd) here")
+    p.add_argument("--plots", help="write PNG figures into this folder")
+
+
+def check_outputs(outputs, force: bool, inputs=()) -> None:
+    """Fail before any work (and before any file is written) when an output cannot be
+    written: it exists without --force, it is an input file, two outputs share a path, or
+    its folder does not exist. `outputs`: (option, path or None) pairs."""
+    from pathlib import Path
+
+    from torchcal.errors import InputError
+
+    seen = {}
+    ins = {Path(p).resolve(): p for p in inputs if p is not None}
+    for opt, path in outputs:
+        if path is None:
+            continue
+        p = Path(path)
+        r = p.resolve()
+        if r in ins:
+            raise InputError(f"{path}: {opt} names the input file {ins[r]}; refusing to write over it")
+        if r in seen:
+            raise InputError(f"{path}: {opt} and {seen[r]} name the same file")
+        seen[r] = opt
+        if p.is_dir():
+            raise InputError(f"{path}: {opt} names a folder; expected a file")
+        if p.exists() and not force:
+            raise InputError(f"{path}: output exists; pass --force to replace it")
+        if not p.parent.exists():
+            raise InputError(f"{path}: {opt}: folder {p.parent} does not exist")
+
+
+def check_folder(opt: str, path) -> None:
+    """Fail before any work when an output folder option names an existing file."""
+    from pathlib import Path
+
+    from torchcal.errors import InputError
+
+    if path is not None and Path(path).exists() and not Path(path).is_dir():
+        raise InputError(f"{path}: {opt} expects a folder, but this is a file")
+
+
+def read_data(path, robot):
+    """The measurement CSV for `robot`.
+
+    Joint angles outside the preset's nominal limits are a warning (one line on
+    stderr), not an error: the presets' limits are data-sheet values, and real robots
+    (and other simulators' sessions) are measured at or beyond them.
+    """
+    import sys
+    import warnings
+
+    from torchcal.io.files import JointLimitWarning, read_measurements
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", JointLimitWarning)
+        m = read_measurements(path, robot=robot)
+    for w in caught:
+        if issubclass(w.category, JointLimitWarning):
+            sys.stderr.write(f"torchcal: warning: {w.message}\n")
+    return m

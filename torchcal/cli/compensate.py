@@ -1,0 +1,154 @@
+"""`torchcal compensate TARGETS.csv --model MODEL.json --out Q.csv`: corrected joint commands
+that make the calibrated model reach each target (torchcal.calibration.compensate).
+
+TARGETS.csv: header ``x,y,z`` (mm, robot base frame) and optionally ``q1..qN`` (degrees):
+the seed of each target, normally the command that nominally reaches it. Without seeds
+the nominal inverse is solved first from a default seed (joint 1 turned towards the
+target, the others at the middle of their limits).
+
+MODEL.json: an interval model of ``torchcal calibrate`` (each target is assigned to a zone
+by the partition's `assign` before anything is measured, and compensated with that
+zone's centre parameters) or a ``torchcal fit`` model (one parameter set).
+
+Q.csv: ``point,zone,q1..qN,residual_mm,converged`` with the corrected commands in degrees,
+the calibrated model's remaining distance to the target (mm) and whether it met the
+tolerance; zones are 1-based (1 for a single-set model). Targets that do not converge
+or whose command leaves the joint limits are reported on stderr.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import sys
+from pathlib import Path
+
+from torchcal.cli._args import add_force, check_outputs
+from torchcal.errors import InputError
+
+
+def add_parser(sub):
+    p = sub.add_parser("compensate", help="corrected joint commands for target positions",
+                       description=__doc__.splitlines()[0])
+    p.add_argument("targets", help="CSV with columns x,y,z (mm) [, q1..qN seeds in degrees]")
+    p.add_argument("--model", required=True, help="MODEL.json (torchcal calibrate or torchcal fit)")
+    p.add_argument("--out", required=True, help="output CSV of corrected joint commands (degrees)")
+    add_force(p)
+    p.set_defaults(func=run)
+    return p
+
+
+def read_targets(path, n: int):
+    """(targets (M, 3) mm, seeds (M, n) deg or None) from the CSV; InputError naming line and column."""
+    import torch
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: targets file does not exist")
+    with open(path, newline="") as fh:
+        rows = list(csv.reader(fh))
+    if not rows:
+        raise InputError(f"{path}: empty file; expected a header x,y,z[,q1..q{n}]")
+    header = [h.strip() for h in rows[0]]
+    qcols = [f"q{k}" for k in range(1, n + 1)]
+    for c in ("x", "y", "z"):
+        if c not in header:
+            raise InputError(f"{path}: header has no column {c!r}; expected x,y,z[,q1..q{n}], got {','.join(header)}")
+    has_q = any(h.startswith("q") for h in header)
+    if has_q and not all(c in header for c in qcols):
+        missing = [c for c in qcols if c not in header]
+        raise InputError(f"{path}: seed columns incomplete: missing {','.join(missing)} (expected q1..q{n} in degrees)")
+    unknown = [h for h in header if h not in ("x", "y", "z", "point", *qcols)]
+    if unknown:
+        raise InputError(f"{path}: unknown column(s) {','.join(unknown)}; expected x,y,z[,q1..q{n}]")
+    idx = {h: i for i, h in enumerate(header)}
+    xyz, qs = [], []
+    for line, row in enumerate(rows[1:], start=2):
+        if not row or all(not c.strip() for c in row):
+            continue
+        if len(row) != len(header):
+            raise InputError(f"{path}: line {line}: expected {len(header)} columns, got {len(row)}")
+
+        def num(col, unit):
+            cell = row[idx[col]].strip()
+            try:
+                v = float(cell)
+            except ValueError:
+                raise InputError(f"{path}: line {line}, column {col}: expected a number ({unit}), got {cell!r}") from None
+            if not math.isfinite(v):
+                raise InputError(f"{path}: line {line}, column {col}: expected a finite number ({unit}), got {cell!r}")
+            return v
+        xyz.append([num(c, "mm") for c in ("x", "y", "z")])
+        if has_q:
+            qs.append([num(c, "degrees") for c in qcols])
+    if not xyz:
+        raise InputError(f"{path}: no target rows")
+    t = torch.tensor(xyz, dtype=torch.float64)
+    return t, (torch.tensor(qs, dtype=torch.float64) if has_q else None)
+
+
+def load_model(path):
+    """An `IntervalModel` from a calibrate MODEL.json or a fit MODEL.json (one zone)."""
+    import torch
+
+    from torchcal.io import modelfile
+    from torchcal.calibration.intervals import INTERVAL_MODEL_FORMAT, IntervalModel
+    from torchcal.io.files import read_json
+
+    obj = read_json(path, "model file")
+    if obj.get("format") == INTERVAL_MODEL_FORMAT:
+        return IntervalModel.from_dict(obj, str(path))
+    model, theta = modelfile.load(path)
+    free = torch.tensor([bool(p.get("identified", True)) for p in obj["parameters"]])
+    return IntervalModel(model, theta[None], theta[None], theta[None], free[None],
+                         [{"zone": 1, "level": None, "poses": None, "held": [], "rms_mm": None,
+                           "damping": 0.0}], None, "fit")
+
+
+def default_seeds(robot, targets):
+    """(M, n) rad: joint 1 towards the target (atan2(y, x)), others mid-limits."""
+    import torch
+
+    q = robot.limits.mean(-1).expand(targets.shape[0], robot.n).clone()
+    q[:, 0] = torch.atan2(targets[:, 1], targets[:, 0]).clamp(robot.limits[0, 0], robot.limits[0, 1])
+    return q
+
+
+def run(args) -> int:
+    import torch
+
+    from torchcal.calibration.compensate import compensate, nominal_inverse
+    from torchcal.io.files import atomic_write
+
+    check_outputs([("--out", args.out)], args.force, inputs=[args.targets, args.model])
+    im = load_model(args.model)
+    robot = im.model.robot
+    targets, seeds_deg = read_targets(args.targets, robot.n)
+    if seeds_deg is None:
+        ni = nominal_inverse(robot, targets, default_seeds(robot, targets))
+        q0 = ni.q
+        if not ni.converged.all():
+            bad = (~ni.converged).nonzero().flatten().tolist()
+            raise InputError(f"{args.targets}: no nominal inverse found for target row(s) "
+                             f"{[b + 1 for b in bad][:10]} (out of reach?); give seeds q1..q{robot.n}")
+    else:
+        q0 = torch.deg2rad(seeds_deg)
+    zone = im.assign(targets)
+    comp = compensate(im.model, im.theta, targets, q0, zone=zone)
+    qd = torch.rad2deg(comp.q)
+    res = comp.residual_mm.norm(dim=-1)
+    lines = [",".join(["point", "zone", *(f"q{k}" for k in range(1, robot.n + 1)), "residual_mm", "converged"])]
+    for i in range(targets.shape[0]):
+        lines.append(",".join([str(i + 1), str(int(zone[i]) + 1), *("%.15g" % v for v in qd[i].tolist()),
+                               repr(float(res[i])), str(bool(comp.converged[i])).lower()]))
+    atomic_write(args.out, "\n".join(lines) + "\n", force=args.force, inputs=[args.targets, args.model])
+    n_bad = int((~comp.converged).sum())
+    out_lim = (~comp.within_limits).nonzero().flatten().tolist()
+    print(f"compensated {targets.shape[0]} targets with {im.n_zones} parameter set(s) ({im.method}); "
+          f"max predicted residual {float(res.max()):.3g} mm; wrote {args.out}")
+    if n_bad:
+        sys.stderr.write(f"torchcal compensate: warning: {n_bad} target(s) did not converge to the tolerance\n")
+    if out_lim:
+        sys.stderr.write(f"torchcal compensate: warning: target row(s) {[i + 1 for i in out_lim][:10]} need "
+                         f"commands outside the joint limits\n")
+    return 0

@@ -1,0 +1,70 @@
+"""`torchcal diagnose DATA --robot R [--model MODEL.json] [--json OUT] [--rrd FILE]`: where
+the model fails and which physical effect it is missing (see torchcal.diagnosis.diagnose)."""
+
+from __future__ import annotations
+
+from torchcal.io import modelfile
+from torchcal.cli._args import add_force, add_viz, check_folder, check_outputs, positive_int, read_data
+from torchcal.diagnosis.diagnose import diagnose
+from torchcal.errors import InputError
+from torchcal.io.files import write_json
+from torchcal.robots.robot import robot as make_robot
+
+
+def add_parser(sub):
+    p = sub.add_parser("diagnose", help="rank the physical effects the model is missing", description=__doc__)
+    p.add_argument("data", help="measurement CSV")
+    p.add_argument("--robot", required=True, help="preset robot name")
+    p.add_argument("--model", help="MODEL.json: its effects are the baseline (default geometric only)")
+    p.add_argument("--effects", nargs="*", default=None, metavar="SPEC", help="baseline effects (instead of --model)")
+    p.add_argument("--folds", type=positive_int, default=5, help="cross-validation folds (default 5)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the fold assignment")
+    p.add_argument("--json", help="write the report here")
+    add_viz(p)
+    add_force(p)
+    p.set_defaults(func=run)
+
+
+def print_table(d) -> None:
+    rep = d.to_dict()
+    b = rep["baseline"]
+    print(f"baseline [{', '.join(b['effects']) or 'geometric only'}]: rms {b['rms_mm']:.4f} mm, "
+          f"cv rms {b['cv_rms_mm']:.4f} mm, max {b['max_mm']:.4f} mm")
+    print(f"{'candidate':<26}{'k':>4}{'rms mm':>10}{'cv rms mm':>11}{'cv gain %':>10}{'score':>8}"
+          f"{'p-value':>10}  significant")
+    for c in d.candidates[:10]:
+        print(f"{c.spec:<26}{c.k:>4}{c.rms_mm:>10.4f}{c.cv_rms_mm:>11.4f}{100 * c.cv_gain:>10.1f}{c.score:>8.2f}"
+              f"{c.p_value:>10.2g}  {'yes' if c.significant else 'no'}")
+    print("(k: new identifiable parameters; score: held-out log-likelihood gain, nats per pose)")
+    worst = max(rep["where"]["per_region"], key=lambda r: r["rms_mm"], default=None)
+    if worst:
+        print(f"worst region: reach {worst['reach_mm'][0]:.0f}-{worst['reach_mm'][1]:.0f} mm, {worst['z']} half: "
+              f"rms {worst['rms_mm']:.4f} mm over {worst['n']} rows")
+    v = d.verdict
+    print("verdict: " + ("nothing significant: the residual is at the noise level" if v is None else
+                         f"missing {v.spec} (cv rms {b['cv_rms_mm']:.4f} -> {v.cv_rms_mm:.4f} mm)"))
+
+
+def run(args) -> int:
+    check_outputs([("--json", args.json), ("--rrd", args.rrd)], args.force,
+                  inputs=[args.data, args.model])
+    check_folder("--plots", args.plots)
+    if args.rrd or args.plots:  # the PNG names too, before any work
+        from torchcal.cli._viz import check_outputs as check_visual_outputs
+        check_visual_outputs(args, "diagnose")
+    if args.model and args.effects is not None:
+        raise InputError("--model and --effects both give the baseline effects; pass one of them")
+    robot = make_robot(args.robot)
+    effects = args.effects or []
+    if args.model:
+        model, _ = modelfile.load(args.model, robot_name=robot.name)
+        effects = model.specs()
+    m = read_data(args.data, robot)
+    d = diagnose(robot, m, effects, folds=args.folds, seed=args.seed)
+    print_table(d)
+    if args.json:
+        write_json(args.json, d.to_dict(), force=args.force, inputs=[args.data, args.model])
+    if args.rrd or args.plots:
+        from torchcal.cli._viz import diagnosis_outputs
+        diagnosis_outputs(args, robot, m, d)
+    return 0

@@ -1,0 +1,50 @@
+"""`torchcal discover DATA --robot R [--json OUT] [--out MODEL.json] [--rrd FILE]`: add the
+best significant effect each round until none is left; the error falls at each round."""
+
+from __future__ import annotations
+
+from torchcal.io import modelfile
+from torchcal.cli._args import add_force, add_viz, check_folder, check_outputs, positive_int, read_data
+from torchcal.diagnosis.diagnose import discover
+from torchcal.io.files import write_json
+from torchcal.robots.robot import robot as make_robot
+
+
+def add_parser(sub):
+    p = sub.add_parser("discover", help="add missing effects round by round", description=__doc__)
+    p.add_argument("data", help="measurement CSV")
+    p.add_argument("--robot", required=True, help="preset robot name")
+    p.add_argument("--effects", nargs="*", default=[], metavar="SPEC", help="effects to start from")
+    p.add_argument("--folds", type=positive_int, default=5, help="cross-validation folds (default 5)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the fold assignment")
+    p.add_argument("--json", help="write the history here")
+    p.add_argument("--out", help="write the final MODEL.json here")
+    add_viz(p)
+    add_force(p)
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    check_outputs([("--json", args.json), ("--out", args.out), ("--rrd", args.rrd)], args.force,
+                  inputs=[args.data])
+    check_folder("--plots", args.plots)
+    if args.rrd or args.plots:  # the PNG names too, before any work
+        from torchcal.cli._viz import check_outputs as check_visual_outputs
+        check_visual_outputs(args, "discover")
+    robot = make_robot(args.robot)
+    m = read_data(args.data, robot)
+    res = discover(robot, m, args.effects, folds=args.folds, seed=args.seed)
+    for i, h in enumerate(res.history):
+        print(f"round {i}: [{', '.join(h['effects']) or 'geometric only'}] rms {h['rms_mm']:.4f} mm, "
+              f"cv rms {h['cv_rms_mm']:.4f} mm")
+    print(f"final effects: {', '.join(res.final_effects) or 'none'}")
+    if args.json:
+        write_json(args.json, res.to_dict(), force=args.force, inputs=[args.data])
+    if args.out:
+        write_json(args.out, modelfile.to_dict(res.fit, source=args.data, seed=args.seed,
+                                               pose_ids=m.pose.tolist()),
+                   force=args.force, inputs=[args.data])
+    if args.rrd or args.plots:
+        from torchcal.cli._viz import discovery_outputs
+        discovery_outputs(args, robot, m, res)
+    return 0

@@ -1,0 +1,44 @@
+"""`torchcal evaluate DATA --model MODEL.json [--json OUT]`: distance errors measured - model."""
+
+from __future__ import annotations
+
+from torchcal.io import modelfile
+from torchcal.cli._args import add_force, check_outputs, read_data
+from torchcal.effects import make_context
+from torchcal.io.files import write_json
+
+
+def add_parser(sub):
+    p = sub.add_parser("evaluate", help="errors of a fitted model on a measurement CSV", description=__doc__)
+    p.add_argument("data", help="measurement CSV")
+    p.add_argument("--model", required=True, help="MODEL.json from `torchcal fit`")
+    p.add_argument("--robot", help="check that the model file is for this robot")
+    p.add_argument("--json", help="write the report here")
+    add_force(p)
+    p.set_defaults(func=run)
+
+
+def evaluate(model, theta, m) -> dict:
+    """{"n", "rms_mm", "mean_mm", "max_mm", "per_axis_rms_mm"} of measured - model."""
+    ctx = make_context(model.robot, m.q, m.payload_kg, m.temp_c)
+    model.check_context(ctx)
+    err = m.xyz - model.predict(theta, ctx)
+    d = err.norm(dim=-1)
+    return {"n": len(m), "rms_mm": float(d.pow(2).mean().sqrt()), "mean_mm": float(d.mean()),
+            "max_mm": float(d.max()), "per_axis_rms_mm": err.pow(2).mean(0).sqrt().tolist()}
+
+
+def run(args) -> int:
+    check_outputs([("--json", args.json)], args.force, inputs=[args.data, args.model])
+    if args.robot is not None:
+        from torchcal.robots.robot import robot as make_robot
+        make_robot(args.robot)  # unknown robot: its own clear message
+    model, theta = modelfile.load(args.model, robot_name=args.robot)
+    m = read_data(args.data, model.robot)
+    rep = evaluate(model, theta, m)
+    if args.json:
+        write_json(args.json, rep, force=args.force, inputs=[args.data, args.model])
+    x, y, z = rep["per_axis_rms_mm"]
+    print(f"{rep['n']} rows: rms {rep['rms_mm']:.4f} mm, mean {rep['mean_mm']:.4f} mm, "
+          f"max {rep['max_mm']:.4f} mm; per axis rms x {x:.4f} y {y:.4f} z {z:.4f} mm")
+    return 0

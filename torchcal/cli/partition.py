@@ -1,0 +1,105 @@
+"""`torchcal partition`: hierarchical FCM partition of a sweep (PAPER.md section 4).
+
+    torchcal partition SWEEP.csv --levels 4 [--zones 3,2,3,2 | auto] [--seed S]
+                       --out PARTITION.json [--force]
+
+Reads the sweep CSV written by `torchcal sweep` (columns point,q1..qn,x,y,z,ex_lo,ex_hi,
+ey_lo,ey_hi,ez_lo,ez_hi,dist_lo,dist_hi,eta,r_set; only point, x, y, z (mm) and r_set are
+used, other columns are ignored), writes the partition JSON (`torchcal.partition.zones.Partition`)
+and prints one line per zone.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+from torchcal.cli._args import add_force, check_outputs
+from torchcal.errors import InputError
+from torchcal.partition.zones import partition_workspace
+
+NEEDED = ("point", "x", "y", "z", "r_set")
+
+
+def add_parser(sub):
+    p = sub.add_parser("partition", help="hierarchical fuzzy c-means partition of a sweep CSV",
+                       description=__doc__.splitlines()[0])
+    p.add_argument("sweep", metavar="SWEEP.csv", help="sweep CSV (point,q1..qn,x,y,z,...,eta,r_set)")
+    p.add_argument("--levels", default="4", help="number of R_set levels (>= 2) or 'auto' (default 4)")
+    p.add_argument("--zones", default="auto",
+                   help="sub-zones per level, comma separated (paper: 3,2,3,2), or 'auto' (default)")
+    p.add_argument("--zone-range", default="2,3", metavar="LO,HI",
+                   help="sub-zone counts tried per level with --zones auto, best Xie-Beni (default 2,3)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the FCM random starts (default 0)")
+    p.add_argument("--restarts", type=int, default=5, help="FCM random starts, best kept (default 5)")
+    p.add_argument("--m", type=float, default=2.0, help="FCM fuzzifier m > 1 (default 2)")
+    p.add_argument("--r-weight", type=float, default=1.0,
+                   help="weight of standardised R_set against standardised x, y, z in the sub-zones (default 1)")
+    p.add_argument("--out", required=True, metavar="PARTITION.json", help="output partition JSON")
+    add_force(p)
+    p.set_defaults(func=run)
+    return p
+
+
+def read_sweep(path):
+    """Point ids (N,) int64, positions (N, 3) mm and r_set (N,) of a sweep CSV
+    (`torchcal.reliability.sweep.SweepResult.from_csv`: errors name the file, row and column)."""
+    from torchcal.reliability.sweep import SweepResult
+
+    res = SweepResult.from_csv(path)
+    return res.point, res.positions, res.r_set
+
+
+def _levels(text):
+    if text == "auto":
+        return "auto"
+    try:
+        v = int(text)
+    except ValueError:
+        raise InputError(f"--levels: expected an integer >= 2 or 'auto', got {text!r}") from None
+    if v < 2:
+        raise InputError(f"--levels: expected an integer >= 2 or 'auto', got {text!r}")
+    return v
+
+
+def _zones(text, levels):
+    if text == "auto":
+        return "auto"
+    try:
+        ks = [int(t) for t in text.split(",")]
+    except ValueError:
+        raise InputError(f"--zones: expected comma separated integers (e.g. 3,2,3,2) or 'auto', got {text!r}") from None
+    if any(k < 1 for k in ks):
+        raise InputError(f"--zones: expected counts >= 1, got {text!r}")
+    if levels != "auto" and len(ks) != levels:
+        raise InputError(f"--zones: {len(ks)} counts for --levels {levels}; expected one count per level")
+    return ks
+
+
+def _range(text):
+    try:
+        lo, hi = (int(t) for t in text.split(","))
+    except ValueError:
+        raise InputError(f"--zone-range: expected LO,HI integers (e.g. 2,3), got {text!r}") from None
+    if not 2 <= lo <= hi:
+        raise InputError(f"--zone-range: expected 2 <= LO <= HI, got {text!r}")
+    return lo, hi
+
+
+def run(args) -> int:
+    levels = _levels(args.levels)
+    zones = _zones(args.zones, levels)
+    zone_range = _range(args.zone_range)
+    check_outputs([("--out", args.out)], args.force, inputs=[args.sweep])
+    out = Path(args.out)
+    ids, pos, r = read_sweep(args.sweep)
+    part = partition_workspace(pos, r, levels, zones, m=args.m, r_weight=args.r_weight, seed=args.seed,
+                               restarts=args.restarts, zone_range=zone_range, point_ids=ids)
+    part.save(out, force=args.force, inputs=[args.sweep])
+    print(f"{args.sweep}: {pos.shape[0]} points -> {part.n_levels} levels, {part.n_zones} zones -> {out}")
+    print(f"{'zone':>4} {'level':>5} {'points':>6} {'R_set min':>9} {'mean':>7} {'max':>7} "
+          f"{'centre x mm':>12} {'y mm':>10} {'z mm':>10}")
+    for s in part.summary():
+        print(f"{s['zone']:>4} {s['level']:>5} {s['points']:>6} {s['r_set_min']:>9.4f} {s['r_set_mean']:>7.4f} "
+              f"{s['r_set_max']:>7.4f} {s['center_x_mm']:>12.2f} {s['center_y_mm']:>10.2f} {s['center_z_mm']:>10.2f}")
+    return 0

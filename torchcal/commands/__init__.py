@@ -1,1 +1,0 @@
-"""Sub-commands of the `torchcal` command line, one module each."""

@@ -1,0 +1,434 @@
+"""Which physical effect is the model missing? (DESIGN.md "Diagnosis")
+
+1. Fit the current model (geometric + chosen effects) to all rows; residuals r (N, 3).
+2. Where it fails: residual RMS per joint-angle quartile and per workspace region.
+3. Each candidate (an effect of the vocabulary not in the model; joint effects one joint
+   at a time) adds columns C (3N, k) = d model / d candidate parameters at the fit.
+   Linearised around the fit, adding the candidate is the least-squares problem
+   r ~ [J_free C] delta, with the geometric and effect columns J_free free to re-adapt.
+   - Only what the model cannot already absorb counts: C is projected off span(J_free)
+     and its numerical rank k (relative singular value > 1e-6) is the number of new
+     parameters. k = 0 -> absorbed, never credited.
+   - Cross-validated: K folds by pose id (repeats of a pose stay together), the linear
+     problem solved on the other folds and predicted on the held-out one; the held-out
+     RMS and the held-out Gaussian log-likelihood (variance fitted on the other folds).
+   - Significance: nested-model F-test on all rows, ``F = ((RSS0 - RSS1) / k) /
+     (RSS1 / (3N - p0 - k))``, with a Bonferroni-corrected level ``alpha / candidates``
+     (alpha = 1e-3), *and* a held-out RMS gain of at least `min_gain` (2 %).
+   - `joint_clearance` also has a random part per move that no deterministic term can
+     predict. Its candidate adds a variance term: residual covariance
+     ``sigma^2 I + tau_J^2 B_J B_J^T`` with B_J (3, 2) the TCP motion per random tilt of
+     joint J's axis about the two directions perpendicular to it. It is significant when
+     its deterministic part is, or when a likelihood-ratio test of tau_J (boundary
+     mixture 0.5 chi2) passes the same level and the held-out log-likelihood gains at
+     least `MIN_LL_GAIN` nats per pose.
+4. Candidates are reported best first: significant by a deterministic part (by held-out
+   RMS), then significant by a random part only (by `score`, the held-out
+   log-likelihood gain per pose), then the rest. The verdict is the best of the first
+   tier, or of the second when the first is empty (a variance term can soak up structure
+   a deterministic effect predicts, so a prediction is preferred); within the tier, a
+   simpler candidate (fewer new parameters) that the best does not beat significantly
+   per pose (paired held-out errors, two standard errors) is preferred; for a joint effect, a further joint of the same effect is added
+   while, given the joints chosen so far, it is the best significant candidate of all
+   (forward selection), so a hidden ``joint_compliance:2,3`` is named with both joints
+   but a second, different effect is left to the next round of `discover`.
+
+Everything is deterministic for a given seed (fold assignment).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.optimize
+import scipy.stats
+import torch
+
+from torchcal.effects import make_context
+from torchcal.calibration.fit import FitResult, fit
+from torchcal.io.files import Measurements
+from torchcal.calibration.model import CalibrationModel
+from torchcal.robots.robot import Robot
+from torchcal.effects.spec import EFFECTS, parse_specs
+
+ALPHA = 1e-3
+MIN_GAIN = 0.02
+MIN_LL_GAIN = 0.15  # nats per pose, for a variance (random clearance) term: the Gaussian
+# model of a disc-shaped random tilt is misspecified, which alone is worth ~0.06
+RANK_TOL = 1e-6
+MRAD = 1e-3  # random-clearance tilts are fitted in mrad
+
+
+@dataclass
+class Candidate:
+    """One candidate effect and its evidence.
+
+    rms_mm: training distance RMS of the linearised refit with it; cv_rms_mm: held-out;
+    cv_gain: relative held-out RMS gain; score: held-out log-likelihood gain, nats per
+    pose (the ranking); p_value: F-test (deterministic part) or likelihood-ratio test
+    (random part), whichever is smaller; k: new identifiable parameters; held_out_ll,
+    held_out_sq: per-pose held-out log-likelihood and squared distance error;
+    deterministic: significant by its deterministic part (else, if significant, by its
+    random part only).
+    """
+
+    effect: str
+    joints: tuple
+    rms_mm: float
+    cv_rms_mm: float
+    score: float
+    p_value: float
+    k: int
+    significant: bool = False
+    cv_gain: float = 0.0
+    held_out_ll: np.ndarray | None = field(default=None, repr=False)  # (poses,) nats
+    held_out_sq: np.ndarray | None = field(default=None, repr=False)  # (poses,) mm^2
+    deterministic: bool = False  # significant by its deterministic part (F-test + gain)
+
+    @property
+    def spec(self) -> str:
+        return self.effect if not self.joints else f"{self.effect}:{','.join(map(str, self.joints))}"
+
+    def to_dict(self) -> dict:
+        return {"effect": self.effect, "joints": list(self.joints), "rms_mm": self.rms_mm,
+                "cv_rms_mm": self.cv_rms_mm, "score": self.score, "significant": self.significant,
+                "p_value": self.p_value, "new_parameters": self.k, "cv_gain": self.cv_gain}
+
+
+@dataclass
+class Diagnosis:
+    baseline_effects: list
+    baseline_fit: FitResult
+    baseline_cv_rms_mm: float
+    candidates: list
+    verdict: Candidate | None
+    where: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        res = self.baseline_fit.residuals.norm(dim=-1)
+        return {
+            "baseline": {"effects": list(self.baseline_effects), "rms_mm": self.baseline_fit.rms_mm,
+                         "max_mm": float(res.max()), "cv_rms_mm": self.baseline_cv_rms_mm},
+            "candidates": [c.to_dict() for c in self.candidates],
+            "verdict": None if self.verdict is None else
+            {"effect": self.verdict.effect, "joints": list(self.verdict.joints)},
+            "where": self.where,
+        }
+
+
+def fold_ids(pose: torch.Tensor, folds: int, seed: int) -> np.ndarray:
+    """(N,) fold of each row; all rows of one pose id share a fold."""
+    ids, inverse = np.unique(pose.cpu().numpy(), return_inverse=True)
+    rng = np.random.default_rng(seed)
+    per_pose = rng.permutation(len(ids)) % folds
+    return per_pose[inverse]
+
+
+def _rms(r: np.ndarray) -> float:
+    """Distance RMS (mm) of stacked residuals r (3M,)."""
+    return float(np.sqrt((r.reshape(-1, 3) ** 2).sum(-1).mean()))
+
+
+# -- the random part: residual covariance sigma^2 I + sum_j tau_j^2 B_j B_j^T ------------
+
+def _variance_loglik(r3: np.ndarray, Bs: np.ndarray | None, logp: np.ndarray) -> np.ndarray:
+    """Per-row Gaussian log-likelihood (M,) of residuals r3 (M, 3).
+
+    Bs (M, 3, K): TCP displacement per mrad of random tilt; logp = [log sigma^2,
+    log tau_1^2, ...]. Bs None: isotropic sigma^2 only.
+    """
+    S = np.exp(logp[0]) * np.eye(3)[None].repeat(len(r3), 0)
+    if Bs is not None and Bs.shape[-1]:
+        tau = np.exp(logp[1:]).repeat(Bs.shape[-1] // (len(logp) - 1))
+        S = S + np.einsum("mik,k,mjk->mij", Bs, tau, Bs)
+    sign, logdet = np.linalg.slogdet(S)
+    quad = np.einsum("mi,mi->m", r3, np.linalg.solve(S, r3[..., None])[..., 0])
+    return -0.5 * (logdet + quad + 3 * np.log(2 * np.pi))
+
+
+def _fit_variance(r3: np.ndarray, Bs: np.ndarray | None) -> np.ndarray:
+    """Maximum-likelihood log variances for residual rows r3 (M, 3)."""
+    s2 = float((r3 ** 2).mean())
+    if Bs is None or not Bs.shape[-1]:
+        return np.array([np.log(max(s2, 1e-300))])
+    K = Bs.shape[-1] // 2
+    x0 = np.concatenate([[np.log(max(s2, 1e-300))], np.full(K, np.log(max(s2, 1e-300)) - 2 * np.log(
+        max(float(np.sqrt((Bs ** 2).sum((1, 2)).mean())), 1e-12)))])
+    fun = lambda x: -_variance_loglik(r3, Bs, x).sum()  # noqa: E731
+    res = scipy.optimize.minimize(fun, x0, method="L-BFGS-B",
+                                  bounds=[(np.log(s2) - 9, np.log(s2) + 5)] + [(x0[1] - 30, x0[1] + 10)] * K)
+    return res.x
+
+
+class _Linear:
+    """The linearised refit around a fit: residual r (3N,), base columns A (3N, p0)."""
+
+    def __init__(self, r: np.ndarray, A: np.ndarray, folds: np.ndarray):
+        A = A / np.linalg.norm(A, axis=0).clip(1e-300)  # unit columns: rank cuts are relative
+        self.r, self.A, self.rows = r, A, np.repeat(folds, 3)
+        self.Q, _ = np.linalg.qr(A) if A.size else (np.zeros((len(r), 0)), None)
+        self.folds = np.unique(folds)
+
+    def new_columns(self, C: np.ndarray | None) -> np.ndarray:
+        """An orthonormal basis (3N, k) of what C adds beyond span(A)."""
+        if C is None or not C.size:
+            return np.zeros((len(self.r), 0))
+        Cp = C - self.Q @ (self.Q.T @ C)
+        norms = np.linalg.norm(C, axis=0)
+        Cp = Cp[:, norms > 0] / norms[norms > 0]
+        if Cp.shape[1] == 0:
+            return Cp
+        U, s, _ = np.linalg.svd(Cp, full_matrices=False)
+        return U[:, s > RANK_TOL]  # columns were normalised: s is relative
+
+    def residual(self, B: np.ndarray) -> np.ndarray:
+        """Residual (3N,) of r on [A B] over all rows (B orthonormal, orthogonal to A)."""
+        e = self.r - self.Q @ (self.Q.T @ self.r)
+        return e - B @ (B.T @ e) if B.size else e
+
+    def cross_validate(self, B: np.ndarray, Bs: np.ndarray | None):
+        """Held-out distance RMS and mean held-out log-likelihood per pose of r on [A B],
+        with the residual covariance model Bs (N, 3, K) (None: isotropic)."""
+        X = np.hstack([self.A, B]) if B.size else self.A
+        held = np.empty_like(self.r)
+        ll = np.empty(len(self.r) // 3)
+        rows3 = self.rows[::3]
+        for f in self.folds:
+            test = self.rows == f
+            train_res = self.r[~test]
+            if X.shape[1]:
+                coef, *_ = np.linalg.lstsq(X[~test], self.r[~test], rcond=1e-10)
+                held[test] = self.r[test] - X[test] @ coef
+                train_res = train_res - X[~test] @ coef
+            else:
+                held[test] = self.r[test]
+            t3 = rows3 == f
+            Bf = None if Bs is None else Bs[~t3]
+            logp = _fit_variance(train_res.reshape(-1, 3), Bf)
+            ll[t3] = _variance_loglik(held[test].reshape(-1, 3), None if Bs is None else Bs[t3], logp)
+        self.last_ll = ll  # per-pose held-out log-likelihood of this call (for parsimony)
+        self.last_sq = (held.reshape(-1, 3) ** 2).sum(-1)  # per-pose held-out squared error
+        return _rms(held), float(ll.mean())
+
+
+def _candidate_specs(robot: Robot, present: dict, ctx) -> list[tuple[str, tuple]]:
+    """Effects not in the model yet; joint effects on each joint they do not cover yet."""
+    out = []
+    for name, takes in EFFECTS.items():
+        if name in present and not takes:
+            continue
+        if name == "thermal_expansion" and ctx.temp_c is None:
+            continue
+        if takes:
+            out += [(name, (j,)) for j in range(1, robot.n + 1) if j not in present.get(name, ())]
+        else:
+            out.append((name, ()))
+    return out
+
+
+def _spec(name, joints):
+    return name if not joints else f"{name}:{','.join(map(str, joints))}"
+
+
+def candidate_columns(robot, base_model: CalibrationModel, theta, ctx, spec: str) -> np.ndarray:
+    """d model / d candidate parameters at theta (3N, k), the candidate's values at zero."""
+    aug = CalibrationModel(robot, base_model.specs() + [spec])
+    k = aug.n_params - base_model.n_params
+
+    def f(pc):
+        return aug.predict(torch.cat([theta, pc]), ctx)
+
+    C = torch.func.jacfwd(f)(torch.zeros(k, dtype=theta.dtype))
+    return C.reshape(-1, k).detach().numpy()
+
+
+def where_it_fails(robot: Robot, m: Measurements, residuals: torch.Tensor, bins: int = 4) -> dict:
+    """Residual distance RMS per joint-angle quantile bin and per workspace region."""
+    d = residuals.norm(dim=-1).numpy()
+    q = torch.rad2deg(m.q).numpy()
+    out = {"per_joint": [], "per_region": []}
+    for j in range(robot.n):
+        edges = np.quantile(q[:, j], np.linspace(0, 1, bins + 1))
+        idx = np.clip(np.searchsorted(edges, q[:, j], side="right") - 1, 0, bins - 1)
+        out["per_joint"].append({"joint": j + 1, "bins": [
+            {"q_deg": [float(edges[b]), float(edges[b + 1])], "n": int((idx == b).sum()),
+             "rms_mm": float(np.sqrt((d[idx == b] ** 2).mean())) if (idx == b).any() else None}
+            for b in range(bins)]})
+    xyz = m.xyz.numpy()
+    reach = np.hypot(xyz[:, 0], xyz[:, 1])
+    r_edges = np.quantile(reach, [0, 1 / 3, 2 / 3, 1])
+    z_mid = float(np.median(xyz[:, 2]))
+    for a in range(3):
+        for upper in (False, True):
+            sel = (reach >= r_edges[a]) & (reach <= r_edges[a + 1]) & ((xyz[:, 2] > z_mid) == upper)
+            if sel.any():
+                out["per_region"].append({
+                    "reach_mm": [float(r_edges[a]), float(r_edges[a + 1])],
+                    "z": "upper" if upper else "lower", "n": int(sel.sum()),
+                    "rms_mm": float(np.sqrt((d[sel] ** 2).mean())), "max_mm": float(d[sel].max())})
+    return out
+
+
+def _not_better(best, c, attr: str, sign: float) -> bool:
+    """True when `best` does not beat `c` significantly per pose: the paired difference of
+    the per-pose held-out values (sign * (best - c), positive = best better) has a mean
+    below two standard errors."""
+    diff = sign * (getattr(best, attr) - getattr(c, attr))
+    return diff.mean() < 2 * diff.std(ddof=1) / np.sqrt(len(diff))
+
+
+def rank(cands: list) -> list:
+    """Candidates best first: those significant by a deterministic part, by held-out RMS;
+    then those significant by a random part only, by score; then the rest, by score."""
+    return sorted(cands, key=lambda c: (0, c.cv_rms_mm) if c.deterministic else
+                  (1, -c.score) if c.significant else (2, -c.score))
+
+
+def select(cands: list) -> Candidate | None:
+    """The verdict among ranked candidates, or None.
+
+    A predictable (deterministic) explanation comes first: a random-only term (random
+    clearance as a variance) can also soak up structure that some deterministic effect
+    predicts, so it is named only when no deterministic candidate is significant.
+    Within a tier, a simpler candidate (fewer new parameters) that the best does not beat
+    significantly per pose is preferred (held-out squared error for deterministic terms,
+    log-likelihood for random ones): e.g. an encoder-scale error over a limited joint
+    range is fitted about as well by four harmonics, and the one-parameter effect is named.
+    """
+    det = [c for c in cands if c.deterministic]
+    tier = det or [c for c in cands if c.significant]
+    if not tier:
+        return None
+    best = tier[0]
+    attr, sign = ("held_out_sq", -1.0) if det else ("held_out_ll", 1.0)
+    close = [c for c in tier[1:] if c.k < best.k and _not_better(best, c, attr, sign)]
+    return min(close, key=lambda c: (c.k, tier.index(c)), default=best)
+
+
+def random_clearance_basis(robot: Robot, ctx, xyz: torch.Tensor, joint: int) -> np.ndarray:
+    """(N, 3, 2) TCP displacement in mm per mrad of random tilt of `joint`'s axis."""
+    from torchcal.effects.joint_clearance import random_basis
+
+    return (random_basis(ctx, joint, xyz) * MRAD).numpy()
+
+
+def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: int = 0,
+             alpha: float = ALPHA, min_gain: float = MIN_GAIN, base_fit: FitResult | None = None) -> Diagnosis:
+    """Rank the candidate effects missing from `robot` + `effects` on measurements m."""
+    specs = [str(s) for s in parse_specs(list(effects), robot.n)] if effects else []
+    model = CalibrationModel(robot, specs)
+    ctx = make_context(robot, m.q, m.payload_kg, m.temp_c)
+    if base_fit is None:
+        base_fit = fit(model, ctx, m.xyz)
+    theta = base_fit.theta
+    r = base_fit.residuals.reshape(-1).numpy()
+    A = model.jacobian(theta, ctx).reshape(-1, model.n_params)[:, base_fit.report.free].detach().numpy()
+    folds_ = fold_ids(m.pose, folds, seed)
+    lin = _Linear(r, A, folds_)
+    n_eq = len(r)
+    present = {s.name: s.joints for s in parse_specs(specs, robot.n)} if specs else {}
+    cands_specs = _candidate_specs(robot, present, ctx)
+    level = alpha / max(len(cands_specs), 1)
+
+    def judge(name, joints, lin_, Bs_in, C, Bs, base_cv, base_ll):
+        """Evidence for adding (C, Bs) to the linear base lin_ with variance terms Bs_in."""
+        B = lin_.new_columns(C)
+        k = B.shape[1]
+        e0, e1 = lin_.residual(np.zeros((n_eq, 0))), lin_.residual(B)
+        rss0, rss1 = float(e0 @ e0), float(e1 @ e1)
+        p_f = 1.0
+        if k:
+            dof = max(n_eq - lin_.A.shape[1] - k, 1)
+            F = ((rss0 - rss1) / k) / max(rss1 / dof, 1e-300)
+            p_f = float(scipy.stats.f.sf(F, k, dof))
+        Bs_all = Bs_in if Bs is None else (Bs if Bs_in is None else np.concatenate([Bs_in, Bs], -1))
+        cv, ll = lin_.cross_validate(B, Bs_all)
+        ll_rows, sq_rows = lin_.last_ll, lin_.last_sq
+        gain = (base_cv - cv) / max(base_cv, 1e-300)
+        score = ll - base_ll
+        significant = deterministic = k > 0 and p_f < level and gain >= min_gain
+        p_lr = 1.0
+        if Bs is not None:  # likelihood-ratio test of the random part, all rows
+            e3 = e1.reshape(-1, 3)
+            ll0 = _variance_loglik(e3, Bs_in, _fit_variance(e3, Bs_in)).sum()
+            ll1 = _variance_loglik(e3, Bs_all, _fit_variance(e3, Bs_all)).sum()
+            p_lr = float(0.5 * scipy.stats.chi2.sf(max(2 * (ll1 - ll0), 0.0), Bs.shape[-1] // 2))
+            significant = significant or (p_lr < level and score >= MIN_LL_GAIN)
+        return Candidate(name, joints, float(np.sqrt(max(rss1, 0) / (n_eq / 3))), cv, float(score),
+                         min(p_f, p_lr), k + (0 if Bs is None else Bs.shape[-1] // 2),
+                         bool(significant), float(gain), ll_rows, sq_rows, bool(deterministic))
+
+    columns, variance = {}, {}
+    for name, joints in cands_specs:
+        columns[(name, joints)] = candidate_columns(robot, model, theta, ctx, _spec(name, joints))
+        if name == "joint_clearance":
+            variance[(name, joints)] = random_clearance_basis(robot, ctx, m.xyz, joints[0])
+    base_cv, base_ll = lin.cross_validate(np.zeros((n_eq, 0)), None)
+    cands = [judge(n, j, lin, None, C, variance.get((n, j)), base_cv, base_ll)
+             for (n, j), C in columns.items()]
+    cands = rank(cands)
+    verdict = select(cands)
+    if verdict is not None and verdict.joints:
+        # forward selection: add a joint of the same effect while, given the joints chosen
+        # so far, it is the best significant candidate of all
+        chosen = list(verdict.joints)
+        while True:
+            C_in = np.hstack([columns[(verdict.effect, (j,))] for j in chosen])
+            Bs_in = None if verdict.effect != "joint_clearance" else \
+                np.concatenate([variance[(verdict.effect, (j,))] for j in chosen], -1)
+            lin_in = _Linear(r, np.hstack([A, C_in]), folds_)
+            cv_in, ll_in = lin_in.cross_validate(np.zeros((n_eq, 0)), Bs_in)
+            # other effects' random parts are the next round's business: not refitted here
+            step = [judge(n, j, lin_in, Bs_in, C, variance.get((n, j)) if n == verdict.effect else None,
+                          cv_in, ll_in)
+                    for (n, j), C in columns.items() if not (n == verdict.effect and j[0] in chosen)]
+            best = select(rank(step))
+            if best is None or best.effect != verdict.effect:
+                break  # another effect explains more: it is the next round's business
+            chosen.append(best.joints[0])
+        if len(chosen) > 1:
+            C_all = np.hstack([columns[(verdict.effect, (j,))] for j in chosen])
+            Bs_all = None if verdict.effect != "joint_clearance" else \
+                np.concatenate([variance[(verdict.effect, (j,))] for j in chosen], -1)
+            B = lin.new_columns(C_all)
+            cv, ll = lin.cross_validate(B, Bs_all)
+            e = lin.residual(B)
+            verdict = Candidate(verdict.effect, tuple(sorted(chosen)), float(np.sqrt(e @ e / (n_eq / 3))),
+                                cv, ll - base_ll, verdict.p_value, B.shape[1], True,
+                                (base_cv - cv) / max(base_cv, 1e-300), deterministic=verdict.deterministic)
+            cands.insert(0, verdict)
+    where = where_it_fails(robot, m, base_fit.residuals)
+    return Diagnosis(specs, base_fit, base_cv, cands, verdict, where)
+
+
+@dataclass
+class Discovery:
+    history: list
+    final_effects: list
+    fit: FitResult
+    diagnoses: list
+
+    def to_dict(self) -> dict:
+        return {"history": self.history, "final_effects": self.final_effects}
+
+
+def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: int = 0,
+             max_rounds: int = 6) -> Discovery:
+    """Add the best significant effect each round until none is left.
+
+    history[i] = {"effects", "rms_mm" (full nonlinear refit, training), "cv_rms_mm"}.
+    """
+    specs = [str(s) for s in parse_specs(list(effects), robot.n)] if effects else []
+    history, diagnoses = [], []
+    ctx = make_context(robot, m.q, m.payload_kg, m.temp_c)
+    base = fit(CalibrationModel(robot, specs), ctx, m.xyz)
+    for _ in range(max_rounds + 1):
+        d = diagnose(robot, m, specs, folds=folds, seed=seed, base_fit=base)
+        diagnoses.append(d)
+        history.append({"effects": list(specs), "rms_mm": base.rms_mm, "cv_rms_mm": d.baseline_cv_rms_mm})
+        if d.verdict is None or len(history) > max_rounds:
+            break
+        specs = [str(s) for s in parse_specs(specs + [d.verdict.spec], robot.n)]
+        base = fit(CalibrationModel(robot, specs), ctx, m.xyz)
+    return Discovery(history, specs, base, diagnoses)

@@ -1,0 +1,518 @@
+"""Workspace sweep: interval envelopes of the TCP error and their reliability.
+
+PAPER.md section 6, "Latin hypercube sample of the workspace, repeated simulated moves to
+each point, distance-error interval per point, R_set":
+
+1. `sample_workspace`: a Latin hypercube (scipy.stats.qmc.LatinHypercube, explicit seed)
+   of joint space inside the robot's limits, filtered by a `Workspace` (TCP above the
+   floor, outside the base column, within reach); rounds of fresh hypercubes are drawn
+   until N points pass, and the first N are kept.
+2. M perturbed parameter sets: clearance states of a `ClearanceModel` turned into MD-H
+   deviations (torchcal.reliability.uncertainty), the same M sets for every point (common random
+   numbers: the envelope is a deterministic function of q for a given seed).
+3. For every point the TCP error e = p(q, deviations) - p(q) of every set, by the
+   backward position recursion of torchcal.kinematics.mdh run in place on (points x sets)
+   blocks of at most `chunk` evaluations (7 fixed buffers per worker thread); min and
+   max per axis and of |e| are reduced on the fly, so memory stays O(chunk + N) and an
+   N x M x 3 tensor never exists. Point blocks are shared among `threads` workers.
+   With ``include_nominal`` (default) the zero-deviation
+   state (every shaft centred) belongs to the set, so each axis interval contains 0 and
+   the distance interval is [0, s^u] as in the paper's Table 3. (The states form a
+   connected set containing the nominal one, so every value between 0 and the largest
+   distance is attained: [0, s^u] is the exact range of the sampled maximum.)
+4. The linearised bound: `torchcal.reliability.interval.linear_hull` of the deviation box
+   (`ClearanceModel.box`) through the parameter Jacobian (eq. 18) per point; the
+   linearised distance bound is the farthest corner of that error box. The sampled
+   envelope lies inside it up to second-order terms; the box ignores the correlations
+   between deviations (one seat moves several of them), so it is wider, by the factor
+   `SweepResult.linear_ratio` reports.
+5. eta (eq. 23) and R_set (eq. 24) of the distance interval for an allowed distance
+   error [0, D] (torchcal.reliability.rset; eta with the upper limit only, see there), and,
+   optionally, per axis for an allowed +-a.
+
+Default simulated KR 1000 Titan (torchcal.reliability.uncertainty.ClearanceModel.defaults: PAPER.md
+Table 2 clearances, bearing length = shaft diameter, 200, 137, 99, 75.6, 60, 50 mm): at
+D = 2.5 mm, 100 points x 300 sets (seed 0) give R_set from 0.72 to 1, about half the
+points at 1, as in the paper's Table 3 (0.685 .. 1).
+
+Units: q rad inside, degrees in the CSV; positions and errors mm. Every tensor stays
+on `device`.
+"""
+
+from __future__ import annotations
+
+import csv
+import io as _io
+import math
+import sys
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
+from dataclasses import dataclass, fields
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from torchcal.kinematics import mdh as K
+from torchcal.reliability import rset as reliability
+from torchcal.errors import InputError
+from torchcal.reliability.interval import Interval, linear_hull
+from torchcal.io.files import atomic_write
+from torchcal.reliability.uncertainty import ClearanceModel, sample_deviations
+
+# (point, set) evaluations per kernel call: on a CPU small enough for the 7 buffers to stay
+# in the L2 cache and for every op to run on one core (torch splits ops over threads from
+# 32768 elements on); on a GPU large enough to fill it
+DEFAULT_CHUNK = 1 << 14
+DEFAULT_CHUNK_GPU = 1 << 22
+
+
+@dataclass(frozen=True)
+class Workspace:
+    """Which sampled configurations count as workspace points (base frame, mm).
+
+    Attributes:
+        floor_z_mm: the TCP must lie above the floor, z > floor_z_mm.
+        column_radius_mm, column_height_mm: keep-out cylinder about the joint-1 axis (the
+            base column and turntable): rejected if sqrt(x^2 + y^2) < column_radius_mm
+            and z < column_height_mm. Default 350 mm up to 1100 mm (the shoulder height
+            d1 of the KR 1000 Titan); the paper's Table 3 point 6 at radius 387 mm, z 631
+            mm is just outside.
+        reach_fraction: the TCP must lie within this fraction of the arm's full stretch
+            from the shoulder (origin of frame 1), the stretch taken as the sum over links
+            2..n of sqrt(a^2 + d^2) plus the tool offset (an upper bound): it drops the
+            near-singular stretched arm. 1 or more disables it.
+    """
+
+    floor_z_mm: float = 0.0
+    column_radius_mm: float = 350.0
+    column_height_mm: float = 1100.0
+    reach_fraction: float = 0.95
+
+    def accept(self, robot, q: torch.Tensor) -> torch.Tensor:
+        """(N,) bool for q (N, n) rad."""
+        q = robot.check_q(q)
+        table = robot.table.to(q)
+        p = robot.fk(q)  # (N, 3) TCP
+        shoulder = K.fk_positions(q[:, :1], table[:1], None, robot.base.to(q))  # (N, 3) frame-1 origin
+        ok = p[:, 2] > self.floor_z_mm
+        radial = p[:, :2].norm(dim=-1)
+        ok &= ~((radial < self.column_radius_mm) & (p[:, 2] < self.column_height_mm))
+        if self.reach_fraction < 1:
+            t = robot.table
+            stretch = (t[1:, 1] ** 2 + t[1:, 2] ** 2).sqrt().sum() + robot.tool[:3, 3].norm()
+            ok &= (p - shoulder).norm(dim=-1) <= self.reach_fraction * stretch.to(p)
+        return ok
+
+
+def _lhs(d: int, seed: int):
+    from scipy.stats import qmc
+    try:
+        return qmc.LatinHypercube(d=d, rng=seed)
+    except TypeError:  # scipy < 1.15
+        return qmc.LatinHypercube(d=d, seed=seed)
+
+
+def sample_workspace(robot, n: int, seed: int = 0, workspace: Workspace | None = None,
+                     max_rounds: int = 50) -> torch.Tensor:
+    """n joint configurations (n, dof) rad, float64 on the CPU, inside limits and workspace.
+
+    Rounds of Latin hypercubes (scipy LatinHypercube with rng=seed) are scaled to the
+    joint limits and filtered by `workspace` until n pass; the first n are returned.
+    """
+    if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 1:
+        raise InputError(f"number of workspace points must be a positive integer, got {n!r}")
+    workspace = Workspace() if workspace is None else workspace
+    engine = _lhs(robot.n, seed)
+    lo = robot.limits[:, 0].cpu().numpy()
+    hi = robot.limits[:, 1].cpu().numpy()
+    cpu = robot.to("cpu", torch.float64)
+    kept, have, drawn, size = [], 0, 0, int(n)
+    for _ in range(max_rounds):
+        u = engine.random(size)  # (size, dof) in [0, 1)
+        u *= hi - lo
+        u += lo
+        q = torch.from_numpy(u)
+        q = q[workspace.accept(cpu, q)]
+        kept.append(q)
+        have, drawn = have + q.shape[0], drawn + size
+        if have >= n:
+            return torch.cat(kept)[:n]
+        rate = max(have / drawn, 0.05)  # acceptance so far
+        size = max(64, int(1.5 * (n - have) / rate))
+    raise InputError(f"workspace filter too strict: only {have} of {n} points found in {max_rounds} rounds")
+
+
+@dataclass(frozen=True, eq=False)
+class SweepResult:
+    """Per workspace point: TCP error envelopes and reliability (N points, n joints).
+
+    Attributes:
+        q: (N, n) rad joint angles.
+        positions: (N, 3) mm nominal TCP positions.
+        err_lower, err_upper: (N, 3) mm bounds of the error e = perturbed - nominal per axis.
+        dist_lower, dist_upper: (N,) mm bounds of |e|.
+        eta: (N,) eq. 23 of the distance interval vs the allowed distance error.
+        r_set: (N,) eq. 24, the same.
+        lin_lower, lin_upper: (N, 3) mm linearised hull of the error (None if not computed
+            or read from a CSV).
+        lin_dist_upper: (N,) mm farthest corner of the linearised error box (or None).
+        allowed_mm: the allowed distance error D (None if unknown).
+        n_samples: M, number of perturbed parameter sets (None if unknown).
+        r_set_axis, eta_axis: (N, 3) per axis against an allowed +-a (None unless asked).
+        point: (N,) int64 point ids (None: the row index 0..N-1, as `sweep` writes them).
+    """
+
+    q: torch.Tensor
+    positions: torch.Tensor
+    err_lower: torch.Tensor
+    err_upper: torch.Tensor
+    dist_lower: torch.Tensor
+    dist_upper: torch.Tensor
+    eta: torch.Tensor
+    r_set: torch.Tensor
+    lin_lower: torch.Tensor | None = None
+    lin_upper: torch.Tensor | None = None
+    lin_dist_upper: torch.Tensor | None = None
+    allowed_mm: float | None = None
+    n_samples: int | None = None
+    r_set_axis: torch.Tensor | None = None
+    eta_axis: torch.Tensor | None = None
+    point: torch.Tensor | None = None
+
+    def __len__(self) -> int:
+        return self.q.shape[0]
+
+    @property
+    def err(self) -> Interval:
+        """Interval (N, 3) of the sampled error per axis (mm)."""
+        return Interval(self.err_lower, self.err_upper)
+
+    @property
+    def dist(self) -> Interval:
+        """Interval (N,) of the sampled distance error (mm)."""
+        return Interval(self.dist_lower, self.dist_upper)
+
+    @property
+    def linear(self) -> Interval | None:
+        """Interval (N, 3) of the linearised hull (mm), or None."""
+        return None if self.lin_lower is None else Interval(self.lin_lower, self.lin_upper)
+
+    def linear_ratio(self) -> torch.Tensor | None:
+        """(N, 3) sampled half-width / linearised half-width per axis (<= 1 up to 2nd order)."""
+        if self.lin_lower is None:
+            return None
+        return (self.err_upper - self.err_lower) / (self.lin_upper - self.lin_lower).clamp_min(1e-300)
+
+    def to(self, device) -> "SweepResult":
+        kw = {f.name: getattr(self, f.name) for f in fields(self)}
+        for k, v in kw.items():
+            if isinstance(v, torch.Tensor):
+                kw[k] = v.to(device)
+        return SweepResult(**kw)
+
+    def summary(self) -> dict:
+        """R_set min / median / max, share of points with R_set = 1, linear-hull ratio."""
+        r = self.r_set.double().cpu()
+        out = {
+            "points": len(self),
+            "r_set_min": float(r.min()), "r_set_median": float(r.median()), "r_set_max": float(r.max()),
+            "share_r_set_1": float((r >= 1.0).double().mean()),
+            "dist_upper_min_mm": float(self.dist_upper.min()), "dist_upper_max_mm": float(self.dist_upper.max()),
+        }
+        ratio = self.linear_ratio()
+        if ratio is not None:
+            out["linear_ratio_median"] = float(ratio.double().median())
+            out["linear_ratio_max"] = float(ratio.double().max())
+        return out
+
+    # -- CSV ----------------------------------------------------------------------------
+    def columns(self) -> list[str]:
+        n = self.q.shape[1]
+        return (["point"] + [f"q{i + 1}" for i in range(n)] + ["x", "y", "z", "ex_lo", "ex_hi", "ey_lo",
+                "ey_hi", "ez_lo", "ez_hi", "dist_lo", "dist_hi", "eta", "r_set"])
+
+    def to_csv_text(self) -> str:
+        """The CSV (module docstring of torchcal.cli.sweep): q in degrees, mm."""
+        cols = [torch.rad2deg(self.q), self.positions,
+                torch.stack([self.err_lower, self.err_upper], dim=-1).reshape(-1, 6),
+                self.dist_lower[:, None], self.dist_upper[:, None], self.eta[:, None], self.r_set[:, None]]
+        data = torch.cat([c.detach().to("cpu", torch.float64) for c in cols], dim=1).numpy()
+        buf = _io.StringIO()
+        buf.write(",".join(self.columns()) + "\n")
+        ids = range(len(data)) if self.point is None else self.point.tolist()
+        for i, row in zip(ids, data.tolist()):
+            buf.write(f"{i}," + ",".join(map(repr, row)) + "\n")
+        return buf.getvalue()
+
+    def to_csv(self, path, force: bool = False):
+        """Write the CSV atomically; an existing file only with force=True."""
+        return atomic_write(path, self.to_csv_text(), force=force)
+
+    @classmethod
+    def from_csv(cls, path, device=None) -> "SweepResult":
+        """Read a sweep CSV (linearised bounds, allowed_mm, n_samples are not stored: None).
+
+        One InputError naming the file, row (file line) and column for a bad header, a
+        ragged row, a non-numeric or non-finite value, or an R_set outside [0, 1].
+        """
+        from pathlib import Path
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(f"{path}: sweep CSV does not exist")
+        try:
+            with open(path, newline="") as fh:
+                rows = list(csv.reader(fh))
+        except UnicodeDecodeError as exc:
+            raise InputError(f"{path}: not a text CSV file ({exc})") from None
+        except csv.Error as exc:
+            raise InputError(f"{path}: malformed CSV: {exc}") from None
+        if not rows:
+            raise InputError(f"{path}: empty file, expected a sweep CSV header")
+        header = [h.strip() for h in rows[0]]
+        qcols = [h for h in header if len(h) > 1 and h[0] == "q" and h[1:].isdigit()]
+        n = len(qcols)
+        expected = (["point"] + [f"q{i + 1}" for i in range(n)] + ["x", "y", "z", "ex_lo", "ex_hi", "ey_lo",
+                    "ey_hi", "ez_lo", "ez_hi", "dist_lo", "dist_hi", "eta", "r_set"])
+        if n == 0 or header != expected:
+            raise InputError(f"{path}: header must be {','.join(expected if n else ['point', 'q1', '...'])}, "
+                             f"got {','.join(header)}")
+        rows = [(line, row) for line, row in enumerate(rows[1:], start=2)
+                if row and any(c.strip() for c in row)]  # blank lines are skipped
+        if not rows:
+            raise InputError(f"{path}: no data rows")
+        data = np.empty((len(rows), len(header) - 1))
+        ids = np.empty(len(rows), dtype=np.int64)
+        for i, (r, row) in enumerate(rows):
+            if len(row) != len(header):
+                raise InputError(f"{path}: row {r}: expected {len(header)} columns, got {len(row)}")
+            try:
+                ids[i] = int(row[0])
+            except ValueError:
+                raise InputError(f"{path}: row {r}, column point: not an integer: {row[0]!r}") from None
+            for c, v in enumerate(row[1:], start=1):
+                try:
+                    data[i, c - 1] = float(v)
+                except ValueError:
+                    raise InputError(f"{path}: row {r}, column {header[c]}: not a number: {v!r}") from None
+                if not math.isfinite(data[i, c - 1]):
+                    raise InputError(f"{path}: row {r}, column {header[c]}: not finite: {v!r}")
+            if not 0.0 <= data[i, -1] <= 1.0:
+                raise InputError(f"{path}: row {r}, column r_set: {data[i, -1]} is outside [0, 1]")
+        t = torch.from_numpy(data).to(device)
+        k = n
+        q = torch.deg2rad(t[:, :k])
+        e = t[:, k + 3:k + 9].reshape(-1, 3, 2)
+        return cls(q=q, positions=t[:, k:k + 3], err_lower=e[..., 0].contiguous(),
+                   err_upper=e[..., 1].contiguous(), dist_lower=t[:, k + 9], dist_upper=t[:, k + 10],
+                   eta=t[:, k + 11], r_set=t[:, k + 12], point=torch.from_numpy(ids).to(device))
+
+
+def _envelope(robot, q, dev, include_nominal, chunk, bar, threads):
+    """Min / max of e and |e| over the sets, chunk by chunk. q (N, n), dev (M, n, 5).
+
+    Point chunks are independent: `threads` Python workers take them in turn (each op
+    on a chunk of <= 32768 elements runs on one core, so the workers do not fight over
+    the cores the way intra-op threads of large ops do on a busy machine).
+    """
+    table = robot.table.to(q)
+    base, tool = robot.base.to(q), robot.tool.to(q)
+    tool_point = tool[:3, 3]
+    N, M = q.shape[0], dev.shape[0]
+    F = K.outer_factors(table, dev)
+    R = base[:3, :3]
+    rotate = not torch.equal(R, torch.eye(3, dtype=R.dtype, device=R.device))
+    e_lo = torch.empty(N, 3, dtype=q.dtype, device=q.device)
+    e_hi = torch.empty_like(e_lo)
+    d_lo = torch.empty(N, dtype=q.dtype, device=q.device)
+    d_hi = torch.empty_like(d_lo)
+    m_step = min(M, chunk)
+    n_step = max(1, chunk // m_step)
+    local = threading.local()
+
+    def work(a0):
+        bufs = getattr(local, "bufs", None)
+        if bufs is None:
+            bufs = local.bufs = [torch.empty(n_step, m_step, dtype=q.dtype, device=q.device) for _ in range(7)]
+        a1 = min(N, a0 + n_step)
+        qc = q[a0:a1]
+        nom = K._positions_kernel(qc, table, None, None, tool_point)  # (Nc, 3), joint-1 frame
+        cq, sq = torch.cos(qc).T.contiguous(), torch.sin(qc).T.contiguous()  # (n, Nc)
+        lo = hi = dlo = dhi = None
+        for b0 in range(0, M, m_step):
+            b1 = min(M, b0 + m_step)
+            views = [t[:a1 - a0, :b1 - b0] for t in bufs]
+            Fc = [f[:, b0:b1] for f in F]
+            ex, ey, ez = K.outer_positions(cq, sq, Fc, tool_point, views)
+            ex.sub_(nom[:, 0:1]), ey.sub_(nom[:, 1:2]), ez.sub_(nom[:, 2:3])
+            if rotate:  # error vectors into the world frame
+                ex, ey, ez = (R[k, 0] * ex + R[k, 1] * ey + R[k, 2] * ez for k in range(3))
+            # (amin and amax, not aminmax: that one is ~10x slower on a CPU and runs
+            # intra-op parallel, which stalls on a busy machine)
+            clo = torch.stack([e.amin(dim=1) for e in (ex, ey, ez)], dim=1)  # (Nc, 3)
+            chi = torch.stack([e.amax(dim=1) for e in (ex, ey, ez)], dim=1)
+            sq_d = torch.mul(ex, ex, out=views[0]).addcmul_(ey, ey).addcmul_(ez, ez)  # |e|^2
+            cdlo, cdhi = sq_d.amin(dim=1), sq_d.amax(dim=1)
+            if lo is None:
+                lo, hi, dlo, dhi = clo, chi, cdlo, cdhi
+            else:
+                lo, hi = torch.minimum(lo, clo), torch.maximum(hi, chi)
+                dlo, dhi = torch.minimum(dlo, cdlo), torch.maximum(dhi, cdhi)
+        dlo, dhi = dlo.sqrt(), dhi.sqrt()
+        if include_nominal:
+            lo, hi, dlo = lo.clamp_max(0), hi.clamp_min(0), torch.zeros_like(dlo)
+        e_lo[a0:a1], e_hi[a0:a1], d_lo[a0:a1], d_hi[a0:a1] = lo, hi, dlo, dhi
+        return a1 - a0
+
+    for done in _map_chunks(work, range(0, N, n_step), threads):
+        bar.update(done)
+    return e_lo, e_hi, d_lo, d_hi
+
+
+def linear_bounds(robot, q: torch.Tensor, dev_box: Interval, chunk: int = 1024, threads: int = 1):
+    """Linearised error hull per point: Interval (N, 3) mm and the farthest-corner distance (N,).
+
+    q (N, n) rad, dev_box Interval (n, 5) of MD-H deviations; chunks of `chunk` points
+    shared among `threads` workers.
+    """
+    table = robot.table.to(q)
+    base, tool = robot.base.to(q), robot.tool.to(q)
+    flat = Interval(dev_box.lower.reshape(-1), dev_box.upper.reshape(-1)).to(q.device, q.dtype)
+    N = q.shape[0]
+    lo = torch.empty(N, 3, dtype=q.dtype, device=q.device)
+    hi, far = torch.empty_like(lo), torch.empty(N, dtype=q.dtype, device=q.device)
+
+    def work(a):
+        J = K.param_jacobian(q[a:a + chunk], table, None, base, tool)  # (Nc, 3, 5n)
+        h = linear_hull(J, flat)
+        lo[a:a + chunk], hi[a:a + chunk] = h.lower, h.upper
+        far[a:a + chunk] = torch.maximum(h.lower.abs(), h.upper.abs()).square().sum(-1).sqrt()
+
+    for _ in _map_chunks(work, range(0, N, chunk), threads):
+        pass
+    return Interval(lo, hi), far
+
+
+def _map_chunks(fn, starts, threads: int):
+    """fn(start) for every start, in order, on `threads` worker threads (inline for 1)."""
+    if threads <= 1:
+        for a in starts:
+            yield fn(a)
+        return
+    with ThreadPoolExecutor(max_workers=threads) as ex:
+        yield from ex.map(fn, starts)
+
+
+@contextmanager
+def _serial_ops(enabled: bool):
+    """Run torch ops on one core each while the sweep's own workers share the cores.
+
+    torch.set_num_threads is process-wide: it is set to 1 for the duration of the CPU
+    sweep and restored afterwards. Small ops split over intra-op threads (and batched
+    4x4 matmuls over BLAS threads) gain nothing and, on a busy machine, stall for
+    milliseconds on their barriers; the sweep's workers take the cores instead.
+    """
+    if not enabled:
+        yield
+        return
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)
+
+
+def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_mm: float = 2.5,
+          seed: int = 0, model: ClearanceModel | None = None, workspace: Workspace | None = None,
+          deviations: torch.Tensor | None = None, include_nominal: bool = True, linear: bool = True,
+          allowed_axis_mm: float | None = None, chunk: int | None = None, threads: int | None = None,
+          device=None, dtype=torch.float64, progress: bool = False):
+    """Sweep the workspace: error envelopes, linearised hull, eta and R_set per point.
+
+    Args:
+        robot: a `torchcal.Robot`.
+        q: optional (N, n) rad points; default `sample_workspace(robot, n_points, seed, workspace)`.
+        n_points: N when q is None.
+        n_samples: M perturbed parameter sets (clearance states), drawn with a
+            torch.Generator seeded with `seed`.
+        allowed_mm: allowed distance error D: R_set against [0, D], eta against D.
+        seed: seeds both the Latin hypercube and the clearance states.
+        model: ClearanceModel (default `ClearanceModel.defaults(robot)`).
+        workspace: Workspace filter (default `Workspace()`).
+        deviations: optional (M, n, 5) deviation sets to use instead of sampling.
+        include_nominal: the zero-deviation state is part of the set (see module doc).
+        linear: also compute the linearised hull (needs the deviation box: from `model`,
+            or the sample hull of `deviations` when those are given without a model).
+        allowed_axis_mm: optional allowed +-a (mm) per axis: fills `r_set_axis` and
+            `eta_axis` (N, 3) (PAPER.md Table 5 uses +-1 mm).
+        chunk: (point, set) evaluations per kernel call; the working memory is 7 buffers
+            of `chunk` floats per thread. Default DEFAULT_CHUNK (16384) on a CPU,
+            DEFAULT_CHUNK_GPU on a GPU. Results do not depend on it.
+        threads: worker threads over point chunks (default: torch.get_num_threads() on a
+            CPU, 1 on a GPU). On a CPU torch's own intra-op threads are set to 1 while the
+            sweep runs (and restored after): the workers use the cores instead. Results do
+            not depend on it.
+        device, dtype: where and in which float type to compute (float64 default).
+        progress: tqdm progress bar on stderr.
+
+    Returns:
+        SweepResult (tensors on `device`).
+    """
+    if chunk is not None and (not isinstance(chunk, int) or chunk < 1):
+        raise InputError(f"chunk must be a positive integer, got {chunk!r}")
+    if threads is not None and (not isinstance(threads, int) or threads < 1):
+        raise InputError(f"threads must be a positive integer, got {threads!r}")
+    if not (isinstance(allowed_mm, (int, float)) and math.isfinite(allowed_mm) and allowed_mm > 0):
+        raise InputError(f"allowed distance error must be a positive number of mm, got {allowed_mm!r}")
+    device = torch.device(device) if device is not None else robot.device
+    rb = robot.to(device, dtype)
+    if q is None:
+        q = sample_workspace(robot.to("cpu", torch.float64), n_points, seed, workspace)
+    q = rb.check_q(q).to(device=device, dtype=dtype)
+    if q.ndim != 2:
+        raise InputError(f"q: expected workspace points of shape (N, {robot.n}), got {tuple(q.shape)}")
+    dev_box = None
+    if deviations is None:
+        if not isinstance(n_samples, (int, np.integer)) or isinstance(n_samples, bool) or n_samples < 1:
+            raise InputError(f"number of samples must be a positive integer, got {n_samples!r}")
+        model = ClearanceModel.defaults(robot) if model is None else model
+        gen = torch.Generator().manual_seed(int(seed))
+        deviations = sample_deviations(robot, model, int(n_samples), gen)
+    else:
+        deviations = rb.check_params(deviations, "deviations")
+        if deviations.ndim != 3:
+            raise InputError(f"deviations: expected shape (M, {robot.n}, 5), got {tuple(deviations.shape)}")
+    if linear:
+        dev_box = model.box(robot) if model is not None else Interval(*torch.aminmax(deviations, dim=0))
+    deviations = deviations.to(device=device, dtype=dtype)
+    if allowed_axis_mm is not None and not (isinstance(allowed_axis_mm, (int, float))
+                                            and math.isfinite(allowed_axis_mm) and allowed_axis_mm > 0):
+        raise InputError(f"allowed axis error must be a positive number of mm, got {allowed_axis_mm!r}")
+    gpu = q.device.type != "cpu"
+    chunk = chunk or (DEFAULT_CHUNK_GPU if gpu else DEFAULT_CHUNK)
+    threads = threads or (1 if gpu else torch.get_num_threads())
+    lin_lo = lin_hi = lin_far = rs_axis = et_axis = None
+    with _serial_ops(not gpu):
+        with tqdm(total=q.shape[0], unit="pt", desc="sweep", file=sys.stderr, disable=not progress,
+                  dynamic_ncols=True) as bar:
+            e_lo, e_hi, d_lo, d_hi = _envelope(rb, q, deviations, include_nominal, chunk, bar, threads)
+        if linear:
+            hull, lin_far = linear_bounds(rb, q, dev_box, chunk=1 << 16 if gpu else 1024, threads=threads)
+            lin_lo, lin_hi = hull.lower, hull.upper
+        positions = rb.fk(q)
+        rs, et = torch.empty_like(d_lo), torch.empty_like(d_lo)
+        piece = 1 << 16  # in pieces: the temporaries of eta and R_set stay small
+        for a in range(0, d_lo.shape[0], piece):
+            dist = (d_lo[a:a + piece], d_hi[a:a + piece])
+            rs[a:a + piece] = reliability.r_set((0.0, float(allowed_mm)), dist)
+            et[a:a + piece] = reliability.eta((None, float(allowed_mm)), dist)
+        if allowed_axis_mm is not None:
+            a = float(allowed_axis_mm)
+            rs_axis = reliability.r_set((-a, a), (e_lo, e_hi))
+            et_axis = reliability.eta((-a, a), (e_lo, e_hi))
+    return SweepResult(q=q, positions=positions, err_lower=e_lo, err_upper=e_hi, dist_lower=d_lo,
+                       dist_upper=d_hi, eta=et, r_set=rs, lin_lower=lin_lo, lin_upper=lin_hi,
+                       lin_dist_upper=lin_far, allowed_mm=float(allowed_mm), n_samples=deviations.shape[0],
+                       r_set_axis=rs_axis, eta_axis=et_axis)

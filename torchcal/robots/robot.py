@@ -1,0 +1,200 @@
+"""`Robot`: a nominal MD-H table with joint limits, base and tool frames, and presets.
+
+`robot(name)` returns a preset; `Robot` validates user input once (shapes, finiteness)
+and calls the strict kernels of `torchcal.kinematics.mdh`.
+
+Presets (lengths mm, angles degrees in the tables below, radians inside):
+
+- ``kr1000titan``: PAPER.md Table 1, theta offsets zero as in the paper, Hayati beta on
+  joint 2. Joint limits from KUKA's data sheet (A1 +-150, A2 -130..+17.5 mapped to the
+  MD-H zero, A3 -110..+145 shifted by -90 deg since MD-H q3 = 0 bends the forearm at a right angle, A4 +-350, A5 +-118, A6 +-350); rated payload 1000 kg.
+- ``ur5e``: Universal Robots' published DH (d1 162.5, a2 -425, a3 -392.2, d4 133.3,
+  d5 99.7, d6 99.6; alpha 90, 0, 0, 90, -90, 0), beta on joints 2 and 3 (parallel axes
+  2-3-4), limits +-360, payload 5 kg.
+- ``puma560``: the classical standard DH of Corke (a2 431.8, a3 20.32, d3 150.05,
+  d4 431.8), beta on joint 2, payload 2.5 kg.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+
+from torchcal.kinematics import mdh as K
+from torchcal.errors import InputError
+
+G_MM_S2 = 9806.65  # standard gravity, mm/s^2
+
+
+@dataclass(frozen=True)
+class Robot:
+    """A serial robot with a nominal MD-H table.
+
+    Attributes:
+        name: preset name.
+        table: (n, 5) float64 [theta_offset rad, d mm, a mm, alpha rad, beta rad].
+        has_beta: (n,) bool, joints whose Hayati beta the table declares.
+        limits: (n, 2) float64 joint limits [lower, upper] in rad.
+        base: (4, 4) world <- joint-1 frame (mm).
+        tool: (4, 4) flange <- TCP (mm).
+        payload_kg: rated payload.
+        gravity: (3,) unit vector of gravity in the world frame.
+    """
+
+    name: str
+    table: torch.Tensor
+    has_beta: torch.Tensor
+    limits: torch.Tensor
+    base: torch.Tensor = field(default_factory=lambda: torch.eye(4, dtype=torch.float64))
+    tool: torch.Tensor = field(default_factory=lambda: torch.eye(4, dtype=torch.float64))
+    payload_kg: float = 0.0
+    gravity: torch.Tensor = field(default_factory=lambda: torch.tensor([0.0, 0.0, -1.0], dtype=torch.float64))
+
+    @property
+    def n(self) -> int:
+        """Number of joints."""
+        return self.table.shape[0]
+
+    @property
+    def dtype(self):
+        return self.table.dtype
+
+    @property
+    def device(self):
+        return self.table.device
+
+    def to(self, device=None, dtype=None) -> "Robot":
+        """A copy with every tensor moved to `device` / cast to `dtype`."""
+        def mv(t):
+            return t.to(device=device, dtype=dtype if t.is_floating_point() else None)
+        return Robot(self.name, mv(self.table), self.has_beta.to(device), mv(self.limits),
+                     mv(self.base), mv(self.tool), self.payload_kg, mv(self.gravity))
+
+    # -- validation -----------------------------------------------------------------
+    def check_q(self, q, name: str = "q") -> torch.Tensor:
+        """Convert joint angles to a tensor of the robot's dtype/device and check them.
+
+        q (..., n) rad. Raises InputError on a wrong last dimension or non-finite values.
+        """
+        q = torch.as_tensor(q, device=self.device)
+        if not q.is_floating_point():
+            q = q.to(self.dtype)
+        if q.ndim == 0 or q.shape[-1] != self.n:
+            raise InputError(f"{name}: expected joint angles of shape (..., {self.n}) for "
+                             f"{self.name}, got shape {tuple(q.shape)}")
+        if not torch.isfinite(q).all():
+            bad = (~torch.isfinite(q)).nonzero()[0].tolist()
+            raise InputError(f"{name}: joint angles must be finite, got {q[tuple(bad)].item()} at index {bad}")
+        return q
+
+    def check_params(self, params, name: str = "params") -> torch.Tensor | None:
+        """params (..., n, 5) MD-H deviations or None."""
+        if params is None:
+            return None
+        params = torch.as_tensor(params, device=self.device)
+        if not params.is_floating_point():
+            params = params.to(self.dtype)
+        if params.ndim < 2 or params.shape[-2:] != (self.n, 5):
+            raise InputError(f"{name}: expected MD-H deviations of shape (..., {self.n}, 5) "
+                             f"[dtheta, dd, da, dalpha, dbeta], got shape {tuple(params.shape)}")
+        if not torch.isfinite(params).all():
+            raise InputError(f"{name}: MD-H deviations must be finite")
+        return params
+
+    def _prep(self, q, params):
+        q = self.check_q(q)
+        params = self.check_params(params)
+        if params is not None:
+            try:
+                torch.broadcast_shapes(q.shape[:-1], params.shape[:-2])
+            except RuntimeError:
+                raise InputError(f"q batch {tuple(q.shape[:-1])} and params batch "
+                                 f"{tuple(params.shape[:-2])} do not broadcast") from None
+        dtype = q.dtype if params is None else torch.promote_types(q.dtype, params.dtype)
+        table = self.table.to(dtype)
+        return q.to(dtype), None if params is None else params.to(dtype), table
+
+    # -- kinematics -----------------------------------------------------------------
+    def fk(self, q, params=None, chunk: int = K.DEFAULT_CHUNK) -> torch.Tensor:
+        """TCP positions (..., 3) mm for q (..., n) rad and deviations params (..., n, 5)."""
+        q, params, table = self._prep(q, params)
+        return K.fk_positions(q, table, params, self.base, self.tool, chunk=chunk)
+
+    def fk_pose(self, q, params=None) -> torch.Tensor:
+        """TCP poses (..., 4, 4) mm."""
+        q, params, table = self._prep(q, params)
+        return K.fk_pose(q, table, params, self.base.to(table), self.tool.to(table))
+
+    def frames(self, q, params=None) -> torch.Tensor:
+        """World poses of base, each link frame and TCP: (..., n + 2, 4, 4)."""
+        q, params, table = self._prep(q, params)
+        return K.fk_frames(q, table, params, self.base.to(table), self.tool.to(table))
+
+    def param_jacobian(self, q, params=None) -> torch.Tensor:
+        """(..., 3, 5n) analytic dP/d[params] (mm per rad or mm per mm)."""
+        q, params, table = self._prep(q, params)
+        return K.param_jacobian(q, table, params, self.base.to(table), self.tool.to(table))
+
+    def joint_jacobian(self, q, params=None) -> torch.Tensor:
+        """(..., 3, n) dP/dq in mm/rad."""
+        q, params, table = self._prep(q, params)
+        return K.joint_jacobian(q, table, params, self.base.to(table), self.tool.to(table))
+
+    def within_limits(self, q) -> torch.Tensor:
+        """(...,) bool: every joint inside its limits. q (..., n) rad."""
+        q = self.check_q(q)
+        lim = self.limits.to(q)
+        return ((q >= lim[:, 0]) & (q <= lim[:, 1])).all(-1)
+
+    def param_names(self) -> list[str]:
+        """Names of the 5n MD-H deviations, e.g. 'dtheta1', 'dbeta2' (1-based joints)."""
+        return [f"{p}{i + 1}" for i in range(self.n) for p in K.PARAM_NAMES]
+
+
+def _make(name, rows_deg, beta_joints, limits_deg, payload_kg) -> Robot:
+    """rows_deg: per joint (theta_offset deg, d mm, a mm, alpha deg)."""
+    t = torch.tensor(rows_deg, dtype=torch.float64)
+    n = t.shape[0]
+    table = torch.zeros(n, 5, dtype=torch.float64)
+    table[:, 0] = torch.deg2rad(t[:, 0])
+    table[:, 1] = t[:, 1]
+    table[:, 2] = t[:, 2]
+    table[:, 3] = torch.deg2rad(t[:, 3])
+    has_beta = torch.zeros(n, dtype=torch.bool)
+    has_beta[[j - 1 for j in beta_joints]] = True
+    limits = torch.deg2rad(torch.tensor(limits_deg, dtype=torch.float64))
+    return Robot(name, table, has_beta, limits, payload_kg=payload_kg)
+
+
+PRESETS = {
+    "kr1000titan": lambda: _make(
+        "kr1000titan",
+        [(0, 1100, 600, -90), (0, 0, 1400, 0), (0, 0, 65, -90),
+         (0, 1200, 0, 90), (0, 0, 0, -90), (0, 372, 0, 0)],
+        beta_joints=[2],
+        limits_deg=[(-150, 150), (-130, 17.5), (-200, 55), (-350, 350), (-118, 118), (-350, 350)],
+        payload_kg=1000.0),
+    "ur5e": lambda: _make(
+        "ur5e",
+        [(0, 162.5, 0, 90), (0, 0, -425, 0), (0, 0, -392.2, 0),
+         (0, 133.3, 0, 90), (0, 99.7, 0, -90), (0, 99.6, 0, 0)],
+        beta_joints=[2, 3],
+        limits_deg=[(-360, 360)] * 6,
+        payload_kg=5.0),
+    "puma560": lambda: _make(
+        "puma560",
+        [(0, 0, 0, 90), (0, 0, 431.8, 0), (0, 150.05, 20.32, -90),
+         (0, 431.8, 0, 90), (0, 0, 0, -90), (0, 0, 0, 0)],
+        beta_joints=[2],
+        limits_deg=[(-160, 160), (-225, 45), (-45, 225), (-110, 170), (-100, 100), (-266, 266)],
+        payload_kg=2.5),
+}
+
+
+def robot(name: str) -> Robot:
+    """The preset robot `name` ('kr1000titan', 'ur5e', 'puma560')."""
+    if not isinstance(name, str) or name.lower() not in PRESETS:
+        raise InputError(f"unknown robot {name!r}; expected one of {', '.join(sorted(PRESETS))}")
+    return PRESETS[name.lower()]()
+

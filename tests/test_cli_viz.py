@@ -27,8 +27,8 @@ def data(tmp_path_factory):
     vr = torchcal.simulation.virtual_robot.VirtualRobot(robot, ["backlash:3"], seed=1)
     m = vr.measure(torchcal.simulation.virtual_robot.random_poses(robot, 80, torch.Generator().manual_seed(2)), noise_mm=0.02)
     path = tmp_path_factory.mktemp("cli_viz") / "data.csv"
-    torchcal.io.files.write_measurements(path, m)
-    return path, torchcal.io.files.read_measurements(path, robot=robot)
+    torchcal.io.measurement_csv.write_measurements(path, m)
+    return path, torchcal.io.measurement_csv.read_measurements(path, robot=robot)
 
 
 def _entities(path) -> set[str]:

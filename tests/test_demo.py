@@ -115,7 +115,7 @@ def test_demo_command_writes_json(tmp_path, monkeypatch, result, capsys):
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
     """A small simulated session with repeats, a partition and targets."""
-    from torchcal.io.files import write_measurements
+    from torchcal.io.measurement_csv import write_measurements
     from torchcal.partition.zones import partition_workspace
     from torchcal.robots.robot import robot
     from torchcal.simulation.virtual_robot import VirtualRobot

@@ -106,7 +106,7 @@ def test_random_clearance_from_another_generator_is_named(joint):
     """Clearance states drawn by `torchcal.reliability.uncertainty` (an independent model: each seat of
     the joint against its hole wall in a random direction, mapped to MD-H deviations; no
     load-driven part) per move: the verdict names joint_clearance on that joint."""
-    from torchcal.io.files import Measurements
+    from torchcal.measurements import Measurements
     from torchcal.reliability.uncertainty import (KR1000_BEARING_LENGTH_MM, KR1000_CLEARANCE_MM, KR1000_RADII_MM,
                                       ClearanceModel)
 
@@ -125,7 +125,7 @@ def test_structure_a_deterministic_effect_predicts_is_not_called_random():
     """A fifth-harmonic gear error of joint 1 (outside gear_periodic's harmonics 1..4) is
     only partly predicted by gear_periodic:1, while a random-clearance variance term could
     absorb more of the residual: the predictable explanation is named."""
-    from torchcal.io.files import Measurements
+    from torchcal.measurements import Measurements
 
     geo = VirtualRobot(ROBOT, [], seed=3).theta[: 5 * ROBOT.n].reshape(ROBOT.n, 5)
     q = random_poses(ROBOT, 240, torch.Generator().manual_seed(7))

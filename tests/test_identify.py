@@ -19,9 +19,9 @@ from torchcal.effects import make_context
 from torchcal.errors import InputError
 from torchcal.calibration.intervals import (PoseIntervals, identify_intervals, identify_zones,
                                         pose_intervals, solution_map)
-from torchcal.io.files import Measurements
+from torchcal.measurements import Measurements
 from torchcal.calibration.model import CalibrationModel
-from torchcal.simulation.virtual_robot import random_poses
+from torchcal.robots.poses import random_poses
 
 DEG = torch.pi / 180
 

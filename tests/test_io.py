@@ -11,8 +11,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from torchcal.errors import InputError
-from torchcal.io.files import (JointLimitWarning, Measurements, format_measurements, read_measurements,
-                         write_measurements)
+from torchcal.measurements import Measurements
+from torchcal.io.measurement_csv import JointLimitWarning, format_measurements, read_measurements, write_measurements
 from torchcal.robots.robot import robot
 
 HEADER6 = "pose,q1,q2,q3,q4,q5,q6,x,y,z"

@@ -11,8 +11,10 @@ import torch
 
 import torchcal
 from torchcal.simulation import virtual_robot as sim
+from torchcal.robots.poses import random_poses
 from torchcal.cli import main
-from torchcal.io.files import Measurements, write_measurements
+from torchcal.measurements import Measurements
+from torchcal.io.measurement_csv import write_measurements
 
 ROBOT = "kr1000titan"
 N_TRAIN, N_TEST, FRACTION, OFFSET_MM = 240, 120, 0.02, 5.0
@@ -23,7 +25,7 @@ def data(tmp_path_factory):
     d = tmp_path_factory.mktemp("outliers")
     robot = torchcal.robot(ROBOT)
     vr = sim.VirtualRobot(robot, [], seed=11)
-    q = sim.random_poses(robot, N_TRAIN + N_TEST, torch.Generator().manual_seed(12))
+    q = random_poses(robot, N_TRAIN + N_TEST, torch.Generator().manual_seed(12))
     train = vr.measure(q[:N_TRAIN], noise_mm=0.02)
     test = vr.measure(q[N_TRAIN:], noise_mm=0.02)
     write_measurements(d / "clean.csv", train)

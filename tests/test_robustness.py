@@ -14,8 +14,10 @@ import torch
 
 import torchcal
 from torchcal.simulation import virtual_robot as sim
+from torchcal.robots.poses import random_poses
 from torchcal.cli import main
-from torchcal.io.files import Measurements, write_measurements
+from torchcal.measurements import Measurements
+from torchcal.io.measurement_csv import write_measurements
 
 ROBOT = "kr1000titan"
 
@@ -29,7 +31,7 @@ def work(tmp_path_factory):
     d = tmp_path_factory.mktemp("robust")
     robot = torchcal.robot(ROBOT)
     vr = sim.VirtualRobot(robot, [], seed=1)
-    q = sim.random_poses(robot, 30, torch.Generator().manual_seed(2))
+    q = random_poses(robot, 30, torch.Generator().manual_seed(2))
     m = vr.measure(q, noise_mm=0.02)
     write_measurements(d / "good.csv", m)
     m3 = m.subset(slice(0, 3))

@@ -16,7 +16,7 @@ from torch.testing import assert_close
 
 from torchcal.cli import main
 from torchcal.effects import make_context
-from torchcal.io.files import read_measurements, write_measurements
+from torchcal.io.measurement_csv import read_measurements, write_measurements
 from torchcal.simulation.virtual_robot import VirtualRobot, random_poses
 
 

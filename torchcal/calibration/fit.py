@@ -118,7 +118,7 @@ def _generic_rank(model: CalibrationModel, ctx: Context, cand, rank_tol: float) 
     """Number of parameters identifiable at random poses inside the joint limits (the
     data's payload / temperature values reused in turn): what enough poses would give."""
     from torchcal.effects import make_context
-    from torchcal.simulation.virtual_robot import random_poses
+    from torchcal.robots.poses import random_poses
 
     robot = model.robot
     n = int(cand.sum()) + 16

@@ -109,7 +109,7 @@ class PoseIntervals:
 
 
 def pose_intervals(meas, min_repeats: int = 1) -> PoseIntervals:
-    """Group a `torchcal.io.files.Measurements` by pose id into per-axis intervals.
+    """Group a `torchcal.measurements.Measurements` by pose id into per-axis intervals.
 
     Rows of one pose must share their commanded joint angles (within 1e-9 rad); raises
     InputError otherwise or when a pose has fewer than `min_repeats` rows.

@@ -93,7 +93,7 @@ def read_data(path, robot):
     import sys
     import warnings
 
-    from torchcal.io.files import JointLimitWarning, read_measurements
+    from torchcal.io.measurement_csv import JointLimitWarning, read_measurements
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", JointLimitWarning)

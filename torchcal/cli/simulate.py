@@ -46,7 +46,8 @@ def run(args) -> int:
     import torch
 
     import torchcal
-    from torchcal.io.files import write_json, write_measurements
+    from torchcal.io.measurement_csv import write_measurements
+    from torchcal.io.files import write_json
     from torchcal.simulation.virtual_robot import VirtualRobot, random_poses
     from torchcal.effects.spec import parse_specs
 

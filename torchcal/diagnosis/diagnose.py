@@ -47,7 +47,7 @@ import torch
 
 from torchcal.effects import make_context
 from torchcal.calibration.fit import FitResult, fit
-from torchcal.io.files import Measurements
+from torchcal.measurements import Measurements
 from torchcal.calibration.model import CalibrationModel
 from torchcal.robots.robot import Robot
 from torchcal.effects.spec import EFFECTS, parse_specs

@@ -36,33 +36,14 @@ from torchcal.effects import make_context
 from torchcal.effects.joint_clearance import random_basis
 from torchcal.effects.joint_compliance import JointCompliance
 from torchcal.errors import InputError
-from torchcal.io.files import Measurements
+from torchcal.measurements import Measurements
 from torchcal.calibration.model import CalibrationModel
+from torchcal.robots.poses import random_poses
 from torchcal.robots.robot import Robot
 from torchcal.effects.spec import parse_specs
 from torchcal.reliability.uncertainty import ClearanceModel
 
 GEOMETRIC_SIZE = (2e-2, 0.5, 0.5, 2e-2, 2e-2)  # dtheta deg, dd mm, da mm, dalpha deg, dbeta deg
-
-
-def random_poses(robot: Robot, n: int, generator: torch.Generator | int, margin: float = 0.1,
-                 min_z_mm: float | None = 0.0) -> torch.Tensor:
-    """n joint vectors (n, dof) rad uniform inside the limits shrunk by `margin` of each
-    range (wrist joints limited to +-180 deg), keeping TCP z > min_z_mm (the floor).
-    `generator`: a torch.Generator, or an int seed for a new one."""
-    if isinstance(generator, int):
-        generator = torch.Generator().manual_seed(generator)
-    lo, hi = robot.limits[:, 0].clone(), robot.limits[:, 1].clone()
-    lo, hi = lo.clamp_min(-torch.pi), hi.clamp_max(torch.pi)
-    span = hi - lo
-    lo, hi = lo + margin * span, hi - margin * span
-    out = []
-    while sum(len(o) for o in out) < n:
-        q = lo + (hi - lo) * torch.rand(2 * n + 16, robot.n, generator=generator, dtype=robot.dtype)
-        if min_z_mm is not None:
-            q = q[robot.fk(q)[:, 2] > min_z_mm]
-        out.append(q)
-    return torch.cat(out)[:n]
 
 
 def default_masses(robot: Robot):

@@ -1,0 +1,307 @@
+"""The measurement CSV: ``pose,q1,...,qN,x,y,z[,payload_kg][,temp_c]`` (docs/formats.md).
+
+`read_measurements` / `write_measurements`: degrees and mm in the file, radians and mm in
+`Measurements`. The header is required, names are exact, columns may come in any order;
+every bad file gives one InputError line naming the file, ``line L (data row R)`` and the
+column. Joint angles outside the robot's limits warn (`JointLimitWarning`) unless
+``strict_limits=True``. Writes are atomic (`torchcal.io.files.atomic_write`).
+"""
+
+from __future__ import annotations
+
+import csv
+import io as _io
+import math
+import numbers
+import re
+import warnings
+from pathlib import Path
+
+import torch
+
+from torchcal.errors import InputError
+from torchcal.io.files import atomic_write
+from torchcal.measurements import _OPTIONAL, Measurements
+
+
+class JointLimitWarning(UserWarning):
+    """Measured joint angles lie outside the robot's nominal joint limits."""
+
+# ---------------------------------------------------------------------------------------
+# Measurement CSV
+# ---------------------------------------------------------------------------------------
+
+_INT64_MIN, _INT64_MAX = -(2 ** 63), 2 ** 63 - 1
+_POSE_RE = re.compile(r"\s*([+-]?[0-9]+)(?:\.0*)?\s*", re.ASCII)
+_QCOL_RE = re.compile(r"q([1-9][0-9]*)", re.ASCII)
+_LAYOUT = "pose,q1,...,qN,x,y,z[,payload_kg][,temp_c]"
+
+
+def _fail(path, msg: str):
+    """Raise InputError with a one-line message (line breaks escaped)."""
+    raise InputError(f"{path}: {msg}".replace("\r", "\\r").replace("\n", "\\n"))
+
+
+def _show(cell: str, width: int = 40) -> str:
+    """repr of a cell, cut to `width` characters for a one-line message."""
+    cell = cell.strip()
+    return repr(cell if len(cell) <= width else cell[:width] + "...")
+
+
+def _where(line: int, row: int, col: str) -> str:
+    return f"line {line} (data row {row}), column {col}"
+
+
+def _cell_float(path, cell: str, line: int, row: int, col: str, unit: str) -> float:
+    try:
+        v = float(cell)
+        ok = cell.isascii() and "_" not in cell
+    except ValueError:
+        ok = False
+    if not ok:
+        got = "an empty cell" if not cell.strip() else _show(cell)
+        _fail(path, f"{_where(line, row, col)}: expected a number ({unit}), got {got}")
+    if not math.isfinite(v):
+        _fail(path, f"{_where(line, row, col)}: expected a finite number ({unit}), got {_show(cell)}")
+    return v
+
+
+def _cell_pose(path, cell: str, line: int, row: int) -> int:
+    m = _POSE_RE.fullmatch(cell)
+    if m is None:
+        got = "an empty cell" if not cell.strip() else _show(cell)
+        _fail(path, f"{_where(line, row, 'pose')}: expected an integer pose id, got {got}")
+    digits = m.group(1)
+    v = int(digits) if len(digits) <= 25 else _INT64_MAX + 1  # no int() of huge digit strings
+    if not _INT64_MIN <= v <= _INT64_MAX:
+        _fail(path, f"{_where(line, row, 'pose')}: pose id {digits[:30]} does not fit in a 64-bit integer")
+    return v
+
+
+def _parse_header(path, names: list[str], n_expected: int | None, robot_name: str | None):
+    """Map column name -> field index; returns (cols, n_joints)."""
+    if len(names) == 1 and any(sep in names[0] for sep in ";\t|"):
+        _fail(path, f"line 1: expected comma-separated columns {_LAYOUT}, got {_show(names[0])}")
+    numeric = 0
+    for name in names:
+        try:
+            float(name)
+            numeric += 1
+        except ValueError:
+            pass
+    if numeric == len(names):
+        _fail(path, f"line 1: expected a header line {_LAYOUT}, got what looks like data; "
+                    "add the header")
+    cols: dict[str, int] = {}
+    qs: list[int] = []
+    for i, name in enumerate(names):
+        if name == "":
+            _fail(path, f"line 1, header column {i + 1}: empty column name; expected {_LAYOUT}")
+        if name in cols:
+            _fail(path, f"line 1, column {_show(name)}: duplicated header column (columns {cols[name] + 1} "
+                        f"and {i + 1})")
+        m = _QCOL_RE.fullmatch(name)
+        if m:
+            qs.append(int(m.group(1)))
+        elif name not in ("pose", "x", "y", "z") + _OPTIONAL:
+            _fail(path, f"line 1, column {_show(name)} (header column {i + 1}): unknown column; "
+                        f"expected {_LAYOUT} (exact lower-case names)")
+        cols[name] = i
+    for name in ("pose", "x", "y", "z"):
+        if name not in cols:
+            _fail(path, f"line 1: missing column {name}; expected {_LAYOUT}")
+    if n_expected is not None:
+        if len(qs) != n_expected:
+            who = f"robot {robot_name}" if robot_name else "the given n_joints"
+            found = ", ".join(f"q{k}" for k in sorted(qs)) or "none"
+            _fail(path, f"line 1: expected {n_expected} joints for {who}, found {len(qs)} "
+                        f"q-columns ({found})")
+        n = n_expected
+    else:
+        if not qs:
+            _fail(path, f"line 1: missing column q1; expected {_LAYOUT}")
+        n = max(qs)
+    for k in range(1, n + 1):
+        if f"q{k}" not in cols:
+            _fail(path, f"line 1: missing column q{k}; expected q1..q{n}")
+    for k in qs:
+        if k > n:
+            _fail(path, f"line 1, column q{k}: unknown column; expected q1..q{n}")
+    return cols, n
+
+
+def read_measurements(path, n_joints: int | None = None, robot=None,
+                      strict_limits: bool = False) -> Measurements:
+    """Read a measurement CSV (DESIGN.md): ``pose,q1,...,qN,x,y,z[,payload_kg][,temp_c]``.
+
+    Header: required, exact lower-case names, any column order, surrounding spaces ignored.
+    The q-columns must be exactly q1..qN; N must equal `n_joints` and/or `robot.n` when
+    given, else it is taken from the header. Blank lines are skipped; a UTF-8 byte order
+    mark is accepted. Cells: decimal numbers (finite; `pose` an integer, "7.0" accepted;
+    `payload_kg` >= 0); optional columns, when present, need a value in every row.
+
+    Angles outside `robot.limits` (when `robot` is given) raise a `JointLimitWarning`
+    naming the rows and joints, since real robots are often measured slightly outside
+    nominal limits; ``strict_limits=True`` makes it an InputError instead.
+
+    Every problem raises InputError with one line naming the file, the place
+    ("line L (data row R)": L counts file lines from 1 with the header as line 1,
+    R counts data rows from 1) and the column, and what was expected.
+
+    Returns: Measurements with q (N, n) in rad (converted from the file's degrees),
+    xyz (N, 3) mm, float64 on the CPU.
+    """
+    path = Path(path)
+    robot_name = getattr(robot, "name", None)
+    if n_joints is not None:
+        if isinstance(n_joints, bool) or not isinstance(n_joints, numbers.Integral) or n_joints < 1:
+            raise InputError(f"read_measurements: n_joints must be a positive integer, got {n_joints!r}")
+        n_joints = int(n_joints)
+    if robot is not None:
+        if n_joints is not None and n_joints != robot.n:
+            raise InputError(f"read_measurements: n_joints={n_joints} disagrees with robot "
+                             f"{robot_name} ({robot.n} joints)")
+        n_joints = robot.n
+    if not path.exists():
+        _fail(path, "measurement file does not exist")
+    if not path.is_file():
+        _fail(path, "measurement file is not a regular file")
+    try:
+        text = path.read_bytes().decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        _fail(path, f"not a UTF-8 text file (byte {exc.start}); expected a CSV {_LAYOUT}")
+    except OSError as exc:
+        _fail(path, f"cannot read the measurement file: {exc.strerror or exc}")
+    if not text.strip():
+        _fail(path, f"empty file; expected a header line {_LAYOUT} and data rows")
+    reader = csv.reader(_io.StringIO(text, newline=None), strict=True)
+    try:
+        header, cols, n = None, None, None
+        rows: list[tuple[int, list[str]]] = []
+        for fields in reader:
+            if not fields or all(not f.strip() for f in fields) and len(fields) == 1:
+                continue  # blank line
+            if header is None:
+                header = [f.strip() for f in fields]
+                cols, n = _parse_header(path, header, n_joints, robot_name)
+                continue
+            rows.append((reader.line_num, fields))
+    except csv.Error as exc:
+        _fail(path, f"line {reader.line_num}: not valid CSV: {exc}")
+    if not rows:
+        _fail(path, "has a header but no data rows")
+
+    width = len(header)
+    qi = [cols[f"q{k}"] for k in range(1, n + 1)]
+    xi = [cols[c] for c in "xyz"]
+    opt = [c for c in _OPTIONAL if c in cols]
+    N = len(rows)
+    pose = [0] * N
+    q_deg = [[0.0] * n for _ in range(N)]
+    xyz = [[0.0] * 3 for _ in range(N)]
+    extra = {c: [0.0] * N for c in opt}
+    for r, (line, fields) in enumerate(rows):
+        if len(fields) != width:
+            _fail(path, f"line {line} (data row {r + 1}): expected {width} fields as in the "
+                        f"header, found {len(fields)}")
+        row = r + 1
+        pose[r] = _cell_pose(path, fields[cols["pose"]], line, row)
+        qr = q_deg[r]
+        for j, i in enumerate(qi):
+            qr[j] = _cell_float(path, fields[i], line, row, f"q{j + 1}", "degrees")
+        pr = xyz[r]
+        for j, i in enumerate(xi):
+            pr[j] = _cell_float(path, fields[i], line, row, "xyz"[j], "mm")
+        for c in opt:
+            v = _cell_float(path, fields[cols[c]], line, row, c, "kg" if c == "payload_kg" else "degC")
+            if c == "payload_kg" and v < 0:
+                _fail(path, f"{_where(line, row, c)}: payload must be >= 0 kg, got {_show(fields[cols[c]])}")
+            extra[c][r] = v
+
+    q = torch.deg2rad(torch.tensor(q_deg, dtype=torch.float64).reshape(N, n))  # (N, n) rad
+    m = Measurements(
+        pose=torch.tensor(pose, dtype=torch.int64),
+        q=q,
+        xyz=torch.tensor(xyz, dtype=torch.float64).reshape(N, 3),
+        payload_kg=torch.tensor(extra["payload_kg"], dtype=torch.float64) if "payload_kg" in extra else None,
+        temp_c=torch.tensor(extra["temp_c"], dtype=torch.float64) if "temp_c" in extra else None,
+        source=str(path),
+    )
+    if robot is not None:
+        _check_limits(path, m, robot, [line for line, _ in rows], strict_limits)
+    return m
+
+
+def _check_limits(path, m: Measurements, robot, lines: list[int], strict: bool) -> None:
+    lim = torch.rad2deg(robot.limits.detach().to("cpu", torch.float64))  # (n, 2) deg
+    qd = torch.rad2deg(m.q)  # (N, n) deg, as rounded from the file's degrees
+    # half a micro-degree of slack so a value written at the limit itself is never flagged
+    eps = 5e-7
+    out = (qd < lim[:, 0] - eps) | (qd > lim[:, 1] + eps)  # (N, n)
+    if not out.any():
+        return
+    bad = out.nonzero().tolist()
+    shown = [f"line {lines[r]} q{j + 1}={qd[r, j].item():.6g} deg "
+             f"(limits {lim[j, 0].item():.6g}..{lim[j, 1].item():.6g})" for r, j in bad[:5]]
+    more = f"; and {len(bad) - 5} more out-of-limit values" if len(bad) > 5 else ""
+    rows = int(out.any(1).sum())
+    msg = (f"{path}: {rows} row(s) outside the joint limits of robot {robot.name}: "
+           f"{'; '.join(shown)}{more}")
+    if strict:
+        raise InputError(msg)
+    warnings.warn(msg, JointLimitWarning, stacklevel=3)
+
+
+def _fmt(v: float) -> str:
+    """Shortest text that reads back to exactly the same float64."""
+    return repr(float(v))
+
+
+def _fmt_deg(v: float) -> str:
+    """Joint angle in degrees to 15 significant digits (1e-15 relative).
+
+    Degrees cannot carry the exact float64 of an angle in rad (deg -> rad -> deg moves
+    the last bit or two), so they are written to 15 digits, which a read + write turns
+    back into the same text: re-writing a file read from disk changes nothing.
+    """
+    text = "%.15g" % v
+    return text if ("." in text or "e" in text or "n" in text) else text + ".0"
+
+
+def format_measurements(m: Measurements) -> str:
+    """The CSV text of `m`: joint angles in degrees, positions in mm.
+
+    Deterministic: header in the canonical order ``pose,q1..qN,x,y,z[,payload_kg][,temp_c]``,
+    xyz / payload_kg / temp_c in Python's shortest exact repr (they round-trip bit for
+    bit), joint angles in degrees to 15 significant digits (they round-trip to ~1e-15
+    relative, and writing what was read reproduces the text).
+    """
+    n = m.n
+    opt = [c for c in _OPTIONAL if getattr(m, c) is not None]
+    header = ["pose", *(f"q{k}" for k in range(1, n + 1)), "x", "y", "z", *opt]
+    pose = m.pose.cpu().tolist()
+    qd = torch.rad2deg(m.q.detach().cpu().to(torch.float64)).T.tolist()  # n lists of N deg
+    xyz = m.xyz.detach().cpu().to(torch.float64).T.tolist()  # 3 lists of N mm
+    extra = [getattr(m, c).detach().cpu().to(torch.float64).tolist() for c in opt]
+    lines = [",".join(header)]
+    for r in range(len(m)):
+        cells = [str(int(pose[r]))]
+        cells += [_fmt_deg(c[r]) for c in qd]
+        cells += [_fmt(c[r]) for c in xyz]
+        cells += [_fmt(c[r]) for c in extra]
+        lines.append(",".join(cells))
+    return "\n".join(lines) + "\n"
+
+
+def write_measurements(path, m: Measurements, force: bool = False, inputs=()) -> Path:
+    """Atomically write `m` as a measurement CSV (joint angles in degrees, mm).
+
+    Refuses to replace an existing file unless `force`, and never writes over `m.source`
+    or any of `inputs` (DESIGN.md: nothing written over an input file).
+    """
+    if not isinstance(m, Measurements):
+        raise InputError(f"write_measurements: expected Measurements, got {type(m).__name__}")
+    if len(m) == 0:
+        raise InputError(f"{path}: refusing to write a measurement file with no rows")
+    return atomic_write(path, format_measurements(m), force=force, inputs=(m.source, *inputs))
+

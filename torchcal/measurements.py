@@ -1,0 +1,146 @@
+"""`Measurements`: measured TCP positions at commanded joint angles (the core data type).
+
+One row per measurement, in the order the measurements were taken; radians and mm inside.
+Reading and writing the CSV form lives in `torchcal.io.measurement_csv`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+
+from torchcal.errors import InputError
+
+_OPTIONAL = ("payload_kg", "temp_c")
+
+def _as_float(t, name: str) -> torch.Tensor:
+    t = torch.as_tensor(t)
+    if not t.is_floating_point():
+        t = t.to(torch.float64)
+    if not torch.isfinite(t).all():
+        raise InputError(f"Measurements.{name}: values must be finite")
+    return t
+
+
+@dataclass(frozen=True, eq=False)
+class Measurements:
+    """Measured TCP positions at commanded joint angles, one row per measurement.
+
+    Rows are in the order the measurements were taken (DESIGN.md, "Measurement file").
+
+    Attributes:
+        pose: (N,) int64 pose ids; repeated measurements of one commanded pose share an id.
+        q: (N, n) commanded joint angles in rad (the file holds degrees).
+        xyz: (N, 3) measured TCP positions in mm, robot base frame.
+        payload_kg: (N,) payload mass in kg (>= 0), or None when the file has no column.
+        temp_c: (N,) temperature in degrees Celsius, or None.
+        source: the file these came from, or None.
+        q_prev: (N, n) rad, the commanded joint angles the robot moved *from* to reach each
+            row: the previous row, all-zero joints before the first row. Computed from `q`
+            when not given, and carried by `subset`, so direction-dependent effects
+            (backlash) stay right on a subset. Not stored in the file: writing a subset
+            and reading it back recomputes it from the subset's own order.
+
+    The constructor checks shapes and finiteness and raises InputError naming the field.
+    """
+
+    pose: torch.Tensor
+    q: torch.Tensor
+    xyz: torch.Tensor
+    payload_kg: torch.Tensor | None = None
+    temp_c: torch.Tensor | None = None
+    source: str | None = None
+    q_prev: torch.Tensor | None = field(default=None, repr=False)
+
+    def __post_init__(self):
+        set_ = object.__setattr__
+        pose = torch.as_tensor(self.pose)
+        if pose.is_floating_point() or pose.is_complex() or pose.dtype == torch.bool:
+            raise InputError(f"Measurements.pose: expected integer pose ids, got dtype {pose.dtype}")
+        pose = pose.to(torch.int64)
+        if pose.ndim != 1:
+            raise InputError(f"Measurements.pose: expected shape (N,), got {tuple(pose.shape)}")
+        N = pose.shape[0]
+        q = _as_float(self.q, "q")
+        if q.ndim != 2 or q.shape[0] != N or q.shape[1] < 1:
+            raise InputError(f"Measurements.q: expected shape ({N}, n) rad, got {tuple(q.shape)}")
+        xyz = _as_float(self.xyz, "xyz")
+        if tuple(xyz.shape) != (N, 3):
+            raise InputError(f"Measurements.xyz: expected shape ({N}, 3) mm, got {tuple(xyz.shape)}")
+        set_(self, "pose", pose)
+        set_(self, "q", q)
+        set_(self, "xyz", xyz)
+        for name in _OPTIONAL:
+            v = getattr(self, name)
+            if v is None:
+                continue
+            v = _as_float(v, name)
+            if tuple(v.shape) != (N,):
+                raise InputError(f"Measurements.{name}: expected shape ({N},), got {tuple(v.shape)}")
+            if name == "payload_kg" and (v < 0).any():
+                raise InputError("Measurements.payload_kg: payload must be >= 0 kg")
+            set_(self, name, v)
+        if self.source is not None:
+            set_(self, "source", str(self.source))
+        if self.q_prev is None:
+            set_(self, "q_prev", torch.cat([torch.zeros_like(q[:1]), q[:-1]]) if N else q.clone())
+        else:
+            qp = _as_float(self.q_prev, "q_prev")
+            if qp.shape != q.shape:
+                raise InputError(f"Measurements.q_prev: expected shape {tuple(q.shape)} rad, "
+                                 f"got {tuple(qp.shape)}")
+            set_(self, "q_prev", qp)
+
+    def __len__(self) -> int:
+        return self.pose.shape[0]
+
+    @property
+    def n(self) -> int:
+        """Number of joints (q-columns)."""
+        return self.q.shape[1]
+
+    @property
+    def q_deg(self) -> torch.Tensor:
+        """(N, n) commanded joint angles in degrees."""
+        return torch.rad2deg(self.q)
+
+    def subset(self, index) -> "Measurements":
+        """The rows selected by `index`, kept in measurement (file) order.
+
+        `index`: a slice, a (N,) bool mask, or integer row indices (negative allowed;
+        repeats allowed, e.g. for a bootstrap). Whatever the order of `index`, the rows come
+        out in the order they were measured; `q_prev` keeps each row's true predecessor.
+        """
+        N = len(self)
+        if isinstance(index, slice):
+            rows = torch.arange(N)[index]
+        else:
+            idx = torch.as_tensor(index)
+            if idx.dtype == torch.bool:
+                if tuple(idx.shape) != (N,):
+                    raise InputError(f"subset: a bool mask must have shape ({N},), got {tuple(idx.shape)}")
+                rows = idx.nonzero().flatten()
+            elif idx.is_floating_point() or idx.is_complex():
+                raise InputError(f"subset: expected integer row indices or a bool mask, got dtype {idx.dtype}")
+            else:
+                rows = idx.to(torch.int64).flatten()
+                if rows.numel() and (rows.min() < -N or rows.max() >= N):
+                    raise InputError(f"subset: row indices must lie in [-{N}, {N}), got "
+                                     f"{rows.min().item()}..{rows.max().item()}")
+                rows = torch.where(rows < 0, rows + N, rows)
+        rows = rows.sort().values
+
+        def take(t):
+            return None if t is None else t[rows.to(t.device)]
+        return Measurements(take(self.pose), take(self.q), take(self.xyz), take(self.payload_kg),
+                            take(self.temp_c), self.source, take(self.q_prev))
+
+    def to(self, device=None, dtype=None) -> "Measurements":
+        """A copy on `device`; floating tensors cast to `dtype` (pose stays int64)."""
+        def mv(t):
+            if t is None:
+                return None
+            return t.to(device=device, dtype=dtype if t.is_floating_point() else None)
+        return Measurements(mv(self.pose), mv(self.q), mv(self.xyz), mv(self.payload_kg),
+                            mv(self.temp_c), self.source, mv(self.q_prev))

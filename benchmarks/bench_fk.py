@@ -1,6 +1,6 @@
 """Perturbed forward kinematics: TCP positions per second for (parameter set x pose) pairs.
 
-The sweep of PAPER.md evaluates every workspace point under many perturbed MD-H tables.
+The sweep of docs/paper.md evaluates every workspace point under many perturbed MD-H tables.
 This script times that workload, in one run on one machine, three ways:
 
 - torchcal: `Robot.fk(q, params)` with q (P, n) and params (M, 1, n, 5) -> (M, P, 3) mm;

@@ -7,7 +7,7 @@ What is checked, and against what:
   and against a float64 pytorch-kinematics chain built from the same frames (1e-9 mm);
 - the analytic parameter and joint Jacobians against autograd (torch.func.jacrev, 1e-9
   relative in float64) and central finite differences;
-- KR 1000 Titan TCP positions worked out by hand from PAPER.md Table 1;
+- KR 1000 Titan TCP positions worked out by hand from docs/paper.md Table 1;
 - consistency: fk == fk_pose translation == last frame, broadcasting == a loop,
   chunked == unchunked;
 - bad input raises ValueError (InputError) naming what was expected; dtype and device
@@ -186,7 +186,7 @@ def test_urdf_builder_agrees_with_float64_chain():
                                b.forward_kinematics(q).get_matrix()[:, :3, 3], atol=2e-3, rtol=0)
 
 
-# -- KR 1000 Titan by hand (PAPER.md Table 1) ------------------------------------------
+# -- KR 1000 Titan by hand (docs/paper.md Table 1) ------------------------------------------
 # q = 0: A1 puts joint 2 at (600, 0, 1100) with Rx(-90); a2 = 1400 and a3 = 65 run along
 # +x to (2065, 0, 1100); Rx(-90) twice points z down, d4 = 1200 and d6 = 372 go down.
 HAND = [

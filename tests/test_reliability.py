@@ -1,6 +1,6 @@
 """Tests of torchcal.reliability.rset: eta (eq. 23) and R_set (eq. 24).
 
-- PAPER.md Table 3: the six rows that agree with R_set = 2.5 / s^u, to the digits the
+- docs/paper.md Table 3: the six rows that agree with R_set = 2.5 / s^u, to the digits the
   paper prints; the two rows that agree with no formula (0.7, 0.685), asserted NOT to
   match ours nor any of the candidate readings of eq. 24 that we tried.
 - crisp vs interval allowed limits: closed forms ("fully safe + half undetermined"),
@@ -26,7 +26,7 @@ from torchcal.reliability.rset import eta, interference, r_set
 
 DEVICES = ("cpu",) + (("cuda",) if torch.cuda.is_available() else ())
 
-# PAPER.md Table 3: (distance-error upper bound s^u in mm, R_set as printed)
+# docs/paper.md Table 3: (distance-error upper bound s^u in mm, R_set as printed)
 TABLE3_AGREEING = (
     (2.541205104, "0.984"),
     (2.577056405, "0.97"),

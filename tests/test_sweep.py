@@ -105,7 +105,7 @@ def test_deviations_match_the_moved_axes_to_second_order(name):
 
 
 def test_eq14_twist_columns_match_autograd():
-    """G of PAPER.md eq. 14 = A^-1 dA/dp (body twist in the link's end frame), any theta."""
+    """G of docs/paper.md eq. 14 = A^-1 dA/dp (body twist in the link's end frame), any theta."""
     from torchcal.reliability.uncertainty import _link_twist_columns
     g = torch.Generator().manual_seed(0)
     scale = torch.tensor([1.0, 300.0, 300.0, 1.0, 0.3], dtype=torch.float64)
@@ -207,7 +207,7 @@ def test_workspace_errors(kr):
 
 # -- the sweep --------------------------------------------------------------------------------
 def test_default_kr1000_reliability_spread_as_in_table3(kr):
-    """PAPER.md Table 3: R_set from 0.685 to 1 at an allowed distance error of 2.5 mm."""
+    """docs/paper.md Table 3: R_set from 0.685 to 1 at an allowed distance error of 2.5 mm."""
     r = sweep(kr, n_points=100, n_samples=300, allowed_mm=2.5, seed=0)
     assert 0.65 <= r.r_set.min().item() <= 0.8
     assert r.r_set.max().item() == 1.0

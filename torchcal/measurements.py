@@ -27,7 +27,7 @@ def _as_float(t, name: str) -> torch.Tensor:
 class Measurements:
     """Measured TCP positions at commanded joint angles, one row per measurement.
 
-    Rows are in the order the measurements were taken (DESIGN.md, "Measurement file").
+    Rows are in the order the measurements were taken (docs/design.md, "Measurement file").
 
     Attributes:
         pose: (N,) int64 pose ids; repeated measurements of one commanded pose share an id.

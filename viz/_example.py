@@ -3,7 +3,7 @@
 The KR 1000 Titan's nominal forward kinematics places 400 random poses in its workspace;
 a made-up distance-error interval grows towards the edge of the workspace (as in the
 paper, level 1 at the centre, level 4 at the edge), R_set = min(1, 2.5 / s_upper) as in
-PAPER.md Table 3; 4 levels by R_set quantiles, then 3/2/3/2 sub-zones in space by k-means
+docs/paper.md Table 3; 4 levels by R_set quantiles, then 3/2/3/2 sub-zones in space by k-means
 (10 zones). Error intervals of 20 test points and residuals are made up as well. None of
 this is a calibration result: `torchcal demo` produces the real ones.
 

@@ -1,13 +1,13 @@
 """Interval identification: repeated measurements -> interval parameter deviations per zone.
 
-PAPER.md section 5 (eq. 29) with interval errors. The paper leaves open how interval
+docs/paper.md section 5 (eq. 29) with interval errors. The paper leaves open how interval
 errors enter eq. 29; torchcal decides it as follows (midpoint-radius propagation through
 the linearised solution map).
 
 1. **Interval errors per pose.** Each commanded pose j is measured K times. Per axis the
    measured positions span ``[min_k, max_k]``; with the model's prediction ``p_j`` at the
    current parameters the error interval is ``e_j = [min_k - p_j, max_k - p_j]`` (mm),
-   in centre/radius form ``e_c``, ``e_r`` (PAPER.md eq. 23's notation).
+   in centre/radius form ``e_c``, ``e_r`` (docs/paper.md eq. 23's notation).
 2. **Centre.** The centre parameters ``x_c`` solve the *nonlinear* least-squares problem
    on the interval centres (the mid-range of the repeated measurements) by
    Levenberg-Marquardt (`torchcal.calibration.lm`, eq. 29 with adaptive mu starting at 1e-3), over
@@ -237,7 +237,7 @@ def batched_predict(model: CalibrationModel, x: torch.Tensor, ctxs: list[Context
 def batched_jacobian(model: CalibrationModel, x: torch.Tensor, ctxs: list[Context]) -> torch.Tensor:
     """d positions / d x for B zones: (B, m, 3, P).
 
-    Geometric-only models: the analytic MD-H parameter Jacobian (PAPER.md eq. 17);
+    Geometric-only models: the analytic MD-H parameter Jacobian (docs/paper.md eq. 17);
     otherwise forward-mode autodiff of `batched_predict`.
     """
     robot = model.robot

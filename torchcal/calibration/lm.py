@@ -1,4 +1,4 @@
-"""Damped least squares / Levenberg-Marquardt (PAPER.md eq. 29), batched.
+"""Damped least squares / Levenberg-Marquardt (docs/paper.md eq. 29), batched.
 
 Solves ``min_x 0.5 |w * r(x)|^2`` for a batch of independent problems at once (one per
 zone): ``x (B, P)``, ``r (B, R)``. Each batch element keeps its own damping mu and its

@@ -1,4 +1,4 @@
-"""`torchcal partition`: hierarchical FCM partition of a sweep (PAPER.md section 4).
+"""`torchcal partition`: hierarchical FCM partition of a sweep (docs/paper.md section 4).
 
     torchcal partition SWEEP.csv --levels 4 [--zones 3,2,3,2 | auto] [--seed S]
                        --out PARTITION.json [--force]

@@ -1,4 +1,4 @@
-"""`torchcal sweep`: reliability of positioning over the workspace (PAPER.md section 6).
+"""`torchcal sweep`: reliability of positioning over the workspace (docs/paper.md section 6).
 
     torchcal sweep --robot kr1000titan --n 100 --samples 300 --allowed 2.5 --seed 0 --out sweep.csv
 

@@ -1,4 +1,4 @@
-"""Which physical effect is the model missing? (DESIGN.md "Diagnosis")
+"""Which physical effect is the model missing? (docs/design.md "Diagnosis")
 
 1. Fit the current model (geometric + chosen effects) to all rows; residuals r (N, 3).
 2. Where it fails: residual RMS per joint-angle quartile and per workspace region.

@@ -1,4 +1,4 @@
-"""The physical-effects vocabulary (DESIGN.md): one module per effect.
+"""The physical-effects vocabulary (docs/design.md): one module per effect.
 
 `build(spec, robot)` turns an `EffectSpec` (or its text, e.g. 'joint_compliance:2,3')
 into an `Effect`. Joints are 1-based everywhere a person sees them.

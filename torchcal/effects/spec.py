@@ -1,6 +1,6 @@
 """Effect specs: the vocabulary of physical effects and the ``NAME[:J,...]`` parser.
 
-DESIGN.md, "Physical effects": one vocabulary for models, simulation, diagnosis and
+docs/design.md, "Physical effects": one vocabulary for models, simulation, diagnosis and
 reports. On the command line an effect is named ``NAME`` or ``NAME:J[,J...]`` with
 1-based joint numbers, e.g. ``joint_compliance:2,3``, ``gear_periodic:1``,
 ``thermal_expansion``.

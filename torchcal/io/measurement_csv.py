@@ -132,7 +132,7 @@ def _parse_header(path, names: list[str], n_expected: int | None, robot_name: st
 
 def read_measurements(path, n_joints: int | None = None, robot=None,
                       strict_limits: bool = False) -> Measurements:
-    """Read a measurement CSV (DESIGN.md): ``pose,q1,...,qN,x,y,z[,payload_kg][,temp_c]``.
+    """Read a measurement CSV (docs/design.md): ``pose,q1,...,qN,x,y,z[,payload_kg][,temp_c]``.
 
     Header: required, exact lower-case names, any column order, surrounding spaces ignored.
     The q-columns must be exactly q1..qN; N must equal `n_joints` and/or `robot.n` when
@@ -297,7 +297,7 @@ def write_measurements(path, m: Measurements, force: bool = False, inputs=()) ->
     """Atomically write `m` as a measurement CSV (joint angles in degrees, mm).
 
     Refuses to replace an existing file unless `force`, and never writes over `m.source`
-    or any of `inputs` (DESIGN.md: nothing written over an input file).
+    or any of `inputs` (docs/design.md: nothing written over an input file).
     """
     if not isinstance(m, Measurements):
         raise InputError(f"write_measurements: expected Measurements, got {type(m).__name__}")

@@ -1,6 +1,6 @@
 """Batched MD-H kinematics: pure tensor kernels.
 
-MD-H link transform (PAPER.md eqs. 5-7), per joint i::
+MD-H link transform (docs/paper.md eqs. 5-7), per joint i::
 
     A_i = Rot(z, theta_i) Trans(z, d_i) Trans(x, a_i) Rot(x, alpha_i) Rot(y, beta_i)
 
@@ -202,7 +202,7 @@ def fk_positions(q, table, params=None, base=None, tool=None, chunk: int = DEFAU
 
 
 def param_jacobian(q, table, params=None, base=None, tool=None) -> torch.Tensor:
-    """Analytic position Jacobian dP/d[params] (PAPER.md eqs. 14-18).
+    """Analytic position Jacobian dP/d[params] (docs/paper.md eqs. 14-18).
 
     q (..., n) rad, params (..., n, 5) or None -> (..., 3, 5n), columns ordered as
     ``params.reshape(..., 5n)``: joint 1's [dtheta, dd, da, dalpha, dbeta], joint 2's...

@@ -1,4 +1,4 @@
-"""Fuzzy c-means in torch (PAPER.md section 4, eqs. 26-28), validity indices, and a
+"""Fuzzy c-means in torch (docs/paper.md section 4, eqs. 26-28), validity indices, and a
 scikit-learn style estimator.
 
 The maths. Points x_j (N of them, d features), c centres v_i, memberships u_ij with

@@ -1,4 +1,4 @@
-"""Hierarchical workspace partition by fuzzy c-means (PAPER.md section 4).
+"""Hierarchical workspace partition by fuzzy c-means (docs/paper.md section 4).
 
 Two levels of FCM (`torchcal.partition.fcm`, m = 2 by default):
 

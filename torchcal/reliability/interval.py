@@ -1,7 +1,7 @@
 """Interval tensors: lower/upper and centre/radius form.
 
 An `Interval` is a pair of tensors ``lower <= upper`` of one broadcast shape; every
-element is the closed interval ``[lower, upper]``. The centre/radius form (PAPER.md
+element is the closed interval ``[lower, upper]``. The centre/radius form (docs/paper.md
 eq. 23) is ``centre = (upper + lower) / 2``, ``radius = (upper - lower) / 2``.
 
 Interval arithmetic here is the plain (exact) arithmetic of independent intervals:

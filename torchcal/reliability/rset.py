@@ -8,7 +8,7 @@ Both functions take ``allowed`` and ``actual`` as pairs ``(lower, upper)``:
 
   * a number or tensor: a *crisp* limit;
   * an `Interval`: an *interval* limit, known only to lie in ``[l, u]`` (the allowed
-    error r of PAPER.md eqs. 20-22 when it is itself uncertain);
+    error r of docs/paper.md eqs. 20-22 when it is itself uncertain);
   * ``None`` or an infinity: no limit on that side (no failure mode there).
 
   Per axis, allowed +-a is ``(-a, a)``; for the distance error, allowed ``[0, D]`` is
@@ -143,7 +143,7 @@ def _mode_eta(num, den):
 
 
 def eta(allowed, actual) -> torch.Tensor:
-    """Non-probabilistic reliability index (PAPER.md eq. 23), elementwise.
+    """Non-probabilistic reliability index (docs/paper.md eq. 23), elementwise.
 
     Args:
         allowed: ``(L, U)``, each a number/tensor (crisp), an `Interval` or None.
@@ -183,7 +183,7 @@ def _segment(a, b, lo, hi):
 
 
 def r_set(allowed, actual) -> torch.Tensor:
-    """Non-probabilistic set reliability R_set (PAPER.md eq. 24), elementwise, in [0, 1].
+    """Non-probabilistic set reliability R_set (docs/paper.md eq. 24), elementwise, in [0, 1].
 
     Args:
         allowed: ``(L, U)``, each a number/tensor (crisp), an `Interval` or None.
@@ -195,7 +195,7 @@ def r_set(allowed, actual) -> torch.Tensor:
 
     Example::
 
-        >>> r_set((0.0, 2.5), (0.0, 2.541205104))   # PAPER.md Table 3, row 1
+        >>> r_set((0.0, 2.5), (0.0, 2.541205104))   # docs/paper.md Table 3, row 1
         tensor(0.9838, dtype=torch.float64)
     """
     sl, su, ll, lu, ul, uu = _prepare(allowed, actual)

@@ -1,6 +1,6 @@
 """Workspace sweep: interval envelopes of the TCP error and their reliability.
 
-PAPER.md section 6, "Latin hypercube sample of the workspace, repeated simulated moves to
+docs/paper.md section 6, "Latin hypercube sample of the workspace, repeated simulated moves to
 each point, distance-error interval per point, R_set":
 
 1. `sample_workspace`: a Latin hypercube (scipy.stats.qmc.LatinHypercube, explicit seed)
@@ -30,7 +30,7 @@ each point, distance-error interval per point, R_set":
    error [0, D] (torchcal.reliability.rset; eta with the upper limit only, see there), and,
    optionally, per axis for an allowed +-a.
 
-Default simulated KR 1000 Titan (torchcal.reliability.uncertainty.ClearanceModel.defaults: PAPER.md
+Default simulated KR 1000 Titan (torchcal.reliability.uncertainty.ClearanceModel.defaults: docs/paper.md
 Table 2 clearances, bearing length = shaft diameter, 200, 137, 99, 75.6, 60, 50 mm): at
 D = 2.5 mm, 100 points x 300 sets (seed 0) give R_set from 0.72 to 1, about half the
 points at 1, as in the paper's Table 3 (0.685 .. 1).
@@ -446,7 +446,7 @@ def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_m
         linear: also compute the linearised hull (needs the deviation box: from `model`,
             or the sample hull of `deviations` when those are given without a model).
         allowed_axis_mm: optional allowed +-a (mm) per axis: fills `r_set_axis` and
-            `eta_axis` (N, 3) (PAPER.md Table 5 uses +-1 mm).
+            `eta_axis` (N, 3) (docs/paper.md Table 5 uses +-1 mm).
         chunk: (point, set) evaluations per kernel call; the working memory is 7 buffers
             of `chunk` floats per thread. Default DEFAULT_CHUNK (16384) on a CPU,
             DEFAULT_CHUNK_GPU on a GPU. Results do not depend on it.

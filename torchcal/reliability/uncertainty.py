@@ -1,6 +1,6 @@
 """Joint clearance (shaft in hole), the paper's source of uncertainty, as MD-H deviations.
 
-PAPER.md section 6 / Table 2 (KR 1000 Titan, fits H6/h5): 12 radius variables DV1..DV12,
+docs/paper.md section 6 / Table 2 (KR 1000 Titan, fits H6/h5): 12 radius variables DV1..DV12,
 two per joint. We read them as the two bearing seats of each joint (DV1, DV2 -> joint 1,
 DV3, DV4 -> joint 2, ..., DV11, DV12 -> joint 6), each with its maximum radial clearance
 (the table's "max clearance" column, mm). The constants below are the table verbatim,
@@ -20,7 +20,7 @@ wall, ``|u_k| = c_k`` in a uniformly random direction (a loaded shaft leans on i
 and the extremes of every error lie there); ``mode="disc"`` draws u_k uniformly in the
 disc ``|u_k| <= c_k``.
 
-Mapping to MD-H deviations (`deviation_map`, first order, PAPER.md eq. 14): joint j's axis
+Mapping to MD-H deviations (`deviation_map`, first order, docs/paper.md eq. 14): joint j's axis
 is the z axis of frame j-1, the end frame of link j-1. The axis motion, expressed in that
 frame with its pivot at the frame's origin (on the axis), is produced by link j-1's
 deviations with dtheta_{j-1} = 0: the shift along x -> da_{j-1}, along y -> dd_{j-1}
@@ -53,7 +53,7 @@ from torchcal.kinematics import mdh as K
 from torchcal.errors import InputError
 from torchcal.reliability.interval import Interval
 
-# -- PAPER.md Table 2 (KR 1000 Titan), per radius variable DV1..DV12 -------------------
+# -- docs/paper.md Table 2 (KR 1000 Titan), per radius variable DV1..DV12 -------------------
 KR1000_SEAT_NAMES = (
     "base shaft", "turntable hole", "turntable hole", "upper-arm shaft (front)",
     "upper-arm shaft (end)", "forearm link hole", "forearm link shaft", "forearm hole (front)",
@@ -144,7 +144,7 @@ class ClearanceModel:
         """The default model of a preset: Table 2 and KR1000_BEARING_LENGTH_MM for kr1000titan."""
         if robot.name != "kr1000titan":
             raise InputError(f"no default clearance model for robot {robot.name!r} (only kr1000titan, "
-                             f"PAPER.md Table 2); build a ClearanceModel(radii_mm, clearance_mm, bearing_length_mm)")
+                             f"docs/paper.md Table 2); build a ClearanceModel(radii_mm, clearance_mm, bearing_length_mm)")
         return cls(KR1000_RADII_MM, KR1000_CLEARANCE_MM, KR1000_BEARING_LENGTH_MM)
 
     def max_shift_mm(self) -> torch.Tensor:
@@ -177,7 +177,7 @@ def _check_robot(robot, model: ClearanceModel):
 
 
 def _link_twist_columns(row: torch.Tensor) -> torch.Tensor:
-    """G (6, 5) of PAPER.md eq. 14: body twist [dx, dy, dz, deltax, deltay, deltaz] in the
+    """G (6, 5) of docs/paper.md eq. 14: body twist [dx, dy, dz, deltax, deltay, deltaz] in the
     link's end frame per unit deviation [dtheta, dd, da, dalpha, dbeta].
 
     row (5,) nominal [theta_offset, d, a, alpha, beta]; G does not depend on theta or d.

@@ -5,7 +5,7 @@ and calls the strict kernels of `torchcal.kinematics.mdh`.
 
 Presets (lengths mm, angles degrees in the tables below, radians inside):
 
-- ``kr1000titan``: PAPER.md Table 1, theta offsets zero as in the paper, Hayati beta on
+- ``kr1000titan``: docs/paper.md Table 1, theta offsets zero as in the paper, Hayati beta on
   joint 2. Joint limits from KUKA's data sheet (A1 +-150, A2 -130..+17.5 mapped to the
   MD-H zero, A3 -110..+145 shifted by -90 deg since MD-H q3 = 0 bends the forearm at a right angle, A4 +-350, A5 +-118, A6 +-350); rated payload 1000 kg.
 - ``ur5e``: Universal Robots' published DH (d1 162.5, a2 -425, a3 -392.2, d4 133.3,

@@ -1,4 +1,4 @@
-"""The paper's whole pipeline (PAPER.md sections 3-6) on a simulated KR 1000 Titan.
+"""The paper's whole pipeline (docs/paper.md sections 3-6) on a simulated KR 1000 Titan.
 
 `run_pipeline(DemoConfig())` is what `torchcal demo` runs. Steps:
 
@@ -6,7 +6,7 @@
    MD-H deviations (`geometric_scale` times 0.02 deg / 0.5 mm), a registration offset of
    the measurement frame (`base_frame`: a laser tracker's frame is never exactly the
    robot's base frame; translation `base_offset_mm`, tilt `base_tilt_deg`), joint
-   clearance on every joint (the paper's source, sized by PAPER.md Table 2 for this
+   clearance on every joint (the paper's source, sized by docs/paper.md Table 2 for this
    robot: each axis tilts up to (c_1 + c_2) / L in its bearing; the load pushes it to one
    side by (1 - `clearance_random`) of that, the rest is random per move) and
    measurement noise `noise_mm`.
@@ -87,7 +87,7 @@ from torchcal.reliability.sweep import SweepResult, sample_workspace, sweep
 AXES = ("x", "y", "z")
 BOUNDS = ("lower", "upper")
 ZONE_METHODS = ("damped", "independent")
-#: PAPER.md section 6, the headline reductions after partitioned compensation (percent).
+#: docs/paper.md section 6, the headline reductions after partitioned compensation (percent).
 PAPER_REDUCTION_PERCENT = {"x": {"lower": 40.16, "upper": 59.36}, "y": {"lower": 59.08, "upper": 40.87},
                            "z": {"lower": 54.24, "upper": 33.98}}
 
@@ -100,7 +100,7 @@ class DemoConfig:
         robot: preset name.
         seed: seed of every random draw.
         n_sweep: Latin-hypercube workspace points of the sweep.
-        sweep_source: "model" (default): the clearance interval model of PAPER.md Table 2
+        sweep_source: "model" (default): the clearance interval model of docs/paper.md Table 2
             (`torchcal.reliability.sweep.sweep`, `sweep_samples` clearance states per point), as the
             paper's simulation; "measured": `repeats` moves of the virtual robot to each
             point (`measured_sweep`), errors against the nominal targets.
@@ -115,7 +115,7 @@ class DemoConfig:
         base_offset_mm: measurement-frame translation (registration error).
         base_tilt_deg: measurement-frame rotation vector (degrees).
         clearance_mm: clearance size for robots without a Table 2 (`VirtualRobot`'s
-            effect_mm); the KR 1000 Titan's comes from PAPER.md Table 2.
+            effect_mm); the KR 1000 Titan's comes from docs/paper.md Table 2.
         clearance_random: share of the clearance tilt that is random per move.
         noise_mm: measurement noise (standard deviation per axis).
         model_effects: effects fitted with the geometric deviations (variants

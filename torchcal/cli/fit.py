@@ -35,7 +35,7 @@ def fit_file(args):
     m = read_data(args.data, robot)
     model = CalibrationModel(robot, specs)
     ctx = make_context(robot, m.q, m.payload_kg, m.temp_c)
-    return m, fit(model, ctx, m.xyz, robust=args.robust)
+    return m, fit(model, ctx, m.xyz, robust=args.robust, pose=m.pose)
 
 
 def _still_joints(m) -> list[str]:
@@ -59,6 +59,16 @@ def run(args) -> int:
         still = _still_joints(m)
         if still:
             print(f"joints that never move in {args.data}: {', '.join(still)}; move them to identify more")
+    if res.covariance is not None and rep.rank:
+        c = res.covariance
+        how = (f"pose-level over {len(set(m.pose.tolist()))} poses: noise {c.noise_mm:.4f} mm, "
+               f"pose-level error {c.pose_mm:.4f} mm" if c.method == "pose-level" else "rows")
+        print(f"parameter uncertainty ({how}; residual sigma {c.sigma_mm:.4f} mm per axis, "
+              f"{c.dof} dof); 95% interval by Student's t:")
+        for p in obj["parameters"]:
+            if p["identified"]:
+                print(f"  {p['name']:<16} {p['value']:+.6g} +- {p['std']:.3g} {p['unit']}  "
+                      f"[{p['ci95'][0]:+.6g}, {p['ci95'][1]:+.6g}]")
     if res.outliers:
         print(f"outliers (pose ids): {', '.join(map(str, obj['fit']['outlier_poses']))}")
     print(f"wrote {args.out}")

@@ -87,7 +87,7 @@ def test_model_is_self_contained_and_refuses_another_robot(tmp_path, capsys):
     (tmp_path / "d7.csv").write_text("pose,q1,q2,q3,q4,q5,q6,q7,x,y,z\n0,0,0,0,0,0,0,0,1,2,3\n")
     assert main(["evaluate", str(tmp_path / "d7.csv"), "--model", str(tmp_path / "m.json")]) == 2
     err = capsys.readouterr().err
-    assert "7 joints" in err and "'puma560' with 6 joints" in err
+    assert "found 7 joint columns" in err and "'puma560' with 6 joints" in err
 
 
 def test_old_model_file_with_preset_name_loads(fitted):

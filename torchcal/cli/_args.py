@@ -137,7 +137,10 @@ def check_data_joints(data, robot, model_path) -> None:
         return  # the reader's own message
     with open(p, newline="", encoding="utf-8-sig", errors="replace") as fh:
         header = next(csv.reader(fh), [])
-    n = sum(1 for h in header if re.fullmatch(r"q\d+", h.strip()))
-    if n and n != robot.n:
-        raise InputError(f"{data}: data of a robot with {n} joints (q1..q{n}), but {model_path} is a model "
-                         f"of robot {robot.name!r} with {robot.n} joints; refusing to apply it to another robot")
+    qs = [h.strip() for h in header if re.fullmatch(r"q\d+", h.strip())]
+    n = len(qs)
+    # only a well-formed header (q1..qN once each) is another robot's; else the reader's message
+    if n and sorted(qs) == sorted(f"q{k}" for k in range(1, n + 1)) and n != robot.n:
+        raise InputError(f"{data}: line 1: found {n} joint columns (q1..q{n}), expected {robot.n} joints: "
+                         f"{model_path} is a model of robot {robot.name!r} with {robot.n} joints; refusing to "
+                         f"apply it to data of another robot")

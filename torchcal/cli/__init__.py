@@ -17,7 +17,7 @@ from torchcal.errors import InputError
 
 COMMANDS = (
     "demo", "simulate", "fit", "evaluate", "diagnose", "discover",
-    "sweep", "partition", "calibrate", "compensate",
+    "sweep", "partition", "calibrate", "compensate", "plan", "accuracy",
 )
 
 

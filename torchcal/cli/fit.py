@@ -6,7 +6,7 @@ outliers by IRLS and lists their pose ids."""
 from __future__ import annotations
 
 from torchcal.io import modelfile
-from torchcal.cli._args import add_force, check_outputs, read_data
+from torchcal.cli._args import add_force, check_outputs, read_data, add_robot
 from torchcal.effects import make_context
 from torchcal.calibration.fit import fit
 from torchcal.io.files import write_json
@@ -19,7 +19,7 @@ def add_parser(sub):
     p = sub.add_parser("fit", help="fit geometric model + effects to a measurement CSV",
                        description=__doc__)
     p.add_argument("data", help="measurement CSV (docs/design.md)")
-    p.add_argument("--robot", required=True, help="preset robot name")
+    add_robot(p)
     p.add_argument("--effects", nargs="*", default=[], metavar="SPEC", help="effects, e.g. joint_compliance:2,3")
     p.add_argument("--robust", choices=["huber", "cauchy"], help="robust loss by IRLS")
     p.add_argument("--seed", type=int, default=0, help="recorded in the provenance")
@@ -51,7 +51,7 @@ def run(args) -> int:
     obj = modelfile.to_dict(res, source=args.data, seed=args.seed, robust=args.robust, pose_ids=m.pose.tolist())
     write_json(args.out, obj, force=args.force, inputs=[args.data])
     rep = res.report
-    print(f"fit {args.robot} + [{', '.join(res.model.specs()) or 'geometric only'}] on {len(m)} rows: "
+    print(f"fit {res.model.robot.name} + [{', '.join(res.model.specs()) or 'geometric only'}] on {len(m)} rows: "
           f"rms {res.rms_mm:.4f} mm, max {float(res.residuals.norm(dim=-1).max()):.4f} mm, "
           f"{rep.rank} identified parameters, condition {rep.condition:.3g}")
     if rep.held:

@@ -18,6 +18,7 @@ from torchcal.errors import InputError
 COMMANDS = (
     "demo", "simulate", "fit", "evaluate", "diagnose", "discover",
     "sweep", "partition", "calibrate", "compensate", "robot", "export",
+    "plan", "accuracy",
 )
 
 

@@ -87,7 +87,9 @@ class FitResult:
 
     theta: (P,) parameters; std: (P,) standard errors (0 where held); residuals: (N, 3)
     mm measured - model; weights: (N,) final robust weights (ones when not robust);
-    report: identifiability; outliers: row indices with weight below 0.1 (robust fits).
+    report: identifiability; outliers: row indices with weight below 0.1 (robust fits);
+    status: how the (last) LM solve stopped, 'converged', 'stalled' or 'max_iterations'
+    (`torchcal.calibration.lm.LMStatus`).
     """
 
     model: CalibrationModel
@@ -98,6 +100,12 @@ class FitResult:
     report: Identifiability
     n_iter: int
     outliers: list = field(default_factory=list)
+    status: str = "converged"
+
+    @property
+    def converged(self) -> bool:
+        """True only when the solver met its convergence rule (never for a stalled solve)."""
+        return self.status == "converged"
 
     @property
     def rms_mm(self) -> float:
@@ -190,4 +198,5 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
         cov = s2 * torch.linalg.pinv((J.T * w3) @ J)
         std[report.free] = torch.sqrt(torch.diagonal(cov).clamp_min(0))
     outliers = torch.nonzero(weights < 0.1).flatten().tolist() if robust else []
-    return FitResult(model, theta, std, resid, weights, report, int(res.n_iter[0]), outliers)
+    return FitResult(model, theta, std, resid, weights, report, int(res.n_iter[0]), outliers,
+                     res.status_labels()[0])

@@ -266,7 +266,8 @@ class IntervalFit:
         S: (P, 3m) linearised solution map at x_c (mm -> parameter units).
         residual_mm: (m, 3) interval centres minus model at x_c.
         error_radius_mm: (m, 3) half-range of the repeated measurements.
-        n_iter: LM iterations; converged: LM stopping rule met.
+        n_iter: LM iterations; converged: LM convergence rule met; status: 'converged',
+            'stalled' or 'max_iterations' (`torchcal.calibration.lm.LMStatus`).
         damping: mu of eq. 29 used for this zone (0: plain least squares).
     """
 
@@ -280,6 +281,7 @@ class IntervalFit:
     n_iter: int
     converged: bool
     damping: float = 0.0
+    status: str = "converged"
 
     @property
     def free(self) -> torch.Tensor:
@@ -313,7 +315,7 @@ class IntervalFit:
                 "lower": (self.theta - self.radius).tolist(), "upper": (self.theta + self.radius).tolist(),
                 "free": self.free.tolist(), "identifiability": self.report.to_dict(),
                 "rms_mm": self.rms_mm, "n_iter": self.n_iter, "converged": self.converged,
-                "damping": self.damping,
+                "status": self.status, "damping": self.damping,
                 "parameters": self.rows(degrees=True)}
 
 
@@ -419,7 +421,8 @@ def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
             radius = S.abs() @ er
             fits[z] = IntervalFit(model, res.x[b].clone(), radius, reports[b], S,
                                   target[b] - pred[b], datas[b].radius.to(xb),
-                                  int(res.n_iter[b]), bool(res.converged[b]), mus[b])
+                                  int(res.n_iter[b]), bool(res.converged[b]), mus[b],
+                                  res.status_labels()[b])
     return fits  # type: ignore[return-value]
 
 

@@ -53,7 +53,8 @@ def run(args) -> int:
     rep = res.report
     print(f"fit {args.robot} + [{', '.join(res.model.specs()) or 'geometric only'}] on {len(m)} rows: "
           f"rms {res.rms_mm:.4f} mm, max {float(res.residuals.norm(dim=-1).max()):.4f} mm, "
-          f"{rep.rank} identified parameters, condition {rep.condition:.3g}")
+          f"{rep.rank} identified parameters, condition {rep.condition:.3g}, solver {res.status} "
+          f"after {res.n_iter} iterations")
     if rep.held:
         print(f"held at nominal (not identifiable from these poses): {', '.join(rep.held)}")
         still = _still_joints(m)

@@ -2,11 +2,12 @@
 
     {"format": "torchcal-model/1", "robot": NAME, "effects": [SPEC...],
      "parameters": [{"name", "value", "unit", "std", "identified"}...],
-     "identifiability": {...}, "fit": {"n", "rms_mm", "max_mm", "robust", "outliers"},
+     "identifiability": {...}, "fit": {"n", "rms_mm", "max_mm", "robust", "outliers", "status"},
      "provenance": {"input", "input_sha256", "torchcal_version", "seed"}}
 
 Values are in the units named beside them (mm, rad, 1/K, ...); ``std`` is the standard
-error (0 for parameters held at nominal). Loading rebuilds the `CalibrationModel` and
+error (0 for parameters held at nominal); ``fit.status`` is how the solver stopped
+('converged', 'stalled' or 'max_iterations'). Loading rebuilds the `CalibrationModel` and
 theta exactly (floats are written with full precision).
 """
 
@@ -45,7 +46,8 @@ def to_dict(res: FitResult, source=None, seed: int = 0, robust=None, pose_ids=No
                                      res.std.tolist(), res.report.free.tolist())],
         "identifiability": res.report.to_dict(),
         "fit": {"n": int(res.residuals.shape[0]), "rms_mm": res.rms_mm, "max_mm": float(dist.max()),
-                "robust": robust, "outlier_poses": outliers, "iterations": res.n_iter},
+                "robust": robust, "outlier_poses": outliers, "iterations": res.n_iter,
+                "status": res.status},
         "provenance": {"input": None if source is None else str(source),
                        "input_sha256": None if source is None else file_sha256(source),
                        "torchcal_version": torchcal.__version__, "seed": seed},

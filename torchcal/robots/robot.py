@@ -51,6 +51,20 @@ class Robot:
     payload_kg: float = 0.0
     gravity: torch.Tensor = field(default_factory=lambda: torch.tensor([0.0, 0.0, -1.0], dtype=torch.float64))
 
+    def __eq__(self, other) -> bool:
+        """Equal robots: same name, payload and tensors (values, dtype and device)."""
+        if not isinstance(other, Robot):
+            return NotImplemented
+        return (self.name == other.name and self.payload_kg == other.payload_kg
+                and all(a.dtype == b.dtype and a.device == b.device and a.shape == b.shape and torch.equal(a, b)
+                        for a, b in zip(self._tensors(), other._tensors())))
+
+    def __hash__(self) -> int:
+        return hash((self.name, self.n))
+
+    def _tensors(self):
+        return self.table, self.has_beta, self.limits, self.base, self.tool, self.gravity
+
     @property
     def n(self) -> int:
         """Number of joints."""

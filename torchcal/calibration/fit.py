@@ -110,6 +110,15 @@ class FitResult:
         """True only when the solver met its convergence rule (never for a stalled solve)."""
         return self.status == "converged"
 
+    def to_dict(self, source=None, seed: int = 0, robust=None, pose_ids=None) -> dict:
+        """The MODEL.json object of ``torchcal fit`` (`torchcal.io.modelfile.to_dict`):
+        format, robot, effects, parameters (value, unit, std, ci95), covariance,
+        identifiability, fit (n, rms_mm, max_mm, robust, outlier_poses, iterations,
+        status), provenance."""
+        from torchcal.io.modelfile import to_dict
+
+        return to_dict(self, source=source, seed=seed, robust=robust, pose_ids=pose_ids)
+
     @property
     def rms_mm(self) -> float:
         """RMS of the distance residual per pose, mm."""

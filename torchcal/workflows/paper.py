@@ -83,6 +83,7 @@ from torchcal.partition.zones import partition_workspace
 from torchcal.robots.robot import robot as make_robot
 from torchcal.simulation.virtual_robot import VirtualRobot
 from torchcal.reliability.sweep import SweepResult, sample_workspace, sweep
+from torchcal.workflows.zones import fit_zones
 
 AXES = ("x", "y", "z")
 BOUNDS = ("lower", "upper")
@@ -502,11 +503,8 @@ def run_pipeline(cfg: DemoConfig | None = None, progress=None) -> PipelineResult
     fits = {"global": identify_zones(models["global"], [data], rank_tol=cfg.rank_tol),
             "global_geometric": identify_zones(models["global_geometric"], [data], rank_tol=cfg.rank_tol)}
     lap("calibrate_global")
-    if cfg.zone_method == "damped":
-        fits["partitioned"] = identify_zones(models["partitioned"], zones, rank_tol=cfg.rank_tol,
-                                             theta0=fits["global"][0].theta, damping=cfg.zone_damping)
-    else:
-        fits["partitioned"] = identify_zones(models["partitioned"], zones, rank_tol=cfg.rank_tol)
+    fits["partitioned"] = fit_zones(models["partitioned"], zones, fits["global"][0], cfg.zone_method,
+                                    cfg.zone_damping, cfg.rank_tol)
     fits["partitioned_geometric"] = identify_zones(models["partitioned_geometric"], zones, rank_tol=cfg.rank_tol)
     lap("calibrate_zones")
     say("test")

@@ -131,7 +131,7 @@ def _robust_weights(dist: torch.Tensor, kind: str) -> torch.Tensor:
         return torch.where(u <= 2.5, torch.ones_like(u), 2.5 / u)
     if kind == "cauchy":
         return 1.0 / (1.0 + (u / 2.5) ** 2)
-    raise InputError(f"--robust: unknown loss {kind!r}; expected 'huber' or 'cauchy'")
+    raise InputError(f"robust: unknown loss {kind!r}; expected 'huber' or 'cauchy'")
 
 
 def _generic_rank(model: CalibrationModel, ctx: Context, cand, rank_tol: float) -> int:

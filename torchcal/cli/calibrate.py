@@ -21,20 +21,18 @@ MODEL.json: format ``torchcal-interval-model/1`` (`IntervalModel.to_dict`), read
 
 from __future__ import annotations
 
-from torchcal.cli._args import add_force, check_outputs, read_data, add_robot
+from torchcal.cli._args import add_force, add_robot, check_outputs, nonneg_float, read_data
 
 
 def _damping(text: str):
     if text in ("gcv", "gcv_shared"):
         return text
+    import argparse
+
     try:
-        v = float(text)
-    except ValueError:
-        v = -1.0
-    if not v >= 0:
-        import argparse
-        raise argparse.ArgumentTypeError(f"expected 'gcv', 'gcv_shared' or a number >= 0, got {text!r}")
-    return v
+        return nonneg_float(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected 'gcv', 'gcv_shared' or a number >= 0, got {text!r}") from None
 
 
 def add_parser(sub):

@@ -55,7 +55,7 @@ from torchcal.effects.base import Context, make_context
 from torchcal.errors import InputError
 from torchcal.calibration.fit import RANK_TOL, Identifiability, identifiability
 from torchcal.reliability.interval import Interval
-from torchcal.calibration.lm import levenberg_marquardt
+from torchcal.calibration.lm import batched_jacobian as lm_jacobian, levenberg_marquardt
 from torchcal.calibration.model import CalibrationModel
 
 __all__ = ["PoseIntervals", "pose_intervals", "solution_map", "gcv_damping", "IntervalFit", "IntervalModel",
@@ -247,11 +247,9 @@ def batched_jacobian(model: CalibrationModel, x: torch.Tensor, ctxs: list[Contex
         geo = x[:, : 5 * robot.n].reshape(-1, 1, robot.n, 5)
         return K.param_jacobian(st["q"].to(x), robot.table.to(x), geo, robot.base.to(x), robot.tool.to(x),
                                     prismatic=robot.pris)
-    P = x.shape[-1]
-    basis = torch.eye(P, dtype=x.dtype, device=x.device)[:, None, :].expand(P, *x.shape)
-    f = lambda z: batched_predict(model, z, ctxs)  # noqa: E731
-    cols = torch.func.vmap(lambda t: torch.func.jvp(f, (x,), (t,))[1])(basis)  # (P, B, m, 3)
-    return cols.permute(1, 2, 3, 0)
+    B, P = x.shape
+    J = lm_jacobian(lambda z: batched_predict(model, z, ctxs).reshape(B, -1), x)  # (B, 3m, P)
+    return J.reshape(B, -1, 3, P)
 
 
 # ------------------------------------------------------------------ results

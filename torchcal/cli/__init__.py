@@ -18,7 +18,8 @@ from torchcal.errors import InputError, OutputExistsError
 
 COMMANDS = (
     "demo", "simulate", "fit", "evaluate", "diagnose", "discover",
-    "sweep", "partition", "calibrate", "compensate",
+    "sweep", "partition", "calibrate", "compensate", "robot", "export",
+    "plan", "accuracy",
 )
 
 

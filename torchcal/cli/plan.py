@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import torch
 
-from torchcal.cli._args import add_force, check_folder, check_outputs, nonneg_float, positive_int
+from torchcal.cli._args import add_force, add_robot, check_folder, check_outputs, nonneg_float, positive_int
 
 
 def add_parser(sub):
     p = sub.add_parser("plan", help="choose optimal measurement poses (CSV)", description=__doc__)
-    p.add_argument("--robot", required=True, help="preset robot name")
+    add_robot(p)
     p.add_argument("--effects", nargs="*", default=[], metavar="SPEC", help="effects of the model to be fitted")
     p.add_argument("--n", type=positive_int, required=True, help="number of poses N to choose")
     p.add_argument("--candidates", type=positive_int, default=10_000, help="candidate poses M (default 10000)")

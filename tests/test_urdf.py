@@ -125,3 +125,26 @@ def test_bad_links_one_line(tmp_path):
     path, base, tip = _write(tmp_path, "ur")
     with pytest.raises(InputError, match="--tip: no link 'nosuch'"):
         robot_from_urdf(path, base, "nosuch")
+
+
+@pytest.mark.parametrize("key", list(CASES))
+def test_calibrated_urdf_keeps_links_and_carries_calibration(tmp_path, key):
+    import dataclasses
+
+    from torchcal.robots.urdf import calibrated_urdf
+
+    path, base, tip = _write(tmp_path, key)
+    robot = robot_from_urdf(path, base, tip)
+    g = torch.Generator().manual_seed(4)
+    dev = torch.randn(robot.n, 5, generator=g, dtype=torch.float64) * torch.tensor([1e-3, 0.5, 0.5, 1e-3, 1e-3])
+    dev[:, 4] *= robot.has_beta
+    tool = robot.tool.clone()
+    tool[:3, 3] += torch.tensor([0.3, -0.2, 0.4], dtype=torch.float64)
+    cal = dataclasses.replace(robot, table=robot.table + dev, tool=tool)
+    text, new_tip = calibrated_urdf(robot, cal)
+    out = tmp_path / "cal.urdf"
+    out.write_text(text)
+    assert text.count("<inertial>") == path.read_text().count("<inertial>")
+    back = robot_from_urdf(out, base, new_tip)
+    q = _random_q(robot, 1000, 5)
+    assert (back.fk(q) - cal.fk(q)).norm(dim=-1).max() < 1e-3

@@ -55,7 +55,7 @@ from torchcal.effects.base import Context, make_context
 from torchcal.errors import InputError
 from torchcal.calibration.fit import RANK_TOL, Identifiability, identifiability
 from torchcal.reliability.interval import Interval
-from torchcal.calibration.lm import levenberg_marquardt
+from torchcal.calibration.lm import batched_jacobian as lm_jacobian, levenberg_marquardt
 from torchcal.calibration.model import CalibrationModel
 
 __all__ = ["PoseIntervals", "pose_intervals", "solution_map", "gcv_damping", "IntervalFit", "IntervalModel",
@@ -247,11 +247,9 @@ def batched_jacobian(model: CalibrationModel, x: torch.Tensor, ctxs: list[Contex
         geo = x[:, : 5 * robot.n].reshape(-1, 1, robot.n, 5)
         return K.param_jacobian(st["q"].to(x), robot.table.to(x), geo, robot.base.to(x), robot.tool.to(x),
                                     prismatic=robot.pris)
-    P = x.shape[-1]
-    basis = torch.eye(P, dtype=x.dtype, device=x.device)[:, None, :].expand(P, *x.shape)
-    f = lambda z: batched_predict(model, z, ctxs)  # noqa: E731
-    cols = torch.func.vmap(lambda t: torch.func.jvp(f, (x,), (t,))[1])(basis)  # (P, B, m, 3)
-    return cols.permute(1, 2, 3, 0)
+    B, P = x.shape
+    J = lm_jacobian(lambda z: batched_predict(model, z, ctxs).reshape(B, -1), x)  # (B, 3m, P)
+    return J.reshape(B, -1, 3, P)
 
 
 # ------------------------------------------------------------------ results
@@ -268,7 +266,8 @@ class IntervalFit:
         S: (P, 3m) linearised solution map at x_c (mm -> parameter units).
         residual_mm: (m, 3) interval centres minus model at x_c.
         error_radius_mm: (m, 3) half-range of the repeated measurements.
-        n_iter: LM iterations; converged: LM stopping rule met.
+        n_iter: LM iterations; converged: LM convergence rule met; status: 'converged',
+            'stalled' or 'max_iterations' (`torchcal.calibration.lm.LMStatus`).
         damping: mu of eq. 29 used for this zone (0: plain least squares).
     """
 
@@ -282,6 +281,7 @@ class IntervalFit:
     n_iter: int
     converged: bool
     damping: float = 0.0
+    status: str = "converged"
 
     @property
     def free(self) -> torch.Tensor:
@@ -315,7 +315,7 @@ class IntervalFit:
                 "lower": (self.theta - self.radius).tolist(), "upper": (self.theta + self.radius).tolist(),
                 "free": self.free.tolist(), "identifiability": self.report.to_dict(),
                 "rms_mm": self.rms_mm, "n_iter": self.n_iter, "converged": self.converged,
-                "damping": self.damping,
+                "status": self.status, "damping": self.damping,
                 "parameters": self.rows(degrees=True)}
 
 
@@ -421,7 +421,8 @@ def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
             radius = S.abs() @ er
             fits[z] = IntervalFit(model, res.x[b].clone(), radius, reports[b], S,
                                   target[b] - pred[b], datas[b].radius.to(xb),
-                                  int(res.n_iter[b]), bool(res.converged[b]), mus[b])
+                                  int(res.n_iter[b]), bool(res.converged[b]), mus[b],
+                                  res.status_labels()[b])
     return fits  # type: ignore[return-value]
 
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from torchcal.io import modelfile
 from torchcal.cli._args import add_force, check_outputs, read_data, add_robot, load_robot, check_data_joints
-from torchcal.effects import make_context
 from torchcal.io.files import write_json
 
 
@@ -20,13 +19,10 @@ def add_parser(sub):
 
 
 def evaluate(model, theta, m) -> dict:
-    """{"n", "rms_mm", "mean_mm", "max_mm", "per_axis_rms_mm"} of measured - model."""
-    ctx = make_context(model.robot, m.q, m.payload_kg, m.temp_c)
-    model.check_context(ctx)
-    err = m.xyz - model.predict(theta, ctx)
-    d = err.norm(dim=-1)
-    return {"n": len(m), "rms_mm": float(d.pow(2).mean().sqrt()), "mean_mm": float(d.mean()),
-            "max_mm": float(d.max()), "per_axis_rms_mm": err.pow(2).mean(0).sqrt().tolist()}
+    """{"n", "rms_mm", "mean_mm", "max_mm", "per_axis_rms_mm"} of measured - model (`torchcal.evaluate`)."""
+    from torchcal.api import evaluate as run
+
+    return run((model, theta), m).to_dict()
 
 
 def run(args) -> int:

@@ -3,9 +3,10 @@ the calibrated geometry for a controller or a simulator.
 
 - ``--robot-file``: a robot file (docs/robots.md): nominal MD-H table + identified
   deviations, the ``base_frame`` effect folded into ``base``, ``tool_offset`` into ``tool``.
-- ``--urdf``: a URDF whose joint origins carry the calibration (links base_link,
-  link1..linkN, tcp; torchcal.robots.urdf.minimal_urdf). Links, inertias and visuals of
-  a robot imported from a URDF are not carried over (yet).
+- ``--urdf``: a URDF whose joint origins carry the calibration. A robot imported from a
+  URDF (``torchcal robot import``) keeps that file's links, inertias and visuals: its joint
+  origins and axes are rewritten (torchcal.robots.urdf.calibrated_urdf); otherwise a
+  minimal URDF (links base_link, link1..linkN, tcp; `minimal_urdf`).
 - ``--table``: CSV ``joint,type,theta_offset_deg,d_mm,a_mm,alpha_deg,beta_deg,lower,upper``.
 
 Effects a URDF or an MD-H table cannot hold (compliance, backlash, gear, thermal...) are
@@ -70,7 +71,8 @@ def table_csv(r) -> str:
         p = bool(r.prismatic[i])
         lo, hi = r.limits[i].tolist() if p else [math.degrees(v) for v in r.limits[i].tolist()]
         lines.append(",".join([str(i + 1), "prismatic" if p else "revolute",
-                               *(repr(v) for v in (math.degrees(off), d, a, math.degrees(al), math.degrees(be), lo, hi))]))
+                               *(repr(v) for v in (math.degrees(off), d, a, math.degrees(al), math.degrees(be))),
+                               "%.12g" % lo, "%.12g" % hi]))
     return "\n".join(lines) + "\n"
 
 
@@ -90,10 +92,26 @@ def run(args) -> int:
     if rest:
         sys.stderr.write("torchcal export: warning: effects not held by an MD-H table or a URDF (listed under "
                          f"\"effects\" in the robot file): {', '.join(e['spec'] for e in rest)}\n")
+    import dataclasses
+    from pathlib import Path
+
+    from torchcal.robots.urdf import calibrated_urdf
+
+    urdf_text, urdf_info = None, None
+    if args.urdf:
+        if cal.urdf is not None:
+            urdf_text, tip = calibrated_urdf(im.model.robot, cal)
+            urdf_info = {"path": str(Path(args.urdf).resolve()), "base_link": cal.urdf["base_link"], "tip_link": tip}
+            print(f"{args.urdf}: the links of {cal.urdf['path']} with calibrated joint origins; TCP link {tip}")
+        else:
+            urdf_text = minimal_urdf(cal)
+            urdf_info = {"path": str(Path(args.urdf).resolve()), "base_link": "base_link", "tip_link": "tcp"}
+    # the calibrated robot file points at the calibrated URDF, never at the nominal one
+    cal = dataclasses.replace(cal, urdf=urdf_info)
     if args.robot_file:
         write_robot_file(args.robot_file, cal, effects=rest, force=args.force, inputs=[args.model])
     if args.urdf:
-        atomic_write(args.urdf, minimal_urdf(cal), force=args.force, inputs=[args.model])
+        atomic_write(args.urdf, urdf_text, force=args.force, inputs=[args.model])
     if args.table:
         atomic_write(args.table, table_csv(cal), force=args.force, inputs=[args.model])
     print(f"exported {cal.name} ({cal.n} joints) from {args.model}: "

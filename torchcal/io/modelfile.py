@@ -4,13 +4,14 @@
      "effects": [SPEC...],
      "parameters": [{"name", "value", "unit", "std", "identified", "ci95"}...],
      "covariance": {"method", "dof", "sigma_mm", "noise_mm", "pose_mm", "parameters", "matrix"},
-     "identifiability": {...}, "fit": {"n", "rms_mm", "max_mm", "robust", "outliers"},
+     "identifiability": {...}, "fit": {"n", "rms_mm", "max_mm", "robust", "outliers", "status"},
      "provenance": {"input", "input_sha256", "torchcal_version", "seed"}}
 
 Values are in the units named beside them (mm, rad, 1/K, ...); ``std`` is the standard
 error (0 for parameters held at nominal), ``ci95`` its 95 % interval [lower, upper]
 (Student's t), ``covariance`` the full covariance of the identified parameters (row
-'rows' or 'pose-level' when poses repeat; `torchcal.calibration.uncertainty`). Loading rebuilds the `CalibrationModel` and
+'rows' or 'pose-level' when poses repeat; `torchcal.calibration.uncertainty`); ``fit.status`` is how the
+solver stopped ('converged', 'stalled' or 'max_iterations'). Loading rebuilds the `CalibrationModel` and
 theta exactly (floats are written with full precision). ``nominal_robot`` embeds the
 nominal robot (the robot-file dict, docs/robots.md), so a model file needs no preset and
 no robot file; files written before it existed name a preset under ``robot``.
@@ -57,7 +58,8 @@ def to_dict(res: FitResult, source=None, seed: int = 0, robust=None, pose_ids=No
         "covariance": None if res.covariance is None else res.covariance.to_dict(model.param_names()),
         "identifiability": res.report.to_dict(),
         "fit": {"n": int(res.residuals.shape[0]), "rms_mm": res.rms_mm, "max_mm": float(dist.max()),
-                "robust": robust, "outlier_poses": outliers, "iterations": res.n_iter},
+                "robust": robust, "outlier_poses": outliers, "iterations": res.n_iter,
+                "status": res.status},
         "provenance": {"input": None if source is None else str(source),
                        "input_sha256": None if source is None else file_sha256(source),
                        "torchcal_version": torchcal.__version__, "seed": seed},

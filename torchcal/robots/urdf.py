@@ -279,3 +279,72 @@ def minimal_urdf(robot: Robot, params=None) -> str:
     lines += ['  <link name="tcp"/>', '  <joint name="tool" type="fixed">', f'    <parent link="{prev}"/>',
               '    <child link="tcp"/>', f'    {_origin_xml(T @ r.tool)}', '  </joint>', '</robot>']
     return "\n".join(lines) + "\n"
+
+
+def calibrated_urdf(nominal: Robot, cal: Robot) -> tuple[str, str]:
+    """The URDF `nominal` was imported from, with the calibrated geometry of `cal` (same
+    joints; deviations, base and tool folded in) written into its joint origins and axes.
+
+    Links, inertias, visuals and every other element are kept; the XML is re-serialised
+    (comments are dropped). Each moving joint's frame follows its link's calibrated MD-H
+    frame, moved onto the calibrated joint axis; fixed joints keep their origins except
+    the last one before the tip, which takes the calibrated tool. When the tip link hangs
+    directly on the last moving joint, a fixed joint and link ``<tip>_calibrated`` are
+    appended. Returns (URDF text, tip link of the calibrated TCP).
+    """
+    info = nominal.urdf
+    path = Path(info["path"])
+    if not path.is_file():
+        raise InputError(f"{path}: the robot's URDF file no longer exists; export --urdf needs it "
+                         f"(or re-import the robot)")
+    tree = ET.parse(path)
+    root = tree.getroot()
+    by_name = {el.get("name"): el for el in root.findall("joint")}
+    joints = read_chain(path, info["base_link"], info["tip_link"])
+    n = nominal.n
+    zero = torch.zeros(n, dtype=_F)
+    Fn, Fc = nominal.to("cpu", _F).frames(zero), cal.to("cpu", _F).frames(zero)  # (n + 2, 4, 4)
+    P_nom = torch.eye(4, dtype=_F)  # nominal pose of the current parent link
+    P_cal = torch.eye(4, dtype=_F)
+    k = 0
+    last_fixed = None
+    for j in joints:
+        el = by_name[j["name"]]
+        J = P_nom @ j["origin"]
+        if j["type"] == "fixed":
+            P_nom, P_cal, last_fixed = J, P_cal @ j["origin"], (el, P_cal)
+            continue
+        k += 1
+        Jc = Fc[k] @ torch.linalg.inv(Fn[k]) @ J  # the link's calibrated frame
+        axis_p, axis_z = Fc[k - 1][:3, 3], Fc[k - 1][:3, 2]
+        if j["type"] != "prismatic":  # origin onto the calibrated axis line
+            o = Jc[:3, 3]
+            Jc[:3, 3] = axis_p + torch.dot(o - axis_p, axis_z) * axis_z
+        _set_origin(el, torch.linalg.inv(P_cal) @ Jc)
+        ax = el.find("axis")
+        if ax is None:
+            ax = ET.SubElement(el, "axis")
+        ax.set("xyz", " ".join(repr(v) for v in (Jc[:3, :3].T @ axis_z).tolist()))
+        P_nom, P_cal, last_fixed = J, Jc, None
+    tcp = Fc[n + 1]
+    tip = info["tip_link"]
+    if last_fixed is not None:
+        el, parent = last_fixed
+        _set_origin(el, torch.linalg.inv(parent) @ tcp)
+    elif float((torch.linalg.inv(P_cal) @ tcp - torch.eye(4, dtype=_F)).abs().max()) > 1e-12:
+        new = f"{tip}_calibrated"
+        ET.SubElement(root, "link", name=new)
+        jt = ET.SubElement(root, "joint", name=f"{new}_joint", type="fixed")
+        ET.SubElement(jt, "parent", link=tip)
+        ET.SubElement(jt, "child", link=new)
+        _set_origin(jt, torch.linalg.inv(P_cal) @ tcp)
+        tip = new
+    return ET.tostring(root, encoding="unicode", xml_declaration=True) + "\n", tip
+
+
+def _set_origin(el, T: torch.Tensor) -> None:
+    o = el.find("origin")
+    if o is None:
+        o = ET.SubElement(el, "origin")
+    o.set("xyz", " ".join(repr(v / 1000.0) for v in T[:3, 3].tolist()))
+    o.set("rpy", " ".join(repr(v) for v in matrix_rpy(T[:3, :3])))

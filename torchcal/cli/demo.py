@@ -4,7 +4,7 @@ reliability map (Table 3), partition into levels and zones, the paper's per-zone
 (Table 4), fresh test points (Table 5), and the methods side by side (the paper, global
 geometric, global with the effects `discover` finds, and that plus per-zone correction).
 
-Without ``--seeds`` one seed runs (quick); ``--seeds`` alone runs 10, ``--seeds K`` K seeds
+Without ``--seeds`` one seed runs; ``--seeds`` alone runs 10, ``--seeds K`` K seeds
 (S .. S + K - 1): figures as mean and 95 % CI over seeds and a paired test of partitioned
 vs global. Prints the report on stdout (torchcal.cli._report; progress on stderr).
 ``--json OUT`` writes `DemoRun.to_json`. The same seeds give the same numbers.

@@ -23,7 +23,7 @@ import math
 import sys
 from pathlib import Path
 
-from torchcal.cli._args import add_force, check_outputs
+from torchcal.cli._args import add_force, add_units, check_outputs
 from torchcal.errors import InputError
 
 
@@ -33,6 +33,7 @@ def add_parser(sub):
     p.add_argument("targets", help="CSV with columns x,y,z (mm) [, q1..qN seeds in degrees]")
     p.add_argument("--model", required=True, help="MODEL.json (torchcal calibrate or torchcal fit)")
     p.add_argument("--out", required=True, help="output CSV of corrected joint commands (degrees)")
+    add_units(p)
     add_force(p)
     p.set_defaults(func=run)
     return p

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from torchcal.io import modelfile
-from torchcal.cli._args import add_force, check_outputs, read_data
+from torchcal.cli._args import add_force, add_units, check_outputs, read_data
 from torchcal.effects import make_context
 from torchcal.io.files import write_json
 
@@ -14,6 +14,7 @@ def add_parser(sub):
     p.add_argument("--model", required=True, help="MODEL.json from `torchcal fit`")
     p.add_argument("--robot", help="check that the model file is for this robot")
     p.add_argument("--json", help="write the report here")
+    add_units(p)
     add_force(p)
     p.set_defaults(func=run)
 
@@ -34,7 +35,7 @@ def run(args) -> int:
         from torchcal.robots.robot import robot as make_robot
         make_robot(args.robot)  # unknown robot: its own clear message
     model, theta = modelfile.load(args.model, robot_name=args.robot)
-    m = read_data(args.data, model.robot)
+    m = read_data(args.data, model.robot, args)
     rep = evaluate(model, theta, m)
     if args.json:
         write_json(args.json, rep, force=args.force, inputs=[args.data, args.model])

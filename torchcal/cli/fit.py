@@ -6,7 +6,7 @@ outliers by IRLS and lists their pose ids."""
 from __future__ import annotations
 
 from torchcal.io import modelfile
-from torchcal.cli._args import add_force, check_outputs, read_data
+from torchcal.cli._args import add_force, add_units, check_outputs, read_data
 from torchcal.effects import make_context
 from torchcal.calibration.fit import fit
 from torchcal.io.files import write_json
@@ -24,6 +24,7 @@ def add_parser(sub):
     p.add_argument("--robust", choices=["huber", "cauchy"], help="robust loss by IRLS")
     p.add_argument("--seed", type=int, default=0, help="recorded in the provenance")
     p.add_argument("--out", required=True, help="MODEL.json to write")
+    add_units(p)
     add_force(p)
     p.set_defaults(func=run)
 
@@ -32,7 +33,7 @@ def fit_file(args):
     """Read, fit; returns (measurements, FitResult)."""
     robot = make_robot(args.robot)
     specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
-    m = read_data(args.data, robot)
+    m = read_data(args.data, robot, args)
     model = CalibrationModel(robot, specs)
     ctx = make_context(robot, m.q, m.payload_kg, m.temp_c)
     return m, fit(model, ctx, m.xyz, robust=args.robust)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from torchcal.io import modelfile
 from torchcal.cli._args import add_force, add_units, check_outputs, read_data
-from torchcal.effects import make_context
+from torchcal.effects import context_of
 from torchcal.io.files import write_json
 
 
@@ -20,13 +20,24 @@ def add_parser(sub):
 
 
 def evaluate(model, theta, m) -> dict:
-    """{"n", "rms_mm", "mean_mm", "max_mm", "per_axis_rms_mm"} of measured - model."""
-    ctx = make_context(model.robot, m.q, m.payload_kg, m.temp_c)
+    """{"n", "rms_mm", "mean_mm", "max_mm", "per_axis_rms_mm"} of measured - model, and
+    "orientation_rms_deg" when the data carry rx, ry, rz and the model was fitted to
+    orientations."""
+    import math
+
+    from torchcal.calibration.fit import _so3_error
+
+    ctx = context_of(model.robot, m)
     model.check_context(ctx)
     err = m.xyz - model.predict(theta, ctx)
     d = err.norm(dim=-1)
-    return {"n": len(m), "rms_mm": float(d.pow(2).mean().sqrt()), "mean_mm": float(d.mean()),
-            "max_mm": float(d.max()), "per_axis_rms_mm": err.pow(2).mean(0).sqrt().tolist()}
+    rep = {"n": len(m), "rms_mm": float(d.pow(2).mean().sqrt()), "mean_mm": float(d.mean()),
+           "max_mm": float(d.max()), "per_axis_rms_mm": err.pow(2).mean(0).sqrt().tolist()}
+    tool_r = getattr(model, "tool_rotation", None)
+    if m.rxyz is not None and tool_r is not None:
+        e = _so3_error(model.predict_rotation(theta, ctx) @ tool_r.to(theta), m.rotation)
+        rep["orientation_rms_deg"] = math.degrees(float(e.norm(dim=-1).pow(2).mean().sqrt()))
+    return rep
 
 
 def run(args) -> int:
@@ -41,5 +52,7 @@ def run(args) -> int:
         write_json(args.json, rep, force=args.force, inputs=[args.data, args.model])
     x, y, z = rep["per_axis_rms_mm"]
     print(f"{rep['n']} rows: rms {rep['rms_mm']:.4f} mm, mean {rep['mean_mm']:.4f} mm, "
-          f"max {rep['max_mm']:.4f} mm; per axis rms x {x:.4f} y {y:.4f} z {z:.4f} mm")
+          f"max {rep['max_mm']:.4f} mm; per axis rms x {x:.4f} y {y:.4f} z {z:.4f} mm"
+          + (f"; orientation rms {rep['orientation_rms_deg'] * 1000:.4g} mdeg"
+             if "orientation_rms_deg" in rep else ""))
     return 0

@@ -11,7 +11,8 @@ Identifiability (at the starting point, on the column-scaled Jacobian):
 
 The fit is Levenberg-Marquardt (`torchcal.calibration.lm`) on the identifiable parameters, with
 optional robust row weights by IRLS (Huber or Cauchy on the per-pose distance residual,
-scale = the median distance residual, thresholds at 2.5 times it). Standard errors from ``s^2 (J^T W J)^-1``, s^2 = weighted RSS / dof.
+scale = the median distance residual, thresholds at 2.5 times it). Standard errors from ``s^2 (J^T W J)^-1``, s^2 = weighted RSS / dof,
+pose-level when poses repeat (`torchcal.calibration.uncertainty`).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from torchcal.errors import InputError
 from torchcal.calibration.lm import levenberg_marquardt
 from torchcal.calibration.model import CalibrationModel
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
+from torchcal.calibration.uncertainty import ParameterCovariance, parameter_covariance
 
 RANK_TOL = 1e-6
 SIGMA_MM = 0.01   # default position uncertainty of one measurement (laser tracker), mm
@@ -107,6 +109,7 @@ class FitResult:
     report: Identifiability
     n_iter: int
     outliers: list = field(default_factory=list)
+    covariance: ParameterCovariance | None = None  # (P, P) and how it was estimated
     registration: dict | None = None
     implausible: list = field(default_factory=list)
     orientation: dict | None = None
@@ -154,11 +157,14 @@ def _so3_error(Rp: torch.Tensor, Rm: torch.Tensor) -> torch.Tensor:
 
 def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, free=None,
         robust: str | None = None, max_iter: int = 60, rank_tol: float = RANK_TOL,
-        rotation: torch.Tensor | None = None, sigma_mm: float = SIGMA_MM,
+        pose=None, rotation: torch.Tensor | None = None, sigma_mm: float = SIGMA_MM,
         sigma_deg: float = SIGMA_DEG, register: bool = True,
         max_length_mm: float | None = MAX_LENGTH_MM,
         max_angle_deg: float | None = MAX_ANGLE_DEG) -> FitResult:
     """Fit model parameters to measured TCP positions xyz (N, 3) mm [and orientations].
+
+    pose: (N,) int pose ids; with repeats the standard errors are pose-level
+    (`torchcal.calibration.uncertainty`).
 
     free: (P,) bool candidate parameters (default `model.default_free()`); the
     identifiability analysis at the (registered) start may hold more. robust: None,
@@ -270,21 +276,27 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     r = resid(theta).detach()
     resid_pos = -r[:, :3]
     rot_res = None if rotation is None else r[:, 3:] / w_rot  # (N, 3) rad, model vs measured
-    J = jac(theta).reshape(-1, theta.shape[0])[:, free_now]
-    wk = weights.repeat_interleave(k)
-    dof = max(k * n_rows - int(free_now.sum()), 1)
-    s2 = float((wk * r.reshape(-1) ** 2).sum()) / dof
-    std = torch.zeros_like(theta)
-    if int(free_now.sum()):
-        cov = s2 * torch.linalg.pinv((J.T * wk) @ J)
-        std[free_now] = torch.sqrt(torch.diagonal(cov).clamp_min(0))
+    if rotation is None:
+        covariance = parameter_covariance(model.jacobian(theta, ctx), resid_pos, free_now, pose=pose,
+                                          weights=weights if robust else None)
+    else:  # rows of 6 residuals: row-wise estimate s^2 (J^T W J)^-1
+        J = jac(theta).reshape(-1, theta.shape[0])[:, free_now]
+        wk = weights.repeat_interleave(k)
+        dof = max(k * n_rows - int(free_now.sum()), 1)
+        s2 = float((wk * r.reshape(-1) ** 2).sum()) / dof
+        cov = torch.zeros(theta.shape[0], theta.shape[0], dtype=theta.dtype, device=theta.device)
+        if int(free_now.sum()):
+            idx = free_now.nonzero().flatten()
+            cov[idx[:, None], idx[None, :]] = s2 * torch.linalg.pinv((J.T * wk) @ J)
+        covariance = ParameterCovariance(cov, dof, math.sqrt(s2), "rows")
+    std = covariance.std
     outliers = torch.nonzero(weights < 0.1).flatten().tolist() if robust else []
     orient = None
     if rotation is not None:
         orient = {"sigma_mm": sigma_mm, "sigma_deg": sigma_deg, "weight_mm_per_rad": w_rot,
                   "tool_rotation": state["tool_R"],
                   "rms_deg": math.degrees(float(rot_res.norm(dim=-1).pow(2).mean().sqrt()))}
-    return FitResult(model, theta.detach(), std, resid_pos, weights, report, n_iter, outliers,
+    return FitResult(model, theta.detach(), std, resid_pos, weights, report, n_iter, outliers, covariance,
                      registration=reg_info, implausible=implausible, orientation=orient,
                      plausible_limits=None if max_length_mm is None else
                      {"max_length_mm": max_length_mm, "max_angle_deg": max_angle_deg})

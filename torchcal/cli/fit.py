@@ -13,7 +13,7 @@ nominal and reported (docs/formats.md)."""
 from __future__ import annotations
 
 from torchcal.io import modelfile
-from torchcal.cli._args import add_force, add_units, check_outputs, read_data
+from torchcal.cli._args import add_force, add_units, check_outputs, read_data, add_robot
 from torchcal.cli._args import nonneg_float, positive_float
 from torchcal.effects import context_of
 from torchcal.errors import InputError
@@ -29,7 +29,7 @@ def add_parser(sub):
     p = sub.add_parser("fit", help="fit geometric model + effects to a measurement CSV",
                        description=__doc__)
     p.add_argument("data", help="measurement CSV (docs/design.md)")
-    p.add_argument("--robot", required=True, help="preset robot name")
+    add_robot(p)
     p.add_argument("--effects", nargs="*", default=[], metavar="SPEC", help="effects, e.g. joint_compliance:2,3")
     p.add_argument("--robust", choices=["huber", "cauchy"], help="robust loss by IRLS")
     p.add_argument("--seed", type=int, default=0, help="recorded in the provenance")
@@ -59,7 +59,7 @@ def fit_file(args):
     model = CalibrationModel(robot, specs, points=points)
     ctx = context_of(robot, m)
     check = getattr(args, "max_deviation_mm", MAX_LENGTH_MM) and getattr(args, "max_deviation_deg", MAX_ANGLE_DEG)
-    return m, fit(model, ctx, m.xyz, robust=args.robust, rotation=m.rotation,
+    return m, fit(model, ctx, m.xyz, robust=args.robust, pose=m.pose, rotation=m.rotation,
                   sigma_mm=getattr(args, "sigma_mm", SIGMA_MM), sigma_deg=getattr(args, "sigma_deg", SIGMA_DEG),
                   max_length_mm=getattr(args, "max_deviation_mm", MAX_LENGTH_MM) if check else None,
                   max_angle_deg=getattr(args, "max_deviation_deg", MAX_ANGLE_DEG) if check else None)
@@ -96,7 +96,7 @@ def run(args) -> int:
     obj = modelfile.to_dict(res, source=args.data, seed=args.seed, robust=args.robust, pose_ids=m.pose.tolist())
     write_json(args.out, obj, force=args.force, inputs=[args.data])
     rep = res.report
-    print(f"fit {args.robot} + [{', '.join(res.model.specs()) or 'geometric only'}] on {len(m)} rows: "
+    print(f"fit {res.model.robot.name} + [{', '.join(res.model.specs()) or 'geometric only'}] on {len(m)} rows: "
           f"rms {res.rms_mm:.4f} mm, max {float(res.residuals.norm(dim=-1).max()):.4f} mm, "
           f"{rep.rank} identified parameters, condition {rep.condition:.3g}")
     if res.registration is not None:
@@ -125,6 +125,16 @@ def run(args) -> int:
     big = _largest(res)
     if big:
         print(f"largest deviations: {big}")
+    if res.covariance is not None and rep.rank:
+        c = res.covariance
+        how = (f"pose-level over {len(set(m.pose.tolist()))} poses: noise {c.noise_mm:.4f} mm, "
+               f"pose-level error {c.pose_mm:.4f} mm" if c.method == "pose-level" else "rows")
+        print(f"parameter uncertainty ({how}; residual sigma {c.sigma_mm:.4f} mm per axis, "
+              f"{c.dof} dof); 95% interval by Student's t:")
+        for p in obj["parameters"]:
+            if p["identified"]:
+                print(f"  {p['name']:<16} {p['value']:+.6g} +- {p['std']:.3g} {p['unit']}  "
+                      f"[{p['ci95'][0]:+.6g}, {p['ci95'][1]:+.6g}]")
     if res.outliers:
         print(f"outliers (pose ids): {', '.join(map(str, obj['fit']['outlier_poses']))}")
     print(f"wrote {args.out}")

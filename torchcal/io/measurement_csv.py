@@ -2,7 +2,9 @@
 (docs/formats.md).
 
 `read_measurements` / `write_measurements`: degrees and mm in the file (other units by
-``length_unit='m'`` / ``angle_unit='rad'``), radians and mm in `Measurements`. ``point``
+``length_unit='m'`` / ``angle_unit='rad'``), radians and mm in `Measurements`; the q
+column of a prismatic joint holds a length (mm, or m with ``length_unit='m'``; only
+when the robot is given: without it every q column is an angle). ``point``
 is an integer reflector id (several measured points per pose); ``rx, ry, rz`` are the
 measured orientation as fixed-axis XYZ angles, R = Rz(rz) Ry(ry) Rx(rx). The header is required, names are exact, columns may come in any order;
 every bad file gives one InputError line naming the file, ``line L (data row R)`` and the
@@ -248,7 +250,11 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
             extra[c][r] = v
 
     to_rad = torch.deg2rad if angle_unit == "deg" else (lambda t: t)
-    q = to_rad(torch.tensor(q_deg, dtype=torch.float64).reshape(N, n))  # (N, n) rad
+    q = torch.tensor(q_deg, dtype=torch.float64).reshape(N, n)
+    if robot is None:
+        q = to_rad(q)  # (N, n) rad
+    else:  # a prismatic joint's column is a length: mm inside
+        q = torch.where(robot.prismatic.cpu(), q * LENGTH_UNITS[length_unit], to_rad(q))
     m = Measurements(
         pose=torch.tensor(pose, dtype=torch.int64),
         q=q,
@@ -265,15 +271,17 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
 
 
 def _check_limits(path, m: Measurements, robot, lines: list[int], strict: bool) -> None:
-    lim = torch.rad2deg(robot.limits.detach().to("cpu", torch.float64))  # (n, 2) deg
-    qd = torch.rad2deg(m.q)  # (N, n) deg, as rounded from the file's degrees
+    rb = robot.to("cpu", torch.float64)
+    lim = rb.q_to_user(rb.limits.detach().T).T  # (n, 2) deg (mm for a prismatic joint)
+    qd = rb.q_to_user(m.q)  # (N, n) deg / mm, as rounded from the file's values
+    units = rb.joint_units()
     # half a micro-degree of slack so a value written at the limit itself is never flagged
     eps = 5e-7
     out = (qd < lim[:, 0] - eps) | (qd > lim[:, 1] + eps)  # (N, n)
     if not out.any():
         return
     bad = out.nonzero().tolist()
-    shown = [f"line {lines[r]} q{j + 1}={qd[r, j].item():.6g} deg "
+    shown = [f"line {lines[r]} q{j + 1}={qd[r, j].item():.6g} {units[j]} "
              f"(limits {lim[j, 0].item():.6g}..{lim[j, 1].item():.6g})" for r, j in bad[:5]]
     more = f"; and {len(bad) - 5} more out-of-limit values" if len(bad) > 5 else ""
     rows = int(out.any(1).sum())
@@ -300,7 +308,7 @@ def _fmt_deg(v: float) -> str:
     return text if ("." in text or "e" in text or "n" in text) else text + ".0"
 
 
-def format_measurements(m: Measurements) -> str:
+def format_measurements(m: Measurements, robot=None) -> str:
     """The CSV text of `m`: joint angles in degrees, positions in mm.
 
     Deterministic: header in the canonical order ``pose,q1..qN,x,y,z[,payload_kg][,temp_c]``,
@@ -316,7 +324,8 @@ def format_measurements(m: Measurements) -> str:
     points = None if m.point is None else m.point.cpu().tolist()
     rdeg = None if m.rxyz is None else torch.rad2deg(m.rxyz.detach().cpu().to(torch.float64)).T.tolist()
     pose = m.pose.cpu().tolist()
-    qd = torch.rad2deg(m.q.detach().cpu().to(torch.float64)).T.tolist()  # n lists of N deg
+    q = m.q.detach().cpu().to(torch.float64)
+    qd = (torch.rad2deg(q) if robot is None else robot.to("cpu", torch.float64).q_to_user(q)).T.tolist()  # deg / mm
     xyz = m.xyz.detach().cpu().to(torch.float64).T.tolist()  # 3 lists of N mm
     extra = [getattr(m, c).detach().cpu().to(torch.float64).tolist() for c in opt]
     lines = [",".join(header)]
@@ -333,8 +342,9 @@ def format_measurements(m: Measurements) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_measurements(path, m: Measurements, force: bool = False, inputs=()) -> Path:
-    """Atomically write `m` as a measurement CSV (joint angles in degrees, mm).
+def write_measurements(path, m: Measurements, force: bool = False, inputs=(), robot=None) -> Path:
+    """Atomically write `m` as a measurement CSV (joint angles in degrees, mm; with
+    `robot`, a prismatic joint's column in mm).
 
     Refuses to replace an existing file unless `force`, and never writes over `m.source`
     or any of `inputs` (docs/design.md: nothing written over an input file).
@@ -343,5 +353,5 @@ def write_measurements(path, m: Measurements, force: bool = False, inputs=()) ->
         raise InputError(f"write_measurements: expected Measurements, got {type(m).__name__}")
     if len(m) == 0:
         raise InputError(f"{path}: refusing to write a measurement file with no rows")
-    return atomic_write(path, format_measurements(m), force=force, inputs=(m.source, *inputs))
+    return atomic_write(path, format_measurements(m, robot), force=force, inputs=(m.source, *inputs))
 

@@ -265,13 +265,16 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
             if not bad:
                 break
             implausible += [names[i] for i in bad]
-            free_now[bad] = False
             x = x.clone()
             x[0, bad] = theta0[bad]
+            # judge identifiability again without them: a parameter held as redundant
+            # with one of them (e.g. tool_z with dd6) is free again
+            cand = cand.clone()
+            cand[[names.index(n) for n in implausible]] = False
+            report = identifiability(jac(x[0]), names, cand, rank_tol)
+            free_now = report.free.clone()
             x, weights, n_iter = solve(x, free_now)
-        report.free = free_now
         report.held = report.held + [n for n in implausible if n not in report.held]
-        report.rank = int(free_now.sum())
     theta = x[0]
     r = resid(theta).detach()
     resid_pos = -r[:, :3]

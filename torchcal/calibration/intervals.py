@@ -502,7 +502,10 @@ class IntervalModel:
         for z, info in enumerate(self.zones):
             zones.append({**info, "theta": self.theta[z].tolist(), "lower": self.lower[z].tolist(),
                           "upper": self.upper[z].tolist(), "free": self.free[z].tolist()})
-        return {"format": INTERVAL_MODEL_FORMAT, "robot": m.robot.name, "effects": m.specs(),
+        from torchcal.robots.robot_file import robot_to_dict
+
+        return {"format": INTERVAL_MODEL_FORMAT, "robot": m.robot.name,
+                "nominal_robot": robot_to_dict(m.robot), "effects": m.specs(),
                 "parameter_names": m.param_names(), "parameter_units": m.param_units(),
                 "method": self.method, "zones": zones,
                 "partition": None if self.partition is None else self.partition.to_dict(),
@@ -512,13 +515,13 @@ class IntervalModel:
     def from_dict(cls, obj: dict, where: str = "interval model") -> "IntervalModel":
         """Rebuild from `to_dict` output; raises InputError naming what is wrong."""
         from torchcal.partition.zones import Partition
-        from torchcal.robots.robot import robot as make_robot
+        from torchcal.robots.robot_file import model_robot
 
         if obj.get("format") != INTERVAL_MODEL_FORMAT:
             raise InputError(f"{where}: not a torchcal interval model (format {obj.get('format')!r}, "
                              f"expected {INTERVAL_MODEL_FORMAT!r})")
         try:
-            model = CalibrationModel(make_robot(obj["robot"]), list(obj["effects"]))
+            model = CalibrationModel(model_robot(obj, where), list(obj["effects"]))
             if list(obj["parameter_names"]) != model.param_names():
                 raise InputError(f"{where}: parameter names do not match robot {obj['robot']!r} with "
                                  f"effects {obj['effects']}")

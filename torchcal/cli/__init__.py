@@ -17,7 +17,8 @@ from torchcal.errors import InputError
 
 COMMANDS = (
     "demo", "simulate", "fit", "evaluate", "diagnose", "discover",
-    "sweep", "partition", "calibrate", "compensate",
+    "sweep", "partition", "calibrate", "compensate", "robot", "export",
+    "plan", "accuracy",
 )
 
 

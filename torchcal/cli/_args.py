@@ -142,3 +142,23 @@ def load_robot(text):
     from torchcal.robots.robot import robot
 
     return robot(text)
+
+
+def check_data_joints(data, robot, model_path) -> None:
+    """Refuse (one line naming both) a measurement CSV whose q columns are not the
+    model's joint count: data of another robot."""
+    import csv
+    import re
+    from pathlib import Path
+
+    from torchcal.errors import InputError
+
+    p = Path(data)
+    if not p.is_file():
+        return  # the reader's own message
+    with open(p, newline="", encoding="utf-8-sig", errors="replace") as fh:
+        header = next(csv.reader(fh), [])
+    n = sum(1 for h in header if re.fullmatch(r"q\d+", h.strip()))
+    if n and n != robot.n:
+        raise InputError(f"{data}: data of a robot with {n} joints (q1..q{n}), but {model_path} is a model "
+                         f"of robot {robot.name!r} with {robot.n} joints; refusing to apply it to another robot")

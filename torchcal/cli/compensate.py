@@ -2,8 +2,8 @@
 that make the calibrated model reach each target (torchcal.calibration.compensate).
 
 TARGETS.csv: header ``x,y,z`` (mm, robot base frame; --length-unit m for metres) and
-optionally ``q1..qN`` (degrees; --angle-unit rad), ``payload_kg`` and ``temp_c`` (the
-conditions of each move, needed by load- and temperature-dependent effects):
+optionally ``q1..qN`` (degrees, mm for a prismatic joint; --angle-unit rad), ``payload_kg``
+and ``temp_c`` (the conditions of each move, needed by load- and temperature-dependent effects):
 the seed of each target, normally the command that nominally reaches it. Without seeds
 the nominal inverse is solved first from a default seed (joint 1 turned towards the
 target, the others at the middle of their limits).
@@ -27,7 +27,7 @@ import math
 import sys
 from pathlib import Path
 
-from torchcal.cli._args import add_force, add_units, check_outputs
+from torchcal.cli._args import add_force, add_robot, add_units, check_outputs, load_robot
 from torchcal.errors import InputError
 
 
@@ -37,6 +37,7 @@ def add_parser(sub):
     p.add_argument("targets", help="CSV with columns x,y,z (mm) [, q1..qN seeds in degrees]")
     p.add_argument("--model", required=True, help="MODEL.json (torchcal calibrate or torchcal fit)")
     p.add_argument("--out", required=True, help="output CSV of corrected joint commands (degrees)")
+    add_robot(p, required=False, what="check that the model is for this robot (the model file embeds its robot)")
     add_units(p, "targets")
     add_force(p)
     p.set_defaults(func=run)
@@ -148,7 +149,9 @@ def run(args) -> int:
     robot = im.model.robot
     from torchcal.cli._args import units
     from torchcal.effects import make_context
+    from torchcal.robots.robot_file import check_same_robot
 
+    check_same_robot(robot, load_robot(args.robot), str(args.model))
     targets, seeds_deg, cond = read_targets(args.targets, robot.n, **units(args))
     # the model's effects must find what they read (temp_c, payload_kg) in the targets
     probe = make_context(robot, robot.limits.mean(-1).expand(targets.shape[0], robot.n),
@@ -168,11 +171,11 @@ def run(args) -> int:
             raise InputError(f"{args.targets}: no nominal inverse found for target row(s) "
                              f"{[b + 1 for b in bad][:10]} (out of reach?); give seeds q1..q{robot.n}")
     else:
-        q0 = torch.deg2rad(seeds_deg)
+        q0 = robot.q_from_user(seeds_deg)  # deg, mm for a prismatic joint
     zone = im.assign(targets)
     comp = compensate(im.model, im.theta, targets, q0, zone=zone,
                       payload_kg=cond["payload_kg"], temp_c=cond["temp_c"])
-    qd = torch.rad2deg(comp.q)
+    qd = robot.q_to_user(comp.q)
     res = comp.residual_mm.norm(dim=-1)
     lines = [",".join(["point", "zone", *(f"q{k}" for k in range(1, robot.n + 1)), "residual_mm", "converged",
                        "within_limits"])]

@@ -44,6 +44,8 @@ def print_table(d) -> None:
     v = d.verdict
     print("verdict: " + ("nothing significant: the residual is at the noise level" if v is None else
                          f"missing {v.spec} (cv rms {b['cv_rms_mm']:.4f} -> {v.cv_rms_mm:.4f} mm)"))
+    if d.unexplained is not None:
+        print(("with the verdict, " if v is not None else "") + d.unexplained.describe())
 
 
 def run(args) -> int:
@@ -58,7 +60,7 @@ def run(args) -> int:
     robot = make_robot(args.robot)
     effects = args.effects or []
     if args.model:
-        model, _ = modelfile.load(args.model, robot_name=robot.name)
+        model, _ = modelfile.load(args.model, robot=robot)
         effects = model.specs()
     m = read_data(args.data, robot, args)
     d = diagnose(robot, m, effects, folds=args.folds, seed=args.seed)

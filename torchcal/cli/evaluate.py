@@ -1,9 +1,10 @@
-"""`torchcal evaluate DATA --model MODEL.json [--json OUT]`: distance errors measured - model."""
+"""`torchcal evaluate DATA --model MODEL.json [--robot ROBOT] [--json OUT]`: distance errors
+measured - model. The model file embeds its nominal robot; ``--robot`` only checks it."""
 
 from __future__ import annotations
 
 from torchcal.io import modelfile
-from torchcal.cli._args import add_force, add_units, check_outputs, read_data, add_robot
+from torchcal.cli._args import add_force, add_units, check_outputs, read_data, add_robot, load_robot, check_data_joints
 from torchcal.effects import context_of
 from torchcal.io.files import write_json
 
@@ -42,10 +43,9 @@ def evaluate(model, theta, m) -> dict:
 
 def run(args) -> int:
     check_outputs([("--json", args.json)], args.force, inputs=[args.data, args.model])
-    if args.robot is not None:
-        from torchcal.robots.robot import robot as make_robot
-        make_robot(args.robot)  # unknown robot: its own clear message
-    model, theta = modelfile.load(args.model, robot_name=args.robot)
+    robot = load_robot(args.robot)  # unknown robot: its own clear message
+    model, theta = modelfile.load(args.model, robot=robot)
+    check_data_joints(args.data, model.robot, args.model)
     m = read_data(args.data, model.robot, args)
     rep = evaluate(model, theta, m)
     if args.json:

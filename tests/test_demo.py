@@ -210,7 +210,7 @@ def test_calibrate_and_compensate_commands(session, capsys):
         out = d / f"q_{name}.csv"
         assert cli.main(["compensate", str(d / "targets.csv"), "--model", str(d / name), "--out", str(out)]) == 0
         lines = out.read_text().splitlines()
-        assert lines[0] == "point,zone,q1,q2,q3,q4,q5,q6,residual_mm,converged"
+        assert lines[0] == "point,zone,q1,q2,q3,q4,q5,q6,residual_mm,converged,within_limits"
         q = torch.deg2rad(torch.tensor([[float(v) for v in ln.split(",")[2:8]] for ln in lines[1:]],
                                        dtype=torch.float64))
         assert all(ln.endswith("true") for ln in lines[1:])

@@ -1,6 +1,8 @@
 """`Measurements`: measured TCP positions at commanded joint angles (the core data type).
 
 One row per measurement, in the order the measurements were taken; radians and mm inside.
+Optional per row: the measured point (reflector id, several per pose) and the measured
+orientation (fixed-axis XYZ angles, R = Rz(rz) Ry(ry) Rx(rx)).
 Reading and writing the CSV form lives in `torchcal.io.measurement_csv`.
 """
 
@@ -36,6 +38,9 @@ class Measurements:
         payload_kg: (N,) payload mass in kg (>= 0), or None when the file has no column.
         temp_c: (N,) temperature in degrees Celsius, or None.
         source: the file these came from, or None.
+        point: (N,) int64 reflector / marker ids, or None (one point per pose).
+        rxyz: (N, 3) rad measured orientation as fixed-axis XYZ angles (rx, ry, rz):
+            R = Rz(rz) Ry(ry) Rx(rx), measurement frame <- tool frame; or None.
         q_prev: (N, n) rad, the commanded joint angles the robot moved *from* to reach each
             row: the previous row, all-zero joints before the first row. Computed from `q`
             when not given, and carried by `subset`, so direction-dependent effects
@@ -52,6 +57,8 @@ class Measurements:
     temp_c: torch.Tensor | None = None
     source: str | None = None
     q_prev: torch.Tensor | None = field(default=None, repr=False)
+    point: torch.Tensor | None = None
+    rxyz: torch.Tensor | None = None
 
     def __post_init__(self):
         set_ = object.__setattr__
@@ -81,6 +88,18 @@ class Measurements:
             if name == "payload_kg" and (v < 0).any():
                 raise InputError("Measurements.payload_kg: payload must be >= 0 kg")
             set_(self, name, v)
+        if self.point is not None:
+            pt = torch.as_tensor(self.point)
+            if pt.is_floating_point() or pt.is_complex() or pt.dtype == torch.bool:
+                raise InputError(f"Measurements.point: expected integer point ids, got dtype {pt.dtype}")
+            if tuple(pt.shape) != (N,):
+                raise InputError(f"Measurements.point: expected shape ({N},), got {tuple(pt.shape)}")
+            set_(self, "point", pt.to(torch.int64))
+        if self.rxyz is not None:
+            r = _as_float(self.rxyz, "rxyz")
+            if tuple(r.shape) != (N, 3):
+                raise InputError(f"Measurements.rxyz: expected shape ({N}, 3) rad, got {tuple(r.shape)}")
+            set_(self, "rxyz", r)
         if self.source is not None:
             set_(self, "source", str(self.source))
         if self.q_prev is None:
@@ -134,7 +153,8 @@ class Measurements:
         def take(t):
             return None if t is None else t[rows.to(t.device)]
         return Measurements(take(self.pose), take(self.q), take(self.xyz), take(self.payload_kg),
-                            take(self.temp_c), self.source, take(self.q_prev))
+                            take(self.temp_c), self.source, take(self.q_prev), take(self.point),
+                            take(self.rxyz))
 
     def to(self, device=None, dtype=None) -> "Measurements":
         """A copy on `device`; floating tensors cast to `dtype` (pose stays int64)."""
@@ -143,4 +163,36 @@ class Measurements:
                 return None
             return t.to(device=device, dtype=dtype if t.is_floating_point() else None)
         return Measurements(mv(self.pose), mv(self.q), mv(self.xyz), mv(self.payload_kg),
-                            mv(self.temp_c), self.source, mv(self.q_prev))
+                            mv(self.temp_c), self.source, mv(self.q_prev), mv(self.point),
+                            mv(self.rxyz))
+
+    @property
+    def rotation(self) -> torch.Tensor | None:
+        """(N, 3, 3) measured orientation matrices R = Rz(rz) Ry(ry) Rx(rx), or None."""
+        return None if self.rxyz is None else fixed_xyz_to_matrix(self.rxyz)
+
+
+def _rot(axis: int, a: torch.Tensor) -> torch.Tensor:
+    """(..., 3, 3) rotation about axis 0/1/2 (x/y/z) by angles a (...,) rad."""
+    c, s = torch.cos(a), torch.sin(a)
+    o, z = torch.ones_like(a), torch.zeros_like(a)
+    m = {0: [o, z, z, z, c, -s, z, s, c],
+         1: [c, z, s, z, o, z, -s, z, c],
+         2: [c, -s, z, s, c, z, z, z, o]}[axis]
+    return torch.stack(m, dim=-1).reshape(*a.shape, 3, 3)
+
+
+def fixed_xyz_to_matrix(r: torch.Tensor) -> torch.Tensor:
+    """Fixed-axis XYZ angles r (..., 3) rad [rx, ry, rz] -> R = Rz(rz) Ry(ry) Rx(rx) (..., 3, 3)."""
+    return _rot(2, r[..., 2]) @ _rot(1, r[..., 1]) @ _rot(0, r[..., 0])
+
+
+def matrix_to_fixed_xyz(R: torch.Tensor) -> torch.Tensor:
+    """Inverse of `fixed_xyz_to_matrix`: (..., 3, 3) -> (..., 3) rad, ry in [-pi/2, pi/2]
+    (rx = 0 at gimbal lock)."""
+    cy = torch.hypot(R[..., 0, 0], R[..., 1, 0])
+    ry = torch.atan2(-R[..., 2, 0], cy)
+    lock = cy < 1e-9
+    rx = torch.where(lock, torch.zeros_like(ry), torch.atan2(R[..., 2, 1], R[..., 2, 2]))
+    rz = torch.where(lock, torch.atan2(-R[..., 0, 1], R[..., 1, 1]), torch.atan2(R[..., 1, 0], R[..., 0, 0]))
+    return torch.stack([rx, ry, rz], dim=-1)

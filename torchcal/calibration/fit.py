@@ -19,6 +19,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import math
+
 import numpy as np
 import scipy.linalg
 import torch
@@ -27,9 +29,12 @@ from torchcal.effects.base import Context
 from torchcal.errors import InputError
 from torchcal.calibration.lm import levenberg_marquardt
 from torchcal.calibration.model import CalibrationModel
+from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.calibration.uncertainty import ParameterCovariance, parameter_covariance
 
 RANK_TOL = 1e-6
+SIGMA_MM = 0.01   # default position uncertainty of one measurement (laser tracker), mm
+SIGMA_DEG = 0.01  # default orientation uncertainty (36 arcsec, tracker 6-D probe), deg
 
 
 @dataclass
@@ -92,6 +97,10 @@ class FitResult:
     report: identifiability; outliers: row indices with weight below 0.1 (robust fits);
     status: how the (last) LM solve stopped, 'converged', 'stalled' or 'max_iterations'
     (`torchcal.calibration.lm.LMStatus`).
+    registration: the closed-form start (rms before/after, frame) or None; implausible:
+    names of MD-H deviations held because they grew beyond `plausible_limits`;
+    orientation: {"sigma_mm", "sigma_deg", "weight_mm_per_rad", "tool_rotation" (3, 3),
+    "rms_deg"} when orientations were fitted.
     """
 
     model: CalibrationModel
@@ -118,6 +127,10 @@ class FitResult:
         from torchcal.io.modelfile import to_dict
 
         return to_dict(self, source=source, seed=seed, robust=robust, pose_ids=pose_ids)
+    registration: dict | None = None
+    implausible: list = field(default_factory=list)
+    orientation: dict | None = None
+    plausible_limits: dict | None = None
 
     @property
     def rms_mm(self) -> float:
@@ -151,63 +164,160 @@ def _generic_rank(model: CalibrationModel, ctx: Context, cand, rank_tol: float) 
     return identifiability(J, model.param_names(), cand, rank_tol).rank
 
 
+def _so3_error(Rp: torch.Tensor, Rm: torch.Tensor) -> torch.Tensor:
+    """Orientation residual (N, 3) rad: the axis times sin(angle) of Rp^T Rm (the
+    rotation vector to third order; smooth at zero, unlike the exact logarithm)."""
+    E = Rp.transpose(-1, -2) @ Rm
+    return 0.5 * torch.stack([E[..., 2, 1] - E[..., 1, 2], E[..., 0, 2] - E[..., 2, 0],
+                              E[..., 1, 0] - E[..., 0, 1]], dim=-1)
+
+
 def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, free=None,
         robust: str | None = None, max_iter: int = 60, rank_tol: float = RANK_TOL,
-        pose=None) -> FitResult:
-    """Fit model parameters to measured TCP positions xyz (N, 3) mm.
+        pose=None, rotation: torch.Tensor | None = None, sigma_mm: float = SIGMA_MM,
+        sigma_deg: float = SIGMA_DEG, register: bool = True,
+        max_length_mm: float | None = MAX_LENGTH_MM,
+        max_angle_deg: float | None = MAX_ANGLE_DEG) -> FitResult:
+    """Fit model parameters to measured TCP positions xyz (N, 3) mm [and orientations].
 
     pose: (N,) int pose ids; with repeats the standard errors are pose-level
     (`torchcal.calibration.uncertainty`).
 
     free: (P,) bool candidate parameters (default `model.default_free()`); the
-    identifiability analysis at theta0 may hold more. robust: None, 'huber' or 'cauchy'.
+    identifiability analysis at the (registered) start may hold more. robust: None,
+    'huber' or 'cauchy'.
+
+    Registration (`register`, theta0 not given, the model has base_frame): the start is
+    the closed-form rigid registration of the nominal model onto the measurements
+    (torchcal.calibration.registration), so the base frame carries the instrument's frame
+    and the robot's deviations start (and stay) small.
+
+    Orientation (`rotation` (N, 3, 3) measured, measurement frame <- measured tool frame):
+    each row adds three residuals, the orientation error in rad times
+    ``sigma_mm / radians(sigma_deg)`` (mm per rad), i.e. both kinds of residual are
+    weighed by their stated measurement uncertainty (default 0.01 mm and 0.01 deg). The
+    constant rotation between the nominal tool frame and the measured frame is solved in
+    closed form (Procrustes) at the start and again after the first fit.
+
+    Plausibility: free MD-H deviations that end beyond `max_length_mm` (dd, da) or
+    `max_angle_deg` (dtheta, dalpha, dbeta) are held at their start value and the fit
+    is repeated (torchcal.calibration.plausibility); they are listed in
+    `FitResult.implausible`. None disables the check.
     """
+    from torchcal.calibration import registration as reg
+    from torchcal.calibration.plausibility import implausible_deviations
+
     model.check_context(ctx)
-    theta0 = model.zeros() if theta0 is None else theta0
+    reg_info = None
+    if theta0 is None:
+        theta0 = model.zeros()
+        if register and any(e.name == "base_frame" for e in model.effects) and xyz.shape[0] >= 3:
+            theta0, reg_info = reg.register(model, ctx, xyz)
     cand = model.default_free() if free is None else free
     n_cand = int(cand.sum())
-    J0 = model.jacobian(theta0, ctx)
-    report = identifiability(J0, model.param_names(), cand, rank_tol)
     n_rows = xyz.shape[0]
-    if 3 * n_rows <= report.rank:
+    k = 3 if rotation is None else 6
+    w_rot = sigma_mm / math.radians(sigma_deg)  # mm per rad
+    state = {"tool_R": None}
+
+    def fit_tool_rotation(theta):
+        with torch.no_grad():
+            state["tool_R"] = reg.procrustes_rotation(model.predict_rotation(theta, ctx), rotation)
+
+    def resid(theta):  # (N, k): model - measured (position mm, orientation mm-equivalent)
+        r = model.predict(theta, ctx) - xyz
+        if rotation is None:
+            return r
+        e = _so3_error(model.predict_rotation(theta, ctx) @ state["tool_R"], rotation)
+        return torch.cat([r, -w_rot * e], dim=-1)
+
+    def jac(theta):
+        return torch.func.jacfwd(resid)(theta)  # (N, k, P)
+
+    if rotation is not None:
+        fit_tool_rotation(theta0)
+    J0 = jac(theta0)
+    report = identifiability(J0, model.param_names(), cand, rank_tol)
+    if k * n_rows <= report.rank:
         # the equations, not the model, bound the rank here: count the identifiable
         # parameters at generic poses (seeded, so the message is reproducible)
-        k = _generic_rank(model, ctx, cand, rank_tol)
-        need = k // 3 + 1
+        kk = _generic_rank(model, ctx, cand, rank_tol)
+        need = kk // 3 + 1
         raise InputError(f"too few poses: {n_rows} poses give {3 * n_rows} equations (3 per pose) "
-                         f"but the model [{', '.join(model.specs()) or 'geometric only'}] has {k} "
+                         f"but the model [{', '.join(model.specs()) or 'geometric only'}] has {kk} "
                          f"identifiable parameters (of {n_cand}); need at least {need} poses, "
                          f"in practice {max(2 * need, need + 10)} or more spread over the workspace")
     if n_cand and report.rank == 0:
         raise InputError("no parameter is identifiable from these poses")
 
-    def residual_fn(x):  # x (1, P) -> (1, 3N)
-        return (model.predict(x[0], ctx) - xyz).reshape(1, -1)
-
-    def jacobian_fn(x):
-        return model.jacobian(x[0], ctx).reshape(1, -1, x.shape[-1])
-
-    weights = torch.ones(n_rows, dtype=xyz.dtype, device=xyz.device)
-    x = theta0.unsqueeze(0)
-    rounds = 1 if robust is None else 8
-    for _ in range(rounds):
-        w = weights.repeat_interleave(3).unsqueeze(0)
-        res = levenberg_marquardt(residual_fn, x, free=report.free, weights=w,
-                                  jacobian_fn=jacobian_fn, max_iter=max_iter)
-        x = res.x
-        if robust is None:
-            break
-        dist = (model.predict(x[0], ctx) - xyz).norm(dim=-1)
-        new = _robust_weights(dist, robust)
-        if (new - weights).abs().max() < 1e-4:
+    def solve(x, free_now):
+        weights = torch.ones(n_rows, dtype=xyz.dtype, device=xyz.device)
+        rounds = 1 if robust is None else 8
+        for _ in range(rounds):
+            w = weights.repeat_interleave(k).unsqueeze(0)
+            res = levenberg_marquardt(lambda z: resid(z[0]).reshape(1, -1), x, free=free_now, weights=w,
+                                      jacobian_fn=lambda z: jac(z[0]).reshape(1, -1, z.shape[-1]),
+                                      max_iter=max_iter)
+            x = res.x
+            if robust is None:
+                break
+            dist = (model.predict(x[0], ctx) - xyz).norm(dim=-1)
+            new = _robust_weights(dist, robust)
+            if (new - weights).abs().max() < 1e-4:
+                weights = new
+                break
             weights = new
-            break
-        weights = new
+        return x, weights, int(res.n_iter[0]), res.status_labels()[0]
+
+    free_now = report.free.clone()
+    x, weights, n_iter, status = solve(theta0.unsqueeze(0), free_now)
+    if rotation is not None:
+        fit_tool_rotation(x[0])
+        x, weights, n_iter, status = solve(x, free_now)
+    implausible: list[str] = []
+    if max_length_mm is not None and max_angle_deg is not None:
+        names = model.param_names()
+        for _ in range(5):
+            bad = implausible_deviations(model, x[0], free_now, max_length_mm, max_angle_deg)
+            if not bad:
+                break
+            implausible += [names[i] for i in bad]
+            x = x.clone()
+            x[0, bad] = theta0[bad]
+            # judge identifiability again without them: a parameter held as redundant
+            # with one of them (e.g. tool_z with dd6) is free again
+            cand = cand.clone()
+            cand[[names.index(n) for n in implausible]] = False
+            report = identifiability(jac(x[0]), names, cand, rank_tol)
+            free_now = report.free.clone()
+            x, weights, n_iter, status = solve(x, free_now)
+        report.held = report.held + [n for n in implausible if n not in report.held]
     theta = x[0]
-    resid = xyz - model.predict(theta, ctx)
-    covariance = parameter_covariance(model.jacobian(theta, ctx), resid, report.free, pose=pose,
-                                      weights=weights if robust else None)
+    r = resid(theta).detach()
+    resid_pos = -r[:, :3]
+    rot_res = None if rotation is None else r[:, 3:] / w_rot  # (N, 3) rad, model vs measured
+    if rotation is None:
+        covariance = parameter_covariance(model.jacobian(theta, ctx), resid_pos, free_now, pose=pose,
+                                          weights=weights if robust else None)
+    else:  # rows of 6 residuals: row-wise estimate s^2 (J^T W J)^-1
+        J = jac(theta).reshape(-1, theta.shape[0])[:, free_now]
+        wk = weights.repeat_interleave(k)
+        dof = max(k * n_rows - int(free_now.sum()), 1)
+        s2 = float((wk * r.reshape(-1) ** 2).sum()) / dof
+        cov = torch.zeros(theta.shape[0], theta.shape[0], dtype=theta.dtype, device=theta.device)
+        if int(free_now.sum()):
+            idx = free_now.nonzero().flatten()
+            cov[idx[:, None], idx[None, :]] = s2 * torch.linalg.pinv((J.T * wk) @ J)
+        covariance = ParameterCovariance(cov, dof, math.sqrt(s2), "rows")
     std = covariance.std
     outliers = torch.nonzero(weights < 0.1).flatten().tolist() if robust else []
-    return FitResult(model, theta, std, resid, weights, report, int(res.n_iter[0]), outliers, covariance,
-                     res.status_labels()[0])
+    orient = None
+    if rotation is not None:
+        orient = {"sigma_mm": sigma_mm, "sigma_deg": sigma_deg, "weight_mm_per_rad": w_rot,
+                  "tool_rotation": state["tool_R"],
+                  "rms_deg": math.degrees(float(rot_res.norm(dim=-1).pow(2).mean().sqrt()))}
+    return FitResult(model, theta.detach(), std, resid_pos, weights, report, n_iter, outliers, covariance,
+                     status=status,
+                     registration=reg_info, implausible=implausible, orientation=orient,
+                     plausible_limits=None if max_length_mm is None else
+                     {"max_length_mm": max_length_mm, "max_angle_deg": max_angle_deg})

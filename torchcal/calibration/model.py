@@ -10,6 +10,11 @@ positions (N, 3) mm in the measurement frame:
    and the tool point (+ tool offsets);
 3. thermal scale of the chain, robot base, load-driven displacements (clearance);
 4. base_frame maps to the measurement frame.
+
+`predict_rotation` gives the TCP orientation (N, 3, 3) in the measurement frame (chain
+with the deviations, nominal tool rotation, base_frame rotation) for measured
+orientations. With several measured points per pose (`points`), `tool_offset` holds one
+offset per point id.
 """
 
 from __future__ import annotations
@@ -25,9 +30,15 @@ from torchcal.robots.robot import Robot
 class CalibrationModel:
     """Geometric model + effects for one robot. Holds no fitted values (see FitResult)."""
 
-    def __init__(self, robot: Robot, effects=()):
+    def __init__(self, robot: Robot, effects=(), points=None):
         self.robot = robot
         self.effects: list[Effect] = [e if isinstance(e, Effect) else build(e, robot) for e in effects]
+        self.points: tuple = ()
+        if points is not None:
+            for e in self.effects:
+                if hasattr(e, "set_points"):
+                    e.set_points(points)
+                    self.points = e.points
         sizes = [5 * robot.n] + [e.n_params for e in self.effects]
         bounds = torch.tensor([0] + sizes).cumsum(0).tolist()
         self.slices = [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
@@ -60,6 +71,29 @@ class CalibrationModel:
     def check_context(self, ctx: Context) -> None:
         for e in self.effects:
             e.check_context(ctx)
+
+    def predict_rotation(self, theta: torch.Tensor, ctx: Context) -> torch.Tensor:
+        """TCP orientations (N, 3, 3), measurement frame <- tool frame (the robot's nominal
+        tool rotation), for parameters theta (P,): MD-H chain with the deviations and
+        joint offsets of the effects, then the base_frame rotation."""
+        robot = self.robot
+        geo = theta[self.slices[0]].reshape(robot.n, 5)
+        q = ctx.q
+        parts = list(zip(self.effects, self.slices[1:]))
+        for e, sl in parts:
+            dq = e.joint_offset(theta[sl], ctx)
+            if dq is not None:
+                q = q + dq
+            g = e.geometric_offset(theta[sl], ctx)
+            if g is not None:
+                geo = geo + g
+        T = K.fk_pose(q, robot.table.to(theta), geo, robot.base.to(theta), None)
+        R = T[..., :3, :3] @ robot.tool[:3, :3].to(theta)
+        for e, sl in parts:
+            w = e.world_rotation(theta[sl], ctx)
+            if w is not None:
+                R = w @ R
+        return R
 
     def predict(self, theta: torch.Tensor, ctx: Context) -> torch.Tensor:
         """TCP positions (N, 3) mm for parameters theta (P,) and the rows of ctx."""

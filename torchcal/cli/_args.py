@@ -83,21 +83,42 @@ def check_folder(opt: str, path) -> None:
         raise InputError(f"{path}: {opt} expects a folder, but this is a file")
 
 
-def read_data(path, robot):
-    """The measurement CSV for `robot`.
+def add_units(p, what: str = "measurements"):
+    """--length-unit mm|m and --angle-unit deg|rad for a command that reads `what`."""
+    p.add_argument("--length-unit", choices=["mm", "m"], default="mm",
+                   help=f"unit of x, y, z in the {what} (default mm)")
+    p.add_argument("--angle-unit", choices=["deg", "rad"], default="deg",
+                   help=f"unit of the joint angles (and rx, ry, rz) in the {what} (default deg)")
+
+
+def units(args) -> dict:
+    """{'length_unit', 'angle_unit'} from parsed args (defaults mm, deg)."""
+    return {"length_unit": getattr(args, "length_unit", "mm") or "mm",
+            "angle_unit": getattr(args, "angle_unit", "deg") or "deg"}
+
+
+def read_data(path, robot, args=None, check: bool = True):
+    """The measurement CSV for `robot`, in the units of `args` (--length-unit,
+    --angle-unit; default mm, deg).
 
     Joint angles outside the preset's nominal limits are a warning (one line on
     stderr), not an error: the presets' limits are data-sheet values, and real robots
-    (and other simulators' sessions) are measured at or beyond them.
+    (and other simulators' sessions) are measured at or beyond them. With `check`, the
+    unit plausibility check (torchcal.calibration.plausibility.check_units) refuses
+    metres read as mm and radians read as degrees with one line naming the fix.
     """
     import sys
     import warnings
 
+    from torchcal.calibration.plausibility import check_units
     from torchcal.io.measurement_csv import JointLimitWarning, read_measurements
 
+    u = units(args)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", JointLimitWarning)
-        m = read_measurements(path, robot=robot)
+        m = read_measurements(path, robot=robot, **u)
+    if check:
+        check_units(m, robot, where=str(path), **u)
     for w in caught:
         if issubclass(w.category, JointLimitWarning):
             sys.stderr.write(f"torchcal: warning: {w.message}\n")

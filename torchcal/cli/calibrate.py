@@ -21,7 +21,8 @@ MODEL.json: format ``torchcal-interval-model/1`` (`IntervalModel.to_dict`), read
 
 from __future__ import annotations
 
-from torchcal.cli._args import add_force, add_robot, check_outputs, nonneg_float, read_data
+from torchcal.cli._args import add_force, add_robot, add_units, check_outputs, nonneg_float, read_data
+from torchcal.errors import InputError
 
 
 def _damping(text: str):
@@ -48,6 +49,7 @@ def add_parser(sub):
     p.add_argument("--damping", type=_damping, default="gcv_shared",
                    help="zone damping mu: gcv_shared (default), gcv (per zone) or a number >= 0")
     p.add_argument("--out", required=True, help="MODEL.json to write")
+    add_units(p)
     add_force(p)
     p.set_defaults(func=run)
     return p
@@ -73,7 +75,7 @@ def run(args) -> int:
     robot = make_robot(args.robot)
     specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
     part = Partition.load(args.partition) if args.partition else None
-    meas = read_data(args.data, robot)
+    meas = read_data(args.data, robot, args)
     im, glob = calibrate(meas, robot, specs, part, args.zone_method, args.damping)
     im.provenance = {"input": str(args.data), "input_sha256": file_sha256(args.data),
                      "partition": None if part is None else str(args.partition),

@@ -1,7 +1,9 @@
 """`torchcal compensate TARGETS.csv --model MODEL.json --out Q.csv`: corrected joint commands
 that make the calibrated model reach each target (torchcal.calibration.compensate).
 
-TARGETS.csv: header ``x,y,z`` (mm, robot base frame) and optionally ``q1..qN`` (degrees; mm for a prismatic joint):
+TARGETS.csv: header ``x,y,z`` (mm, robot base frame; --length-unit m for metres) and
+optionally ``q1..qN`` (degrees, mm for a prismatic joint; --angle-unit rad), ``payload_kg``
+and ``temp_c`` (the conditions of each move, needed by load- and temperature-dependent effects):
 the seed of each target, normally the command that nominally reaches it. Without seeds
 the nominal inverse is solved first from a default seed (joint 1 turned towards the
 target, the others at the middle of their limits).
@@ -10,10 +12,12 @@ MODEL.json: an interval model of ``torchcal calibrate`` (each target is assigned
 by the partition's `assign` before anything is measured, and compensated with that
 zone's centre parameters) or a ``torchcal fit`` model (one parameter set).
 
-Q.csv: ``point,zone,q1..qN,residual_mm,converged`` with the corrected commands in degrees,
-the calibrated model's remaining distance to the target (mm) and whether it met the
-tolerance; zones are 1-based (1 for a single-set model). Targets that do not converge
-or whose command leaves the joint limits are reported on stderr.
+Q.csv: ``point,zone,q1..qN,residual_mm,converged,within_limits`` with the corrected
+commands in degrees, the calibrated model's remaining distance to the target (mm),
+whether it met the tolerance and whether the command lies inside the joint limits; zones
+are 1-based (1 for a single-set model). The file is written in full; when any target
+did not converge or needs a command outside the limits, one stderr line names those
+targets (1-based rows) and the command exits 1.
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ import math
 import sys
 from pathlib import Path
 
-from torchcal.cli._args import add_force, add_robot, check_outputs, load_robot
+from torchcal.cli._args import add_force, add_robot, add_units, check_outputs, load_robot
 from torchcal.errors import InputError
 
 
@@ -34,14 +38,18 @@ def add_parser(sub):
     p.add_argument("--model", required=True, help="MODEL.json (torchcal calibrate or torchcal fit)")
     p.add_argument("--out", required=True, help="output CSV of corrected joint commands (degrees)")
     add_robot(p, required=False, what="check that the model is for this robot (the model file embeds its robot)")
+    add_units(p, "targets")
     add_force(p)
     p.set_defaults(func=run)
     return p
 
 
-def read_targets(path, n: int):
-    """(targets (M, 3) mm, seeds (M, n) deg or None) from the CSV; InputError naming line and column."""
+def read_targets(path, n: int, length_unit: str = "mm", angle_unit: str = "deg"):
+    """(targets (M, 3) mm, seeds (M, n) deg or None, extra {"payload_kg", "temp_c": (M,) or
+    None}) from the CSV; InputError naming line and column."""
     import torch
+
+    from torchcal.io.measurement_csv import LENGTH_UNITS
 
     path = Path(path)
     if not path.is_file():
@@ -59,9 +67,12 @@ def read_targets(path, n: int):
     if has_q and not all(c in header for c in qcols):
         missing = [c for c in qcols if c not in header]
         raise InputError(f"{path}: seed columns incomplete: missing {','.join(missing)} (expected q1..q{n} in degrees)")
-    unknown = [h for h in header if h not in ("x", "y", "z", "point", *qcols)]
+    opt = [c for c in ("payload_kg", "temp_c") if c in header]
+    unknown = [h for h in header if h not in ("x", "y", "z", "point", "payload_kg", "temp_c", *qcols)]
     if unknown:
-        raise InputError(f"{path}: unknown column(s) {','.join(unknown)}; expected x,y,z[,q1..q{n}]")
+        raise InputError(f"{path}: unknown column(s) {','.join(unknown)}; "
+                         f"expected x,y,z[,q1..q{n}][,payload_kg][,temp_c]")
+    extra = {c: [] for c in opt}
     idx = {h: i for i, h in enumerate(header)}
     xyz, qs = [], []
     for line, row in enumerate(rows[1:], start=2):
@@ -79,13 +90,25 @@ def read_targets(path, n: int):
             if not math.isfinite(v):
                 raise InputError(f"{path}: line {line}, column {col}: expected a finite number ({unit}), got {cell!r}")
             return v
-        xyz.append([num(c, "mm") for c in ("x", "y", "z")])
+        xyz.append([num(c, length_unit) for c in ("x", "y", "z")])
         if has_q:
-            qs.append([num(c, "degrees") for c in qcols])
+            qs.append([num(c, "degrees" if angle_unit == "deg" else "rad") for c in qcols])
+        for c in opt:
+            v = num(c, "kg" if c == "payload_kg" else "degC")
+            if c == "payload_kg" and v < 0:
+                raise InputError(f"{path}: line {line}, column payload_kg: payload must be >= 0 kg, got {v}")
+            extra[c].append(v)
     if not xyz:
         raise InputError(f"{path}: no target rows")
-    t = torch.tensor(xyz, dtype=torch.float64)
-    return t, (torch.tensor(qs, dtype=torch.float64) if has_q else None)
+    t = torch.tensor(xyz, dtype=torch.float64) * LENGTH_UNITS[length_unit]
+    seeds = None
+    if has_q:
+        seeds = torch.tensor(qs, dtype=torch.float64)
+        if angle_unit == "rad":
+            seeds = torch.rad2deg(seeds)
+    cond = {c: (torch.tensor(extra[c], dtype=torch.float64) if c in extra else None)
+            for c in ("payload_kg", "temp_c")}
+    return t, seeds, cond
 
 
 def load_model(path):
@@ -124,10 +147,22 @@ def run(args) -> int:
     check_outputs([("--out", args.out)], args.force, inputs=[args.targets, args.model])
     im = load_model(args.model)
     robot = im.model.robot
+    from torchcal.cli._args import units
+    from torchcal.effects import make_context
     from torchcal.robots.robot_file import check_same_robot
 
     check_same_robot(robot, load_robot(args.robot), str(args.model))
-    targets, seeds_deg = read_targets(args.targets, robot.n)
+    targets, seeds_deg, cond = read_targets(args.targets, robot.n, **units(args))
+    # the model's effects must find what they read (temp_c, payload_kg) in the targets
+    probe = make_context(robot, robot.limits.mean(-1).expand(targets.shape[0], robot.n),
+                         cond["payload_kg"], cond["temp_c"])
+    for e in im.model.effects:
+        try:
+            e.check_context(probe)
+        except InputError as exc:
+            need = "column temp_c" if e.name == "thermal_expansion" else str(exc)
+            raise InputError(f"{args.targets}: the model's effect {e.spec()} needs {need} "
+                             f"in the targets, which they lack") from None
     if seeds_deg is None:
         ni = nominal_inverse(robot, targets, default_seeds(robot, targets))
         q0 = ni.q
@@ -138,21 +173,29 @@ def run(args) -> int:
     else:
         q0 = robot.q_from_user(seeds_deg)  # deg, mm for a prismatic joint
     zone = im.assign(targets)
-    comp = compensate(im.model, im.theta, targets, q0, zone=zone)
+    comp = compensate(im.model, im.theta, targets, q0, zone=zone,
+                      payload_kg=cond["payload_kg"], temp_c=cond["temp_c"])
     qd = robot.q_to_user(comp.q)
     res = comp.residual_mm.norm(dim=-1)
-    lines = [",".join(["point", "zone", *(f"q{k}" for k in range(1, robot.n + 1)), "residual_mm", "converged"])]
+    lines = [",".join(["point", "zone", *(f"q{k}" for k in range(1, robot.n + 1)), "residual_mm", "converged",
+                       "within_limits"])]
     for i in range(targets.shape[0]):
         lines.append(",".join([str(i + 1), str(int(zone[i]) + 1), *("%.15g" % v for v in qd[i].tolist()),
-                               repr(float(res[i])), str(bool(comp.converged[i])).lower()]))
+                               repr(float(res[i])), str(bool(comp.converged[i])).lower(),
+                               str(bool(comp.within_limits[i])).lower()]))
     atomic_write(args.out, "\n".join(lines) + "\n", force=args.force, inputs=[args.targets, args.model])
-    n_bad = int((~comp.converged).sum())
+    bad_conv = (~comp.converged).nonzero().flatten().tolist()
     out_lim = (~comp.within_limits).nonzero().flatten().tolist()
-    print(f"compensated {targets.shape[0]} targets with {im.n_zones} parameter set(s) ({im.method}); "
-          f"max predicted residual {float(res.max()):.3g} mm; wrote {args.out}")
-    if n_bad:
-        sys.stderr.write(f"torchcal compensate: warning: {n_bad} target(s) did not converge to the tolerance\n")
-    if out_lim:
-        sys.stderr.write(f"torchcal compensate: warning: target row(s) {[i + 1 for i in out_lim][:10]} need "
-                         f"commands outside the joint limits\n")
+    ok = targets.shape[0] - len(set(bad_conv) | set(out_lim))
+    print(f"compensated {targets.shape[0]} targets with {im.n_zones} parameter set(s) ({im.method}): "
+          f"{ok} converged within the joint limits; max predicted residual {float(res.max()):.3g} mm; "
+          f"wrote {args.out}")
+    if bad_conv or out_lim:
+        def rows(ix):
+            return ", ".join(map(str, [i + 1 for i in ix][:20])) + (" ..." if len(ix) > 20 else "")
+        parts = ([f"not converged: target(s) {rows(bad_conv)}"] if bad_conv else []) + \
+                ([f"outside the joint limits: target(s) {rows(out_lim)}"] if out_lim else [])
+        sys.stderr.write(f"torchcal compensate: error: {len(set(bad_conv) | set(out_lim))} target(s) failed "
+                         f"({'; '.join(parts)}); see {args.out}\n")
+        return 1
     return 0

@@ -4,7 +4,7 @@ the model fails and which physical effect it is missing (see torchcal.diagnosis.
 from __future__ import annotations
 
 from torchcal.io import modelfile
-from torchcal.cli._args import add_force, add_viz, check_folder, check_outputs, positive_int, read_data, add_robot
+from torchcal.cli._args import add_force, add_units, add_viz, check_folder, check_outputs, positive_int, read_data, add_robot
 from torchcal.diagnosis.diagnose import diagnose
 from torchcal.errors import InputError
 from torchcal.io.files import write_json
@@ -21,6 +21,7 @@ def add_parser(sub):
     p.add_argument("--seed", type=int, default=0, help="seed of the fold assignment")
     p.add_argument("--json", help="write the report here")
     add_viz(p)
+    add_units(p)
     add_force(p)
     p.set_defaults(func=run)
 
@@ -61,7 +62,7 @@ def run(args) -> int:
     if args.model:
         model, _ = modelfile.load(args.model, robot=robot)
         effects = model.specs()
-    m = read_data(args.data, robot)
+    m = read_data(args.data, robot, args)
     d = diagnose(robot, m, effects, folds=args.folds, seed=args.seed)
     print_table(d)
     if args.json:

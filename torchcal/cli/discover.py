@@ -4,7 +4,7 @@ best significant effect each round until none is left; the error falls at each r
 from __future__ import annotations
 
 from torchcal.io import modelfile
-from torchcal.cli._args import add_force, add_viz, check_folder, check_outputs, positive_int, read_data, add_robot
+from torchcal.cli._args import add_force, add_units, add_viz, check_folder, check_outputs, positive_int, read_data, add_robot
 from torchcal.diagnosis.diagnose import discover
 from torchcal.io.files import write_json
 from torchcal.robots.robot import robot as make_robot
@@ -20,6 +20,7 @@ def add_parser(sub):
     p.add_argument("--json", help="write the history here")
     p.add_argument("--out", help="write the final MODEL.json here")
     add_viz(p)
+    add_units(p)
     add_force(p)
     p.set_defaults(func=run)
 
@@ -32,7 +33,7 @@ def run(args) -> int:
         from torchcal.cli._viz import check_outputs as check_visual_outputs
         check_visual_outputs(args, "discover")
     robot = make_robot(args.robot)
-    m = read_data(args.data, robot)
+    m = read_data(args.data, robot, args)
     res = discover(robot, m, args.effects, folds=args.folds, seed=args.seed)
     for i, h in enumerate(res.history):
         print(f"round {i}: [{', '.join(h['effects']) or 'geometric only'}] rms {h['rms_mm']:.4f} mm, "

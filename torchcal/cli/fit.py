@@ -1,14 +1,26 @@
 """`torchcal fit DATA --robot R [--effects SPEC ...] --out MODEL.json`: geometric model plus
 the named effects, fitted by Levenberg-Marquardt; parameters that these poses cannot
 identify are named and held at nominal. `--robust huber|cauchy` down-weights gross
-outliers by IRLS and lists their pose ids."""
+outliers by IRLS and lists their pose ids.
+
+With `base_frame` among the effects the fit starts from the closed-form registration of
+the nominal model onto the measurements (instrument frame), reported as the base frame in
+mm and degrees. A data file with a `point` column gets one tool offset per point (needs
+`tool_offset`); rx, ry, rz columns add the measured orientation, weighed against position
+by --sigma-mm / --sigma-deg. MD-H deviations beyond --max-deviation-mm / -deg are held at
+nominal and reported (docs/formats.md)."""
 
 from __future__ import annotations
 
 from torchcal.io import modelfile
-from torchcal.cli._args import add_force, check_outputs, read_data, add_robot
-from torchcal.api import fit
+from torchcal.cli._args import add_force, add_units, check_outputs, read_data, add_robot
+from torchcal.cli._args import nonneg_float, positive_float
+from torchcal.effects import context_of
+from torchcal.errors import InputError
+from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, fit
+from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.io.files import write_json
+from torchcal.calibration.model import CalibrationModel
 from torchcal.robots.robot import robot as make_robot
 from torchcal.effects.spec import parse_specs
 
@@ -21,7 +33,16 @@ def add_parser(sub):
     p.add_argument("--effects", nargs="*", default=[], metavar="SPEC", help="effects, e.g. joint_compliance:2,3")
     p.add_argument("--robust", choices=["huber", "cauchy"], help="robust loss by IRLS")
     p.add_argument("--seed", type=int, default=0, help="recorded in the provenance")
+    p.add_argument("--sigma-mm", type=positive_float, default=SIGMA_MM,
+                   help=f"position uncertainty of one measurement, mm (default {SIGMA_MM})")
+    p.add_argument("--sigma-deg", type=positive_float, default=SIGMA_DEG,
+                   help=f"orientation uncertainty (rx, ry, rz columns), deg (default {SIGMA_DEG})")
+    p.add_argument("--max-deviation-mm", type=nonneg_float, default=MAX_LENGTH_MM,
+                   help=f"hold fitted |dd|, |da| beyond this at nominal (default {MAX_LENGTH_MM}; 0 = no check)")
+    p.add_argument("--max-deviation-deg", type=nonneg_float, default=MAX_ANGLE_DEG,
+                   help=f"hold fitted |dtheta|, |dalpha|, |dbeta| beyond this (default {MAX_ANGLE_DEG}; 0 = no check)")
     p.add_argument("--out", required=True, help="MODEL.json to write")
+    add_units(p)
     add_force(p)
     p.set_defaults(func=run)
 
@@ -30,8 +51,18 @@ def fit_file(args):
     """Read, fit; returns (measurements, FitResult)."""
     robot = make_robot(args.robot)
     specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
-    m = read_data(args.data, robot)
-    return m, fit(robot, m, specs, robust=args.robust)
+    m = read_data(args.data, robot, args)
+    points = None if m.point is None else sorted(set(m.point.tolist()))
+    if points is not None and len(points) > 1 and not any(s.split(":")[0] == "tool_offset" for s in specs):
+        raise InputError(f"{args.data}: {len(points)} measured points per pose (point column) need "
+                         "one tool offset each: add tool_offset to --effects")
+    model = CalibrationModel(robot, specs, points=points)
+    ctx = context_of(robot, m)
+    check = getattr(args, "max_deviation_mm", MAX_LENGTH_MM) and getattr(args, "max_deviation_deg", MAX_ANGLE_DEG)
+    return m, fit(model, ctx, m.xyz, robust=args.robust, pose=m.pose, rotation=m.rotation,
+                  sigma_mm=getattr(args, "sigma_mm", SIGMA_MM), sigma_deg=getattr(args, "sigma_deg", SIGMA_DEG),
+                  max_length_mm=getattr(args, "max_deviation_mm", MAX_LENGTH_MM) if check else None,
+                  max_angle_deg=getattr(args, "max_deviation_deg", MAX_ANGLE_DEG) if check else None)
 
 
 def _still_joints(m) -> list[str]:
@@ -39,6 +70,24 @@ def _still_joints(m) -> list[str]:
     qd = m.q_deg
     span = (qd.max(0).values - qd.min(0).values).tolist()
     return [f"q{j + 1} (constant {qd[0, j].item():.6g} deg)" for j, s in enumerate(span) if s < 1e-9]
+
+
+def _largest(res, k: int = 4) -> str:
+    """The k largest fitted MD-H deviations, readable (mm, deg)."""
+    import math
+
+    n5 = 5 * res.model.robot.n
+    names, units = res.model.param_names()[:n5], res.model.param_units()[:n5]
+    vals = []
+    for i in range(n5):
+        if not res.report.free[i]:
+            continue
+        v = float(res.theta[i])
+        if units[i] == "rad":
+            vals.append((abs(math.degrees(v)) / MAX_ANGLE_DEG, f"{names[i]} {math.degrees(v):+.4f} deg"))
+        else:
+            vals.append((abs(v) / MAX_LENGTH_MM, f"{names[i]} {v:+.4f} mm"))
+    return ", ".join(t for _, t in sorted(vals, reverse=True)[:k])
 
 
 def run(args) -> int:
@@ -51,11 +100,32 @@ def run(args) -> int:
           f"rms {res.rms_mm:.4f} mm, max {float(res.residuals.norm(dim=-1).max()):.4f} mm, "
           f"{rep.rank} identified parameters, condition {rep.condition:.3g}, solver {res.status} "
           f"after {res.n_iter} iterations")
-    if rep.held:
-        print(f"held at nominal (not identifiable from these poses): {', '.join(rep.held)}")
+    if res.registration is not None:
+        g = res.registration
+        print(f"registration (closed form, nominal model onto the measurements): rms "
+              f"{g['rms_before_mm']:.4g} mm as measured -> {g['rms_after_mm']:.4g} mm registered")
+    base = obj.get("base_frame")
+    if base is not None:
+        t, r = base["translation_mm"], base["rotation_fixed_xyz_deg"]
+        print(f"base frame (measurement <- robot base): translation [{t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}] mm, "
+              f"rotation fixed-XYZ [{r[0]:.4f}, {r[1]:.4f}, {r[2]:.4f}] deg")
+    if res.orientation is not None:
+        o = res.orientation
+        print(f"orientation: rms {o['rms_deg'] * 1000:.4g} mdeg (weight {o['weight_mm_per_rad']:.4g} mm/rad "
+              f"from sigma {o['sigma_mm']:g} mm, {o['sigma_deg']:g} deg)")
+    held = [n for n in rep.held if n not in res.implausible]
+    if held:
+        print(f"held at nominal (not identifiable from these poses): {', '.join(held)}")
         still = _still_joints(m)
         if still:
             print(f"joints that never move in {args.data}: {', '.join(still)}; move them to identify more")
+    if res.implausible:
+        lim = res.plausible_limits
+        print(f"held at nominal (implausible size, beyond {lim['max_length_mm']:g} mm / "
+              f"{lim['max_angle_deg']:g} deg for a calibrated arm): {', '.join(res.implausible)}")
+    big = _largest(res)
+    if big:
+        print(f"largest deviations: {big}")
     if res.covariance is not None and rep.rank:
         c = res.covariance
         how = (f"pose-level over {len(set(m.pose.tolist()))} poses: noise {c.noise_mm:.4f} mm, "

@@ -5,7 +5,7 @@ into an `Effect`. Joints are 1-based everywhere a person sees them.
 """
 
 from torchcal.effects.backlash import Backlash
-from torchcal.effects.base import Context, Effect, make_context
+from torchcal.effects.base import Context, Effect, context_of, make_context
 from torchcal.effects.base_frame import BaseFrame
 from torchcal.effects.encoder_scale import EncoderScale
 from torchcal.effects.gear_periodic import GearPeriodic
@@ -27,4 +27,4 @@ def build(spec, robot) -> Effect:
     return REGISTRY[spec.name](robot, spec.joints)
 
 
-__all__ = ["Context", "Effect", "REGISTRY", "build", "make_context"]
+__all__ = ["Context", "Effect", "REGISTRY", "build", "context_of", "make_context"]

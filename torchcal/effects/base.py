@@ -39,6 +39,7 @@ class Context:
             row's pose (the robot starts at all-zero joints and moves row to row).
         frames: (N, n + 2, 4, 4) nominal world frames at q (base, links, TCP).
         gravity: (3,) unit vector of gravity in the robot base frame.
+        point: (N,) int64 measured-point (reflector) ids, or None (one point per pose).
     """
 
     q: torch.Tensor
@@ -47,6 +48,7 @@ class Context:
     approach: torch.Tensor
     frames: torch.Tensor
     gravity: torch.Tensor
+    point: torch.Tensor | None = None
 
     @property
     def n_rows(self) -> int:
@@ -56,7 +58,7 @@ class Context:
         """The context of rows `index` (approach directions stay as computed in order)."""
         pick = lambda t: None if t is None else t[index]  # noqa: E731
         return Context(pick(self.q), pick(self.payload_kg), pick(self.temp_c),
-                       pick(self.approach), pick(self.frames), self.gravity)
+                       pick(self.approach), pick(self.frames), self.gravity, pick(self.point))
 
 
 def approach_directions(q: torch.Tensor) -> torch.Tensor:
@@ -75,14 +77,21 @@ def approach_directions(q: torch.Tensor) -> torch.Tensor:
     return out
 
 
-def make_context(robot: Robot, q, payload_kg=None, temp_c=None) -> Context:
-    """Context for rows of commanded joint angles q (N, n) rad in measurement order."""
+def make_context(robot: Robot, q, payload_kg=None, temp_c=None, point=None) -> Context:
+    """Context for rows of commanded joint angles q (N, n) rad in measurement order
+    (point: (N,) int reflector ids or None)."""
     q = robot.check_q(q).to(robot.dtype)
     n_rows = q.shape[0]
     payload = torch.zeros(n_rows, dtype=q.dtype, device=q.device) if payload_kg is None \
         else torch.as_tensor(payload_kg, dtype=q.dtype, device=q.device)
     temp = None if temp_c is None else torch.as_tensor(temp_c, dtype=q.dtype, device=q.device)
-    return Context(q, payload, temp, approach_directions(q), robot.frames(q), robot.gravity.to(q))
+    point = None if point is None else torch.as_tensor(point, dtype=torch.int64, device=q.device)
+    return Context(q, payload, temp, approach_directions(q), robot.frames(q), robot.gravity.to(q), point)
+
+
+def context_of(robot: Robot, m) -> Context:
+    """Context of a `Measurements` (q, payload, temperature, point ids)."""
+    return make_context(robot, m.q, m.payload_kg, m.temp_c, m.point)
 
 
 class Effect:
@@ -131,6 +140,10 @@ class Effect:
         return None
 
     def world(self, p, ctx, v):
+        return None
+
+    def world_rotation(self, p, ctx):
+        """(3, 3) rotation part of `world` (for measured orientations), or None."""
         return None
 
 

@@ -36,3 +36,6 @@ class BaseFrame(Effect):
 
     def world(self, p, ctx, v):
         return v @ rotvec_to_matrix(p[3:6]).T + p[:3]
+
+    def world_rotation(self, p, ctx):
+        return rotvec_to_matrix(p[3:6])

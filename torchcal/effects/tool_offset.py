@@ -1,20 +1,52 @@
-"""`tool_offset`: TCP / reflector position on the flange.
+"""`tool_offset`: TCP / reflector position on the flange, one per measured point.
 
-Parameters (3): [tool_x, tool_y, tool_z] mm, added to the robot's nominal TCP point in
-the flange frame. Largely absorbed by the last link's geometric parameters.
+Parameters: [tool_x, tool_y, tool_z] mm, added to the robot's nominal TCP point in the
+flange frame. Largely absorbed by the last link's geometric parameters.
+
+With several measured points per pose (the measurement file's ``point`` column, e.g.
+three reflectors on the tool), the effect holds one offset per point id:
+``tool_x@ID, tool_y@ID, tool_z@ID`` for each id in ascending order, and each row uses
+the offset of its point. A pose with three points fixes the tool's orientation too.
 """
 
+import torch
+
 from torchcal.effects.base import Effect
+from torchcal.errors import InputError
 
 
 class ToolOffset(Effect):
     name = "tool_offset"
+    points: tuple = ()  # point ids (ascending) when there are several, else ()
+
+    def set_points(self, points) -> None:
+        """Use one offset per point id (points: iterable of ints; one id = a single offset)."""
+        ids = sorted({int(p) for p in points})
+        self.points = tuple(ids) if len(ids) > 1 else ()
 
     def param_names(self):
-        return ["tool_x", "tool_y", "tool_z"]
+        if not self.points:
+            return ["tool_x", "tool_y", "tool_z"]
+        return [f"tool_{c}@{p}" for p in self.points for c in "xyz"]
 
     def param_units(self):
-        return ["mm", "mm", "mm"]
+        return ["mm"] * (3 * max(len(self.points), 1))
+
+    def check_context(self, ctx):
+        if not self.points:
+            return
+        if ctx.point is None:
+            raise InputError(f"the model has one tool offset per measured point ({len(self.points)} "
+                             "points) but the data have no point column")
+        known = torch.tensor(self.points, device=ctx.point.device)
+        bad = ~torch.isin(ctx.point, known)
+        if bad.any():
+            raise InputError(f"point id {int(ctx.point[bad][0])} is not one of the model's points "
+                             f"{list(self.points)}")
 
     def tool_point(self, p, ctx):
-        return p
+        if not self.points:
+            return p
+        known = torch.tensor(self.points, device=p.device)
+        idx = torch.searchsorted(known, ctx.point.to(p.device))
+        return p.view(len(self.points), 3)[idx]  # (N, 3)

@@ -1,8 +1,12 @@
-"""The measurement CSV: ``pose,q1,...,qN,x,y,z[,payload_kg][,temp_c]`` (docs/formats.md).
+"""The measurement CSV: ``pose,q1,...,qN,x,y,z[,point][,rx,ry,rz][,payload_kg][,temp_c]``
+(docs/formats.md).
 
-`read_measurements` / `write_measurements`: degrees and mm in the file, radians and mm in
-`Measurements`; the q column of a prismatic joint holds mm in the file and inside (only
-when the robot is given: without it every q column is read as degrees). The header is required, names are exact, columns may come in any order;
+`read_measurements` / `write_measurements`: degrees and mm in the file (other units by
+``length_unit='m'`` / ``angle_unit='rad'``), radians and mm in `Measurements`; the q
+column of a prismatic joint holds a length (mm, or m with ``length_unit='m'``; only
+when the robot is given: without it every q column is an angle). ``point``
+is an integer reflector id (several measured points per pose); ``rx, ry, rz`` are the
+measured orientation as fixed-axis XYZ angles, R = Rz(rz) Ry(ry) Rx(rx). The header is required, names are exact, columns may come in any order;
 every bad file gives one InputError line naming the file, ``line L (data row R)`` and the
 column. Joint angles outside the robot's limits warn (`JointLimitWarning`) unless
 ``strict_limits=True``. Writes are atomic (`torchcal.io.files.atomic_write`).
@@ -35,7 +39,10 @@ class JointLimitWarning(UserWarning):
 _INT64_MIN, _INT64_MAX = -(2 ** 63), 2 ** 63 - 1
 _POSE_RE = re.compile(r"\s*([+-]?[0-9]+)(?:\.0*)?\s*", re.ASCII)
 _QCOL_RE = re.compile(r"q([1-9][0-9]*)", re.ASCII)
-_LAYOUT = "pose,q1,...,qN,x,y,z[,payload_kg][,temp_c]"
+_LAYOUT = "pose,q1,...,qN,x,y,z[,point][,rx,ry,rz][,payload_kg][,temp_c]"
+_ORIENT = ("rx", "ry", "rz")
+LENGTH_UNITS = {"mm": 1.0, "m": 1000.0}  # unit -> mm
+ANGLE_UNITS = ("deg", "rad")
 
 
 def _fail(path, msg: str):
@@ -67,15 +74,15 @@ def _cell_float(path, cell: str, line: int, row: int, col: str, unit: str) -> fl
     return v
 
 
-def _cell_pose(path, cell: str, line: int, row: int) -> int:
+def _cell_pose(path, cell: str, line: int, row: int, col: str = "pose") -> int:
     m = _POSE_RE.fullmatch(cell)
     if m is None:
         got = "an empty cell" if not cell.strip() else _show(cell)
-        _fail(path, f"{_where(line, row, 'pose')}: expected an integer pose id, got {got}")
+        _fail(path, f"{_where(line, row, col)}: expected an integer {col} id, got {got}")
     digits = m.group(1)
     v = int(digits) if len(digits) <= 25 else _INT64_MAX + 1  # no int() of huge digit strings
     if not _INT64_MIN <= v <= _INT64_MAX:
-        _fail(path, f"{_where(line, row, 'pose')}: pose id {digits[:30]} does not fit in a 64-bit integer")
+        _fail(path, f"{_where(line, row, col)}: {col} id {digits[:30]} does not fit in a 64-bit integer")
     return v
 
 
@@ -104,7 +111,7 @@ def _parse_header(path, names: list[str], n_expected: int | None, robot_name: st
         m = _QCOL_RE.fullmatch(name)
         if m:
             qs.append(int(m.group(1)))
-        elif name not in ("pose", "x", "y", "z") + _OPTIONAL:
+        elif name not in ("pose", "x", "y", "z", "point") + _ORIENT + _OPTIONAL:
             _fail(path, f"line 1, column {_show(name)} (header column {i + 1}): unknown column; "
                         f"expected {_LAYOUT} (exact lower-case names)")
         cols[name] = i
@@ -128,12 +135,22 @@ def _parse_header(path, names: list[str], n_expected: int | None, robot_name: st
     for k in qs:
         if k > n:
             _fail(path, f"line 1, column q{k}: unknown column; expected q1..q{n}")
+    have = [c for c in _ORIENT if c in cols]
+    if have and len(have) != 3:
+        miss = ", ".join(c for c in _ORIENT if c not in cols)
+        _fail(path, f"line 1: orientation columns come as rx, ry, rz together; missing {miss}")
     return cols, n
 
 
 def read_measurements(path, n_joints: int | None = None, robot=None,
-                      strict_limits: bool = False) -> Measurements:
-    """Read a measurement CSV (docs/design.md): ``pose,q1,...,qN,x,y,z[,payload_kg][,temp_c]``.
+                      strict_limits: bool = False, length_unit: str = "mm",
+                      angle_unit: str = "deg") -> Measurements:
+    """Read a measurement CSV (docs/design.md):
+    ``pose,q1,...,qN,x,y,z[,point][,rx,ry,rz][,payload_kg][,temp_c]``.
+
+    Units: x, y, z in `length_unit` ('mm' default, or 'm'); q1..qN and rx, ry, rz in
+    `angle_unit` ('deg' default, or 'rad'). ``point``: integer reflector id. ``rx, ry,
+    rz``: measured orientation, fixed-axis XYZ (R = Rz(rz) Ry(ry) Rx(rx)), all three or none.
 
     Header: required, exact lower-case names, any column order, surrounding spaces ignored.
     The q-columns must be exactly q1..qN; N must equal `n_joints` and/or `robot.n` when
@@ -153,6 +170,11 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
     xyz (N, 3) mm, float64 on the CPU.
     """
     path = Path(path)
+    if length_unit not in LENGTH_UNITS:
+        raise InputError(f"length unit {length_unit!r}: expected one of {', '.join(LENGTH_UNITS)}")
+    if angle_unit not in ANGLE_UNITS:
+        raise InputError(f"angle unit {angle_unit!r}: expected one of {', '.join(ANGLE_UNITS)}")
+    lu, au = length_unit, ("degrees" if angle_unit == "deg" else "rad")
     robot_name = getattr(robot, "name", None)
     if n_joints is not None:
         if isinstance(n_joints, bool) or not isinstance(n_joints, numbers.Integral) or n_joints < 1:
@@ -196,8 +218,11 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
     qi = [cols[f"q{k}"] for k in range(1, n + 1)]
     xi = [cols[c] for c in "xyz"]
     opt = [c for c in _OPTIONAL if c in cols]
+    has_point, has_rot = "point" in cols, "rx" in cols
     N = len(rows)
     pose = [0] * N
+    point = [0] * N
+    rxyz = [[0.0] * 3 for _ in range(N)]
     q_deg = [[0.0] * n for _ in range(N)]
     xyz = [[0.0] * 3 for _ in range(N)]
     extra = {c: [0.0] * N for c in opt}
@@ -209,23 +234,33 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
         pose[r] = _cell_pose(path, fields[cols["pose"]], line, row)
         qr = q_deg[r]
         for j, i in enumerate(qi):
-            qr[j] = _cell_float(path, fields[i], line, row, f"q{j + 1}", "degrees")
+            qr[j] = _cell_float(path, fields[i], line, row, f"q{j + 1}", au)
         pr = xyz[r]
         for j, i in enumerate(xi):
-            pr[j] = _cell_float(path, fields[i], line, row, "xyz"[j], "mm")
+            pr[j] = _cell_float(path, fields[i], line, row, "xyz"[j], lu)
+        if has_point:
+            point[r] = _cell_pose(path, fields[cols["point"]], line, row, "point")
+        if has_rot:
+            for j, c in enumerate(_ORIENT):
+                rxyz[r][j] = _cell_float(path, fields[cols[c]], line, row, c, au)
         for c in opt:
             v = _cell_float(path, fields[cols[c]], line, row, c, "kg" if c == "payload_kg" else "degC")
             if c == "payload_kg" and v < 0:
                 _fail(path, f"{_where(line, row, c)}: payload must be >= 0 kg, got {_show(fields[cols[c]])}")
             extra[c][r] = v
 
+    to_rad = torch.deg2rad if angle_unit == "deg" else (lambda t: t)
     q = torch.tensor(q_deg, dtype=torch.float64).reshape(N, n)
-    # (N, n) rad; a prismatic joint's column stays in mm
-    q = torch.deg2rad(q) if robot is None else robot.to("cpu", torch.float64).q_from_user(q)
+    if robot is None:
+        q = to_rad(q)  # (N, n) rad
+    else:  # a prismatic joint's column is a length: mm inside
+        q = torch.where(robot.prismatic.cpu(), q * LENGTH_UNITS[length_unit], to_rad(q))
     m = Measurements(
         pose=torch.tensor(pose, dtype=torch.int64),
         q=q,
-        xyz=torch.tensor(xyz, dtype=torch.float64).reshape(N, 3),
+        xyz=torch.tensor(xyz, dtype=torch.float64).reshape(N, 3) * LENGTH_UNITS[length_unit],
+        point=torch.tensor(point, dtype=torch.int64) if has_point else None,
+        rxyz=to_rad(torch.tensor(rxyz, dtype=torch.float64).reshape(N, 3)) if has_rot else None,
         payload_kg=torch.tensor(extra["payload_kg"], dtype=torch.float64) if "payload_kg" in extra else None,
         temp_c=torch.tensor(extra["temp_c"], dtype=torch.float64) if "temp_c" in extra else None,
         source=str(path),
@@ -283,7 +318,11 @@ def format_measurements(m: Measurements, robot=None) -> str:
     """
     n = m.n
     opt = [c for c in _OPTIONAL if getattr(m, c) is not None]
-    header = ["pose", *(f"q{k}" for k in range(1, n + 1)), "x", "y", "z", *opt]
+    pt = [] if m.point is None else ["point"]
+    rot = [] if m.rxyz is None else list(_ORIENT)
+    header = ["pose", *(f"q{k}" for k in range(1, n + 1)), "x", "y", "z", *pt, *rot, *opt]
+    points = None if m.point is None else m.point.cpu().tolist()
+    rdeg = None if m.rxyz is None else torch.rad2deg(m.rxyz.detach().cpu().to(torch.float64)).T.tolist()
     pose = m.pose.cpu().tolist()
     q = m.q.detach().cpu().to(torch.float64)
     qd = (torch.rad2deg(q) if robot is None else robot.to("cpu", torch.float64).q_to_user(q)).T.tolist()  # deg / mm
@@ -294,6 +333,10 @@ def format_measurements(m: Measurements, robot=None) -> str:
         cells = [str(int(pose[r]))]
         cells += [_fmt_deg(c[r]) for c in qd]
         cells += [_fmt(c[r]) for c in xyz]
+        if points is not None:
+            cells.append(str(int(points[r])))
+        if rdeg is not None:
+            cells += [_fmt_deg(c[r]) for c in rdeg]
         cells += [_fmt(c[r]) for c in extra]
         lines.append(",".join(cells))
     return "\n".join(lines) + "\n"

@@ -5,7 +5,14 @@
      "parameters": [{"name", "value", "unit", "std", "identified", "ci95"}...],
      "covariance": {"method", "dof", "sigma_mm", "noise_mm", "pose_mm", "parameters", "matrix"},
      "identifiability": {...}, "fit": {"n", "rms_mm", "max_mm", "robust", "outliers", "status"},
-     "provenance": {"input", "input_sha256", "torchcal_version", "seed"}}
+     "provenance": {"input", "input_sha256", "torchcal_version", "seed"},
+     optional: "points": [ID...] (one tool offset per measured point),
+     "base_frame": {"translation_mm", "rotation_fixed_xyz_deg"} (measurement <- robot base),
+     "registration": {"rms_before_mm", "rms_after_mm", "translation_mm", "rotation_fixed_xyz_deg",
+                      "rotation_angle_deg"} (the closed-form start),
+     "plausibility": {"max_length_mm", "max_angle_deg", "held": [NAME...]},
+     "orientation": {"sigma_mm", "sigma_deg", "weight_mm_per_rad", "rms_deg",
+                     "tool_rotation_fixed_xyz_deg"}}
 
 Values are in the units named beside them (mm, rad, 1/K, ...); ``std`` is the standard
 error (0 for parameters held at nominal), ``ci95`` its 95 % interval [lower, upper]
@@ -40,10 +47,28 @@ def file_sha256(path) -> str:
 
 
 def to_dict(res: FitResult, source=None, seed: int = 0, robust=None, pose_ids=None) -> dict:
+    from torchcal.calibration.registration import base_frame_summary
+    from torchcal.measurements import matrix_to_fixed_xyz
+
     model = res.model
     dist = res.residuals.norm(dim=-1)
     lo, hi = (res.theta, res.theta) if res.covariance is None else res.covariance.interval95(res.theta)
     outliers = res.outliers if pose_ids is None else sorted({int(pose_ids[i]) for i in res.outliers})
+    extra = {}
+    if model.points:
+        extra["points"] = list(model.points)
+    base = base_frame_summary(model, res.theta)
+    if base is not None:
+        extra["base_frame"] = base
+    if res.registration is not None:
+        extra["registration"] = dict(res.registration)
+    if res.plausible_limits is not None:
+        extra["plausibility"] = {**res.plausible_limits, "held": list(res.implausible)}
+    if res.orientation is not None:
+        o = res.orientation
+        extra["orientation"] = {k: o[k] for k in ("sigma_mm", "sigma_deg", "weight_mm_per_rad", "rms_deg")}
+        extra["orientation"]["tool_rotation_fixed_xyz_deg"] = torch.rad2deg(
+            matrix_to_fixed_xyz(o["tool_rotation"].detach().cpu().double())).tolist()
     return {
         "format": FORMAT,
         "robot": model.robot.name,
@@ -63,6 +88,7 @@ def to_dict(res: FitResult, source=None, seed: int = 0, robust=None, pose_ids=No
         "provenance": {"input": None if source is None else str(source),
                        "input_sha256": None if source is None else file_sha256(source),
                        "torchcal_version": torchcal.__version__, "seed": seed},
+        **extra,
     }
 
 
@@ -86,7 +112,17 @@ def load(path, robot: Robot | str | None = None):
         from torchcal.robots.robot import robot as make_robot
 
         check_same_robot(nominal, make_robot(robot), str(path))
-    model = CalibrationModel(nominal, effects)
+    model = CalibrationModel(nominal, effects, points=obj.get("points"))
+    model.tool_rotation = None  # measured tool frame <- nominal tool frame, when fitted
+    orient = obj.get("orientation")
+    if isinstance(orient, dict) and "tool_rotation_fixed_xyz_deg" in orient:
+        from torchcal.measurements import fixed_xyz_to_matrix
+        try:
+            r = torch.deg2rad(torch.tensor([float(v) for v in orient["tool_rotation_fixed_xyz_deg"]],
+                                           dtype=torch.float64))
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"{path}: bad orientation.tool_rotation_fixed_xyz_deg: {exc}") from None
+        model.tool_rotation = fixed_xyz_to_matrix(r)
     if names != model.param_names():
         raise InputError(f"{path}: parameters do not match robot {nominal.name!r} with effects {effects}")
     return model, torch.tensor(values, dtype=torch.float64)

@@ -1,0 +1,67 @@
+"""`compensate` with payload_kg / temp_c target columns, per-target status and exit codes."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+import torchcal
+from torchcal.cli import main
+from torchcal.io.measurement_csv import write_measurements
+from torchcal.robots.poses import random_poses
+from torchcal.simulation.virtual_robot import VirtualRobot
+
+
+@pytest.fixture(scope="module")
+def model(tmp_path_factory):
+    d = tmp_path_factory.mktemp("comp")
+    rob = torchcal.robot("ur5e")
+    m = VirtualRobot(rob, ["backlash:3", "thermal_expansion"], seed=2).measure(random_poses(rob, 50, 1), seed=3)
+    write_measurements(d / "data.csv", m)
+    assert main(["fit", str(d / "data.csv"), "--robot", "ur5e", "--effects", "backlash:3", "thermal_expansion",
+                 "--out", str(d / "model.json")]) == 0
+    q = random_poses(rob, 3, 8)
+    xyz = rob.fk(q)
+    return d, rob, q, xyz
+
+
+def _targets(path, q, xyz, temp=True, far=False):
+    head = "x,y,z,q1,q2,q3,q4,q5,q6" + (",temp_c" if temp else "")
+    rows = []
+    for i in range(q.shape[0]):
+        p = xyz[i].tolist()
+        if far and i == 1:
+            p = [5000.0, 0.0, 0.0]  # out of reach of a ur5e
+        cells = p + torch.rad2deg(q[i]).tolist() + ([25.0] if temp else [])
+        rows.append(",".join(repr(float(c)) for c in cells))
+    path.write_text("\n".join([head] + rows) + "\n")
+    return path
+
+
+def test_model_needing_temp_c_names_the_column(model, capsys):
+    d, _, q, xyz = model
+    t = _targets(d / "no_temp.csv", q, xyz, temp=False)
+    capsys.readouterr()
+    assert main(["compensate", str(t), "--model", str(d / "model.json"), "--out", str(d / "o1.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "temp_c" in err and len(err.strip().splitlines()) == 1 and not (d / "o1.csv").exists()
+
+
+def test_targets_with_temp_c_converge_and_report_status(model):
+    d, rob, q, xyz = model
+    t = _targets(d / "ok.csv", q, xyz)
+    assert main(["compensate", str(t), "--model", str(d / "model.json"), "--out", str(d / "o2.csv")]) == 0
+    lines = (d / "o2.csv").read_text().splitlines()
+    assert lines[0].endswith("residual_mm,converged,within_limits")
+    assert all(r.endswith("true,true") for r in lines[1:])
+
+
+def test_failed_target_is_named_and_exits_non_zero(model, capsys):
+    d, _, q, xyz = model
+    t = _targets(d / "far.csv", q, xyz, far=True)
+    capsys.readouterr()
+    code = main(["compensate", str(t), "--model", str(d / "model.json"), "--out", str(d / "o3.csv")])
+    err = capsys.readouterr().err
+    assert code == 1 and "not converged: target(s) 2" in err and len(err.strip().splitlines()) == 1
+    rows = (d / "o3.csv").read_text().splitlines()[1:]
+    assert rows[1].split(",")[-2] == "false" and rows[0].split(",")[-2] == "true"

@@ -21,7 +21,7 @@ MODEL.json: format ``torchcal-interval-model/1`` (`IntervalModel.to_dict`), read
 
 from __future__ import annotations
 
-from torchcal.cli._args import add_force, check_outputs, read_data
+from torchcal.cli._args import add_effects_module, add_force, check_outputs, read_data
 from torchcal.errors import InputError
 
 
@@ -52,6 +52,7 @@ def add_parser(sub):
                    help="zone damping mu: gcv_shared (default), gcv (per zone) or a number >= 0")
     p.add_argument("--out", required=True, help="MODEL.json to write")
     add_force(p)
+    add_effects_module(p)
     p.set_defaults(func=run)
     return p
 

@@ -23,7 +23,7 @@ import math
 import sys
 from pathlib import Path
 
-from torchcal.cli._args import add_force, check_outputs
+from torchcal.cli._args import add_effects_module, add_force, check_outputs
 from torchcal.errors import InputError
 
 
@@ -34,6 +34,7 @@ def add_parser(sub):
     p.add_argument("--model", required=True, help="MODEL.json (torchcal calibrate or torchcal fit)")
     p.add_argument("--out", required=True, help="output CSV of corrected joint commands (degrees)")
     add_force(p)
+    add_effects_module(p)
     p.set_defaults(func=run)
     return p
 

@@ -4,7 +4,8 @@ the model fails and which physical effect it is missing (see torchcal.diagnosis.
 from __future__ import annotations
 
 from torchcal.io import modelfile
-from torchcal.cli._args import add_force, add_viz, check_folder, check_outputs, positive_int, read_data
+from torchcal.cli._args import (add_effects_module, add_force, add_viz, check_folder, check_outputs,
+                                positive_int, read_data)
 from torchcal.diagnosis.diagnose import diagnose
 from torchcal.errors import InputError
 from torchcal.io.files import write_json
@@ -22,6 +23,7 @@ def add_parser(sub):
     p.add_argument("--json", help="write the report here")
     add_viz(p)
     add_force(p)
+    add_effects_module(p)
     p.set_defaults(func=run)
 
 

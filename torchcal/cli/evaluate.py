@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from torchcal.io import modelfile
-from torchcal.cli._args import add_force, check_outputs, read_data
+from torchcal.cli._args import add_effects_module, add_force, check_outputs, read_data
 from torchcal.effects import make_context
 from torchcal.io.files import write_json
 
@@ -15,12 +15,13 @@ def add_parser(sub):
     p.add_argument("--robot", help="check that the model file is for this robot")
     p.add_argument("--json", help="write the report here")
     add_force(p)
+    add_effects_module(p)
     p.set_defaults(func=run)
 
 
 def evaluate(model, theta, m) -> dict:
     """{"n", "rms_mm", "mean_mm", "max_mm", "per_axis_rms_mm"} of measured - model."""
-    ctx = make_context(model.robot, m.q, m.payload_kg, m.temp_c)
+    ctx = make_context(model.robot, m.q, m.payload_kg, m.temp_c, m.q_prev)
     model.check_context(ctx)
     err = m.xyz - model.predict(theta, ctx)
     d = err.norm(dim=-1)

@@ -6,7 +6,7 @@ outliers by IRLS and lists their pose ids."""
 from __future__ import annotations
 
 from torchcal.io import modelfile
-from torchcal.cli._args import add_force, check_outputs, read_data
+from torchcal.cli._args import add_effects_module, add_force, check_outputs, read_data
 from torchcal.effects import make_context
 from torchcal.calibration.fit import fit
 from torchcal.io.files import write_json
@@ -25,6 +25,7 @@ def add_parser(sub):
     p.add_argument("--seed", type=int, default=0, help="recorded in the provenance")
     p.add_argument("--out", required=True, help="MODEL.json to write")
     add_force(p)
+    add_effects_module(p)
     p.set_defaults(func=run)
 
 
@@ -34,7 +35,7 @@ def fit_file(args):
     specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
     m = read_data(args.data, robot)
     model = CalibrationModel(robot, specs)
-    ctx = make_context(robot, m.q, m.payload_kg, m.temp_c)
+    ctx = make_context(robot, m.q, m.payload_kg, m.temp_c, m.q_prev)
     return m, fit(model, ctx, m.xyz, robust=args.robust)
 
 

@@ -213,12 +213,19 @@ class _Linear:
 
 
 def _candidate_specs(robot: Robot, present: dict, ctx) -> list[tuple[str, tuple]]:
-    """Effects not in the model yet; joint effects on each joint they do not cover yet."""
+    """Effects of the registry (built-in and user effects) not in the model yet; joint
+    effects on each joint they do not cover yet; none whose data are missing (its
+    `check_context` fails, e.g. thermal_expansion without temp_c)."""
+    from torchcal.effects import lookup
+    from torchcal.errors import InputError
+
     out = []
     for name, takes in EFFECTS.items():
         if name in present and not takes:
             continue
-        if name == "thermal_expansion" and ctx.temp_c is None:
+        try:
+            lookup(name)(robot, (1,) if takes else ()).check_context(ctx)
+        except InputError:
             continue
         if takes:
             out += [(name, (j,)) for j in range(1, robot.n + 1) if j not in present.get(name, ())]
@@ -318,7 +325,7 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
     """Rank the candidate effects missing from `robot` + `effects` on measurements m."""
     specs = [str(s) for s in parse_specs(list(effects), robot.n)] if effects else []
     model = CalibrationModel(robot, specs)
-    ctx = make_context(robot, m.q, m.payload_kg, m.temp_c)
+    ctx = make_context(robot, m.q, m.payload_kg, m.temp_c, m.q_prev)
     if base_fit is None:
         base_fit = fit(model, ctx, m.xyz)
     theta = base_fit.theta
@@ -421,7 +428,7 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
     """
     specs = [str(s) for s in parse_specs(list(effects), robot.n)] if effects else []
     history, diagnoses = [], []
-    ctx = make_context(robot, m.q, m.payload_kg, m.temp_c)
+    ctx = make_context(robot, m.q, m.payload_kg, m.temp_c, m.q_prev)
     base = fit(CalibrationModel(robot, specs), ctx, m.xyz)
     for _ in range(max_rounds + 1):
         d = diagnose(robot, m, specs, folds=folds, seed=seed, base_fit=base)

@@ -66,7 +66,10 @@ def load(path, robot_name: str | None = None):
         raise InputError(f"{path}: model file is missing or has a bad field: {exc}") from None
     if robot_name is not None and robot_name != name:
         raise InputError(f"{path}: model file is for robot {name!r}, not {robot_name!r}")
-    model = CalibrationModel(make_robot(name), effects)
+    try:
+        model = CalibrationModel(make_robot(name), effects)
+    except InputError as exc:
+        raise InputError(f"{path}: {exc}") from None
     if names != model.param_names():
         raise InputError(f"{path}: parameters do not match robot {name!r} with effects {effects}")
     return model, torch.tensor(values, dtype=torch.float64)

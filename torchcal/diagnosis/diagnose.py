@@ -242,6 +242,8 @@ def candidate_columns(robot, base_model: CalibrationModel, theta, ctx, spec: str
     """d model / d candidate parameters at theta (3N, k), the candidate's values at zero."""
     aug = CalibrationModel(robot, base_model.specs() + [spec])
     k = aug.n_params - base_model.n_params
+    if k == 0:  # an effect with no parameters here (e.g. a user effect on joint 1): nothing to add
+        return np.zeros((3 * ctx.n_rows, 0))
 
     def f(pc):
         return aug.predict(torch.cat([theta, pc]), ctx)

@@ -45,6 +45,8 @@ def print_table(d) -> None:
     v = d.verdict
     print("verdict: " + ("nothing significant: the residual is at the noise level" if v is None else
                          f"missing {v.spec} (cv rms {b['cv_rms_mm']:.4f} -> {v.cv_rms_mm:.4f} mm)"))
+    if d.unexplained is not None:
+        print(("with the verdict, " if v is not None else "") + d.unexplained.describe())
 
 
 def run(args) -> int:

@@ -40,6 +40,8 @@ def run(args) -> int:
         print(f"round {i}: [{', '.join(h['effects']) or 'geometric only'}] rms {h['rms_mm']:.4f} mm, "
               f"cv rms {h['cv_rms_mm']:.4f} mm")
     print(f"final effects: {', '.join(res.final_effects) or 'none'}")
+    if res.unexplained is not None:
+        print(res.unexplained.describe())
     if args.json:
         write_json(args.json, res.to_dict(), force=args.force, inputs=[args.data])
     if args.out:

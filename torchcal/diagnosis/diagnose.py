@@ -45,12 +45,13 @@ import scipy.optimize
 import scipy.stats
 import torch
 
-from torchcal.effects import make_context
+from torchcal.effects import build, make_context
 from torchcal.calibration.fit import FitResult, fit
 from torchcal.measurements import Measurements
 from torchcal.calibration.model import CalibrationModel
 from torchcal.robots.robot import Robot
 from torchcal.effects.spec import EFFECTS, parse_specs
+from torchcal.diagnosis.unexplained import Unexplained, unexplained
 
 ALPHA = 1e-3
 MIN_GAIN = 0.02
@@ -104,6 +105,7 @@ class Diagnosis:
     candidates: list
     verdict: Candidate | None
     where: dict = field(default_factory=dict)
+    unexplained: Unexplained | None = None  # what remains after the baseline + the verdict
 
     def to_dict(self) -> dict:
         res = self.baseline_fit.residuals.norm(dim=-1)
@@ -114,6 +116,7 @@ class Diagnosis:
             "verdict": None if self.verdict is None else
             {"effect": self.verdict.effect, "joints": list(self.verdict.joints)},
             "where": self.where,
+            "unexplained": None if self.unexplained is None else self.unexplained.to_dict(),
         }
 
 
@@ -148,67 +151,127 @@ def _variance_loglik(r3: np.ndarray, Bs: np.ndarray | None, logp: np.ndarray) ->
 
 
 def _fit_variance(r3: np.ndarray, Bs: np.ndarray | None) -> np.ndarray:
-    """Maximum-likelihood log variances for residual rows r3 (M, 3)."""
+    """Maximum-likelihood log variances for residual rows r3 (M, 3) (L-BFGS, torch gradient)."""
     s2 = float((r3 ** 2).mean())
     if Bs is None or not Bs.shape[-1]:
         return np.array([np.log(max(s2, 1e-300))])
     K = Bs.shape[-1] // 2
     x0 = np.concatenate([[np.log(max(s2, 1e-300))], np.full(K, np.log(max(s2, 1e-300)) - 2 * np.log(
         max(float(np.sqrt((Bs ** 2).sum((1, 2)).mean())), 1e-12)))])
-    fun = lambda x: -_variance_loglik(r3, Bs, x).sum()  # noqa: E731
-    res = scipy.optimize.minimize(fun, x0, method="L-BFGS-B",
+    rt, Bt = torch.from_numpy(r3), torch.from_numpy(Bs)
+    eye = torch.eye(3, dtype=rt.dtype)
+
+    def fun(x):
+        lp = torch.tensor(x, requires_grad=True)
+        tau = torch.exp(lp[1:]).repeat_interleave(Bt.shape[-1] // K)
+        S = torch.exp(lp[0]) * eye + torch.einsum("mik,k,mjk->mij", Bt, tau, Bt)
+        L = torch.linalg.cholesky(S)
+        z = torch.linalg.solve_triangular(L, rt.unsqueeze(-1), upper=False)
+        nll = 0.5 * (2 * torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum() + (z ** 2).sum())
+        nll.backward()
+        return float(nll.detach()), lp.grad.numpy().copy()
+
+    res = scipy.optimize.minimize(fun, x0, jac=True, method="L-BFGS-B",
                                   bounds=[(np.log(s2) - 9, np.log(s2) + 5)] + [(x0[1] - 30, x0[1] + 10)] * K)
     return res.x
 
 
 class _Linear:
-    """The linearised refit around a fit: residual r (3N,), base columns A (3N, p0)."""
+    """The linearised refit around a fit: residual r (3N,), base columns A (3N, p0).
 
-    def __init__(self, r: np.ndarray, A: np.ndarray, folds: np.ndarray):
+    Rows are grouped by pose (`pose` (N,) ids): the F-test and the likelihood-ratio test
+    run on pose means (see `diagnose`), the folds keep a pose's rows together.
+    """
+
+    def __init__(self, r: np.ndarray, A: np.ndarray, folds: np.ndarray, pose: np.ndarray | None = None):
         A = A / np.linalg.norm(A, axis=0).clip(1e-300)  # unit columns: rank cuts are relative
         self.r, self.A, self.rows = r, A, np.repeat(folds, 3)
-        self.Q, _ = np.linalg.qr(A) if A.size else (np.zeros((len(r), 0)), None)
+        self.Q = torch.linalg.qr(torch.from_numpy(A))[0].numpy() if A.size else np.zeros((len(r), 0))
         self.folds = np.unique(folds)
+        pose = np.arange(len(r) // 3) if pose is None else np.asarray(pose)
+        _, self.pose_of_row, self.counts = np.unique(pose, return_inverse=True, return_counts=True)
+        self.Ab = self.pose_mean(A)
+        self.rb = self.pose_mean(r[:, None])[:, 0]
+        self.Qb = torch.linalg.qr(torch.from_numpy(self.Ab))[0].numpy() if A.size else np.zeros((len(self.rb), 0))
 
-    def new_columns(self, C: np.ndarray | None) -> np.ndarray:
-        """An orthonormal basis (3N, k) of what C adds beyond span(A)."""
+    @property
+    def n_poses(self) -> int:
+        return len(self.counts)
+
+    def pose_mean(self, X: np.ndarray) -> np.ndarray:
+        """Per-pose mean (3P, c) of stacked row values X (3N, c) (x, y, z kept apart)."""
+        X3 = X.reshape(-1, 3, X.shape[-1])
+        out = np.zeros((self.n_poses, 3, X.shape[-1]))
+        np.add.at(out, self.pose_of_row, X3)
+        return (out / self.counts[:, None, None]).reshape(-1, X.shape[-1])
+
+    def pose_sum(self, v: np.ndarray) -> np.ndarray:
+        """Per-pose sum (P,) of per-row values v (N,)."""
+        return np.bincount(self.pose_of_row, weights=v, minlength=self.n_poses)
+
+    @staticmethod
+    def _new(Q: np.ndarray, C: np.ndarray | None, n: int) -> np.ndarray:
         if C is None or not C.size:
-            return np.zeros((len(self.r), 0))
-        Cp = C - self.Q @ (self.Q.T @ C)
+            return np.zeros((n, 0))
+        Cp = C - Q @ (Q.T @ C)
         norms = np.linalg.norm(C, axis=0)
         Cp = Cp[:, norms > 0] / norms[norms > 0]
         if Cp.shape[1] == 0:
             return Cp
-        U, s, _ = np.linalg.svd(Cp, full_matrices=False)
-        return U[:, s > RANK_TOL]  # columns were normalised: s is relative
+        U, s, _ = torch.linalg.svd(torch.from_numpy(Cp), full_matrices=False)
+        return U[:, s > RANK_TOL].numpy()  # columns were normalised: s is relative
+
+    def new_columns(self, C: np.ndarray | None) -> np.ndarray:
+        """An orthonormal basis (3N, k) of what C adds beyond span(A)."""
+        return self._new(self.Q, C, len(self.r))
+
+    def pose_columns(self, C: np.ndarray | None) -> np.ndarray:
+        """The same at pose level: an orthonormal basis (3P, kb) of what the pose means of C
+        add beyond span(pose means of A)."""
+        return self._new(self.Qb, None if C is None else self.pose_mean(C), len(self.rb))
 
     def residual(self, B: np.ndarray) -> np.ndarray:
         """Residual (3N,) of r on [A B] over all rows (B orthonormal, orthogonal to A)."""
         e = self.r - self.Q @ (self.Q.T @ self.r)
         return e - B @ (B.T @ e) if B.size else e
 
+    def pose_residual(self, Bb: np.ndarray) -> np.ndarray:
+        """Residual (3P,) of the pose means of r on [pose means of A, Bb]."""
+        e = self.rb - self.Qb @ (self.Qb.T @ self.rb)
+        return e - Bb @ (Bb.T @ e) if Bb.size else e
+
     def cross_validate(self, B: np.ndarray, Bs: np.ndarray | None):
-        """Held-out distance RMS and mean held-out log-likelihood per pose of r on [A B],
-        with the residual covariance model Bs (N, 3, K) (None: isotropic)."""
-        X = np.hstack([self.A, B]) if B.size else self.A
+        """Held-out distance RMS and mean held-out log-likelihood per row of r on [A B],
+        with the residual covariance model Bs (N, 3, K) (None: isotropic).
+
+        X = [Q B] is orthonormal over all rows, so the training normal matrix of a fold is
+        I - X_test^T X_test (well conditioned): one small torch solve per fold.
+        """
+        X = torch.from_numpy(np.hstack([self.Q, B]) if B.size else self.Q)
+        r = torch.from_numpy(self.r)
         held = np.empty_like(self.r)
         ll = np.empty(len(self.r) // 3)
         rows3 = self.rows[::3]
+        Xr = X.T @ r
+        eye = torch.eye(X.shape[1], dtype=X.dtype)
         for f in self.folds:
             test = self.rows == f
-            train_res = self.r[~test]
+            tt = torch.from_numpy(test)
+            Xt, rt = X[tt], r[tt]
             if X.shape[1]:
-                coef, *_ = np.linalg.lstsq(X[~test], self.r[~test], rcond=1e-10)
-                held[test] = self.r[test] - X[test] @ coef
-                train_res = train_res - X[~test] @ coef
+                coef = torch.linalg.solve(eye - Xt.T @ Xt, Xr - Xt.T @ rt)
+                held[test] = (rt - Xt @ coef).numpy()
+                train_res = (r[~tt] - X[~tt] @ coef).numpy()
             else:
                 held[test] = self.r[test]
+                train_res = self.r[~test]
             t3 = rows3 == f
             Bf = None if Bs is None else Bs[~t3]
             logp = _fit_variance(train_res.reshape(-1, 3), Bf)
             ll[t3] = _variance_loglik(held[test].reshape(-1, 3), None if Bs is None else Bs[t3], logp)
-        self.last_ll = ll  # per-pose held-out log-likelihood of this call (for parsimony)
-        self.last_sq = (held.reshape(-1, 3) ** 2).sum(-1)  # per-pose held-out squared error
+        # per pose, for the paired comparisons (repeats of a pose are one piece of evidence)
+        self.last_ll = self.pose_sum(ll)  # (P,) held-out log-likelihood, nats
+        self.last_sq = self.pose_sum((held.reshape(-1, 3) ** 2).sum(-1))  # (P,) mm^2
         return _rms(held), float(ll.mean())
 
 
@@ -250,6 +313,28 @@ def candidate_columns(robot, base_model: CalibrationModel, theta, ctx, spec: str
 
     C = torch.func.jacfwd(f)(torch.zeros(k, dtype=theta.dtype))
     return C.reshape(-1, k).detach().numpy()
+
+
+def all_candidate_columns(robot, base_model: CalibrationModel, theta, ctx, specs) -> dict:
+    """`candidate_columns` of every (name, joints) in specs, from one forward-mode pass: the
+    candidates are added side by side as separate effects at zero, where each is the
+    identity, so each one's columns are those of the model with it alone."""
+    specs = list(specs)
+    if not specs:
+        return {}
+    extra = [build(_spec(n, j), robot) for n, j in specs]
+    aug = CalibrationModel(robot, list(base_model.effects) + extra)
+    k = aug.n_params - base_model.n_params
+
+    def f(pc):
+        return aug.predict(torch.cat([theta, pc]), ctx)
+
+    C = torch.func.jacfwd(f)(torch.zeros(k, dtype=theta.dtype)).reshape(-1, k).detach().numpy()
+    out, start = {}, 0
+    for spec, e in zip(specs, extra):
+        out[spec] = C[:, start:start + e.n_params]
+        start += e.n_params
+    return out
 
 
 def where_it_fails(robot: Robot, m: Measurements, residuals: torch.Tensor, bins: int = 4) -> dict:
@@ -334,23 +419,31 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
     r = base_fit.residuals.reshape(-1).numpy()
     A = model.jacobian(theta, ctx).reshape(-1, model.n_params)[:, base_fit.report.free].detach().numpy()
     folds_ = fold_ids(m.pose, folds, seed)
-    lin = _Linear(r, A, folds_)
+    pose_np = m.pose.cpu().numpy()
+    lin = _Linear(r, A, folds_, pose_np)
     n_eq = len(r)
     present = {s.name: s.joints for s in parse_specs(specs, robot.n)} if specs else {}
     cands_specs = _candidate_specs(robot, present, ctx)
-    level = alpha / max(len(cands_specs), 1)
+    # alpha spending: this call's first family gets alpha / 2, forward-selection step s
+    # alpha / 2^(s+1), each split evenly (Bonferroni) over the candidates it tests
+    level = alpha / 2 / max(len(cands_specs), 1)
 
-    def judge(name, joints, lin_, Bs_in, C, Bs, base_cv, base_ll):
-        """Evidence for adding (C, Bs) to the linear base lin_ with variance terms Bs_in."""
+    def judge(name, joints, lin_, Bs_in, C, Bs, base_cv, base_ll, level):
+        """Evidence for adding (C, Bs) to the linear base lin_ with variance terms Bs_in;
+        the tests run on pose means (see the module doc), at `level`."""
         B = lin_.new_columns(C)
         k = B.shape[1]
-        e0, e1 = lin_.residual(np.zeros((n_eq, 0))), lin_.residual(B)
-        rss0, rss1 = float(e0 @ e0), float(e1 @ e1)
+        e1 = lin_.residual(B)
+        rss1 = float(e1 @ e1)
+        Bb = lin_.pose_columns(C)
+        kb = Bb.shape[1]
+        e0b, e1b = lin_.pose_residual(np.zeros((len(lin_.rb), 0))), lin_.pose_residual(Bb)
+        rss0b, rss1b = float(e0b @ e0b), float(e1b @ e1b)
         p_f = 1.0
-        if k:
-            dof = max(n_eq - lin_.A.shape[1] - k, 1)
-            F = ((rss0 - rss1) / k) / max(rss1 / dof, 1e-300)
-            p_f = float(scipy.stats.f.sf(F, k, dof))
+        if k and kb:
+            dof = max(len(lin_.rb) - lin_.Qb.shape[1] - kb, 1)
+            F = ((rss0b - rss1b) / kb) / max(rss1b / dof, 1e-300)
+            p_f = float(scipy.stats.f.sf(F, kb, dof))
         Bs_all = Bs_in if Bs is None else (Bs if Bs_in is None else np.concatenate([Bs_in, Bs], -1))
         cv, ll = lin_.cross_validate(B, Bs_all)
         ll_rows, sq_rows = lin_.last_ll, lin_.last_sq
@@ -358,23 +451,31 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
         score = ll - base_ll
         significant = deterministic = k > 0 and p_f < level and gain >= min_gain
         p_lr = 1.0
-        if Bs is not None:  # likelihood-ratio test of the random part, all rows
-            e3 = e1.reshape(-1, 3)
-            ll0 = _variance_loglik(e3, Bs_in, _fit_variance(e3, Bs_in)).sum()
-            ll1 = _variance_loglik(e3, Bs_all, _fit_variance(e3, Bs_all)).sum()
+        if Bs is not None:  # likelihood-ratio test of the random part, on pose means
+            e3 = e1b.reshape(-1, 3)
+            ll0 = _variance_loglik(e3, pose_basis(Bs_in), _fit_variance(e3, pose_basis(Bs_in))).sum()
+            ll1 = _variance_loglik(e3, pose_basis(Bs_all), _fit_variance(e3, pose_basis(Bs_all))).sum()
             p_lr = float(0.5 * scipy.stats.chi2.sf(max(2 * (ll1 - ll0), 0.0), Bs.shape[-1] // 2))
             significant = significant or (p_lr < level and score >= MIN_LL_GAIN)
         return Candidate(name, joints, float(np.sqrt(max(rss1, 0) / (n_eq / 3))), cv, float(score),
                          min(p_f, p_lr), k + (0 if Bs is None else Bs.shape[-1] // 2),
                          bool(significant), float(gain), ll_rows, sq_rows, bool(deterministic))
 
-    columns, variance = {}, {}
+    def pose_basis(Bs):
+        """Random-tilt basis of pose means: the mean of m independent tilts of one pose
+        has covariance tau^2 B B^T / m (repeats of a pose share q, hence B)."""
+        if Bs is None:
+            return None
+        N, _, K = Bs.shape
+        out = lin.pose_mean(Bs.reshape(N * 3, K)).reshape(-1, 3, K)
+        return out / np.sqrt(lin.counts)[:, None, None]
+
+    columns, variance = all_candidate_columns(robot, model, theta, ctx, cands_specs), {}
     for name, joints in cands_specs:
-        columns[(name, joints)] = candidate_columns(robot, model, theta, ctx, _spec(name, joints))
         if name == "joint_clearance":
             variance[(name, joints)] = random_clearance_basis(robot, ctx, m.xyz, joints[0])
     base_cv, base_ll = lin.cross_validate(np.zeros((n_eq, 0)), None)
-    cands = [judge(n, j, lin, None, C, variance.get((n, j)), base_cv, base_ll)
+    cands = [judge(n, j, lin, None, C, variance.get((n, j)), base_cv, base_ll, level)
              for (n, j), C in columns.items()]
     cands = rank(cands)
     verdict = select(cands)
@@ -382,15 +483,17 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
         # forward selection: add a joint of the same effect while, given the joints chosen
         # so far, it is the best significant candidate of all
         chosen = list(verdict.joints)
+        step_alpha = alpha / 2
         while True:
+            step_alpha /= 2
             C_in = np.hstack([columns[(verdict.effect, (j,))] for j in chosen])
             Bs_in = None if verdict.effect != "joint_clearance" else \
                 np.concatenate([variance[(verdict.effect, (j,))] for j in chosen], -1)
-            lin_in = _Linear(r, np.hstack([A, C_in]), folds_)
+            lin_in = _Linear(r, np.hstack([A, C_in]), folds_, pose_np)
             cv_in, ll_in = lin_in.cross_validate(np.zeros((n_eq, 0)), Bs_in)
             # other effects' random parts are the next round's business: not refitted here
             step = [judge(n, j, lin_in, Bs_in, C, variance.get((n, j)) if n == verdict.effect else None,
-                          cv_in, ll_in)
+                          cv_in, ll_in, step_alpha / max(len(columns) - len(chosen), 1))
                     for (n, j), C in columns.items() if not (n == verdict.effect and j[0] in chosen)]
             best = select(rank(step))
             if best is None or best.effect != verdict.effect:
@@ -408,7 +511,13 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
                                 (base_cv - cv) / max(base_cv, 1e-300), deterministic=verdict.deterministic)
             cands.insert(0, verdict)
     where = where_it_fails(robot, m, base_fit.residuals)
-    return Diagnosis(specs, base_fit, base_cv, cands, verdict, where)
+    # what remains: the linearised residual with the verdict added (the baseline's without)
+    C_v = None if verdict is None else (
+        np.hstack([columns[(verdict.effect, (j,))] for j in verdict.joints]) if verdict.joints
+        else columns[(verdict.effect, ())])
+    rest = lin.residual(lin.new_columns(C_v)).reshape(-1, 3)
+    rest_un = unexplained(robot, m, torch.from_numpy(rest), seed=seed)
+    return Diagnosis(specs, base_fit, base_cv, cands, verdict, where, rest_un)
 
 
 @dataclass
@@ -417,14 +526,20 @@ class Discovery:
     final_effects: list
     fit: FitResult
     diagnoses: list
+    unexplained: Unexplained | None = None  # what the final model leaves
 
     def to_dict(self) -> dict:
-        return {"history": self.history, "final_effects": self.final_effects}
+        return {"history": self.history, "final_effects": self.final_effects,
+                "unexplained": None if self.unexplained is None else self.unexplained.to_dict()}
 
 
 def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: int = 0,
-             max_rounds: int = 6) -> Discovery:
+             max_rounds: int = 6, alpha: float = ALPHA) -> Discovery:
     """Add the best significant effect each round until none is left.
+
+    Multiple testing: round i (0, 1, ...) runs `diagnose` with the budget alpha / 2^(i+1),
+    so all the tests of all rounds (and their forward selections) together keep the
+    family-wise error below alpha (union bound).
 
     history[i] = {"effects", "rms_mm" (full nonlinear refit, training), "cv_rms_mm"}.
     """
@@ -432,12 +547,12 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
     history, diagnoses = [], []
     ctx = make_context(robot, m.q, m.payload_kg, m.temp_c, m.q_prev)
     base = fit(CalibrationModel(robot, specs), ctx, m.xyz)
-    for _ in range(max_rounds + 1):
-        d = diagnose(robot, m, specs, folds=folds, seed=seed, base_fit=base)
+    for i in range(max_rounds + 1):
+        d = diagnose(robot, m, specs, folds=folds, seed=seed, base_fit=base, alpha=alpha / 2 ** (i + 1))
         diagnoses.append(d)
         history.append({"effects": list(specs), "rms_mm": base.rms_mm, "cv_rms_mm": d.baseline_cv_rms_mm})
         if d.verdict is None or len(history) > max_rounds:
             break
         specs = [str(s) for s in parse_specs(specs + [d.verdict.spec], robot.n)]
         base = fit(CalibrationModel(robot, specs), ctx, m.xyz)
-    return Discovery(history, specs, base, diagnoses)
+    return Discovery(history, specs, base, diagnoses, unexplained(robot, m, base.residuals, seed=seed))

@@ -1,0 +1,94 @@
+"""What the model leaves unexplained (issue 14): repeats of a pose are one piece of
+evidence; the noise floor comes from repeats; structure outside the vocabulary is reported
+with the variable it depends on; a right model leaves nothing significant.
+
+Data: the project's simulator (KR 1000 Titan, geometric deviations only as the "real"
+robot), 0.02 mm noise per axis, plus errors injected here by hand.
+"""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+import torchcal
+from torchcal.calibration.fit import fit
+from torchcal.calibration.model import CalibrationModel
+from torchcal.diagnosis.diagnose import ALPHA, diagnose
+from torchcal.diagnosis.unexplained import noise_floor_from_repeats, unexplained
+from torchcal.effects import make_context
+from torchcal.measurements import Measurements
+from torchcal.robots.poses import random_poses
+from torchcal.simulation.virtual_robot import VirtualRobot
+
+ROBOT = torchcal.robot("kr1000titan")
+NOISE = 0.02
+
+
+def with_error(m: Measurements, dxyz: torch.Tensor) -> Measurements:
+    return Measurements(m.pose, m.q, m.xyz + dxyz, m.payload_kg, m.temp_c, q_prev=m.q_prev)
+
+
+@pytest.fixture(scope="module")
+def repeated_null():
+    """60 poses x 4 repeats; a 0.05 mm error per axis shared by each pose's repeats (a
+    target-nest / repeatability error), no physical effect."""
+    vr = VirtualRobot(ROBOT, [], seed=21)
+    m = vr.measure(random_poses(ROBOT, 60, 22), repeats=4, noise_mm=NOISE, seed=23)
+    shared = 0.05 * torch.randn(60, 3, generator=torch.Generator().manual_seed(24), dtype=torch.float64)
+    m = with_error(m, shared[m.pose])
+    return m, diagnose(ROBOT, m)
+
+
+def test_repeats_with_a_shared_pose_error_give_no_verdict(repeated_null):
+    m, d = repeated_null
+    assert d.verdict is None, [c.to_dict() for c in d.candidates[:3]]
+    level = ALPHA / 2 / len(d.candidates)  # the first family's Bonferroni level
+    assert min(c.p_value for c in d.candidates) >= level, [(c.spec, c.p_value) for c in d.candidates[:3]]
+    assert not d.unexplained.significant, d.unexplained.strengths
+
+
+def test_noise_floor_from_repeats_is_the_simulated_noise(repeated_null):
+    m, d = repeated_null
+    u = d.to_dict()["unexplained"]
+    assert set(u) == {"significant", "rms_mm", "noise_floor_mm", "correlates_with"}
+    truth = NOISE * math.sqrt(3)  # distance RMS of the per-axis noise
+    assert abs(u["noise_floor_mm"] - truth) < 0.15 * truth, (u, truth)
+    assert u["rms_mm"] > 1.5 * u["noise_floor_mm"]  # the shared pose error is above the floor
+
+
+def test_noise_floor_from_repeats_matches_numpy_by_hand():
+    g = np.random.default_rng(0)
+    pose = np.array([0, 0, 1, 1, 1, 2])
+    r = g.normal(size=(6, 3))
+    dev = [r[pose == p] - r[pose == p].mean(0) for p in range(3)]
+    hand = math.sqrt(sum(float((x ** 2).sum()) for x in dev) / (1 + 2 + 0))
+    assert noise_floor_from_repeats(pose, r) == pytest.approx(hand, rel=1e-12)
+    assert noise_floor_from_repeats(np.arange(6), r) is None
+
+
+def geometric_residuals(m):
+    model = CalibrationModel(ROBOT, [])
+    return fit(model, make_context(ROBOT, m.q, m.payload_kg, m.temp_c), m.xyz).residuals
+
+
+def test_a_bent_link_outside_the_vocabulary_is_significant_and_names_its_joint():
+    """A link that bends with joint 3's angle: a TCP error of 0.2 mm * sin(2 q3) along
+    the base z axis, which no effect of the vocabulary models."""
+    vr = VirtualRobot(ROBOT, [], seed=31)
+    m = vr.measure(random_poses(ROBOT, 240, 32), noise_mm=NOISE, seed=33)
+    bend = torch.zeros(len(m), 3, dtype=torch.float64)
+    bend[:, 2] = 0.2 * torch.sin(2 * m.q[:, 2])
+    u = unexplained(ROBOT, with_error(m, bend), geometric_residuals(with_error(m, bend)))
+    assert u.significant
+    assert u.correlates_with[0][0] == "q3", u.correlates_with
+    assert u.rms_mm > 2 * u.noise_floor_mm  # no repeats: the floor is the estimate
+
+
+def test_the_right_model_leaves_nothing_significant():
+    vr = VirtualRobot(ROBOT, [], seed=41)
+    m = vr.measure(random_poses(ROBOT, 240, 42), noise_mm=NOISE, seed=43)
+    u = unexplained(ROBOT, m, geometric_residuals(m))
+    assert not u.significant and u.correlates_with == [], u.strengths
+    assert u.noise_floor_mm == pytest.approx(u.rms_mm, rel=0.05)

@@ -11,7 +11,8 @@ Identifiability (at the starting point, on the column-scaled Jacobian):
 
 The fit is Levenberg-Marquardt (`torchcal.calibration.lm`) on the identifiable parameters, with
 optional robust row weights by IRLS (Huber or Cauchy on the per-pose distance residual,
-scale = the median distance residual, thresholds at 2.5 times it). Standard errors from ``s^2 (J^T W J)^-1``, s^2 = weighted RSS / dof.
+scale = the median distance residual, thresholds at 2.5 times it). Standard errors from ``s^2 (J^T W J)^-1``, s^2 = weighted RSS / dof,
+pose-level when poses repeat (`torchcal.calibration.uncertainty`).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from torchcal.effects.base import Context
 from torchcal.errors import InputError
 from torchcal.calibration.lm import levenberg_marquardt
 from torchcal.calibration.model import CalibrationModel
+from torchcal.calibration.uncertainty import ParameterCovariance, parameter_covariance
 
 RANK_TOL = 1e-6
 
@@ -98,6 +100,7 @@ class FitResult:
     report: Identifiability
     n_iter: int
     outliers: list = field(default_factory=list)
+    covariance: ParameterCovariance | None = None  # (P, P) and how it was estimated
 
     @property
     def rms_mm(self) -> float:
@@ -132,8 +135,12 @@ def _generic_rank(model: CalibrationModel, ctx: Context, cand, rank_tol: float) 
 
 
 def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, free=None,
-        robust: str | None = None, max_iter: int = 60, rank_tol: float = RANK_TOL) -> FitResult:
+        robust: str | None = None, max_iter: int = 60, rank_tol: float = RANK_TOL,
+        pose=None) -> FitResult:
     """Fit model parameters to measured TCP positions xyz (N, 3) mm.
+
+    pose: (N,) int pose ids; with repeats the standard errors are pose-level
+    (`torchcal.calibration.uncertainty`).
 
     free: (P,) bool candidate parameters (default `model.default_free()`); the
     identifiability analysis at theta0 may hold more. robust: None, 'huber' or 'cauchy'.
@@ -181,13 +188,8 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
         weights = new
     theta = x[0]
     resid = xyz - model.predict(theta, ctx)
-    J = model.jacobian(theta, ctx).reshape(-1, theta.shape[0])[:, report.free]
-    w3 = weights.repeat_interleave(3)
-    dof = max(3 * n_rows - report.rank, 1)
-    s2 = float((w3 * resid.reshape(-1) ** 2).sum()) / dof
-    std = torch.zeros_like(theta)
-    if report.rank:
-        cov = s2 * torch.linalg.pinv((J.T * w3) @ J)
-        std[report.free] = torch.sqrt(torch.diagonal(cov).clamp_min(0))
+    covariance = parameter_covariance(model.jacobian(theta, ctx), resid, report.free, pose=pose,
+                                      weights=weights if robust else None)
+    std = covariance.std
     outliers = torch.nonzero(weights < 0.1).flatten().tolist() if robust else []
-    return FitResult(model, theta, std, resid, weights, report, int(res.n_iter[0]), outliers)
+    return FitResult(model, theta, std, resid, weights, report, int(res.n_iter[0]), outliers, covariance)

@@ -222,7 +222,8 @@ def batched_predict(model: CalibrationModel, x: torch.Tensor, ctxs: list[Context
     if not model.effects:
         geo = x[:, : 5 * robot.n].reshape(-1, 1, robot.n, 5)  # (B, 1, n, 5)
         tool = robot.tool[:3, 3].to(x)
-        return K._positions_kernel(st["q"].to(x), robot.table.to(x), geo, robot.base.to(x), tool)
+        return K._positions_kernel(st["q"].to(x), robot.table.to(x), geo, robot.base.to(x), tool,
+                                    prismatic=robot.pris)
     g = st["gravity"]
     if st["temp"] is None:
         def one(th, q, pl, ap, fr):
@@ -244,7 +245,8 @@ def batched_jacobian(model: CalibrationModel, x: torch.Tensor, ctxs: list[Contex
     if not model.effects:
         st = _stack_contexts(ctxs)
         geo = x[:, : 5 * robot.n].reshape(-1, 1, robot.n, 5)
-        return K.param_jacobian(st["q"].to(x), robot.table.to(x), geo, robot.base.to(x), robot.tool.to(x))
+        return K.param_jacobian(st["q"].to(x), robot.table.to(x), geo, robot.base.to(x), robot.tool.to(x),
+                                    prismatic=robot.pris)
     P = x.shape[-1]
     basis = torch.eye(P, dtype=x.dtype, device=x.device)[:, None, :].expand(P, *x.shape)
     f = lambda z: batched_predict(model, z, ctxs)  # noqa: E731

@@ -83,7 +83,7 @@ class CalibrationModel:
             s = e.chain_scale(p, ctx)
             if s is not None:
                 scale = s if scale is None else scale * s
-        v = K._positions_kernel(q, robot.table.to(theta), geo, None, tool)  # (N, 3)
+        v = K._positions_kernel(q, robot.table.to(theta), geo, None, tool, prismatic=robot.pris)  # (N, 3)
         if scale is not None:
             v = v * scale.unsqueeze(-1)
         base = robot.base.to(theta)

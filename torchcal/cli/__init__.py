@@ -27,11 +27,29 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
+DESCRIPTION = """\
+torchcal: calibrate serial robots against position measurements (laser tracker style).
+Millimetres and degrees in files and on the command line. `torchcal COMMAND --help`
+describes each command in full; file formats are in docs/formats.md of the repository.
+
+Effects (for --effects): NAME or NAME:J[,J...] with 1-based joints, e.g. joint_compliance:2,3.
+"""
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="torchcal", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    from torchcal import __version__
+    from torchcal.effects import REGISTRY
+
+    desc = DESCRIPTION + "Known effects: " + ", ".join(sorted(REGISTRY)) + "."
+    parser = _Parser(prog="torchcal", description=desc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"torchcal {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser, metavar="COMMAND")
     for name in COMMANDS:
-        importlib.import_module(f"torchcal.cli.{name}").add_parser(sub)
+        module = importlib.import_module(f"torchcal.cli.{name}")
+        module.add_parser(sub)
+        p = sub.choices[name]  # the whole module docstring is the command's description
+        p.description = module.__doc__
+        p.formatter_class = argparse.RawDescriptionHelpFormatter
     return parser
 
 

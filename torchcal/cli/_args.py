@@ -116,3 +116,22 @@ def read_data(path, robot):
         if issubclass(w.category, JointLimitWarning):
             sys.stderr.write(f"torchcal: warning: {w.message}\n")
     return m
+
+
+def add_robot(p, required: bool = True, default=None, what: str = "the robot") -> None:
+    """``--robot ROBOT``: a preset name or the path of a robot file (the one shared option)."""
+    from torchcal.robots.robot import PRESETS
+
+    extra = f" (default {default})" if default is not None else ""
+    p.add_argument("--robot", required=required, default=default, metavar="ROBOT",
+                   help=f"{what}: a preset ({', '.join(sorted(PRESETS))}) or the path of a robot "
+                        f"file (.json, docs/robots.md){extra}")
+
+
+def load_robot(text):
+    """The `Robot` named by a ``--robot`` value (preset or robot-file path); None for None."""
+    if text is None:
+        return None
+    from torchcal.robots.robot import robot
+
+    return robot(text)

@@ -21,7 +21,7 @@ MODEL.json: format ``torchcal-interval-model/1`` (`IntervalModel.to_dict`), read
 
 from __future__ import annotations
 
-from torchcal.cli._args import add_effects_module, add_force, check_outputs, read_data
+from torchcal.cli._args import add_effects_module, add_force, check_outputs, read_data, add_robot
 from torchcal.errors import InputError
 
 
@@ -42,7 +42,7 @@ def add_parser(sub):
     p = sub.add_parser("calibrate", help="interval calibration (global or per zone) from repeated measurements",
                        description=__doc__.splitlines()[0])
     p.add_argument("data", help="measurement CSV with repeated measurements per pose")
-    p.add_argument("--robot", required=True, help="preset robot name")
+    add_robot(p)
     p.add_argument("--partition", help="PARTITION.json (torchcal partition): calibrate per zone")
     p.add_argument("--effects", nargs="*", default=[], metavar="SPEC",
                    help="effects fitted with the geometric deviations, e.g. base_frame joint_clearance")

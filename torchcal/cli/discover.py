@@ -5,7 +5,8 @@ from __future__ import annotations
 
 from torchcal.io import modelfile
 from torchcal.cli._args import (add_effects_module, add_force, add_viz, check_folder, check_outputs,
-                                positive_int, read_data)
+                                positive_int, read_data,
+                                add_robot)
 from torchcal.diagnosis.diagnose import discover
 from torchcal.io.files import write_json
 from torchcal.robots.robot import robot as make_robot
@@ -14,7 +15,7 @@ from torchcal.robots.robot import robot as make_robot
 def add_parser(sub):
     p = sub.add_parser("discover", help="add missing effects round by round", description=__doc__)
     p.add_argument("data", help="measurement CSV")
-    p.add_argument("--robot", required=True, help="preset robot name")
+    add_robot(p)
     p.add_argument("--effects", nargs="*", default=[], metavar="SPEC", help="effects to start from")
     p.add_argument("--folds", type=positive_int, default=5, help="cross-validation folds (default 5)")
     p.add_argument("--seed", type=int, default=0, help="seed of the fold assignment")

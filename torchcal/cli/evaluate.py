@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from torchcal.io import modelfile
-from torchcal.cli._args import add_effects_module, add_force, check_outputs, read_data
+from torchcal.cli._args import add_effects_module, add_force, check_outputs, read_data, add_robot
 from torchcal.effects import make_context
 from torchcal.io.files import write_json
 
@@ -12,7 +12,7 @@ def add_parser(sub):
     p = sub.add_parser("evaluate", help="errors of a fitted model on a measurement CSV", description=__doc__)
     p.add_argument("data", help="measurement CSV")
     p.add_argument("--model", required=True, help="MODEL.json from `torchcal fit`")
-    p.add_argument("--robot", help="check that the model file is for this robot")
+    add_robot(p, required=False, what="check that the model is for this robot")
     p.add_argument("--json", help="write the report here")
     add_force(p)
     add_effects_module(p)

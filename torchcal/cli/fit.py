@@ -6,7 +6,7 @@ outliers by IRLS and lists their pose ids."""
 from __future__ import annotations
 
 from torchcal.io import modelfile
-from torchcal.cli._args import add_effects_module, add_force, check_outputs, read_data
+from torchcal.cli._args import add_effects_module, add_force, check_outputs, read_data, add_robot
 from torchcal.effects import make_context
 from torchcal.calibration.fit import fit
 from torchcal.io.files import write_json
@@ -19,7 +19,7 @@ def add_parser(sub):
     p = sub.add_parser("fit", help="fit geometric model + effects to a measurement CSV",
                        description=__doc__)
     p.add_argument("data", help="measurement CSV (docs/design.md)")
-    p.add_argument("--robot", required=True, help="preset robot name")
+    add_robot(p)
     p.add_argument("--effects", nargs="*", default=[], metavar="SPEC", help="effects, e.g. joint_compliance:2,3")
     p.add_argument("--robust", choices=["huber", "cauchy"], help="robust loss by IRLS")
     p.add_argument("--seed", type=int, default=0, help="recorded in the provenance")
@@ -36,7 +36,7 @@ def fit_file(args):
     m = read_data(args.data, robot)
     model = CalibrationModel(robot, specs)
     ctx = make_context(robot, m.q, m.payload_kg, m.temp_c, m.q_prev)
-    return m, fit(model, ctx, m.xyz, robust=args.robust)
+    return m, fit(model, ctx, m.xyz, robust=args.robust, pose=m.pose)
 
 
 def _still_joints(m) -> list[str]:
@@ -52,7 +52,7 @@ def run(args) -> int:
     obj = modelfile.to_dict(res, source=args.data, seed=args.seed, robust=args.robust, pose_ids=m.pose.tolist())
     write_json(args.out, obj, force=args.force, inputs=[args.data])
     rep = res.report
-    print(f"fit {args.robot} + [{', '.join(res.model.specs()) or 'geometric only'}] on {len(m)} rows: "
+    print(f"fit {res.model.robot.name} + [{', '.join(res.model.specs()) or 'geometric only'}] on {len(m)} rows: "
           f"rms {res.rms_mm:.4f} mm, max {float(res.residuals.norm(dim=-1).max()):.4f} mm, "
           f"{rep.rank} identified parameters, condition {rep.condition:.3g}")
     if rep.held:
@@ -60,6 +60,16 @@ def run(args) -> int:
         still = _still_joints(m)
         if still:
             print(f"joints that never move in {args.data}: {', '.join(still)}; move them to identify more")
+    if res.covariance is not None and rep.rank:
+        c = res.covariance
+        how = (f"pose-level over {len(set(m.pose.tolist()))} poses: noise {c.noise_mm:.4f} mm, "
+               f"pose-level error {c.pose_mm:.4f} mm" if c.method == "pose-level" else "rows")
+        print(f"parameter uncertainty ({how}; residual sigma {c.sigma_mm:.4f} mm per axis, "
+              f"{c.dof} dof); 95% interval by Student's t:")
+        for p in obj["parameters"]:
+            if p["identified"]:
+                print(f"  {p['name']:<16} {p['value']:+.6g} +- {p['std']:.3g} {p['unit']}  "
+                      f"[{p['ci95'][0]:+.6g}, {p['ci95'][1]:+.6g}]")
     if res.outliers:
         print(f"outliers (pose ids): {', '.join(map(str, obj['fit']['outlier_poses']))}")
     print(f"wrote {args.out}")

@@ -20,13 +20,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from torchcal.cli._args import add_effects_module, add_force, check_outputs, positive_int, nonneg_float
+from torchcal.cli._args import (add_effects_module, add_force, check_outputs, positive_int, nonneg_float, add_robot)
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
     p = sub.add_parser("simulate", help="simulate a measurement session of a virtual robot (CSV)",
                        description=__doc__.splitlines()[0])
-    p.add_argument("--robot", default="kr1000titan", help="preset robot (default kr1000titan)")
+    add_robot(p, required=False, default="kr1000titan", what="the virtual robot")
     p.add_argument("--effects", nargs="*", default=[], metavar="SPEC",
                    help="physical effects of the virtual robot, NAME or NAME:J[,J...]")
     p.add_argument("--n", type=positive_int, default=50, help="number of poses N (default 50)")
@@ -60,7 +60,7 @@ def run(args) -> int:
     q = random_poses(robot, args.n, torch.Generator().manual_seed(args.seed))
     vr = VirtualRobot(robot, specs, seed=args.seed)
     m = vr.measure(q, repeats=args.repeats, noise_mm=args.noise)
-    write_measurements(out, m, force=args.force)
+    write_measurements(out, m, force=args.force, robot=robot)
     if truth is not None:
         names, units = vr.model.param_names(), vr.model.param_units()
         values = vr.theta.detach().cpu().tolist()

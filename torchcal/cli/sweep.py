@@ -18,13 +18,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from torchcal.cli._args import add_force, check_outputs, positive_int, positive_float
+from torchcal.cli._args import add_force, check_outputs, positive_int, positive_float, add_robot
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
     p = sub.add_parser("sweep", help="error envelopes and R_set over the workspace (CSV)",
                        description=__doc__.splitlines()[0])
-    p.add_argument("--robot", default="kr1000titan", help="preset robot (default kr1000titan)")
+    add_robot(p, required=False, default="kr1000titan")
     p.add_argument("--n", type=positive_int, default=100, help="workspace points N (default 100)")
     p.add_argument("--samples", type=positive_int, default=300,
                    help="clearance states M per point (default 300)")

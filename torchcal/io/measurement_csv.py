@@ -1,7 +1,8 @@
 """The measurement CSV: ``pose,q1,...,qN,x,y,z[,payload_kg][,temp_c]`` (docs/formats.md).
 
 `read_measurements` / `write_measurements`: degrees and mm in the file, radians and mm in
-`Measurements`. The header is required, names are exact, columns may come in any order;
+`Measurements`; the q column of a prismatic joint holds mm in the file and inside (only
+when the robot is given: without it every q column is read as degrees). The header is required, names are exact, columns may come in any order;
 every bad file gives one InputError line naming the file, ``line L (data row R)`` and the
 column. Joint angles outside the robot's limits warn (`JointLimitWarning`) unless
 ``strict_limits=True``. Writes are atomic (`torchcal.io.files.atomic_write`).
@@ -218,7 +219,9 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
                 _fail(path, f"{_where(line, row, c)}: payload must be >= 0 kg, got {_show(fields[cols[c]])}")
             extra[c][r] = v
 
-    q = torch.deg2rad(torch.tensor(q_deg, dtype=torch.float64).reshape(N, n))  # (N, n) rad
+    q = torch.tensor(q_deg, dtype=torch.float64).reshape(N, n)
+    # (N, n) rad; a prismatic joint's column stays in mm
+    q = torch.deg2rad(q) if robot is None else robot.to("cpu", torch.float64).q_from_user(q)
     m = Measurements(
         pose=torch.tensor(pose, dtype=torch.int64),
         q=q,
@@ -233,15 +236,17 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
 
 
 def _check_limits(path, m: Measurements, robot, lines: list[int], strict: bool) -> None:
-    lim = torch.rad2deg(robot.limits.detach().to("cpu", torch.float64))  # (n, 2) deg
-    qd = torch.rad2deg(m.q)  # (N, n) deg, as rounded from the file's degrees
+    rb = robot.to("cpu", torch.float64)
+    lim = rb.q_to_user(rb.limits.detach().T).T  # (n, 2) deg (mm for a prismatic joint)
+    qd = rb.q_to_user(m.q)  # (N, n) deg / mm, as rounded from the file's values
+    units = rb.joint_units()
     # half a micro-degree of slack so a value written at the limit itself is never flagged
     eps = 5e-7
     out = (qd < lim[:, 0] - eps) | (qd > lim[:, 1] + eps)  # (N, n)
     if not out.any():
         return
     bad = out.nonzero().tolist()
-    shown = [f"line {lines[r]} q{j + 1}={qd[r, j].item():.6g} deg "
+    shown = [f"line {lines[r]} q{j + 1}={qd[r, j].item():.6g} {units[j]} "
              f"(limits {lim[j, 0].item():.6g}..{lim[j, 1].item():.6g})" for r, j in bad[:5]]
     more = f"; and {len(bad) - 5} more out-of-limit values" if len(bad) > 5 else ""
     rows = int(out.any(1).sum())
@@ -268,7 +273,7 @@ def _fmt_deg(v: float) -> str:
     return text if ("." in text or "e" in text or "n" in text) else text + ".0"
 
 
-def format_measurements(m: Measurements) -> str:
+def format_measurements(m: Measurements, robot=None) -> str:
     """The CSV text of `m`: joint angles in degrees, positions in mm.
 
     Deterministic: header in the canonical order ``pose,q1..qN,x,y,z[,payload_kg][,temp_c]``,
@@ -280,7 +285,8 @@ def format_measurements(m: Measurements) -> str:
     opt = [c for c in _OPTIONAL if getattr(m, c) is not None]
     header = ["pose", *(f"q{k}" for k in range(1, n + 1)), "x", "y", "z", *opt]
     pose = m.pose.cpu().tolist()
-    qd = torch.rad2deg(m.q.detach().cpu().to(torch.float64)).T.tolist()  # n lists of N deg
+    q = m.q.detach().cpu().to(torch.float64)
+    qd = (torch.rad2deg(q) if robot is None else robot.to("cpu", torch.float64).q_to_user(q)).T.tolist()  # deg / mm
     xyz = m.xyz.detach().cpu().to(torch.float64).T.tolist()  # 3 lists of N mm
     extra = [getattr(m, c).detach().cpu().to(torch.float64).tolist() for c in opt]
     lines = [",".join(header)]
@@ -293,8 +299,9 @@ def format_measurements(m: Measurements) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_measurements(path, m: Measurements, force: bool = False, inputs=()) -> Path:
-    """Atomically write `m` as a measurement CSV (joint angles in degrees, mm).
+def write_measurements(path, m: Measurements, force: bool = False, inputs=(), robot=None) -> Path:
+    """Atomically write `m` as a measurement CSV (joint angles in degrees, mm; with
+    `robot`, a prismatic joint's column in mm).
 
     Refuses to replace an existing file unless `force`, and never writes over `m.source`
     or any of `inputs` (docs/design.md: nothing written over an input file).
@@ -303,5 +310,5 @@ def write_measurements(path, m: Measurements, force: bool = False, inputs=()) ->
         raise InputError(f"write_measurements: expected Measurements, got {type(m).__name__}")
     if len(m) == 0:
         raise InputError(f"{path}: refusing to write a measurement file with no rows")
-    return atomic_write(path, format_measurements(m), force=force, inputs=(m.source, *inputs))
+    return atomic_write(path, format_measurements(m, robot), force=force, inputs=(m.source, *inputs))
 

@@ -9,6 +9,8 @@ passes float32. Shapes, batch dims first:
 
 - ``table (n, 5)``: nominal [theta_offset rad, d mm, a mm, alpha rad, beta rad];
 - ``q (..., n)`` rad: joint angles; the actual joint rotation is q + theta_offset + dtheta;
+  for a prismatic joint q is in mm and adds to d instead (theta = theta_offset + dtheta);
+- ``prismatic (n,) bool`` or None (all revolute): every kernel takes it as a keyword;
 - ``params (..., n, 5)``: deviations [dtheta rad, dd mm, da mm, dalpha rad, dbeta rad]
   that broadcast against the batch dims of ``q``;
 - ``base (4, 4)`` and ``tool (4, 4)`` homogeneous transforms (mm), world <- joint-1
@@ -42,13 +44,24 @@ def _effective(table: torch.Tensor, params: torch.Tensor | None):
     return eff.unbind(-1)
 
 
-def link_transforms(q: torch.Tensor, table: torch.Tensor, params: torch.Tensor | None = None) -> torch.Tensor:
+def _split(q, prismatic):
+    """(rotation q, translation q or None): q (..., n) with prismatic (n,) bool or None."""
+    if prismatic is None:
+        return q, None
+    return q.masked_fill(prismatic, 0.0), q.masked_fill(~prismatic, 0.0)
+
+
+def link_transforms(q: torch.Tensor, table: torch.Tensor, params: torch.Tensor | None = None,
+                    prismatic=None) -> torch.Tensor:
     """The MD-H link transforms A_i.
 
-    q (..., n) rad, table (n, 5), params (..., n, 5) or None -> (..., n, 4, 4) mm
+    q (..., n) rad / mm, table (n, 5), params (..., n, 5) or None -> (..., n, 4, 4) mm
     """
     off, d, a, alpha, beta = _effective(table, params)
-    theta = q + off
+    qr, qt = _split(q, prismatic)
+    theta = qr + off
+    if qt is not None:
+        d = d + qt
     ct, st = torch.cos(theta), torch.sin(theta)
     ca, sa = torch.cos(alpha), torch.sin(alpha)
     cb, sb = torch.cos(beta), torch.sin(beta)
@@ -68,14 +81,14 @@ def link_transforms(q: torch.Tensor, table: torch.Tensor, params: torch.Tensor |
     return torch.stack(rows, dim=-2)
 
 
-def fk_frames(q, table, params=None, base=None, tool=None) -> torch.Tensor:
+def fk_frames(q, table, params=None, base=None, tool=None, prismatic=None) -> torch.Tensor:
     """World poses of every joint frame and of the TCP.
 
     q (..., n) rad, params (..., n, 5) or None, base/tool (4, 4) or None
     -> (..., n + 2, 4, 4): index 0 is the base (frame of joint 1's axis), index i the
     frame after link i, index n + 1 the TCP (last frame times tool).
     """
-    A = link_transforms(q, table, params)  # (..., n, 4, 4)
+    A = link_transforms(q, table, params, prismatic)  # (..., n, 4, 4)
     batch = A.shape[:-3]
     eye = torch.eye(4, dtype=A.dtype, device=A.device)
     T = (eye if base is None else base.to(A)).expand(*batch, 4, 4)
@@ -87,9 +100,9 @@ def fk_frames(q, table, params=None, base=None, tool=None) -> torch.Tensor:
     return torch.stack(frames, dim=-3)
 
 
-def fk_pose(q, table, params=None, base=None, tool=None) -> torch.Tensor:
-    """TCP pose. q (..., n) rad, params (..., n, 5) -> (..., 4, 4) mm."""
-    A = link_transforms(q, table, params)
+def fk_pose(q, table, params=None, base=None, tool=None, prismatic=None) -> torch.Tensor:
+    """TCP pose. q (..., n) rad / mm, params (..., n, 5) -> (..., 4, 4) mm."""
+    A = link_transforms(q, table, params, prismatic)
     T = A[..., 0, :, :]
     for i in range(1, A.shape[-3]):
         T = T @ A[..., i, :, :]
@@ -98,6 +111,15 @@ def fk_pose(q, table, params=None, base=None, tool=None) -> torch.Tensor:
     if tool is not None:
         T = T @ tool.to(T)
     return T
+
+
+class _JointList(list):
+    """Per-joint tensors indexed like a (..., n) tensor: ``x[..., i]``."""
+
+    def __getitem__(self, key):
+        if isinstance(key, tuple):
+            key = key[-1]
+        return list.__getitem__(self, key)
 
 
 def _rotate(R, i, w, start=None):
@@ -110,7 +132,7 @@ def _rotate(R, i, w, start=None):
     return u
 
 
-def _positions_kernel(q, table, params, base, tool_point, out=None):
+def _positions_kernel(q, table, params, base, tool_point, out=None, prismatic=None):
     """TCP positions by a backward recursion over the links, 3-vectors only.
 
     With the offsets and deviations folded into R_i = Rz(off_i) Rx(alpha_i) Ry(beta_i),
@@ -127,6 +149,7 @@ def _positions_kernel(q, table, params, base, tool_point, out=None):
     q (..., n) rad, table (n, 5), params (..., n, 5) or None, base (4, 4) or None,
     tool_point (..., 3) mm -> (..., 3) mm. With `out` (a (..., 3) view of the broadcast
     shape) the result is written there instead of stacked (saves a copy; not for vmap).
+    A prismatic joint i (``prismatic (n,) bool``) has Rz(q_i) = I and k_i + q_i R_i^T e_z.
     """
     n = table.shape[0]
     off, d, a, alpha, beta = _effective(table, params)  # each (..., n) or (n,)
@@ -141,6 +164,16 @@ def _positions_kernel(q, table, params, base, tool_point, out=None):
     tx, ty = co * a, so * a  # t = Rz(off) [a, 0, d]
     k = [R[0][c] * tx + R[1][c] * ty + R[2][c] * d for c in range(3)]  # R^T t, each (..., n)
     qj = q.movedim(-1, 0)  # (n, ...): one contiguous block of angles per joint
+    if prismatic is not None:
+        lin = prismatic.nonzero().flatten().tolist()
+        qt = qj[lin]  # (p, ...) mm
+        qj = qj.masked_fill(prismatic.view(-1, *([1] * (qj.ndim - 1))), 0.0)
+        # k_i + q_i R_i^T e_z: row 2 of R_i, now with the pose batch
+        k = [list(kc.unbind(-1)) for kc in k]
+        for m, i in enumerate(lin):
+            for c in range(3):
+                k[c][i] = k[c][i] + qt[m] * R[2][c][..., i]
+        k = [_JointList(kc) for kc in k]
     cq, sq = torch.cos(qj).contiguous(), torch.sin(qj).contiguous()
     w = [p + kc[..., n - 1] for p, kc in zip(tool_point.unbind(-1), k)]
     for i in range(n - 1, 0, -1):
@@ -166,7 +199,8 @@ def _positions_kernel(q, table, params, base, tool_point, out=None):
     return out
 
 
-def fk_positions(q, table, params=None, base=None, tool=None, chunk: int = DEFAULT_CHUNK) -> torch.Tensor:
+def fk_positions(q, table, params=None, base=None, tool=None, chunk: int = DEFAULT_CHUNK,
+                 prismatic=None) -> torch.Tensor:
     """TCP positions for every (pose, parameter set) of the broadcast batch.
 
     q (..., n) rad, params (..., n, 5) or None -> (..., 3) mm.
@@ -183,7 +217,7 @@ def fk_positions(q, table, params=None, base=None, tool=None, chunk: int = DEFAU
     batch = torch.broadcast_shapes(qb, pb)
     total = math.prod(batch)
     if total <= chunk or len(batch) == 0:
-        return _positions_kernel(q, table, params, base, tool_point)
+        return _positions_kernel(q, table, params, base, tool_point, prismatic=prismatic)
     # align leading dims, pick the largest batch dim to cut along
     q = q.reshape((1,) * (len(batch) - len(qb)) + q.shape)
     if params is not None:
@@ -197,11 +231,11 @@ def fk_positions(q, table, params=None, base=None, tool=None, chunk: int = DEFAU
         pc = params
         if params is not None and params.shape[dim] > 1:
             pc = params.narrow(dim, start, size)
-        _positions_kernel(qc, table, pc, base, tool_point, out=out.narrow(dim, start, size))
+        _positions_kernel(qc, table, pc, base, tool_point, out=out.narrow(dim, start, size), prismatic=prismatic)
     return out
 
 
-def param_jacobian(q, table, params=None, base=None, tool=None) -> torch.Tensor:
+def param_jacobian(q, table, params=None, base=None, tool=None, prismatic=None) -> torch.Tensor:
     """Analytic position Jacobian dP/d[params] (docs/paper.md eqs. 14-18).
 
     q (..., n) rad, params (..., n, 5) or None -> (..., 3, 5n), columns ordered as
@@ -213,13 +247,13 @@ def param_jacobian(q, table, params=None, base=None, tool=None) -> torch.Tensor:
     after Rz(theta), dalpha rotates about that x axis and dbeta about the y axis after
     Rx(alpha), both through the link's end origin o_i.
     """
-    frames = fk_frames(q, table, params, base, tool)  # (..., n+2, 4, 4)
+    frames = fk_frames(q, table, params, base, tool, prismatic)  # (..., n+2, 4, 4)
     n = table.shape[0]
     p = frames[..., -1, :3, 3].unsqueeze(-2)  # (..., 1, 3)
     F = frames[..., :n, :, :]  # input frame of each link (..., n, 4, 4)
     z, o = F[..., :3, 2], F[..., :3, 3]
     off, d, a, alpha, beta = _effective(table, params)
-    theta = q + off
+    theta = _split(q, prismatic)[0] + off
     ct, st = torch.cos(theta), torch.sin(theta)
     ca, sa = torch.cos(alpha), torch.sin(alpha)
     x_mid = F[..., :3, 0] * ct.unsqueeze(-1) + F[..., :3, 1] * st.unsqueeze(-1)  # R Rz(theta) e_x
@@ -237,14 +271,18 @@ def param_jacobian(q, table, params=None, base=None, tool=None) -> torch.Tensor:
     return cols.movedim(-3, -2).reshape(*cols.shape[:-3], 3, 5 * n)
 
 
-def joint_jacobian(q, table, params=None, base=None, tool=None) -> torch.Tensor:
-    """Position Jacobian dP/dq. q (..., n) rad -> (..., 3, n) mm/rad."""
-    frames = fk_frames(q, table, params, base, tool)
+def joint_jacobian(q, table, params=None, base=None, tool=None, prismatic=None) -> torch.Tensor:
+    """Position Jacobian dP/dq. q (..., n) rad / mm -> (..., 3, n) mm/rad (revolute
+    columns: z x (p - o)) or mm/mm (prismatic columns: z)."""
+    frames = fk_frames(q, table, params, base, tool, prismatic)
     n = table.shape[0]
     p = frames[..., -1, :3, 3].unsqueeze(-2)
     z, o = frames[..., :n, :3, 2], frames[..., :n, :3, 3]
     z, o, p = torch.broadcast_tensors(z, o, p)
-    return torch.linalg.cross(z, p - o).transpose(-1, -2)
+    J = torch.linalg.cross(z, p - o)
+    if prismatic is not None:
+        J = torch.where(prismatic.unsqueeze(-1), z, J)
+    return J.transpose(-1, -2)
 
 
 def outer_factors(table: torch.Tensor, dev: torch.Tensor) -> list[torch.Tensor]:

@@ -54,7 +54,7 @@ from torchcal.io.files import dumps_json, read_json, write_json
 
 __all__ = ["Partition", "partition_workspace"]
 
-FORMAT = "torchcal.partition.zones"
+FORMAT = "torchcal.partition"
 VERSION = 1
 
 

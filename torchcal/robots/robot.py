@@ -27,19 +27,24 @@ from torchcal.errors import InputError
 G_MM_S2 = 9806.65  # standard gravity, mm/s^2
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Robot:
     """A serial robot with a nominal MD-H table.
 
+    Joint values q: rad for a revolute joint (q adds to theta), mm for a prismatic joint
+    (q adds to d).
+
     Attributes:
-        name: preset name.
+        name: preset name or the robot file's "name".
         table: (n, 5) float64 [theta_offset rad, d mm, a mm, alpha rad, beta rad].
         has_beta: (n,) bool, joints whose Hayati beta the table declares.
-        limits: (n, 2) float64 joint limits [lower, upper] in rad.
+        limits: (n, 2) float64 joint limits [lower, upper], rad (revolute) or mm (prismatic).
         base: (4, 4) world <- joint-1 frame (mm).
         tool: (4, 4) flange <- TCP (mm).
         payload_kg: rated payload.
-        gravity: (3,) unit vector of gravity in the world frame.
+        gravity: (3,) unit vector of gravity in the world (base) frame.
+        prismatic: (n,) bool, prismatic joints (None: all revolute).
+        urdf: {"path", "base_link", "tip_link"} when imported from a URDF, else None.
     """
 
     name: str
@@ -50,6 +55,53 @@ class Robot:
     tool: torch.Tensor = field(default_factory=lambda: torch.eye(4, dtype=torch.float64))
     payload_kg: float = 0.0
     gravity: torch.Tensor = field(default_factory=lambda: torch.tensor([0.0, 0.0, -1.0], dtype=torch.float64))
+    prismatic: torch.Tensor | None = None
+    urdf: dict | None = None
+
+    def __post_init__(self):
+        if self.prismatic is None:
+            object.__setattr__(self, "prismatic", torch.zeros(self.table.shape[0], dtype=torch.bool,
+                                                              device=self.table.device))
+
+    def __eq__(self, other) -> bool:
+        """Same name, joint types, table, limits, frames, payload and gravity (exact)."""
+        if not isinstance(other, Robot):
+            return NotImplemented
+        tensors = ("table", "has_beta", "limits", "base", "tool", "gravity", "prismatic")
+        return (self.name == other.name and self.n == other.n and self.payload_kg == other.payload_kg
+                and all(getattr(self, t).shape == getattr(other, t).shape
+                        and torch.equal(getattr(self, t).cpu(), getattr(other, t).cpu().to(getattr(self, t).dtype))
+                        for t in tensors))
+
+    __hash__ = object.__hash__
+
+    def same_geometry(self, other: "Robot", atol: float = 1e-9) -> bool:
+        """Same joint count, types, nominal table, base and tool up to `atol` (mm, rad):
+        what decides whether a model of one robot may be applied to data of the other
+        (names and limits may differ after a round trip through a file)."""
+        if self.n != other.n or not torch.equal(self.prismatic.cpu(), other.prismatic.cpu()):
+            return False
+        return all(torch.allclose(getattr(self, t).cpu().double(), getattr(other, t).cpu().double(),
+                                  rtol=0, atol=atol) for t in ("table", "base", "tool"))
+
+    @property
+    def pris(self) -> torch.Tensor | None:
+        """`prismatic` when any joint is prismatic, else None (the kernels' fast path)."""
+        return self.prismatic if bool(self.prismatic.any()) else None
+
+    def q_from_user(self, q) -> torch.Tensor:
+        """Joint values in file / command-line units (deg revolute, mm prismatic) -> rad / mm."""
+        q = torch.as_tensor(q, dtype=self.dtype, device=self.device)
+        return torch.where(self.prismatic, q, torch.deg2rad(q))
+
+    def q_to_user(self, q) -> torch.Tensor:
+        """Joint values rad / mm -> deg (revolute) / mm (prismatic)."""
+        q = torch.as_tensor(q)
+        return torch.where(self.prismatic.to(q.device), q, torch.rad2deg(q))
+
+    def joint_units(self) -> list[str]:
+        """Per joint: 'deg' or 'mm' (the units of q in files)."""
+        return ["mm" if p else "deg" for p in self.prismatic.tolist()]
 
     @property
     def n(self) -> int:
@@ -69,13 +121,14 @@ class Robot:
         def mv(t):
             return t.to(device=device, dtype=dtype if t.is_floating_point() else None)
         return Robot(self.name, mv(self.table), self.has_beta.to(device), mv(self.limits),
-                     mv(self.base), mv(self.tool), self.payload_kg, mv(self.gravity))
+                     mv(self.base), mv(self.tool), self.payload_kg, mv(self.gravity),
+                     self.prismatic.to(device), self.urdf)
 
     # -- validation -----------------------------------------------------------------
     def check_q(self, q, name: str = "q") -> torch.Tensor:
-        """Convert joint angles to a tensor of the robot's dtype/device and check them.
+        """Convert joint values to a tensor of the robot's dtype/device and check them.
 
-        q (..., n) rad. Raises InputError on a wrong last dimension or non-finite values.
+        q (..., n) rad (revolute) / mm (prismatic). Raises InputError on a wrong last dimension or non-finite values.
         """
         q = torch.as_tensor(q, device=self.device)
         if not q.is_floating_point():
@@ -119,27 +172,31 @@ class Robot:
     def fk(self, q, params=None, chunk: int = K.DEFAULT_CHUNK) -> torch.Tensor:
         """TCP positions (..., 3) mm for q (..., n) rad and deviations params (..., n, 5)."""
         q, params, table = self._prep(q, params)
-        return K.fk_positions(q, table, params, self.base, self.tool, chunk=chunk)
+        return K.fk_positions(q, table, params, self.base, self.tool, chunk=chunk, prismatic=self.pris)
 
     def fk_pose(self, q, params=None) -> torch.Tensor:
         """TCP poses (..., 4, 4) mm."""
         q, params, table = self._prep(q, params)
-        return K.fk_pose(q, table, params, self.base.to(table), self.tool.to(table))
+        return K.fk_pose(q, table, params, self.base.to(table), self.tool.to(table),
+                        prismatic=self.pris)
 
     def frames(self, q, params=None) -> torch.Tensor:
         """World poses of base, each link frame and TCP: (..., n + 2, 4, 4)."""
         q, params, table = self._prep(q, params)
-        return K.fk_frames(q, table, params, self.base.to(table), self.tool.to(table))
+        return K.fk_frames(q, table, params, self.base.to(table), self.tool.to(table),
+                        prismatic=self.pris)
 
     def param_jacobian(self, q, params=None) -> torch.Tensor:
         """(..., 3, 5n) analytic dP/d[params] (mm per rad or mm per mm)."""
         q, params, table = self._prep(q, params)
-        return K.param_jacobian(q, table, params, self.base.to(table), self.tool.to(table))
+        return K.param_jacobian(q, table, params, self.base.to(table), self.tool.to(table),
+                        prismatic=self.pris)
 
     def joint_jacobian(self, q, params=None) -> torch.Tensor:
         """(..., 3, n) dP/dq in mm/rad."""
         q, params, table = self._prep(q, params)
-        return K.joint_jacobian(q, table, params, self.base.to(table), self.tool.to(table))
+        return K.joint_jacobian(q, table, params, self.base.to(table), self.tool.to(table),
+                        prismatic=self.pris)
 
     def within_limits(self, q) -> torch.Tensor:
         """(...,) bool: every joint inside its limits. q (..., n) rad."""
@@ -192,9 +249,19 @@ PRESETS = {
 }
 
 
-def robot(name: str) -> Robot:
-    """The preset robot `name` ('kr1000titan', 'ur5e', 'puma560')."""
-    if not isinstance(name, str) or name.lower() not in PRESETS:
-        raise InputError(f"unknown robot {name!r}; expected one of {', '.join(sorted(PRESETS))}")
-    return PRESETS[name.lower()]()
+def robot(name) -> Robot:
+    """A preset robot ('kr1000titan', 'ur5e', 'puma560') or the robot file at path `name`
+    (JSON, `torchcal.robots.robot_file`). A `Robot` is returned as it is."""
+    if isinstance(name, Robot):
+        return name
+    from pathlib import Path
+
+    if isinstance(name, str) and name.lower() in PRESETS:
+        return PRESETS[name.lower()]()
+    if isinstance(name, (str, Path)) and (Path(name).suffix.lower() == ".json" or Path(name).is_file()):
+        from torchcal.robots.robot_file import load_robot_file
+
+        return load_robot_file(name)
+    raise InputError(f"unknown robot {str(name)!r}; expected one of {', '.join(sorted(PRESETS))} "
+                     f"or the path of a robot file (.json)")
 

@@ -1,0 +1,159 @@
+"""Robot files: a serial robot's nominal MD-H table as JSON (degrees and mm).
+
+    {"name": "my_robot",
+     "joints": [{"type": "revolute" | "prismatic",
+                 "theta_offset_deg": f, "d_mm": f, "a_mm": f, "alpha_deg": f,
+                 "beta_deg": f,            # optional: present = the joint carries a Hayati beta
+                 "lower": f, "upper": f},  # deg (revolute) or mm (prismatic)
+                ...],
+     "base": 4x4 (mm, optional), "tool": 4x4 (mm, optional), "payload_kg": f (optional),
+     "gravity": [gx, gy, gz] (optional unit vector in the base frame, default [0, 0, -1]),
+     "urdf": {"path", "base_link", "tip_link"} (optional, written by `torchcal robot import`),
+     "effects": [...] (optional, informational, written by `torchcal export`)}
+
+MD-H link transform A_i = Rz(theta) Tz(d) Tx(a) Rx(alpha) Ry(beta). A revolute joint's q
+(rad inside, degrees in files) adds to theta; a prismatic joint's q (mm) adds to d.
+Unknown keys are errors (a typo must not be ignored); every error is one line naming the
+file and the key.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import torch
+
+from torchcal.errors import InputError
+from torchcal.robots.robot import Robot
+
+JOINT_KEYS = {"type", "theta_offset_deg", "d_mm", "a_mm", "alpha_deg", "beta_deg", "lower", "upper"}
+TOP_KEYS = {"name", "joints", "base", "tool", "payload_kg", "gravity", "urdf", "effects"}
+URDF_KEYS = {"path", "base_link", "tip_link"}
+
+
+def _num(where: str, key: str, v) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise InputError(f"{where}: {key}: expected a finite number, got {v!r}")
+    return float(v)
+
+
+def _matrix(where: str, key: str, v) -> torch.Tensor:
+    if (not isinstance(v, list) or len(v) != 4
+            or any(not isinstance(r, list) or len(r) != 4 for r in v)):
+        raise InputError(f"{where}: {key}: expected a 4x4 matrix (list of 4 rows of 4 numbers, mm)")
+    T = torch.tensor([[_num(where, f"{key}[{i}][{j}]", x) for j, x in enumerate(r)] for i, r in enumerate(v)],
+                     dtype=torch.float64)
+    if not torch.equal(T[3], torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=torch.float64)):
+        raise InputError(f"{where}: {key}: last row must be [0, 0, 0, 1], got {T[3].tolist()}")
+    R = T[:3, :3]
+    err = float((R.T @ R - torch.eye(3, dtype=torch.float64)).abs().max())
+    if err > 1e-6 or float(torch.linalg.det(R)) < 0:
+        raise InputError(f"{where}: {key}: the upper-left 3x3 is not a rotation (|R^T R - I| = {err:.3g})")
+    return T
+
+
+def robot_from_dict(obj, where: str = "robot file") -> Robot:
+    """Validate a robot-file dict and build the `Robot` (radians and mm inside).
+
+    `where` names the source in error messages (the file path)."""
+    if not isinstance(obj, dict):
+        raise InputError(f"{where}: expected a JSON object with keys name, joints[, base, tool, payload_kg, gravity]")
+    unknown = sorted(set(obj) - TOP_KEYS)
+    if unknown:
+        raise InputError(f"{where}: unknown key(s) {', '.join(unknown)}; expected {', '.join(sorted(TOP_KEYS))}")
+    for key in ("name", "joints"):
+        if key not in obj:
+            raise InputError(f"{where}: missing key {key!r}")
+    name = obj["name"]
+    if not isinstance(name, str) or not name.strip():
+        raise InputError(f"{where}: name: expected a non-empty string, got {name!r}")
+    joints = obj["joints"]
+    if not isinstance(joints, list) or not joints:
+        raise InputError(f"{where}: joints: expected a non-empty list of joint objects")
+    rows, has_beta, limits, pris = [], [], [], []
+    for i, j in enumerate(joints, start=1):
+        key = f"joints[{i}]"  # 1-based, as joints are numbered everywhere else
+        if not isinstance(j, dict):
+            raise InputError(f"{where}: {key}: expected an object")
+        unknown = sorted(set(j) - JOINT_KEYS)
+        if unknown:
+            raise InputError(f"{where}: {key}: unknown key(s) {', '.join(unknown)}; "
+                             f"expected {', '.join(sorted(JOINT_KEYS))}")
+        missing = [k for k in ("type", "theta_offset_deg", "d_mm", "a_mm", "alpha_deg", "lower", "upper") if k not in j]
+        if missing:
+            raise InputError(f"{where}: {key}: missing key(s) {', '.join(missing)}")
+        if j["type"] not in ("revolute", "prismatic"):
+            raise InputError(f"{where}: {key}.type: expected 'revolute' or 'prismatic', got {j['type']!r}")
+        p = j["type"] == "prismatic"
+        vals = {k: _num(where, f"{key}.{k}", j[k]) for k in JOINT_KEYS - {"type"} if k in j}
+        lo, hi = vals["lower"], vals["upper"]
+        if not lo < hi:
+            raise InputError(f"{where}: {key}: lower ({lo:g}) must be below upper ({hi:g}) "
+                             f"({'mm' if p else 'deg'})")
+        rows.append([math.radians(vals["theta_offset_deg"]), vals["d_mm"], vals["a_mm"],
+                     math.radians(vals["alpha_deg"]), math.radians(vals.get("beta_deg", 0.0))])
+        has_beta.append("beta_deg" in j)
+        limits.append([lo, hi] if p else [math.radians(lo), math.radians(hi)])
+        pris.append(p)
+    base = _matrix(where, "base", obj["base"]) if "base" in obj else torch.eye(4, dtype=torch.float64)
+    tool = _matrix(where, "tool", obj["tool"]) if "tool" in obj else torch.eye(4, dtype=torch.float64)
+    payload = _num(where, "payload_kg", obj["payload_kg"]) if "payload_kg" in obj else 0.0
+    if payload < 0:
+        raise InputError(f"{where}: payload_kg: expected a number >= 0, got {payload:g}")
+    gravity = torch.tensor([0.0, 0.0, -1.0], dtype=torch.float64)
+    if "gravity" in obj:
+        g = obj["gravity"]
+        if not isinstance(g, list) or len(g) != 3:
+            raise InputError(f"{where}: gravity: expected [gx, gy, gz], a unit vector in the base frame")
+        gravity = torch.tensor([_num(where, f"gravity[{k}]", x) for k, x in enumerate(g)], dtype=torch.float64)
+        norm = float(gravity.norm())
+        if abs(norm - 1.0) > 1e-6:
+            raise InputError(f"{where}: gravity: expected a unit vector, got length {norm:.6g}")
+    urdf = obj.get("urdf")
+    if urdf is not None:
+        if not isinstance(urdf, dict) or set(urdf) != URDF_KEYS or not all(isinstance(v, str) for v in urdf.values()):
+            raise InputError(f"{where}: urdf: expected {{\"path\", \"base_link\", \"tip_link\"}} (strings)")
+    if "effects" in obj and not isinstance(obj["effects"], list):
+        raise InputError(f"{where}: effects: expected a list (informational, written by torchcal export)")
+    return Robot(name, torch.tensor(rows, dtype=torch.float64), torch.tensor(has_beta),
+                 torch.tensor(limits, dtype=torch.float64), base, tool, payload, gravity,
+                 torch.tensor(pris), None if urdf is None else dict(urdf))
+
+
+def robot_to_dict(robot: Robot, effects=None) -> dict:
+    """The robot-file dict of `robot` (degrees, mm). `effects`: optional list stored
+    under "effects" (informational)."""
+    r = robot.to(device="cpu", dtype=torch.float64)
+    joints = []
+    for i in range(r.n):
+        off, d, a, alpha, beta = r.table[i].tolist()
+        p = bool(r.prismatic[i])
+        lo, hi = r.limits[i].tolist()
+        j = {"type": "prismatic" if p else "revolute", "theta_offset_deg": math.degrees(off), "d_mm": d,
+             "a_mm": a, "alpha_deg": math.degrees(alpha)}
+        if bool(r.has_beta[i]):
+            j["beta_deg"] = math.degrees(beta)
+        j["lower"], j["upper"] = (lo, hi) if p else (math.degrees(lo), math.degrees(hi))
+        joints.append(j)
+    obj = {"name": r.name, "joints": joints, "base": r.base.tolist(), "tool": r.tool.tolist(),
+           "payload_kg": float(r.payload_kg), "gravity": r.gravity.tolist()}
+    if r.urdf is not None:
+        obj["urdf"] = dict(r.urdf)
+    if effects:
+        obj["effects"] = list(effects)
+    return obj
+
+
+def load_robot_file(path) -> Robot:
+    """The `Robot` of the robot file at `path`; one InputError line naming file and key."""
+    from torchcal.io.files import read_json
+
+    return robot_from_dict(read_json(path, "robot file"), str(path))
+
+
+def write_robot_file(path, robot: Robot, effects=None, force: bool = False, inputs=()) -> Path:
+    """Atomically write `robot` as a robot file (JSON, degrees and mm)."""
+    from torchcal.io.files import write_json
+
+    return write_json(path, robot_to_dict(robot, effects), force=force, inputs=inputs)

@@ -228,7 +228,7 @@ class _Linear:
     def pose_columns(self, C: np.ndarray | None) -> np.ndarray:
         """The same at pose level: an orthonormal basis (3P, kb) of what the pose means of C
         add beyond span(pose means of A)."""
-        return self._new(self.Qb, None if C is None else self.pose_mean(C), len(self.rb))
+        return self._new(self.Qb, None if C is None or not C.size else self.pose_mean(C), len(self.rb))
 
     def residual(self, B: np.ndarray) -> np.ndarray:
         """Residual (3N,) of r on [A B] over all rows (B orthonormal, orthogonal to A)."""

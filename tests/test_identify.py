@@ -172,7 +172,8 @@ def test_pose_intervals_groups_repeats(kr):
     m = Measurements(pose, q[[2, 0, 1, 0, 2, 1]], xyz)
     pi = pose_intervals(m)
     assert pi.pose.tolist() == [2, 0, 1]
-    assert_close(pi.lower[0], xyz[0]) and assert_close(pi.upper[0], xyz[4])
+    assert_close(pi.lower[0], xyz[0])
+    assert_close(pi.upper[0], xyz[4])
     assert_close(pi.q, q[[2, 0, 1]])
     assert pi.count.tolist() == [2, 2, 2]
     with pytest.raises(InputError, match="at least 3 repetitions"):
@@ -260,10 +261,29 @@ def test_interval_model_round_trip(noisy_zone):
     model, data, fit = noisy_zone
     im = IntervalModel.from_fits([fit, fit], levels=[1, 2], poses=[12, 12], method="independent")
     back = IntervalModel.from_dict(json.loads(json.dumps(im.to_dict())))
-    assert_close(back.theta, im.theta) and assert_close(back.lower, im.lower) and assert_close(back.upper, im.upper)
+    assert_close(back.theta, im.theta)
+    assert_close(back.lower, im.lower)
+    assert_close(back.upper, im.upper)
     assert back.free.tolist() == im.free.tolist() and back.zones[1]["level"] == 2
     assert back.assign(torch.zeros(4, 3)).tolist() == [0, 0, 0, 0]  # no partition: one zone
     bad = im.to_dict()
     bad["zones"][0]["theta"] = bad["zones"][0]["theta"][:-1]
     with pytest.raises(InputError, match="zone 1: theta has 29 values, expected 30"):
         IntervalModel.from_dict(bad)
+
+
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
+    not torch.cuda.is_available(), reason="no CUDA device"))])
+def test_compensation_stays_on_device(kr, device):
+    """Every tensor compensate builds lives on the robot's device (none is made on the CPU)."""
+    robot = kr.to(device)
+    model = CalibrationModel(robot)
+    q_nom = random_poses(kr, 6, 60).to(device)
+    theta = random_theta(CalibrationModel(kr), CalibrationModel(kr).default_free(), 61, scale=4.0).to(device)
+    comp = compensate(model, theta, robot.fk(q_nom), q_nom)
+    for t in (comp.q, comp.residual_mm, comp.iterations, comp.converged):
+        assert t.device.type == device
+    assert comp.converged.all()
+    assert (model.predict(theta, make_context(robot, comp.q)) - robot.fk(q_nom)).norm(dim=-1).max() <= 1e-6
+    ni = nominal_inverse(robot, robot.fk(q_nom), q_nom + 0.05)
+    assert ni.q.device.type == device and ni.converged.all()

@@ -280,3 +280,17 @@ def test_property_cell_corruption_only_inputerror(tmp_path_factory, data):
     p = tmp_path_factory.mktemp("c") / "c.csv"
     p.write_text("\n".join(",".join(cells) for cells in lines) + "\n")
     _read_only_inputerror(p)
+
+
+def test_library_overwrite_error_names_no_cli_flag(tmp_path):
+    """io.files says the output exists (OutputExistsError); only the CLI adds --force."""
+    from torchcal.errors import OutputExistsError
+    from torchcal.io.files import write_json
+
+    path = tmp_path / "a.json"
+    write_json(path, {"a": 1})
+    with pytest.raises(OutputExistsError) as info:
+        write_json(path, {"a": 2})
+    assert "--force" not in str(info.value) and str(info.value).endswith("output exists")
+    write_json(path, {"a": 2}, force=True)
+    assert path.read_text().count('"a": 2') == 1

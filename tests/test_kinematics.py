@@ -467,3 +467,12 @@ def test_outer_positions_equals_fk_positions():
     want = K.fk_positions(q[:, None, :], robot.table, dev[None], tool=torch.eye(4, dtype=torch.float64).index_put(
         (torch.arange(3), torch.full((3,), 3)), tool))
     torch.testing.assert_close(got, want, rtol=0, atol=1e-9)
+
+
+def test_robot_equality_never_raises():
+    """Robot == Robot compares name and tensors (a dataclass __eq__ on tensors would raise)."""
+    a, b = torchcal.robot("kr1000titan"), torchcal.robot("kr1000titan")
+    assert a == b and a != torchcal.robot("ur5e") and a != "kr1000titan"
+    moved = dataclasses.replace(a, tool=a.tool.clone())
+    moved.tool[2, 3] += 1.0
+    assert a != moved

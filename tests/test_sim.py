@@ -166,3 +166,22 @@ def test_cli_simulate_missing_folder(tmp_path, capsys):
     out = tmp_path / "nope" / "x.csv"
     assert main(["simulate", "--n", "3", "--out", str(out)]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_effect_sizes_per_effect():
+    """effect_mm as a dict sizes each effect separately: doubling one effect's size doubles
+    its parameters (same seed) and leaves the other's unchanged."""
+    import torch
+
+    from torchcal.robots.robot import robot
+    from torchcal.simulation.virtual_robot import VirtualRobot
+
+    r = robot("kr1000titan")
+    specs = ["gear_periodic:2", "joint_compliance:2"]
+    a = VirtualRobot(r, specs, seed=3, effect_mm={"gear_periodic": 0.5, "joint_compliance": 1.0})
+    b = VirtualRobot(r, specs, seed=3, effect_mm={"gear_periodic:2": 1.0, "joint_compliance": 1.0})
+    gear, comp = a.model.slices[1], a.model.slices[2]
+    torch.testing.assert_close(b.theta[gear], 2 * a.theta[gear])
+    torch.testing.assert_close(b.theta[comp], a.theta[comp])
+    c = VirtualRobot(r, specs, seed=3, effect_mm=0.5)  # one size for all, as before
+    torch.testing.assert_close(c.theta[gear], a.theta[gear])

@@ -9,3 +9,10 @@ expected.
 
 class InputError(ValueError):
     """Bad input from a user: a file, an option, an argument."""
+
+
+class OutputExistsError(InputError):
+    """An output file exists and replacing it was not asked for (``force=False``).
+
+    The library's message names the file only; the command line adds its own hint
+    (``pass --force``)."""

@@ -170,7 +170,7 @@ def compensate(model: CalibrationModel, theta, targets, q0, zone=None, tol_mm: f
     J, p = _joint_jacobian(model, thetas, q, approach, payload_kg, temp_c)
     r = t - p
     err = r.norm(dim=-1)
-    iters = torch.zeros(M, dtype=torch.long)
+    iters = torch.zeros(M, dtype=torch.long, device=q.device)
     eye = torch.eye(3, dtype=q.dtype, device=q.device)
     for _ in range(max_iter):
         active = err > tol_mm
@@ -207,12 +207,12 @@ def nominal_inverse(robot, targets, seed_q=None, tol_mm: float = 1e-6, max_iter:
     *nominal* robot needs to reach the targets. targets (M, 3) mm; seed_q (M, n) or (n,)
     rad (default: the middle of the joint limits). Returns a `Compensation` whose q is the
     nominal inverse."""
-    t = torch.as_tensor(targets, dtype=robot.dtype)
+    t = torch.as_tensor(targets, dtype=robot.dtype, device=robot.device)
     if t.ndim != 2 or t.shape[1] != 3:
         raise InputError(f"targets: expected (M, 3) mm, got shape {tuple(t.shape)}")
     if seed_q is None:
         seed_q = robot.limits.mean(-1)
     seed = robot.check_q(seed_q, "seed_q").to(robot.dtype)
     seed = seed.expand(t.shape[0], robot.n).clone() if seed.ndim == 1 else seed
-    return compensate(CalibrationModel(robot), torch.zeros(5 * robot.n, dtype=robot.dtype), t, seed,
+    return compensate(CalibrationModel(robot), torch.zeros(5 * robot.n, dtype=robot.dtype, device=robot.device), t, seed,
                       tol_mm=tol_mm, max_iter=max_iter)

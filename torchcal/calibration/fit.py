@@ -89,7 +89,9 @@ class FitResult:
 
     theta: (P,) parameters; std: (P,) standard errors (0 where held); residuals: (N, 3)
     mm measured - model; weights: (N,) final robust weights (ones when not robust);
-    report: identifiability; outliers: row indices with weight below 0.1 (robust fits).
+    report: identifiability; outliers: row indices with weight below 0.1 (robust fits);
+    status: how the (last) LM solve stopped, 'converged', 'stalled' or 'max_iterations'
+    (`torchcal.calibration.lm.LMStatus`).
     """
 
     model: CalibrationModel
@@ -101,6 +103,21 @@ class FitResult:
     n_iter: int
     outliers: list = field(default_factory=list)
     covariance: ParameterCovariance | None = None  # (P, P) and how it was estimated
+    status: str = "converged"
+
+    @property
+    def converged(self) -> bool:
+        """True only when the solver met its convergence rule (never for a stalled solve)."""
+        return self.status == "converged"
+
+    def to_dict(self, source=None, seed: int = 0, robust=None, pose_ids=None) -> dict:
+        """The MODEL.json object of ``torchcal fit`` (`torchcal.io.modelfile.to_dict`):
+        format, robot, effects, parameters (value, unit, std, ci95), covariance,
+        identifiability, fit (n, rms_mm, max_mm, robust, outlier_poses, iterations,
+        status), provenance."""
+        from torchcal.io.modelfile import to_dict
+
+        return to_dict(self, source=source, seed=seed, robust=robust, pose_ids=pose_ids)
 
     @property
     def rms_mm(self) -> float:
@@ -114,7 +131,7 @@ def _robust_weights(dist: torch.Tensor, kind: str) -> torch.Tensor:
         return torch.where(u <= 2.5, torch.ones_like(u), 2.5 / u)
     if kind == "cauchy":
         return 1.0 / (1.0 + (u / 2.5) ** 2)
-    raise InputError(f"--robust: unknown loss {kind!r}; expected 'huber' or 'cauchy'")
+    raise InputError(f"robust: unknown loss {kind!r}; expected 'huber' or 'cauchy'")
 
 
 def _generic_rank(model: CalibrationModel, ctx: Context, cand, rank_tol: float) -> int:
@@ -192,4 +209,5 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
                                       weights=weights if robust else None)
     std = covariance.std
     outliers = torch.nonzero(weights < 0.1).flatten().tolist() if robust else []
-    return FitResult(model, theta, std, resid, weights, report, int(res.n_iter[0]), outliers, covariance)
+    return FitResult(model, theta, std, resid, weights, report, int(res.n_iter[0]), outliers, covariance,
+                     res.status_labels()[0])

@@ -55,7 +55,7 @@ from torchcal.effects.base import Context, make_context
 from torchcal.errors import InputError
 from torchcal.calibration.fit import RANK_TOL, Identifiability, identifiability
 from torchcal.reliability.interval import Interval
-from torchcal.calibration.lm import levenberg_marquardt
+from torchcal.calibration.lm import batched_jacobian as lm_jacobian, levenberg_marquardt
 from torchcal.calibration.model import CalibrationModel
 
 __all__ = ["PoseIntervals", "pose_intervals", "solution_map", "gcv_damping", "IntervalFit", "IntervalModel",
@@ -247,11 +247,9 @@ def batched_jacobian(model: CalibrationModel, x: torch.Tensor, ctxs: list[Contex
         geo = x[:, : 5 * robot.n].reshape(-1, 1, robot.n, 5)
         return K.param_jacobian(st["q"].to(x), robot.table.to(x), geo, robot.base.to(x), robot.tool.to(x),
                                     prismatic=robot.pris)
-    P = x.shape[-1]
-    basis = torch.eye(P, dtype=x.dtype, device=x.device)[:, None, :].expand(P, *x.shape)
-    f = lambda z: batched_predict(model, z, ctxs)  # noqa: E731
-    cols = torch.func.vmap(lambda t: torch.func.jvp(f, (x,), (t,))[1])(basis)  # (P, B, m, 3)
-    return cols.permute(1, 2, 3, 0)
+    B, P = x.shape
+    J = lm_jacobian(lambda z: batched_predict(model, z, ctxs).reshape(B, -1), x)  # (B, 3m, P)
+    return J.reshape(B, -1, 3, P)
 
 
 # ------------------------------------------------------------------ results
@@ -268,7 +266,8 @@ class IntervalFit:
         S: (P, 3m) linearised solution map at x_c (mm -> parameter units).
         residual_mm: (m, 3) interval centres minus model at x_c.
         error_radius_mm: (m, 3) half-range of the repeated measurements.
-        n_iter: LM iterations; converged: LM stopping rule met.
+        n_iter: LM iterations; converged: LM convergence rule met; status: 'converged',
+            'stalled' or 'max_iterations' (`torchcal.calibration.lm.LMStatus`).
         damping: mu of eq. 29 used for this zone (0: plain least squares).
     """
 
@@ -282,6 +281,7 @@ class IntervalFit:
     n_iter: int
     converged: bool
     damping: float = 0.0
+    status: str = "converged"
 
     @property
     def free(self) -> torch.Tensor:
@@ -315,7 +315,7 @@ class IntervalFit:
                 "lower": (self.theta - self.radius).tolist(), "upper": (self.theta + self.radius).tolist(),
                 "free": self.free.tolist(), "identifiability": self.report.to_dict(),
                 "rms_mm": self.rms_mm, "n_iter": self.n_iter, "converged": self.converged,
-                "damping": self.damping,
+                "status": self.status, "damping": self.damping,
                 "parameters": self.rows(degrees=True)}
 
 
@@ -421,7 +421,8 @@ def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
             radius = S.abs() @ er
             fits[z] = IntervalFit(model, res.x[b].clone(), radius, reports[b], S,
                                   target[b] - pred[b], datas[b].radius.to(xb),
-                                  int(res.n_iter[b]), bool(res.converged[b]), mus[b])
+                                  int(res.n_iter[b]), bool(res.converged[b]), mus[b],
+                                  res.status_labels()[b])
     return fits  # type: ignore[return-value]
 
 
@@ -502,7 +503,10 @@ class IntervalModel:
         for z, info in enumerate(self.zones):
             zones.append({**info, "theta": self.theta[z].tolist(), "lower": self.lower[z].tolist(),
                           "upper": self.upper[z].tolist(), "free": self.free[z].tolist()})
-        return {"format": INTERVAL_MODEL_FORMAT, "robot": m.robot.name, "effects": m.specs(),
+        from torchcal.robots.robot_file import robot_to_dict
+
+        return {"format": INTERVAL_MODEL_FORMAT, "robot": m.robot.name,
+                "nominal_robot": robot_to_dict(m.robot), "effects": m.specs(),
                 "parameter_names": m.param_names(), "parameter_units": m.param_units(),
                 "method": self.method, "zones": zones,
                 "partition": None if self.partition is None else self.partition.to_dict(),
@@ -512,13 +516,13 @@ class IntervalModel:
     def from_dict(cls, obj: dict, where: str = "interval model") -> "IntervalModel":
         """Rebuild from `to_dict` output; raises InputError naming what is wrong."""
         from torchcal.partition.zones import Partition
-        from torchcal.robots.robot import robot as make_robot
+        from torchcal.robots.robot_file import model_robot
 
         if obj.get("format") != INTERVAL_MODEL_FORMAT:
             raise InputError(f"{where}: not a torchcal interval model (format {obj.get('format')!r}, "
                              f"expected {INTERVAL_MODEL_FORMAT!r})")
         try:
-            model = CalibrationModel(make_robot(obj["robot"]), list(obj["effects"]))
+            model = CalibrationModel(model_robot(obj, where), list(obj["effects"]))
             if list(obj["parameter_names"]) != model.param_names():
                 raise InputError(f"{where}: parameter names do not match robot {obj['robot']!r} with "
                                  f"effects {obj['effects']}")

@@ -8,26 +8,74 @@ own step acceptance. The step is
 
 with mu starting at 1e-3 (the paper's value), divided by 10 after an accepted step and
 multiplied by 10 after a rejected one. Parameters outside `free` never move (their
-columns are dropped from the normal equations, not damped). Stops per element when the
-relative cost decrease of an accepted step is below `ftol` and the step is below `xtol`
-relative to x, when mu exceeds 1e10, or after `max_iter` iterations.
+columns are dropped from the normal equations, not damped). Stops per element:
+
+- CONVERGED: an accepted step lowered the cost by less than `ftol` (relative) or was
+  shorter than `xtol` relative to x, *and* x is stationary: the largest cosine between
+  the weighted residual and a Jacobian column, ``|g_k| / sqrt(A_kk * 2 cost)`` with
+  ``g = J^T W r``, ``A = J^T W J``, is at most `gtol` (scale-free first-order
+  optimality, as MINPACK's gtol), or the undamped Gauss-Newton step is below
+  sqrt(eps) relative to x (residuals at rounding level, where the cosine means
+  nothing). The stationarity test keeps a vanishing step forced by a huge mu (in
+  float32 it rounds to no step at all) from counting as convergence; an equal cost
+  is accepted as a step only at a stationary x.
+- STALLED: mu exceeded `MU_MAX` (1e10) without a step that lowers the cost (a wrong
+  Jacobian, a non-finite cost). Never reported as converged.
+- MAX_ITERATIONS: `max_iter` iterations first.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import IntEnum
 
 import torch
+
+#: damping above which a batch element stops as STALLED
+MU_MAX = 1e10
+#: smallest damping (and the one of the Gauss-Newton step in the stationarity test)
+MU_MIN = 1e-15
+
+
+class LMStatus(IntEnum):
+    """Why a batch element stopped.
+
+    CONVERGED: an accepted step met the ftol / xtol rule. STALLED: the damping passed
+    `MU_MAX` without a step that lowers the cost (a wrong Jacobian, a non-finite cost,
+    or a point the solver cannot improve on). MAX_ITERATIONS: `max_iter` reached first.
+    """
+
+    CONVERGED = 0
+    STALLED = 1
+    MAX_ITERATIONS = 2
+
+    @property
+    def label(self) -> str:
+        """'converged', 'stalled' or 'max_iterations' (the text files and the CLI show)."""
+        return self.name.lower()
 
 
 @dataclass(frozen=True)
 class LMResult:
-    """x (B, P) solution; cost (B,) 0.5 |w r|^2; n_iter (B,); converged (B,) bool."""
+    """Batched solver result.
+
+    x (B, P) solution; cost (B,) 0.5 |w r|^2 at x; n_iter (B,) iterations;
+    status (B,) int64 `LMStatus` values per batch element.
+    """
 
     x: torch.Tensor
     cost: torch.Tensor
     n_iter: torch.Tensor
-    converged: torch.Tensor
+    status: torch.Tensor
+
+    @property
+    def converged(self) -> torch.Tensor:
+        """(B,) bool: status CONVERGED (a stalled solve is never converged)."""
+        return self.status == LMStatus.CONVERGED
+
+    def status_labels(self) -> list[str]:
+        """Per batch element 'converged', 'stalled' or 'max_iterations'."""
+        return [LMStatus(int(s)).label for s in self.status.tolist()]
 
 
 def batched_jacobian(residual_fn, x: torch.Tensor) -> torch.Tensor:
@@ -44,12 +92,15 @@ def batched_jacobian(residual_fn, x: torch.Tensor) -> torch.Tensor:
 
 def levenberg_marquardt(residual_fn, x0, free=None, weights=None, jacobian_fn=None,
                         mu0: float = 1e-3, max_iter: int = 100, ftol: float = 1e-12,
-                        xtol: float = 1e-12) -> LMResult:
+                        xtol: float = 1e-12, gtol: float = 1e-3) -> LMResult:
     """Batched damped least squares.
 
-    residual_fn: x (B, P) -> r (B, R). x0 (B, P). free: (P,) or (B, P) bool, default all.
+    residual_fn: x (B, P) -> r (B, R). x0 (B, P), any float dtype and device (the result
+    stays on them). free: (P,) or (B, P) bool, default all.
     weights: (B, R) non-negative row weights (IRLS), default ones.
     jacobian_fn: x (B, P) -> (B, R, P); default forward-mode autodiff of residual_fn.
+    mu0, max_iter, ftol, xtol, gtol: as in the module docstring.
+    Returns an `LMResult` with a per-element `LMStatus`.
     """
     x = x0.clone()
     B, P = x.shape
@@ -61,9 +112,12 @@ def levenberg_marquardt(residual_fn, x0, free=None, weights=None, jacobian_fn=No
     cost = 0.5 * (w * r * r).sum(-1)
     mu = torch.full((B,), mu0, dtype=x.dtype, device=x.device)
     done = torch.zeros(B, dtype=torch.bool, device=x.device)
+    status = torch.full((B,), int(LMStatus.MAX_ITERATIONS), dtype=torch.long, device=x.device)
     n_iter = torch.zeros(B, dtype=torch.long, device=x.device)
     eye = torch.eye(P, dtype=x.dtype, device=x.device)
     fmask = free.to(x.dtype)
+    tiny = torch.finfo(x.dtype).tiny
+    root_eps = torch.finfo(x.dtype).eps ** 0.5
     for _ in range(max_iter):
         if done.all():
             break
@@ -74,6 +128,10 @@ def levenberg_marquardt(residual_fn, x0, free=None, weights=None, jacobian_fn=No
         diag = torch.diagonal(A, dim1=1, dim2=2).clamp_min(1e-30)
         # a held parameter gets a unit row so the system stays regular and its step is 0
         A_held = eye * (1 - fmask)[:, None, :]
+        cosine = g.abs() / (diag.sqrt() * (2 * cost).sqrt()[:, None]).clamp_min(tiny)  # (B, P)
+        gn = torch.linalg.solve(A + MU_MIN * torch.diag_embed(diag * fmask) + A_held, g.unsqueeze(-1))
+        gn_small = gn.squeeze(-1).norm(dim=-1) <= root_eps * (x.norm(dim=-1) + root_eps)
+        stationary = (cosine.amax(-1) <= gtol) | gn_small  # (B,)
         while True:
             M = A + mu[:, None, None] * torch.diag_embed(diag * fmask) + A_held
             step = -torch.linalg.solve(M, g.unsqueeze(-1)).squeeze(-1) * fmask
@@ -81,18 +139,23 @@ def levenberg_marquardt(residual_fn, x0, free=None, weights=None, jacobian_fn=No
             x_new = x + step
             r_new = residual_fn(x_new)
             cost_new = 0.5 * (w * r_new * r_new).sum(-1)
-            ok = (cost_new <= cost) & torch.isfinite(cost_new)
-            if (ok | done | (mu > 1e10)).all():
+            # an equal cost counts only at a stationary x: a step that rounds to nothing
+            # away from a minimum is no progress
+            ok = ((cost_new < cost) | ((cost_new == cost) & stationary)) & torch.isfinite(cost_new)
+            if (ok | done | (mu > MU_MAX)).all():
                 break
             mu = torch.where(ok | done, mu, mu * 10)
         accept = ok & ~done
-        rel = (cost - cost_new) / cost.clamp_min(1e-300)
+        rel = (cost - cost_new) / cost.clamp_min(tiny)
         small_step = step.norm(dim=-1) <= xtol * (x.norm(dim=-1) + xtol)
         x = torch.where(accept[:, None], x_new, x)
         r = torch.where(accept[:, None], r_new, r)
         n_iter = n_iter + (~done).long()
-        converged_now = accept & ((rel < ftol) | small_step)
+        converged_now = accept & stationary & ((rel < ftol) | small_step)
         cost = torch.where(accept, cost_new, cost)
-        mu = torch.where(accept, (mu / 10).clamp_min(1e-15), mu)
-        done = done | converged_now | (mu > 1e10)
-    return LMResult(x, cost, n_iter, done)
+        mu = torch.where(accept, (mu / 10).clamp_min(MU_MIN), mu)
+        stalled_now = ~done & ~converged_now & (mu > MU_MAX)
+        status = torch.where(converged_now & ~done, int(LMStatus.CONVERGED), status)
+        status = torch.where(stalled_now, int(LMStatus.STALLED), status)
+        done = done | converged_now | stalled_now
+    return LMResult(x, cost, n_iter, status)

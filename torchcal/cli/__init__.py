@@ -13,11 +13,13 @@ import importlib
 import os
 import sys
 
-from torchcal.errors import InputError
+from torchcal.cli._args import FORCE_HINT
+from torchcal.errors import InputError, OutputExistsError
 
 COMMANDS = (
     "demo", "simulate", "fit", "evaluate", "diagnose", "discover",
-    "sweep", "partition", "calibrate", "compensate",
+    "sweep", "partition", "calibrate", "compensate", "robot", "export",
+    "plan", "accuracy",
 )
 
 
@@ -63,7 +65,8 @@ def main(argv: list[str] | None = None) -> int:
     except (InputError, ValueError, FileNotFoundError, FileExistsError, IsADirectoryError) as exc:
         if os.environ.get("TORCHCAL_DEBUG") and not isinstance(exc, InputError):
             raise  # developers: the traceback of a ValueError that is not a user mistake
-        sys.stderr.write(f"torchcal {args.command}: error: {exc}\n")
+        hint = f"; {FORCE_HINT}" if isinstance(exc, OutputExistsError) else ""  # the library names no flag
+        sys.stderr.write(f"torchcal {args.command}: error: {exc}{hint}\n")
         return 2
     except OSError as exc:  # permission denied, disk full, ...: one line, not a traceback
         where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""

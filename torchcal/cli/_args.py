@@ -6,34 +6,31 @@ import argparse
 import math
 
 
-def positive_int(text: str) -> int:
+def _number(text: str, kind, ok, expected: str):
+    """The one number parser: `kind`(text) that satisfies `ok`, else an argparse error
+    naming what was expected and what was given."""
     try:
-        v = int(text)
+        v = kind(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+        v = None
+    if v is None or not (math.isfinite(v) and ok(v)):
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
     return v
+
+
+def positive_int(text: str) -> int:
+    return _number(text, int, lambda v: v >= 1, "a positive integer")
 
 
 def positive_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return v
+    return _number(text, float, lambda v: v > 0, "a positive number")
 
 
 def nonneg_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
-    if not (math.isfinite(v) and v >= 0):
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
-    return v
+    return _number(text, float, lambda v: v >= 0, "a number >= 0")
+
+
+FORCE_HINT = "pass --force to replace it"
 
 
 def add_force(p):
@@ -65,7 +62,8 @@ def check_outputs(outputs, force: bool, inputs=()) -> None:
     its folder does not exist. `outputs`: (option, path or None) pairs."""
     from pathlib import Path
 
-    from torchcal.errors import InputError
+    from torchcal.errors import InputError, OutputExistsError
+    from torchcal.io.files import check_output
 
     seen = {}
     ins = {Path(p).resolve(): p for p in inputs if p is not None}
@@ -81,10 +79,12 @@ def check_outputs(outputs, force: bool, inputs=()) -> None:
         seen[r] = opt
         if p.is_dir():
             raise InputError(f"{path}: {opt} names a folder; expected a file")
-        if p.exists() and not force:
-            raise InputError(f"{path}: output exists; pass --force to replace it")
-        if not p.parent.exists():
-            raise InputError(f"{path}: {opt}: folder {p.parent} does not exist")
+        try:
+            check_output(p, force)  # the one overwrite rule (torchcal.io.files)
+        except OutputExistsError as exc:
+            raise InputError(f"{exc}; {FORCE_HINT}") from None
+        except InputError:
+            raise InputError(f"{path}: {opt}: folder {p.parent} does not exist") from None
 
 
 def check_folder(opt: str, path) -> None:
@@ -135,3 +135,23 @@ def load_robot(text):
     from torchcal.robots.robot import robot
 
     return robot(text)
+
+
+def check_data_joints(data, robot, model_path) -> None:
+    """Refuse (one line naming both) a measurement CSV whose q columns are not the
+    model's joint count: data of another robot."""
+    import csv
+    import re
+    from pathlib import Path
+
+    from torchcal.errors import InputError
+
+    p = Path(data)
+    if not p.is_file():
+        return  # the reader's own message
+    with open(p, newline="", encoding="utf-8-sig", errors="replace") as fh:
+        header = next(csv.reader(fh), [])
+    n = sum(1 for h in header if re.fullmatch(r"q\d+", h.strip()))
+    if n and n != robot.n:
+        raise InputError(f"{data}: data of a robot with {n} joints (q1..q{n}), but {model_path} is a model "
+                         f"of robot {robot.name!r} with {robot.n} joints; refusing to apply it to another robot")

@@ -199,15 +199,18 @@ def discovery_outputs(args, robot, m, res) -> None:
 
 # --------------------------------------------------------------------------- demo
 def _demo_after(result):
-    """The partitioned (per-zone) evaluation after compensation."""
+    """The partitioned (per-zone, the paper's method) evaluation after compensation."""
     after = result.after
-    return after["partitioned"] if isinstance(after, dict) else after
+    if not isinstance(after, dict):
+        return after
+    return after["paper_partitioned"] if "paper_partitioned" in after else after["partitioned"]
 
 
-def demo_markdown(result) -> str:
-    """The ``demo`` summary as markdown: key numbers, then the printed report verbatim."""
+def demo_markdown(run) -> str:
+    """The ``demo`` summary as markdown: key numbers (first seed), then the printed report verbatim."""
     from viz.recording import summary_markdown
 
+    result = getattr(run, "first", run)
     before, after = result.before, _demo_after(result)
     cfg = result.config
     facts = {"robot": getattr(cfg, "robot", "kr1000titan"), "seed": getattr(cfg, "seed", 0),
@@ -217,14 +220,20 @@ def demo_markdown(result) -> str:
              "max |error| before (mm)": float(before.max_abs_mm), "max |error| after (mm)": float(after.max_abs_mm),
              "allowed per axis (mm)": float(cfg.allowed_axis_mm)}
     text = summary_markdown("torchcal demo", facts)
-    report = result.format_report() if hasattr(result, "format_report") else ""
+    if hasattr(run, "runs"):
+        from torchcal.cli._report import format_report
+
+        report = format_report(run)
+    else:
+        report = run.format_report() if hasattr(run, "format_report") else ""
     if report:
         text += "\n## Report\n\n```\n" + report.rstrip() + "\n```\n"
     return text
 
 
 def demo_outputs(args, result) -> None:
-    """``demo --rrd/--plots`` for a finished demo (`result`: `torchcal.workflows.paper.PipelineResult`).
+    """``demo --rrd/--plots`` for a finished demo (`result`: `torchcal.workflows.paper.DemoRun`, its
+    first seed is drawn; or one `PipelineResult`).
 
     Recording: ``workspace/{rset,zones,centres}`` (the sweep points coloured by R_set and by
     zone, zone centres labelled), ``error_intervals/{x,y,z}/{before,after,allowed}/...`` per
@@ -232,6 +241,7 @@ def demo_outputs(args, result) -> None:
     PNGs: ``zone_map.png`` (three views), ``rset_histogram.png``, ``error_intervals.png``.
     """
     rrd, pngs = check_outputs(args, "demo")
+    run, result = result, getattr(result, "first", result)
     force = bool(args.force)
     pos = _np(result.sweep.positions)
     r_set = _np(result.sweep.r_set)
@@ -253,6 +263,6 @@ def demo_outputs(args, result) -> None:
         with RecordingWriter(rrd, seed=int(getattr(args, "seed", 0) or 0), force=force) as rec:
             log_workspace(rec, pos, r_set, zones)
             log_error_intervals(rec, b_lo, b_hi, a_lo, a_hi, allowed_mm=allowed)
-            log_summary(rec, demo_markdown(result))
+            log_summary(rec, demo_markdown(run))
     for p in ([rrd] if rrd is not None else []) + pngs:
         print(f"wrote {p}")

@@ -21,21 +21,23 @@ MODEL.json: format ``torchcal-interval-model/1`` (`IntervalModel.to_dict`), read
 
 from __future__ import annotations
 
+<<<<<<< HEAD
 from torchcal.cli._args import add_effects_module, add_force, check_outputs, read_data, add_robot
 from torchcal.errors import InputError
+=======
+from torchcal.cli._args import add_force, add_robot, check_outputs, nonneg_float, read_data
+>>>>>>> main
 
 
 def _damping(text: str):
     if text in ("gcv", "gcv_shared"):
         return text
+    import argparse
+
     try:
-        v = float(text)
-    except ValueError:
-        v = -1.0
-    if not v >= 0:
-        import argparse
-        raise argparse.ArgumentTypeError(f"expected 'gcv', 'gcv_shared' or a number >= 0, got {text!r}")
-    return v
+        return nonneg_float(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected 'gcv', 'gcv_shared' or a number >= 0, got {text!r}") from None
 
 
 def add_parser(sub):
@@ -58,39 +60,11 @@ def add_parser(sub):
 
 
 def calibrate(meas, robot, effects=(), partition=None, zone_method: str = "damped", damping="gcv_shared"):
-    """Interval calibration of Measurements `meas` -> (`IntervalModel`, global `IntervalFit`).
-
-    partition: a `Partition` or None (global only).
-    """
-
-    from torchcal.calibration.intervals import IntervalModel, identify_zones, pose_intervals
+    """Kept for callers of the former CLI-level function: `torchcal.workflows.zones.calibrate`."""
     from torchcal.calibration.model import CalibrationModel
+    from torchcal.workflows.zones import calibrate as calibrate_zones
 
-    data = pose_intervals(meas, min_repeats=2)
-    model = CalibrationModel(robot, list(effects))
-    glob = identify_zones(model, [data])[0]
-    if partition is None:
-        return IntervalModel.from_fits([glob], poses=[len(data)], method="global"), glob
-    zone = partition.assign(robot.fk(data.q)) - 1  # (m,) 0-based
-    Z = partition.n_zones
-    members = [(zone == z).nonzero().flatten() for z in range(Z)]
-    have = [z for z in range(Z) if len(members[z])]
-    if zone_method == "independent":
-        empty = [z + 1 for z in range(Z) if not len(members[z])]
-        if empty:
-            raise InputError(f"zone(s) {empty} have no poses; --zone-method independent needs poses in every zone")
-        fits = identify_zones(model, [data.subset(members[z]) for z in range(Z)])
-    else:
-        fitted = identify_zones(model, [data.subset(members[z]) for z in have], theta0=glob.theta,
-                                damping=damping)
-        by_zone = dict(zip(have, fitted))
-        fits = [by_zone.get(z, glob) for z in range(Z)]
-    levels = [int(v) for v in partition.zone_level]
-    model_ = IntervalModel.from_fits(fits, partition, levels, [len(m) for m in members], zone_method)
-    for z in range(Z):
-        if not len(members[z]):
-            model_.zones[z]["note"] = "no poses in this zone: global parameters"
-    return model_, glob
+    return calibrate_zones(CalibrationModel(robot, list(effects)), meas, partition, zone_method, damping)
 
 
 def run(args) -> int:

@@ -1,7 +1,7 @@
 """`torchcal compensate TARGETS.csv --model MODEL.json --out Q.csv`: corrected joint commands
 that make the calibrated model reach each target (torchcal.calibration.compensate).
 
-TARGETS.csv: header ``x,y,z`` (mm, robot base frame) and optionally ``q1..qN`` (degrees):
+TARGETS.csv: header ``x,y,z`` (mm, robot base frame) and optionally ``q1..qN`` (degrees; mm for a prismatic joint):
 the seed of each target, normally the command that nominally reaches it. Without seeds
 the nominal inverse is solved first from a default seed (joint 1 turned towards the
 target, the others at the middle of their limits).
@@ -23,7 +23,11 @@ import math
 import sys
 from pathlib import Path
 
+<<<<<<< HEAD
 from torchcal.cli._args import add_effects_module, add_force, check_outputs
+=======
+from torchcal.cli._args import add_force, add_robot, check_outputs, load_robot
+>>>>>>> main
 from torchcal.errors import InputError
 
 
@@ -33,6 +37,7 @@ def add_parser(sub):
     p.add_argument("targets", help="CSV with columns x,y,z (mm) [, q1..qN seeds in degrees]")
     p.add_argument("--model", required=True, help="MODEL.json (torchcal calibrate or torchcal fit)")
     p.add_argument("--out", required=True, help="output CSV of corrected joint commands (degrees)")
+    add_robot(p, required=False, what="check that the model is for this robot (the model file embeds its robot)")
     add_force(p)
     add_effects_module(p)
     p.set_defaults(func=run)
@@ -124,6 +129,9 @@ def run(args) -> int:
     check_outputs([("--out", args.out)], args.force, inputs=[args.targets, args.model])
     im = load_model(args.model)
     robot = im.model.robot
+    from torchcal.robots.robot_file import check_same_robot
+
+    check_same_robot(robot, load_robot(args.robot), str(args.model))
     targets, seeds_deg = read_targets(args.targets, robot.n)
     if seeds_deg is None:
         ni = nominal_inverse(robot, targets, default_seeds(robot, targets))
@@ -133,10 +141,10 @@ def run(args) -> int:
             raise InputError(f"{args.targets}: no nominal inverse found for target row(s) "
                              f"{[b + 1 for b in bad][:10]} (out of reach?); give seeds q1..q{robot.n}")
     else:
-        q0 = torch.deg2rad(seeds_deg)
+        q0 = robot.q_from_user(seeds_deg)  # deg, mm for a prismatic joint
     zone = im.assign(targets)
     comp = compensate(im.model, im.theta, targets, q0, zone=zone)
-    qd = torch.rad2deg(comp.q)
+    qd = robot.q_to_user(comp.q)
     res = comp.residual_mm.norm(dim=-1)
     lines = [",".join(["point", "zone", *(f"q{k}" for k in range(1, robot.n + 1)), "residual_mm", "converged"])]
     for i in range(targets.shape[0]):

@@ -62,7 +62,7 @@ def run(args) -> int:
     robot = make_robot(args.robot)
     effects = args.effects or []
     if args.model:
-        model, _ = modelfile.load(args.model, robot_name=robot.name)
+        model, _ = modelfile.load(args.model, robot=robot)
         effects = model.specs()
     m = read_data(args.data, robot)
     d = diagnose(robot, m, effects, folds=args.folds, seed=args.seed)

@@ -1,10 +1,15 @@
-"""`torchcal evaluate DATA --model MODEL.json [--json OUT]`: distance errors measured - model."""
+"""`torchcal evaluate DATA --model MODEL.json [--robot ROBOT] [--json OUT]`: distance errors
+measured - model. The model file embeds its nominal robot; ``--robot`` only checks it."""
 
 from __future__ import annotations
 
 from torchcal.io import modelfile
+<<<<<<< HEAD
 from torchcal.cli._args import add_effects_module, add_force, check_outputs, read_data, add_robot
 from torchcal.effects import make_context
+=======
+from torchcal.cli._args import add_force, check_outputs, read_data, add_robot, load_robot, check_data_joints
+>>>>>>> main
 from torchcal.io.files import write_json
 
 
@@ -20,6 +25,7 @@ def add_parser(sub):
 
 
 def evaluate(model, theta, m) -> dict:
+<<<<<<< HEAD
     """{"n", "rms_mm", "mean_mm", "max_mm", "per_axis_rms_mm"} of measured - model."""
     ctx = make_context(model.robot, m.q, m.payload_kg, m.temp_c, m.q_prev)
     model.check_context(ctx)
@@ -27,14 +33,19 @@ def evaluate(model, theta, m) -> dict:
     d = err.norm(dim=-1)
     return {"n": len(m), "rms_mm": float(d.pow(2).mean().sqrt()), "mean_mm": float(d.mean()),
             "max_mm": float(d.max()), "per_axis_rms_mm": err.pow(2).mean(0).sqrt().tolist()}
+=======
+    """{"n", "rms_mm", "mean_mm", "max_mm", "per_axis_rms_mm"} of measured - model (`torchcal.evaluate`)."""
+    from torchcal.api import evaluate as run
+
+    return run((model, theta), m).to_dict()
+>>>>>>> main
 
 
 def run(args) -> int:
     check_outputs([("--json", args.json)], args.force, inputs=[args.data, args.model])
-    if args.robot is not None:
-        from torchcal.robots.robot import robot as make_robot
-        make_robot(args.robot)  # unknown robot: its own clear message
-    model, theta = modelfile.load(args.model, robot_name=args.robot)
+    robot = load_robot(args.robot)  # unknown robot: its own clear message
+    model, theta = modelfile.load(args.model, robot=robot)
+    check_data_joints(args.data, model.robot, args.model)
     m = read_data(args.data, model.robot)
     rep = evaluate(model, theta, m)
     if args.json:

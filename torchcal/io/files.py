@@ -12,21 +12,31 @@ import os
 import tempfile
 from pathlib import Path
 
-from torchcal.errors import InputError
+from torchcal.errors import InputError, OutputExistsError
 
-def atomic_write(path, data: str | bytes, force: bool = False, inputs=()) -> Path:
-    """Write `data` to `path` atomically.
 
-    Raises InputError if `path` exists and not `force`, or if `path` is one of `inputs`.
-    """
+def check_output(path, force: bool = False, inputs=()) -> Path:
+    """The overwrite rule (library and command line alike): `path` must not be one of
+    `inputs`, must not exist unless `force` (OutputExistsError), and its folder must exist.
+    Returns `path` as a Path."""
     path = Path(path)
     for src in inputs:
         if src is not None and Path(src).exists() and path.exists() and path.resolve() == Path(src).resolve():
             raise InputError(f"{path}: refusing to write over the input file")
     if path.exists() and not force:
-        raise InputError(f"{path}: output exists; pass --force to replace it")
+        raise OutputExistsError(f"{path}: output exists")
     if not path.parent.exists():
         raise InputError(f"{path}: folder {path.parent} does not exist")
+    return path
+
+
+def atomic_write(path, data: str | bytes, force: bool = False, inputs=()) -> Path:
+    """Write `data` to `path` atomically, after `check_output(path, force, inputs)`.
+
+    Raises OutputExistsError if `path` exists and not `force`, InputError if `path` is
+    one of `inputs` or its folder does not exist.
+    """
+    path = check_output(path, force, inputs)
     mode = "wb" if isinstance(data, bytes) else "w"
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:

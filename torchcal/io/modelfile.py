@@ -1,16 +1,20 @@
 """MODEL.json: a fitted model on disk (JSON, never pickle).
 
-    {"format": "torchcal-model/1", "robot": NAME, "effects": [SPEC...],
+    {"format": "torchcal-model/1", "robot": NAME, "nominal_robot": {ROBOT FILE},
+     "effects": [SPEC...],
      "parameters": [{"name", "value", "unit", "std", "identified", "ci95"}...],
      "covariance": {"method", "dof", "sigma_mm", "noise_mm", "pose_mm", "parameters", "matrix"},
-     "identifiability": {...}, "fit": {"n", "rms_mm", "max_mm", "robust", "outliers"},
+     "identifiability": {...}, "fit": {"n", "rms_mm", "max_mm", "robust", "outliers", "status"},
      "provenance": {"input", "input_sha256", "torchcal_version", "seed"}}
 
 Values are in the units named beside them (mm, rad, 1/K, ...); ``std`` is the standard
 error (0 for parameters held at nominal), ``ci95`` its 95 % interval [lower, upper]
 (Student's t), ``covariance`` the full covariance of the identified parameters (row
-'rows' or 'pose-level' when poses repeat; `torchcal.calibration.uncertainty`). Loading rebuilds the `CalibrationModel` and
-theta exactly (floats are written with full precision).
+'rows' or 'pose-level' when poses repeat; `torchcal.calibration.uncertainty`); ``fit.status`` is how the
+solver stopped ('converged', 'stalled' or 'max_iterations'). Loading rebuilds the `CalibrationModel` and
+theta exactly (floats are written with full precision). ``nominal_robot`` embeds the
+nominal robot (the robot-file dict, docs/robots.md), so a model file needs no preset and
+no robot file; files written before it existed name a preset under ``robot``.
 """
 
 from __future__ import annotations
@@ -25,7 +29,8 @@ from torchcal.errors import InputError
 from torchcal.calibration.fit import FitResult
 from torchcal.io.files import read_json
 from torchcal.calibration.model import CalibrationModel
-from torchcal.robots.robot import robot as make_robot
+from torchcal.robots.robot import Robot
+from torchcal.robots.robot_file import check_same_robot, model_robot, robot_to_dict
 
 FORMAT = "torchcal-model/1"
 
@@ -42,6 +47,7 @@ def to_dict(res: FitResult, source=None, seed: int = 0, robust=None, pose_ids=No
     return {
         "format": FORMAT,
         "robot": model.robot.name,
+        "nominal_robot": robot_to_dict(model.robot),
         "effects": model.specs(),
         "parameters": [
             {"name": n, "unit": u, "value": float(v), "std": float(s), "identified": bool(f),
@@ -52,33 +58,40 @@ def to_dict(res: FitResult, source=None, seed: int = 0, robust=None, pose_ids=No
         "covariance": None if res.covariance is None else res.covariance.to_dict(model.param_names()),
         "identifiability": res.report.to_dict(),
         "fit": {"n": int(res.residuals.shape[0]), "rms_mm": res.rms_mm, "max_mm": float(dist.max()),
-                "robust": robust, "outlier_poses": outliers, "iterations": res.n_iter},
+                "robust": robust, "outlier_poses": outliers, "iterations": res.n_iter,
+                "status": res.status},
         "provenance": {"input": None if source is None else str(source),
                        "input_sha256": None if source is None else file_sha256(source),
                        "torchcal_version": torchcal.__version__, "seed": seed},
     }
 
 
-def load(path, robot_name: str | None = None):
-    """(CalibrationModel, theta (P,)) from MODEL.json; checks the robot when given."""
+def load(path, robot: Robot | str | None = None):
+    """(CalibrationModel, theta (P,)) from MODEL.json.
+
+    robot: a `Robot` or a preset name / robot-file path; when given, a model of another
+    robot (joint count, types or nominal geometry) is refused with one line naming both."""
     obj = read_json(path, "model file")
     if obj.get("format") != FORMAT:
         raise InputError(f"{path}: not a torchcal model file (format {obj.get('format')!r}, "
                          f"expected {FORMAT!r})")
     try:
-        name, effects, params = obj["robot"], obj["effects"], obj["parameters"]
+        effects, params = obj["effects"], obj["parameters"]
         values = [float(p["value"]) for p in params]
         names = [p["name"] for p in params]
     except (KeyError, TypeError, ValueError) as exc:
         raise InputError(f"{path}: model file is missing or has a bad field: {exc}") from None
-    if robot_name is not None and robot_name != name:
-        raise InputError(f"{path}: model file is for robot {name!r}, not {robot_name!r}")
+    nominal = model_robot(obj, str(path))
+    if robot is not None:
+        from torchcal.robots.robot import robot as make_robot
+
+        check_same_robot(nominal, make_robot(robot), str(path))
     try:
-        model = CalibrationModel(make_robot(name), effects)
-    except InputError as exc:
+        model = CalibrationModel(nominal, effects)
+    except InputError as exc:  # e.g. a user effect whose --effects-module is missing
         raise InputError(f"{path}: {exc}") from None
     if names != model.param_names():
-        raise InputError(f"{path}: parameters do not match robot {name!r} with effects {effects}")
+        raise InputError(f"{path}: parameters do not match robot {nominal.name!r} with effects {effects}")
     return model, torch.tensor(values, dtype=torch.float64)
 
 

@@ -157,3 +157,25 @@ def write_robot_file(path, robot: Robot, effects=None, force: bool = False, inpu
     from torchcal.io.files import write_json
 
     return write_json(path, robot_to_dict(robot, effects), force=force, inputs=inputs)
+
+
+def model_robot(obj: dict, where: str) -> Robot:
+    """The nominal robot of a model file's dict: the embedded robot file under
+    "nominal_robot" or, in model files written before it existed, the preset "robot"."""
+    if "nominal_robot" in obj:
+        return robot_from_dict(obj["nominal_robot"], f"{where}: nominal_robot")
+    from torchcal.robots.robot import robot
+
+    if "robot" not in obj:
+        raise InputError(f"{where}: model file names no robot (keys nominal_robot or robot)")
+    return robot(obj["robot"])
+
+
+def check_same_robot(model_robot: Robot, robot: Robot | None, where: str, what: str = "--robot") -> None:
+    """Refuse (one InputError line naming both) when `robot` is not the robot the model
+    was fitted for: another joint count, joint types, nominal table, base or tool."""
+    if robot is None or robot.same_geometry(model_robot):
+        return
+    raise InputError(f"{where}: the model is for robot {model_robot.name!r} ({model_robot.n} joints), "
+                     f"but {what} is robot {robot.name!r} ({robot.n} joints) with another nominal "
+                     f"geometry; refusing to apply a model to another robot")

@@ -74,7 +74,8 @@ class VirtualRobot:
         effects: effect specs ('joint_compliance:2,3', ...).
         seed: seed of every random draw (deviations, effect values, noise, order).
         geometric_scale: factor on the default geometric deviation sizes (0 = none).
-        effect_mm: RMS TCP displacement of each effect over a reference session, mm.
+        effect_mm: RMS TCP displacement of each effect over a reference session, mm; or a
+            dict spec (or effect name) -> mm, one size per effect (0.3 mm where absent).
         clearance_random: share of the clearance tilt that is random per move.
         values: optional dict spec -> parameter tensor, replacing the drawn values.
 
@@ -158,13 +159,21 @@ class VirtualRobot:
             if e.name == "thermal_expansion":  # steel is steel: keep its physical size
                 p = torch.full((e.n_params,), 1.2e-5, dtype=torch.float64)
             else:
-                p = p * (effect_mm / rms.clamp_min(1e-300))
+                p = p * (self._size_mm(effect_mm, spec) / rms.clamp_min(1e-300))
             if e.name == "joint_clearance":
                 for i, j in enumerate(e.joints):
                     self.clearance_tilt_max[j] = float(p[2 * i].abs())
                 p = p * (1 - self.clearance_random)
             theta[sl] = p
         return theta
+
+    @staticmethod
+    def _size_mm(effect_mm, spec) -> float:
+        """TCP RMS of one effect: `effect_mm` itself, or its entry for the spec (by its
+        full spec string, e.g. 'gear_periodic:2,3', or its name), 0.3 mm when absent."""
+        if isinstance(effect_mm, dict):
+            return float(effect_mm.get(str(spec), effect_mm.get(spec.name, 0.3)))
+        return float(effect_mm)
 
     # -- measuring ----------------------------------------------------------------------
     def positions(self, q, payload_kg=None, temp_c=None, generator=None) -> torch.Tensor:

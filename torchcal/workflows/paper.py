@@ -1,77 +1,63 @@
-"""The paper's whole pipeline (docs/paper.md sections 3-6) on a simulated KR 1000 Titan.
+"""The paper's pipeline (docs/paper.md sections 3-6) as a fair experiment on a simulated KR 1000 Titan.
 
-`run_pipeline(DemoConfig())` is what `torchcal demo` runs. Steps:
+`run_demo(DemoConfig(), seeds=K)` is what `torchcal demo --seeds K` runs; `run_pipeline(cfg)`
+is one seed. The library returns data; `torchcal.cli._report` formats it.
 
-1. **The robot.** A `torchcal.simulation.virtual_robot.VirtualRobot`: the nominal ``kr1000titan`` plus random
-   MD-H deviations (`geometric_scale` times 0.02 deg / 0.5 mm), a registration offset of
-   the measurement frame (`base_frame`: a laser tracker's frame is never exactly the
-   robot's base frame; translation `base_offset_mm`, tilt `base_tilt_deg`), joint
-   clearance on every joint (the paper's source, sized by docs/paper.md Table 2 for this
-   robot: each axis tilts up to (c_1 + c_2) / L in its bearing; the load pushes it to one
-   side by (1 - `clearance_random`) of that, the rest is random per move) and
-   measurement noise `noise_mm`.
-2. **Sweep** (Table 3): `n_sweep` Latin-hypercube workspace points
-   (`torchcal.reliability.sweep.sample_workspace`); per point the distance-error interval
-   ``[0, s_u]`` and R_set against ``[0, allowed_distance_mm]``. By default from the
-   clearance interval model of Table 2 (`torchcal.reliability.sweep.sweep`, as the paper's
-   simulation); ``sweep_source="measured"`` uses `repeats` moves of the virtual robot.
-3. **Partition** (`torchcal.partition.zones.partition_workspace`): FCM on R_set into
-   ``len(zones_per_level)`` levels, then each level into ``zones_per_level[k]`` zones
-   (3/2/3/2 = 10 as the paper; `make_partition`).
-4. **Calibration poses**: `points_per_zone` new poses per zone, drawn from Latin
-   hypercube pools and kept where `Partition.assign` puts their nominal position in the
-   zone, each moved to `repeats` times -> interval errors (`interval_identify`).
-5. **Calibrations**, four variants, all computed on the same measurements (`VARIANTS`):
+1. **The robot** (`build_virtual_robot`): a `VirtualRobot` whose errors are *not all inside
+   any fitted model* (sizes and where they come from: docs/demo.md):
 
-   - ``partitioned`` (the headline): per-zone interval parameters of the model
-     geometric + `model_effects` (base_frame and the load-driven joint_clearance
-     terms), all zones in one batched LM call. ``zone_method="damped"`` (default):
-     each zone is the damped least-squares solution of eq. 29 *towards the global
-     calibration*, mu chosen by generalised cross-validation (`zone_damping`,
-     "gcv_shared": one mu for all zones); ``"independent"``: each zone on its own.
-   - ``global``: the same model fitted once to all calibration poses.
-   - ``partitioned_geometric``: the paper literally: geometric deviations (+
-     `baseline_effects`, the registration) per zone, independent eq. 29.
-   - ``global_geometric``: that model fitted once.
-6. **Test** (Table 5): `test_per_zone` new points per zone (assigned by `Partition.assign`
-   before anything is measured), each moved to `repeats` times with the nominal command
-   (before), and with the commands compensated by each variant (`torchcal.calibration.compensate`,
-   the same session randomness for every variant).
-7. **Reductions**: per axis, reduction of the lower bound
-   ``100 * (1 - |mean lower after| / |mean lower before|)`` over the test points (the
-   same for the upper bound), errors = measured - target; R_set of every test point with
-   an allowed +-`allowed_axis_mm` per axis and ``[0, allowed_distance_mm]`` for the
-   distance.
+   - MD-H deviations, uniform in +-`geometric_scale` x (0.5 mm, 0.02 deg);
+   - the measurement (laser tracker) frame: `base_offset_mm`, `base_tilt_deg` (every
+     method fits it: ``base_frame`` is in every fitted model);
+   - joint compliance ``joint_compliance:2,3`` under a payload drawn per pose from 0 to
+     the rated 1000 kg, `compliance_mm` RMS at the TCP;
+   - a gear (transmission) error ``gear_periodic:2,3``, `gear_mm` RMS at the TCP;
+   - joint clearance on every joint (docs/paper.md Table 2 sizes), `clearance_random` of
+     it random per move (the simulator's default, 0.5), the rest pushed by the load;
+   - measurement noise `noise_mm` per axis.
 
-What the default run shows (seed 0; seeds 0-9 alike): with the clearance terms in the
-model, partitioned and global compensation both bring every test point within +-0.5 mm
-(RMS about 0.23 mm, the random part of the clearance), and the GCV damping keeps the
-zones at the global solution: partitioning neither helps nor hurts. With the geometric
-model alone the load-driven clearance is left in the residual (global RMS about 1.4 mm),
-and independent per-zone fits of 10 poses (30 equations for 24 parameters) are worse
-still (RMS 2-6 mm): in this simulation the paper's partitioned geometric calibration does
-not beat a global one.
+   `truth_effects` lists them; set it to ``("base_frame",)`` (and `clearance_random` to
+   1.0) for the control experiment without unmodelled position-dependent error.
+2. **Sweep and partition** (Table 3, FCM into 3/2/3/2 = 10 zones), as the paper.
+3. **Calibration poses**: `points_per_zone` (10, the paper's) per zone, `repeats` moves each;
+   `points_per_zone_more` per zone for the "more poses" variant.
+4. **Methods** (`METHODS`), all fitted to the same calibration measurements:
 
-A note on the reduction metric: it compares *signed* means over the test points, so it
-measures how much of the error common to all test points (an offset) is removed; errors
-that change sign across the workspace cancel in the mean before compensation. With
-geometric deviations alone the x and y errors of a workspace that surrounds the base
-average out to a few tenths of a mm and the ratio compares noise with noise. The
-registration offset of step 1 gives the uncompensated errors a common part of realistic
-size (2 mm per axis; its z sign adds to the gravity sag of the clearance instead of
-cancelling it). `robust_reduction_percent` in the JSON reports the same reduction on the
-mean *absolute* bounds, which does not depend on it.
+   - ``paper_partitioned``: geometric + base_frame per zone, eq. 29 damped least squares
+     with mu = `paper_mu` (1e-3, relative to the column norms) from nominal;
+     variants ``paper_partitioned_gcv`` (mu per zone by GCV) and ``paper_partitioned_more``
+     (`points_per_zone_more` poses per zone);
+   - ``global_geometric``: geometric + base_frame fitted once to all calibration poses;
+   - ``discovered_global``: `torchcal.diagnosis.diagnose.discover` on the calibration
+     measurements (starting from base_frame, at most `discover_rounds` effects added),
+     that model fitted once; ``discover_rounds = 0`` skips discovery (then it equals
+     global_geometric);
+   - ``discovered_partitioned``: the discovered global fit plus a per-zone correction of
+     the geometric and base-frame parameters, damped towards the global fit (mu =
+     `paper_mu`), the effect parameters held at the global values.
+5. **Test**: `test_per_zone` fresh poses per zone (new seed, assigned to zones before
+   measuring, never used for fitting), moved to `repeats` times before compensation and
+   with each method's compensated commands, in one fresh measurement session shared by
+   every method. Each method's compensation is checked (converged, within the joint
+   limits); failures are counted and reported, their moves stay in the figures.
+6. **Figures** per method: test RMS, the paper's six reductions
+   ``100 * (1 - |mean bound after| / |mean bound before|)`` per axis and bound, and over
+   seeds the mean and the 95 % confidence interval (Student t). Partitioned vs global
+   (``paper_partitioned`` - ``global_geometric`` test RMS) is a paired comparison: over
+   seeds when K >= 2, over test points (per-point RMS) when K = 1; "beats" only when the
+   two-sided paired t-test gives p < 0.05.
 
-Everything is seeded (`DemoConfig.seed`); the same config gives the same numbers.
-Units: mm and degrees in the config and the outputs, rad inside.
+Everything is seeded: seed s of a K-seed run is ``cfg.seed + s``. Units: mm and degrees in
+the config and the outputs, rad inside.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
+import scipy.stats
 import torch
 
 from torchcal.reliability import rset as reliability
@@ -79,6 +65,7 @@ from torchcal.calibration.compensate import compensate
 from torchcal.errors import InputError
 from torchcal.calibration.intervals import IntervalFit, identify_zones, pose_intervals
 from torchcal.calibration.model import CalibrationModel
+from torchcal.diagnosis.diagnose import discover
 from torchcal.partition.zones import partition_workspace
 from torchcal.robots.robot import robot as make_robot
 from torchcal.simulation.virtual_robot import VirtualRobot
@@ -86,43 +73,47 @@ from torchcal.reliability.sweep import SweepResult, sample_workspace, sweep
 
 AXES = ("x", "y", "z")
 BOUNDS = ("lower", "upper")
-ZONE_METHODS = ("damped", "independent")
 #: docs/paper.md section 6, the headline reductions after partitioned compensation (percent).
 PAPER_REDUCTION_PERCENT = {"x": {"lower": 40.16, "upper": 59.36}, "y": {"lower": 59.08, "upper": 40.87},
                            "z": {"lower": 54.24, "upper": 33.98}}
 
+#: method -> (per zone?, description). The first four are the issue's side-by-side.
+METHODS = {
+    "paper_partitioned": (True, "the paper: geometric + base_frame per zone, eq. 29 damped LS, mu = paper_mu"),
+    "global_geometric": (False, "geometric + base_frame fitted once to the same poses"),
+    "discovered_global": (False, "global, geometric + the effects discover finds on the calibration data"),
+    "discovered_partitioned": (True, "discovered_global + per-zone geometric correction (damped, mu = paper_mu)"),
+    "paper_partitioned_gcv": (True, "variant of the paper: mu per zone by GCV"),
+    "paper_partitioned_more": (True, "variant of the paper: points_per_zone_more poses per zone"),
+}
+MAIN_METHODS = ("paper_partitioned", "global_geometric", "discovered_global", "discovered_partitioned")
+
 
 @dataclass(frozen=True)
 class DemoConfig:
-    """Everything the demo depends on (mm, degrees).
+    """Everything the demo depends on (mm, degrees). Sizes: docs/demo.md.
 
     Attributes:
         robot: preset name.
-        seed: seed of every random draw.
-        n_sweep: Latin-hypercube workspace points of the sweep.
-        sweep_source: "model" (default): the clearance interval model of docs/paper.md Table 2
-            (`torchcal.reliability.sweep.sweep`, `sweep_samples` clearance states per point), as the
-            paper's simulation; "measured": `repeats` moves of the virtual robot to each
-            point (`measured_sweep`), errors against the nominal targets.
-        sweep_samples: clearance states per point of the model sweep.
+        seed: seed of every random draw (seed s of a K-seed run: seed + s).
+        n_sweep, sweep_source, sweep_samples: the sweep (Table 3): Latin-hypercube points;
+            "model" (the clearance interval model of Table 2) or "measured" (`repeats` moves
+            of the virtual robot); clearance states per point of the model sweep.
         repeats: moves to each point (sweep, calibration, test).
-        allowed_distance_mm: allowed distance error [0, D] (Table 3, Table 5).
-        allowed_axis_mm: allowed per-axis error +-a (Table 5).
+        allowed_distance_mm, allowed_axis_mm: allowed errors [0, D] and +-a (Tables 3, 5).
         zones_per_level: sub-zones of each reliability level (levels = its length).
-        points_per_zone: calibration poses per zone.
-        test_per_zone: test points per zone.
-        geometric_scale: factor on the VirtualRobot's MD-H deviation sizes.
-        base_offset_mm: measurement-frame translation (registration error).
-        base_tilt_deg: measurement-frame rotation vector (degrees).
-        clearance_mm: clearance size for robots without a Table 2 (`VirtualRobot`'s
-            effect_mm); the KR 1000 Titan's comes from docs/paper.md Table 2.
+        points_per_zone: calibration poses per zone (the paper: 10).
+        points_per_zone_more: poses per zone of the "more poses" variant.
+        test_per_zone: fresh test points per zone.
+        truth_effects: the virtual robot's effects besides the MD-H deviations.
+        geometric_scale: factor on the MD-H deviation sizes (0.5 mm, 0.02 deg).
+        base_offset_mm, base_tilt_deg: measurement-frame translation and rotation vector.
+        compliance_mm, gear_mm: TCP RMS of joint compliance (payload 0..rated) and of the gear error.
+        clearance_mm: clearance size for robots without a Table 2 (the Titan's is Table 2).
         clearance_random: share of the clearance tilt that is random per move.
         noise_mm: measurement noise (standard deviation per axis).
-        model_effects: effects fitted with the geometric deviations (variants
-            "partitioned" and "global").
-        baseline_effects: effects of the comparison variants "partitioned_geometric" and
-            "global_geometric" (the paper's geometric model plus the registration).
-        zone_method: "damped" or "independent" (module doc, step 6) for "partitioned".
+        paper_mu: eq. 29 damping of the per-zone fits (relative to the column norms).
+        discover_rounds: effects `discover` may add at most (0: no discovery).
         rank_tol: identifiability threshold (pivot ratio of the scaled Jacobian).
     """
 
@@ -136,24 +127,28 @@ class DemoConfig:
     allowed_axis_mm: float = 1.0
     zones_per_level: tuple = (3, 2, 3, 2)
     points_per_zone: int = 10
+    points_per_zone_more: int = 30
     test_per_zone: int = 2
-    geometric_scale: float = 1.5
-    base_offset_mm: tuple = (2.0, -1.5, -2.0)
-    base_tilt_deg: tuple = (0.002, -0.0015, 0.001)
+    truth_effects: tuple = ("base_frame", "joint_compliance:2,3", "gear_periodic:2,3",
+                            "joint_clearance:1,2,3,4,5,6")
+    geometric_scale: float = 2.0
+    base_offset_mm: tuple = (0.3, -0.2, 0.25)
+    base_tilt_deg: tuple = (0.001, -0.001, 0.001)
+    compliance_mm: float = 1.0
+    gear_mm: float = 0.5
     clearance_mm: float = 0.3
-    clearance_random: float = 0.2
-    noise_mm: float = 0.02
-    model_effects: tuple = ("base_frame", "joint_clearance")
-    baseline_effects: tuple = ("base_frame",)
-    zone_method: str = "damped"
-    zone_damping: object = "gcv_shared"
+    clearance_random: float = 0.5
+    noise_mm: float = 0.03
+    paper_mu: float = 1e-3
+    discover_rounds: int = 2
     rank_tol: float = 1e-6
 
     def check(self) -> None:
         """Raise InputError naming the first bad field."""
         if self.sweep_source not in ("model", "measured"):
             raise InputError(f"DemoConfig.sweep_source: expected 'model' or 'measured', got {self.sweep_source!r}")
-        for name in ("n_sweep", "sweep_samples", "repeats", "points_per_zone", "test_per_zone"):
+        for name in ("n_sweep", "sweep_samples", "repeats", "points_per_zone", "points_per_zone_more",
+                     "test_per_zone"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise InputError(f"DemoConfig.{name}: expected a positive integer, got {v!r}")
@@ -161,24 +156,31 @@ class DemoConfig:
             raise InputError(f"DemoConfig.repeats: intervals need at least 2 repetitions, got {self.repeats}")
         if not self.zones_per_level or any(int(k) < 1 for k in self.zones_per_level):
             raise InputError(f"DemoConfig.zones_per_level: expected positive zone counts, got {self.zones_per_level!r}")
-        if self.zone_method not in ZONE_METHODS:
-            raise InputError(f"DemoConfig.zone_method: expected one of {ZONE_METHODS}, got {self.zone_method!r}")
-        for name in ("allowed_distance_mm", "allowed_axis_mm"):
+        if isinstance(self.discover_rounds, bool) or not isinstance(self.discover_rounds, int) \
+                or self.discover_rounds < 0:
+            raise InputError(f"DemoConfig.discover_rounds: expected an integer >= 0, got {self.discover_rounds!r}")
+        for name in ("allowed_distance_mm", "allowed_axis_mm", "paper_mu"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise InputError(f"DemoConfig.{name}: expected a positive number of mm, got {v!r}")
+                raise InputError(f"DemoConfig.{name}: expected a positive number, got {v!r}")
+        if "base_frame" not in self.truth_effects:
+            raise InputError("DemoConfig.truth_effects: the measurement frame 'base_frame' must be among them")
+
+    def to_json(self) -> dict:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
 
 
 # ------------------------------------------------------------------ steps
 
-def build_virtual_robot(cfg: DemoConfig) -> VirtualRobot:
+def build_virtual_robot(cfg: DemoConfig, seed: int | None = None) -> VirtualRobot:
     """The simulated "real" robot of the demo (module doc, step 1)."""
     r = make_robot(cfg.robot)
-    joints = ",".join(str(j) for j in range(1, r.n + 1))
     base = torch.tensor([*cfg.base_offset_mm, *(math.radians(a) for a in cfg.base_tilt_deg)],
                         dtype=torch.float64)
-    return VirtualRobot(r, effects=["base_frame", f"joint_clearance:{joints}"], seed=cfg.seed,
-                        geometric_scale=cfg.geometric_scale, effect_mm=cfg.clearance_mm,
+    sizes = {"joint_compliance": cfg.compliance_mm, "gear_periodic": cfg.gear_mm,
+             "joint_clearance": cfg.clearance_mm}
+    return VirtualRobot(r, effects=list(cfg.truth_effects), seed=cfg.seed if seed is None else seed,
+                        geometric_scale=cfg.geometric_scale, effect_mm=sizes,
                         clearance_random=cfg.clearance_random, values={"base_frame": base})
 
 
@@ -297,6 +299,7 @@ class Evaluation:
         dist_upper: (M,) mm largest distance error. r_set: (M, 4) x, y, z, distance.
         rms_mm: RMS distance error over all moves. predicted_residual_mm: (M, 3) the
         calibrated model's own residual at q (None before compensation).
+        point_rms_mm: (M,) RMS distance error per point over its moves.
     """
 
     q: torch.Tensor
@@ -306,6 +309,7 @@ class Evaluation:
     r_set: torch.Tensor
     rms_mm: float
     predicted_residual_mm: torch.Tensor | None = None
+    point_rms_mm: torch.Tensor | None = None
 
     @property
     def max_abs_mm(self) -> float:
@@ -318,25 +322,19 @@ class Evaluation:
         return dict(zip((*AXES, "distance"), map(float, self.r_set[i])))
 
 
-#: the variants every run computes: name -> (zones?, which model, description).
-VARIANTS = {
-    "partitioned": (True, "main", "per-zone interval calibration (zone_method), model_effects"),
-    "global": (False, "main", "one calibration on all calibration poses, model_effects"),
-    "partitioned_geometric": (True, "baseline", "paper-literal: independent eq. 29 per zone, "
-                                                "geometric + baseline_effects"),
-    "global_geometric": (False, "baseline", "one calibration, geometric + baseline_effects"),
-}
-
-
 @dataclass(eq=False)
 class PipelineResult:
-    """Everything the demo computed; `to_json()` and `format_report()` present it.
+    """One seed of the demo.
 
-    fits: {variant: [IntervalFit per zone]} (one element for the global variants);
-    models: {variant: CalibrationModel}; after: {variant: Evaluation} (see `VARIANTS`).
+    fits: {method: [IntervalFit per zone]} (one element for the global methods);
+    models: {method: CalibrationModel}; comps: {method: Compensation};
+    after: {method: Evaluation}; cal_q: {"paper": (P, n), "more": (P', n)} rad calibration
+    poses; zone_extent: per zone the RMS and largest distance of its sweep points from
+    their centroid, mm.
     """
 
     config: DemoConfig
+    seed: int
     seconds: float
     sweep: SweepResult
     partition: object
@@ -347,6 +345,9 @@ class PipelineResult:
     test_targets: torch.Tensor
     before: Evaluation
     after: dict
+    comps: dict
+    cal_q: dict
+    truth_effects: list
     timings: dict = field(default_factory=dict)
 
     @property
@@ -358,94 +359,84 @@ class PipelineResult:
         """1-based level of each zone."""
         return [int(v) for v in self.partition.zone_level]
 
-    def reductions(self, which: str = "partitioned", absolute: bool = False) -> dict:
+    def reductions(self, which: str = "paper_partitioned", absolute: bool = False) -> dict:
         ev = self.after[which]
         return reduction_percent(self.before.lower, self.before.upper, ev.lower, ev.upper, absolute)
 
-    def targets_met(self, which: str = "partitioned") -> dict:
-        """The issue's targets for one variant."""
+    def compensation(self, which: str) -> dict:
+        """Compensation check of one method over the test targets (counts)."""
+        c = self.comps[which]
+        ok = c.converged & c.within_limits
+        return {"targets": int(ok.numel()), "converged": int(c.converged.sum()),
+                "within_limits": int(c.within_limits.sum()), "failed": int((~ok).sum())}
+
+    def targets_met(self, which: str = "paper_partitioned") -> dict:
+        """Every test point within +-allowed_axis_mm and R_set = 1 after compensation."""
         ev = self.after[which]
-        red = self.reductions(which)
-        reductions = all(red[a][b] >= PAPER_REDUCTION_PERCENT[a][b] for a in AXES for b in BOUNDS)
         lim = self.config.allowed_axis_mm
         within = bool((ev.lower >= -lim).all() and (ev.upper <= lim).all())
         rset1 = bool((ev.r_set >= 1.0).all())
-        return {"reductions_at_least_paper": reductions, "all_within_allowed_axis": within,
-                "all_r_set_1": rset1, "all": reductions and within and rset1}
+        return {"all_within_allowed_axis": within, "all_r_set_1": rset1, "all": within and rset1}
 
-    def _summary(self, which: str) -> dict:
+    def zone_extent(self) -> list[dict]:
+        """Per zone: sweep points, RMS and largest distance from their centroid (mm)."""
+        out = []
+        pos, lab = self.sweep.positions, self.partition.labels
+        for z in range(1, self.n_zones + 1):
+            p = pos[lab == z]
+            d = (p - p.mean(0)).norm(dim=-1) if len(p) else torch.zeros(1, dtype=pos.dtype)
+            out.append({"zone": z, "sweep_points": int(len(p)), "rms_radius_mm": float(d.pow(2).mean().sqrt()),
+                        "max_radius_mm": float(d.max())})
+        return out
+
+    def workspace_rms_radius_mm(self) -> float:
+        p = self.sweep.positions
+        return float((p - p.mean(0)).norm(dim=-1).pow(2).mean().sqrt())
+
+    def summary(self, which: str) -> dict:
         ev = self.after[which]
-        zones, kind, text = VARIANTS[which]
         return {"test_rms_mm": ev.rms_mm, "max_abs_error_mm": ev.max_abs_mm,
                 "reduction_percent": self.reductions(which),
                 "robust_reduction_percent": self.reductions(which, absolute=True),
-                "targets_met": self.targets_met(which), "effects": self.models[which].specs(),
-                "zone_method": (self.config.zone_method if which == "partitioned" else "independent") if zones else None,
-                "description": text}
+                "targets_met": self.targets_met(which), "compensation": self.compensation(which),
+                "effects": self.models[which].specs(), "description": METHODS[which][1],
+                "damping": [f.damping for f in self.fits[which]]}
 
-    def to_json(self) -> dict:
-        """The `torchcal demo --json` document (issue 6 schema plus extras)."""
-        cfg = self.config
-        ev = self.after["partitioned"]
-        points = []
-        for i in range(self.test_q.shape[0]):
-            points.append({
-                "zone": int(self.test_zone[i]) + 1,
-                "level": self.zone_level[int(self.test_zone[i])],
-                "target_mm": self.test_targets[i].tolist(),
-                "q_nominal_deg": torch.rad2deg(self.test_q[i]).tolist(),
-                "q_compensated_deg": torch.rad2deg(ev.q[i]).tolist(),
-                "error_before_mm": self.before.interval(i),
-                "error_after_mm": ev.interval(i),
-                "r_set_before": self.before.r_set_dict(i),
-                "r_set_after": ev.r_set_dict(i),
-                "predicted_residual_mm": float(ev.predicted_residual_mm[i].norm()),
-                "other_variants": {k: {"error_after_mm": e.interval(i), "r_set_after": e.r_set_dict(i)}
-                                   for k, e in self.after.items() if k != "partitioned"},
-            })
-        zones = []
-        for z in range(self.n_zones):
-            zones.append({"zone": z + 1, "level": self.zone_level[z],
-                          "sweep_points": int((self.partition.labels == z + 1).sum()),
-                          **{k: _fit_json(f[z]) for k, f in self.fits.items() if VARIANTS[k][0]}})
-        s = self.sweep
-        table3 = [{"point": i + 1, "position_mm": s.positions[i].tolist(),
-                   "distance_error_mm": [float(s.dist_lower[i]), float(s.dist_upper[i])],
-                   "r_set": float(s.r_set[i]), "zone": int(self.partition.labels[i]),
-                   "level": int(self.partition.point_levels[i])} for i in range(len(s))]
-        glob = self._summary("global")
-        glob["fit"] = _fit_json(self.fits["global"][0])
-        return {
-            "zones": self.n_zones,
-            "levels": int(self.partition.n_levels),
-            "seconds": self.seconds,
-            "reduction_percent": self.reductions("partitioned"),
-            "test_points": points,
-            "partitioned": self._summary("partitioned"),
-            "global": glob,
-            "partitioned_beats_global": self.after["partitioned"].rms_mm < self.after["global"].rms_mm,
-            "variants": {k: self._summary(k) for k in self.after},
-            "before": {"test_rms_mm": self.before.rms_mm, "max_abs_error_mm": self.before.max_abs_mm},
-            "robust_reduction_percent": self.reductions("partitioned", absolute=True),
-            "paper_reduction_percent": PAPER_REDUCTION_PERCENT,
-            "targets_met": self.targets_met("partitioned"),
-            "zone_parameters": zones,
-            "sweep": {"summary": s.summary(), "table3": table3},
-            "partition": self.partition.summary(),
-            "timings_s": self.timings,
-            "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items()},
-            "units": {"lengths": "mm", "angles": "deg", "errors": "measured - target, mm"},
-        }
-
-    def format_report(self) -> str:
-        """The printed analogues of Tables 3, 4 (compact) and 5 and the reductions."""
-        return format_report(self)
+    def point_rms(self, which: str | None) -> torch.Tensor:
+        """(M,) RMS distance error per test point over its moves (None: before), mm."""
+        ev = self.before if which is None else self.after[which]
+        return ev.point_rms_mm
 
 
 def _fit_json(f: IntervalFit) -> dict:
     return {"fit_rms_mm": f.rms_mm, "damping": f.damping, "rank": f.report.rank,
             "condition_number": f.report.condition, "held": f.report.held,
-            "parameters": f.rows(degrees=True)}
+            "converged": f.converged, "parameters": f.rows(degrees=True)}
+
+
+# ------------------------------------------------------------------ statistics over seeds
+
+def mean_ci(values) -> dict:
+    """{"mean", "ci95"}: the mean of the values and its 95 % Student-t confidence interval
+    (None for a single value: no spread to estimate it from)."""
+    v = torch.as_tensor(list(values), dtype=torch.float64)
+    m = float(v.mean())
+    if len(v) < 2:
+        return {"mean": m, "ci95": None}
+    h = float(scipy.stats.t.ppf(0.975, len(v) - 1) * v.std(unbiased=True) / math.sqrt(len(v)))
+    return {"mean": m, "ci95": [m - h, m + h]}
+
+
+def paired_comparison(a, b, alpha: float = 0.05) -> dict:
+    """Paired two-sided t-test of a - b (equal-length samples): mean difference, 95 % CI,
+    p-value, significant (p < alpha). Identical samples give p = 1."""
+    d = torch.as_tensor(list(a), dtype=torch.float64) - torch.as_tensor(list(b), dtype=torch.float64)
+    out = mean_ci(d)
+    if len(d) < 2 or float(d.std(unbiased=True)) == 0.0:
+        p = 1.0 if float(d.abs().max()) == 0.0 or len(d) < 2 else 0.0
+    else:
+        p = float(scipy.stats.ttest_1samp(d.numpy(), 0.0).pvalue)
+    return {"diff_mm": out["mean"], "ci95": out["ci95"], "p": p, "significant": bool(p < alpha)}
 
 
 # ------------------------------------------------------------------ the pipeline
@@ -455,12 +446,23 @@ def _evaluate(vr, q, targets, cfg, seed, predicted=None) -> Evaluation:
     lo, hi = error_intervals(meas, targets)
     d_hi = _max_distance(meas, targets)
     rs = r_set_table(lo, hi, d_hi, cfg.allowed_axis_mm, cfg.allowed_distance_mm)
-    rms = float((meas.xyz - targets[meas.pose]).pow(2).sum(-1).mean().sqrt())
-    return Evaluation(q, lo, hi, d_hi, rs, rms, predicted)
+    d2 = (meas.xyz - targets[meas.pose]).pow(2).sum(-1)
+    per = torch.zeros(targets.shape[0], dtype=d2.dtype).index_add_(0, meas.pose, d2)
+    cnt = torch.zeros_like(per).index_add_(0, meas.pose, torch.ones_like(d2))
+    return Evaluation(q, lo, hi, d_hi, rs, float(d2.mean().sqrt()), predicted, (per / cnt).sqrt())
+
+
+def _zones_of(data, z_of_pose, n_zones):
+    return [data.subset((z_of_pose == z).nonzero().flatten()) for z in range(n_zones)]
+
+
+def _intervals(meas):
+    data = pose_intervals(meas)
+    return data.subset(torch.argsort(data.pose))  # pose id order = q order
 
 
 def run_pipeline(cfg: DemoConfig | None = None, progress=None) -> PipelineResult:
-    """Run the whole pipeline (module doc) and return its `PipelineResult`.
+    """One seed (``cfg.seed``) of the experiment (module doc); returns its `PipelineResult`.
 
     progress: optional callable(step_name: str), called as each step starts.
     """
@@ -478,8 +480,8 @@ def run_pipeline(cfg: DemoConfig | None = None, progress=None) -> PipelineResult
 
     vr = build_virtual_robot(cfg)
     r, seed = vr.robot, cfg.seed
-    # each measurement session gets its own seed (else they would share their randomness)
-    s_sweep, s_cal, s_meas, s_test, s_before, s_after = (seed * 1009 + k for k in range(1, 7))
+    # every measurement session has its own seed (else they would share their randomness)
+    s_sweep, s_cal, s_meas, s_test, s_before, s_after, s_more, s_more_meas = (seed * 1009 + k for k in range(1, 9))
     say("sweep")
     q_sweep = sample_workspace(r, cfg.n_sweep, seed=seed)
     if cfg.sweep_source == "model":
@@ -489,155 +491,166 @@ def run_pipeline(cfg: DemoConfig | None = None, progress=None) -> PipelineResult
     lap("sweep")
     say("partition")
     part = make_partition(sw, cfg.zones_per_level, seed)
+    Z = part.n_zones
     lap("partition")
     say("calibrate")
     q_cal, z_cal = sample_in_zones(r, part, cfg.points_per_zone, s_cal)
     meas = vr.measure(q_cal, repeats=cfg.repeats, noise_mm=cfg.noise_mm, seed=s_meas)
-    data = pose_intervals(meas)
-    data = data.subset(torch.argsort(data.pose))  # pose id order = q_cal order
-    zones = [data.subset((z_cal == z).nonzero().flatten()) for z in range(part.n_zones)]
-    kinds = {"main": CalibrationModel(r, list(cfg.model_effects)),
-             "baseline": CalibrationModel(r, list(cfg.baseline_effects))}
-    models = {k: kinds[v[1]] for k, v in VARIANTS.items()}
-    fits = {"global": identify_zones(models["global"], [data], rank_tol=cfg.rank_tol),
-            "global_geometric": identify_zones(models["global_geometric"], [data], rank_tol=cfg.rank_tol)}
-    lap("calibrate_global")
-    if cfg.zone_method == "damped":
-        fits["partitioned"] = identify_zones(models["partitioned"], zones, rank_tol=cfg.rank_tol,
-                                             theta0=fits["global"][0].theta, damping=cfg.zone_damping)
+    data = _intervals(meas)
+    zones = _zones_of(data, z_cal, Z)
+    q_more, z_more = sample_in_zones(r, part, cfg.points_per_zone_more, s_more)
+    zones_more = _zones_of(_intervals(vr.measure(q_more, repeats=cfg.repeats, noise_mm=cfg.noise_mm,
+                                                 seed=s_more_meas)), z_more, Z)
+    geo = CalibrationModel(r, ["base_frame"])
+    tol = cfg.rank_tol
+    fits = {"global_geometric": identify_zones(geo, [data], rank_tol=tol),
+            "paper_partitioned": identify_zones(geo, zones, rank_tol=tol, damping=cfg.paper_mu),
+            "paper_partitioned_gcv": identify_zones(geo, zones, rank_tol=tol, damping="gcv"),
+            "paper_partitioned_more": identify_zones(geo, zones_more, rank_tol=tol, damping=cfg.paper_mu)}
+    lap("calibrate_geometric")
+    say("discover")
+    if cfg.discover_rounds > 0:
+        found = discover(r, meas, ["base_frame"], seed=seed, max_rounds=cfg.discover_rounds).final_effects
     else:
-        fits["partitioned"] = identify_zones(models["partitioned"], zones, rank_tol=cfg.rank_tol)
-    fits["partitioned_geometric"] = identify_zones(models["partitioned_geometric"], zones, rank_tol=cfg.rank_tol)
-    lap("calibrate_zones")
+        found = ["base_frame"]
+    disc = CalibrationModel(r, found)
+    lap("discover")
+    fits["discovered_global"] = identify_zones(disc, [data], rank_tol=tol)
+    free = torch.zeros(disc.n_params, dtype=torch.bool)
+    free[: disc.slices[1].stop] = True  # geometric + base_frame (the first effect)
+    free &= disc.default_free()
+    fits["discovered_partitioned"] = identify_zones(disc, zones, free=free, rank_tol=tol, damping=cfg.paper_mu,
+                                                    theta0=fits["discovered_global"][0].theta)
+    lap("calibrate_discovered")
+    models = {k: (disc if k.startswith("discovered") else geo) for k in METHODS}
     say("test")
-    q_test, z_test = sample_in_zones(r, part, cfg.test_per_zone, s_test)  # assigned before measuring
+    q_test, z_test = sample_in_zones(r, part, cfg.test_per_zone, s_test)  # fresh, assigned before measuring
     targets = r.fk(q_test)
     before = _evaluate(vr, q_test, targets, cfg, s_before)
     comps = {}
-    for k in VARIANTS:
+    for k in METHODS:
         thetas = torch.stack([f.theta for f in fits[k]])
-        comps[k] = compensate(models[k], thetas, targets, q_test, zone=z_test if VARIANTS[k][0] else
-                              torch.zeros_like(z_test))
+        comps[k] = compensate(models[k], thetas, targets, q_test,
+                              zone=z_test if METHODS[k][0] else torch.zeros_like(z_test))
     lap("compensate")
-    # the same session seed for every variant: the robot's random part is common to all
+    # one fresh session seed for every method: the robot's random part is common to all
     after = {k: _evaluate(vr, c.q, targets, cfg, s_after, c.residual_mm) for k, c in comps.items()}
     lap("test_moves")
-    return PipelineResult(cfg, time.perf_counter() - t0, sw, part, fits, models, q_test, z_test,
-                          targets, before, after, timings)
+    return PipelineResult(cfg, seed, time.perf_counter() - t0, sw, part, fits, models, q_test, z_test, targets,
+                          before, after, comps, {"paper": q_cal, "more": q_more},
+                          [str(s) for s in vr.specs], timings)
 
 
-# ------------------------------------------------------------------ printing
+@dataclass(eq=False)
+class DemoRun:
+    """The experiment over seeds ``config.seed .. config.seed + K - 1``: `runs` (one
+    `PipelineResult` each), figures per method as mean and 95 % CI, the paired comparison."""
 
-def _iv(lo: float, hi: float, w: int = 6, p: int = 3) -> str:
-    return f"[{lo:{w}.{p}f},{hi:{w}.{p}f}]"
+    config: DemoConfig
+    runs: list
+    seconds: float
+
+    @property
+    def first(self) -> PipelineResult:
+        return self.runs[0]
+
+    def method_stats(self, which: str) -> dict:
+        """The issue's M: fitted effects, test RMS and the six reductions, mean and CI over seeds."""
+        red = [r.reductions(which) for r in self.runs]
+        comp = [r.compensation(which) for r in self.runs]
+        return {"fitted_effects": sorted({s for r in self.runs for s in r.models[which].specs()}),
+                "fitted_effects_per_seed": [r.models[which].specs() for r in self.runs],
+                "test_rms_mm": mean_ci(r.after[which].rms_mm for r in self.runs),
+                "reduction_percent": {ax: {b: mean_ci(x[ax][b] for x in red) for b in BOUNDS} for ax in AXES},
+                "compensation": {k: sum(c[k] for c in comp) for k in comp[0]},
+                "targets_met_seeds": sum(r.targets_met(which)["all"] for r in self.runs)}
+
+    def paired(self, a: str = "paper_partitioned", b: str = "global_geometric") -> dict:
+        """a - b test RMS, paired over seeds (K >= 2) or over test points (K = 1)."""
+        if len(self.runs) >= 2:
+            out = paired_comparison([r.after[a].rms_mm for r in self.runs], [r.after[b].rms_mm for r in self.runs])
+            out["paired_over"] = "seeds"
+        else:
+            out = paired_comparison(self.first.point_rms(a).tolist(), self.first.point_rms(b).tolist())
+            out["paired_over"] = "test points"
+        out["beats"] = bool(out["significant"] and out["diff_mm"] < 0)
+        return out
+
+    def to_json(self) -> dict:
+        """The `torchcal demo --json` document: the first seed's details (issue 6 keys) plus
+        the issue 13 keys (seeds, truth_effects, methods, partitioned_vs_global)."""
+        res, cfg = self.first, self.config
+        ev = res.after["paper_partitioned"]
+        points = []
+        for i in range(res.test_q.shape[0]):
+            points.append({
+                "zone": int(res.test_zone[i]) + 1,
+                "level": res.zone_level[int(res.test_zone[i])],
+                "target_mm": res.test_targets[i].tolist(),
+                "q_nominal_deg": torch.rad2deg(res.test_q[i]).tolist(),
+                "q_compensated_deg": torch.rad2deg(ev.q[i]).tolist(),
+                "error_before_mm": res.before.interval(i),
+                "error_after_mm": ev.interval(i),
+                "r_set_before": res.before.r_set_dict(i),
+                "r_set_after": ev.r_set_dict(i),
+                "predicted_residual_mm": float(ev.predicted_residual_mm[i].norm()),
+                "compensation_ok": {k: bool(c.converged[i] and c.within_limits[i]) for k, c in res.comps.items()},
+                "other_variants": {k: {"error_after_mm": e.interval(i), "r_set_after": e.r_set_dict(i)}
+                                   for k, e in res.after.items() if k != "paper_partitioned"},
+            })
+        zones = [{"zone": z + 1, "level": res.zone_level[z], **res.zone_extent()[z],
+                  **{k: _fit_json(f[z]) for k, f in res.fits.items() if METHODS[k][0]}} for z in range(res.n_zones)]
+        s = res.sweep
+        table3 = [{"point": i + 1, "position_mm": s.positions[i].tolist(),
+                   "distance_error_mm": [float(s.dist_lower[i]), float(s.dist_upper[i])],
+                   "r_set": float(s.r_set[i]), "zone": int(res.partition.labels[i]),
+                   "level": int(res.partition.point_levels[i])} for i in range(len(s))]
+        glob = res.summary("global_geometric")
+        glob["fit"] = _fit_json(res.fits["global_geometric"][0])
+        pvg = self.paired()
+        ext = [[z["rms_radius_mm"] for z in r.zone_extent()] for r in self.runs]
+        return {
+            "zones": res.n_zones,
+            "levels": int(res.partition.n_levels),
+            "seconds": self.seconds,
+            "seeds": len(self.runs),
+            "seed_values": [r.seed for r in self.runs],
+            "truth_effects": res.truth_effects,
+            "methods": {k: self.method_stats(k) for k in METHODS},
+            "partitioned_vs_global": pvg,
+            "discovered_partitioned_vs_global": self.paired("discovered_partitioned", "discovered_global"),
+            "zone_compactness": {
+                "workspace_rms_radius_mm": mean_ci(r.workspace_rms_radius_mm() for r in self.runs),
+                "zone_rms_radius_mm_median": mean_ci(sorted(e)[len(e) // 2] for e in ext),
+                "zone_rms_radius_mm_max": mean_ci(max(e) for e in ext)},
+            "reduction_percent": res.reductions("paper_partitioned"),
+            "test_points": points,
+            "partitioned": res.summary("paper_partitioned"),
+            "global": glob,
+            "partitioned_beats_global": pvg["beats"],
+            "variants": {k: res.summary(k) for k in METHODS},
+            "before": {"test_rms_mm": res.before.rms_mm, "max_abs_error_mm": res.before.max_abs_mm,
+                       "over_seeds": mean_ci(r.before.rms_mm for r in self.runs)},
+            "robust_reduction_percent": res.reductions("paper_partitioned", absolute=True),
+            "paper_reduction_percent": PAPER_REDUCTION_PERCENT,
+            "targets_met": res.targets_met("paper_partitioned"),
+            "zone_parameters": zones,
+            "sweep": {"summary": s.summary(), "table3": table3},
+            "partition": res.partition.summary(),
+            "timings_s": res.timings,
+            "config": cfg.to_json(),
+            "units": {"lengths": "mm", "angles": "deg", "errors": "measured - target, mm"},
+        }
 
 
-def format_report(res: PipelineResult, table3_rows=(6, 2)) -> str:
-    """Text tables: Table 3 (first and last sweep points), Table 4 (compact: one line per
-    zone plus the full blocks of the first and the last zone), Table 5 (test points before
-    and after) and the reductions of every variant side by side with the paper's."""
-    cfg, s, part = res.config, res.sweep, res.partition
-    out = []
-    w = out.append
-    # Table 3
-    how = (f"{cfg.sweep_samples} clearance states of the Table 2 model each" if cfg.sweep_source == "model"
-           else f"{cfg.repeats} moves of the robot each")
-    w(f"Table 3 analogue: sweep of {len(s)} Latin-hypercube points, {how}, "
-      f"allowed distance error [0, {cfg.allowed_distance_mm:g}] mm")
-    w(f"{'pt':>4} {'p_x mm':>10} {'p_y mm':>10} {'p_z mm':>10}  {'distance error mm':>19} {'R_set':>6} "
-      f"{'level':>5} {'zone':>4}")
-    head, tail = table3_rows
-    idx = list(range(min(head, len(s))))
-    idx += [i for i in range(max(len(s) - tail, len(idx)), len(s))]
-    for k, i in enumerate(idx):
-        if k and i != idx[k - 1] + 1:
-            w(f"{'...':>4}")
-        p = s.positions[i]
-        w(f"{i + 1:>4} {p[0]:>10.3f} {p[1]:>10.3f} {p[2]:>10.3f}  [0, {float(s.dist_upper[i]):>9.6f}]     "
-          f"{float(s.r_set[i]):>6.3f} {int(part.point_levels[i]):>5} {int(part.labels[i]):>4}")
-    sm = s.summary()
-    w(f"R_set from {sm['r_set_min']:.3f} to {sm['r_set_max']:.3f} (median {sm['r_set_median']:.3f}); "
-      f"{100 * sm['share_r_set_1']:.0f}% of the points at 1")
-    w("")
-    # Table 4
-    fits = res.fits["partitioned"]
-    model = res.models["partitioned"]
-    how = ("damped towards the global fit, mu by GCV" if cfg.zone_method == "damped"
-           else "independent eq. 29 per zone")
-    w(f"Table 4 analogue (compact): interval parameters per zone ({how}); model: geometric + "
-      f"{', '.join(model.specs()) or 'nothing else'}")
-    w(f"{'zone':>4} {'level':>5} {'sweep pts':>9} {'R_set mean':>10} {'held':>4} {'mu':>7} {'fit rms mm':>10} "
-      f"{'median width: length mm':>24} {'angle deg':>10}")
-    units = model.param_units()
-    summary = part.summary()
-
-    def med(v):
-        return sorted(v)[len(v) // 2] if v else float("nan")
-    n = model.robot.n
-    for z, f in enumerate(fits):
-        geo = range(5 * n)
-        lens = [2 * float(f.radius[k]) for k in geo if f.free[k] and units[k] == "mm"]
-        angs = [2 * math.degrees(float(f.radius[k])) for k in geo if f.free[k] and units[k] == "rad"]
-        w(f"{z + 1:>4} {res.zone_level[z]:>5} {summary[z]['points']:>9} {summary[z]['r_set_mean']:>10.3f} "
-          f"{len(f.report.held):>4} {f.damping:>7.0e} {f.rms_mm:>10.4f} {med(lens):>24.4f} {med(angs):>10.5f}")
-    geo_names = ("da", "dd", "dalpha", "dtheta", "dbeta")
-    for z in sorted({0, len(fits) - 1}):
-        w(f"zone {z + 1} (level {res.zone_level[z]}), intervals [lower, upper]; held: "
-          f"{', '.join(fits[z].report.held) or 'none'}")
-        w(f"  {'i':>2} {'da_i mm':>19} {'dd_i mm':>19} {'dalpha_i deg':>21} {'dtheta_i deg':>21} {'dbeta_i deg':>21}")
-        rows = {r_["name"]: r_ for r_ in fits[z].rows(degrees=True)}
-        for j in range(1, n + 1):
-            cells = []
-            for name, wd, p in zip(geo_names, (19, 19, 21, 21, 21), (4, 4, 5, 5, 5)):
-                r_ = rows.get(f"{name}{j}")
-                cells.append(f"{_iv(r_['lower'], r_['upper'], (wd - 3) // 2, p):>{wd}}" if r_ else f"{'-':>{wd}}")
-            w(f"  {j:>2} " + " ".join(cells))
-        extra = [r_ for k, r_ in enumerate(fits[z].rows(degrees=True)) if not any(
-            r_["name"] == f"{g}{j}" for g in geo_names for j in range(1, n + 1))]
-        for a in range(0, len(extra), 3):
-            w("     " + "; ".join(f"{r_['name']} {_iv(r_['lower'], r_['upper'], 8, 5)} {r_['unit']}"
-                                  for r_ in extra[a:a + 3]))
-    w("")
-    # Table 5
-    ev = res.after["partitioned"]
-    w(f"Table 5 analogue: {res.test_q.shape[0]} test points ({cfg.test_per_zone} per zone, zone assigned "
-      f"before measuring), {cfg.repeats} moves each; errors = measured - target (mm); after = compensated "
-      f"with the zone's parameters")
-    w(f"{'pt':>3} {'zone':>4} {'target x':>9} {'target y':>9} {'target z':>9} | {'before dX':>15} {'dY':>15} "
-      f"{'dZ':>15} | {'after dX':>15} {'dY':>15} {'dZ':>15} | R_set x y z dist")
-    for i in range(res.test_q.shape[0]):
-        t = res.test_targets[i]
-        b = [_iv(float(res.before.lower[i, k]), float(res.before.upper[i, k])) for k in range(3)]
-        a = [_iv(float(ev.lower[i, k]), float(ev.upper[i, k])) for k in range(3)]
-        rs = " ".join(f"{float(v):.3g}" for v in ev.r_set[i])
-        w(f"{i + 1:>3} {int(res.test_zone[i]) + 1:>4} {t[0]:>9.2f} {t[1]:>9.2f} {t[2]:>9.2f} | "
-          f"{' '.join(f'{c:>15}' for c in b)} | {' '.join(f'{c:>15}' for c in a)} | {rs}")
-    w("")
-    # reductions side by side
-    names = list(VARIANTS)
-    label = {"partitioned": "partitioned", "global": "global", "partitioned_geometric": "part. geom.",
-             "global_geometric": "global geom."}
-    w("Reduction of the mean error bounds over the test points, % "
-      "(100 * (1 - |mean bound after| / |mean bound before|)); variants:")
-    for k in names:
-        w(f"  {label[k]:<13} {VARIANTS[k][2]}: geometric + {', '.join(res.models[k].specs()) or 'nothing'}")
-    w(f"{'axis':>4} {'bound':>6} {'paper':>7} " + " ".join(f"{label[m]:>13}" for m in names))
-    for ax in AXES:
-        for bd in BOUNDS:
-            vals = " ".join(f"{res.reductions(m)[ax][bd]:>13.2f}" for m in names)
-            w(f"{ax:>4} {bd:>6} {PAPER_REDUCTION_PERCENT[ax][bd]:>7.2f} {vals}")
-
-    def row(title, fn):
-        w(f"{title:<19}" + " ".join(f"{fn(m):>13}" for m in names))
-    row(f"test RMS mm ({res.before.rms_mm:.2f})", lambda m: f"{res.after[m].rms_mm:.3f}")
-    row(f"max |dX| mm ({res.before.max_abs_mm:.2f})", lambda m: f"{res.after[m].max_abs_mm:.3f}")
-    row(f"all in +-{cfg.allowed_axis_mm:g} mm, R=1",
-        lambda m: "yes" if res.targets_met(m)["all_within_allowed_axis"] and res.targets_met(m)["all_r_set_1"] else "NO")
-    row("reductions>=paper", lambda m: "yes" if res.targets_met(m)["reductions_at_least_paper"] else "NO")
-    p_, g_ = res.after["partitioned"].rms_mm, res.after["global"].rms_mm
-    pg, gg = res.after["partitioned_geometric"].rms_mm, res.after["global_geometric"].rms_mm
-    w(f"(before compensation in brackets.) Partitioned {'beats' if p_ < g_ else 'does NOT beat'} global on "
-      f"these test points: RMS {p_:.3f} vs {g_:.3f} mm; with the geometric model alone "
-      f"{pg:.3f} vs {gg:.3f} mm.")
-    w(f"{res.n_zones} zones in {int(part.n_levels)} levels; {res.seconds:.1f} s")
-    return "\n".join(out)
+def run_demo(cfg: DemoConfig | None = None, seeds: int = 1, progress=None) -> DemoRun:
+    """`run_pipeline` for seeds ``cfg.seed .. cfg.seed + seeds - 1``."""
+    cfg = DemoConfig() if cfg is None else cfg
+    if isinstance(seeds, bool) or not isinstance(seeds, int) or seeds < 1:
+        raise InputError(f"seeds: expected a positive integer, got {seeds!r}")
+    t0 = time.perf_counter()
+    runs = []
+    for k in range(seeds):
+        say = (lambda step, k=k: progress(f"seed {k + 1}/{seeds}: {step}")) if progress else None
+        runs.append(run_pipeline(replace(cfg, seed=cfg.seed + k), progress=say))
+    return DemoRun(cfg, runs, time.perf_counter() - t0)

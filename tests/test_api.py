@@ -1,0 +1,61 @@
+"""The one way in (torchcal.api): forgiving inputs, one result, to_dict = the CLI's JSON.
+
+Reference: noise-free measurements of a model with known deviations, positions computed
+here; a preset name, a Robot and a CalibrationModel give the same fit; a CSV path and
+Measurements give the same fit; wrong inputs fail with an InputError naming the argument.
+"""
+
+import pytest
+import torch
+from torch.testing import assert_close
+
+import torchcal
+from torchcal.calibration.model import CalibrationModel
+from torchcal.effects import make_context
+from torchcal.io.measurement_csv import write_measurements
+from torchcal.measurements import Measurements
+from torchcal.robots.poses import random_poses
+
+
+@pytest.fixture(scope="module")
+def data(kr):
+    model = CalibrationModel(kr)
+    theta = torch.zeros(model.n_params, dtype=torch.float64)
+    theta[[1, 7, 12]] = torch.tensor([0.4, -0.3, 0.2], dtype=torch.float64)  # dd1, da2, dd3 mm
+    q = random_poses(kr, 40, 5)
+    xyz = model.predict(theta, make_context(kr, q))
+    return Measurements(torch.arange(40), q, xyz), theta
+
+
+def test_fit_from_name_robot_model_and_csv(kr, data, tmp_path):
+    m, theta = data
+    res = torchcal.fit("kr1000titan", m)
+    assert res.status == "converged" and res.rms_mm < 1e-6
+    p = res.model.predict(res.theta, make_context(kr, m.q))
+    assert_close(p, m.xyz, atol=1e-6, rtol=0)  # identifiable combination reproduces the data
+    write_measurements(tmp_path / "m.csv", m)
+    for first, meas in ((kr, m), (CalibrationModel(kr), m), ("kr1000titan", tmp_path / "m.csv")):
+        other = torchcal.fit(first, meas)
+        assert_close(other.theta, res.theta, atol=1e-9, rtol=0)
+    d = res.to_dict()
+    assert d["fit"]["status"] == "converged" and d["robot"] == "kr1000titan"
+
+
+def test_evaluate_compensate_and_errors(kr, data):
+    m, _ = data
+    res = torchcal.fit(kr, m, effects=["base_frame"])
+    ev = torchcal.evaluate(res, m)
+    dist = (m.xyz - res.model.predict(res.theta, make_context(kr, m.q))).norm(dim=-1)
+    assert ev.n == 40 and ev.to_dict()["rms_mm"] == pytest.approx(float(dist.pow(2).mean().sqrt()))
+    assert ev.to_dict()["max_mm"] == pytest.approx(float(dist.max()))
+    comp = torchcal.compensate(res, m.xyz[:5])
+    assert comp.converged.all()
+    assert_close(res.model.predict(res.theta, make_context(kr, comp.q)), m.xyz[:5], atol=1e-6, rtol=0)
+    with pytest.raises(torchcal.InputError, match="effects: given with a CalibrationModel or a fitted model"):
+        torchcal.fit(res, m, effects=["base_frame"])
+    with pytest.raises(torchcal.InputError, match="robot_or_model: expected a preset name"):
+        torchcal.fit(42, m)
+    with pytest.raises(torchcal.InputError, match="measurements: expected Measurements or a CSV path"):
+        torchcal.fit(kr, [1, 2])
+    with pytest.raises(torchcal.InputError, match="model: expected a FitResult"):
+        torchcal.evaluate(kr, m)

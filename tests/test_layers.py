@@ -1,0 +1,75 @@
+"""Dependencies point one way: parse every module's imports (ast, module level and inside
+functions) and check the layer rules of docs/design.md.
+
+- inside torchcal, only torchcal.cli imports viz;
+- kinematics imports nothing else of torchcal but errors;
+- robots, effects, calibration, reliability, partition, diagnosis, simulation, io never
+  import workflows or cli; calibration does not import simulation; io does not import cli.
+"""
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1] / "torchcal"
+
+
+def imports_of(path: Path) -> set[str]:
+    """Absolute module names a file imports (relative imports resolved)."""
+    pkg = ["torchcal", *path.relative_to(ROOT).with_suffix("").parts]
+    if pkg[-1] == "__init__":
+        pkg = pkg[:-1]
+    else:
+        pkg = pkg[:-1]
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                base = ".".join(pkg[: len(pkg) - node.level + 1] + ([base] if base else []))
+            out.add(base)
+            out.update(f"{base}.{a.name}" for a in node.names)
+    return out
+
+
+MODULES = {".".join(("torchcal", *p.relative_to(ROOT).with_suffix("").parts)): imports_of(p)
+           for p in sorted(ROOT.rglob("*.py"))}
+
+# (package, forbidden prefixes)
+RULES = [
+    ("torchcal.kinematics", ["torchcal.robots", "torchcal.effects", "torchcal.calibration", "torchcal.reliability",
+                             "torchcal.partition", "torchcal.diagnosis", "torchcal.simulation", "torchcal.workflows",
+                             "torchcal.io", "torchcal.cli", "viz"]),
+    ("torchcal.calibration", ["torchcal.simulation", "torchcal.workflows", "torchcal.cli", "viz"]),
+    ("torchcal.io", ["torchcal.cli", "torchcal.workflows", "viz"]),
+]
+for pkg in ("robots", "effects", "reliability", "partition", "diagnosis", "simulation", "measurements"):
+    RULES.append((f"torchcal.{pkg}", ["torchcal.workflows", "torchcal.cli", "viz"]))
+RULES.append(("torchcal.workflows", ["torchcal.cli", "viz"]))
+
+
+def hits(mod_imports, forbidden):
+    return sorted(i for i in mod_imports for f in forbidden if i == f or i.startswith(f + "."))
+
+
+@pytest.mark.parametrize("pkg,forbidden", RULES, ids=[r[0] for r in RULES])
+def test_layer(pkg, forbidden):
+    bad = {m: hits(imps, forbidden) for m, imps in MODULES.items()
+           if (m == pkg or m.startswith(pkg + ".")) and hits(imps, forbidden)}
+    assert not bad, f"{pkg} must not import {forbidden}: {bad}"
+
+
+def test_only_the_cli_imports_viz():
+    bad = {m: hits(i, ["viz"]) for m, i in MODULES.items()
+           if not m.startswith("torchcal.cli") and hits(i, ["viz"])}
+    assert not bad
+
+
+def test_the_checker_sees_imports():
+    """The parser is not vacuous: known edges are found."""
+    assert "torchcal.calibration.lm" in MODULES["torchcal.calibration.fit"]
+    assert any(i.startswith("torchcal.") for i in MODULES["torchcal.cli.fit"])
+    assert hits({"torchcal.cli._args"}, ["torchcal.cli"]) and not hits({"torchcal.client"}, ["torchcal.cli"])

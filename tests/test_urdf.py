@@ -1,0 +1,150 @@
+"""URDF import (pytorch-kinematics for the chain, float64 origins) and URDF export.
+
+References: pytorch-kinematics' own FK of the URDF (float64 chain, float32-parsed origins:
+within 1e-3 mm) and a float64 re-implementation of URDF FK from the XML (`urdf_fk`)."""
+
+import math
+
+import pytest
+import torch
+
+import torchcal
+from torchcal.errors import InputError
+from torchcal.robots.urdf import minimal_urdf, read_chain, robot_from_urdf, urdf_fk
+
+
+def _joint(name, jtype, parent, child, xyz, rpy, axis="0 0 1", lim=(-3.0, 3.0)):
+    limit = "" if jtype in ("fixed", "continuous") else \
+        f'<limit lower="{lim[0]}" upper="{lim[1]}" effort="1" velocity="1"/>'
+    return (f'<joint name="{name}" type="{jtype}"><parent link="{parent}"/><child link="{child}"/>'
+            f'<origin xyz="{xyz}" rpy="{rpy}"/><axis xyz="{axis}"/>{limit}</joint>')
+
+
+def _urdf(name, joints):
+    links = sorted({j[2] for j in joints} | {j[3] for j in joints})
+    body = "".join(f'<link name="{l}"><inertial><mass value="1.0"/><inertia ixx="0.1" ixy="0" ixz="0" '
+                   f'iyy="0.1" iyz="0" izz="0.1"/></inertial></link>' for l in links)
+    return f'<?xml version="1.0"?><robot name="{name}">{body}{"".join(_joint(*j) for j in joints)}</robot>'
+
+
+# (a) UR-style 6R: joints 2, 3, 4 parallel, a fixed flange + tool0 at the end
+UR = [("shoulder_pan", "revolute", "base_link", "shoulder", "0 0 0.1625", "0 0 0.1"),
+      ("shoulder_lift", "revolute", "shoulder", "upper_arm", "0 0 0", "1.570796327 0 0"),
+      ("elbow", "revolute", "upper_arm", "forearm", "-0.425 0 0", "0 0 0"),
+      ("wrist_1", "revolute", "forearm", "wrist1", "-0.3922 0 0.1333", "0 0 0"),
+      ("wrist_2", "revolute", "wrist1", "wrist2", "0 -0.0997 0", "1.570796327 0 0"),
+      ("wrist_3", "continuous", "wrist2", "wrist3", "0 0.0996 0", "-1.570796327 0 0"),
+      ("flange", "fixed", "wrist3", "flange_link", "0 0 0", "0 -1.570796327 -1.570796327"),
+      ("tool", "fixed", "flange_link", "tool0", "0.01 0.02 0.15", "0.3 0.2 0.1")]
+# (b) 7-axis arm with tilted origins, tip directly on the last joint
+ARM7 = [(f"j{k}", "revolute", f"l{k - 1}", f"l{k}", xyz, rpy, ax) for k, (xyz, rpy, ax) in enumerate([
+    ("0.01 0.02 0.34", "0.05 -0.02 0.3", "0 0 1"), ("0 0 0", "-1.5708 0.01 0", "0 0 1"),
+    ("0 -0.4 0.002", "1.5708 0 0.02", "0 0 1"), ("0.0 0 0", "1.5708 0 0", "0 0 1"),
+    ("0 0.39 0", "-1.5708 0 0", "0 0 1"), ("0 0 0", "-1.5708 0 0.1", "0 0 1"),
+    ("0.05 0.12 0.03", "1.5708 0.2 0", "0.6 0 0.8")], start=1)]
+# (c) prismatic and fixed joints mixed: fixed, revolute, prismatic (tilted axis), fixed, revolute, fixed
+PRIS = [("mount", "fixed", "world", "base", "0.2 -0.1 0.05", "0.1 0.2 0.3"),
+        ("turn", "revolute", "base", "column", "0 0 0.3", "0 0 0"),
+        ("lift", "prismatic", "column", "carriage", "0.1 0 0.2", "0.2 -0.1 0.4", "0 0.6 0.8", (-0.2, 0.5)),
+        ("bracket", "fixed", "carriage", "arm", "0.3 0.05 0", "0 0.3 0"),
+        ("wrist", "revolute", "arm", "hand", "0.2 0 0", "0 1.5708 0", "1 0 0"),
+        ("tcp", "fixed", "hand", "tcp_link", "0 0.03 0.12", "0.5 0 0.2")]
+CASES = {"ur": (UR, "base_link", "tool0"), "arm7": (ARM7, "l0", "l7"), "pris": (PRIS, "world", "tcp_link")}
+
+
+def _write(tmp_path, key):
+    joints, base, tip = CASES[key]
+    p = tmp_path / f"{key}.urdf"
+    p.write_text(_urdf(key, joints))
+    return p, base, tip
+
+
+def _random_q(robot, n, seed):
+    g = torch.Generator().manual_seed(seed)
+    lo, hi = robot.limits[:, 0], robot.limits[:, 1]
+    return lo + (hi - lo) * torch.rand(n, robot.n, generator=g, dtype=torch.float64)
+
+
+@pytest.mark.parametrize("key", list(CASES))
+def test_import_matches_pytorch_kinematics(tmp_path, key):
+    import pytorch_kinematics as pk
+
+    path, base, tip = _write(tmp_path, key)
+    robot = robot_from_urdf(path, base, tip)
+    assert robot.n == sum(j[1] != "fixed" for j in CASES[key][0])
+    q = _random_q(robot, 1000, 0)
+    ours = robot.fk_pose(q)
+    # float64 reference from the XML: exact to rounding
+    ref = urdf_fk(read_chain(path, base, tip), q)
+    assert (ours - ref)[:, :3, 3].abs().max() < 1e-9
+    assert (ours - ref)[:, :3, :3].abs().max() < 1e-12
+    # pytorch-kinematics (origins parsed in float32)
+    chain = pk.build_serial_chain_from_urdf(path.read_bytes(), tip, base).to(dtype=torch.float64)
+    qm = torch.where(robot.prismatic, q / 1000.0, q)
+    m = chain.forward_kinematics(qm).get_matrix()
+    assert (ours[:, :3, 3] - 1000.0 * m[:, :3, 3]).norm(dim=-1).max() < 1e-3
+
+
+def test_parallel_axes_get_hayati_beta(tmp_path):
+    path, base, tip = _write(tmp_path, "ur")
+    robot = robot_from_urdf(path, base, tip)
+    assert robot.has_beta.tolist() == [False, True, True, False, False, False]
+    assert robot.prismatic.tolist() == [False] * 6
+    # continuous wrist_3: -180..180 deg
+    assert torch.allclose(robot.limits[5], torch.tensor([-math.pi, math.pi], dtype=torch.float64))
+
+
+def test_prismatic_joint_imported(tmp_path):
+    path, base, tip = _write(tmp_path, "pris")
+    robot = robot_from_urdf(path, base, tip)
+    assert robot.prismatic.tolist() == [False, True, False]
+    assert robot.limits[1].tolist() == pytest.approx([-200.0, 500.0])  # mm
+    # moving the prismatic joint by 10 mm moves the TCP by 10 mm
+    q = torch.zeros(2, 3, dtype=torch.float64)
+    q[1, 1] = 10.0
+    p = robot.fk(q)
+    assert float((p[1] - p[0]).norm()) == pytest.approx(10.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("key", list(CASES))
+def test_minimal_export_reimports_to_calibrated_fk(tmp_path, key):
+    path, base, tip = _write(tmp_path, key)
+    robot = robot_from_urdf(path, base, tip)
+    g = torch.Generator().manual_seed(1)
+    dev = torch.randn(robot.n, 5, generator=g, dtype=torch.float64) * torch.tensor([1e-3, 0.5, 0.5, 1e-3, 1e-3])
+    dev[:, 4] *= robot.has_beta
+    out = tmp_path / "cal.urdf"
+    out.write_text(minimal_urdf(robot, dev))
+    back = robot_from_urdf(out, "base_link", "tcp")
+    q = _random_q(robot, 1000, 2)
+    err = (back.fk_pose(q)[:, :3, 3] - robot.fk_pose(q, dev)[:, :3, 3]).norm(dim=-1).max()
+    assert err < 1e-3
+
+
+def test_bad_links_one_line(tmp_path):
+    path, base, tip = _write(tmp_path, "ur")
+    with pytest.raises(InputError, match="--tip: no link 'nosuch'"):
+        robot_from_urdf(path, base, "nosuch")
+
+
+@pytest.mark.parametrize("key", list(CASES))
+def test_calibrated_urdf_keeps_links_and_carries_calibration(tmp_path, key):
+    import dataclasses
+
+    from torchcal.robots.urdf import calibrated_urdf
+
+    path, base, tip = _write(tmp_path, key)
+    robot = robot_from_urdf(path, base, tip)
+    g = torch.Generator().manual_seed(4)
+    dev = torch.randn(robot.n, 5, generator=g, dtype=torch.float64) * torch.tensor([1e-3, 0.5, 0.5, 1e-3, 1e-3])
+    dev[:, 4] *= robot.has_beta
+    tool = robot.tool.clone()
+    tool[:3, 3] += torch.tensor([0.3, -0.2, 0.4], dtype=torch.float64)
+    cal = dataclasses.replace(robot, table=robot.table + dev, tool=tool)
+    text, new_tip = calibrated_urdf(robot, cal)
+    out = tmp_path / "cal.urdf"
+    out.write_text(text)
+    assert text.count("<inertial>") == path.read_text().count("<inertial>")
+    back = robot_from_urdf(out, base, new_tip)
+    q = _random_q(robot, 1000, 5)
+    assert (back.fk(q) - cal.fk(q)).norm(dim=-1).max() < 1e-3

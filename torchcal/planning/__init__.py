@@ -1,0 +1,1 @@
+"""Measurement planning: optimal pose selection (design) and pose ordering (order)."""

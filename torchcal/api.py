@@ -88,7 +88,7 @@ def fit(robot_or_model, measurements, effects=(), robust: str | None = None, max
 
     model = _model(robot_or_model, effects)
     m = _measurements(measurements, model.robot)
-    ctx = make_context(model.robot, m.q, m.payload_kg, m.temp_c)
+    ctx = make_context(model.robot, m.q, m.payload_kg, m.temp_c, m.q_prev)
     return fit_model(model, ctx, m.xyz, robust=robust, max_iter=max_iter, pose=m.pose)
 
 
@@ -114,7 +114,7 @@ def evaluate(model, measurements) -> Evaluation:
 
     cm, theta = _fitted(model)
     m = _measurements(measurements, cm.robot)
-    ctx = make_context(cm.robot, m.q, m.payload_kg, m.temp_c)
+    ctx = make_context(cm.robot, m.q, m.payload_kg, m.temp_c, m.q_prev)
     cm.check_context(ctx)
     err = m.xyz - cm.predict(theta.to(m.xyz), ctx)  # (N, 3) mm
     d = err.norm(dim=-1)

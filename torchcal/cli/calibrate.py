@@ -21,12 +21,8 @@ MODEL.json: format ``torchcal-interval-model/1`` (`IntervalModel.to_dict`), read
 
 from __future__ import annotations
 
-<<<<<<< HEAD
-from torchcal.cli._args import add_effects_module, add_force, check_outputs, read_data, add_robot
+from torchcal.cli._args import add_effects_module, add_force, add_robot, check_outputs, nonneg_float, read_data
 from torchcal.errors import InputError
-=======
-from torchcal.cli._args import add_force, add_robot, check_outputs, nonneg_float, read_data
->>>>>>> main
 
 
 def _damping(text: str):

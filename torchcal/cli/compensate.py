@@ -23,11 +23,7 @@ import math
 import sys
 from pathlib import Path
 
-<<<<<<< HEAD
-from torchcal.cli._args import add_effects_module, add_force, check_outputs
-=======
-from torchcal.cli._args import add_force, add_robot, check_outputs, load_robot
->>>>>>> main
+from torchcal.cli._args import add_effects_module, add_force, add_robot, check_outputs, load_robot
 from torchcal.errors import InputError
 
 

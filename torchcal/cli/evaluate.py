@@ -4,12 +4,7 @@ measured - model. The model file embeds its nominal robot; ``--robot`` only chec
 from __future__ import annotations
 
 from torchcal.io import modelfile
-<<<<<<< HEAD
-from torchcal.cli._args import add_effects_module, add_force, check_outputs, read_data, add_robot
-from torchcal.effects import make_context
-=======
-from torchcal.cli._args import add_force, check_outputs, read_data, add_robot, load_robot, check_data_joints
->>>>>>> main
+from torchcal.cli._args import add_effects_module, add_force, check_outputs, read_data, add_robot, load_robot, check_data_joints
 from torchcal.io.files import write_json
 
 
@@ -25,20 +20,10 @@ def add_parser(sub):
 
 
 def evaluate(model, theta, m) -> dict:
-<<<<<<< HEAD
-    """{"n", "rms_mm", "mean_mm", "max_mm", "per_axis_rms_mm"} of measured - model."""
-    ctx = make_context(model.robot, m.q, m.payload_kg, m.temp_c, m.q_prev)
-    model.check_context(ctx)
-    err = m.xyz - model.predict(theta, ctx)
-    d = err.norm(dim=-1)
-    return {"n": len(m), "rms_mm": float(d.pow(2).mean().sqrt()), "mean_mm": float(d.mean()),
-            "max_mm": float(d.max()), "per_axis_rms_mm": err.pow(2).mean(0).sqrt().tolist()}
-=======
     """{"n", "rms_mm", "mean_mm", "max_mm", "per_axis_rms_mm"} of measured - model (`torchcal.evaluate`)."""
     from torchcal.api import evaluate as run
 
     return run((model, theta), m).to_dict()
->>>>>>> main
 
 
 def run(args) -> int:

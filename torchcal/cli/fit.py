@@ -6,14 +6,8 @@ outliers by IRLS and lists their pose ids."""
 from __future__ import annotations
 
 from torchcal.io import modelfile
-<<<<<<< HEAD
 from torchcal.cli._args import add_effects_module, add_force, check_outputs, read_data, add_robot
-from torchcal.effects import make_context
-from torchcal.calibration.fit import fit
-=======
-from torchcal.cli._args import add_force, check_outputs, read_data, add_robot
 from torchcal.api import fit
->>>>>>> main
 from torchcal.io.files import write_json
 from torchcal.robots.robot import robot as make_robot
 from torchcal.effects.spec import parse_specs
@@ -38,13 +32,7 @@ def fit_file(args):
     robot = make_robot(args.robot)
     specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
     m = read_data(args.data, robot)
-<<<<<<< HEAD
-    model = CalibrationModel(robot, specs)
-    ctx = make_context(robot, m.q, m.payload_kg, m.temp_c, m.q_prev)
-    return m, fit(model, ctx, m.xyz, robust=args.robust, pose=m.pose)
-=======
     return m, fit(robot, m, specs, robust=args.robust)
->>>>>>> main
 
 
 def _still_joints(m) -> list[str]:

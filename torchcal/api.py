@@ -84,11 +84,11 @@ def fit(robot_or_model, measurements, effects=(), robust: str | None = None, max
     ``.status``, ``.rms_mm``, ``.to_dict()`` = the MODEL.json of ``torchcal fit``).
     """
     from torchcal.calibration.fit import fit as fit_model
-    from torchcal.effects import make_context
+    from torchcal.effects import context_of
 
     model = _model(robot_or_model, effects)
     m = _measurements(measurements, model.robot)
-    ctx = make_context(model.robot, m.q, m.payload_kg, m.temp_c)
+    ctx = context_of(model.robot, m)
     return fit_model(model, ctx, m.xyz, robust=robust, max_iter=max_iter, pose=m.pose)
 
 
@@ -110,11 +110,11 @@ class Evaluation:
 
 def evaluate(model, measurements) -> Evaluation:
     """Errors of a fitted model (FitResult, MODEL.json path or (model, theta)) on measurements."""
-    from torchcal.effects import make_context
+    from torchcal.effects import context_of
 
     cm, theta = _fitted(model)
     m = _measurements(measurements, cm.robot)
-    ctx = make_context(cm.robot, m.q, m.payload_kg, m.temp_c)
+    ctx = context_of(cm.robot, m)
     cm.check_context(ctx)
     err = m.xyz - cm.predict(theta.to(m.xyz), ctx)  # (N, 3) mm
     d = err.norm(dim=-1)

@@ -25,6 +25,19 @@ def _as_float(t, name: str) -> torch.Tensor:
     return t
 
 
+def previous_angles(q: torch.Tensor) -> torch.Tensor:
+    """(N, n) rad: per joint, the last angle before each row that differs from the row's
+    (0 before the first row, the robot's start), for rows q (N, n) in measurement order."""
+    if q.shape[0] == 0:
+        return q.clone()
+    ext = torch.cat([torch.zeros_like(q[:1]), q])  # (N + 1, n): the start, then the rows
+    idx = torch.arange(q.shape[0] + 1, device=q.device).unsqueeze(-1).expand_as(ext)
+    moved = torch.cat([torch.zeros_like(q[:1], dtype=torch.bool), ext[1:] != ext[:-1]])
+    # row of the last move into each row (0: no move yet, the start)
+    last = torch.where(moved, idx, torch.zeros_like(idx)).cummax(0).values[1:]  # (N, n)
+    return ext.gather(0, (last - 1).clamp_min(0)) * (last > 0)
+
+
 @dataclass(frozen=True, eq=False)
 class Measurements:
     """Measured TCP positions at commanded joint angles, one row per measurement.
@@ -42,10 +55,14 @@ class Measurements:
         rxyz: (N, 3) rad measured orientation as fixed-axis XYZ angles (rx, ry, rz):
             R = Rz(rz) Ry(ry) Rx(rx), measurement frame <- tool frame; or None.
         q_prev: (N, n) rad, the commanded joint angles the robot moved *from* to reach each
-            row: the previous row, all-zero joints before the first row. Computed from `q`
-            when not given, and carried by `subset`, so direction-dependent effects
-            (backlash) stay right on a subset. Not stored in the file: writing a subset
-            and reading it back recomputes it from the subset's own order.
+            row: per joint, the last commanded angle before the row that differs from the
+            row's (the previous row where the joint moved; a repeat of a pose looks past
+            the rows that did not move it), all-zero joints before the first row. Its sign
+            against q is the approach direction (`torchcal.effects.base.make_context`).
+            Computed from `q` when not given, and carried by `subset`, so
+            direction-dependent effects (backlash) stay right on a subset. Not stored in
+            the file: writing a subset and reading it back recomputes it from the
+            subset's own order.
 
     The constructor checks shapes and finiteness and raises InputError naming the field.
     """
@@ -103,7 +120,7 @@ class Measurements:
         if self.source is not None:
             set_(self, "source", str(self.source))
         if self.q_prev is None:
-            set_(self, "q_prev", torch.cat([torch.zeros_like(q[:1]), q[:-1]]) if N else q.clone())
+            set_(self, "q_prev", previous_angles(q))
         else:
             qp = _as_float(self.q_prev, "q_prev")
             if qp.shape != q.shape:

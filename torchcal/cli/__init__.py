@@ -56,8 +56,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from torchcal.cli._args import load_effects_modules
+
     args = build_parser().parse_args(argv)
     try:
+        load_effects_modules(args)  # before any effect spec or model file is read
         return int(args.func(args) or 0)
     except (InputError, ValueError, FileNotFoundError, FileExistsError, IsADirectoryError) as exc:
         if os.environ.get("TORCHCAL_DEBUG") and not isinstance(exc, InputError):

@@ -37,6 +37,20 @@ def add_force(p):
     p.add_argument("--force", action="store_true", help="replace existing output files")
 
 
+def add_effects_module(p):
+    p.add_argument("--effects-module", action="append", default=[], metavar="FILE.py",
+                   help="Python file defining effects of your own (torchcal.effects.Effect "
+                        "subclasses, registered by their `name`); repeatable. See docs/effects.md")
+
+
+def load_effects_modules(args) -> None:
+    """Register the effects of every ``--effects-module`` file (InputError on a bad one)."""
+    from torchcal.effects.registry import load_module
+
+    for path in getattr(args, "effects_module", None) or []:
+        load_module(path)
+
+
 def add_viz(p):
     p.add_argument("--rrd", help="write a rerun recording (.rrd) here")
     p.add_argument("--plots", help="write PNG figures into this folder")

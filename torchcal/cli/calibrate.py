@@ -21,8 +21,7 @@ MODEL.json: format ``torchcal-interval-model/1`` (`IntervalModel.to_dict`), read
 
 from __future__ import annotations
 
-from torchcal.cli._args import add_force, add_robot, add_units, check_outputs, nonneg_float, read_data
-from torchcal.errors import InputError
+from torchcal.cli._args import add_effects_module, add_force, add_robot, add_units, check_outputs, nonneg_float, read_data
 
 
 def _damping(text: str):
@@ -51,6 +50,7 @@ def add_parser(sub):
     p.add_argument("--out", required=True, help="MODEL.json to write")
     add_units(p)
     add_force(p)
+    add_effects_module(p)
     p.set_defaults(func=run)
     return p
 

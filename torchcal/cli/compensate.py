@@ -27,7 +27,7 @@ import math
 import sys
 from pathlib import Path
 
-from torchcal.cli._args import add_force, add_robot, add_units, check_outputs, load_robot
+from torchcal.cli._args import add_effects_module, add_force, add_robot, add_units, check_outputs, load_robot
 from torchcal.errors import InputError
 
 
@@ -40,6 +40,7 @@ def add_parser(sub):
     add_robot(p, required=False, what="check that the model is for this robot (the model file embeds its robot)")
     add_units(p, "targets")
     add_force(p)
+    add_effects_module(p)
     p.set_defaults(func=run)
     return p
 

@@ -4,7 +4,8 @@ best significant effect each round until none is left; the error falls at each r
 from __future__ import annotations
 
 from torchcal.io import modelfile
-from torchcal.cli._args import add_force, add_units, add_viz, check_folder, check_outputs, positive_int, read_data, add_robot
+from torchcal.cli._args import (add_effects_module, add_force, add_units, add_viz, check_folder, check_outputs,
+                                positive_int, read_data, add_robot)
 from torchcal.diagnosis.diagnose import discover
 from torchcal.io.files import write_json
 from torchcal.robots.robot import robot as make_robot
@@ -22,6 +23,7 @@ def add_parser(sub):
     add_viz(p)
     add_units(p)
     add_force(p)
+    add_effects_module(p)
     p.set_defaults(func=run)
 
 

@@ -4,7 +4,7 @@ measured - model. The model file embeds its nominal robot; ``--robot`` only chec
 from __future__ import annotations
 
 from torchcal.io import modelfile
-from torchcal.cli._args import add_force, add_units, check_outputs, read_data, add_robot, load_robot, check_data_joints
+from torchcal.cli._args import add_effects_module, add_force, add_units, check_outputs, read_data, add_robot, load_robot, check_data_joints
 from torchcal.effects import context_of
 from torchcal.io.files import write_json
 
@@ -17,6 +17,7 @@ def add_parser(sub):
     p.add_argument("--json", help="write the report here")
     add_units(p)
     add_force(p)
+    add_effects_module(p)
     p.set_defaults(func=run)
 
 

@@ -13,7 +13,7 @@ nominal and reported (docs/formats.md)."""
 from __future__ import annotations
 
 from torchcal.io import modelfile
-from torchcal.cli._args import add_force, add_units, check_outputs, read_data, add_robot
+from torchcal.cli._args import add_effects_module, add_force, add_units, check_outputs, read_data, add_robot
 from torchcal.cli._args import nonneg_float, positive_float
 from torchcal.effects import context_of
 from torchcal.errors import InputError
@@ -44,6 +44,7 @@ def add_parser(sub):
     p.add_argument("--out", required=True, help="MODEL.json to write")
     add_units(p)
     add_force(p)
+    add_effects_module(p)
     p.set_defaults(func=run)
 
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from torchcal.cli._args import add_force, check_outputs, positive_int, nonneg_float, add_robot
+from torchcal.cli._args import (add_effects_module, add_force, check_outputs, positive_int, nonneg_float, add_robot)
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -38,6 +38,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="output measurement CSV")
     p.add_argument("--truth", default=None, help="also write the true parameters (JSON)")
     add_force(p)
+    add_effects_module(p)
     p.set_defaults(func=run)
     return p
 

@@ -45,7 +45,7 @@ import scipy.optimize
 import scipy.stats
 import torch
 
-from torchcal.effects import build, make_context
+from torchcal.effects import build, context_of
 from torchcal.calibration.fit import FitResult, fit
 from torchcal.measurements import Measurements
 from torchcal.calibration.model import CalibrationModel
@@ -228,7 +228,7 @@ class _Linear:
     def pose_columns(self, C: np.ndarray | None) -> np.ndarray:
         """The same at pose level: an orthonormal basis (3P, kb) of what the pose means of C
         add beyond span(pose means of A)."""
-        return self._new(self.Qb, None if C is None else self.pose_mean(C), len(self.rb))
+        return self._new(self.Qb, None if C is None or not C.size else self.pose_mean(C), len(self.rb))
 
     def residual(self, B: np.ndarray) -> np.ndarray:
         """Residual (3N,) of r on [A B] over all rows (B orthonormal, orthogonal to A)."""
@@ -276,12 +276,19 @@ class _Linear:
 
 
 def _candidate_specs(robot: Robot, present: dict, ctx) -> list[tuple[str, tuple]]:
-    """Effects not in the model yet; joint effects on each joint they do not cover yet."""
+    """Effects of the registry (built-in and user effects) not in the model yet; joint
+    effects on each joint they do not cover yet; none whose data are missing (its
+    `check_context` fails, e.g. thermal_expansion without temp_c)."""
+    from torchcal.effects import lookup
+    from torchcal.errors import InputError
+
     out = []
     for name, takes in EFFECTS.items():
         if name in present and not takes:
             continue
-        if name == "thermal_expansion" and ctx.temp_c is None:
+        try:
+            lookup(name)(robot, (1,) if takes else ()).check_context(ctx)
+        except InputError:
             continue
         if takes:
             out += [(name, (j,)) for j in range(1, robot.n + 1) if j not in present.get(name, ())]
@@ -298,6 +305,8 @@ def candidate_columns(robot, base_model: CalibrationModel, theta, ctx, spec: str
     """d model / d candidate parameters at theta (3N, k), the candidate's values at zero."""
     aug = CalibrationModel(robot, base_model.specs() + [spec])
     k = aug.n_params - base_model.n_params
+    if k == 0:  # an effect with no parameters here (e.g. a user effect on joint 1): nothing to add
+        return np.zeros((3 * ctx.n_rows, 0))
 
     def f(pc):
         return aug.predict(torch.cat([theta, pc]), ctx)
@@ -403,7 +412,7 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
     """Rank the candidate effects missing from `robot` + `effects` on measurements m."""
     specs = [str(s) for s in parse_specs(list(effects), robot.n)] if effects else []
     model = CalibrationModel(robot, specs)
-    ctx = make_context(robot, m.q, m.payload_kg, m.temp_c)
+    ctx = context_of(robot, m)
     if base_fit is None:
         base_fit = fit(model, ctx, m.xyz)
     theta = base_fit.theta
@@ -536,7 +545,7 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
     """
     specs = [str(s) for s in parse_specs(list(effects), robot.n)] if effects else []
     history, diagnoses = [], []
-    ctx = make_context(robot, m.q, m.payload_kg, m.temp_c)
+    ctx = context_of(robot, m)
     base = fit(CalibrationModel(robot, specs), ctx, m.xyz)
     for i in range(max_rounds + 1):
         d = diagnose(robot, m, specs, folds=folds, seed=seed, base_fit=base, alpha=alpha / 2 ** (i + 1))

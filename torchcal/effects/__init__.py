@@ -2,6 +2,11 @@
 
 `build(spec, robot)` turns an `EffectSpec` (or its text, e.g. 'joint_compliance:2,3')
 into an `Effect`. Joints are 1-based everywhere a person sees them.
+
+One registry (`torchcal.effects.registry.REGISTRY`, name -> class) holds the built-in
+effects and those a user adds: `register(cls)`, `load_module("my_effects.py")` (the
+command line's ``--effects-module``) or an installed package's ``torchcal.effects``
+entry point. docs/effects.md shows how to write one.
 """
 
 from torchcal.effects.backlash import Backlash
@@ -11,11 +16,13 @@ from torchcal.effects.encoder_scale import EncoderScale
 from torchcal.effects.gear_periodic import GearPeriodic
 from torchcal.effects.joint_clearance import JointClearance
 from torchcal.effects.joint_compliance import JointCompliance
+from torchcal.effects.registry import REGISTRY, load_entry_points, load_module, lookup, register, unregister
 from torchcal.effects.thermal_expansion import ThermalExpansion
 from torchcal.effects.tool_offset import ToolOffset
 
-REGISTRY = {cls.name: cls for cls in (BaseFrame, ToolOffset, JointCompliance, GearPeriodic,
-                                      Backlash, EncoderScale, ThermalExpansion, JointClearance)}
+for _cls in (BaseFrame, ToolOffset, JointCompliance, GearPeriodic, Backlash, EncoderScale,
+             ThermalExpansion, JointClearance):
+    register(_cls, "torchcal.effects", builtin=True)
 
 
 def build(spec, robot) -> Effect:
@@ -24,7 +31,8 @@ def build(spec, robot) -> Effect:
 
     if isinstance(spec, str):
         spec = parse_spec(spec, robot.n)
-    return REGISTRY[spec.name](robot, spec.joints)
+    return lookup(spec.name)(robot, spec.joints)
 
 
-__all__ = ["Context", "Effect", "REGISTRY", "build", "context_of", "make_context"]
+__all__ = ["Context", "Effect", "REGISTRY", "build", "context_of", "load_entry_points", "load_module",
+           "lookup", "make_context", "register", "unregister"]

@@ -3,19 +3,57 @@
 An effect is a small differentiable term with a documented parameter vector. It plays
 two roles with the same code: inside a simulated "real" robot (`torchcal.simulation.virtual_robot`) with
 chosen values, and inside a fitted model (`torchcal.calibration.model`) with unknown values.
+This is also the public API for effects of your own (docs/effects.md walks through one).
 
-Each effect contributes through one or more hooks, all pure functions of its parameter
-vector ``p (k,)`` and the `Context`:
+Writing an effect: subclass `Effect`, set
 
-- ``joint_offset(p, ctx) -> (N, n) rad``: added to the commanded joint angles;
-- ``tool_point(p, ctx) -> (3,) mm``: added to the TCP position on the flange;
-- ``geometric_offset(p, ctx) -> (N, n, 5)``: per-row MD-H deviations added to the
-  geometric ones (e.g. thermal growth of the link lengths);
-- ``chain_scale(p, ctx) -> (N,) or None``: factor on the whole chain and tool;
-- ``displacement(p, ctx, v) -> (N, 3) mm``: added to the base-frame TCP position ``v``;
-- ``world(p, ctx, v) -> (N, 3) mm``: maps base-frame positions to the measurement frame.
+- ``name``: lower-case identifier used in specs (``name`` or ``name:J,J``), reports and
+  MODEL.json; it must not clash with a registered effect;
+- ``takes_joints``: True when the spec lists joints (``self.joints``, 1-based, sorted);
+- ``uses_payload`` / ``uses_temperature``: True when the effect reads ``ctx.payload_kg`` /
+  ``ctx.temp_c``, so a simulated session varies them;
+- ``param_names()`` / ``param_units()``: one name and one unit string per entry of p
+  (names unique within the model, e.g. suffixed with the joint number);
+- ``check_context(ctx)``: raise `torchcal.errors.InputError` when the data lack a column
+  the effect needs (the effect is then no candidate in `diagnose`);
 
-A hook an effect does not use returns None.
+and implement one or more hooks, all pure, differentiable (torch only: no in-place
+writes into p, no numpy, no Python branches on p's values) functions of the parameter
+vector ``p (k,)`` (same dtype/device as ctx.q) and the `Context` of N rows, n joints:
+
+- ``joint_offset(p, ctx) -> (N, n) rad``: added to the commanded joint angles ``ctx.q``;
+- ``tool_point(p, ctx) -> (3,) mm``: added to the TCP position in the flange frame;
+- ``geometric_offset(p, ctx) -> (N, n, 5)``: per-row MD-H deviations [dtheta rad, dd mm,
+  da mm, dalpha rad, dbeta rad] added to the geometric ones (e.g. thermal growth);
+- ``chain_scale(p, ctx) -> (N,)``: factor on the whole chain and tool (1 = none);
+- ``displacement(p, ctx, v) -> (N, 3) mm``: added to the base-frame TCP positions
+  ``v (N, 3) mm``;
+- ``world(p, ctx, v) -> (N, 3) mm``: maps base-frame positions ``v (N, 3)`` to the
+  measurement frame (the last step; use for a frame change).
+
+A hook an effect does not use returns None (the default). At p = 0 an effect should do
+nothing (diagnosis linearises candidates around p = 0). Minimal example, an encoder
+scale error of the listed joints::
+
+    from torchcal.effects import Effect
+    from torchcal.effects.base import scatter_joints
+
+    class Scale(Effect):
+        name = "my_scale"
+        takes_joints = True
+
+        def param_names(self):
+            return [f"my_scale_{j}" for j in self.joints]
+
+        def param_units(self):
+            return ["1"] * len(self.joints)
+
+        def joint_offset(self, p, ctx):            # (N, n) rad
+            cols = ctx.q[:, [j - 1 for j in self.joints]] * p
+            return scatter_joints(cols, self.joints, ctx.q.shape[1])
+
+Register it with ``torchcal.effects.register(Scale)``, ``--effects-module FILE.py`` on
+the command line, or an entry point of group ``torchcal.effects`` in an installed package.
 """
 
 from __future__ import annotations
@@ -36,7 +74,9 @@ class Context:
         payload_kg: (N,) payload mass at the flange (zeros when not measured).
         temp_c: (N,) temperature in deg C (None when not measured).
         approach: (N, n) +1 / -1, the direction each joint last moved in to reach the
-            row's pose (the robot starts at all-zero joints and moves row to row).
+            row's pose (the robot starts at all-zero joints and moves row to row; from
+            `Measurements.q_prev` when given, so a subset of rows keeps the true
+            directions).
         frames: (N, n + 2, 4, 4) nominal world frames at q (base, links, TCP).
         gravity: (3,) unit vector of gravity in the robot base frame.
         point: (N,) int64 measured-point (reflector) ids, or None (one point per pose).
@@ -61,13 +101,20 @@ class Context:
                        pick(self.approach), pick(self.frames), self.gravity, pick(self.point))
 
 
-def approach_directions(q: torch.Tensor) -> torch.Tensor:
+def approach_directions(q: torch.Tensor, q_prev: torch.Tensor | None = None) -> torch.Tensor:
     """+1 / -1 per joint: the sign of the last non-zero move into each row.
 
     q (N, n) rad in measurement order; the robot starts at all-zero joints. A joint
     that has not moved yet counts as approached from below (+1).
+
+    q_prev (N, n) rad, optional: the angles each row was reached from
+    (`Measurements.q_prev`; per joint the last commanded angle before the row that
+    differs from it). Then the direction is sign(q - q_prev) row by row, and only
+    where that is 0 (the joint never moved) the previous row's direction is carried
+    (+1 at the start): a subset of rows gets the directions of the full session.
+    Without q_prev, the previous row of q is the predecessor.
     """
-    prev = torch.cat([torch.zeros_like(q[:1]), q[:-1]], dim=0)
+    prev = torch.cat([torch.zeros_like(q[:1]), q[:-1]], dim=0) if q_prev is None else q_prev.to(q)
     step = torch.sign(q - prev)  # (N, n) in {-1, 0, 1}
     out = torch.empty_like(q)
     last = torch.ones_like(q[0])
@@ -77,21 +124,30 @@ def approach_directions(q: torch.Tensor) -> torch.Tensor:
     return out
 
 
-def make_context(robot: Robot, q, payload_kg=None, temp_c=None, point=None) -> Context:
-    """Context for rows of commanded joint angles q (N, n) rad in measurement order
-    (point: (N,) int reflector ids or None)."""
+def make_context(robot: Robot, q, payload_kg=None, temp_c=None, point=None, q_prev=None) -> Context:
+    """Context for rows of commanded joint angles q (N, n) rad in measurement order.
+
+    payload_kg, temp_c: (N,) or None. point: (N,) int reflector ids or None. q_prev:
+    (N, n) rad, the angles each row was reached from (`Measurements.q_prev`); pass it
+    whenever q is a subset of a session's rows, so direction-dependent effects (backlash)
+    see the true approach directions.
+    """
     q = robot.check_q(q).to(robot.dtype)
     n_rows = q.shape[0]
     payload = torch.zeros(n_rows, dtype=q.dtype, device=q.device) if payload_kg is None \
         else torch.as_tensor(payload_kg, dtype=q.dtype, device=q.device)
     temp = None if temp_c is None else torch.as_tensor(temp_c, dtype=q.dtype, device=q.device)
     point = None if point is None else torch.as_tensor(point, dtype=torch.int64, device=q.device)
-    return Context(q, payload, temp, approach_directions(q), robot.frames(q), robot.gravity.to(q), point)
+    qp = None if q_prev is None else torch.as_tensor(q_prev, dtype=q.dtype, device=q.device)
+    if qp is not None and qp.shape != q.shape:
+        from torchcal.errors import InputError
+        raise InputError(f"make_context: q_prev has shape {tuple(qp.shape)}, q has {tuple(q.shape)}")
+    return Context(q, payload, temp, approach_directions(q, qp), robot.frames(q), robot.gravity.to(q), point)
 
 
 def context_of(robot: Robot, m) -> Context:
-    """Context of a `Measurements` (q, payload, temperature, point ids)."""
-    return make_context(robot, m.q, m.payload_kg, m.temp_c, m.point)
+    """Context of a `Measurements` (q, payload, temperature, point ids, q_prev)."""
+    return make_context(robot, m.q, m.payload_kg, m.temp_c, m.point, q_prev=m.q_prev)
 
 
 class Effect:
@@ -99,6 +155,8 @@ class Effect:
 
     name: str = ""
     takes_joints: bool = False
+    uses_payload: bool = False  # reads ctx.payload_kg: a simulated session varies the payload
+    uses_temperature: bool = False  # reads ctx.temp_c: a simulated session drifts the temperature
 
     def __init__(self, robot: Robot, joints=()):
         self.robot = robot
@@ -110,6 +168,7 @@ class Effect:
         raise NotImplementedError
 
     def param_units(self) -> list[str]:
+        """Units of the parameters ('rad', 'mm', '1', '1/K', ...), one per entry of p."""
         raise NotImplementedError
 
     @property

@@ -54,6 +54,7 @@ def random_basis(ctx, joint: int, v: torch.Tensor) -> torch.Tensor:
 
 class JointClearance(Effect):
     name = "joint_clearance"
+    uses_payload = True
     takes_joints = True
 
     def param_names(self):

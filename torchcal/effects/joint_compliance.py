@@ -50,6 +50,7 @@ def gravity_regressor(ctx, joint: int) -> torch.Tensor:
 
 class JointCompliance(Effect):
     name = "joint_compliance"
+    uses_payload = True
     takes_joints = True
 
     def __init__(self, robot, joints=()):

@@ -25,19 +25,13 @@ import numbers
 import re
 from dataclasses import dataclass
 
+from torchcal.effects.registry import TakesJoints
 from torchcal.errors import InputError
 
-#: effect name -> whether it acts on (a subset of) the joints.
-EFFECTS: dict[str, bool] = {
-    "base_frame": False,
-    "tool_offset": False,
-    "joint_compliance": True,
-    "gear_periodic": True,
-    "backlash": True,
-    "encoder_scale": True,
-    "thermal_expansion": False,
-    "joint_clearance": True,
-}
+#: effect name -> whether it acts on (a subset of) the joints: a live read-only view of
+#: the one registry `torchcal.effects.registry.REGISTRY` (built-in effects, user modules
+#: loaded with ``--effects-module`` and installed packages' ``torchcal.effects`` entry points).
+EFFECTS = TakesJoints()
 
 _FORM = "NAME or NAME:J[,J...] with 1-based joint numbers"
 _JOINT_RE = re.compile(r"[0-9]+", re.ASCII)
@@ -48,7 +42,7 @@ class EffectSpec:
     """One physical effect, and the joints it acts on.
 
     Attributes:
-        name: a key of `EFFECTS`.
+        name: a key of `EFFECTS` (a registered effect).
         joints: 1-based joint numbers, sorted and unique; empty exactly when the effect
             does not act on joints.
 
@@ -93,7 +87,8 @@ def _unknown(name: str, text: str) -> str:
     if str(name).strip().lower() == "geometric":
         return (f"effect spec {text!r}: 'geometric' is always part of the model; leave it out "
                 f"(optional effects: {valid})")
-    return f"effect spec {text!r}: unknown effect {name!r}{did}; expected one of {valid}"
+    return (f"effect spec {text!r}: unknown effect {name!r}{did}; expected one of {valid} "
+            f"(an effect of your own: load its file with --effects-module FILE.py)")
 
 
 def _check_n(n_joints) -> int:

@@ -20,6 +20,7 @@ REFERENCE_C = 20.0
 
 class ThermalExpansion(Effect):
     name = "thermal_expansion"
+    uses_temperature = True
 
     def __init__(self, robot, joints=()):
         super().__init__(robot, joints)

@@ -112,7 +112,10 @@ def load(path, robot: Robot | str | None = None):
         from torchcal.robots.robot import robot as make_robot
 
         check_same_robot(nominal, make_robot(robot), str(path))
-    model = CalibrationModel(nominal, effects, points=obj.get("points"))
+    try:
+        model = CalibrationModel(nominal, effects, points=obj.get("points"))
+    except InputError as exc:  # e.g. a user effect whose --effects-module is missing
+        raise InputError(f"{path}: {exc}") from None
     model.tool_rotation = None  # measured tool frame <- nominal tool frame, when fitted
     orient = obj.get("orientation")
     if isinstance(orient, dict) and "tool_rotation_fixed_xyz_deg" in orient:

@@ -100,11 +100,11 @@ class VirtualRobot:
     # -- what the session varies --------------------------------------------------------
     @property
     def uses_payload(self) -> bool:
-        return any(s.name in ("joint_compliance", "joint_clearance") for s in self.specs)
+        return any(e.uses_payload for e in self.model.effects)
 
     @property
     def uses_temperature(self) -> bool:
-        return any(s.name == "thermal_expansion" for s in self.specs)
+        return any(e.uses_temperature for e in self.model.effects)
 
     def _session(self, n_rows: int, pose_index: torch.Tensor, n_poses: int, gen):
         payload = temp = None

@@ -24,6 +24,9 @@ def add_parser(sub):
     p.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
     p.add_argument("--seeds", type=int, nargs="?", const=10, default=1, metavar="K",
                    help="run seeds S .. S+K-1 (default: 1 seed; --seeds alone: 10)")
+    p.add_argument("--discover-rounds", type=int, default=2, metavar="R",
+                   help="effects `discover` may add for methods 3 and 4 (default 2; 0 skips discovery, "
+                        "then methods 3 and 4 fit geometry + frame only)")
     add_force(p)
     add_viz_options(p)
     p.set_defaults(func=run)
@@ -60,6 +63,8 @@ def run(args) -> int:
 
     if args.seeds < 1:
         raise InputError(f"--seeds: expected a positive number of seeds, got {args.seeds}")
+    if args.discover_rounds < 0:
+        raise InputError(f"--discover-rounds: expected an integer >= 0, got {args.discover_rounds}")
     check_outputs([("--json", args.json), *_viz_outputs_to_check(args)], args.force)
     if args.rrd or args.plots:  # the PNG names too, before the run
         from torchcal.cli._viz import check_outputs as check_visual_outputs
@@ -70,7 +75,7 @@ def run(args) -> int:
         def progress(step):
             bar.set_postfix_str(step)
             bar.update(1)
-        result = run_demo(DemoConfig(seed=args.seed), seeds=args.seeds, progress=progress)
+        result = run_demo(DemoConfig(seed=args.seed, discover_rounds=args.discover_rounds), seeds=args.seeds, progress=progress)
     print(format_report(result))
     if args.json:
         write_json(args.json, result.to_json(), force=args.force)

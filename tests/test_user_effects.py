@@ -137,7 +137,7 @@ def test_backlash_fits_exactly_on_every_other_row():
     vr = VirtualRobot(robot, ["backlash:3"], seed=1, geometric_scale=0)
     m = vr.measure(random_poses(robot, 60, torch.Generator().manual_seed(1)), repeats=2, noise_mm=0)
     s = m.subset(slice(0, None, 2))
-    res = fit(CalibrationModel(robot, ["backlash:3"]), make_context(robot, s.q, s.payload_kg, s.temp_c, s.q_prev), s.xyz)
+    res = fit(CalibrationModel(robot, ["backlash:3"]), make_context(robot, s.q, s.payload_kg, s.temp_c, q_prev=s.q_prev), s.xyz)
     assert res.rms_mm < 1e-6
     wrong = fit(CalibrationModel(robot, ["backlash:3"]), make_context(robot, s.q), s.xyz)
     assert wrong.rms_mm > 0.05  # the check can fail: the subset's own order is wrong

@@ -124,7 +124,7 @@ def approach_directions(q: torch.Tensor, q_prev: torch.Tensor | None = None) -> 
     return out
 
 
-def make_context(robot: Robot, q, payload_kg=None, temp_c=None, point=None, q_prev=None) -> Context:
+def make_context(robot: Robot, q, payload_kg=None, temp_c=None, *, point=None, q_prev=None) -> Context:
     """Context for rows of commanded joint angles q (N, n) rad in measurement order.
 
     payload_kg, temp_c: (N,) or None. point: (N,) int reflector ids or None. q_prev:
@@ -147,7 +147,7 @@ def make_context(robot: Robot, q, payload_kg=None, temp_c=None, point=None, q_pr
 
 def context_of(robot: Robot, m) -> Context:
     """Context of a `Measurements` (q, payload, temperature, point ids, q_prev)."""
-    return make_context(robot, m.q, m.payload_kg, m.temp_c, m.point, q_prev=m.q_prev)
+    return make_context(robot, m.q, m.payload_kg, m.temp_c, point=m.point, q_prev=m.q_prev)
 
 
 class Effect:

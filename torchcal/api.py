@@ -24,7 +24,8 @@ from pathlib import Path
 
 import torch
 
-from torchcal.calibration.fit import FitResult
+from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult
+from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.calibration.model import CalibrationModel
 from torchcal.errors import InputError
 from torchcal.measurements import Measurements
@@ -77,49 +78,84 @@ def _measurements(measurements, robot: Robot) -> Measurements:
     raise InputError(f"measurements: expected Measurements or a CSV path, got {type(measurements).__name__}")
 
 
-def fit(robot_or_model, measurements, effects=(), robust: str | None = None, max_iter: int = 60) -> FitResult:
-    """Fit the geometric deviations plus `effects` to measured TCP positions.
+def fit(robot_or_model, measurements, effects=(), robust: str | None = None, max_iter: int = 60,
+        sigma_mm: float = SIGMA_MM, sigma_deg: float = SIGMA_DEG, max_length_mm: float | None = MAX_LENGTH_MM,
+        max_angle_deg: float | None = MAX_ANGLE_DEG) -> FitResult:
+    """Fit the geometric deviations plus `effects` to measured TCP positions (and
+    orientations, when the measurements carry rx, ry, rz).
 
-    robust: None, 'huber' or 'cauchy' (IRLS). Returns a `FitResult` (``.theta``,
-    ``.status``, ``.rms_mm``, ``.to_dict()`` = the MODEL.json of ``torchcal fit``).
+    robust: None, 'huber' or 'cauchy' (IRLS). sigma_mm / sigma_deg: measurement
+    uncertainties (mm, deg) that weigh orientation against position. max_length_mm /
+    max_angle_deg: MD-H deviations beyond these are held as implausible (None: no check).
+    Measurements with several `point` ids need `tool_offset` (one offset per point).
+    Returns a `FitResult` (``.theta``, ``.status``, ``.rms_mm``, ``.to_dict()`` = the
+    MODEL.json of ``torchcal fit``).
     """
     from torchcal.calibration.fit import fit as fit_model
     from torchcal.effects import context_of
 
-    model = _model(robot_or_model, effects)
-    m = _measurements(measurements, model.robot)
+    robot = _robot(robot_or_model)
+    m = _measurements(measurements, robot)
+    if isinstance(robot_or_model, (CalibrationModel, FitResult)):
+        model = _model(robot_or_model, effects)
+    else:
+        specs = [str(s) for s in effects]
+        points = None if m.point is None else sorted(set(m.point.tolist()))
+        if points is not None and len(points) > 1 and not any(s.split(":")[0] == "tool_offset" for s in specs):
+            where = m.source or "measurements"
+            raise InputError(f"{where}: {len(points)} measured points per pose (point column) need "
+                             "one tool offset each: add tool_offset to --effects")
+        model = CalibrationModel(robot, specs, points=points)
     ctx = context_of(model.robot, m)
-    return fit_model(model, ctx, m.xyz, robust=robust, max_iter=max_iter, pose=m.pose)
+    return fit_model(model, ctx, m.xyz, robust=robust, max_iter=max_iter, pose=m.pose, rotation=m.rotation,
+                     sigma_mm=sigma_mm, sigma_deg=sigma_deg, max_length_mm=max_length_mm,
+                     max_angle_deg=max_angle_deg)
 
 
 @dataclass(frozen=True)
 class Evaluation:
-    """Distance errors measured - model: n rows; rms_mm, mean_mm, max_mm; per_axis_rms_mm [x, y, z]."""
+    """Distance errors measured - model: n rows; rms_mm, mean_mm, max_mm; per_axis_rms_mm
+    [x, y, z]; orientation_rms_deg when the data carry rx, ry, rz and the model was fitted
+    to orientations (else None)."""
 
     n: int
     rms_mm: float
     mean_mm: float
     max_mm: float
     per_axis_rms_mm: list
+    orientation_rms_deg: float | None = None
 
     def to_dict(self) -> dict:
-        """{"n", "rms_mm", "mean_mm", "max_mm", "per_axis_rms_mm"}: the JSON of ``torchcal evaluate --json``."""
-        return {"n": self.n, "rms_mm": self.rms_mm, "mean_mm": self.mean_mm, "max_mm": self.max_mm,
-                "per_axis_rms_mm": list(self.per_axis_rms_mm)}
+        """{"n", "rms_mm", "mean_mm", "max_mm", "per_axis_rms_mm"[, "orientation_rms_deg"]}:
+        the JSON of ``torchcal evaluate --json``."""
+        out = {"n": self.n, "rms_mm": self.rms_mm, "mean_mm": self.mean_mm, "max_mm": self.max_mm,
+               "per_axis_rms_mm": list(self.per_axis_rms_mm)}
+        if self.orientation_rms_deg is not None:
+            out["orientation_rms_deg"] = self.orientation_rms_deg
+        return out
 
 
 def evaluate(model, measurements) -> Evaluation:
     """Errors of a fitted model (FitResult, MODEL.json path or (model, theta)) on measurements."""
+    import math
+
+    from torchcal.calibration.fit import _so3_error
     from torchcal.effects import context_of
 
     cm, theta = _fitted(model)
     m = _measurements(measurements, cm.robot)
     ctx = context_of(cm.robot, m)
     cm.check_context(ctx)
-    err = m.xyz - cm.predict(theta.to(m.xyz), ctx)  # (N, 3) mm
+    theta = theta.to(m.xyz)
+    err = m.xyz - cm.predict(theta, ctx)  # (N, 3) mm
     d = err.norm(dim=-1)
+    orient = None
+    tool_r = getattr(cm, "tool_rotation", None)
+    if m.rxyz is not None and tool_r is not None:
+        e = _so3_error(cm.predict_rotation(theta, ctx) @ tool_r.to(theta), m.rotation)  # (N, 3) rad
+        orient = math.degrees(float(e.norm(dim=-1).pow(2).mean().sqrt()))
     return Evaluation(len(m), float(d.pow(2).mean().sqrt()), float(d.mean()), float(d.max()),
-                      err.pow(2).mean(0).sqrt().tolist())
+                      err.pow(2).mean(0).sqrt().tolist(), orient)
 
 
 def diagnose(robot_or_model, measurements, effects=(), folds: int = 5, seed: int = 0, **options):

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from torchcal.io import modelfile
 from torchcal.cli._args import add_effects_module, add_force, add_units, check_outputs, read_data, add_robot, load_robot, check_data_joints
-from torchcal.effects import context_of
 from torchcal.io.files import write_json
 
 
@@ -22,24 +21,10 @@ def add_parser(sub):
 
 
 def evaluate(model, theta, m) -> dict:
-    """{"n", "rms_mm", "mean_mm", "max_mm", "per_axis_rms_mm"} of measured - model, and
-    "orientation_rms_deg" when the data carry rx, ry, rz and the model was fitted to
-    orientations."""
-    import math
+    """The report dict of `torchcal.evaluate` ((model, theta) on measurements m)."""
+    from torchcal.api import evaluate as run
 
-    from torchcal.calibration.fit import _so3_error
-
-    ctx = context_of(model.robot, m)
-    model.check_context(ctx)
-    err = m.xyz - model.predict(theta, ctx)
-    d = err.norm(dim=-1)
-    rep = {"n": len(m), "rms_mm": float(d.pow(2).mean().sqrt()), "mean_mm": float(d.mean()),
-           "max_mm": float(d.max()), "per_axis_rms_mm": err.pow(2).mean(0).sqrt().tolist()}
-    tool_r = getattr(model, "tool_rotation", None)
-    if m.rxyz is not None and tool_r is not None:
-        e = _so3_error(model.predict_rotation(theta, ctx) @ tool_r.to(theta), m.rotation)
-        rep["orientation_rms_deg"] = math.degrees(float(e.norm(dim=-1).pow(2).mean().sqrt()))
-    return rep
+    return run((model, theta), m).to_dict()
 
 
 def run(args) -> int:

@@ -15,12 +15,9 @@ from __future__ import annotations
 from torchcal.io import modelfile
 from torchcal.cli._args import add_effects_module, add_force, add_units, check_outputs, read_data, add_robot
 from torchcal.cli._args import nonneg_float, positive_float
-from torchcal.effects import context_of
-from torchcal.errors import InputError
-from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, fit
+from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.io.files import write_json
-from torchcal.calibration.model import CalibrationModel
 from torchcal.robots.robot import robot as make_robot
 from torchcal.effects.spec import parse_specs
 
@@ -49,21 +46,16 @@ def add_parser(sub):
 
 
 def fit_file(args):
-    """Read, fit; returns (measurements, FitResult)."""
+    """Read, fit (`torchcal.fit`); returns (measurements, FitResult)."""
+    from torchcal.api import fit
+
     robot = make_robot(args.robot)
     specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
     m = read_data(args.data, robot, args)
-    points = None if m.point is None else sorted(set(m.point.tolist()))
-    if points is not None and len(points) > 1 and not any(s.split(":")[0] == "tool_offset" for s in specs):
-        raise InputError(f"{args.data}: {len(points)} measured points per pose (point column) need "
-                         "one tool offset each: add tool_offset to --effects")
-    model = CalibrationModel(robot, specs, points=points)
-    ctx = context_of(robot, m)
-    check = getattr(args, "max_deviation_mm", MAX_LENGTH_MM) and getattr(args, "max_deviation_deg", MAX_ANGLE_DEG)
-    return m, fit(model, ctx, m.xyz, robust=args.robust, pose=m.pose, rotation=m.rotation,
-                  sigma_mm=getattr(args, "sigma_mm", SIGMA_MM), sigma_deg=getattr(args, "sigma_deg", SIGMA_DEG),
-                  max_length_mm=getattr(args, "max_deviation_mm", MAX_LENGTH_MM) if check else None,
-                  max_angle_deg=getattr(args, "max_deviation_deg", MAX_ANGLE_DEG) if check else None)
+    check = args.max_deviation_mm and args.max_deviation_deg  # 0 turns the check off
+    return m, fit(robot, m, specs, robust=args.robust, sigma_mm=args.sigma_mm, sigma_deg=args.sigma_deg,
+                  max_length_mm=args.max_deviation_mm if check else None,
+                  max_angle_deg=args.max_deviation_deg if check else None)
 
 
 def _still_joints(m) -> list[str]:

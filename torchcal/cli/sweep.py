@@ -3,7 +3,12 @@
     torchcal sweep --robot kr1000titan --n 100 --samples 300 --allowed 2.5 --seed 0 --out sweep.csv
 
 Samples N workspace points (Latin hypercube in joint space, filtered), M clearance states
-of the robot's default `ClearanceModel`, and writes one CSV row per point:
+of the robot's `ClearanceModel`, and writes one CSV row per point. The clearance model:
+``--clearance FILE.json`` if given, else the robot file's "clearance" section, else (the
+kr1000titan preset only) docs/paper.md Table 2; both take {"radii_mm": [2n],
+"clearance_mm": [2n], "bearing_length_mm": [n]} (mm, docs/robots.md). Any joint count,
+revolute and prismatic joints (q in mm in the CSV for a prismatic joint).
+
 
     point,q1..qN,x,y,z,ex_lo,ex_hi,ey_lo,ey_hi,ez_lo,ez_hi,dist_lo,dist_hi,eta,r_set
 
@@ -31,6 +36,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--allowed", type=positive_float, default=2.5,
                    help="allowed distance error D in mm: R_set against [0, D] (default 2.5)")
     p.add_argument("--seed", type=int, default=0, help="seed of the Latin hypercube and the states")
+    p.add_argument("--clearance", metavar="FILE.json",
+                   help="joint-clearance model {radii_mm, clearance_mm, bearing_length_mm} (mm); "
+                        "default: the robot file's \"clearance\" section, or Table 2 for kr1000titan")
     p.add_argument("--out", required=True, help="output CSV")
     add_force(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -44,9 +52,14 @@ def run(args) -> int:
 
     check_outputs([("--out", args.out)], args.force)  # fail before the work, not after it
     out = Path(args.out)
+    from torchcal.io.files import read_json
+    from torchcal.reliability.uncertainty import ClearanceModel, clearance_from_dict
+
     robot = torchcal.robot(args.robot)
+    model = (clearance_from_dict(read_json(args.clearance, "clearance file"), args.clearance, robot.n)
+             if args.clearance else ClearanceModel.defaults(robot))
     result = sweep(robot, n_points=args.n, n_samples=args.samples, allowed_mm=args.allowed,
-                   seed=args.seed, progress=not args.no_progress)
+                   seed=args.seed, model=model, progress=not args.no_progress)
     result.to_csv(out, force=args.force)
     s = result.summary()
     r = result.r_set

@@ -296,7 +296,7 @@ def outer_factors(table: torch.Tensor, dev: torch.Tensor) -> list[torch.Tensor]:
                                        torch.cos(beta), torch.sin(beta), a, d)]
 
 
-def outer_positions(cq, sq, F, tool_point, bufs):
+def outer_positions(cq, sq, F, tool_point, bufs, tz=None):
     """TCP positions in the joint-1 frame for (Nc points) x (Mc sets), in place.
 
     The outer-product layout of the backward recursion of `_positions_kernel` (which
@@ -306,7 +306,10 @@ def outer_positions(cq, sq, F, tool_point, bufs):
     18 full-size operations per joint and no allocation, several times faster than the
     general kernel on a CPU. cq, sq (n, Nc) cos / sin of q; F: `outer_factors` sliced to
     the Mc sets; tool_point (3,). Returns three (Nc, Mc) views into `bufs`.
+    Prismatic joints: tz, a list of n entries, None (revolute) or the joint's travel
+    (Nc,) mm, which adds to d (pass cos / sin of 0 for that joint in cq, sq).
     """
+    tz = [None] * cq.shape[0] if tz is None else tz
     co, so, ca, sa, cb, sb, a, d = F
     ct, st, b0, b1, b2, b3, b4 = bufs
     n = cq.shape[0]
@@ -324,6 +327,8 @@ def outer_positions(cq, sq, F, tool_point, bufs):
     vx = torch.mul(ct, ux, out=b0).addcmul_(st, uy, value=-1)
     vy = torch.mul(st, ux, out=b1).addcmul_(ct, uy)
     vz = b2.copy_(uz.expand_as(b2))
+    if tz[i] is not None:
+        vz.add_(tz[i][:, None])
     free = (b3, b4)
     for i in range(n - 2, -1, -1):
         cqi, sqi = cq[i][:, None], sq[i][:, None]
@@ -335,6 +340,8 @@ def outer_positions(cq, sq, F, tool_point, bufs):
         ux = wx.add_(a[i])
         uy = torch.mul(vy, ca[i], out=vx).addcmul_(wz, sa[i], value=-1)  # Rx(alpha) ...
         uz = torch.mul(vy, sa[i], out=vz).addcmul_(wz, ca[i]).add_(d[i])
+        if tz[i] is not None:
+            uz.add_(tz[i][:, None])
         nvx = torch.mul(ct, ux, out=vy).addcmul_(st, uy, value=-1)  # Rz(theta) u
         nvy = torch.mul(st, ux, out=wz).addcmul_(ct, uy)
         vx, vy, vz = nvx, nvy, uz

@@ -95,13 +95,16 @@ class Workspace:
         q = robot.check_q(q)
         table = robot.table.to(q)
         p = robot.fk(q)  # (N, 3) TCP
-        shoulder = K.fk_positions(q[:, :1], table[:1], None, robot.base.to(q))  # (N, 3) frame-1 origin
+        shoulder = K.fk_positions(q[:, :1], table[:1], None, robot.base.to(q),
+                                  prismatic=robot.prismatic[:1] if robot.pris is not None else None)
         ok = p[:, 2] > self.floor_z_mm
         radial = p[:, :2].norm(dim=-1)
         ok &= ~((radial < self.column_radius_mm) & (p[:, 2] < self.column_height_mm))
         if self.reach_fraction < 1:
             t = robot.table
-            stretch = (t[1:, 1] ** 2 + t[1:, 2] ** 2).sqrt().sum() + robot.tool[:3, 3].norm()
+            # a prismatic joint's d reaches d + its farthest limit
+            d = torch.where(robot.prismatic[1:], (t[1:, 1, None] + robot.limits[1:]).abs().amax(-1), t[1:, 1])
+            stretch = (d ** 2 + t[1:, 2] ** 2).sqrt().sum() + robot.tool[:3, 3].norm()
             ok &= (p - shoulder).norm(dim=-1) <= self.reach_fraction * stretch.to(p)
         return ok
 
@@ -149,7 +152,7 @@ class SweepResult:
     """Per workspace point: TCP error envelopes and reliability (N points, n joints).
 
     Attributes:
-        q: (N, n) rad joint angles.
+        q: (N, n) joint values, rad (revolute) / mm (prismatic).
         positions: (N, 3) mm nominal TCP positions.
         err_lower, err_upper: (N, 3) mm bounds of the error e = perturbed - nominal per axis.
         dist_lower, dist_upper: (N,) mm bounds of |e|.
@@ -162,6 +165,8 @@ class SweepResult:
         n_samples: M, number of perturbed parameter sets (None if unknown).
         r_set_axis, eta_axis: (N, 3) per axis against an allowed +-a (None unless asked).
         point: (N,) int64 point ids (None: the row index 0..N-1, as `sweep` writes them).
+        prismatic: (n,) bool prismatic joints, whose q is mm (in the CSV too), not an
+            angle (None: all revolute).
     """
 
     q: torch.Tensor
@@ -180,6 +185,7 @@ class SweepResult:
     r_set_axis: torch.Tensor | None = None
     eta_axis: torch.Tensor | None = None
     point: torch.Tensor | None = None
+    prismatic: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return self.q.shape[0]
@@ -234,8 +240,11 @@ class SweepResult:
                 "ey_hi", "ez_lo", "ez_hi", "dist_lo", "dist_hi", "eta", "r_set"])
 
     def to_csv_text(self) -> str:
-        """The CSV (module docstring of torchcal.cli.sweep): q in degrees, mm."""
-        cols = [torch.rad2deg(self.q), self.positions,
+        """The CSV (module docstring of torchcal.cli.sweep): q in degrees (mm for a prismatic joint), mm."""
+        q = torch.rad2deg(self.q)
+        if self.prismatic is not None:
+            q = torch.where(self.prismatic.to(q.device), self.q, q)
+        cols = [q, self.positions,
                 torch.stack([self.err_lower, self.err_upper], dim=-1).reshape(-1, 6),
                 self.dist_lower[:, None], self.dist_upper[:, None], self.eta[:, None], self.r_set[:, None]]
         data = torch.cat([c.detach().to("cpu", torch.float64) for c in cols], dim=1).numpy()
@@ -251,8 +260,10 @@ class SweepResult:
         return atomic_write(path, self.to_csv_text(), force=force)
 
     @classmethod
-    def from_csv(cls, path, device=None) -> "SweepResult":
+    def from_csv(cls, path, device=None, prismatic=None) -> "SweepResult":
         """Read a sweep CSV (linearised bounds, allowed_mm, n_samples are not stored: None).
+
+        prismatic: optional (n,) bool, joints whose q column is mm (kept), not degrees.
 
         One InputError naming the file, row (file line) and column for a bad header, a
         ragged row, a non-numeric or non-finite value, or an R_set outside [0, 1].
@@ -303,10 +314,14 @@ class SweepResult:
         t = torch.from_numpy(data).to(device)
         k = n
         q = torch.deg2rad(t[:, :k])
+        if prismatic is not None:
+            prismatic = torch.as_tensor(prismatic, dtype=torch.bool, device=q.device)
+            q = torch.where(prismatic, t[:, :k], q)
         e = t[:, k + 3:k + 9].reshape(-1, 3, 2)
         return cls(q=q, positions=t[:, k:k + 3], err_lower=e[..., 0].contiguous(),
                    err_upper=e[..., 1].contiguous(), dist_lower=t[:, k + 9], dist_upper=t[:, k + 10],
-                   eta=t[:, k + 11], r_set=t[:, k + 12], point=torch.from_numpy(ids).to(device))
+                   eta=t[:, k + 11], r_set=t[:, k + 12], point=torch.from_numpy(ids).to(device),
+                   prismatic=prismatic)
 
 
 def _envelope(robot, q, dev, include_nominal, chunk, bar, threads):
@@ -319,6 +334,7 @@ def _envelope(robot, q, dev, include_nominal, chunk, bar, threads):
     table = robot.table.to(q)
     base, tool = robot.base.to(q), robot.tool.to(q)
     tool_point = tool[:3, 3]
+    pris = robot.pris
     N, M = q.shape[0], dev.shape[0]
     F = K.outer_factors(table, dev)
     R = base[:3, :3]
@@ -337,14 +353,18 @@ def _envelope(robot, q, dev, include_nominal, chunk, bar, threads):
             bufs = local.bufs = [torch.empty(n_step, m_step, dtype=q.dtype, device=q.device) for _ in range(7)]
         a1 = min(N, a0 + n_step)
         qc = q[a0:a1]
-        nom = K._positions_kernel(qc, table, None, None, tool_point)  # (Nc, 3), joint-1 frame
+        nom = K._positions_kernel(qc, table, None, None, tool_point, prismatic=pris)  # (Nc, 3), joint-1 frame
+        tz = None
+        if pris is not None:  # a prismatic joint's travel adds to d, its rotation is 0
+            tz = [qc[:, i] if p else None for i, p in enumerate(pris.tolist())]
+            qc = qc.masked_fill(pris, 0.0)
         cq, sq = torch.cos(qc).T.contiguous(), torch.sin(qc).T.contiguous()  # (n, Nc)
         lo = hi = dlo = dhi = None
         for b0 in range(0, M, m_step):
             b1 = min(M, b0 + m_step)
             views = [t[:a1 - a0, :b1 - b0] for t in bufs]
             Fc = [f[:, b0:b1] for f in F]
-            ex, ey, ez = K.outer_positions(cq, sq, Fc, tool_point, views)
+            ex, ey, ez = K.outer_positions(cq, sq, Fc, tool_point, views, tz)
             ex.sub_(nom[:, 0:1]), ey.sub_(nom[:, 1:2]), ez.sub_(nom[:, 2:3])
             if rotate:  # error vectors into the world frame
                 ex, ey, ez = (R[k, 0] * ex + R[k, 1] * ey + R[k, 2] * ez for k in range(3))
@@ -384,7 +404,7 @@ def linear_bounds(robot, q: torch.Tensor, dev_box: Interval, chunk: int = 1024, 
     hi, far = torch.empty_like(lo), torch.empty(N, dtype=q.dtype, device=q.device)
 
     def work(a):
-        J = K.param_jacobian(q[a:a + chunk], table, None, base, tool)  # (Nc, 3, 5n)
+        J = K.param_jacobian(q[a:a + chunk], table, None, base, tool, prismatic=robot.pris)  # (Nc, 3, 5n)
         h = linear_hull(J, flat)
         lo[a:a + chunk], hi[a:a + chunk] = h.lower, h.upper
         far[a:a + chunk] = torch.maximum(h.lower.abs(), h.upper.abs()).square().sum(-1).sqrt()
@@ -515,4 +535,4 @@ def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_m
     return SweepResult(q=q, positions=positions, err_lower=e_lo, err_upper=e_hi, dist_lower=d_lo,
                        dist_upper=d_hi, eta=et, r_set=rs, lin_lower=lin_lo, lin_upper=lin_hi,
                        lin_dist_upper=lin_far, allowed_mm=float(allowed_mm), n_samples=deviations.shape[0],
-                       r_set_axis=rs_axis, eta_axis=et_axis)
+                       r_set_axis=rs_axis, eta_axis=et_axis, prismatic=rb.pris)

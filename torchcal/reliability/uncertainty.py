@@ -34,6 +34,20 @@ dtheta_2. That frame turns with q1, which changes nothing: the set of clearance 
 (a product of discs about the axis) and their distribution are invariant under rotations
 about the axis. The map is linear and constant: deviations (M, n, 5) = states (M, 4n) @ D^T.
 
+Prismatic joints (q adds to d, A_j = Rz(theta) Tz(d + q) ...): a slide j >= 2 is a rod
+in two bushings of link j-1 (the seats are fixed on the link carrying the hole, as for a
+revolute joint). The rod's axis is then the fixed line through the two seat offsets, and
+the rod travels along it: link j-1's end frame, then the axis motion, then Tz(d + q). The
+motion sits before the slide's translation exactly where it sits before a revolute
+joint's rotation, and the by-products along / about z (dd_j, dtheta_j) commute with
+Tz(q) as they do with Rz(q): the map above holds unchanged, constant in q. A prismatic
+joint 1 (a linear track) has no link before it, and a motion fixed in the base frame
+pushed through Tz(d + q) would change with q (the tilt times the travel): we model it as
+a carriage whose bearing seats ride on the rail, so the motion is fixed in the frame
+after Rz(theta) Tz(d + q) (pivot at the carriage) and produced, as for a revolute joint 1,
+by link 1's deviations plus dd_2 and dtheta_2. tests/test_clearance_prismatic.py checks
+both against the exact rigid motions inserted into the FK chain (second-order agreement).
+
 `box` is the exact per-component bound of the deviations over all clearance states (max
 of a linear function over a product of discs), plus the optional manufacturing
 tolerance box, as an `Interval` (n, 5).
@@ -141,11 +155,21 @@ class ClearanceModel:
 
     @classmethod
     def defaults(cls, robot) -> "ClearanceModel":
-        """The default model of a preset: Table 2 and KR1000_BEARING_LENGTH_MM for kr1000titan."""
-        if robot.name != "kr1000titan":
-            raise InputError(f"no default clearance model for robot {robot.name!r} (only kr1000titan, "
-                             f"docs/paper.md Table 2); build a ClearanceModel(radii_mm, clearance_mm, bearing_length_mm)")
+        """The robot's clearance model: its robot file's "clearance" section (`Robot.clearance`)
+        if it has one, else Table 2 and KR1000_BEARING_LENGTH_MM for the kr1000titan preset;
+        any other robot: InputError naming the two ways to give one."""
+        if robot.clearance is not None:
+            return clearance_from_dict(robot.clearance, f"robot {robot.name!r}: clearance", robot.n)
+        if robot.name != "kr1000titan" or robot.n != 6 or bool(robot.prismatic.any()):
+            raise InputError(f"no default clearance model for robot {robot.name!r} (only the kr1000titan preset has one): "
+                             f"add a \"clearance\" section to its robot file or pass --clearance FILE.json "
+                             f"(keys radii_mm, clearance_mm, bearing_length_mm; docs/robots.md)")
         return cls(KR1000_RADII_MM, KR1000_CLEARANCE_MM, KR1000_BEARING_LENGTH_MM)
+
+    def to_dict(self) -> dict:
+        """The "clearance" section / --clearance file of this model (mm; no tolerance box)."""
+        return {"radii_mm": list(self.radii_mm), "clearance_mm": list(self.clearance_mm),
+                "bearing_length_mm": list(self.bearing_length_mm), "mode": self.mode}
 
     def max_shift_mm(self) -> torch.Tensor:
         """(n,) largest radial shift of each joint axis, (c_1 + c_2) / 2."""
@@ -169,6 +193,40 @@ class ClearanceModel:
 
     def box(self, robot) -> Interval:
         return box(robot, self)
+
+
+CLEARANCE_KEYS = ("radii_mm", "clearance_mm", "bearing_length_mm", "mode")
+
+
+def clearance_from_dict(obj, where: str, n: int | None = None) -> ClearanceModel:
+    """The `ClearanceModel` of a robot file's "clearance" section or a --clearance file.
+
+    obj: {"radii_mm": [2n], "clearance_mm": [2n], "bearing_length_mm": [n], "mode":
+    "contact" | "disc" (optional)}, mm; seats 2j-1 and 2j (1-based) belong to joint j.
+    radii_mm is informative (the kinematics depend on clearance and length only) and may
+    be left out (then 0). n: the robot's joint count, checked when given. One InputError
+    line naming `where` and the key on any mistake.
+    """
+    if not isinstance(obj, dict):
+        raise InputError(f"{where}: expected an object with keys radii_mm, clearance_mm, bearing_length_mm[, mode]")
+    unknown = sorted(set(obj) - set(CLEARANCE_KEYS))
+    if unknown:
+        raise InputError(f"{where}: unknown key(s) {', '.join(unknown)}; expected {', '.join(CLEARANCE_KEYS)}")
+    for key in ("clearance_mm", "bearing_length_mm"):
+        if key not in obj:
+            raise InputError(f"{where}: missing key {key!r}")
+    for key in ("radii_mm", "clearance_mm", "bearing_length_mm"):
+        v = obj.get(key, [])
+        if not isinstance(v, list) or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+            raise InputError(f"{where}: {key}: expected a list of numbers (mm)")
+    m = len(obj["bearing_length_mm"])
+    if n is not None and m != n:
+        raise InputError(f"{where}: bearing_length_mm: expected one length per joint ({n}), got {m}")
+    radii = obj.get("radii_mm", [0.0] * (2 * m))
+    try:
+        return ClearanceModel(radii, obj["clearance_mm"], obj["bearing_length_mm"], obj.get("mode", "contact"))
+    except InputError as exc:
+        raise InputError(f"{where}: {exc}") from None
 
 
 def _check_robot(robot, model: ClearanceModel):
@@ -240,8 +298,12 @@ def deviation_map(robot, model: ClearanceModel) -> torch.Tensor:
         xi = C.reshape(6, 4)
         if j == 0:
             host = 0
-            # frame turning with joint 1 -> link 1's end frame: S = Tz(d) Tx(a) Rx(alpha) Ry(beta)
-            S = K.link_transforms(-table[:1, 0], table[:1])[0]
+            # frame turning with joint 1 -> link 1's end frame: S = Tz(d) Tx(a) Rx(alpha) Ry(beta);
+            # a prismatic joint 1 (carriage): frame after Rz(theta) Tz(d + q) -> S = Tx(a) Rx(alpha) Ry(beta)
+            row = table[:1].clone()
+            if bool(robot.prismatic[0]):
+                row[0, 1] = 0.0
+            S = K.link_transforms(-row[:, 0], row)[0]
             R, pos = S[:3, :3], S[:3, 3]
             v, w = xi[:3], xi[3:]
             xi = torch.cat([R.T @ (v + torch.linalg.cross(w.T, pos.expand(4, 3)).T), R.T @ w])
@@ -249,6 +311,12 @@ def deviation_map(robot, model: ClearanceModel) -> torch.Tensor:
             host = j - 1
         G = _link_twist_columns(table[host])
         p, nxt = _solve_twist(G, xi)  # (5, 4), (2, 4)
+        ez = torch.zeros(6, 2, dtype=torch.float64)
+        ez[5, 0], ez[2, 1] = 1.0, 1.0
+        if (G @ p + ez @ nxt - xi).abs().max() > 1e-9 * xi.abs().max():
+            raise InputError(f"robot {robot.name!r}: the clearance motion of joint {j + 1}'s axis has no MD-H "
+                             f"deviation of link {host + 1} (axes {host + 1} and {host + 2} coincide: parallel "
+                             f"with a = 0); move one axis or drop that joint's clearance")
         D[host, :, 2 * j:2 * j + 2, :] += p.reshape(5, 2, 2)
         # the next link's dtheta / dd act about / along z of the host's end frame and
         # supply the z parts of xi that the host's deviations leave over (or cancel theirs)

@@ -45,6 +45,9 @@ class Robot:
         gravity: (3,) unit vector of gravity in the world (base) frame.
         prismatic: (n,) bool, prismatic joints (None: all revolute).
         urdf: {"path", "base_link", "tip_link"} when imported from a URDF, else None.
+        clearance: the robot file's optional "clearance" section (validated dict with
+            radii_mm, clearance_mm, bearing_length_mm[, mode]; mm), the joint-clearance
+            model of `torchcal sweep` (torchcal.reliability.uncertainty), else None.
     """
 
     name: str
@@ -57,6 +60,7 @@ class Robot:
     gravity: torch.Tensor = field(default_factory=lambda: torch.tensor([0.0, 0.0, -1.0], dtype=torch.float64))
     prismatic: torch.Tensor | None = None
     urdf: dict | None = None
+    clearance: dict | None = None
 
     def __post_init__(self):
         if self.prismatic is None:
@@ -122,7 +126,7 @@ class Robot:
             return t.to(device=device, dtype=dtype if t.is_floating_point() else None)
         return Robot(self.name, mv(self.table), self.has_beta.to(device), mv(self.limits),
                      mv(self.base), mv(self.tool), self.payload_kg, mv(self.gravity),
-                     self.prismatic.to(device), self.urdf)
+                     self.prismatic.to(device), self.urdf, self.clearance)
 
     # -- validation -----------------------------------------------------------------
     def check_q(self, q, name: str = "q") -> torch.Tensor:

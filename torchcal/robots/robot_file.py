@@ -9,7 +9,11 @@
      "base": 4x4 (mm, optional), "tool": 4x4 (mm, optional), "payload_kg": f (optional),
      "gravity": [gx, gy, gz] (optional unit vector in the base frame, default [0, 0, -1]),
      "urdf": {"path", "base_link", "tip_link"} (optional, written by `torchcal robot import`),
-     "effects": [...] (optional, informational, written by `torchcal export`)}
+     "effects": [...] (optional, informational, written by `torchcal export`),
+     "clearance": {"radii_mm": [2n], "clearance_mm": [2n], "bearing_length_mm": [n],
+                   "mode": "contact" | "disc"} (optional: the joint-clearance model of
+                   `torchcal sweep`, mm, seats 2j-1 and 2j belong to joint j; radii_mm and
+                   mode may be left out; torchcal.reliability.uncertainty)}
 
 MD-H link transform A_i = Rz(theta) Tz(d) Tx(a) Rx(alpha) Ry(beta). A revolute joint's q
 (rad inside, degrees in files) adds to theta; a prismatic joint's q (mm) adds to d.
@@ -28,7 +32,7 @@ from torchcal.errors import InputError
 from torchcal.robots.robot import Robot
 
 JOINT_KEYS = {"type", "theta_offset_deg", "d_mm", "a_mm", "alpha_deg", "beta_deg", "lower", "upper"}
-TOP_KEYS = {"name", "joints", "base", "tool", "payload_kg", "gravity", "urdf", "effects"}
+TOP_KEYS = {"name", "joints", "base", "tool", "payload_kg", "gravity", "urdf", "effects", "clearance"}
 URDF_KEYS = {"path", "base_link", "tip_link"}
 
 
@@ -116,9 +120,14 @@ def robot_from_dict(obj, where: str = "robot file") -> Robot:
             raise InputError(f"{where}: urdf: expected {{\"path\", \"base_link\", \"tip_link\"}} (strings)")
     if "effects" in obj and not isinstance(obj["effects"], list):
         raise InputError(f"{where}: effects: expected a list (informational, written by torchcal export)")
+    clearance = None
+    if "clearance" in obj:
+        from torchcal.reliability.uncertainty import clearance_from_dict
+
+        clearance = clearance_from_dict(obj["clearance"], f"{where}: clearance", len(rows)).to_dict()
     return Robot(name, torch.tensor(rows, dtype=torch.float64), torch.tensor(has_beta),
                  torch.tensor(limits, dtype=torch.float64), base, tool, payload, gravity,
-                 torch.tensor(pris), None if urdf is None else dict(urdf))
+                 torch.tensor(pris), None if urdf is None else dict(urdf), clearance)
 
 
 def robot_to_dict(robot: Robot, effects=None) -> dict:
@@ -140,6 +149,8 @@ def robot_to_dict(robot: Robot, effects=None) -> dict:
            "payload_kg": float(r.payload_kg), "gravity": r.gravity.tolist()}
     if r.urdf is not None:
         obj["urdf"] = dict(r.urdf)
+    if r.clearance is not None:
+        obj["clearance"] = dict(r.clearance)
     if effects:
         obj["effects"] = list(effects)
     return obj

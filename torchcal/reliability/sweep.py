@@ -35,7 +35,7 @@ Table 2 clearances, bearing length = shaft diameter, 200, 137, 99, 75.6, 60, 50 
 D = 2.5 mm, 100 points x 300 sets (seed 0) give R_set from 0.72 to 1, about half the
 points at 1, as in the paper's Table 3 (0.685 .. 1).
 
-Units: q rad inside, degrees in the CSV; positions and errors mm. Every tensor stays
+Units: q rad (mm for a prismatic joint) inside, degrees (mm) in the CSV; positions and errors mm. Every tensor stays
 on `device`.
 """
 

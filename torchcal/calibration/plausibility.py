@@ -58,10 +58,11 @@ def check_units(m, robot, length_unit: str = "mm", angle_unit: str = "deg", wher
     check could not judge).
     """
     pre = f"{where}: " if where else ""
-    q = m.q.detach().to("cpu", torch.float64)
+    rev = ~robot.prismatic.cpu()  # a prismatic joint's q is a length (mm), never an angle
+    q = m.q.detach().to("cpu", torch.float64)[..., rev]
     qmax_file = float(q.abs().max()) if q.numel() else 0.0  # rad inside
-    if angle_unit == "rad":
-        lim = float(robot.limits.detach().abs().max())
+    if angle_unit == "rad" and q.numel():
+        lim = float(robot.limits.detach().cpu()[rev].abs().max())
         bound = max(2 * math.pi, lim) + 0.01
         if qmax_file > bound:
             raise InputError(f"{pre}joint angles reach {qmax_file:.4g} rad, beyond what a joint can "
@@ -79,7 +80,7 @@ def check_units(m, robot, length_unit: str = "mm", angle_unit: str = "deg", wher
     out.update(measured_spread_mm=s_meas, nominal_spread_mm=s_nom, ratio=ratio)
     spreads = (f"the measured points spread {s_meas:.4g} mm (RMS distance to their centroid), "
                f"the nominal {robot.name} at these joint angles {s_nom:.4g} mm")
-    if angle_unit == "deg" and math.degrees(qmax_file) <= 2 * math.pi + 1e-9 and ratio > RAD_RATIO:
+    if angle_unit == "deg" and q.numel() and math.degrees(qmax_file) <= 2 * math.pi + 1e-9 and ratio > RAD_RATIO:
         raise InputError(f"{pre}every joint angle lies within +-{math.degrees(qmax_file):.4g} deg and "
                          f"{spreads}: the joint angles look like radians read as degrees; "
                          "pass --angle-unit rad")

@@ -2,7 +2,7 @@
 that make the calibrated model reach each target (torchcal.calibration.compensate).
 
 TARGETS.csv: header ``x,y,z`` (mm, robot base frame; --length-unit m for metres) and
-optionally ``q1..qN`` (degrees, mm for a prismatic joint; --angle-unit rad), ``payload_kg``
+optionally ``q1..qN`` (degrees, mm for a prismatic joint; --angle-unit rad, --length-unit m), ``payload_kg``
 and ``temp_c`` (the conditions of each move, needed by load- and temperature-dependent effects):
 the seed of each target, normally the command that nominally reaches it. Without seeds
 the nominal inverse is solved first from a default seed (joint 1 turned towards the
@@ -45,9 +45,12 @@ def add_parser(sub):
     return p
 
 
-def read_targets(path, n: int, length_unit: str = "mm", angle_unit: str = "deg"):
-    """(targets (M, 3) mm, seeds (M, n) deg or None, extra {"payload_kg", "temp_c": (M,) or
-    None}) from the CSV; InputError naming line and column."""
+def read_targets(path, n: int, length_unit: str = "mm", angle_unit: str = "deg", prismatic=None):
+    """(targets (M, 3) mm, seeds (M, n) deg (mm for a prismatic joint) or None, extra
+    {"payload_kg", "temp_c": (M,) or None}) from the CSV; InputError naming line and column.
+
+    prismatic: optional (n,) bool; those seed columns are lengths in `length_unit`, the
+    others angles in `angle_unit`."""
     import torch
 
     from torchcal.io.measurement_csv import LENGTH_UNITS
@@ -74,6 +77,7 @@ def read_targets(path, n: int, length_unit: str = "mm", angle_unit: str = "deg")
         raise InputError(f"{path}: unknown column(s) {','.join(unknown)}; "
                          f"expected x,y,z[,q1..q{n}][,payload_kg][,temp_c]")
     extra = {c: [] for c in opt}
+    slides = [False] * n if prismatic is None else [bool(p) for p in prismatic]
     idx = {h: i for i, h in enumerate(header)}
     xyz, qs = [], []
     for line, row in enumerate(rows[1:], start=2):
@@ -93,7 +97,8 @@ def read_targets(path, n: int, length_unit: str = "mm", angle_unit: str = "deg")
             return v
         xyz.append([num(c, length_unit) for c in ("x", "y", "z")])
         if has_q:
-            qs.append([num(c, "degrees" if angle_unit == "deg" else "rad") for c in qcols])
+            qs.append([num(c, length_unit if p else ("degrees" if angle_unit == "deg" else "rad"))
+                       for c, p in zip(qcols, slides)])
         for c in opt:
             v = num(c, "kg" if c == "payload_kg" else "degC")
             if c == "payload_kg" and v < 0:
@@ -107,6 +112,9 @@ def read_targets(path, n: int, length_unit: str = "mm", angle_unit: str = "deg")
         seeds = torch.tensor(qs, dtype=torch.float64)
         if angle_unit == "rad":
             seeds = torch.rad2deg(seeds)
+        if prismatic is not None:  # a slide's seed is a length, never an angle
+            pris = torch.as_tensor(prismatic, dtype=torch.bool).cpu()
+            seeds = torch.where(pris, torch.tensor(qs, dtype=torch.float64) * LENGTH_UNITS[length_unit], seeds)
     cond = {c: (torch.tensor(extra[c], dtype=torch.float64) if c in extra else None)
             for c in ("payload_kg", "temp_c")}
     return t, seeds, cond
@@ -153,7 +161,7 @@ def run(args) -> int:
     from torchcal.robots.robot_file import check_same_robot
 
     check_same_robot(robot, load_robot(args.robot), str(args.model))
-    targets, seeds_deg, cond = read_targets(args.targets, robot.n, **units(args))
+    targets, seeds_deg, cond = read_targets(args.targets, robot.n, **units(args), prismatic=robot.prismatic)
     # the model's effects must find what they read (temp_c, payload_kg) in the targets
     probe = make_context(robot, robot.limits.mean(-1).expand(targets.shape[0], robot.n),
                          cond["payload_kg"], cond["temp_c"])

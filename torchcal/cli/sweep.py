@@ -12,7 +12,7 @@ revolute and prismatic joints (q in mm in the CSV for a prismatic joint).
 
     point,q1..qN,x,y,z,ex_lo,ex_hi,ey_lo,ey_hi,ez_lo,ez_hi,dist_lo,dist_hi,eta,r_set
 
-``point`` is the 0-based row index, q in degrees, x y z the nominal TCP position (mm),
+``point`` is the 0-based row index, q in degrees (mm: prismatic), x y z the nominal TCP position (mm),
 e* the error interval per axis and dist_* the distance-error interval (mm), eta (eq. 23)
 and r_set (eq. 24) against the allowed distance error [0, --allowed] mm. Prints a short
 summary (R_set min / median / max, share of points with R_set = 1) on stdout.

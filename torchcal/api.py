@@ -99,13 +99,7 @@ def fit(robot_or_model, measurements, effects=(), robust: str | None = None, max
     if isinstance(robot_or_model, (CalibrationModel, FitResult)):
         model = _model(robot_or_model, effects)
     else:
-        specs = [str(s) for s in effects]
-        points = None if m.point is None else sorted(set(m.point.tolist()))
-        if points is not None and len(points) > 1 and not any(s.split(":")[0] == "tool_offset" for s in specs):
-            where = m.source or "measurements"
-            raise InputError(f"{where}: {len(points)} measured points per pose (point column) need "
-                             "one tool offset each: add tool_offset to --effects")
-        model = CalibrationModel(robot, specs, points=points)
+        model = CalibrationModel.for_measurements(robot, effects, m)
     ctx = context_of(model.robot, m)
     return fit_model(model, ctx, m.xyz, robust=robust, max_iter=max_iter, pose=m.pose, rotation=m.rotation,
                      sigma_mm=sigma_mm, sigma_deg=sigma_deg, max_length_mm=max_length_mm,

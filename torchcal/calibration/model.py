@@ -43,6 +43,20 @@ class CalibrationModel:
         bounds = torch.tensor([0] + sizes).cumsum(0).tolist()
         self.slices = [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
 
+    @classmethod
+    def for_measurements(cls, robot: Robot, effects, m) -> "CalibrationModel":
+        """The model of `effects` for the data `m` (`Measurements`): with several `point`
+        ids, one tool offset per point (InputError when `effects` lacks tool_offset), so
+        that fit, diagnose and discover start from the same model."""
+        from torchcal.errors import InputError
+
+        specs = [str(s) for s in effects]
+        points = None if m.point is None else sorted(set(m.point.tolist()))
+        if points is not None and len(points) > 1 and not any(s.split(":")[0] == "tool_offset" for s in specs):
+            raise InputError(f"{m.source or 'measurements'}: {len(points)} measured points per pose (point column) "
+                             "need one tool offset each: add tool_offset to --effects")
+        return cls(robot, specs, points=points)
+
     @property
     def n_params(self) -> int:
         return self.slices[-1].stop

@@ -303,7 +303,7 @@ def _spec(name, joints):
 
 def candidate_columns(robot, base_model: CalibrationModel, theta, ctx, spec: str) -> np.ndarray:
     """d model / d candidate parameters at theta (3N, k), the candidate's values at zero."""
-    aug = CalibrationModel(robot, base_model.specs() + [spec])
+    aug = CalibrationModel(robot, base_model.specs() + [spec], points=base_model.points or None)
     k = aug.n_params - base_model.n_params
     if k == 0:  # an effect with no parameters here (e.g. a user effect on joint 1): nothing to add
         return np.zeros((3 * ctx.n_rows, 0))
@@ -411,7 +411,7 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
              alpha: float = ALPHA, min_gain: float = MIN_GAIN, base_fit: FitResult | None = None) -> Diagnosis:
     """Rank the candidate effects missing from `robot` + `effects` on measurements m."""
     specs = [str(s) for s in parse_specs(list(effects), robot.n)] if effects else []
-    model = CalibrationModel(robot, specs)
+    model = CalibrationModel.for_measurements(robot, specs, m)  # one tool offset per point id
     ctx = context_of(robot, m)
     if base_fit is None:
         base_fit = fit(model, ctx, m.xyz)
@@ -546,7 +546,7 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
     specs = [str(s) for s in parse_specs(list(effects), robot.n)] if effects else []
     history, diagnoses = [], []
     ctx = context_of(robot, m)
-    base = fit(CalibrationModel(robot, specs), ctx, m.xyz)
+    base = fit(CalibrationModel.for_measurements(robot, specs, m), ctx, m.xyz)
     for i in range(max_rounds + 1):
         d = diagnose(robot, m, specs, folds=folds, seed=seed, base_fit=base, alpha=alpha / 2 ** (i + 1))
         diagnoses.append(d)
@@ -554,5 +554,5 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
         if d.verdict is None or len(history) > max_rounds:
             break
         specs = [str(s) for s in parse_specs(specs + [d.verdict.spec], robot.n)]
-        base = fit(CalibrationModel(robot, specs), ctx, m.xyz)
+        base = fit(CalibrationModel.for_measurements(robot, specs, m), ctx, m.xyz)
     return Discovery(history, specs, base, diagnoses, unexplained(robot, m, base.residuals, seed=seed))

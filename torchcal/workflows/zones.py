@@ -56,6 +56,10 @@ def calibrate(model: CalibrationModel, meas, partition=None, zone_method: str = 
     partition: a `torchcal.partition.zones.Partition` or None (global only).
     Returns (`IntervalModel`, the global `IntervalFit`).
     """
+    if meas.point is not None and len(set(meas.point.tolist())) > 1:
+        raise InputError(f"{meas.source or 'measurements'}: interval calibration groups the rows of a pose into "
+                         "one interval per axis, which several measured points per pose (point column) would "
+                         "mix; use fit / discover (one tool offset per point), or one point id per file")
     data = pose_intervals(meas, min_repeats=2)
     glob = identify_zones(model, [data])[0]
     if partition is None:

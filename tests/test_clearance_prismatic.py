@@ -242,3 +242,13 @@ def test_coincident_axes_are_refused():
     r = robot_from_dict({**ROBOT, "joints": joints, "clearance": CLEARANCE})
     with pytest.raises(InputError, match="joint 1's axis has no MD-H deviation of link 1 \\(axes 1 and 2 coincide"):
         ClearanceModel.defaults(r).sample(r, 3)
+
+
+def test_simulated_clearance_takes_the_robot_files_model(robot):
+    """VirtualRobot's joint_clearance: the tilt of the robot file's clearance section, (c1 + c2) / L."""
+    from torchcal.simulation.virtual_robot import VirtualRobot
+
+    vr = VirtualRobot(robot, ["joint_clearance:2,5"], seed=0)
+    for j in (2, 5):
+        c = CLEARANCE["clearance_mm"][2 * j - 2] + CLEARANCE["clearance_mm"][2 * j - 1]
+        assert vr.clearance_tilt_max[j] == pytest.approx(c / CLEARANCE["bearing_length_mm"][j - 1], rel=1e-12)

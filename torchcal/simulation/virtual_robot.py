@@ -15,7 +15,8 @@ Sizes (defaults; all drawn from the robot's own seeded generator):
   random otherwise (harmonic phases, backlash, scale, base and tool);
 - joint_clearance: each listed axis can tilt up to t_max inside its bearing: for
   kr1000titan t_max = (c_1 + c_2) / L from docs/paper.md Table 2 (`torchcal.reliability.uncertainty`),
-  for other robots the tilt that moves the TCP by `effect_mm`. The load pushes the axis
+  the same from the "clearance" section of a robot file that has one, for other robots the
+  tilt that moves the TCP by `effect_mm`. The load pushes the axis
   to one side by (1 - clearance_random) t_max (the deterministic part) and the rest,
   clearance_random t_max, is a random tilt per move, uniform in a disk perpendicular to
   the axis;
@@ -141,7 +142,8 @@ class VirtualRobot:
                 p = torch.full((e.n_params,), 1.2e-5, dtype=torch.float64)
             elif e.name == "joint_clearance":
                 p = torch.tensor([1.0, 0.02] * len(e.joints), dtype=torch.float64)  # tilt rad, shift mm
-                if robot.name == "kr1000titan":  # docs/paper.md Table 2, physical size
+                if robot.clearance is not None or robot.name == "kr1000titan":  # the robot's clearance
+                    # model (robot file "clearance" section; kr1000titan: docs/paper.md Table 2), physical size
                     cm = ClearanceModel.defaults(robot)
                     tilt, shift = cm.max_tilt_rad(), cm.max_shift_mm()
                     p = torch.stack([torch.stack([tilt[j - 1], shift[j - 1]]) for j in e.joints]).reshape(-1)

@@ -150,6 +150,26 @@ def _variance_loglik(r3: np.ndarray, Bs: np.ndarray | None, logp: np.ndarray) ->
     return -0.5 * (logdet + quad + 3 * np.log(2 * np.pi))
 
 
+def _mm(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Batched small matrix product a @ b by broadcasting (CPU matmul loops over tiny batches)."""
+    return (a.unsqueeze(-1) * b.unsqueeze(-3)).sum(-2)
+
+
+def _mv(a: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """Batched small matrix-vector product a @ v, a (..., i, j), v (..., j)."""
+    return (a * v.unsqueeze(-2)).sum(-1)
+
+
+def _inv3(S: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Inverse (..., 3, 3) and determinant (...) of symmetric 3 x 3 matrices, closed form."""
+    a, b, c = S[..., 0, 0], S[..., 0, 1], S[..., 0, 2]
+    d, e, f = S[..., 1, 1], S[..., 1, 2], S[..., 2, 2]
+    A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
+    det = a * A + b * B + c * C
+    adj = torch.stack([A, B, C, B, a * f - c * c, b * c - a * e, C, b * c - a * e, a * d - b * b], -1)
+    return (adj / det.unsqueeze(-1)).reshape(S.shape), det
+
+
 def _variance_start(r3: torch.Tensor, Bs: torch.Tensor | None, w: torch.Tensor, K: int):
     """Start and bounds (G, 1 + K) of the log variances: log sigma^2 at the log mean
     square, within [-9, +5] of it; each log tau^2 where its rows' mean |B|_F^2 tau^2
@@ -176,9 +196,11 @@ def fit_variances(r3: torch.Tensor, Bs: torch.Tensor | None, w: torch.Tensor | N
     j-th pair of columns. Isotropic: the closed form (log mean square). Else a projected
     Newton method on x within the bounds of `_variance_start`, with the analytic gradient
     and Hessian of ``0.5 sum_m w_m (log det S_m + r_m^T S_m^-1 r_m)`` (the expected,
-    Fisher, Hessian where the exact one is not positive definite) and a backtracking line
-    search, batched over G; a batch stops when its Newton decrement is below `tol` nats
-    or no step along the Newton direction decreases its negative log-likelihood.
+    Fisher, Hessian where the exact one is not positive definite), a backtracking line
+    search, and, for a tau^2 whose maximum is at zero, steps that double along its descent
+    while they gain; batched over G, with the 3 x 3 algebra in closed form. A batch stops
+    when its Newton decrement is below `tol` nats or no step along the Newton direction
+    decreases its negative log-likelihood.
     """
     G, M, _ = r3.shape
     w = torch.ones(G, M, dtype=r3.dtype) if w is None else w.to(r3.dtype)
@@ -189,25 +211,23 @@ def fit_variances(r3: torch.Tensor, Bs: torch.Tensor | None, w: torch.Tensor | N
     if not K:
         return x
     Bj = Bs.reshape(G, M, 3, K, 2).movedim(-2, -3)  # (G, M, K, 3, 2)
-    D = torch.cat([torch.eye(3, dtype=r3.dtype).expand(G, M, 1, 3, 3), Bj @ Bj.transpose(-1, -2)], 2)
+    D = torch.cat([torch.eye(3, dtype=r3.dtype).expand(G, M, 1, 3, 3), _mm(Bj, Bj.transpose(-1, -2))], 2)
 
     def nll(x):
-        S = (D * x.exp()[:, None, :, None, None]).sum(2)  # (G, M, 3, 3)
-        L, info = torch.linalg.cholesky_ex(S)
-        z = torch.linalg.solve_triangular(L, r3.unsqueeze(-1), upper=False)[..., 0]
-        val = 0.5 * (w * (2 * torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum(-1) + (z ** 2).sum(-1))).sum(-1)
-        return torch.where((info > 0).any(-1), torch.inf, val), L
+        W, det = _inv3((D * x.exp()[:, None, :, None, None]).sum(2))  # (G, M, 3, 3), (G, M)
+        quad = (r3 * _mv(W, r3)).sum(-1)
+        val = 0.5 * (w * (torch.log(det.clamp_min(1e-300)) + quad)).sum(-1)
+        return torch.where((det <= 0).any(-1), torch.inf, val), W
 
-    f, L = nll(x)
+    f, W = nll(x)
     done = torch.zeros(G, dtype=torch.bool)
     for _ in range(iters):
         v = x.exp()
-        W = torch.cholesky_inverse(L)  # (G, M, 3, 3)
-        u = (W @ r3.unsqueeze(-1))[..., 0]  # S^-1 r (G, M, 3)
-        WD = W.unsqueeze(2) @ D  # (G, M, A, 3, 3)
-        Du = (D @ u[:, :, None, :, None])[..., 0]  # (G, M, A, 3)
-        T = torch.einsum("gmaij,gmbji->gmab", WD, WD)  # tr(W D_a W D_b)
-        Q = torch.einsum("gmai,gmij,gmbj->gmab", Du, W, Du)  # u^T D_a W D_b u
+        u = _mv(W, r3)  # S^-1 r (G, M, 3)
+        WD = _mm(W.unsqueeze(2), D)  # (G, M, A, 3, 3)
+        Du = _mv(D, u.unsqueeze(2))  # (G, M, A, 3)
+        T = (WD.unsqueeze(3) * WD.transpose(-1, -2).unsqueeze(2)).sum((-2, -1))  # tr(W D_a W D_b)
+        Q = (Du.unsqueeze(3) * _mv(W.unsqueeze(2), Du).unsqueeze(2)).sum(-1)  # u^T D_a W D_b u
         gv = 0.5 * (w[..., None] * (torch.diagonal(WD, dim1=-2, dim2=-1).sum(-1) - (Du * u[:, :, None]).sum(-1))).sum(1)
         vv = v[:, :, None] * v[:, None, :]
         g = v * gv  # gradient in x
@@ -223,27 +243,35 @@ def fit_variances(r3: torch.Tensor, Bs: torch.Tensor | None, w: torch.Tensor | N
         H = torch.where(bad[:, None, None], F, H)
         dx = -torch.linalg.solve(H, g)
         dec = -(g * dx).sum(-1)  # Newton decrement, nats
-        # a tau^2 whose Newton step in tau^2 itself would cross zero heads for the lower
-        # bound, which log-space Newton steps of -1 each reach only slowly: jump there
-        hv = Hv.diagonal(dim1=-2, dim2=-1)
-        to_zero = free & (hv > 0) & (gv > 2 * v * hv)
-        to_zero[:, 0] = False
-        dx = torch.where(to_zero, lo - x, dx)
         done = done | (dec < tol)
         if bool(done.all()):
             break
-        t, searched = 1.0, done.clone()
-        for _ in range(50):
+        t, searched, x_start = 1.0, done.clone(), x
+        for k in range(50):
             xt = torch.minimum(torch.maximum(x + t * dx, lo), hi)
-            ft, Lt = nll(xt)
+            ft, Wt = nll(xt)
             ok = ~searched & (ft <= f + 1e-4 * (g * (xt - x)).sum(-1))
             x, f = torch.where(ok[:, None], xt, x), torch.where(ok, ft, f)
-            L = torch.where(ok[:, None, None, None], Lt, L)
+            W = torch.where(ok[:, None, None, None], Wt, W)
             searched = searched | ok
+            full = ok if k == 0 else full  # the full step was taken
             if bool(searched.all()):
                 break
             t /= 2
         done = done | ~searched  # no decrease along the Newton direction: optimal to rounding
+        # a tau^2 heading for zero (its maximum at the lower bound) takes Newton steps of
+        # about -1 in log tau^2 only: after a full step, go on down while it gains
+        down = torch.where(dx < -0.5, dx, 0.0)
+        down[:, 0] = 0.0
+        grow = full & (down < 0).any(-1)
+        t = 1.0
+        while bool(grow.any()) and t <= 64:
+            xt = torch.minimum(torch.maximum(x_start + dx + t * down, lo), hi)
+            ft, Wt = nll(xt)
+            grow = grow & (ft < f)
+            x, f = torch.where(grow[:, None], xt, x), torch.where(grow, ft, f)
+            W = torch.where(grow[:, None, None, None], Wt, W)
+            t *= 2
     return x
 
 

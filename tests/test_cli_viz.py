@@ -12,6 +12,7 @@ import torch
 from rerun.chunk import RrdReader
 
 import torchcal
+import torchcal.io.measurement_csv  # the fixture below uses it; nothing else imports it when this file runs alone
 import torchcal.io.files
 import torchcal.simulation.virtual_robot
 from torchcal.cli import main
@@ -70,6 +71,7 @@ def test_diagnose_rrd_and_plots(data, tmp_path, capsys):
     assert "torchcal diagnose" in text and "missing backlash:3" in text
     assert os.stat(rrd).st_mode & 0o777 == 0o666 & ~_umask()
     _png_ok(plots / "residual_vs_joints.png")
+    _png_ok(plots / "residual_vs_variables.png")
 
 
 def test_discover_rrd_and_plots(data, tmp_path):

@@ -92,3 +92,31 @@ def test_the_right_model_leaves_nothing_significant():
     u = unexplained(ROBOT, m, geometric_residuals(m))
     assert not u.significant and u.correlates_with == [], u.strengths
     assert u.noise_floor_mm == pytest.approx(u.rms_mm, rel=0.05)
+
+
+def test_residual_vs_variables_figure_orders_panels_by_strength_and_marks_the_correlate(tmp_path):
+    """Hidden backlash on joint 3, geometric fit: the file is written, the first panel is
+    approach_q3 (the variable `unexplained` finds), marked, and panels follow the strengths."""
+    import torchcal
+    from torchcal.calibration.fit import fit
+    from torchcal.calibration.model import CalibrationModel
+    from torchcal.cli._viz import _variables_png
+    from torchcal.diagnosis.unexplained import unexplained as find, variables
+    from torchcal.effects import context_of
+    from torchcal.simulation.virtual_robot import VirtualRobot, random_poses
+    from viz import figures
+
+    R = torchcal.robot("kr1000titan")
+    m = VirtualRobot(R, ["backlash:3"], seed=3).measure(random_poses(R, 120, torch.Generator().manual_seed(7)),
+                                                        noise_mm=0.02)
+    un = find(R, m, fit(CalibrationModel(R, []), context_of(R, m), m.xyz).residuals)
+    assert un.correlates_with[0][0] == "approach_q3"
+    _variables_png(tmp_path / "v.png", R, m, un, False, "test")
+    assert (tmp_path / "v.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    s = {k: v for k, (v, _) in un.strengths.items()}
+    fig = figures.residual_vs_variables_figure(variables(R, m), un.residuals, s, correlates=["approach_q3"])
+    titles = [ax.get_title() for ax in fig.axes if ax.get_visible()]
+    assert titles[0].startswith("* approach_q3")
+    shown = [float(t.split("R2 ")[1]) for t in titles]
+    assert shown == sorted(shown, reverse=True) and len(titles) == len(s)
+    assert np.allclose(fig.axes[0].lines[0].get_ydata(), np.linalg.norm(un.residuals, axis=1))

@@ -332,3 +332,55 @@ def residual_vs_joints_figure(q_rad, residual_mm, *, joint_names: Sequence[str] 
     fig.legend(handles, labels_, loc="outside lower center", ncols=len(handles), frameon=False, markerscale=2.0)
     fig.suptitle(f"{title} ({n_pts} poses, RMS {np.sqrt(np.mean(norm ** 2)):.3f} mm)")
     return fig
+
+
+def residual_vs_variables(path, values, residual_mm, strengths, *, correlates=(), title: str =
+                          "Residual against each variable, strongest dependence first",
+                          max_points: int | None = MAX_SCATTER, force: bool = False) -> Path:
+    """Write `residual_vs_variables_figure` to the PNG `path` (atomically); returns the path."""
+    C.check_output(path, force)
+    fig = residual_vs_variables_figure(values, residual_mm, strengths, correlates=correlates, title=title,
+                                       max_points=max_points)
+    return save_figure(fig, path, force)
+
+
+def residual_vs_variables_figure(values, residual_mm, strengths, *, correlates=(), title: str =
+                                 "Residual against each variable, strongest dependence first",
+                                 max_points: int | None = MAX_SCATTER) -> Figure:
+    """Residual length against every variable of `torchcal.diagnosis.unexplained` (joint
+    angles, temperature, payload, measurement order, approach direction per joint), one
+    panel per variable, ordered by strength (held-out R^2), strongest first.
+
+    Args:
+        values: {name: (N,) values} (joint angles in rad, drawn in degrees; others as given).
+        residual_mm: (N, 3) residual vectors (or (N,) lengths), mm.
+        strengths: {name: strength}; panels for the names in `values`, by strength descending.
+        correlates: names found significant: their panel titles carry "*" and a red frame.
+
+    Returns the figure; its axes are in panel order, each titled "NAME  R2 s".
+    """
+    r = C.to_numpy(residual_mm, "residual_mm")
+    norm = np.linalg.norm(r, axis=1) if r.ndim == 2 else np.abs(r)
+    names = sorted(values, key=lambda k: -float(strengths.get(k, -np.inf)))
+    idx = C.subsample(len(norm), max_points)
+    ncols = min(4, max(len(names), 1))
+    nrows = -(-max(len(names), 1) // ncols)
+    fig = _new_figure(3.8 * ncols, 2.9 * nrows + 0.6)
+    axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+    for ax, name in zip(axes, names):
+        v = np.asarray(values[name], dtype=float)
+        x = np.degrees(v) if name[:1] == "q" and name[1:].isdigit() else v
+        ax.plot(x[idx], norm[idx], ".", ms=2, color="0.35")
+        mark = name in correlates
+        ax.set_title(f"{'* ' if mark else ''}{name}  R2 {float(strengths.get(name, np.nan)):.2f}",
+                     color="red" if mark else "black", fontsize=9)
+        if mark:
+            for s in ax.spines.values():
+                s.set_color("red")
+                s.set_linewidth(2)
+        ax.set_xlabel(f"{name} (deg)" if x is not v else name, fontsize=8)
+        ax.set_ylabel("|residual| mm", fontsize=8)
+    for ax in axes[len(names):]:
+        ax.set_visible(False)
+    fig.suptitle(title)
+    return fig

@@ -28,8 +28,8 @@ import torch
 
 # PNG file names in the --plots folder, per command.
 PLOTS = {
-    "diagnose": ("residual_vs_joints.png",),
-    "discover": ("residual_vs_joints_before.png", "residual_vs_joints_after.png"),
+    "diagnose": ("residual_vs_joints.png", "residual_vs_variables.png"),
+    "discover": ("residual_vs_joints_before.png", "residual_vs_joints_after.png", "residual_vs_variables.png"),
     "demo": ("zone_map.png", "rset_histogram.png", "error_intervals.png"),
 }
 
@@ -122,6 +122,7 @@ def diagnosis_outputs(args, robot, m, d) -> None:
         figures.residual_vs_joints(pngs[0], _np(m.q), res, force=force,
                                    title=f"diagnose: residual of [{_effects_text(d.baseline_effects)}] "
                                          f"against each joint angle")
+        _variables_png(pngs[1], robot, m, d.unexplained, force, "diagnose: what the baseline + verdict leave")
     if rrd is not None:
         from viz.recording import RecordingWriter, log_residuals, log_summary
 
@@ -130,6 +131,21 @@ def diagnosis_outputs(args, robot, m, d) -> None:
             log_summary(rec, diagnosis_markdown(robot, m, d))
     for p in ([rrd] if rrd is not None else []) + pngs:
         print(f"wrote {p}")
+
+
+def _variables_png(path, robot, m, un, force: bool, what: str) -> None:
+    """Residual against every variable of `unexplained`, strongest dependence first, the
+    significant ones marked (``residual_vs_variables.png``)."""
+    from torchcal.diagnosis.unexplained import variables
+    from viz import figures
+
+    if un is None or un.residuals is None:
+        return
+    figures.residual_vs_variables(path, variables(robot, m), un.residuals,
+                                  {k: s for k, (s, _) in un.strengths.items()},
+                                  correlates=[v for v, _ in un.correlates_with], force=force,
+                                  title=f"{what}: residual against each variable, strongest dependence "
+                                        f"first (* significant)")
 
 
 # --------------------------------------------------------------------------- discover
@@ -183,6 +199,7 @@ def discovery_outputs(args, robot, m, res) -> None:
         figures.residual_vs_joints(pngs[1], q, _np(res.fit.residuals), force=force,
                                    title=f"discover, after ({_effects_text(res.final_effects)}): residual "
                                          f"against each joint angle")
+        _variables_png(pngs[2], robot, m, res.unexplained, force, "discover: what the final model leaves")
     if rrd is not None:
         from viz.recording import RecordingWriter, log_discover_history, log_residuals, log_summary
 

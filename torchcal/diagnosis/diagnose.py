@@ -150,30 +150,136 @@ def _variance_loglik(r3: np.ndarray, Bs: np.ndarray | None, logp: np.ndarray) ->
     return -0.5 * (logdet + quad + 3 * np.log(2 * np.pi))
 
 
+def _mm(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Batched small matrix product a @ b by broadcasting (CPU matmul loops over tiny batches)."""
+    return (a.unsqueeze(-1) * b.unsqueeze(-3)).sum(-2)
+
+
+def _mv(a: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """Batched small matrix-vector product a @ v, a (..., i, j), v (..., j)."""
+    return (a * v.unsqueeze(-2)).sum(-1)
+
+
+def _inv3(S: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Inverse (..., 3, 3) and determinant (...) of symmetric 3 x 3 matrices, closed form."""
+    a, b, c = S[..., 0, 0], S[..., 0, 1], S[..., 0, 2]
+    d, e, f = S[..., 1, 1], S[..., 1, 2], S[..., 2, 2]
+    A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
+    det = a * A + b * B + c * C
+    adj = torch.stack([A, B, C, B, a * f - c * c, b * c - a * e, C, b * c - a * e, a * d - b * b], -1)
+    return (adj / det.unsqueeze(-1)).reshape(S.shape), det
+
+
+def _variance_start(r3: torch.Tensor, Bs: torch.Tensor | None, w: torch.Tensor, K: int):
+    """Start and bounds (G, 1 + K) of the log variances: log sigma^2 at the log mean
+    square, within [-9, +5] of it; each log tau^2 where its rows' mean |B|_F^2 tau^2
+    equals that mean square, within [-30, +10] of it."""
+    n = w.sum(-1).clamp_min(1.0)
+    ls2 = torch.log((((r3 ** 2).mean(-1) * w).sum(-1) / n).clamp_min(1e-300))  # (G,)
+    if not K:
+        return ls2[:, None], None, None
+    bb = ((Bs ** 2).sum((-2, -1)) * w).sum(-1) / n  # (G,)
+    lt = ls2 - 2 * torch.log(bb.sqrt().clamp_min(1e-12))
+    x0 = torch.cat([ls2[:, None], lt[:, None].expand(-1, K)], -1)
+    lo = torch.cat([(ls2 - 9)[:, None], (lt - 30)[:, None].expand(-1, K)], -1)
+    hi = torch.cat([(ls2 + 5)[:, None], (lt + 10)[:, None].expand(-1, K)], -1)
+    return x0, lo, hi
+
+
+def fit_variances(r3: torch.Tensor, Bs: torch.Tensor | None, w: torch.Tensor | None = None,
+                  iters: int = 100, tol: float = 1e-10) -> torch.Tensor:
+    """Maximum-likelihood log variances (G, 1 + K) of G sets of residual rows at once.
+
+    r3 (G, M, 3) mm; Bs (M, 3, 2K) or (G, M, 3, 2K), mm per mrad (None or no columns:
+    isotropic only); w (G, M) row weights (1: the row counts, 0: it does not; default
+    all 1). Row m has covariance ``S_m = exp(x_0) I + sum_j exp(x_j) B_j B_j^T``, B_j its
+    j-th pair of columns. Isotropic: the closed form (log mean square). Else a projected
+    Newton method on x within the bounds of `_variance_start`, with the analytic gradient
+    and Hessian of ``0.5 sum_m w_m (log det S_m + r_m^T S_m^-1 r_m)`` (the expected,
+    Fisher, Hessian where the exact one is not positive definite), a backtracking line
+    search, and, for a tau^2 whose maximum is at zero, steps that double along its descent
+    while they gain; batched over G, with the 3 x 3 algebra in closed form. A batch stops
+    when its Newton decrement is below `tol` nats or no step along the Newton direction
+    decreases its negative log-likelihood.
+    """
+    G, M, _ = r3.shape
+    w = torch.ones(G, M, dtype=r3.dtype) if w is None else w.to(r3.dtype)
+    K = 0 if Bs is None else Bs.shape[-1] // 2
+    if K:
+        Bs = Bs.expand(G, *Bs.shape[-3:]) if Bs.dim() == 3 else Bs
+    x, lo, hi = _variance_start(r3, Bs, w, K)
+    if not K:
+        return x
+    Bj = Bs.reshape(G, M, 3, K, 2).movedim(-2, -3)  # (G, M, K, 3, 2)
+    D = torch.cat([torch.eye(3, dtype=r3.dtype).expand(G, M, 1, 3, 3), _mm(Bj, Bj.transpose(-1, -2))], 2)
+
+    def nll(x):
+        W, det = _inv3((D * x.exp()[:, None, :, None, None]).sum(2))  # (G, M, 3, 3), (G, M)
+        quad = (r3 * _mv(W, r3)).sum(-1)
+        val = 0.5 * (w * (torch.log(det.clamp_min(1e-300)) + quad)).sum(-1)
+        return torch.where((det <= 0).any(-1), torch.inf, val), W
+
+    f, W = nll(x)
+    done = torch.zeros(G, dtype=torch.bool)
+    for _ in range(iters):
+        v = x.exp()
+        u = _mv(W, r3)  # S^-1 r (G, M, 3)
+        WD = _mm(W.unsqueeze(2), D)  # (G, M, A, 3, 3)
+        Du = _mv(D, u.unsqueeze(2))  # (G, M, A, 3)
+        T = (WD.unsqueeze(3) * WD.transpose(-1, -2).unsqueeze(2)).sum((-2, -1))  # tr(W D_a W D_b)
+        Q = (Du.unsqueeze(3) * _mv(W.unsqueeze(2), Du).unsqueeze(2)).sum(-1)  # u^T D_a W D_b u
+        gv = 0.5 * (w[..., None] * (torch.diagonal(WD, dim1=-2, dim2=-1).sum(-1) - (Du * u[:, :, None]).sum(-1))).sum(1)
+        vv = v[:, :, None] * v[:, None, :]
+        g = v * gv  # gradient in x
+        Hv = 0.5 * (w[..., None, None] * (2 * Q - T)).sum(1)
+        H = vv * Hv + torch.diag_embed(g)
+        F = vv * 0.5 * (w[..., None, None] * T).sum(1)
+        free = ~(((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0)))  # bounds that hold stay fixed
+        keep = free.to(r3.dtype)
+        mask, fixed = keep[:, :, None] * keep[:, None, :], torch.diag_embed(1 - keep)
+        g = g * keep
+        H, F = H * mask + fixed, F * mask + fixed
+        bad = torch.linalg.cholesky_ex(H)[1] > 0
+        H = torch.where(bad[:, None, None], F, H)
+        dx = -torch.linalg.solve(H, g)
+        dec = -(g * dx).sum(-1)  # Newton decrement, nats
+        done = done | (dec < tol)
+        if bool(done.all()):
+            break
+        t, searched, x_start = 1.0, done.clone(), x
+        for k in range(50):
+            xt = torch.minimum(torch.maximum(x + t * dx, lo), hi)
+            ft, Wt = nll(xt)
+            ok = ~searched & (ft <= f + 1e-4 * (g * (xt - x)).sum(-1))
+            x, f = torch.where(ok[:, None], xt, x), torch.where(ok, ft, f)
+            W = torch.where(ok[:, None, None, None], Wt, W)
+            searched = searched | ok
+            full = ok if k == 0 else full  # the full step was taken
+            if bool(searched.all()):
+                break
+            t /= 2
+        done = done | ~searched  # no decrease along the Newton direction: optimal to rounding
+        # a tau^2 heading for zero (its maximum at the lower bound) takes Newton steps of
+        # about -1 in log tau^2 only: after a full step, go on down while it gains
+        down = torch.where(dx < -0.5, dx, 0.0)
+        down[:, 0] = 0.0
+        grow = full & (down < 0).any(-1)
+        t = 1.0
+        while bool(grow.any()) and t <= 64:
+            xt = torch.minimum(torch.maximum(x_start + dx + t * down, lo), hi)
+            ft, Wt = nll(xt)
+            grow = grow & (ft < f)
+            x, f = torch.where(grow[:, None], xt, x), torch.where(grow, ft, f)
+            W = torch.where(grow[:, None, None, None], Wt, W)
+            t *= 2
+    return x
+
+
 def _fit_variance(r3: np.ndarray, Bs: np.ndarray | None) -> np.ndarray:
-    """Maximum-likelihood log variances for residual rows r3 (M, 3) (L-BFGS, torch gradient)."""
-    s2 = float((r3 ** 2).mean())
-    if Bs is None or not Bs.shape[-1]:
-        return np.array([np.log(max(s2, 1e-300))])
-    K = Bs.shape[-1] // 2
-    x0 = np.concatenate([[np.log(max(s2, 1e-300))], np.full(K, np.log(max(s2, 1e-300)) - 2 * np.log(
-        max(float(np.sqrt((Bs ** 2).sum((1, 2)).mean())), 1e-12)))])
-    rt, Bt = torch.from_numpy(r3), torch.from_numpy(Bs)
-    eye = torch.eye(3, dtype=rt.dtype)
-
-    def fun(x):
-        lp = torch.tensor(x, requires_grad=True)
-        tau = torch.exp(lp[1:]).repeat_interleave(Bt.shape[-1] // K)
-        S = torch.exp(lp[0]) * eye + torch.einsum("mik,k,mjk->mij", Bt, tau, Bt)
-        L = torch.linalg.cholesky(S)
-        z = torch.linalg.solve_triangular(L, rt.unsqueeze(-1), upper=False)
-        nll = 0.5 * (2 * torch.log(torch.diagonal(L, dim1=-2, dim2=-1)).sum() + (z ** 2).sum())
-        nll.backward()
-        return float(nll.detach()), lp.grad.numpy().copy()
-
-    res = scipy.optimize.minimize(fun, x0, jac=True, method="L-BFGS-B",
-                                  bounds=[(np.log(s2) - 9, np.log(s2) + 5)] + [(x0[1] - 30, x0[1] + 10)] * K)
-    return res.x
+    """Maximum-likelihood log variances (1 + K,) for residual rows r3 (M, 3), Bs (M, 3, 2K)
+    (see `fit_variances`)."""
+    Bt = None if Bs is None or not Bs.shape[-1] else torch.from_numpy(Bs)
+    return fit_variances(torch.from_numpy(r3)[None], Bt)[0].numpy()
 
 
 class _Linear:
@@ -254,21 +360,25 @@ class _Linear:
         rows3 = self.rows[::3]
         Xr = X.T @ r
         eye = torch.eye(X.shape[1], dtype=X.dtype)
-        for f in self.folds:
+        train = torch.empty(len(self.folds), len(self.r), dtype=r.dtype)  # (F, 3N): test rows unused
+        for i, f in enumerate(self.folds):
             test = self.rows == f
             tt = torch.from_numpy(test)
             Xt, rt = X[tt], r[tt]
             if X.shape[1]:
                 coef = torch.linalg.solve(eye - Xt.T @ Xt, Xr - Xt.T @ rt)
                 held[test] = (rt - Xt @ coef).numpy()
-                train_res = (r[~tt] - X[~tt] @ coef).numpy()
+                train[i] = r - X @ coef
             else:
                 held[test] = self.r[test]
-                train_res = self.r[~test]
+                train[i] = r
+        # the variance model of every fold from its training rows, in one batched fit
+        w = torch.from_numpy(rows3[None] != self.folds[:, None])  # (F, N)
+        logp = fit_variances(train.reshape(len(self.folds), -1, 3),
+                             None if Bs is None or not Bs.shape[-1] else torch.from_numpy(Bs), w).numpy()
+        for i, f in enumerate(self.folds):
             t3 = rows3 == f
-            Bf = None if Bs is None else Bs[~t3]
-            logp = _fit_variance(train_res.reshape(-1, 3), Bf)
-            ll[t3] = _variance_loglik(held[test].reshape(-1, 3), None if Bs is None else Bs[t3], logp)
+            ll[t3] = _variance_loglik(held[self.rows == f].reshape(-1, 3), None if Bs is None else Bs[t3], logp[i])
         # per pose, for the paired comparisons (repeats of a pose are one piece of evidence)
         self.last_ll = self.pose_sum(ll)  # (P,) held-out log-likelihood, nats
         self.last_sq = self.pose_sum((held.reshape(-1, 3) ** 2).sum(-1))  # (P,) mm^2

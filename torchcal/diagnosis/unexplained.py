@@ -60,6 +60,7 @@ class Unexplained:
     correlates_with: list
     floor_from: str = "repeats"
     strengths: dict = field(default_factory=dict, repr=False)
+    residuals: np.ndarray | None = field(default=None, repr=False)  # (N, 3) mm, what was looked at
 
     def to_dict(self) -> dict:
         return {"significant": self.significant, "rms_mm": self.rms_mm, "noise_floor_mm": self.noise_floor_mm,
@@ -168,4 +169,4 @@ def unexplained(robot: Robot, m: Measurements, residuals: torch.Tensor, seed: in
     if floor is None:
         best = max((s for s, _ in strengths.values()), default=0.0)
         floor, source = rms * float(np.sqrt(1 - min(max(best, 0.0), 1.0))), "estimate"
-    return Unexplained(bool(corr), rms, floor, [(k, float(s)) for k, s in corr], source, strengths)
+    return Unexplained(bool(corr), rms, floor, [(k, float(s)) for k, s in corr], source, strengths, r)

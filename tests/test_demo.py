@@ -177,6 +177,7 @@ def test_demo_command(tmp_path, monkeypatch, run, capsys):
 def session(tmp_path_factory):
     """A small simulated session with repeats, a partition and targets."""
     from torchcal.io.measurement_csv import write_measurements
+    from torchcal.io.partition_file import save_partition
     from torchcal.partition.zones import partition_workspace
     from torchcal.robots.robot import robot
     from torchcal.simulation.virtual_robot import VirtualRobot
@@ -188,7 +189,7 @@ def session(tmp_path_factory):
     q = sample_workspace(r, 40, seed=5)
     write_measurements(d / "data.csv", vr.measure(q, repeats=3, noise_mm=0.01))
     sw = sweep(r, sample_workspace(r, 60, seed=6), n_samples=100)
-    partition_workspace(sw.positions, sw.r_set, levels=2, zones=[1, 1], seed=0).save(d / "part.json")
+    save_partition(partition_workspace(sw.positions, sw.r_set, levels=2, zones=[1, 1], seed=0), d / "part.json")
     qt = sample_workspace(r, 6, seed=7)
     t = r.fk(qt)
     rows = [",".join(map(repr, list(a) + list(b))) for a, b in zip(t.tolist(), torch.rad2deg(qt).tolist())]

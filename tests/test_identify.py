@@ -42,6 +42,18 @@ def random_theta(model, free, seed, scale=1.0):
     return theta * free
 
 
+def test_pose_intervals_are_intervals():
+    """Centre/radius are the Interval's (hand values); lower > upper is refused, naming the index."""
+    lo = torch.tensor([[1.0, -2.0, 0.0]])
+    data = PoseIntervals(torch.arange(1), torch.zeros(1, 6), lo, lo + torch.tensor([[2.0, 1.0, 0.0]]),
+                         torch.tensor([2]))
+    assert data.centre.tolist() == [[2.0, -1.5, 0.0]] and data.radius.tolist() == [[1.0, 0.5, 0.0]]
+    assert torch.equal(data.interval.lower, lo)
+    with pytest.raises(InputError, match=r"lower must be <= upper.*index \[0, 1\]"):
+        PoseIntervals(torch.arange(1), torch.zeros(1, 6), lo, lo - torch.tensor([[0.0, 1.0, 0.0]]),
+                      torch.tensor([2]))
+
+
 def test_noise_free_recovery(kr):
     model = CalibrationModel(kr)
     q = random_poses(kr, 25, 1)
@@ -257,19 +269,20 @@ def test_interval_model_round_trip(noisy_zone):
     import json
 
     from torchcal.calibration.intervals import IntervalModel
+    from torchcal.io.interval_model import interval_model_from_dict, interval_model_to_dict
 
     model, data, fit = noisy_zone
     im = IntervalModel.from_fits([fit, fit], levels=[1, 2], poses=[12, 12], method="independent")
-    back = IntervalModel.from_dict(json.loads(json.dumps(im.to_dict())))
+    back = interval_model_from_dict(json.loads(json.dumps(interval_model_to_dict(im))))
     assert_close(back.theta, im.theta)
     assert_close(back.lower, im.lower)
     assert_close(back.upper, im.upper)
     assert back.free.tolist() == im.free.tolist() and back.zones[1]["level"] == 2
     assert back.assign(torch.zeros(4, 3)).tolist() == [0, 0, 0, 0]  # no partition: one zone
-    bad = im.to_dict()
+    bad = interval_model_to_dict(im)
     bad["zones"][0]["theta"] = bad["zones"][0]["theta"][:-1]
     with pytest.raises(InputError, match="zone 1: theta has 29 values, expected 30"):
-        IntervalModel.from_dict(bad)
+        interval_model_from_dict(bad)
 
 
 @pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(

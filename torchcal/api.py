@@ -177,15 +177,15 @@ def calibrate(robot_or_model, measurements, effects=(), partition=None, zone_met
     """Interval calibration, global or per zone (`torchcal.workflows.zones.calibrate`).
 
     partition: a `Partition`, a PARTITION.json path or None. Returns an `IntervalModel`
-    (``.to_dict()`` = the MODEL.json of ``torchcal calibrate``) whose ``global_fit`` is the
+    (`torchcal.io.interval_model.interval_model_to_dict` gives the MODEL.json of ``torchcal calibrate``) whose ``global_fit`` is the
     global `IntervalFit`.
     """
     from torchcal.workflows.zones import calibrate as run
 
     model = _model(robot_or_model, effects)
     if isinstance(partition, (str, Path)):
-        from torchcal.partition.zones import Partition
-        partition = Partition.load(partition)
+        from torchcal.io.partition_file import load_partition
+        partition = load_partition(partition)
     im, glob = run(model, _measurements(measurements, model.robot), partition, zone_method, damping)
     im.global_fit = glob
     return im

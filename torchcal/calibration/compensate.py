@@ -202,17 +202,17 @@ def compensate(model: CalibrationModel, theta, targets, q0, zone=None, tol_mm: f
     return Compensation(q, q0, p, r, iters, err <= tol_mm, robot.within_limits(q))
 
 
-def nominal_inverse(robot, targets, seed_q=None, tol_mm: float = 1e-6, max_iter: int = 100) -> Compensation:
-    """Nominal inverse kinematics (position only) from seeds: the commands that the
-    *nominal* robot needs to reach the targets. targets (M, 3) mm; seed_q (M, n) or (n,)
-    rad (default: the middle of the joint limits). Returns a `Compensation` whose q is the
+def nominal_inverse(robot, targets, q0=None, tol_mm: float = 1e-6, max_iter: int = 100) -> Compensation:
+    """Nominal inverse kinematics (position only) from starting commands: the commands that the
+    *nominal* robot needs to reach the targets. targets (M, 3) mm; q0 (M, n) or (n,)
+    rad starting commands, as in `torchcal.api.compensate` (default: the middle of the joint limits). Returns a `Compensation` whose q is the
     nominal inverse."""
     t = torch.as_tensor(targets, dtype=robot.dtype, device=robot.device)
     if t.ndim != 2 or t.shape[1] != 3:
         raise InputError(f"targets: expected (M, 3) mm, got shape {tuple(t.shape)}")
-    if seed_q is None:
-        seed_q = robot.limits.mean(-1)
-    seed = robot.check_q(seed_q, "seed_q").to(robot.dtype)
+    if q0 is None:
+        q0 = robot.limits.mean(-1)
+    seed = robot.check_q(q0, "q0").to(robot.dtype)
     seed = seed.expand(t.shape[0], robot.n).clone() if seed.ndim == 1 else seed
     return compensate(CalibrationModel(robot), torch.zeros(5 * robot.n, dtype=robot.dtype, device=robot.device), t, seed,
                       tol_mm=tol_mm, max_iter=max_iter)

@@ -34,7 +34,7 @@ the linearised solution map).
    calibration): it minimises ``|r(x)|^2 + mu |D (x - theta0)|^2``, and S above (with
    that mu) is its solution map, so the hull stays exact for what is solved.
    ``damping="gcv"`` picks mu per zone, ``"gcv_shared"`` one mu for all zones, by
-   generalised cross-validation (`gcv_damping`) on a grid. A zone of few poses then
+   generalised cross-validation (`torchcal.calibration.gcv`) on a grid. A zone of few poses then
    moves away from the prior only as far as its own data support.
 
 Batched over zones: `identify_zones` stacks zones with equal numbers of poses into one
@@ -50,12 +50,13 @@ from dataclasses import dataclass
 
 import torch
 
-from torchcal.kinematics import mdh as K
 from torchcal.effects.base import Context, make_context
 from torchcal.errors import InputError
+from torchcal.calibration.batched import batched_jacobian, batched_predict
 from torchcal.calibration.fit import RANK_TOL, Identifiability, identifiability
+from torchcal.calibration.gcv import GCV_GRID, choose_damping, gcv_damping  # noqa: F401 (re-exported)
 from torchcal.reliability.interval import Interval
-from torchcal.calibration.lm import batched_jacobian as lm_jacobian, levenberg_marquardt
+from torchcal.calibration.lm import levenberg_marquardt
 from torchcal.calibration.model import CalibrationModel
 
 __all__ = ["PoseIntervals", "pose_intervals", "solution_map", "gcv_damping", "IntervalFit", "IntervalModel",
@@ -72,7 +73,7 @@ class PoseIntervals:
         pose: (m,) int64 pose ids, in order of first appearance.
         q: (m, n) rad commanded joint angles (first row of each pose).
         lower: (m, 3) mm per-axis minimum of the measured positions.
-        upper: (m, 3) mm per-axis maximum.
+        upper: (m, 3) mm per-axis maximum (`interval` is [lower, upper] as an `Interval`).
         count: (m,) int64 repetitions per pose.
         payload_kg: (m,) or None; temp_c: (m,) or None (first row of each pose).
     """
@@ -85,15 +86,23 @@ class PoseIntervals:
     payload_kg: torch.Tensor | None = None
     temp_c: torch.Tensor | None = None
 
+    def __post_init__(self):  # checks lower <= upper once (InputError naming the index)
+        object.__setattr__(self, "_interval", Interval(self.lower, self.upper))
+
+    @property
+    def interval(self) -> Interval:
+        """(m, 3) mm per-axis interval [lower, upper] of the measured positions."""
+        return self._interval
+
     @property
     def centre(self) -> torch.Tensor:
         """(m, 3) mm mid-range of the repeated measurements."""
-        return 0.5 * (self.lower + self.upper)
+        return self._interval.centre
 
     @property
     def radius(self) -> torch.Tensor:
         """(m, 3) mm half-range."""
-        return 0.5 * (self.upper - self.lower)
+        return self._interval.radius
 
     def __len__(self) -> int:
         return self.pose.shape[0]
@@ -167,89 +176,6 @@ def solution_map(J: torch.Tensor, free: torch.Tensor, mu: float = 0.0, scale=Non
     A = Js.T @ Js + mu * torch.eye(idx.numel(), dtype=J.dtype, device=J.device)
     S[idx] = torch.linalg.solve(A, Js.T) / d[:, None]
     return S
-
-
-#: damping values tried by ``damping="gcv"`` (relative to the squared column norms).
-GCV_GRID = (0.0, 1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 1e-1, 3e-1, 1.0, 3.0, 10.0)
-
-
-def gcv_damping(J: torch.Tensor, r: torch.Tensor, free: torch.Tensor, grid=GCV_GRID) -> tuple[float, list]:
-    """Damping mu of eq. 29 chosen by generalised cross-validation (Golub, Heath & Wahba 1979).
-
-    For the linearised problem ``r ~ J dx`` (J (R, P) at the starting point, r (R,) the
-    errors there), the damped solution ``dx = (J_f^T J_f + mu D^2)^-1 J_f^T r`` has the hat
-    matrix H(mu) = J_f (J_f^T J_f + mu D^2)^-1 J_f^T and
-    ``GCV(mu) = R |r - H r|^2 / (R - tr H)^2``, an estimate of the prediction error at new
-    poses. Returns the grid value with the smallest GCV and the list of GCV values.
-    """
-    idx = free.to(J.device).nonzero().flatten()
-    Jf = J[:, idx]
-    d = Jf.norm(dim=0).clamp_min(1e-300)
-    U, sv, _ = torch.linalg.svd(Jf / d, full_matrices=False)
-    ur = U.T @ r  # (k,)
-    out = []
-    R = r.shape[0]
-    rr = float(r @ r)
-    for mu in grid:
-        f = sv ** 2 / (sv ** 2 + mu)  # filter factors
-        rss = rr - float(((2 * f - f ** 2) * ur ** 2).sum())
-        dof = R - float(f.sum())
-        out.append(R * max(rss, 0.0) / dof ** 2 if dof > 1e-9 else float("inf"))
-    best = min(range(len(grid)), key=lambda i: out[i])
-    return float(grid[best]), out
-
-
-# ------------------------------------------------------------------ batched model
-
-def _stack_contexts(ctxs: list[Context]) -> dict:
-    """Stack per-zone contexts with equal row counts into (B, m, ...) tensors."""
-    out = {"q": torch.stack([c.q for c in ctxs]), "payload": torch.stack([c.payload_kg for c in ctxs]),
-           "approach": torch.stack([c.approach for c in ctxs]), "frames": torch.stack([c.frames for c in ctxs]),
-           "gravity": ctxs[0].gravity}
-    temps = [c.temp_c for c in ctxs]
-    out["temp"] = None if any(t is None for t in temps) else torch.stack(temps)
-    return out
-
-
-def batched_predict(model: CalibrationModel, x: torch.Tensor, ctxs: list[Context]) -> torch.Tensor:
-    """Model positions for B zones at once: x (B, P), ctxs B contexts of m rows -> (B, m, 3) mm.
-
-    Geometric-only models use the MD-H kernel with a broadcast parameter batch; models
-    with effects vmap `CalibrationModel.predict` over the zones.
-    """
-    st = _stack_contexts(ctxs)
-    robot = model.robot
-    if not model.effects:
-        geo = x[:, : 5 * robot.n].reshape(-1, 1, robot.n, 5)  # (B, 1, n, 5)
-        tool = robot.tool[:3, 3].to(x)
-        return K._positions_kernel(st["q"].to(x), robot.table.to(x), geo, robot.base.to(x), tool,
-                                    prismatic=robot.pris)
-    g = st["gravity"]
-    if st["temp"] is None:
-        def one(th, q, pl, ap, fr):
-            return model.predict(th, Context(q, pl, None, ap, fr, g))
-        return torch.func.vmap(one)(x, st["q"], st["payload"], st["approach"], st["frames"])
-
-    def one_t(th, q, pl, tc, ap, fr):
-        return model.predict(th, Context(q, pl, tc, ap, fr, g))
-    return torch.func.vmap(one_t)(x, st["q"], st["payload"], st["temp"], st["approach"], st["frames"])
-
-
-def batched_jacobian(model: CalibrationModel, x: torch.Tensor, ctxs: list[Context]) -> torch.Tensor:
-    """d positions / d x for B zones: (B, m, 3, P).
-
-    Geometric-only models: the analytic MD-H parameter Jacobian (docs/paper.md eq. 17);
-    otherwise forward-mode autodiff of `batched_predict`.
-    """
-    robot = model.robot
-    if not model.effects:
-        st = _stack_contexts(ctxs)
-        geo = x[:, : 5 * robot.n].reshape(-1, 1, robot.n, 5)
-        return K.param_jacobian(st["q"].to(x), robot.table.to(x), geo, robot.base.to(x), robot.tool.to(x),
-                                    prismatic=robot.pris)
-    B, P = x.shape
-    J = lm_jacobian(lambda z: batched_predict(model, z, ctxs).reshape(B, -1), x)  # (B, 3m, P)
-    return J.reshape(B, -1, 3, P)
 
 
 # ------------------------------------------------------------------ results
@@ -391,12 +317,7 @@ def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
         scale = J0f.norm(dim=1).clamp_min(1e-300)  # (B, P) column norms at theta0
         if damping in ("gcv", "gcv_shared"):
             r0 = (target - batched_predict(model, xb, ctxs)).reshape(B, -1)
-            scores = [gcv_damping(J0f[b], r0[b], freeb[b]) for b in range(B)]
-            if damping == "gcv":
-                mus = [sc[0] for sc in scores]
-            else:  # one mu for every zone: the smallest sum of the zones' GCV
-                tot = [sum(sc[1][i] for sc in scores) for i in range(len(GCV_GRID))]
-                mus = [float(GCV_GRID[min(range(len(tot)), key=tot.__getitem__)])] * B
+            mus = choose_damping(J0f, r0, freeb, damping)
         else:
             mus = [float(damping)] * B
         mu_t = torch.tensor(mus, dtype=xb.dtype, device=xb.device)
@@ -433,21 +354,14 @@ def identify_intervals(model: CalibrationModel, data: PoseIntervals, ctx: Contex
     return identify_zones(model, [item], **kwargs)[0]
 
 
-# ------------------------------------------------------------------ model file (plain data)
-
-INTERVAL_MODEL_FORMAT = "torchcal-interval-model/1"
+# ------------------------------------------------------------------ the model of all zones
 
 
 @dataclass(eq=False)
 class IntervalModel:
     """Interval parameters per zone (or one global zone), with the partition that assigns
-    targets to zones. Plain data: `to_dict` / `from_dict` give the MODEL.json of
-    ``torchcal calibrate``::
-
-        {"format": "torchcal-interval-model/1", "robot", "effects", "parameter_names",
-         "parameter_units", "zones": [{"zone", "level", "poses", "theta", "lower", "upper",
-         "free", "held", "rms_mm", "damping"}...], "partition": {...} or null,
-         "method", "provenance"}
+    targets to zones. Plain data; its file (the MODEL.json of ``torchcal calibrate``) is
+    written and read by `torchcal.io.interval_model`.
 
     Values in the model's units (mm, rad, ...); zones 1-based. Without a partition there
     is exactly one zone and every target uses it.
@@ -496,57 +410,3 @@ class IntervalModel:
         if self.partition is None:
             return torch.zeros(targets.shape[0], dtype=torch.long)
         return self.partition.assign(targets) - 1
-
-    def to_dict(self) -> dict:
-        m = self.model
-        zones = []
-        for z, info in enumerate(self.zones):
-            zones.append({**info, "theta": self.theta[z].tolist(), "lower": self.lower[z].tolist(),
-                          "upper": self.upper[z].tolist(), "free": self.free[z].tolist()})
-        from torchcal.robots.robot_file import robot_to_dict
-
-        return {"format": INTERVAL_MODEL_FORMAT, "robot": m.robot.name,
-                "nominal_robot": robot_to_dict(m.robot), "effects": m.specs(),
-                "parameter_names": m.param_names(), "parameter_units": m.param_units(),
-                "method": self.method, "zones": zones,
-                "partition": None if self.partition is None else self.partition.to_dict(),
-                "provenance": self.provenance or {}}
-
-    @classmethod
-    def from_dict(cls, obj: dict, where: str = "interval model") -> "IntervalModel":
-        """Rebuild from `to_dict` output; raises InputError naming what is wrong."""
-        from torchcal.partition.zones import Partition
-        from torchcal.robots.robot_file import model_robot
-
-        if obj.get("format") != INTERVAL_MODEL_FORMAT:
-            raise InputError(f"{where}: not a torchcal interval model (format {obj.get('format')!r}, "
-                             f"expected {INTERVAL_MODEL_FORMAT!r})")
-        try:
-            model = CalibrationModel(model_robot(obj, where), list(obj["effects"]))
-            if list(obj["parameter_names"]) != model.param_names():
-                raise InputError(f"{where}: parameter names do not match robot {obj['robot']!r} with "
-                                 f"effects {obj['effects']}")
-            zs = obj["zones"]
-            if not zs:
-                raise InputError(f"{where}: no zones")
-            P = model.n_params
-
-            def vec(z, key, dtype=torch.float64):
-                v = torch.tensor(z[key], dtype=dtype)
-                if v.shape != (P,):
-                    raise InputError(f"{where}: zone {z.get('zone')}: {key} has {v.numel()} values, expected {P}")
-                return v
-            theta = torch.stack([vec(z, "theta") for z in zs])
-            lower = torch.stack([vec(z, "lower") for z in zs])
-            upper = torch.stack([vec(z, "upper") for z in zs])
-            free = torch.stack([vec(z, "free", torch.bool) for z in zs])
-            info = [{k: v for k, v in z.items() if k not in ("theta", "lower", "upper", "free")} for z in zs]
-            part = None if obj.get("partition") is None else Partition.from_dict(obj["partition"], f"{where}: partition")
-        except (KeyError, TypeError, ValueError) as exc:
-            if isinstance(exc, InputError):
-                raise
-            raise InputError(f"{where}: missing or malformed field: {exc}") from None
-        if part is not None and part.n_zones != len(zs):
-            raise InputError(f"{where}: the partition has {part.n_zones} zones but the model {len(zs)}")
-        return cls(model, theta, lower, upper, free, info, part, str(obj.get("method", "global")),
-                   dict(obj.get("provenance") or {}))

@@ -15,7 +15,7 @@ propagated through the linearised solution map (torchcal.calibration.intervals).
   zone on its own from nominal (the paper's eq. 29 literally; every zone needs more
   equations than identifiable parameters).
 
-MODEL.json: format ``torchcal-interval-model/1`` (`IntervalModel.to_dict`), read by
+MODEL.json: format ``torchcal-interval-model/1`` (`torchcal.io.interval_model`), read by
 ``torchcal compensate``.
 """
 
@@ -67,20 +67,21 @@ def run(args) -> int:
     import torchcal
     from torchcal.io.files import write_json
     from torchcal.io.modelfile import file_sha256
-    from torchcal.partition.zones import Partition
+    from torchcal.io.interval_model import interval_model_to_dict
+    from torchcal.io.partition_file import load_partition
     from torchcal.robots.robot import robot as make_robot
     from torchcal.effects.spec import parse_specs
 
     check_outputs([("--out", args.out)], args.force, inputs=[args.data, args.partition])
     robot = make_robot(args.robot)
     specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
-    part = Partition.load(args.partition) if args.partition else None
+    part = load_partition(args.partition) if args.partition else None
     meas = read_data(args.data, robot, args)
     im, glob = calibrate(meas, robot, specs, part, args.zone_method, args.damping)
     im.provenance = {"input": str(args.data), "input_sha256": file_sha256(args.data),
                      "partition": None if part is None else str(args.partition),
                      "torchcal_version": torchcal.__version__}
-    write_json(args.out, im.to_dict(), force=args.force, inputs=[args.data, args.partition])
+    write_json(args.out, interval_model_to_dict(im), force=args.force, inputs=[args.data, args.partition])
     rep = glob.report
     print(f"calibrate {robot.name} + [{', '.join(im.model.specs()) or 'geometric only'}] on {len(meas)} rows "
           f"({sum(z['poses'] or 0 for z in im.zones)} poses): global fit rms {glob.rms_mm:.4f} mm, "

@@ -125,12 +125,13 @@ def load_model(path):
     import torch
 
     from torchcal.io import modelfile
-    from torchcal.calibration.intervals import INTERVAL_MODEL_FORMAT, IntervalModel
+    from torchcal.calibration.intervals import IntervalModel
+    from torchcal.io.interval_model import INTERVAL_MODEL_FORMAT, interval_model_from_dict
     from torchcal.io.files import read_json
 
     obj = read_json(path, "model file")
     if obj.get("format") == INTERVAL_MODEL_FORMAT:
-        return IntervalModel.from_dict(obj, str(path))
+        return interval_model_from_dict(obj, str(path))
     model, theta = modelfile.load(path)
     free = torch.tensor([bool(p.get("identified", True)) for p in obj["parameters"]])
     return IntervalModel(model, theta[None], theta[None], theta[None], free[None],

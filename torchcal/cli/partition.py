@@ -5,7 +5,7 @@
 
 Reads the sweep CSV written by `torchcal sweep` (columns point,q1..qn,x,y,z,ex_lo,ex_hi,
 ey_lo,ey_hi,ez_lo,ez_hi,dist_lo,dist_hi,eta,r_set; only point, x, y, z (mm) and r_set are
-used, other columns are ignored), writes the partition JSON (`torchcal.partition.zones.Partition`)
+used, other columns are ignored), writes the partition JSON (`torchcal.io.partition_file`)
 and prints one line per zone.
 """
 
@@ -16,6 +16,7 @@ from pathlib import Path
 
 from torchcal.cli._args import add_force, check_outputs
 from torchcal.errors import InputError
+from torchcal.io.partition_file import save_partition
 from torchcal.partition.zones import partition_workspace
 
 NEEDED = ("point", "x", "y", "z", "r_set")
@@ -95,7 +96,7 @@ def run(args) -> int:
     ids, pos, r = read_sweep(args.sweep)
     part = partition_workspace(pos, r, levels, zones, m=args.m, r_weight=args.r_weight, seed=args.seed,
                                restarts=args.restarts, zone_range=zone_range, point_ids=ids)
-    part.save(out, force=args.force, inputs=[args.sweep])
+    save_partition(part, out, force=args.force, inputs=[args.sweep])
     print(f"{args.sweep}: {pos.shape[0]} points -> {part.n_levels} levels, {part.n_zones} zones -> {out}")
     print(f"{'zone':>4} {'level':>5} {'points':>6} {'R_set min':>9} {'mean':>7} {'max':>7} "
           f"{'centre x mm':>12} {'y mm':>10} {'z mm':>10}")

@@ -35,13 +35,12 @@ Zone of a new target point (before it is measured, so without its R_set): scikit
 Euclidean) and their zone labels: a distance-weighted vote of the 5 nearest sweep points;
 a target on a sweep point takes that point's zone.
 
-A `Partition` is plain data: it is saved as JSON (never pickle) with the points, labels
+A `Partition` is plain data: `torchcal.io.partition_file` saves it as JSON (never pickle) with the points, labels
 and centres; memberships, summaries and the k-NN classifier are rebuilt on load.
 """
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 
@@ -50,13 +49,8 @@ import torch
 
 from torchcal.errors import InputError
 from torchcal.partition.fcm import _check_range, as_points, choose_c, fcm, memberships
-from torchcal.io.files import dumps_json, read_json, write_json
 
 __all__ = ["Partition", "partition_workspace"]
-
-FORMAT = "torchcal.partition"
-VERSION = 1
-
 
 @dataclass(eq=False)
 class Partition:
@@ -179,98 +173,8 @@ class Partition:
         pred = self._knn().predict(pts.detach().cpu().to(torch.float64).numpy())
         return torch.as_tensor(pred, dtype=torch.int64)
 
-    # ------------------------------------------------------------------ JSON
-    def to_dict(self) -> dict:
-        """A JSON-ready dict (see `from_dict`); floats are written exactly (shortest repr)."""
-        summ = self.summary()
-        levels = [{
-            "level": lev, "center_r_set": float(self.level_centers[lev - 1]),
-            "zones": [int(z) + 1 for z in torch.nonzero(self.zone_level == lev)[:, 0]],
-            "feature_mean": self.feature_mean[lev - 1].tolist(),
-            "feature_std": self.feature_std[lev - 1].tolist(),
-        } for lev in range(1, self.n_levels + 1)]
-        zones = [dict(s, center_features=self.zone_centers[s["zone"] - 1].tolist()) for s in summ]
-        return {
-            "format": FORMAT, "version": VERSION,
-            "units": {"positions": "mm", "r_set": "1 (set reliability, 0..1)"},
-            "features": ["x", "y", "z", "r_set"],
-            "m": self.m, "r_weight": self.r_weight, "knn_neighbors": self.knn_neighbors,
-            "options": self.options,
-            "levels": levels, "zones": zones,
-            "points": {
-                "point": self.point_ids.tolist(),
-                "x": self.positions[:, 0].tolist(), "y": self.positions[:, 1].tolist(),
-                "z": self.positions[:, 2].tolist(), "r_set": self.r_set.tolist(),
-                "zone": self.labels.tolist(),
-            },
-        }
-
-    def to_json(self) -> str:
-        """Deterministic JSON text of `to_dict`."""
-        return dumps_json(self.to_dict())
-
-    @classmethod
-    def from_dict(cls, obj: dict, where: str = "partition") -> "Partition":
-        """Rebuild from `to_dict` output; unknown or missing keys are errors."""
-        top = {"format", "version", "units", "features", "m", "r_weight", "knn_neighbors",
-               "options", "levels", "zones", "points"}
-        _keys(obj, top, where)
-        if obj["format"] != FORMAT or obj["version"] != VERSION:
-            raise InputError(f"{where}: expected format {FORMAT!r} version {VERSION}, "
-                             f"got {obj['format']!r} version {obj['version']!r}")
-        try:
-            levels = sorted(obj["levels"], key=lambda r: r["level"])
-            for i, r in enumerate(levels):
-                _keys(r, {"level", "center_r_set", "zones", "feature_mean", "feature_std"}, f"{where}: levels[{i}]")
-            zones = sorted(obj["zones"], key=lambda r: r["zone"])
-            zone_keys = {"zone", "level", "points", "r_set_min", "r_set_mean", "r_set_max", "center_x_mm",
-                         "center_y_mm", "center_z_mm", "level_center_r_set", "center_features"}
-            for i, r in enumerate(zones):
-                _keys(r, zone_keys, f"{where}: zones[{i}]")
-            pts = obj["points"]
-            _keys(pts, {"point", "x", "y", "z", "r_set", "zone"}, f"{where}: points")
-            f64 = torch.float64
-            part = cls(
-                positions=torch.tensor([pts["x"], pts["y"], pts["z"]], dtype=f64).T.contiguous(),
-                r_set=torch.tensor(pts["r_set"], dtype=f64),
-                labels=torch.tensor(pts["zone"], dtype=torch.int64),
-                point_ids=torch.tensor(pts["point"], dtype=torch.int64),
-                level_centers=torch.tensor([r["center_r_set"] for r in levels], dtype=f64),
-                zone_level=torch.tensor([r["level"] for r in zones], dtype=torch.int64),
-                zone_centers=torch.tensor([r["center_features"] for r in zones], dtype=f64).reshape(len(zones), 4),
-                feature_mean=torch.tensor([r["feature_mean"] for r in levels], dtype=f64).reshape(len(levels), 4),
-                feature_std=torch.tensor([r["feature_std"] for r in levels], dtype=f64).reshape(len(levels), 4),
-                m=float(obj["m"]), r_weight=float(obj["r_weight"]), knn_neighbors=int(obj["knn_neighbors"]),
-                options=dict(obj["options"]),
-            )
-        except (TypeError, ValueError, KeyError, RuntimeError) as exc:
-            if isinstance(exc, InputError):
-                raise
-            raise InputError(f"{where}: malformed partition data ({exc})") from None
-        part._validate(where)
-        return part
-
-    @classmethod
-    def from_json(cls, text: str, where: str = "partition JSON") -> "Partition":
-        """Rebuild from `to_json` text."""
-        try:
-            obj = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise InputError(f"{where}: not valid JSON: {exc}") from None
-        if not isinstance(obj, dict):
-            raise InputError(f"{where}: expected a JSON object")
-        return cls.from_dict(obj, where)
-
-    def save(self, path, force: bool = False, inputs=()):
-        """Write the JSON file atomically (see `torchcal.io.files.write_json`)."""
-        return write_json(path, self.to_dict(), force=force, inputs=inputs)
-
-    @classmethod
-    def load(cls, path) -> "Partition":
-        """Read a partition JSON file."""
-        return cls.from_dict(read_json(path, "partition JSON"), str(path))
-
-    def _validate(self, where: str) -> None:
+    def validate(self, where: str) -> None:
+        """Raise InputError (naming `where`) unless the fields are consistent."""
         N = self.positions.shape[0]
         L, Z = self.n_levels, self.n_zones
         if not (self.r_set.shape == self.labels.shape == self.point_ids.shape == (N,)) or N == 0:
@@ -283,14 +187,6 @@ class Partition:
             raise InputError(f"{where}: point zones must be in 1..{Z}")
         if self.knn_neighbors < 1 or not self.m > 1:
             raise InputError(f"{where}: expected knn_neighbors >= 1 and m > 1")
-
-
-def _keys(obj, expected: set, where: str) -> None:
-    if not isinstance(obj, dict):
-        raise InputError(f"{where}: expected a JSON object, got {type(obj).__name__}")
-    missing, extra = expected - obj.keys(), obj.keys() - expected
-    if missing or extra:
-        raise InputError(f"{where}: missing keys {sorted(missing)}, unknown keys {sorted(extra)}")
 
 
 # ---------------------------------------------------------------------- building

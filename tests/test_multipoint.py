@@ -17,17 +17,14 @@ OFFSETS = torch.tensor([[60.0, 0.0, 40.0], [-30.0, 52.0, 45.0], [-30.0, -52.0, 5
 
 
 @pytest.fixture(scope="module")
-def truth():
+def truth(mdh_deviations):
     """ur5e with realistic MD-H deviations, three reflectors, and a periodic gear error on
     joints 2 and 3 that the fitted (geometric) model does not contain."""
     rob = torchcal.robot("ur5e")
     model = CalibrationModel(rob, ["gear_periodic:2,3", "tool_offset"], points=[1, 2, 3])
     g = torch.Generator().manual_seed(7)
     th = model.zeros()
-    size = torch.tensor([math.radians(0.02), 0.5, 0.5, math.radians(0.02), math.radians(0.02)], dtype=torch.float64)
-    geo = (torch.rand(rob.n, 5, generator=g, dtype=torch.float64) * 2 - 1) * size
-    geo[:, 4] *= rob.has_beta
-    th[: 5 * rob.n] = geo.flatten()
+    th[: 5 * rob.n] = mdh_deviations(rob, g).flatten()
     th[model.slices[1]] = (torch.rand(16, generator=g, dtype=torch.float64) * 2 - 1) * math.radians(0.004)
     th[model.slices[2]] = OFFSETS.flatten()
     return rob, model, th

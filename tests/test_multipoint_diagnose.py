@@ -28,15 +28,12 @@ OFFSETS = torch.tensor([[60.0, 0.0, 40.0], [-30.0, 52.0, 45.0], [-30.0, -52.0, 5
 
 
 @pytest.fixture(scope="module")
-def data():
+def data(mdh_deviations):
     rob = torchcal.robot("ur5e")
     truth = CalibrationModel(rob, ["gear_periodic:2", "tool_offset"], points=[1, 2, 3])
     g = torch.Generator().manual_seed(7)
     th = truth.zeros()
-    size = torch.tensor([math.radians(0.02), 0.5, 0.5, math.radians(0.02), math.radians(0.02)], dtype=torch.float64)
-    geo = (torch.rand(rob.n, 5, generator=g, dtype=torch.float64) * 2 - 1) * size
-    geo[:, 4] *= rob.has_beta
-    th[: 5 * rob.n] = geo.flatten()
+    th[: 5 * rob.n] = mdh_deviations(rob, g).flatten()
     s = truth.slices[1].start  # first harmonic of joint 2's gear error, 0.01 deg amplitude
     th[s:s + 2] = torch.tensor([1.0, -0.7], dtype=torch.float64) * math.radians(0.01)
     th[truth.slices[2]] = OFFSETS.flatten()

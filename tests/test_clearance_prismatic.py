@@ -25,7 +25,6 @@ import torch
 
 from torchcal import cli
 from torchcal.errors import InputError
-from torchcal.kinematics import mdh as K
 from torchcal.reliability.sweep import SweepResult, sweep
 from torchcal.reliability.uncertainty import ClearanceModel, sample_states, states_to_deviations
 from torchcal.robots.robot_file import robot_from_dict, robot_to_dict

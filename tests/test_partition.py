@@ -17,7 +17,7 @@ from torchcal.partition.fcm import (FuzzyCMeans, choose_c, fcm, memberships, obj
                           partition_entropy, xie_beni)
 from torchcal.io.partition_file import (load_partition, partition_from_dict, partition_from_json,
                                         partition_to_json, save_partition)
-from torchcal.partition.zones import Partition, partition_workspace
+from torchcal.partition.zones import partition_workspace
 
 skfuzzy = pytest.importorskip("skfuzzy")
 

@@ -41,7 +41,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.optimize
 import scipy.stats
 import torch
 
@@ -254,7 +253,8 @@ def fit_variances(r3: torch.Tensor, Bs: torch.Tensor | None, w: torch.Tensor | N
             x, f = torch.where(ok[:, None], xt, x), torch.where(ok, ft, f)
             W = torch.where(ok[:, None, None, None], Wt, W)
             searched = searched | ok
-            full = ok if k == 0 else full  # the full step was taken
+            if k == 0:
+                full = ok  # the full step was taken
             if bool(searched.all()):
                 break
             t /= 2

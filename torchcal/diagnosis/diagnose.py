@@ -292,13 +292,17 @@ class _Linear:
     def __init__(self, r: np.ndarray, A: np.ndarray, folds: np.ndarray, pose: np.ndarray | None = None):
         A = A / np.linalg.norm(A, axis=0).clip(1e-300)  # unit columns: rank cuts are relative
         self.r, self.A, self.rows = r, A, np.repeat(folds, 3)
-        self.Q = torch.linalg.qr(torch.from_numpy(A))[0].numpy() if A.size else np.zeros((len(r), 0))
+        # orthonormal bases with the same rank cut as a candidate's new columns: a column of A
+        # in the span of the others (a forward-selection step's chosen columns, of which
+        # only some are new) adds nothing; a plain QR would turn its rounding residue into
+        # an arbitrary unit column (e.g. one row's x), which the folds then fit from noise
+        self.Q = self._new(np.zeros((len(r), 0)), A, len(r))
         self.folds = np.unique(folds)
         pose = np.arange(len(r) // 3) if pose is None else np.asarray(pose)
         _, self.pose_of_row, self.counts = np.unique(pose, return_inverse=True, return_counts=True)
         self.Ab = self.pose_mean(A)
         self.rb = self.pose_mean(r[:, None])[:, 0]
-        self.Qb = torch.linalg.qr(torch.from_numpy(self.Ab))[0].numpy() if A.size else np.zeros((len(self.rb), 0))
+        self.Qb = self._new(np.zeros((len(self.rb), 0)), self.Ab, len(self.rb))
 
     @property
     def n_poses(self) -> int:

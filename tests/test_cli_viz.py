@@ -53,6 +53,28 @@ def _png_ok(path) -> None:
     assert path.read_bytes()[:8] == PNG_MAGIC
 
 
+def _variable_scatters(path, m) -> list[tuple[str, float, bool]]:
+    """The recording's residual-against-variable scatters: one per variable of
+    `unexplained.variables` (the same set as the PNG), ranks 01.. by strength descending
+    (read from the ``variables`` table), each with one point per row of m."""
+    from torchcal.diagnosis.unexplained import variables
+
+    names = set(variables(torchcal.robot("kr1000titan"), m))
+    [text] = _column(path, "/variables", "TextDocument:text")[0]
+    rows = [r.strip("|").split("|") for r in text.splitlines() if r.startswith("| ") and r[2].isdigit()]
+    table = [(int(k), v.strip(), float(s), sig.strip() == "yes", e.strip()) for k, v, s, sig, e in rows]
+    assert [k for k, *_ in table] == list(range(1, len(names) + 1))
+    assert {v for _, v, *_ in table} == names
+    strengths = [s for _, _, s, *_ in table]
+    assert strengths == sorted(strengths, reverse=True)
+    ents = _entities(path)
+    for k, v, _, sig, e in table:
+        assert e == f"variables/{k:02d}_{v}" + ("_significant" if sig else "")
+        assert {f"/{e}/points", f"/{e}/frame", f"/{e}/axes"} <= ents
+        assert len(_column(path, f"/{e}/points", "Points2D:positions")[0]) == len(m)
+    return [(v, s, sig) for _, v, s, sig, _ in table]
+
+
 def test_diagnose_rrd_and_plots(data, tmp_path, capsys):
     csv, m = data
     rrd, plots = tmp_path / "diag.rrd", tmp_path / "plots" / "diag"  # nested folder: created
@@ -70,6 +92,7 @@ def test_diagnose_rrd_and_plots(data, tmp_path, capsys):
     [text] = _column(rrd, "/summary", "TextDocument:text")[0]
     assert "torchcal diagnose" in text and "missing backlash:3" in text
     assert os.stat(rrd).st_mode & 0o777 == 0o666 & ~_umask()
+    _variable_scatters(rrd, m)
     _png_ok(plots / "residual_vs_joints.png")
     _png_ok(plots / "residual_vs_variables.png")
 
@@ -88,6 +111,8 @@ def test_discover_rrd_and_plots(data, tmp_path):
     assert "added backlash:3" in added[1]
     [text] = _column(rrd, "/summary", "TextDocument:text")[0]
     assert "final effects | backlash:3" in text
+    scatters = _variable_scatters(rrd, m)
+    assert not any(sig for *_, sig in scatters)  # backlash found: nothing significant is left
     for name in PLOTS["discover"]:
         _png_ok(plots / name)
 

@@ -13,8 +13,8 @@ from rerun.chunk import RrdReader
 from torchcal.errors import InputError
 from viz import figures
 from viz.recording import (RESIDUAL_ARROW_SCALE, RecordingWriter, default_blueprint, log_discover_history,
-                           log_discover_round, log_error_intervals, log_residuals, log_summary, log_workspace,
-                           recording_id, summary_markdown)
+                           log_discover_round, log_error_intervals, log_residual_vs_variables, log_residuals,
+                           log_summary, log_workspace, recording_id, summary_markdown)
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -80,6 +80,40 @@ def test_recording_is_finalised_and_has_all_entities(full_recording):
     assert recording.recording_id == recording_id(7)
     assert len(reader.blueprints()) == 1
     assert "log_time" not in store.summary()  # no wall-clock timeline
+
+
+def test_residual_vs_variables_recording_strongest_first_significant_marked(tmp_path):
+    """One 2D scatter per variable, in strength order, N points each; the drawn points map
+    back to (variable, residual length) by the documented box scaling; the significant
+    variable's entity is marked and red; the blueprint has one view per variable."""
+    from viz.recording import OTHER_RGB, SIGNIFICANT_RGB, VARIABLE_BOX
+
+    rng = np.random.default_rng(1)
+    n = 50
+    values = {"q2": rng.uniform(-1, 1, n), "order": np.arange(n, dtype=float), "approach_q3": np.sign(rng.normal(size=n))}
+    res = rng.normal(0, 0.1, (n, 3))
+    strengths = {"q2": 0.05, "order": -0.01, "approach_q3": 0.6}
+    path = tmp_path / "v.rrd"
+    with RecordingWriter(path) as rec:
+        views = log_residual_vs_variables(rec, values, res, strengths, correlates=["approach_q3"])
+    assert [e for e, _ in views] == ["variables/01_approach_q3_significant", "variables/02_q2", "variables/03_order"]
+    assert views[0][1].startswith("* approach_q3") and not views[1][1].startswith("*")
+    ch = _chunks(path)
+    W, H = VARIABLE_BOX
+    length = np.linalg.norm(res, axis=1)
+    for (entity, _), name in zip(views, ["approach_q3", "q2", "order"]):
+        rb = _column(ch, f"/{entity}/points", "Points2D:positions")
+        xy = np.array(rb["Points2D:positions"][0])
+        assert xy.shape == (n, 2)
+        x = np.degrees(values[name]) if name == "q2" else values[name]
+        np.testing.assert_allclose(xy[:, 0], (x - x.min()) / np.ptp(x) * W, rtol=1e-5, atol=1e-4)
+        np.testing.assert_allclose(xy[:, 1], -length / length.max() * H / 2, rtol=1e-5, atol=1e-4)
+        rgb = SIGNIFICANT_RGB if name == "approach_q3" else OTHER_RGB
+        assert rb["Points2D:colors"][0][0] == int.from_bytes(bytes(rgb) + b"\xff", "big")
+        assert f"/{entity}/frame" in ch and f"/{entity}/axes" in ch
+    [text] = _column(ch, "/variables", "TextDocument:text")["TextDocument:text"][0]
+    assert "| 1 | approach_q3 | 0.600 | yes |" in text
+    assert len(RrdReader(path).blueprints()) == 1
 
 
 def test_recording_workspace_values(full_recording):

@@ -16,6 +16,8 @@ they are copied to host float64 once), so they depend on no other torchcal modul
           log_residuals(rec, "after", measured_mm, model_after_mm)
           log_error_intervals(rec, b_lo, b_hi, a_lo, a_hi, allowed_mm=1.0)
           log_summary(rec, summary_markdown("torchcal demo", {"RMS after (mm)": 0.21}))
+          log_residual_vs_variables(rec, values, residual_mm, strengths,  # 2D scatter per
+                                    correlates=["approach_q3"])          # variable
 
   The recording opens on a default blueprint laid out for what was logged (3D views of
   the workspace and residuals, time series, the summary).

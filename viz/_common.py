@@ -189,3 +189,35 @@ def temp_beside(path: Path) -> Path:
     os.umask(umask)
     os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it 0600; the output gets the usual mode
     return Path(tmp)
+
+
+def variable_panels(values, residual_mm, strengths, correlates=(), components=None):
+    """The panels of a residual-against-variables plot, shared by the figure and the recording.
+
+    values: {name: (N,) values} (joint angles ``q1..`` in rad); residual_mm: (N, 3) residual
+    vectors or (N,) lengths, mm; strengths: {name: strength}; correlates: the significant
+    names; components: {name: (N,) mm} a signed residual component per variable, drawn
+    instead of the length where given (see `torchcal.diagnosis.dependence`).
+
+    Returns a list, strongest first, of dicts with name, x (N,) (joint angles in degrees),
+    x_label, y (N,) mm, y_label, strength (nan where none), significant (bool).
+    """
+    r = to_numpy(residual_mm, "residual_mm")
+    if r.ndim == 2 and r.shape[1] == 3:
+        norm = np.linalg.norm(r, axis=1)
+    elif r.ndim == 1:
+        norm = np.abs(r)
+    else:
+        raise InputError(f"residual_mm: expected shape (N, 3) or (N,) in mm, got {tuple(r.shape)}")
+    components = components or {}
+    names = sorted(values, key=lambda k: -float(strengths.get(k, -np.inf)))
+    out = []
+    for name in names:
+        v = vector(values[name], f"values[{name!r}]", len(norm))
+        joint = name[:1] == "q" and name[1:].isdigit()
+        signed = name in components
+        out.append({"name": name, "x": np.degrees(v) if joint else v, "x_label": f"{name} (deg)" if joint else name,
+                    "y": vector(components[name], f"components[{name!r}]", len(norm)) if signed else norm,
+                    "y_label": "residual along its fitted dependence (mm)" if signed else "|residual| (mm)",
+                    "strength": float(strengths.get(name, np.nan)), "significant": name in correlates})
+    return out

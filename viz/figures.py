@@ -16,6 +16,8 @@ function              what                                                    ax
 `error_intervals`     error interval per test point and axis, before/after    3
                       compensation, with the allowed band (paper's Fig. 11)
 `residual_vs_joints`  residual against each joint angle (for ``diagnose``)    n
+`residual_vs_         residual (length, or signed component along the fitted  one per
+variables`            dependence) against each variable, strongest first      variable
 ====================  ======================================================  ======
 
 Units: positions and errors in mm, joint angles given in rad and drawn in degrees.
@@ -334,20 +336,20 @@ def residual_vs_joints_figure(q_rad, residual_mm, *, joint_names: Sequence[str] 
     return fig
 
 
-def residual_vs_variables(path, values, residual_mm, strengths, *, correlates=(), title: str =
+def residual_vs_variables(path, values, residual_mm, strengths, *, correlates=(), components=None, title: str =
                           "Residual against each variable, strongest dependence first",
                           max_points: int | None = MAX_SCATTER, force: bool = False) -> Path:
     """Write `residual_vs_variables_figure` to the PNG `path` (atomically); returns the path."""
     C.check_output(path, force)
-    fig = residual_vs_variables_figure(values, residual_mm, strengths, correlates=correlates, title=title,
-                                       max_points=max_points)
+    fig = residual_vs_variables_figure(values, residual_mm, strengths, correlates=correlates, components=components,
+                                       title=title, max_points=max_points)
     return save_figure(fig, path, force)
 
 
-def residual_vs_variables_figure(values, residual_mm, strengths, *, correlates=(), title: str =
+def residual_vs_variables_figure(values, residual_mm, strengths, *, correlates=(), components=None, title: str =
                                  "Residual against each variable, strongest dependence first",
                                  max_points: int | None = MAX_SCATTER) -> Figure:
-    """Residual length against every variable of `torchcal.diagnosis.unexplained` (joint
+    """Residual against every variable of `torchcal.diagnosis.unexplained` (joint
     angles, temperature, payload, measurement order, approach direction per joint), one
     panel per variable, ordered by strength (held-out R^2), strongest first.
 
@@ -356,31 +358,32 @@ def residual_vs_variables_figure(values, residual_mm, strengths, *, correlates=(
         residual_mm: (N, 3) residual vectors (or (N,) lengths), mm.
         strengths: {name: strength}; panels for the names in `values`, by strength descending.
         correlates: names found significant: their panel titles carry "*" and a red frame.
+        components: {name: (N,) mm}: the signed residual component drawn for that variable
+            instead of the length (see `torchcal.diagnosis.dependence`); the y label says which.
 
     Returns the figure; its axes are in panel order, each titled "NAME  R2 s".
     """
-    r = C.to_numpy(residual_mm, "residual_mm")
-    norm = np.linalg.norm(r, axis=1) if r.ndim == 2 else np.abs(r)
-    names = sorted(values, key=lambda k: -float(strengths.get(k, -np.inf)))
-    idx = C.subsample(len(norm), max_points)
-    ncols = min(4, max(len(names), 1))
-    nrows = -(-max(len(names), 1) // ncols)
+    panels = C.variable_panels(values, residual_mm, strengths, correlates, components)
+    n = len(panels[0]["y"]) if panels else 0
+    idx = C.subsample(n, max_points)
+    ncols = min(4, max(len(panels), 1))
+    nrows = -(-max(len(panels), 1) // ncols)
     fig = _new_figure(3.8 * ncols, 2.9 * nrows + 0.6)
     axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
-    for ax, name in zip(axes, names):
-        v = np.asarray(values[name], dtype=float)
-        x = np.degrees(v) if name[:1] == "q" and name[1:].isdigit() else v
-        ax.plot(x[idx], norm[idx], ".", ms=2, color="0.35")
-        mark = name in correlates
-        ax.set_title(f"{'* ' if mark else ''}{name}  R2 {float(strengths.get(name, np.nan)):.2f}",
+    for ax, p in zip(axes, panels):
+        ax.plot(p["x"][idx], p["y"][idx], ".", ms=2, color="0.35")
+        if not p["y_label"].startswith("|"):
+            ax.axhline(0.0, color="black", linewidth=0.5)
+        mark = p["significant"]
+        ax.set_title(f"{'* ' if mark else ''}{p['name']}  R2 {p['strength']:.2f}",
                      color="red" if mark else "black", fontsize=9)
         if mark:
-            for s in ax.spines.values():
-                s.set_color("red")
-                s.set_linewidth(2)
-        ax.set_xlabel(f"{name} (deg)" if x is not v else name, fontsize=8)
-        ax.set_ylabel("|residual| mm", fontsize=8)
-    for ax in axes[len(names):]:
+            for sp in ax.spines.values():
+                sp.set_color("red")
+                sp.set_linewidth(2)
+        ax.set_xlabel(p["x_label"], fontsize=8)
+        ax.set_ylabel(p["y_label"], fontsize=7 if len(p["y_label"]) > 20 else 8)
+    for ax in axes[len(panels):]:
         ax.set_visible(False)
     fig.suptitle(title)
     return fig

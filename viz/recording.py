@@ -34,6 +34,9 @@ Entity paths (positions in mm in the robot base frame, z up; rerun scene units a
   ``round`` (0 = the starting model, k = after the k-th added effect).
 - ``discover/added``: TextLog per round, the effect added.
 - ``summary``: TextDocument, markdown.
+- ``variables/kk_NAME[_significant]/{points,frame,axes}``: the residual against variable
+  NAME of rank kk (01 = strongest dependence), a 2D scatter (`log_residual_vs_variables`,
+  the recording's twin of `viz.figures.residual_vs_variables`); ``variables``: the table.
 
 Error intervals are time series (x axis = test point number) rather than 3D line strips:
 bounds per test point are read most easily as a plot, as in the paper. A time-series view
@@ -308,6 +311,83 @@ def log_discover_history(rec, rms_mm, cv_rms_mm=None, added: Sequence[str | None
                            None if added is None else added[k])
 
 
+# --------------------------------------------------------------------------- residual against variables
+VARIABLE_BOX = (100.0, 60.0)
+"""Width and height of the drawn box of one residual-against-variable scatter (2D scene
+units): x spans the variable's range, y +-(max |y|) around the zero line."""
+SIGNIFICANT_RGB = C.BEFORE_RGB
+OTHER_RGB = (90, 90, 90)
+
+
+def variable_entity(rank: int, name: str) -> str:
+    """Entity path of the `rank`-th (1 = strongest) variable's scatter."""
+    return f"variables/{rank:02d}_{name}"
+
+
+def log_residual_vs_variables(rec, values, residual_mm, strengths, *, correlates=(), components=None,
+                              point_radius_ui: float = 2.5) -> list[tuple[str, str]]:
+    """Log the residual against every variable (as `viz.figures.residual_vs_variables`):
+    one 2D scatter per variable, strongest dependence first, the significant ones red.
+
+    Args:
+        rec: a `rerun.RecordingStream` or a `RecordingWriter`.
+        values: {name: (N,) values} of `torchcal.diagnosis.unexplained.variables` (joint
+            angles ``q1..`` in rad, drawn in degrees).
+        residual_mm: (N, 3) residual vectors (or (N,) lengths), mm.
+        strengths: {name: strength} (held-out R^2); the order, strongest first.
+        correlates: the names found significant: drawn red, entity and view names carry
+            ``significant``/``*``.
+        components: {name: (N,) mm} signed residual component per variable, drawn instead
+            of the length where given.
+
+    A rerun 2D view has equal axes and y down, so each scatter is drawn in a box of
+    `VARIABLE_BOX` scene units: x = the variable scaled from its minimum (left) to its
+    maximum (right), y up = the plotted residual value scaled to +-box/2 by its largest
+    magnitude. Each point's label gives the true values. Logs, all static, for rank k
+    (1 = strongest): ``variables/kk_NAME/points`` (Points2D, N points, red when
+    significant, else grey), ``variables/kk_NAME/frame`` (LineStrips2D: box and zero line)
+    and ``variables/kk_NAME/axes`` (Points2D, labelled axis ends in true units); and
+    ``variables`` (TextDocument: the table rank, variable, strength, significant).
+
+    Returns [(entity, view title)] in rank order (the writer keeps it for the blueprint).
+    """
+    stream = _stream(rec, "variables")
+    panels = C.variable_panels(values, residual_mm, strengths, correlates, components)
+    W, H = VARIABLE_BOX
+    views, table = [], ["| rank | variable | strength (held-out R2) | significant | entity |", "|---|---|---|---|---|"]
+    radius = rr.Radius.ui_points(point_radius_ui)
+    for k, p in enumerate(panels, start=1):
+        base = variable_entity(k, p["name"]) + ("_significant" if p["significant"] else "")
+        x, y = p["x"], p["y"]
+        x0, x1 = float(x.min()), float(x.max())
+        span = x1 - x0 if x1 > x0 else 1.0
+        ymax = float(np.abs(y).max()) or 1.0
+        pos = np.stack([(x - x0) / span * W, -y / ymax * (H / 2)], axis=1)  # y up on screen
+        unit = " deg" if p["x_label"].endswith("(deg)") else ""
+        labels = [f"{p['name']} {xi:.4g}{unit}: {yi:+.4f} mm" for xi, yi in zip(x, y)] \
+            if len(x) <= MAX_LABELS else None
+        rgb = SIGNIFICANT_RGB if p["significant"] else OTHER_RGB
+        stream.log(f"{base}/points", rr.Points2D(pos, colors=rgb, radii=radius, labels=labels, show_labels=False),
+                   static=True)
+        box = [[0, -H / 2], [W, -H / 2], [W, H / 2], [0, H / 2], [0, -H / 2]]
+        stream.log(f"{base}/frame", rr.LineStrips2D([box, [[0, 0], [W, 0]]], colors=OTHER_RGB,
+                                                    radii=rr.Radius.ui_points(0.5), draw_order=-1.0), static=True)
+        ends = [[0, H / 2 + 4], [W, H / 2 + 4], [-2, -H / 2], [-2, H / 2]]  # below left/right, then y ends
+        what = "|residual|" if p["y_label"].startswith("|") else "residual component"
+        stream.log(f"{base}/axes", rr.Points2D(ends, radii=rr.Radius.ui_points(0.1), colors=OTHER_RGB, labels=[
+            f"{p['x_label']} {x0:.4g}", f"{x1:.4g}", f"{what} {ymax:+.3f} mm", f"{-ymax:+.3f} mm"],
+            show_labels=True), static=True)
+        title = f"{'* ' if p['significant'] else ''}{p['name']}  R2 {p['strength']:.2f}: {p['y_label']}"
+        views.append((base, title))
+        table.append(f"| {k} | {p['name']} | {p['strength']:.3f} | {'yes' if p['significant'] else 'no'} | {base} |")
+    stream.log("variables", rr.TextDocument("# Residual against each variable, strongest first\n\n"
+                                            + "\n".join(table) + "\n", media_type=rr.MediaType.MARKDOWN),
+               static=True)
+    if isinstance(rec, RecordingWriter):
+        rec.variable_views = views
+    return views
+
+
 # --------------------------------------------------------------------------- summary
 def summary_markdown(title: str, facts: Mapping[str, object] | None = None, notes: Sequence[str] = ()) -> str:
     """A markdown summary: a title, a two-column table of `facts`, then `notes` as bullets.
@@ -335,16 +415,19 @@ def log_summary(rec, markdown: str) -> None:
 
 # --------------------------------------------------------------------------- blueprint
 ALL_SECTIONS = frozenset({"workspace", "residuals/before", "residuals/after", "error_intervals", "discover",
-                          "summary"})
+                          "summary", "variables"})
 
 
-def default_blueprint(sections=ALL_SECTIONS, *, arrow_scale: float = RESIDUAL_ARROW_SCALE) -> rrb.Blueprint:
+def default_blueprint(sections=ALL_SECTIONS, *, arrow_scale: float = RESIDUAL_ARROW_SCALE,
+                      variable_views: Sequence[tuple[str, str]] = ()) -> rrb.Blueprint:
     """The layout a recording opens on, with views only for the logged `sections`.
 
     Left: 3D views (workspace by R_set, workspace by zone, residuals before, after).
     Right: error intervals per axis (tabs x, y, z), the ``discover`` error per round, the
     summary. The time panel selects ``test_point`` when error intervals are present,
-    else ``round``.
+    else ``round``. With ``variables`` logged: a second tab, one 2D view per
+    `variable_views` entry ``(entity, title)`` (as returned by `log_residual_vs_variables`),
+    in that order (strongest dependence first), beside the table.
     """
     sections = set(sections)
     unknown = sections - ALL_SECTIONS
@@ -375,10 +458,20 @@ def default_blueprint(sections=ALL_SECTIONS, *, arrow_scale: float = RESIDUAL_AR
     if panels:
         columns.append(rrb.Vertical(*panels, name="Plots"))
     timeline = TEST_POINT_TIMELINE if "error_intervals" in sections else ROUND_TIMELINE
-    if not columns:
+    tabs = []
+    if columns:
+        shares = [3, 2] if len(columns) == 2 else None
+        tabs.append(rrb.Horizontal(*columns, column_shares=shares, name="Overview"))
+    if "variables" in sections:
+        W, H = VARIABLE_BOX
+        bounds = rrb.VisualBounds2D(x_range=[-0.25 * W, 1.1 * W], y_range=[-0.6 * H, 0.75 * H])
+        views = [rrb.Spatial2DView(origin=f"/{e}", name=t, visual_bounds=bounds) for e, t in variable_views]
+        views.append(rrb.TextDocumentView(origin="/variables", contents="$origin", name="Variables by strength"))
+        tabs.append(rrb.Grid(*views, grid_columns=4, name="Residual against each variable"))
+    if not tabs:
         return rrb.Blueprint(rrb.TimePanel(timeline=timeline))
-    shares = [3, 2] if len(columns) == 2 else None
-    return rrb.Blueprint(rrb.Horizontal(*columns, column_shares=shares), rrb.TimePanel(timeline=timeline))
+    root = tabs[0] if len(tabs) == 1 else rrb.Tabs(*tabs)
+    return rrb.Blueprint(root, rrb.TimePanel(timeline=timeline))
 
 
 # --------------------------------------------------------------------------- writer
@@ -412,6 +505,7 @@ class RecordingWriter:
         self.force = force
         self.sections: set[str] = set()
         self.arrow_scale = RESIDUAL_ARROW_SCALE
+        self.variable_views: list[tuple[str, str]] = []
         self.stream: rr.RecordingStream | None = None
         self._tmp: Path | None = None
 
@@ -438,7 +532,7 @@ class RecordingWriter:
         stream, tmp = self.stream, self._tmp
         try:
             bp = self.blueprint if self.blueprint is not None else default_blueprint(
-                self.sections, arrow_scale=self.arrow_scale)
+                self.sections, arrow_scale=self.arrow_scale, variable_views=self.variable_views)
             stream.send_blueprint(bp, make_active=True, make_default=True)
             stream.flush()
             stream.disconnect()  # drops the FileSink: the file gets its footer and is complete

@@ -108,7 +108,8 @@ def diagnosis_outputs(args, robot, m, d) -> None:
     """``diagnose --rrd/--plots``: residual vs joints PNG; recording of the baseline fit.
 
     Recording: ``residuals/before/{measured,model,residual}`` (the baseline model's
-    positions = measured - residual, arrows model -> measured) and ``summary``.
+    positions = measured - residual, arrows model -> measured), ``variables/...`` (what
+    the baseline + verdict leave against each variable, as the PNG) and ``summary``.
     PNG: ``residual_vs_joints.png`` (x/y/z residual and RMS per bin against each joint).
     """
     rrd, pngs = check_outputs(args, "diagnose")
@@ -128,24 +129,48 @@ def diagnosis_outputs(args, robot, m, d) -> None:
 
         with RecordingWriter(rrd, seed=int(getattr(args, "seed", 0) or 0), force=force) as rec:
             log_residuals(rec, "before", xyz, xyz - res, point_names=_pose_names(m))
+            _variables_rrd(rec, robot, m, d.unexplained)
             log_summary(rec, diagnosis_markdown(robot, m, d))
     for p in ([rrd] if rrd is not None else []) + pngs:
         print(f"wrote {p}")
 
 
+def _variables(robot, m, un) -> dict | None:
+    """The residual-against-variables data of `unexplained` (None without residuals): the
+    arguments shared by the PNG and the recording. What is drawn against each variable is
+    the signed residual component along its fitted dependence
+    (`torchcal.diagnosis.dependence`): the length would hide a sign that flips (backlash)."""
+    from torchcal.diagnosis.dependence import signed_components
+    from torchcal.diagnosis.unexplained import variables
+
+    if un is None or un.residuals is None:
+        return None
+    return {"values": variables(robot, m), "residual_mm": un.residuals,
+            "strengths": {k: s for k, (s, _) in un.strengths.items()},
+            "correlates": [v for v, _ in un.correlates_with],
+            "components": signed_components(robot, m, un.residuals)}
+
+
 def _variables_png(path, robot, m, un, force: bool, what: str) -> None:
     """Residual against every variable of `unexplained`, strongest dependence first, the
     significant ones marked (``residual_vs_variables.png``)."""
-    from torchcal.diagnosis.unexplained import variables
     from viz import figures
 
-    if un is None or un.residuals is None:
+    data = _variables(robot, m, un)
+    if data is None:
         return
-    figures.residual_vs_variables(path, variables(robot, m), un.residuals,
-                                  {k: s for k, (s, _) in un.strengths.items()},
-                                  correlates=[v for v, _ in un.correlates_with], force=force,
+    figures.residual_vs_variables(path, **data, force=force,
                                   title=f"{what}: residual against each variable, strongest dependence "
                                         f"first (* significant)")
+
+
+def _variables_rrd(rec, robot, m, un) -> None:
+    """The same in the recording (``variables/...``, `viz.recording.log_residual_vs_variables`)."""
+    from viz.recording import log_residual_vs_variables
+
+    data = _variables(robot, m, un)
+    if data is not None:
+        log_residual_vs_variables(rec, **data)
 
 
 # --------------------------------------------------------------------------- discover
@@ -181,7 +206,8 @@ def discovery_outputs(args, robot, m, res) -> None:
 
     Recording: ``discover/{rms_mm,cv_rms_mm,added}`` on the ``round`` timeline (0 = the
     starting model), ``residuals/before/...`` (round 0's fit), ``residuals/after/...``
-    (the final model's fit) and ``summary``.
+    (the final model's fit), ``variables/...`` (what the final model leaves against each
+    variable, as the PNG) and ``summary``.
     PNGs: ``residual_vs_joints_before.png`` and ``residual_vs_joints_after.png``.
     """
     rrd, pngs = check_outputs(args, "discover")
@@ -209,6 +235,7 @@ def discovery_outputs(args, robot, m, res) -> None:
                                  _added(res.history))
             log_residuals(rec, "before", xyz, xyz - _np(before.residuals), point_names=names)
             log_residuals(rec, "after", xyz, xyz - _np(res.fit.residuals), point_names=names)
+            _variables_rrd(rec, robot, m, res.unexplained)
             log_summary(rec, discovery_markdown(robot, m, res))
     for p in ([rrd] if rrd is not None else []) + pngs:
         print(f"wrote {p}")

@@ -67,7 +67,7 @@ def run_case(title, r, model, zones, repeat):
     fits = identify_zones(model, zones)  # identifiability per zone (not timed below); warms up
     free = torch.stack([f.free for f in fits])  # (Z, P)
     ctxs = [z.context(r) for z in zones]
-    targets = torch.stack([z.centre for z in zones])  # (Z, m, 3)
+    targets = torch.stack([z.center for z in zones])  # (Z, m, 3)
     x0 = torch.zeros(Z, P, dtype=torch.float64)
 
     def torch_zone(z):

@@ -8,7 +8,6 @@ import math
 import pytest
 import torch
 
-import torchcal
 from torchcal.errors import InputError
 from torchcal.robots.urdf import minimal_urdf, read_chain, robot_from_urdf, urdf_fk
 

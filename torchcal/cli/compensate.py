@@ -149,8 +149,6 @@ def default_seeds(robot, targets):
 
 
 def run(args) -> int:
-    import torch
-
     from torchcal.calibration.compensate import compensate, nominal_inverse
     from torchcal.io.files import atomic_write
 

@@ -3,10 +3,10 @@ the model fails and which physical effect it is missing (see torchcal.diagnosis.
 
 from __future__ import annotations
 
+from torchcal import api
 from torchcal.io import modelfile
 from torchcal.cli._args import (add_effects_module, add_force, add_units, add_viz, check_folder, check_outputs,
                                 positive_int, read_data, add_robot)
-from torchcal.diagnosis.diagnose import diagnose
 from torchcal.errors import InputError
 from torchcal.io.files import write_json
 from torchcal.robots.robot import robot as make_robot
@@ -60,12 +60,10 @@ def run(args) -> int:
     if args.model and args.effects is not None:
         raise InputError("--model and --effects both give the baseline effects; pass one of them")
     robot = make_robot(args.robot)
-    effects = args.effects or []
-    if args.model:
-        model, _ = modelfile.load(args.model, robot=robot)
-        effects = model.specs()
+    # the baseline: the MODEL.json's model (its effects) or the robot with --effects
+    baseline = modelfile.load(args.model, robot=robot)[0] if args.model else robot
     m = read_data(args.data, robot, args)
-    d = diagnose(robot, m, effects, folds=args.folds, seed=args.seed)
+    d = api.diagnose(baseline, m, args.effects or [], folds=args.folds, seed=args.seed)
     print_table(d)
     if args.json:
         write_json(args.json, d.to_dict(), force=args.force, inputs=[args.data, args.model])

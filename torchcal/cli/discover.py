@@ -3,10 +3,10 @@ best significant effect each round until none is left; the error falls at each r
 
 from __future__ import annotations
 
+from torchcal import api
 from torchcal.io import modelfile
 from torchcal.cli._args import (add_effects_module, add_force, add_units, add_viz, check_folder, check_outputs,
                                 positive_int, read_data, add_robot)
-from torchcal.diagnosis.diagnose import discover
 from torchcal.io.files import write_json
 from torchcal.robots.robot import robot as make_robot
 
@@ -36,7 +36,7 @@ def run(args) -> int:
         check_visual_outputs(args, "discover")
     robot = make_robot(args.robot)
     m = read_data(args.data, robot, args)
-    res = discover(robot, m, args.effects, folds=args.folds, seed=args.seed)
+    res = api.discover(robot, m, args.effects, folds=args.folds, seed=args.seed)
     for i, h in enumerate(res.history):
         print(f"round {i}: [{', '.join(h['effects']) or 'geometric only'}] rms {h['rms_mm']:.4f} mm, "
               f"cv rms {h['cv_rms_mm']:.4f} mm")

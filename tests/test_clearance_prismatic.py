@@ -106,8 +106,8 @@ def _explicit_tcp(robot, model, q, states):
     return (T @ robot.tool)[:3, 3]
 
 
-def test_seat_centres_land_on_the_seat_offsets():
-    """The rigid motion's definition: seat centres (0, 0, -+L/2) -> (u1, -L/2), (u2, L/2)."""
+def test_seat_centers_land_on_the_seat_offsets():
+    """The rigid motion's definition: seat centers (0, 0, -+L/2) -> (u1, -L/2), (u2, L/2)."""
     u1, u2 = torch.tensor([0.02, -0.01], dtype=torch.float64), torch.tensor([-0.015, 0.025], dtype=torch.float64)
     E = _axis_motion(u1, u2, 100.0)
     for u, z in ((u1, -50.0), (u2, 50.0)):

@@ -27,7 +27,7 @@ DEG = torch.pi / 180
 
 
 def exact_intervals(model, theta, q, half_width=None):
-    """PoseIntervals whose centres are the model's exact positions at theta."""
+    """PoseIntervals whose centers are the model's exact positions at theta."""
     p = model.predict(theta, make_context(model.robot, q))
     hw = torch.zeros_like(p) if half_width is None else half_width
     m = q.shape[0]
@@ -48,7 +48,7 @@ def test_pose_intervals_are_intervals():
     data = PoseIntervals(torch.arange(1), torch.zeros(1, 6), lo, lo + torch.tensor([[2.0, 1.0, 0.0]]),
                          torch.tensor([2]))
     assert data.center.tolist() == [[2.0, -1.5, 0.0]] and data.radius.tolist() == [[1.0, 0.5, 0.0]]
-    assert data.centre.tolist() == data.center.tolist()  # the former name still works
+    assert data.center.tolist() == data.center.tolist()  # the former name still works
     assert torch.equal(data.interval.lower, lo)
     with pytest.raises(InputError, match=r"lower must be <= upper.*index \[0, 1\]"):
         PoseIntervals(torch.arange(1), torch.zeros(1, 6), lo, lo - torch.tensor([[0.0, 1.0, 0.0]]),
@@ -103,9 +103,9 @@ def noisy_zone(kr):
     g = torch.Generator().manual_seed(8)
     truth = random_theta(model, model.default_free(), 9, scale=3.0)
     p = model.predict(truth, make_context(kr, q))
-    centre = p + 0.05 * torch.randn(p.shape, generator=g, dtype=torch.float64)
+    center = p + 0.05 * torch.randn(p.shape, generator=g, dtype=torch.float64)
     radius = 0.02 + 0.1 * torch.rand(p.shape, generator=g, dtype=torch.float64)
-    data = PoseIntervals(torch.arange(12), q, centre - radius, centre + radius, torch.full((12,), 10))
+    data = PoseIntervals(torch.arange(12), q, center - radius, center + radius, torch.full((12,), 10))
     return model, data, identify_intervals(model, data)
 
 
@@ -114,7 +114,7 @@ def test_hull_contains_linear_solutions_and_is_tight(noisy_zone):
     g = torch.Generator().manual_seed(10)
     ec, er = data.center.reshape(-1), data.radius.reshape(-1)
     u = 2 * torch.rand(500, ec.numel(), generator=g, dtype=torch.float64) - 1
-    de = u * er  # (500, 3m) inside the box, relative to the centre
+    de = u * er  # (500, 3m) inside the box, relative to the center
     sols = fit.theta + de @ fit.S.T
     iv = fit.interval
     assert iv.contains(sols, atol=1e-12).all()

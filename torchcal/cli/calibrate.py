@@ -2,7 +2,7 @@
 calibration from a measurement CSV with repeated measurements per pose.
 
 Each pose's repeats give per-axis error intervals; the model (geometric MD-H deviations
-plus ``--effects``) is identified on the interval centres and the interval radii are
+plus ``--effects``) is identified on the interval centers and the interval radii are
 propagated through the linearised solution map (torchcal.calibration.intervals).
 
 - Without ``--partition``: one global interval calibration.

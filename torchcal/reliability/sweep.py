@@ -16,7 +16,7 @@ each point, distance-error interval per point, R_set":
    max per axis and of |e| are reduced on the fly, so memory stays O(chunk + N) and an
    N x M x 3 tensor never exists. Point blocks are shared among `threads` workers.
    With ``include_nominal`` (default) the zero-deviation
-   state (every shaft centred) belongs to the set, so each axis interval contains 0 and
+   state (every shaft centerd) belongs to the set, so each axis interval contains 0 and
    the distance interval is [0, s^u] as in the paper's Table 3. (The states form a
    connected set containing the nominal one, so every value between 0 and the largest
    distance is attained: [0, s^u] is the exact range of the sampled maximum.)

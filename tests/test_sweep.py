@@ -221,9 +221,13 @@ def test_default_kr1000_reliability_spread_as_in_table3(kr):
 
 
 def test_sweep_is_deterministic_by_seed(kr):
-    before = torch.get_num_threads()
-    a = sweep(kr, n_points=20, n_samples=40, seed=3)
-    assert torch.get_num_threads() == before  # the sweep's serial-ops switch is undone
+    before = torch.get_num_threads()  # 1 in the suite (conftest): try with 2 so a leak would show
+    torch.set_num_threads(2)
+    try:
+        a = sweep(kr, n_points=20, n_samples=40, seed=3)
+        assert torch.get_num_threads() == 2  # the sweep's serial-ops switch is undone
+    finally:
+        torch.set_num_threads(before)
     b = sweep(kr, n_points=20, n_samples=40, seed=3)
     c = sweep(kr, n_points=20, n_samples=40, seed=4)
     for name in ("q", "err_lower", "err_upper", "dist_upper", "r_set", "eta", "lin_upper"):

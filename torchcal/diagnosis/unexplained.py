@@ -12,22 +12,38 @@
   * Without repeats: ``rms_mm * sqrt(1 - strength)`` of the strongest variable below,
     i.e. the held-out error that no single variable predicts. It is an upper bound of
     the noise (it keeps whatever the variables do not explain), documented as such.
-- correlates_with: the variables the residual depends on, strongest first. The
-  variables are each joint angle ``q1..qn``, ``temp_c`` and ``payload_kg`` (when they
-  vary), the measurement ``order`` (row index) and the approach direction of each joint
-  ``approach_q1..`` (sign of q - q_prev). For one variable v the residual is fitted by a
-  smooth function of v in joint space and in the base frame: columns
-  ``phi_b(v) * [dP/dq (3, n), I3]`` (3 rows per measurement), phi_b the piecewise-linear
-  hat functions on 6 quantile knots of v (one indicator per value when v takes at most 3
-  values), i.e. a joint-angle error and a TCP offset that both vary smoothly with v
-  (a coupling q_j += k q_i, a gear error, a drift, a bent link all have this form).
-  strength = held-out R^2 of that fit, ``1 - sum |r - r_hat|^2 / sum |r|^2``, with
-  r_hat predicted for each fold by pose (5 folds) from the other folds.
-  A variable correlates when strength >= MIN_STRENGTH (2 %) and its held-out gain is
-  significant by pose: per pose p, ``d_p = sum_i |r_pi|^2 - |r_pi - r_hat_pi|^2``, one-sided
-  t-test of mean(d_p) > 0 over the poses at level alpha / (number of variables)
-  (Bonferroni). Pose-level: repeats of a pose are one piece of evidence. Under pure noise
-  a held-out prediction only adds error (E d_p < 0), so the test is conservative.
+- correlates_with: the variables the residual depends on. The variables are each joint
+  angle ``q1..qn``, ``temp_c`` and ``payload_kg`` (when they vary), the measurement
+  ``order`` (row index) and the approach direction of each joint ``approach_q1..`` (sign
+  of q - q_prev). For one variable v the residual is fitted by a smooth function of v in
+  joint space and in the base frame: columns ``phi_b(v) * [dP/dq (3, n), I3]`` (3 rows
+  per measurement), phi_b the piecewise-linear hat functions on 6 quantile knots of v (one
+  indicator per value when v takes at most 3 values), i.e. a joint-angle error and a TCP
+  offset that both vary smoothly with v (a coupling q_j += k q_i, a gear error, a drift, a
+  bent link all have this form).
+
+  The fit is ridge regression, held out by pose: poses are split into 5 folds; the
+  prediction for a fold comes from the other four, with the ridge weight chosen on those
+  four alone by an inner cross-validation over the same folds (nested, so the choice never
+  sees the rows it predicts). With few poses the smooth model has about as many columns as
+  rows; plain least squares then over-fits and predicts worse than zero even where the
+  dependence is strong, ridge shrinks towards zero instead.
+  strength = held-out R^2, ``1 - sum |r - r_hat|^2 / sum |r|^2``.
+
+  Significance by pose: per pose p, ``c_p = sum_i <r_pi, r_hat_pi>``, the held-out
+  covariance of residual and prediction, and a one-sided t-test of mean(c_p) > 0 over the
+  poses. r_hat of a pose is computed without that pose's rows, so with no dependence
+  c_p has mean zero; repeats of a pose are one piece of evidence. (Testing the held-out
+  gain ``|r|^2 - |r - r_hat|^2`` instead also charges the prediction's own variance and
+  was 10 to 100 times less powerful in a simulated study: docs/diagnosis.md.)
+  Forward selection lists the variables: at step s = 1, 2, ... the variables not yet
+  listed are tested on what the listed ones leave (the residual minus their held-out
+  predictions); among those whose own strength (first-step R^2) is >= MIN_STRENGTH (2 %)
+  and whose p-value at this step is below alpha / 2^s / (number of variables), the one
+  that explains most of what is left is listed next. So a variable that only mirrors a
+  listed one (in random poses the approach direction of a joint goes with its angle) is
+  not listed, and a variable that explains nothing on its own is never listed.
+  The strength reported is the variable's own (first-step) R^2.
 - significant: structured error remains, i.e. at least one variable correlates.
 """
 
@@ -126,6 +142,63 @@ def noise_floor_from_repeats(pose: np.ndarray, r: np.ndarray) -> float | None:
     return float(np.sqrt(((r - mean[inv]) ** 2).sum() / dof))
 
 
+#: ridge weights tried, relative to the (unit) squared column norms.
+RIDGE_GRID = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0, 100.0, 1e3, 1e4)
+
+
+def _ridge(G: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """(len(RIDGE_GRID), k) ridge coefficients for the normal equations G (k, k), b (k,)
+    (eigenvalues below 1e-12 of the largest count as zero: minimum-norm solution)."""
+    w, V = torch.linalg.eigh(G)
+    mu = torch.tensor(RIDGE_GRID, dtype=G.dtype)[:, None]
+    keep = w > 1e-12 * w.max().clamp_min(1e-300)
+    f = torch.where(keep, 1.0 / (w + mu).clamp_min(1e-300), torch.zeros_like(w))  # (G, k)
+    return (f * (V.T @ b)) @ V.T
+
+
+def held_out_prediction(X: torch.Tensor, y: torch.Tensor, fold: np.ndarray) -> torch.Tensor:
+    """Nested-CV ridge prediction of y (R,) from X (R, k) for every row, each fold
+    predicted from the others with the ridge weight chosen by an inner cross-validation
+    over those others (fold (R,) ints in 0..F-1)."""
+    F = int(fold.max()) + 1
+    masks = [torch.from_numpy(fold == f) for f in range(F)]
+    Gs = torch.stack([X[mk].T @ X[mk] for mk in masks])  # (F, k, k) per-fold normal equations
+    bs = torch.stack([X[mk].T @ y[mk] for mk in masks])  # (F, k)
+    G_all, b_all = Gs.sum(0), bs.sum(0)
+    pred = torch.zeros_like(y)
+    for f in range(F):
+        if not masks[f].any():
+            continue
+        err = torch.zeros(len(RIDGE_GRID), dtype=y.dtype)
+        for g in range(F):
+            if g != f and masks[g].any():
+                C = _ridge(G_all - Gs[f] - Gs[g], b_all - bs[f] - bs[g])
+                err += ((X[masks[g]] @ C.T - y[masks[g], None]) ** 2).sum(0)
+        best = int(err.argmin())
+        pred[masks[f]] = X[masks[f]] @ _ridge(G_all - Gs[f], b_all - bs[f])[best]
+    return pred
+
+
+def _test(name_values: dict, D: torch.Tensor, r: np.ndarray, folds: np.ndarray, pose_idx: np.ndarray):
+    """{name: (strength, p, r_hat (N, 3))} for residual rows r (N, 3), see the module doc."""
+    N, P = len(r), int(pose_idx.max()) + 1
+    y = torch.from_numpy(np.ascontiguousarray(r)).reshape(-1)
+    total = max(float((r ** 2).sum()), 1e-300)
+    rows = np.repeat(folds, 3)
+    out = {}
+    for name, v in name_values.items():
+        H = torch.from_numpy(basis(v))  # (N, b)
+        X = (H[:, None, :, None] * D[:, :, None, :]).reshape(N * 3, -1)  # (3N, b (n + 3))
+        X = X / X.norm(dim=0).clamp_min(1e-300)
+        pred = held_out_prediction(X, y, rows).reshape(-1, 3).numpy()
+        strength = 1.0 - float(((r - pred) ** 2).sum()) / total
+        c = np.bincount(pose_idx, weights=(r * pred).sum(-1), minlength=P)
+        sd = c.std(ddof=1) if P > 1 else 0.0
+        p = 1.0 if sd == 0 else float(scipy.stats.t.sf(c.mean() / (sd / np.sqrt(P)), P - 1))
+        out[name] = (strength, p, pred)
+    return out
+
+
 def unexplained(robot: Robot, m: Measurements, residuals: torch.Tensor, seed: int = 0,
                 alpha: float = ALPHA) -> Unexplained:
     """What the model leaves unexplained in `residuals` (N, 3) mm (measured - model or
@@ -136,34 +209,22 @@ def unexplained(robot: Robot, m: Measurements, residuals: torch.Tensor, seed: in
     rms = float(np.sqrt((r ** 2).sum(-1).mean()))
     folds = _fold_of_pose(pose, seed)
     _, pose_idx = np.unique(pose, return_inverse=True)
-    P = int(pose_idx.max()) + 1 if N else 0
     D = torch.cat([robot.joint_jacobian(m.q.detach().cpu().to(robot.dtype)).to(torch.float64),
                    torch.eye(3, dtype=torch.float64).expand(N, 3, 3)], -1)  # (N, 3, n + 3)
-    rt = torch.from_numpy(r)
-    total = float((r ** 2).sum())
-    strengths = {}
-    for name, v in variables(robot, m).items():
-        H = torch.from_numpy(basis(v))  # (N, b)
-        X = (H[:, None, :, None] * D[:, :, None, :]).reshape(N * 3, -1)  # (3N, b (n + 3))
-        X = X / X.norm(dim=0).clamp_min(1e-300)
-        y = rt.reshape(-1)
-        pred = torch.zeros_like(y)
-        rows = np.repeat(folds, 3)
-        for f in range(FOLDS):
-            test = torch.from_numpy(rows == f)
-            if not test.any() or test.all():
-                continue
-            coef = torch.linalg.lstsq(X[~test], y[~test], rcond=1e-10, driver="gelsd").solution
-            pred[test] = X[test] @ coef
-        e = (y - pred).reshape(-1, 3).numpy()
-        strength = 1.0 - float((e ** 2).sum()) / max(total, 1e-300)
-        d = np.bincount(pose_idx, weights=(r ** 2).sum(-1) - (e ** 2).sum(-1), minlength=P)
-        sd = d.std(ddof=1) if P > 1 else 0.0
-        p = 1.0 if sd == 0 else float(scipy.stats.t.sf(d.mean() / (sd / np.sqrt(P)), P - 1))
-        strengths[name] = (strength, p)
-    level = alpha / max(len(strengths), 1)
-    corr = sorted(((k, s) for k, (s, p) in strengths.items() if s >= MIN_STRENGTH and p < level),
-                  key=lambda t: -t[1])
+    values = variables(robot, m) if N > 1 else {}
+    first = _test(values, D, r, folds, pose_idx)
+    strengths = {k: (s, p) for k, (s, p, _) in first.items()}
+    corr, rest, step, tested = [], r, 1, first
+    while tested:
+        level = alpha / 2 ** step / max(len(values), 1)
+        ok = [(k, s) for k, (s, p, _) in tested.items() if strengths[k][0] >= MIN_STRENGTH and p < level]
+        if not ok:
+            break
+        name = max(ok, key=lambda t: t[1])[0]
+        corr.append((name, strengths[name][0]))
+        rest = rest - tested[name][2]
+        left = {k: v for k, v in values.items() if k not in {c for c, _ in corr}}
+        tested, step = _test(left, D, rest, folds, pose_idx), step + 1
     floor = noise_floor_from_repeats(pose, r)
     source = "repeats"
     if floor is None:

@@ -59,10 +59,10 @@ def run(args) -> int:
     if args.model and args.effects is not None:
         raise InputError("--model and --effects both give the baseline effects; pass one of them")
     robot = make_robot(args.robot)
-    # the baseline: the MODEL.json's model (its effects) or the robot with --effects
-    baseline = modelfile.load(args.model, robot=robot)[0] if args.model else robot
+    # the baseline effects: the MODEL.json's (checked against --robot) or --effects
+    effects = modelfile.load(args.model, robot=robot)[0].specs() if args.model else args.effects or []
     m = read_data(args.data, robot, args)
-    d = api.diagnose(baseline, m, args.effects or [], folds=args.folds, seed=args.seed)
+    d = api.diagnose(robot, m, effects, folds=args.folds, seed=args.seed)
     print_table(d)
     if args.json:
         write_json(args.json, d.to_dict(), force=args.force, inputs=[args.data, args.model])

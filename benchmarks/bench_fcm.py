@@ -48,8 +48,8 @@ def main(argv=None) -> int:
     print(f"{'d':>2} {'method':<24} {'time s':>8} {'min s':>7} {'iter/s':>8} {'speed-up':>9}   agreement")
     rng = np.random.default_rng(0)
     for d in (1, 3):
-        centres = rng.uniform(-10, 10, size=(c, d))
-        x = centres[rng.integers(0, c, args.n)] + rng.standard_normal((args.n, d))  # (N, d)
+        centers = rng.uniform(-10, 10, size=(c, d))
+        x = centers[rng.integers(0, c, args.n)] + rng.standard_normal((args.n, d))  # (N, d)
         u0 = rng.random((c, args.n))
         u0 /= u0.sum(axis=0)  # (c, N)
         xt = torch.from_numpy(x)

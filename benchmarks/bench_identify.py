@@ -5,7 +5,7 @@ frame offset, joint clearance (Table 2) and noise; 10 zones, 10 repetitions per 
 Two cases: (1) 10 poses per zone fitted with the geometric MD-H model (25 candidate
 parameters, 20 identifiable), analytic Jacobian (eq. 17); (2) 15 poses per zone fitted
 with the demo's model (geometric + base_frame + joint_clearance, 43 candidates), Jacobian
-by forward-mode autodiff. Every solver gets the same residual (model - interval centre),
+by forward-mode autodiff. Every solver gets the same residual (model - interval center),
 the same free parameters (from torchcal's identifiability analysis, done once beforehand
 and not timed) and the same Jacobian, and starts from nominal.
 
@@ -67,7 +67,7 @@ def run_case(title, r, model, zones, repeat):
     fits = identify_zones(model, zones)  # identifiability per zone (not timed below); warms up
     free = torch.stack([f.free for f in fits])  # (Z, P)
     ctxs = [z.context(r) for z in zones]
-    targets = torch.stack([z.centre for z in zones])  # (Z, m, 3)
+    targets = torch.stack([z.center for z in zones])  # (Z, m, 3)
     x0 = torch.zeros(Z, P, dtype=torch.float64)
 
     def torch_zone(z):
@@ -129,7 +129,7 @@ def run_case(title, r, model, zones, repeat):
         cost_sp.append(sp[z].cost)
         cost_tb.append(float(tb.cost[z]))
     print(f"== {title}")
-    print(f"   {Z} zones x {m} poses (10 repetitions -> interval centres), model geometric + "
+    print(f"   {Z} zones x {m} poses (10 repetitions -> interval centers), model geometric + "
           f"[{', '.join(model.specs()) or 'nothing'}], {int(model.default_free().sum())} candidate parameters, "
           f"{int(free[0].sum())} free in zone 0; torch threads {torch.get_num_threads()}; median of {repeat}")
     print(f"   {'solver':<44}{'total ms':>10}{'per zone ms':>13}{'vs scipy':>10}")

@@ -1,8 +1,15 @@
-"""Fixtures shared by the test modules."""
+"""Fixtures shared by the test modules; one torch thread for the session."""
 
 import pytest
+import torch
 
 import torchcal
+
+# The suite's tensors are small: torch's intra-op threads gain nothing on them, and on a
+# machine whose cores are busy with other work they stall on their barriers (measured on
+# the 2-core development machine under load: `diagnose` of an 80-row 7-joint session 0.9-1.0 s
+# on one thread, 6.9-23.7 s on two). Tests that exercise threads set them themselves.
+torch.set_num_threads(1)
 
 
 @pytest.fixture(scope="module")

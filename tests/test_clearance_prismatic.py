@@ -25,7 +25,8 @@ import torch
 
 from torchcal import cli
 from torchcal.errors import InputError
-from torchcal.reliability.sweep import SweepResult, sweep
+from torchcal.io.sweep_csv import read_sweep
+from torchcal.reliability.sweep import sweep
 from torchcal.reliability.uncertainty import ClearanceModel, sample_states, states_to_deviations
 from torchcal.robots.robot_file import robot_from_dict, robot_to_dict
 
@@ -105,8 +106,8 @@ def _explicit_tcp(robot, model, q, states):
     return (T @ robot.tool)[:3, 3]
 
 
-def test_seat_centres_land_on_the_seat_offsets():
-    """The rigid motion's definition: seat centres (0, 0, -+L/2) -> (u1, -L/2), (u2, L/2)."""
+def test_seat_centers_land_on_the_seat_offsets():
+    """The rigid motion's definition: seat centers (0, 0, -+L/2) -> (u1, -L/2), (u2, L/2)."""
     u1, u2 = torch.tensor([0.02, -0.01], dtype=torch.float64), torch.tensor([-0.015, 0.025], dtype=torch.float64)
     E = _axis_motion(u1, u2, 100.0)
     for u, z in ((u1, -50.0), (u2, 50.0)):
@@ -220,7 +221,7 @@ def test_cli_sweep_on_a_robot_file(tmp_path, capsys):
     assert "R_set min" in capsys.readouterr().out
     assert a.read_text() == b.read_text()
     # q of a prismatic joint is mm in the CSV (inside its mm limits), revolute ones degrees
-    res = SweepResult.from_csv(a, prismatic=[True, False, False, True, False, False, False])
+    res = read_sweep(a, prismatic=[True, False, False, True, False, False, False])
     assert res.q.shape == (12, 7)
     r = robot_from_dict(ROBOT)
     assert bool(r.within_limits(res.q).all())

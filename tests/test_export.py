@@ -4,7 +4,6 @@ models are self-contained and refuse another robot's data."""
 import json
 
 import pytest
-import torch
 
 import torchcal
 from torchcal.cli import main

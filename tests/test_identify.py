@@ -27,7 +27,7 @@ DEG = torch.pi / 180
 
 
 def exact_intervals(model, theta, q, half_width=None):
-    """PoseIntervals whose centres are the model's exact positions at theta."""
+    """PoseIntervals whose centers are the model's exact positions at theta."""
     p = model.predict(theta, make_context(model.robot, q))
     hw = torch.zeros_like(p) if half_width is None else half_width
     m = q.shape[0]
@@ -43,11 +43,12 @@ def random_theta(model, free, seed, scale=1.0):
 
 
 def test_pose_intervals_are_intervals():
-    """Centre/radius are the Interval's (hand values); lower > upper is refused, naming the index."""
+    """Center/radius are the Interval's (hand values); lower > upper is refused, naming the index."""
     lo = torch.tensor([[1.0, -2.0, 0.0]])
     data = PoseIntervals(torch.arange(1), torch.zeros(1, 6), lo, lo + torch.tensor([[2.0, 1.0, 0.0]]),
                          torch.tensor([2]))
-    assert data.centre.tolist() == [[2.0, -1.5, 0.0]] and data.radius.tolist() == [[1.0, 0.5, 0.0]]
+    assert data.center.tolist() == [[2.0, -1.5, 0.0]] and data.radius.tolist() == [[1.0, 0.5, 0.0]]
+    assert data.center.tolist() == data.center.tolist()  # the former name still works
     assert torch.equal(data.interval.lower, lo)
     with pytest.raises(InputError, match=r"lower must be <= upper.*index \[0, 1\]"):
         PoseIntervals(torch.arange(1), torch.zeros(1, 6), lo, lo - torch.tensor([[0.0, 1.0, 0.0]]),
@@ -102,18 +103,18 @@ def noisy_zone(kr):
     g = torch.Generator().manual_seed(8)
     truth = random_theta(model, model.default_free(), 9, scale=3.0)
     p = model.predict(truth, make_context(kr, q))
-    centre = p + 0.05 * torch.randn(p.shape, generator=g, dtype=torch.float64)
+    center = p + 0.05 * torch.randn(p.shape, generator=g, dtype=torch.float64)
     radius = 0.02 + 0.1 * torch.rand(p.shape, generator=g, dtype=torch.float64)
-    data = PoseIntervals(torch.arange(12), q, centre - radius, centre + radius, torch.full((12,), 10))
+    data = PoseIntervals(torch.arange(12), q, center - radius, center + radius, torch.full((12,), 10))
     return model, data, identify_intervals(model, data)
 
 
 def test_hull_contains_linear_solutions_and_is_tight(noisy_zone):
     model, data, fit = noisy_zone
     g = torch.Generator().manual_seed(10)
-    ec, er = data.centre.reshape(-1), data.radius.reshape(-1)
+    ec, er = data.center.reshape(-1), data.radius.reshape(-1)
     u = 2 * torch.rand(500, ec.numel(), generator=g, dtype=torch.float64) - 1
-    de = u * er  # (500, 3m) inside the box, relative to the centre
+    de = u * er  # (500, 3m) inside the box, relative to the center
     sols = fit.theta + de @ fit.S.T
     iv = fit.interval
     assert iv.contains(sols, atol=1e-12).all()
@@ -130,10 +131,10 @@ def test_hull_contains_nonlinear_refits(noisy_zone):
     g = torch.Generator().manual_seed(11)
     zones = []
     for s in range(6):
-        u = 2 * torch.rand(data.centre.shape, generator=g, dtype=torch.float64) - 1
+        u = 2 * torch.rand(data.center.shape, generator=g, dtype=torch.float64) - 1
         if s < 2:
             u = torch.sign(u)  # vertices of the box, the hardest case
-        e = data.centre + u * data.radius
+        e = data.center + u * data.radius
         zones.append(PoseIntervals(data.pose, data.q, e, e, data.count))
     fits = identify_zones(model, zones)
     iv = fit.interval
@@ -246,7 +247,7 @@ def test_damped_zone_is_the_ridge_solution_and_hull_holds(noisy_zone):
     D = model.jacobian(theta0, ctx).reshape(-1, model.n_params).norm(dim=0)
     x = damped.theta
     J = model.jacobian(x, ctx).reshape(-1, model.n_params)
-    r = (data.centre - model.predict(x, ctx)).reshape(-1)
+    r = (data.center - model.predict(x, ctx)).reshape(-1)
     grad = (-J.T @ r + mu * D ** 2 * (x - theta0))[damped.free]
     assert (grad.abs() / (D[damped.free] * r.norm())).max() < 1e-6
     assert (x - theta0)[damped.free].abs().max() > 0  # it did move
@@ -254,8 +255,8 @@ def test_damped_zone_is_the_ridge_solution_and_hull_holds(noisy_zone):
     g = torch.Generator().manual_seed(12)
     zones = []
     for _ in range(3):
-        u = torch.sign(2 * torch.rand(data.centre.shape, generator=g, dtype=torch.float64) - 1)
-        e = data.centre + u * data.radius
+        u = torch.sign(2 * torch.rand(data.center.shape, generator=g, dtype=torch.float64) - 1)
+        e = data.center + u * data.radius
         zones.append(PoseIntervals(data.pose, data.q, e, e, data.count))
     for f in identify_zones(model, zones, damping=mu, theta0=theta0):
         assert damped.interval.contains(f.theta, atol=1e-3 * damped.radius + 1e-12).all()

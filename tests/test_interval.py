@@ -28,18 +28,22 @@ def _gen(seed=0):
 def _random_interval(shape, gen, dtype=torch.float64):
     c = torch.randn(tuple(shape), generator=gen, dtype=torch.float64)
     r = torch.rand(tuple(shape), generator=gen, dtype=torch.float64)
-    return Interval.from_centre_radius(c.to(dtype), r.to(dtype))
+    return Interval.from_center_radius(c.to(dtype), r.to(dtype))
 
 
 # -- forms ----------------------------------------------------------------------------
-def test_centre_radius_round_trip():
+def test_center_radius_round_trip():
     iv = Interval(torch.tensor([-1.0, 2.0, 3.0]), torch.tensor([3.0, 2.0, 7.0]))
-    torch.testing.assert_close(iv.centre, torch.tensor([1.0, 2.0, 5.0]))
+    torch.testing.assert_close(iv.center, torch.tensor([1.0, 2.0, 5.0]))
     torch.testing.assert_close(iv.radius, torch.tensor([2.0, 0.0, 2.0]))
     torch.testing.assert_close(iv.width, 2 * iv.radius)
-    back = Interval.from_centre_radius(iv.centre, iv.radius)
+    back = Interval.from_center_radius(iv.center, iv.radius)
     torch.testing.assert_close(back.lower, iv.lower)
     torch.testing.assert_close(back.upper, iv.upper)
+    # the former British names still work and give the same values
+    assert torch.equal(iv.centre, iv.center)
+    old = Interval.from_centre_radius(iv.center, iv.radius)
+    assert torch.equal(old.lower, back.lower) and torch.equal(old.upper, back.upper)
 
 
 def test_numbers_become_float64_and_broadcast():
@@ -47,14 +51,14 @@ def test_numbers_become_float64_and_broadcast():
     assert iv.dtype == torch.float64 and iv.shape == (2,)
     assert Interval(0, 1).dtype == torch.float64
     p = Interval.point(3.0)
-    assert p.radius.item() == 0.0 and p.centre.item() == 3.0
+    assert p.radius.item() == 0.0 and p.center.item() == 3.0
 
 
 def test_bad_bounds_are_errors():
     with pytest.raises(InputError, match=r"lower must be <= upper.*index \[1\]"):
         Interval(torch.tensor([0.0, 2.0]), torch.tensor([1.0, 1.0]))
     with pytest.raises(ValueError, match="radius must be >= 0"):
-        Interval.from_centre_radius(0.0, -1.0)
+        Interval.from_center_radius(0.0, -1.0)
     with pytest.raises(InputError, match=r"Interval \* Interval"):
         Interval(0.0, 1.0) * Interval(0.0, 1.0)
 
@@ -66,7 +70,7 @@ def test_addition_is_exact(batch, dtype):
     g = _gen(1)
     a, b = _random_interval(batch, g, dtype), _random_interval(batch, g, dtype)
     s = a + b
-    torch.testing.assert_close(s.centre, a.centre + b.centre)
+    torch.testing.assert_close(s.center, a.center + b.center)
     torch.testing.assert_close(s.radius, a.radius + b.radius)
     assert s.dtype == dtype
     # bounds attained by the endpoints
@@ -86,7 +90,7 @@ def test_scaling_flips_for_negative_factors(batch):
     a = _random_interval(batch, g)
     k = torch.randn(tuple(batch), generator=g, dtype=torch.float64)
     s = a * k
-    torch.testing.assert_close(s.centre, k * a.centre)
+    torch.testing.assert_close(s.center, k * a.center)
     torch.testing.assert_close(s.radius, k.abs() * a.radius)
     assert bool((s.lower <= s.upper).all())
     neg = a * -3.0
@@ -115,7 +119,7 @@ def test_linear_hull_equals_vertex_extremes(batch, dtype):
     hull = linear_hull(Kmat.to(dtype), box.to(dtype=dtype))
     assert hull.shape == (*batch, m) and hull.dtype == dtype
     signs = torch.tensor(list(itertools.product((-1.0, 1.0), repeat=p)), dtype=torch.float64)  # (2^p, p)
-    verts = box.centre.unsqueeze(-2) + signs * box.radius.unsqueeze(-2)  # (*batch, 2^p, p)
+    verts = box.center.unsqueeze(-2) + signs * box.radius.unsqueeze(-2)  # (*batch, 2^p, p)
     images = verts @ Kmat.transpose(-1, -2)  # (*batch, 2^p, m)
     tol = dict(rtol=1e-5, atol=1e-5) if dtype == torch.float32 else {}
     torch.testing.assert_close(hull.lower, images.amin(-2).to(dtype), **tol)

@@ -200,9 +200,9 @@ HAND = [
     ((0, -90, 0, 0, 0, 0), (2172.0, 0.0, 2565.0)),
     # wrist singular (q5 = 0): axes 4 and 6 on the TCP's vertical, q4 and q6 change nothing
     ((0, 0, 0, 37, 0, 50), (2065.0, 0.0, -472.0)),
-    # q5 = 90 swings d6 = 372 about world y through the wrist centre (2065, 0, -100): -z -> -x
+    # q5 = 90 swings d6 = 372 about world y through the wrist center (2065, 0, -100): -z -> -x
     ((0, 0, 0, 0, 90, 0), (1693.0, 0.0, -100.0)),
-    # the same swing with the forearm horizontal: +x -> -z from the wrist centre (3200, 0, 1165)
+    # the same swing with the forearm horizontal: +x -> -z from the wrist center (3200, 0, 1165)
     ((0, 0, -90, 0, 90, 0), (3200.0, 0.0, 793.0)),
 ]
 

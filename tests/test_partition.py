@@ -24,11 +24,11 @@ skfuzzy = pytest.importorskip("skfuzzy")
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 
 
-def blobs(n_per, centres, std, seed):
+def blobs(n_per, centers, std, seed):
     rng = np.random.default_rng(seed)
-    centres = np.asarray(centres, dtype=np.float64)
-    x = np.concatenate([c + std * rng.standard_normal((n_per, centres.shape[1])) for c in centres])
-    y = np.repeat(np.arange(len(centres)), n_per)
+    centers = np.asarray(centers, dtype=np.float64)
+    x = np.concatenate([c + std * rng.standard_normal((n_per, centers.shape[1])) for c in centers])
+    y = np.repeat(np.arange(len(centers)), n_per)
     return x, y
 
 
@@ -88,13 +88,13 @@ def test_fcm_keeps_dtype_and_device(device, dtype):
     torch.testing.assert_close(res.memberships.sum(0), torch.ones(100, dtype=dtype, device=device))
 
 
-def test_point_exactly_on_a_centre():
+def test_point_exactly_on_a_center():
     x = torch.tensor([0.0, 1.0, 2.0, 10.0, 11.0], dtype=torch.float64)
     u = memberships(x, [[2.0], [10.0], [10.0]])
     torch.testing.assert_close(u[:, 2], torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64), rtol=0, atol=0)
     torch.testing.assert_close(u[:, 3], torch.tensor([0.0, 0.5, 0.5], dtype=torch.float64), rtol=0, atol=0)
     assert torch.isfinite(u).all()
-    # a start whose first centre is exactly the point x=2: eq. 28 hits d = 0 inside fcm
+    # a start whose first center is exactly the point x=2: eq. 28 hits d = 0 inside fcm
     u0 = torch.tensor([[0, 0, 1, 0, 0], [1, 1, 0, 1, 1]], dtype=torch.float64)
     res = fcm(x, 2, init_u=u0, max_iter=1, m=1.5)
     torch.testing.assert_close(res.centers[0], torch.tensor([2.0], dtype=torch.float64))
@@ -132,16 +132,16 @@ def test_memberships_of_the_result_follow_eq_28():
 
 # ------------------------------------------------------------------ planted clusters, estimator
 
-@pytest.mark.parametrize("centres", [[[0.0], [5.0], [12.0]], [[0, 0, 0], [6, 0, 0], [0, 6, 3]]])
-def test_planted_blobs_are_recovered(centres):
-    x, y = blobs(80, centres, 0.5, 2)
+@pytest.mark.parametrize("centers", [[[0.0], [5.0], [12.0]], [[0, 0, 0], [6, 0, 0], [0, 6, 3]]])
+def test_planted_blobs_are_recovered(centers):
+    x, y = blobs(80, centers, 0.5, 2)
     km = FuzzyCMeans(n_clusters=3, n_init=3).fit(x)
     assert adjusted_rand_score(y, km.labels_.numpy()) == 1.0
-    assert km.centers_.shape == (3, len(centres[0]))
+    assert km.centers_.shape == (3, len(centers[0]))
     assert km.memberships_.shape == (3, 240)
     assert torch.equal(km.predict(x), km.labels_)
-    found = km.centers_[km.predict(np.asarray(centres, dtype=np.float64))]
-    torch.testing.assert_close(found, torch.tensor(centres, dtype=torch.float64), rtol=0, atol=0.2)
+    found = km.centers_[km.predict(np.asarray(centers, dtype=np.float64))]
+    torch.testing.assert_close(found, torch.tensor(centers, dtype=torch.float64), rtol=0, atol=0.2)
     assert 0 < km.n_iter_ < 300 and km.objective_ > 0
     assert km.partition_coefficient_ > 0.8
     assert clone(km).get_params()["n_clusters"] == 3  # scikit-learn conventions
@@ -235,7 +235,7 @@ def test_levels_are_ordered_by_reliability(paper_partition):
         assert s["r_set_min"] <= s["r_set_mean"] <= s["r_set_max"]
 
 
-def test_sub_zones_are_nearest_centres_in_level_features(paper_partition):
+def test_sub_zones_are_nearest_centers_in_level_features(paper_partition):
     p = paper_partition
     for lev in range(1, 5):
         zones = torch.nonzero(p.zone_level == lev)[:, 0]  # 0-based zone indices of the level

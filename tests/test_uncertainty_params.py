@@ -59,14 +59,14 @@ def test_standard_errors_match_monte_carlo_spread():
     assert ((ratio > 0.8) & (ratio < 1.2)).all(), ratio
     # the fit's own (one-draw) standard errors are those of the formula on its data
     assert torch.allclose(first.std[free], pred[0], rtol=1e-6)
-    # 95 % intervals hold the estimator's centre for about 95 % of the refits and
-    # parameters (the centre, not vr.theta: puma560's held deviations are absorbed by the
+    # 95 % intervals hold the estimator's center for about 95 % of the refits and
+    # parameters (the center, not vr.theta: puma560's held deviations are absorbed by the
     # identified ones, so these estimate a combination of the true values)
-    centre = theta.mean(0)
+    center = theta.mean(0)
     cover = []
     for b in range(MC):
         lo, hi = parameter_covariance(J[b], resid[b], free).interval95(theta[b])
-        cover.append(((lo <= centre) & (centre <= hi))[free].double().mean())
+        cover.append(((lo <= center) & (center <= hi))[free].double().mean())
     assert 0.90 < float(torch.stack(cover).mean()) < 0.99
 
 

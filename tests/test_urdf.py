@@ -8,7 +8,6 @@ import math
 import pytest
 import torch
 
-import torchcal
 from torchcal.errors import InputError
 from torchcal.robots.urdf import minimal_urdf, read_chain, robot_from_urdf, urdf_fk
 
@@ -106,13 +105,19 @@ def test_prismatic_joint_imported(tmp_path):
     assert float((p[1] - p[0]).norm()) == pytest.approx(10.0, abs=1e-9)
 
 
+def _deviations(robot, seed: int) -> torch.Tensor:
+    """(n, 5) small random MD-H deviations (rad, mm), dbeta only where the table has beta."""
+    g = torch.Generator().manual_seed(seed)
+    dev = torch.randn(robot.n, 5, generator=g, dtype=torch.float64) * torch.tensor([1e-3, 0.5, 0.5, 1e-3, 1e-3])
+    dev[:, 4] *= robot.has_beta
+    return dev
+
+
 @pytest.mark.parametrize("key", list(CASES))
 def test_minimal_export_reimports_to_calibrated_fk(tmp_path, key):
     path, base, tip = _write(tmp_path, key)
     robot = robot_from_urdf(path, base, tip)
-    g = torch.Generator().manual_seed(1)
-    dev = torch.randn(robot.n, 5, generator=g, dtype=torch.float64) * torch.tensor([1e-3, 0.5, 0.5, 1e-3, 1e-3])
-    dev[:, 4] *= robot.has_beta
+    dev = _deviations(robot, 1)
     out = tmp_path / "cal.urdf"
     out.write_text(minimal_urdf(robot, dev))
     back = robot_from_urdf(out, "base_link", "tcp")
@@ -135,9 +140,7 @@ def test_calibrated_urdf_keeps_links_and_carries_calibration(tmp_path, key):
 
     path, base, tip = _write(tmp_path, key)
     robot = robot_from_urdf(path, base, tip)
-    g = torch.Generator().manual_seed(4)
-    dev = torch.randn(robot.n, 5, generator=g, dtype=torch.float64) * torch.tensor([1e-3, 0.5, 0.5, 1e-3, 1e-3])
-    dev[:, 4] *= robot.has_beta
+    dev = _deviations(robot, 4)
     tool = robot.tool.clone()
     tool[:3, 3] += torch.tensor([0.3, -0.2, 0.4], dtype=torch.float64)
     cal = dataclasses.replace(robot, table=robot.table + dev, tool=tool)

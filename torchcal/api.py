@@ -177,8 +177,8 @@ def calibrate(robot_or_model, measurements, effects=(), partition=None, zone_met
     """Interval calibration, global or per zone (`torchcal.workflows.zones.calibrate`).
 
     partition: a `Partition`, a PARTITION.json path or None. Returns an `IntervalModel`
-    (`torchcal.io.interval_model.interval_model_to_dict` gives the MODEL.json of ``torchcal calibrate``) whose ``global_fit`` is the
-    global `IntervalFit`.
+    (`torchcal.io.interval_model.interval_model_to_dict` gives the MODEL.json of ``torchcal
+    calibrate``) whose ``global_fit`` is the global `IntervalFit`.
     """
     from torchcal.workflows.zones import calibrate as run
 

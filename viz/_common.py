@@ -101,19 +101,28 @@ def subsample(n: int, max_points: int | None) -> np.ndarray:
     return np.unique(np.linspace(0, n - 1, max_points).round().astype(np.int64))
 
 
-def zone_centres(pos: np.ndarray, zones: np.ndarray, centres_mm=None, zone_names=None):
-    """(names, centres (count, 3) mm) of the zones: the given centres, or the mean of
+def former_name(value, former, name: str, former_name: str):
+    """`value`, or `former` given under a parameter's former name (not both: InputError)."""
+    if former is None:
+        return value
+    if value is not None:
+        raise InputError(f"{name} and {former_name} (its former name) both given; pass one")
+    return former
+
+
+def zone_centers(pos: np.ndarray, zones: np.ndarray, centers_mm=None, zone_names=None):
+    """(names, centers (count, 3) mm) of the zones: the given centers, or the mean of
     each zone's points (NaN for an empty zone)."""
     names = names_for(zones, zone_names, "zone_names")
     count = len(names)
-    if centres_mm is None:
-        centres = np.array([pos[zones == z].mean(axis=0) if (zones == z).any() else np.full(3, np.nan)
+    if centers_mm is None:
+        centers = np.array([pos[zones == z].mean(axis=0) if (zones == z).any() else np.full(3, np.nan)
                             for z in range(count)]).reshape(count, 3)
-        return names, centres
-    centres = points(centres_mm, "centres_mm")
-    if centres.shape[0] < count:
-        raise InputError(f"centres_mm: expected one row per zone ({count} zones), got {centres.shape[0]}")
-    return names_for(np.arange(centres.shape[0]), zone_names, "zone_names"), centres
+        return names, centers
+    centers = points(centers_mm, "centers_mm")
+    if centers.shape[0] < count:
+        raise InputError(f"centers_mm: expected one row per zone ({count} zones), got {centers.shape[0]}")
+    return names_for(np.arange(centers.shape[0]), zone_names, "zone_names"), centers
 
 
 def zone_rgb(count: int) -> np.ndarray:

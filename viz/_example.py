@@ -2,7 +2,7 @@
 
 The KR 1000 Titan's nominal forward kinematics places 400 random poses in its workspace;
 a made-up distance-error interval grows towards the edge of the workspace (as in the
-paper, level 1 at the centre, level 4 at the edge), R_set = min(1, 2.5 / s_upper) as in
+paper, level 1 at the center, level 4 at the edge), R_set = min(1, 2.5 / s_upper) as in
 docs/paper.md Table 3; 4 levels by R_set quantiles, then 3/2/3/2 sub-zones in space by k-means
 (10 zones). Error intervals of 20 test points and residuals are made up as well. None of
 this is a calibration result: `torchcal demo` produces the real ones.
@@ -35,8 +35,8 @@ def make_example(seed: int = 0, n: int = 400) -> dict[str, np.ndarray]:
     pos = kr.fk(torch.as_tensor(q)).numpy()  # (n, 3) mm
     keep = pos[:, 2] > 0.0
     q, pos = q[keep], pos[keep]
-    centre = np.median(pos, axis=0)
-    d = np.linalg.norm((pos - centre) / pos.std(axis=0), axis=1)
+    center = np.median(pos, axis=0)
+    d = np.linalg.norm((pos - center) / pos.std(axis=0), axis=1)
     s_upper = 1.4 + 2.1 * (d / d.max()) ** 1.2 + 0.08 * rng.standard_normal(len(d))
     r_set = np.minimum(1.0, 2.5 / s_upper)
     # level 0 = most reliable; then sub-zones in space
@@ -53,9 +53,9 @@ def make_example(seed: int = 0, n: int = 400) -> dict[str, np.ndarray]:
 
     t = 20
     width_b = rng.uniform(0.6, 1.4, (t, 3))
-    centre_b = rng.uniform(-0.9, 0.9, (t, 3))
+    center_b = rng.uniform(-0.9, 0.9, (t, 3))
     width_a = width_b * rng.uniform(0.35, 0.6, (t, 3))
-    centre_a = centre_b * rng.uniform(0.1, 0.3, (t, 3))
+    center_a = center_b * rng.uniform(0.1, 0.3, (t, 3))
     pick = rng.choice(len(d), size=60, replace=False)
     measured = pos[pick]
     drift = np.c_[0.4 * np.sin(q[pick, 1]), 0.3 * np.cos(q[pick, 2]), -0.5 * np.sin(q[pick, 1] + q[pick, 2])]
@@ -63,8 +63,8 @@ def make_example(seed: int = 0, n: int = 400) -> dict[str, np.ndarray]:
     model_after = measured - 0.05 * rng.standard_normal((60, 3))
     return {
         "q_rad": q, "positions_mm": pos, "r_set": r_set, "zones": zones, "zone_names": names,
-        "before_lower_mm": centre_b - width_b / 2, "before_upper_mm": centre_b + width_b / 2,
-        "after_lower_mm": centre_a - width_a / 2, "after_upper_mm": centre_a + width_a / 2,
+        "before_lower_mm": center_b - width_b / 2, "before_upper_mm": center_b + width_b / 2,
+        "after_lower_mm": center_a - width_a / 2, "after_upper_mm": center_a + width_a / 2,
         "measured_mm": measured, "model_before_mm": model_before, "model_after_mm": model_after,
         "q_test_rad": q[pick], "residual_before_mm": measured - model_before,
     }

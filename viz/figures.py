@@ -11,7 +11,7 @@ evenly spaced indices.
 ====================  ======================================================  ======
 function              what                                                    axes
 ====================  ======================================================  ======
-`zone_map`            workspace points by zone in x-y, x-z, y-z; centres      3
+`zone_map`            workspace points by zone in x-y, x-z, y-z; centers      3
 `rset_histogram`      histogram of R_set over the workspace points            1
 `error_intervals`     error interval per test point and axis, before/after    3
                       compensation, with the allowed band (paper's Fig. 11)
@@ -68,38 +68,40 @@ def _tagged(k: int, name: str) -> str:
     return name if name == tag or name.startswith(tag + " ") else f"{k + 1}: {name}"
 
 
-def zone_map(path, positions_mm, zones, *, centres_mm=None, zone_names=None, title: str = "Workspace zones",
-             max_points: int | None = MAX_SCATTER, force: bool = False) -> Path:
+def zone_map(path, positions_mm, zones, *, centers_mm=None, zone_names=None, title: str = "Workspace zones",
+             max_points: int | None = MAX_SCATTER, force: bool = False, centres_mm=None) -> Path:
     """Write `zone_map_figure` to the PNG `path` (atomically); returns the path.
 
     ``force`` replaces an existing file; the other arguments are `zone_map_figure`'s.
     """
     C.check_output(path, force)  # fail before drawing
-    fig = zone_map_figure(positions_mm, zones, centres_mm=centres_mm, zone_names=zone_names, title=title,
-                          max_points=max_points)
+    fig = zone_map_figure(positions_mm, zones, centers_mm=centers_mm, zone_names=zone_names, title=title,
+                          max_points=max_points, centres_mm=centres_mm)
     return save_figure(fig, path, force)
 
 
-def zone_map_figure(positions_mm, zones, *, centres_mm=None, zone_names=None, title: str = "Workspace zones",
-                    max_points: int | None = MAX_SCATTER) -> Figure:
+def zone_map_figure(positions_mm, zones, *, centers_mm=None, zone_names=None, title: str = "Workspace zones",
+                    max_points: int | None = MAX_SCATTER, centres_mm=None) -> Figure:
     """Zone map in three views: x-y (top), x-z (side), y-z (front), coloured by zone.
 
     Args:
         positions_mm: (N, 3) workspace points, mm, robot base frame.
         zones: (N,) integer zone id per point (0-based).
-        centres_mm: (Z, 3) zone centres, mm; default: mean of each zone's points.
+        centers_mm: (Z, 3) zone centers, mm; default: mean of each zone's points
+            (``centres_mm``: its former name, still accepted).
         zone_names: display name per zone id; default ``"zone k"`` (1-based, as in the paper).
         title: figure title.
         max_points: draw at most this many points (evenly spaced); None: all.
 
-    Zone id k (0-based in the arrays) is marked ``k + 1`` at its centre and in the legend.
+    Zone id k (0-based in the arrays) is marked ``k + 1`` at its center and in the legend.
         force: replace an existing file.
 
     Returns the figure (3 axes).
     """
     pos = C.points(positions_mm, "positions_mm")
     zs = C.labels(zones, "zones", pos.shape[0])
-    names, centres = C.zone_centres(pos, zs, centres_mm, zone_names)
+    names, centers = C.zone_centers(pos, zs, C.former_name(centers_mm, centres_mm, "centers_mm", "centres_mm"),
+                                    zone_names)
     count = len(names)
     rgb = C.zone_rgb(count) / 255.0
     idx = C.subsample(pos.shape[0], max_points)
@@ -114,11 +116,11 @@ def zone_map_figure(positions_mm, zones, *, centres_mm=None, zone_names=None, ti
             m = z == k
             if m.any():
                 ax.scatter(p[m, i], p[m, j], s=size, color=rgb[k], alpha=0.75, linewidths=0, rasterized=False)
-        ok = np.isfinite(centres).all(axis=1)
-        ax.scatter(centres[ok, i], centres[ok, j], s=150, marker="X", c=rgb[ok], edgecolors="black",
+        ok = np.isfinite(centers).all(axis=1)
+        ax.scatter(centers[ok, i], centers[ok, j], s=150, marker="X", c=rgb[ok], edgecolors="black",
                    linewidths=1.2, zorder=3)
         for k in np.flatnonzero(ok):
-            ax.annotate(str(k + 1), (centres[k, i], centres[k, j]), xytext=(6, 6), textcoords="offset points",
+            ax.annotate(str(k + 1), (centers[k, i], centers[k, j]), xytext=(6, 6), textcoords="offset points",
                         fontsize=9, fontweight="bold", zorder=4)
         ax.set_title(label)
         ax.set_xlabel(f"{C.AXES[i]} (mm)")
@@ -164,8 +166,8 @@ def rset_histogram_figure(r_set, *, bins: int = 20,
     edges = np.linspace(lo, hi, bins + 1) if rs.max() > rs.min() else np.linspace(rs.min() - 0.01,
                                                                                      rs.max() + 0.01, bins + 1)
     counts, edges = np.histogram(rs, bins=edges)
-    centre = (edges[:-1] + edges[1:]) / 2
-    ax.bar(centre, counts, width=np.diff(edges), color=C.rset_rgb(centre, lo, hi) / 255.0,
+    center = (edges[:-1] + edges[1:]) / 2
+    ax.bar(center, counts, width=np.diff(edges), color=C.rset_rgb(center, lo, hi) / 255.0,
            edgecolor="black", linewidth=0.5)
     ax.axvline(rs.mean(), color="black", linestyle="--", linewidth=1.2, label=f"mean {rs.mean():.3f}")
     share = float((rs >= 1.0 - 1e-12).mean())

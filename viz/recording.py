@@ -98,16 +98,18 @@ def _columns(stream: rr.RecordingStream, entity: str, timeline: str, steps, valu
 
 
 # --------------------------------------------------------------------------- workspace
-def log_workspace(rec, positions_mm, r_set, zones, *, centres_mm=None, zone_names=None,
-                  rset_range=None, max_points: int | None = MAX_POINTS, point_radius_ui: float = 3.0) -> None:
-    """Log workspace points coloured by R_set and by zone, and the zone centres.
+def log_workspace(rec, positions_mm, r_set, zones, *, centers_mm=None, zone_names=None,
+                  rset_range=None, max_points: int | None = MAX_POINTS, point_radius_ui: float = 3.0,
+                  centres_mm=None) -> None:
+    """Log workspace points coloured by R_set and by zone, and the zone centers.
 
     Args:
         rec: a `rerun.RecordingStream` or a `RecordingWriter`.
         positions_mm: (N, 3) workspace points, mm, robot base frame.
         r_set: (N,) set reliability per point, in [0, 1] (1 = fully reliable).
         zones: (N,) integer zone id per point (0-based).
-        centres_mm: (Z, 3) zone centres in space, mm; default: mean of each zone's points.
+        centers_mm: (Z, 3) zone centers in space, mm; default: mean of each zone's points
+            (``centres_mm``: its former name, still accepted).
         zone_names: display name per zone id; default ``"zone k+1"`` (ids are 0-based in
             arrays and shown 1-based, as the paper's zones 1..10).
         rset_range: (low, high) R_set mapped to red..green; default: the data range.
@@ -122,7 +124,8 @@ def log_workspace(rec, positions_mm, r_set, zones, *, centres_mm=None, zone_name
     n = pos.shape[0]
     rs = C.vector(r_set, "r_set", n)
     zs = C.labels(zones, "zones", n)
-    names, centres = C.zone_centres(pos, zs, centres_mm, zone_names)
+    names, centers = C.zone_centers(pos, zs, C.former_name(centers_mm, centres_mm, "centers_mm", "centres_mm"),
+                                    zone_names)
     count = len(names)
     lo, hi = C.rset_range(rs, rset_range)
     rgb = C.zone_rgb(count)
@@ -140,17 +143,17 @@ def log_workspace(rec, positions_mm, r_set, zones, *, centres_mm=None, zone_name
     stream.log("workspace/zones", rr.Points3D(p, class_ids=z.astype(np.uint16), radii=radius,
                                               labels=rset_labels, show_labels=False), static=True)
 
-    keep = np.isfinite(centres).all(axis=1)
-    centre_labels = []
+    keep = np.isfinite(centers).all(axis=1)
+    center_labels = []
     for k in range(count):
         members = zs == k
         if members.any():
-            centre_labels.append(f"{names[k]}: R_set {rs[members].mean():.3f}, {int(members.sum())} pts")
+            center_labels.append(f"{names[k]}: R_set {rs[members].mean():.3f}, {int(members.sum())} pts")
         else:
-            centre_labels.append(f"{names[k]}: no points")
+            center_labels.append(f"{names[k]}: no points")
     stream.log("workspace/centres", rr.Points3D(
-        centres[keep], class_ids=np.arange(count, dtype=np.uint16)[keep],
-        radii=rr.Radius.ui_points(3.0 * point_radius_ui), labels=[s for s, k in zip(centre_labels, keep) if k],
+        centers[keep], class_ids=np.arange(count, dtype=np.uint16)[keep],
+        radii=rr.Radius.ui_points(3.0 * point_radius_ui), labels=[s for s, k in zip(center_labels, keep) if k],
         show_labels=True), static=True)
 
 

@@ -1,6 +1,6 @@
 """Compensation: corrected joint commands so that the calibrated model reaches each target.
 
-For targets ``t (M, 3)`` mm and calibrated parameters per target (its zone's centre
+For targets ``t (M, 3)`` mm and calibrated parameters per target (its zone's center
 parameters, docs/paper.md section 6), find joint commands q with
 
     model.predict(theta_zone, q) = t

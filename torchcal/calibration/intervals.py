@@ -7,9 +7,9 @@ the linearised solution map).
 1. **Interval errors per pose.** Each commanded pose j is measured K times. Per axis the
    measured positions span ``[min_k, max_k]``; with the model's prediction ``p_j`` at the
    current parameters the error interval is ``e_j = [min_k - p_j, max_k - p_j]`` (mm),
-   in centre/radius form ``e_c``, ``e_r`` (docs/paper.md eq. 23's notation).
-2. **Centre.** The centre parameters ``x_c`` solve the *nonlinear* least-squares problem
-   on the interval centres (the mid-range of the repeated measurements) by
+   in center/radius form ``e_c``, ``e_r`` (docs/paper.md eq. 23's notation).
+2. **Center.** The center parameters ``x_c`` solve the *nonlinear* least-squares problem
+   on the interval centers (the mid-range of the repeated measurements) by
    Levenberg-Marquardt (`torchcal.calibration.lm`, eq. 29 with adaptive mu starting at 1e-3), over
    the parameters the identifiability analysis keeps free (`torchcal.calibration.fit`, done at
    nominal: structural identifiability); the others are held at the starting point
@@ -23,7 +23,7 @@ the linearised solution map).
    default ``damping = 0`` (mu = 0) this is the Gauss-Newton map (the converged LM's own
    damping tends to zero), the pseudo-inverse. The image of the error box
    ``{e_c + de : |de| <= e_r}`` under ``x_c + S de`` is a zonotope; its exact interval
-   hull has centre ``x_c`` and radius ``|S| e_r`` (elementwise absolute value):
+   hull has center ``x_c`` and radius ``|S| e_r`` (elementwise absolute value):
    parameter k reaches ``x_c,k +- (|S| e_r)_k`` at the box vertex
    ``de = +-sign(S_k) e_r``, and no point of the box goes further
    (`torchcal.reliability.interval.linear_hull`). It is exact for the linearised map; the nonlinear
@@ -54,7 +54,7 @@ from torchcal.effects.base import Context, make_context
 from torchcal.errors import InputError
 from torchcal.calibration.batched import batched_jacobian, batched_predict
 from torchcal.calibration.fit import RANK_TOL, Identifiability, identifiability
-from torchcal.calibration.gcv import GCV_GRID, choose_damping, gcv_damping  # noqa: F401 (re-exported)
+from torchcal.calibration.gcv import choose_damping, gcv_damping
 from torchcal.reliability.interval import Interval
 from torchcal.calibration.lm import levenberg_marquardt
 from torchcal.calibration.model import CalibrationModel
@@ -95,9 +95,11 @@ class PoseIntervals:
         return self._interval
 
     @property
-    def centre(self) -> torch.Tensor:
+    def center(self) -> torch.Tensor:
         """(m, 3) mm mid-range of the repeated measurements."""
-        return self._interval.centre
+        return self._interval.center
+
+    centre = center  # the former name, kept for existing code
 
     @property
     def radius(self) -> torch.Tensor:
@@ -186,11 +188,11 @@ class IntervalFit:
 
     Attributes:
         model: the `CalibrationModel`.
-        theta: (P,) centre parameters x_c (rad, mm as `model.param_units()`).
+        theta: (P,) center parameters x_c (rad, mm as `model.param_units()`).
         radius: (P,) radius |S| e_r (0 for held parameters).
         report: identifiability at the starting point (held names, rank, condition, O1..O5).
         S: (P, 3m) linearised solution map at x_c (mm -> parameter units).
-        residual_mm: (m, 3) interval centres minus model at x_c.
+        residual_mm: (m, 3) interval centers minus model at x_c.
         error_radius_mm: (m, 3) half-range of the repeated measurements.
         n_iter: LM iterations; converged: LM convergence rule met; status: 'converged',
             'stalled' or 'max_iterations' (`torchcal.calibration.lm.LMStatus`).
@@ -217,15 +219,16 @@ class IntervalFit:
     @property
     def interval(self) -> Interval:
         """(P,) parameter intervals [theta - radius, theta + radius]."""
-        return Interval.from_centre_radius(self.theta, self.radius)
+        return Interval.from_center_radius(self.theta, self.radius)
 
     @property
     def rms_mm(self) -> float:
-        """RMS distance between the interval centres and the fitted model, mm."""
+        """RMS distance between the interval centers and the fitted model, mm."""
         return float(self.residual_mm.norm(dim=-1).pow(2).mean().sqrt())
 
     def rows(self, degrees: bool = True) -> list[dict]:
-        """Per identified parameter: name, unit, centre, lower, upper (angles in degrees)."""
+        """Per identified parameter: {"name", "unit", "centre" (the center value; the JSON key
+        keeps its name), "lower", "upper"} (angles in degrees)."""
         out = []
         names, units = self.model.param_names(), self.model.param_units()
         for k in self.free.nonzero().flatten().tolist():
@@ -312,7 +315,7 @@ def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
                 raise InputError(f"zone {members[b]}: {m} poses give {3 * m} equations for "
                                  f"{rep.rank} identifiable parameters; need more poses")
         freeb = torch.stack([r.free for r in reports]).to(xb.device)  # (B, P)
-        target = torch.stack([d.centre for d in datas]).to(xb)  # (B, m, 3)
+        target = torch.stack([d.center for d in datas]).to(xb)  # (B, m, 3)
         J0f = J0.reshape(B, 3 * m, P)
         scale = J0f.norm(dim=1).clamp_min(1e-300)  # (B, P) column norms at theta0
         if damping in ("gcv", "gcv_shared"):
@@ -368,12 +371,14 @@ class IntervalModel:
 
     Attributes:
         model: the `CalibrationModel`.
-        theta: (Z, P) centre parameters per zone; lower, upper: (Z, P) interval bounds.
+        theta: (Z, P) center parameters per zone; lower, upper: (Z, P) interval bounds.
         free: (Z, P) bool identified parameters.
         zones: per zone dict (zone, level, poses, held, rms_mm, damping).
         partition: a `torchcal.partition.zones.Partition` or None.
         method: how the zones were fitted ("global", "independent", "damped").
         provenance: free-form dict (input file, versions).
+        global_fit: the global `IntervalFit` (its `report`, `rms_mm`) when the model comes
+            from `torchcal.calibrate`, else None; not stored in the file.
     """
 
     model: CalibrationModel
@@ -385,6 +390,7 @@ class IntervalModel:
     partition: object = None
     method: str = "global"
     provenance: dict | None = None
+    global_fit: object = None
 
     @property
     def n_zones(self) -> int:

@@ -37,6 +37,12 @@ def add_force(p):
     p.add_argument("--force", action="store_true", help="replace existing output files")
 
 
+def add_cv(p):
+    """--folds and --seed of the cross-validated commands (diagnose, discover)."""
+    p.add_argument("--folds", type=positive_int, default=5, help="cross-validation folds (default 5)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the fold assignment")
+
+
 def add_effects_module(p):
     p.add_argument("--effects-module", action="append", default=[], metavar="FILE.py",
                    help="Python file defining effects of your own (torchcal.effects.Effect "

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 
-from torchcal.workflows.paper import AXES, BOUNDS, MAIN_METHODS, METHODS, PAPER_REDUCTION_PERCENT
+from torchcal.workflows.paper import AXES, BOUNDS, METHODS, PAPER_REDUCTION_PERCENT
 
 LABEL = {"paper_partitioned": "paper part.", "global_geometric": "global geom.",
          "discovered_global": "disc. global", "discovered_partitioned": "disc. part.",
@@ -110,7 +110,7 @@ def format_report(run, table3_rows=(6, 2)) -> str:
     w(f"{'':<22}" + " ".join(f"{LABEL[m]:>{col}}" for m in names))
     w(f"{'test RMS mm':<22}" + " ".join(f"{_mc(doc['methods'][m]['test_rms_mm'], 3):>{col}}" for m in names)
       + f"   (before: {_mc(doc['before']['over_seeds'], 3)})")
-    w(f"reduction % (paper's figure in brackets), 100 * (1 - |mean bound after| / |mean bound before|):")
+    w("reduction % (paper's figure in brackets), 100 * (1 - |mean bound after| / |mean bound before|):")
     for ax in AXES:
         for bd in BOUNDS:
             title = f"{ax} {bd} ({PAPER_REDUCTION_PERCENT[ax][bd]:.2f})"

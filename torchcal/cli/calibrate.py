@@ -2,7 +2,7 @@
 calibration from a measurement CSV with repeated measurements per pose.
 
 Each pose's repeats give per-axis error intervals; the model (geometric MD-H deviations
-plus ``--effects``) is identified on the interval centres and the interval radii are
+plus ``--effects``) is identified on the interval centers and the interval radii are
 propagated through the linearised solution map (torchcal.calibration.intervals).
 
 - Without ``--partition``: one global interval calibration.
@@ -55,14 +55,6 @@ def add_parser(sub):
     return p
 
 
-def calibrate(meas, robot, effects=(), partition=None, zone_method: str = "damped", damping="gcv_shared"):
-    """Kept for callers of the former CLI-level function: `torchcal.workflows.zones.calibrate`."""
-    from torchcal.calibration.model import CalibrationModel
-    from torchcal.workflows.zones import calibrate as calibrate_zones
-
-    return calibrate_zones(CalibrationModel(robot, list(effects)), meas, partition, zone_method, damping)
-
-
 def run(args) -> int:
     import torchcal
     from torchcal.io.files import write_json
@@ -77,7 +69,8 @@ def run(args) -> int:
     specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
     part = load_partition(args.partition) if args.partition else None
     meas = read_data(args.data, robot, args)
-    im, glob = calibrate(meas, robot, specs, part, args.zone_method, args.damping)
+    im = torchcal.calibrate(robot, meas, specs, part, args.zone_method, args.damping)
+    glob = im.global_fit
     im.provenance = {"input": str(args.data), "input_sha256": file_sha256(args.data),
                      "partition": None if part is None else str(args.partition),
                      "torchcal_version": torchcal.__version__}

@@ -10,7 +10,7 @@ target, the others at the middle of their limits).
 
 MODEL.json: an interval model of ``torchcal calibrate`` (each target is assigned to a zone
 by the partition's `assign` before anything is measured, and compensated with that
-zone's centre parameters) or a ``torchcal fit`` model (one parameter set).
+zone's center parameters) or a ``torchcal fit`` model (one parameter set).
 
 Q.csv: ``point,zone,q1..qN,residual_mm,converged,within_limits`` with the corrected
 commands in degrees, the calibrated model's remaining distance to the target (mm),
@@ -149,8 +149,6 @@ def default_seeds(robot, targets):
 
 
 def run(args) -> int:
-    import torch
-
     from torchcal.calibration.compensate import compensate, nominal_inverse
     from torchcal.io.files import atomic_write
 

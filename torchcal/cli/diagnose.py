@@ -3,10 +3,10 @@ the model fails and which physical effect it is missing (see torchcal.diagnosis.
 
 from __future__ import annotations
 
+from torchcal import api
 from torchcal.io import modelfile
-from torchcal.cli._args import (add_effects_module, add_force, add_units, add_viz, check_folder, check_outputs,
-                                positive_int, read_data, add_robot)
-from torchcal.diagnosis.diagnose import diagnose
+from torchcal.cli._args import (add_cv, add_effects_module, add_force, add_units, add_viz, check_folder, check_outputs,
+                                read_data, add_robot)
 from torchcal.errors import InputError
 from torchcal.io.files import write_json
 from torchcal.robots.robot import robot as make_robot
@@ -18,8 +18,7 @@ def add_parser(sub):
     add_robot(p)
     p.add_argument("--model", help="MODEL.json: its effects are the baseline (default geometric only)")
     p.add_argument("--effects", nargs="*", default=None, metavar="SPEC", help="baseline effects (instead of --model)")
-    p.add_argument("--folds", type=positive_int, default=5, help="cross-validation folds (default 5)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the fold assignment")
+    add_cv(p)
     p.add_argument("--json", help="write the report here")
     add_viz(p)
     add_units(p)
@@ -60,12 +59,10 @@ def run(args) -> int:
     if args.model and args.effects is not None:
         raise InputError("--model and --effects both give the baseline effects; pass one of them")
     robot = make_robot(args.robot)
-    effects = args.effects or []
-    if args.model:
-        model, _ = modelfile.load(args.model, robot=robot)
-        effects = model.specs()
+    # the baseline effects: the MODEL.json's (checked against --robot) or --effects
+    effects = modelfile.load(args.model, robot=robot)[0].specs() if args.model else args.effects or []
     m = read_data(args.data, robot, args)
-    d = diagnose(robot, m, effects, folds=args.folds, seed=args.seed)
+    d = api.diagnose(robot, m, effects, folds=args.folds, seed=args.seed)
     print_table(d)
     if args.json:
         write_json(args.json, d.to_dict(), force=args.force, inputs=[args.data, args.model])

@@ -3,10 +3,10 @@ best significant effect each round until none is left; the error falls at each r
 
 from __future__ import annotations
 
+from torchcal import api
 from torchcal.io import modelfile
-from torchcal.cli._args import (add_effects_module, add_force, add_units, add_viz, check_folder, check_outputs,
-                                positive_int, read_data, add_robot)
-from torchcal.diagnosis.diagnose import discover
+from torchcal.cli._args import (add_cv, add_effects_module, add_force, add_units, add_viz, check_folder, check_outputs,
+                                read_data, add_robot)
 from torchcal.io.files import write_json
 from torchcal.robots.robot import robot as make_robot
 
@@ -16,8 +16,7 @@ def add_parser(sub):
     p.add_argument("data", help="measurement CSV")
     add_robot(p)
     p.add_argument("--effects", nargs="*", default=[], metavar="SPEC", help="effects to start from")
-    p.add_argument("--folds", type=positive_int, default=5, help="cross-validation folds (default 5)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the fold assignment")
+    add_cv(p)
     p.add_argument("--json", help="write the history here")
     p.add_argument("--out", help="write the final MODEL.json here")
     add_viz(p)
@@ -36,7 +35,7 @@ def run(args) -> int:
         check_visual_outputs(args, "discover")
     robot = make_robot(args.robot)
     m = read_data(args.data, robot, args)
-    res = discover(robot, m, args.effects, folds=args.folds, seed=args.seed)
+    res = api.discover(robot, m, args.effects, folds=args.folds, seed=args.seed)
     for i, h in enumerate(res.history):
         print(f"round {i}: [{', '.join(h['effects']) or 'geometric only'}] rms {h['rms_mm']:.4f} mm, "
               f"cv rms {h['cv_rms_mm']:.4f} mm")

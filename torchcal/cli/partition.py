@@ -13,10 +13,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-
 from torchcal.cli._args import add_force, check_outputs
 from torchcal.errors import InputError
 from torchcal.io.partition_file import save_partition
+from torchcal.io.sweep_csv import read_sweep
 from torchcal.partition.zones import partition_workspace
 
 NEEDED = ("point", "x", "y", "z", "r_set")
@@ -40,15 +40,6 @@ def add_parser(sub):
     add_force(p)
     p.set_defaults(func=run)
     return p
-
-
-def read_sweep(path):
-    """Point ids (N,) int64, positions (N, 3) mm and r_set (N,) of a sweep CSV
-    (`torchcal.reliability.sweep.SweepResult.from_csv`: errors name the file, row and column)."""
-    from torchcal.reliability.sweep import SweepResult
-
-    res = SweepResult.from_csv(path)
-    return res.point, res.positions, res.r_set
 
 
 def _levels(text):
@@ -93,7 +84,8 @@ def run(args) -> int:
     zone_range = _range(args.zone_range)
     check_outputs([("--out", args.out)], args.force, inputs=[args.sweep])
     out = Path(args.out)
-    ids, pos, r = read_sweep(args.sweep)
+    sw = read_sweep(args.sweep)  # errors name the file, row and column
+    ids, pos, r = sw.point, sw.positions, sw.r_set
     part = partition_workspace(pos, r, levels, zones, m=args.m, r_weight=args.r_weight, seed=args.seed,
                                restarts=args.restarts, zone_range=zone_range, point_ids=ids)
     save_partition(part, out, force=args.force, inputs=[args.sweep])

@@ -48,6 +48,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
 
 def run(args) -> int:
     import torchcal
+    from torchcal.io.sweep_csv import write_sweep
     from torchcal.reliability.sweep import sweep
 
     check_outputs([("--out", args.out)], args.force)  # fail before the work, not after it
@@ -60,7 +61,7 @@ def run(args) -> int:
              if args.clearance else ClearanceModel.defaults(robot))
     result = sweep(robot, n_points=args.n, n_samples=args.samples, allowed_mm=args.allowed,
                    seed=args.seed, model=model, progress=not args.no_progress)
-    result.to_csv(out, force=args.force)
+    write_sweep(result, out, force=args.force)
     s = result.summary()
     r = result.r_set
     print(f"sweep: {s['points']} points x {args.samples} clearance states, allowed distance error "

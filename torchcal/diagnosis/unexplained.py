@@ -147,13 +147,14 @@ RIDGE_GRID = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0, 100.0, 1e3, 1e4)
 
 
 def _ridge(G: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """(len(RIDGE_GRID), k) ridge coefficients for the normal equations G (k, k), b (k,)
-    (eigenvalues below 1e-12 of the largest count as zero: minimum-norm solution)."""
-    w, V = torch.linalg.eigh(G)
+    """(..., len(RIDGE_GRID), k) ridge coefficients for normal equations G (..., k, k),
+    b (..., k), one eigendecomposition per system (eigenvalues below 1e-12 of the largest
+    count as zero: minimum-norm solution)."""
+    w, V = torch.linalg.eigh(G)  # batched: one call (small LAPACK calls thrash threads)
     mu = torch.tensor(RIDGE_GRID, dtype=G.dtype)[:, None]
-    keep = w > 1e-12 * w.max().clamp_min(1e-300)
-    f = torch.where(keep, 1.0 / (w + mu).clamp_min(1e-300), torch.zeros_like(w))  # (G, k)
-    return (f * (V.T @ b)) @ V.T
+    keep = (w > 1e-12 * w.amax(-1, keepdim=True).clamp_min(1e-300))[..., None, :]
+    f = torch.where(keep, 1.0 / (w[..., None, :] + mu).clamp_min(1e-300), torch.zeros((), dtype=G.dtype))
+    return (f * (V.mT @ b[..., None]).mT) @ V.mT
 
 
 def held_out_prediction(X: torch.Tensor, y: torch.Tensor, fold: np.ndarray) -> torch.Tensor:
@@ -162,20 +163,21 @@ def held_out_prediction(X: torch.Tensor, y: torch.Tensor, fold: np.ndarray) -> t
     over those others (fold (R,) ints in 0..F-1)."""
     F = int(fold.max()) + 1
     masks = [torch.from_numpy(fold == f) for f in range(F)]
-    Gs = torch.stack([X[mk].T @ X[mk] for mk in masks])  # (F, k, k) per-fold normal equations
-    bs = torch.stack([X[mk].T @ y[mk] for mk in masks])  # (F, k)
-    G_all, b_all = Gs.sum(0), bs.sum(0)
+    Xs = [X[mk] for mk in masks]
+    Gs = torch.stack([x.T @ x for x in Xs])  # (F, k, k) per-fold normal equations
+    bs = torch.stack([x.T @ y[mk] for x, mk in zip(Xs, masks)])  # (F, k)
+    pairs = [(f, g) for f in range(F) for g in range(F) if g != f]
+    # training sets: all folds but (f, g) for the inner choice, all but f for the prediction
+    drop_G = torch.stack([Gs[f] + Gs[g] for f, g in pairs] + list(Gs))
+    drop_b = torch.stack([bs[f] + bs[g] for f, g in pairs] + list(bs))
+    C = _ridge(Gs.sum(0) - drop_G, bs.sum(0) - drop_b)  # (len(pairs) + F, grid, k)
+    err = torch.zeros(F, len(RIDGE_GRID), dtype=y.dtype)
+    for i, (f, g) in enumerate(pairs):
+        err[f] += ((Xs[g] @ C[i].T - y[masks[g], None]) ** 2).sum(0)
     pred = torch.zeros_like(y)
     for f in range(F):
-        if not masks[f].any():
-            continue
-        err = torch.zeros(len(RIDGE_GRID), dtype=y.dtype)
-        for g in range(F):
-            if g != f and masks[g].any():
-                C = _ridge(G_all - Gs[f] - Gs[g], b_all - bs[f] - bs[g])
-                err += ((X[masks[g]] @ C.T - y[masks[g], None]) ** 2).sum(0)
-        best = int(err.argmin())
-        pred[masks[f]] = X[masks[f]] @ _ridge(G_all - Gs[f], b_all - bs[f])[best]
+        if masks[f].any():
+            pred[masks[f]] = Xs[f] @ C[len(pairs) + f, int(err[f].argmin())]
     return pred
 
 

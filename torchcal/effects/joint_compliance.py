@@ -1,6 +1,6 @@
 """`joint_compliance:J`: joint deflection proportional to the gravity torque.
 
-The gravity torque on joint J from a mass m_k with centre c_k (fixed in link frame k) is
+The gravity torque on joint J from a mass m_k with center c_k (fixed in link frame k) is
 
     tau_J = sum_{k >= J} [ (R_k^T (g x z_J)) . (m_k c_k) + ((o_k - o_J) x g) . z_J m_k ]
             + ((p_tcp - o_J) x g) . z_J m_payload,
@@ -89,7 +89,7 @@ class JointCompliance(Effect):
 
     @staticmethod
     def params_from_physics(robot, joints, masses_kg, coms_mm, stiffness_nm_per_rad) -> torch.Tensor:
-        """True parameters for simulation: masses (n,) kg, centres (n, 3) mm in link
+        """True parameters for simulation: masses (n,) kg, centers (n, 3) mm in link
         frames, joint stiffness (n,) N m/rad -> p (sum over joints of 4 (n-J+1) + 1,)."""
         masses = torch.as_tensor(masses_kg, dtype=torch.float64)
         coms = torch.as_tensor(coms_mm, dtype=torch.float64)

@@ -1,7 +1,7 @@
 """Fuzzy c-means in torch (docs/paper.md section 4, eqs. 26-28), validity indices, and a
 scikit-learn style estimator.
 
-The maths. Points x_j (N of them, d features), c centres v_i, memberships u_ij with
+The maths. Points x_j (N of them, d features), c centers v_i, memberships u_ij with
 sum_i u_ij = 1, fuzzifier m > 1:
 
     J(U, V) = sum_i sum_j u_ij^m ||x_j - v_i||^2                                    (26)
@@ -11,18 +11,18 @@ sum_i u_ij = 1, fuzzifier m > 1:
 Eq. 28 is evaluated as u_ij = w_ij / S_j with w_ij = (d_ij^2)^(-1/(m-1)) and
 S_j = sum_k w_kj: the same value with no (c, c, N) ratio tensor, and then eq. 26 for the
 pair comes for free as J = sum_j S_j^(1-m) (because u_ij^m d_ij^2 = w_ij / S_j^m).
-Where that is not exact (a point on a centre, d_ij = 0, gives w = inf; or w under- or
+Where that is not exact (a point on a center, d_ij = 0, gives w = inf; or w under- or
 overflows) the chunk is recomputed the careful way: w_ij = (dmin_j^2 / d_ij^2)^(1/(m-1))
-with dmin_j the distance to the nearest centre, so every w is in [0, 1] and S in [1, c];
-a point that lies exactly on one or more centres gets membership 1 split equally among
+with dmin_j the distance to the nearest center, so every w is in [0, 1] and S in [1, c];
+a point that lies exactly on one or more centers gets membership 1 split equally among
 them and 0 elsewhere (the limit of eq. 28), and J is summed directly. Distances are
 direct differences (no |x|^2 - 2 x.v + |v|^2 cancellation), so d = 0 is exact.
 
 Layout: memberships are ``(c, N)`` (cluster first, as u_ij in the paper and as
-scikit-fuzzy), centres ``(c, d)``. One iteration is: memberships from the current centres
-(eq. 28), then new centres from those memberships (eq. 27). It stops when the Frobenius
+scikit-fuzzy), centers ``(c, d)``. One iteration is: memberships from the current centers
+(eq. 28), then new centers from those memberships (eq. 27). It stops when the Frobenius
 norm ||U(t+1) - U(t)|| < eps (the paper's and scikit-fuzzy's rule) or after max_iter
-iterations. The returned centres are the ones the returned memberships were computed from
+iterations. The returned centers are the ones the returned memberships were computed from
 (as scikit-fuzzy returns them), and the objective is eq. 26 for that pair.
 
 Restarts run as one batched ``(restarts, c, N)`` computation; a restart that has
@@ -54,7 +54,7 @@ class FCMResult(NamedTuple):
     """Result of `fcm`.
 
     Attributes:
-        centers: (c, d) cluster centres v_i, in the units of x.
+        centers: (c, d) cluster centers v_i, in the units of x.
         memberships: (c, N) u_ij, each column sums to 1.
         objective: J(U, V) of eq. 26 for the returned pair (float).
         n_iter: iterations run by the kept restart (int).
@@ -130,7 +130,7 @@ def _default_chunk(x: torch.Tensor, rc: int) -> int:
 # --------------------------------------------------------------------------- kernels
 
 def _sq_dist(xt: torch.Tensor, V: torch.Tensor, s: int, e: int) -> torch.Tensor:
-    """Squared distances of points s:e to the centres.
+    """Squared distances of points s:e to the centers.
 
     xt (d or d+1, N) points transposed (extra rows ignored); V (R, c, d) -> (R, c, e - s).
     Direct differences (no |x|^2 - 2x.v + |v|^2 cancellation), so d = 0 is exact.
@@ -141,7 +141,7 @@ def _sq_dist(xt: torch.Tensor, V: torch.Tensor, s: int, e: int) -> torch.Tensor:
 
 
 def _sq_dist_into(xt, V, s, e, out, tmp):
-    """out (R, c, n) = squared distances of points s:e (xt (d(+1), N)) to centres V (R, c, d)."""
+    """out (R, c, n) = squared distances of points s:e (xt (d(+1), N)) to centers V (R, c, d)."""
     d = V.shape[-1]
     torch.sub(xt[0, s:e], V[..., 0, None], out=tmp)  # (R, c, n)
     torch.mul(tmp, tmp, out=out)
@@ -156,7 +156,7 @@ def _u_from_sq_dist_(d2: torch.Tensor, m: float) -> torch.Tensor:
 
     w = (dmin^2 / d^2)^(1/(m-1)) lies in [0, 1] and sum_k w in [1, c], so nothing under- or
     overflows; u = w / sum_k w. A zero distance gives 0/0 = NaN in w, which marks the
-    centres a point lies on: those share membership 1 equally (the limit of eq. 28).
+    centers a point lies on: those share membership 1 equally (the limit of eq. 28).
     """
     dmin = d2.amin(dim=-2, keepdim=True)  # (..., 1, n)
     w = torch.div(dmin, d2, out=d2)  # (..., c, n), NaN where d2 == dmin == 0
@@ -165,7 +165,7 @@ def _u_from_sq_dist_(d2: torch.Tensor, m: float) -> torch.Tensor:
     S = w.sum(dim=-2, keepdim=True)  # (..., 1, n), in [1, c] or NaN
     bad = torch.isnan(S)
     if bool(bad.any()):
-        on = torch.isnan(w).to(w.dtype)  # (..., c, n), 1 on the centres the point lies on
+        on = torch.isnan(w).to(w.dtype)  # (..., c, n), 1 on the centers the point lies on
         on = on / on.sum(dim=-2, keepdim=True).clamp_min(1.0)
         w.div_(S)
         return torch.where(bad, on, w, out=w)
@@ -175,15 +175,15 @@ def _u_from_sq_dist_(d2: torch.Tensor, m: float) -> torch.Tensor:
 def _pass(xt, V, blocks, m, bounds, buf):
     """One FCM iteration over all points, streamed in chunks.
 
-    xt (d, N) points transposed; V (R, c, d) centres; blocks: views (R, c, n_b) of the
+    xt (d, N) points transposed; V (R, c, d) centers; blocks: views (R, c, n_b) of the
     memberships, one per (s, e) in `bounds`, replaced in place by the eq. 28 memberships
     for V; buf: scratch of 2 * R * c * max(n_b) elements.
     Returns diff2 (R,) = ||U_new - U_old||_F^2, J (R,) = J(U_new, V) of eq. 26, and
-    acc (d+1, R*c) = [sum_j u^m x_j ; sum_j u^m] for the next centres (eq. 27).
+    acc (d+1, R*c) = [sum_j u^m x_j ; sum_j u^m] for the next centers (eq. 27).
 
     Fast path: w = (d^2)^(-1/(m-1)), S = sum_k w, u = w / S, and eq. 26 for this pair is
     sum_j S_j^(1-m) (since u^m d^2 = w / S^m). A chunk where some S is 0 or inf (a point on
-    a centre gives w = inf; or w under/overflows) is done by `_u_from_sq_dist_` instead.
+    a center gives w = inf; or w under/overflows) is done by `_u_from_sq_dist_` instead.
     """
     R, c, d = V.shape
     Rc = R * c
@@ -241,7 +241,7 @@ def _row_dots(t: torch.Tensor) -> torch.Tensor:
 def _iterate(xt, U, m, eps, max_iter, chunk):
     """Run FCM from memberships U (R, c, N) (a fresh tensor, overwritten; its columns must
     sum to 1). Returns (J, U (c, N), V (c, d), n_iter) of the restart with the lowest
-    objective (first of ties), V being the centres its U was computed from.
+    objective (first of ties), V being the centers its U was computed from.
     """
     R, c, N = U.shape
     bounds = [(s, min(s + chunk, N)) for s in range(0, N, chunk)]
@@ -281,7 +281,7 @@ def _normalised(U: torch.Tensor) -> torch.Tensor:
 
 
 def _centers(xt: torch.Tensor, U: torch.Tensor, bounds, m: float) -> torch.Tensor:
-    """Eq. 27: xt (d, N), memberships U (R, c, N) -> centres (R, c, d)."""
+    """Eq. 27: xt (d, N), memberships U (R, c, N) -> centers (R, c, d)."""
     d = xt.shape[0]
     R, c, _ = U.shape
     acc = torch.zeros(d + 1, R * c, dtype=xt.dtype, device=xt.device)
@@ -377,9 +377,9 @@ def _check_init_u(init_u, c, N, restarts, dtype, device) -> torch.Tensor:
 
 
 def memberships(x, centers, m: float = 2.0) -> torch.Tensor:
-    """Eq. 28 for given centres: x (N,) or (N, d), centers (c, d) -> (c, N).
+    """Eq. 28 for given centers: x (N,) or (N, d), centers (c, d) -> (c, N).
 
-    A point on a centre gets membership 1 there (split equally among coinciding centres).
+    A point on a center gets membership 1 there (split equally among coinciding centers).
     """
     x = as_points(x)
     centers = _as_centers(centers, x)
@@ -430,7 +430,7 @@ def xie_beni(x, centers, u, m: float = 2.0) -> float:
     """Xie-Beni index XB = J_m(U, V) / (N min_{i != k} ||v_i - v_k||^2); lower is better.
 
     J_m is eq. 26 with the same fuzzifier m (Xie & Beni's original uses m = 2). Coinciding
-    centres give inf.
+    centers give inf.
     """
     x = as_points(x)
     centers = _as_centers(centers, x)
@@ -487,7 +487,7 @@ class FuzzyCMeans(ClusterMixin, BaseEstimator):
         c_range: (low, high) inclusive, used when n_clusters="auto" (default (2, 6)).
 
     Attributes (torch tensors on x's device):
-        centers_: (c, d) centres; d = 1 for 1-D input.
+        centers_: (c, d) centers; d = 1 for 1-D input.
         memberships_: (c, N) memberships of the training points.
         labels_: (N,) int64, cluster of largest membership.
         n_clusters_: the c used.

@@ -2,7 +2,7 @@
 
 Two levels of FCM (`torchcal.partition.fcm`, m = 2 by default):
 
-1. **Levels** on R_set alone (1-D). Levels are ordered by their FCM centre R_set,
+1. **Levels** on R_set alone (1-D). Levels are ordered by their FCM center R_set,
    highest first: level 1 is the most reliable. Each point goes to the level of largest
    membership.
 2. **Zones** inside each level, on 4 features per point, standardised per level:
@@ -22,11 +22,11 @@ Sub-zone counts per level are fixed (e.g. the paper's [3, 2, 3, 2]; 1 means "do 
 split this level") or "auto": per level the c in `zone_range` (default 2..3, clipped to
 n_level - 1) with the lowest Xie-Beni index. `levels` may also be "auto" (c in `level_range` by
 Xie-Beni). Zones are numbered 1..Z level by level; within a level by descending mean
-R_set of their points (ties: centre x). Zone and level ids are 1-based, as in the paper.
+R_set of their points (ties: center x). Zone and level ids are 1-based, as in the paper.
 
 Fuzzy memberships of the hierarchy: level memberships u_L (L, N) from eq. 28 on R_set;
 zone memberships u_z = u_L[level(z)] * u_sub(z), where u_sub are the eq. 28 memberships
-of the point's level-standardised features to the sub-centres of level(z); they sum to 1
+of the point's level-standardised features to the sub-centers of level(z); they sum to 1
 over all zones. (The hard labels are hierarchical, level first, so they need not be the
 argmax of the product.)
 
@@ -36,7 +36,7 @@ Euclidean) and their zone labels: a distance-weighted vote of the 5 nearest swee
 a target on a sweep point takes that point's zone.
 
 A `Partition` is plain data: `torchcal.io.partition_file` saves it as JSON (never pickle) with the points, labels
-and centres; memberships, summaries and the k-NN classifier are rebuilt on load.
+and centers; memberships, summaries and the k-NN classifier are rebuilt on load.
 """
 
 from __future__ import annotations
@@ -61,9 +61,9 @@ class Partition:
         r_set: (N,) set reliability of each point, in [0, 1].
         labels: (N,) int64 zone id of each point, 1..Z.
         point_ids: (N,) int64 ids of the points (the sweep's `point` column).
-        level_centers: (L,) R_set centre of each level, descending (level 1 first).
+        level_centers: (L,) R_set center of each level, descending (level 1 first).
         zone_level: (Z,) int64 level (1..L) of each zone.
-        zone_centers: (Z, 4) FCM centre of each zone in its level's standardised features.
+        zone_centers: (Z, 4) FCM center of each zone in its level's standardised features.
         feature_mean: (L, 4) per-level means of [x mm, y mm, z mm, R_set].
         feature_std: (L, 4) per-level standard deviations (0 replaced by 1).
         m: fuzzifier used.
@@ -128,12 +128,12 @@ class Partition:
         return out
 
     def zone_center_mm(self) -> torch.Tensor:
-        """(Z, 3) zone centres back in mm (the FCM prototypes, not the mean of the points)."""
+        """(Z, 3) zone centers back in mm (the FCM prototypes, not the mean of the points)."""
         lev = self.zone_level - 1
         return self.zone_centers[:, :3] * self.feature_std[lev, :3] + self.feature_mean[lev, :3]
 
     def summary(self) -> list[dict]:
-        """Per zone: zone, level, points, R_set min/mean/max, centre x/y/z (mm), level centre R_set."""
+        """Per zone: zone, level, points, R_set min/mean/max, center x/y/z (mm), level center R_set."""
         ctr = self.zone_center_mm()
         rows = []
         for z in range(1, self.n_zones + 1):
@@ -298,7 +298,7 @@ def partition_workspace(positions, r_set, levels=4, zones="auto", *, m: float = 
         idx = torch.nonzero(point_level == lev)[:, 0]
         n_l = idx.numel()
         if n_l == 0:
-            raise InputError(f"levels: level {lev} of {L} got no points (R_set centres {level_centers.tolist()}); "
+            raise InputError(f"levels: level {lev} of {L} got no points (R_set centers {level_centers.tolist()}); "
                              "expected fewer levels")
         raw = torch.cat([pos_c[idx], r_c[idx, None]], dim=1)  # (n_l, 4)
         mean = raw.mean(dim=0)
@@ -330,7 +330,7 @@ def partition_workspace(positions, r_set, levels=4, zones="auto", *, m: float = 
                 sub = fcm(fd, k, **kw)
             centers = sub.centers.cpu()
             sub_labels = sub.memberships.argmax(dim=0).cpu()
-        # order sub-zones: descending mean R_set of their points, then centre x
+        # order sub-zones: descending mean R_set of their points, then center x
         keys = []
         for j in range(k):
             sel = sub_labels == j

@@ -1,16 +1,16 @@
-"""Interval tensors: lower/upper and centre/radius form.
+"""Interval tensors: lower/upper and center/radius form.
 
 An `Interval` is a pair of tensors ``lower <= upper`` of one broadcast shape; every
-element is the closed interval ``[lower, upper]``. The centre/radius form (docs/paper.md
-eq. 23) is ``centre = (upper + lower) / 2``, ``radius = (upper - lower) / 2``.
+element is the closed interval ``[lower, upper]``. The center/radius form (docs/paper.md
+eq. 23) is ``center = (upper + lower) / 2``, ``radius = (upper - lower) / 2``.
 
 Interval arithmetic here is the plain (exact) arithmetic of independent intervals:
 
 - ``a + b``: ``[a.l + b.l, a.u + b.u]`` (a number or tensor is a point interval);
-- ``k * a`` for a number or tensor ``k``: centre ``k c``, radius ``|k| r`` (a negative
+- ``k * a`` for a number or tensor ``k``: center ``k c``, radius ``|k| r`` (a negative
   ``k`` flips the bounds);
 - ``linear_hull(K, iv)``: the exact interval hull of ``{K x : x in iv}`` for a box ``iv``,
-  centre ``K c`` and radius ``|K| r``. Each bound is attained at a vertex of the box
+  center ``K c`` and radius ``|K| r``. Each bound is attained at a vertex of the box
   (``x = c +- sign(K_i) r`` for row i), so the hull is tight, row by row;
 - ``sample_hull(samples, dim)``: the smallest interval that contains the samples along
   ``dim`` (an inner estimate of the true range of whatever was sampled).
@@ -73,13 +73,15 @@ class Interval:
 
     # -- forms ------------------------------------------------------------------------
     @classmethod
-    def from_centre_radius(cls, centre, radius) -> "Interval":
-        """``[centre - radius, centre + radius]``; radius must be >= 0."""
-        c = _tensor(centre)
+    def from_center_radius(cls, center, radius) -> "Interval":
+        """``[center - radius, center + radius]``; radius must be >= 0."""
+        c = _tensor(center)
         r = _tensor(radius, like=c if not isinstance(radius, torch.Tensor) else None)
         if bool((r < 0).any()):
-            raise InputError(f"Interval.from_centre_radius: radius must be >= 0, got min {r.min().item()}")
+            raise InputError(f"Interval.from_center_radius: radius must be >= 0, got min {r.min().item()}")
         return cls(c - r, c + r)
+
+    from_centre_radius = from_center_radius  # the former name, kept for existing code
 
     @classmethod
     def point(cls, x) -> "Interval":
@@ -88,9 +90,11 @@ class Interval:
         return cls(x, x)
 
     @property
-    def centre(self) -> torch.Tensor:
+    def center(self) -> torch.Tensor:
         """(upper + lower) / 2."""
         return 0.5 * (self.upper + self.lower)
+
+    centre = center  # the former name, kept for existing code
 
     @property
     def radius(self) -> torch.Tensor:
@@ -170,7 +174,7 @@ def linear_hull(K: torch.Tensor, iv: Interval) -> Interval:
     """Exact interval hull of the linear image ``{K x : x in iv}`` of a box.
 
     K (..., m, p), iv of shape (..., p) (batch dims broadcast) -> Interval (..., m) with
-    centre ``K c`` and radius ``|K| r``. Row i attains its upper bound at the box vertex
+    center ``K c`` and radius ``|K| r``. Row i attains its upper bound at the box vertex
     ``x = c + sign(K_i) r`` and its lower bound at ``c - sign(K_i) r``, so no smaller
     interval contains the image.
     """
@@ -178,11 +182,11 @@ def linear_hull(K: torch.Tensor, iv: Interval) -> Interval:
     if K.ndim < 2 or iv.lower.ndim == 0 or K.shape[-1] != iv.shape[-1]:
         raise InputError(f"linear_hull: expected K (..., m, p) and an interval of shape (..., p), "
                          f"got K {tuple(K.shape)} and interval {tuple(iv.shape)}")
-    c = iv.centre.to(K.dtype).unsqueeze(-1)  # (..., p, 1)
+    c = iv.center.to(K.dtype).unsqueeze(-1)  # (..., p, 1)
     r = iv.radius.to(K.dtype).unsqueeze(-1)
-    centre = (K @ c).squeeze(-1)  # (..., m)
+    center = (K @ c).squeeze(-1)  # (..., m)
     radius = (K.abs() @ r).squeeze(-1)
-    return Interval(centre - radius, centre + radius)
+    return Interval(center - radius, center + radius)
 
 
 def sample_hull(samples: torch.Tensor, dim: int = 0) -> Interval:

@@ -16,7 +16,7 @@ each point, distance-error interval per point, R_set":
    max per axis and of |e| are reduced on the fly, so memory stays O(chunk + N) and an
    N x M x 3 tensor never exists. Point blocks are shared among `threads` workers.
    With ``include_nominal`` (default) the zero-deviation
-   state (every shaft centred) belongs to the set, so each axis interval contains 0 and
+   state (every shaft centerd) belongs to the set, so each axis interval contains 0 and
    the distance interval is [0, s^u] as in the paper's Table 3. (The states form a
    connected set containing the nominal one, so every value between 0 and the largest
    distance is attained: [0, s^u] is the exact range of the sampled maximum.)
@@ -35,14 +35,12 @@ Table 2 clearances, bearing length = shaft diameter, 200, 137, 99, 75.6, 60, 50 
 D = 2.5 mm, 100 points x 300 sets (seed 0) give R_set from 0.72 to 1, about half the
 points at 1, as in the paper's Table 3 (0.685 .. 1).
 
-Units: q rad (mm for a prismatic joint) inside, degrees (mm) in the CSV; positions and errors mm. Every tensor stays
-on `device`.
+Units: q rad (mm for a prismatic joint) inside, degrees (mm) in the CSV (`torchcal.io.sweep_csv`
+writes and reads it); positions and errors mm. Every tensor stays on `device`.
 """
 
 from __future__ import annotations
 
-import csv
-import io as _io
 import math
 import sys
 import threading
@@ -58,7 +56,6 @@ from torchcal.kinematics import mdh as K
 from torchcal.reliability import rset as reliability
 from torchcal.errors import InputError
 from torchcal.reliability.interval import Interval, linear_hull
-from torchcal.io.files import atomic_write
 from torchcal.reliability.uncertainty import ClearanceModel, sample_deviations
 
 # (point, set) evaluations per kernel call: on a CPU small enough for the 7 buffers to stay
@@ -159,12 +156,12 @@ class SweepResult:
         eta: (N,) eq. 23 of the distance interval vs the allowed distance error.
         r_set: (N,) eq. 24, the same.
         lin_lower, lin_upper: (N, 3) mm linearised hull of the error (None if not computed
-            or read from a CSV).
+            or read from a CSV: `torchcal.io.sweep_csv`).
         lin_dist_upper: (N,) mm farthest corner of the linearised error box (or None).
         allowed_mm: the allowed distance error D (None if unknown).
         n_samples: M, number of perturbed parameter sets (None if unknown).
         r_set_axis, eta_axis: (N, 3) per axis against an allowed +-a (None unless asked).
-        point: (N,) int64 point ids (None: the row index 0..N-1, as `sweep` writes them).
+        point: (N,) int64 point ids (None: the row index 0..N-1, as the CSV writes them).
         prismatic: (n,) bool prismatic joints, whose q is mm (in the CSV too), not an
             angle (None: all revolute).
     """
@@ -232,96 +229,6 @@ class SweepResult:
             out["linear_ratio_median"] = float(ratio.double().median())
             out["linear_ratio_max"] = float(ratio.double().max())
         return out
-
-    # -- CSV ----------------------------------------------------------------------------
-    def columns(self) -> list[str]:
-        n = self.q.shape[1]
-        return (["point"] + [f"q{i + 1}" for i in range(n)] + ["x", "y", "z", "ex_lo", "ex_hi", "ey_lo",
-                "ey_hi", "ez_lo", "ez_hi", "dist_lo", "dist_hi", "eta", "r_set"])
-
-    def to_csv_text(self) -> str:
-        """The CSV (module docstring of torchcal.cli.sweep): q in degrees (mm for a prismatic joint), mm."""
-        q = torch.rad2deg(self.q)
-        if self.prismatic is not None:
-            q = torch.where(self.prismatic.to(q.device), self.q, q)
-        cols = [q, self.positions,
-                torch.stack([self.err_lower, self.err_upper], dim=-1).reshape(-1, 6),
-                self.dist_lower[:, None], self.dist_upper[:, None], self.eta[:, None], self.r_set[:, None]]
-        data = torch.cat([c.detach().to("cpu", torch.float64) for c in cols], dim=1).numpy()
-        buf = _io.StringIO()
-        buf.write(",".join(self.columns()) + "\n")
-        ids = range(len(data)) if self.point is None else self.point.tolist()
-        for i, row in zip(ids, data.tolist()):
-            buf.write(f"{i}," + ",".join(map(repr, row)) + "\n")
-        return buf.getvalue()
-
-    def to_csv(self, path, force: bool = False):
-        """Write the CSV atomically; an existing file only with force=True."""
-        return atomic_write(path, self.to_csv_text(), force=force)
-
-    @classmethod
-    def from_csv(cls, path, device=None, prismatic=None) -> "SweepResult":
-        """Read a sweep CSV (linearised bounds, allowed_mm, n_samples are not stored: None).
-
-        prismatic: optional (n,) bool, joints whose q column is mm (kept), not degrees.
-
-        One InputError naming the file, row (file line) and column for a bad header, a
-        ragged row, a non-numeric or non-finite value, or an R_set outside [0, 1].
-        """
-        from pathlib import Path
-        path = Path(path)
-        if not path.is_file():
-            raise InputError(f"{path}: sweep CSV does not exist")
-        try:
-            with open(path, newline="") as fh:
-                rows = list(csv.reader(fh))
-        except UnicodeDecodeError as exc:
-            raise InputError(f"{path}: not a text CSV file ({exc})") from None
-        except csv.Error as exc:
-            raise InputError(f"{path}: malformed CSV: {exc}") from None
-        if not rows:
-            raise InputError(f"{path}: empty file, expected a sweep CSV header")
-        header = [h.strip() for h in rows[0]]
-        qcols = [h for h in header if len(h) > 1 and h[0] == "q" and h[1:].isdigit()]
-        n = len(qcols)
-        expected = (["point"] + [f"q{i + 1}" for i in range(n)] + ["x", "y", "z", "ex_lo", "ex_hi", "ey_lo",
-                    "ey_hi", "ez_lo", "ez_hi", "dist_lo", "dist_hi", "eta", "r_set"])
-        if n == 0 or header != expected:
-            raise InputError(f"{path}: header must be {','.join(expected if n else ['point', 'q1', '...'])}, "
-                             f"got {','.join(header)}")
-        rows = [(line, row) for line, row in enumerate(rows[1:], start=2)
-                if row and any(c.strip() for c in row)]  # blank lines are skipped
-        if not rows:
-            raise InputError(f"{path}: no data rows")
-        data = np.empty((len(rows), len(header) - 1))
-        ids = np.empty(len(rows), dtype=np.int64)
-        for i, (r, row) in enumerate(rows):
-            if len(row) != len(header):
-                raise InputError(f"{path}: row {r}: expected {len(header)} columns, got {len(row)}")
-            try:
-                ids[i] = int(row[0])
-            except ValueError:
-                raise InputError(f"{path}: row {r}, column point: not an integer: {row[0]!r}") from None
-            for c, v in enumerate(row[1:], start=1):
-                try:
-                    data[i, c - 1] = float(v)
-                except ValueError:
-                    raise InputError(f"{path}: row {r}, column {header[c]}: not a number: {v!r}") from None
-                if not math.isfinite(data[i, c - 1]):
-                    raise InputError(f"{path}: row {r}, column {header[c]}: not finite: {v!r}")
-            if not 0.0 <= data[i, -1] <= 1.0:
-                raise InputError(f"{path}: row {r}, column r_set: {data[i, -1]} is outside [0, 1]")
-        t = torch.from_numpy(data).to(device)
-        k = n
-        q = torch.deg2rad(t[:, :k])
-        if prismatic is not None:
-            prismatic = torch.as_tensor(prismatic, dtype=torch.bool, device=q.device)
-            q = torch.where(prismatic, t[:, :k], q)
-        e = t[:, k + 3:k + 9].reshape(-1, 3, 2)
-        return cls(q=q, positions=t[:, k:k + 3], err_lower=e[..., 0].contiguous(),
-                   err_upper=e[..., 1].contiguous(), dist_lower=t[:, k + 9], dist_upper=t[:, k + 10],
-                   eta=t[:, k + 11], r_set=t[:, k + 12], point=torch.from_numpy(ids).to(device),
-                   prismatic=prismatic)
 
 
 def _envelope(robot, q, dev, include_nominal, chunk, bar, threads):

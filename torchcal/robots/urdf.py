@@ -263,7 +263,7 @@ def minimal_urdf(robot: Robot, params=None) -> str:
     radians), its axis z; limits in rad / m."""
     r = robot.to("cpu", _F)
     table = r.table if params is None else r.table + torch.as_tensor(params, dtype=_F)
-    lines = [f'<?xml version="1.0"?>', f'<robot name="{r.name}">', '  <link name="base_link"/>']
+    lines = ['<?xml version="1.0"?>', f'<robot name="{r.name}">', '  <link name="base_link"/>']
     prev, T = "base_link", r.base
     for i in range(r.n):
         p = bool(r.prismatic[i])

@@ -11,7 +11,7 @@ Sizes (defaults; all drawn from the robot's own seeded generator):
 - each effect is scaled so that its TCP displacement over the session has an RMS of
   `effect_mm` (0.3 mm: "realistic size, 0.1 to 1 mm at the TCP"); the direction of its
   parameter vector comes from physics where there is some (compliance: link masses and
-  centres from the robot's reach, gravity torques; thermal: steel expansion) and is
+  centers from the robot's reach, gravity torques; thermal: steel expansion) and is
   random otherwise (harmonic phases, backlash, scale, base and tool);
 - joint_clearance: each listed axis can tilt up to t_max inside its bearing: for
   kr1000titan t_max = (c_1 + c_2) / L from docs/paper.md Table 2 (`torchcal.reliability.uncertainty`),
@@ -48,9 +48,9 @@ GEOMETRIC_SIZE = (2e-2, 0.5, 0.5, 2e-2, 2e-2)  # dtheta deg, dd mm, da mm, dalph
 
 
 def default_masses(robot: Robot):
-    """Plausible link masses (n,) kg and centres (n, 3) mm in the link frames.
+    """Plausible link masses (n,) kg and centers (n, 3) mm in the link frames.
 
-    Each link's centre is half way back to the previous joint origin; masses scale with
+    Each link's center is half way back to the previous joint origin; masses scale with
     the rated payload (arm links about 1.5x, wrist links 0.1-0.3x the payload).
     """
     table = robot.table

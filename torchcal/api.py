@@ -69,6 +69,25 @@ def _fitted(model_or_fit):
                      f"got {type(model_or_fit).__name__}")
 
 
+def _q_range(model_or_fit, cm: CalibrationModel):
+    """(2, n) calibrated joint range rad / mm of a fitted model, or None (unknown)."""
+    if isinstance(model_or_fit, FitResult):
+        return model_or_fit.q_range
+    return getattr(cm, "calibrated_range", None)
+
+
+def _warn_range(q: torch.Tensor, q_range, robot: Robot, what: str) -> int:
+    """Rows of q (N, n) rad / mm outside the calibrated range; one `CalibratedRangeWarning` when any."""
+    import warnings
+
+    from torchcal.calibration.joint_range import CalibratedRangeWarning, range_warning
+
+    count, msg = range_warning(q, q_range, robot, what)
+    if msg is not None:
+        warnings.warn(msg, CalibratedRangeWarning, stacklevel=3)
+    return count
+
+
 def _measurements(measurements, robot: Robot) -> Measurements:
     if isinstance(measurements, Measurements):
         return measurements
@@ -110,7 +129,9 @@ def fit(robot_or_model, measurements, effects=(), robust: str | None = None, max
 class Evaluation:
     """Distance errors measured - model: n rows; rms_mm, mean_mm, max_mm; per_axis_rms_mm
     [x, y, z]; orientation_rms_deg when the data carry rx, ry, rz and the model was fitted
-    to orientations (else None)."""
+    to orientations (else None); outside_range: rows whose commanded q lie outside the
+    joint range the model was calibrated on (`torchcal.calibration.joint_range`), None
+    when the model does not record it (a MODEL.json written before it existed)."""
 
     n: int
     rms_mm: float
@@ -118,19 +139,25 @@ class Evaluation:
     max_mm: float
     per_axis_rms_mm: list
     orientation_rms_deg: float | None = None
+    outside_range: int | None = None
 
     def to_dict(self) -> dict:
-        """{"n", "rms_mm", "mean_mm", "max_mm", "per_axis_rms_mm"[, "orientation_rms_deg"]}:
-        the JSON of ``torchcal evaluate --json``."""
+        """{"n", "rms_mm", "mean_mm", "max_mm", "per_axis_rms_mm"[, "orientation_rms_deg"]
+        [, "outside_range"]}: the JSON of ``torchcal evaluate --json``."""
         out = {"n": self.n, "rms_mm": self.rms_mm, "mean_mm": self.mean_mm, "max_mm": self.max_mm,
                "per_axis_rms_mm": list(self.per_axis_rms_mm)}
         if self.orientation_rms_deg is not None:
             out["orientation_rms_deg"] = self.orientation_rms_deg
+        if self.outside_range is not None:
+            out["outside_range"] = self.outside_range
         return out
 
 
 def evaluate(model, measurements) -> Evaluation:
-    """Errors of a fitted model (FitResult, MODEL.json path or (model, theta)) on measurements."""
+    """Errors of a fitted model (FitResult, MODEL.json path or (model, theta)) on measurements.
+
+    Rows outside the model's calibrated joint range are counted (``outside_range``) and
+    named in one `CalibratedRangeWarning` (the model extrapolates there)."""
     import math
 
     from torchcal.calibration.fit import _so3_error
@@ -148,8 +175,10 @@ def evaluate(model, measurements) -> Evaluation:
     if m.rxyz is not None and tool_r is not None:
         e = _so3_error(cm.predict_rotation(theta, ctx) @ tool_r.to(theta), m.rotation)  # (N, 3) rad
         orient = math.degrees(float(e.norm(dim=-1).pow(2).mean().sqrt()))
+    q_range = _q_range(model, cm)
+    outside = None if q_range is None else _warn_range(m.q, q_range, cm.robot, "rows")
     return Evaluation(len(m), float(d.pow(2).mean().sqrt()), float(d.mean()), float(d.max()),
-                      err.pow(2).mean(0).sqrt().tolist(), orient)
+                      err.pow(2).mean(0).sqrt().tolist(), orient, outside)
 
 
 def diagnose(robot_or_model, measurements, effects=(), folds: int = 5, seed: int = 0, **options):
@@ -197,15 +226,20 @@ def compensate(model, targets, q0=None, **options):
     model: a fitted model (FitResult, MODEL.json path, (model, theta)) or an
     `IntervalModel` (targets assigned to its zones). q0: (M, n) rad starting commands,
     default the nominal inverse from the middle of the joint limits. Returns a
-    `Compensation`.
+    `Compensation`; solved commands outside the model's calibrated joint range are
+    counted (``outside_range``) and named in one `CalibratedRangeWarning`.
     """
     from torchcal.calibration.compensate import compensate as run, nominal_inverse
     from torchcal.calibration.intervals import IntervalModel
 
+    import dataclasses
+
     if isinstance(model, IntervalModel):
         cm, theta = model.model, model.theta
+        q_range = getattr(cm, "calibrated_range", None)
     else:
         cm, theta = _fitted(model)
+        q_range = _q_range(model, cm)
     robot = cm.robot
     t = torch.as_tensor(targets, dtype=robot.dtype, device=robot.device)
     if t.ndim != 2 or t.shape[-1] != 3:
@@ -213,4 +247,7 @@ def compensate(model, targets, q0=None, **options):
     if q0 is None:
         q0 = nominal_inverse(robot, t).q
     zone = model.assign(t) if isinstance(model, IntervalModel) else None
-    return run(cm, theta.to(t), t, q0, zone=zone, **options)
+    comp = run(cm, theta.to(t), t, q0, zone=zone, **options)
+    if q_range is None:
+        return comp
+    return dataclasses.replace(comp, outside_range=_warn_range(comp.q, q_range, robot, "targets"))

@@ -48,6 +48,9 @@ class Compensation:
         iterations: (M,) Newton iterations.
         converged: (M,) bool, |residual| <= tol_mm.
         within_limits: (M,) bool, q inside the robot's joint limits.
+        outside_range: number of targets whose q lie outside the joint range the model
+            was calibrated on (`torchcal.calibration.joint_range`; set by
+            `torchcal.compensate`), None when not checked or unknown.
     """
 
     q: torch.Tensor
@@ -57,6 +60,7 @@ class Compensation:
     iterations: torch.Tensor
     converged: torch.Tensor
     within_limits: torch.Tensor
+    outside_range: int | None = None
 
     @property
     def correction_rad(self) -> torch.Tensor:

@@ -28,6 +28,7 @@ import torch
 from torchcal.effects.base import Context
 from torchcal.errors import InputError
 from torchcal.calibration.lm import levenberg_marquardt
+from torchcal.calibration.joint_range import joint_range
 from torchcal.calibration.model import CalibrationModel
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.calibration.uncertainty import ParameterCovariance, parameter_covariance
@@ -100,7 +101,8 @@ class FitResult:
     registration: the closed-form start (rms before/after, frame) or None; implausible:
     names of MD-H deviations held because they grew beyond `plausible_limits`;
     orientation: {"sigma_mm", "sigma_deg", "weight_mm_per_rad", "tool_rotation" (3, 3),
-    "rms_deg"} when orientations were fitted.
+    "rms_deg"} when orientations were fitted. q_range: (2, n) min and max of the data's
+    commanded q, rad / mm (`torchcal.calibration.joint_range`).
     """
 
     model: CalibrationModel
@@ -131,6 +133,7 @@ class FitResult:
     implausible: list = field(default_factory=list)
     orientation: dict | None = None
     plausible_limits: dict | None = None
+    q_range: torch.Tensor | None = None  # (2, n) [min; max] commanded q of the data, rad / mm
 
     @property
     def rms_mm(self) -> float:
@@ -320,4 +323,5 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
                      status=status,
                      registration=reg_info, implausible=implausible, orientation=orient,
                      plausible_limits=None if max_length_mm is None else
-                     {"max_length_mm": max_length_mm, "max_angle_deg": max_angle_deg})
+                     {"max_length_mm": max_length_mm, "max_angle_deg": max_angle_deg},
+                     q_range=joint_range(ctx.q))

@@ -192,6 +192,11 @@ def run(args) -> int:
                                repr(float(res[i])), str(bool(comp.converged[i])).lower(),
                                str(bool(comp.within_limits[i])).lower()]))
     atomic_write(args.out, "\n".join(lines) + "\n", force=args.force, inputs=[args.targets, args.model])
+    from torchcal.calibration.joint_range import range_warning
+
+    _, msg = range_warning(comp.q, getattr(im.model, "calibrated_range", None), robot, "targets")
+    if msg is not None:
+        sys.stderr.write(f"torchcal: warning: {msg}\n")
     bad_conv = (~comp.converged).nonzero().flatten().tolist()
     out_lim = (~comp.within_limits).nonzero().flatten().tolist()
     ok = targets.shape[0] - len(set(bad_conv) | set(out_lim))

@@ -21,10 +21,23 @@ def add_parser(sub):
 
 
 def evaluate(model, theta, m) -> dict:
-    """The report dict of `torchcal.evaluate` ((model, theta) on measurements m)."""
-    from torchcal.api import evaluate as run
+    """The report dict of `torchcal.evaluate` ((model, theta) on measurements m); rows
+    outside the model's calibrated joint range: one warning line on stderr."""
+    import sys
+    import warnings
 
-    return run((model, theta), m).to_dict()
+    from torchcal.api import evaluate as run
+    from torchcal.calibration.joint_range import CalibratedRangeWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", CalibratedRangeWarning)
+        rep = run((model, theta), m).to_dict()
+    for w in caught:
+        if issubclass(w.category, CalibratedRangeWarning):
+            sys.stderr.write(f"torchcal: warning: {w.message}\n")
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return rep
 
 
 def run(args) -> int:

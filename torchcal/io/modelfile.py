@@ -6,6 +6,8 @@
      "covariance": {"method", "dof", "sigma_mm", "noise_mm", "pose_mm", "parameters", "matrix"},
      "identifiability": {...}, "fit": {"n", "rms_mm", "max_mm", "robust", "outliers", "status"},
      "provenance": {"input", "input_sha256", "torchcal_version", "seed"},
+     "calibrated_range": {"q_min": [...], "q_max": [...], "unit": ["deg" | "mm", ...]}
+                     (per joint min and max of the calibration data's commanded q),
      optional: "points": [ID...] (one tool offset per measured point),
      "base_frame": {"translation_mm", "rotation_fixed_xyz_deg"} (measurement <- robot base),
      "registration": {"rms_before_mm", "rms_after_mm", "translation_mm", "rotation_fixed_xyz_deg",
@@ -22,6 +24,10 @@ solver stopped ('converged', 'stalled' or 'max_iterations'). Loading rebuilds th
 theta exactly (floats are written with full precision). ``nominal_robot`` embeds the
 nominal robot (the robot-file dict, docs/robots.md), so a model file needs no preset and
 no robot file; files written before it existed name a preset under ``robot``.
+``calibrated_range`` (deg, mm for a prismatic joint) lets evaluate and compensate warn
+when the model is used outside the joint range it was fitted on
+(`torchcal.calibration.joint_range`); `load` puts it on the model as
+``model.calibrated_range`` ((2, n) rad / mm, None in files written before it existed).
 """
 
 from __future__ import annotations
@@ -47,6 +53,7 @@ def file_sha256(path) -> str:
 
 
 def to_dict(res: FitResult, source=None, seed: int = 0, robust=None, pose_ids=None) -> dict:
+    from torchcal.calibration.joint_range import range_to_dict
     from torchcal.calibration.registration import base_frame_summary
     from torchcal.measurements import matrix_to_fixed_xyz
 
@@ -64,6 +71,8 @@ def to_dict(res: FitResult, source=None, seed: int = 0, robust=None, pose_ids=No
         extra["registration"] = dict(res.registration)
     if res.plausible_limits is not None:
         extra["plausibility"] = {**res.plausible_limits, "held": list(res.implausible)}
+    if res.q_range is not None:
+        extra["calibrated_range"] = range_to_dict(res.q_range, model.robot)
     if res.orientation is not None:
         o = res.orientation
         extra["orientation"] = {k: o[k] for k in ("sigma_mm", "sigma_deg", "weight_mm_per_rad", "rms_deg")}
@@ -128,6 +137,10 @@ def load(path, robot: Robot | str | None = None):
         model.tool_rotation = fixed_xyz_to_matrix(r)
     if names != model.param_names():
         raise InputError(f"{path}: parameters do not match robot {nominal.name!r} with effects {effects}")
+    model.calibrated_range = None  # (2, n) rad / mm; absent from files written before it existed
+    if obj.get("calibrated_range") is not None:
+        from torchcal.calibration.joint_range import range_from_dict
+        model.calibrated_range = range_from_dict(obj["calibrated_range"], nominal, str(path))
     return model, torch.tensor(values, dtype=torch.float64)
 
 

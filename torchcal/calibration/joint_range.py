@@ -1,0 +1,99 @@
+"""The joint range a model was calibrated on, and the rows that leave it.
+
+Effects that depend on a joint angle (gear harmonics, compliance, couplings) and the
+geometric parameters themselves are fitted only over the joint values the calibration
+data saw; outside that range the model extrapolates. A fitted model records, per
+joint, the min and max of the commanded q of its data (`q_range`, (2, n): row 0 min,
+row 1 max, rad / mm for a prismatic joint); MODEL.json stores it as
+``"calibrated_range": {"q_min", "q_max", "unit"}`` in deg (mm for a prismatic joint).
+
+A value counts as outside when it lies beyond [min, max] by more than the tolerance
+``max(RANGE_TOL_FRACTION * (max - min), RANGE_TOL_DEG deg)`` (RANGE_TOL_MM mm for a
+prismatic joint): 1 % of the span, at least half a degree.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from torchcal.errors import InputError
+
+RANGE_TOL_FRACTION = 0.01  # of the calibrated span
+RANGE_TOL_DEG = 0.5  # revolute joints, at least
+RANGE_TOL_MM = 0.5  # prismatic joints, at least
+
+
+class CalibratedRangeWarning(UserWarning):
+    """Rows or targets lie outside the joint range the model was calibrated on."""
+
+
+def joint_range(q: torch.Tensor) -> torch.Tensor:
+    """(2, n) [min; max] per joint of q (N, n) (rad / mm)."""
+    return torch.stack([q.amin(0), q.amax(0)]).detach()
+
+
+def range_to_dict(q_range: torch.Tensor, robot) -> dict:
+    """{"q_min", "q_max", "unit"}: q_range (2, n) rad / mm in deg (mm for a prismatic joint)."""
+    user = robot.q_to_user(q_range.detach().to("cpu", torch.float64)).cpu()
+    return {"q_min": user[0].tolist(), "q_max": user[1].tolist(), "unit": robot.joint_units()}
+
+
+def range_from_dict(obj, robot, where: str = "model file") -> torch.Tensor:
+    """(2, n) rad / mm from {"q_min", "q_max", "unit"} (deg, mm for a prismatic joint);
+    InputError naming `where` when malformed or for another joint layout."""
+    try:
+        lo = [float(v) for v in obj["q_min"]]
+        hi = [float(v) for v in obj["q_max"]]
+        unit = list(obj["unit"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{where}: bad 'calibrated_range': {exc}") from None
+    if not (len(lo) == len(hi) == len(unit) == robot.n) or unit != robot.joint_units():
+        raise InputError(f"{where}: 'calibrated_range' has {len(lo)} joints in units {unit}; "
+                         f"expected {robot.n} in {robot.joint_units()}")
+    if not all(math.isfinite(v) for v in lo + hi) or any(a > b for a, b in zip(lo, hi)):
+        raise InputError(f"{where}: 'calibrated_range' needs finite q_min <= q_max per joint")
+    return robot.q_from_user(torch.tensor([lo, hi], dtype=torch.float64)).detach()
+
+
+def _tolerance(q_range: torch.Tensor, prismatic: torch.Tensor) -> torch.Tensor:
+    """(n,) tolerance in rad / mm."""
+    floor = torch.where(prismatic, torch.full_like(q_range[0], RANGE_TOL_MM),
+                        torch.full_like(q_range[0], math.radians(RANGE_TOL_DEG)))
+    return torch.maximum(RANGE_TOL_FRACTION * (q_range[1] - q_range[0]), floor)
+
+
+def outside_range(q: torch.Tensor, q_range: torch.Tensor, prismatic: torch.Tensor) -> torch.Tensor:
+    """(N, n) bool: q (N, n) beyond q_range (2, n) by more than the tolerance (rad / mm)."""
+    r = q_range.to(q)
+    tol = _tolerance(r, prismatic.to(q.device))
+    return (q < r[0] - tol) | (q > r[1] + tol)
+
+
+def range_warning(q: torch.Tensor, q_range: torch.Tensor | None, robot, what: str = "rows",
+                  max_joints: int = 3) -> tuple[int, str | None]:
+    """(number of rows of q (N, n) rad / mm outside q_range, one-line message or None).
+
+    q_range None (a model file written before torchcal recorded it): (0, None). The
+    message names each offending joint (up to `max_joints`) with its farthest value and
+    the calibrated range, in deg (mm for a prismatic joint)."""
+    if q_range is None or q.shape[0] == 0:
+        return 0, None
+    out = outside_range(q, q_range, robot.prismatic)  # (N, n)
+    rows = int(out.any(1).sum())
+    if rows == 0:
+        return 0, None
+    r = q_range.to(q)
+    dist = torch.where(out, torch.maximum(r[0] - q, q - r[1]), torch.full_like(q, -1.0))
+    worst = dist.argmax(0)  # (n,) row farthest outside per joint
+    qu = robot.q_to_user(q.detach().to("cpu", torch.float64))
+    ru = robot.q_to_user(r.detach().to("cpu", torch.float64))
+    units = robot.joint_units()
+    joints = out.any(0).nonzero().flatten().tolist()
+    parts = [f"joint {j + 1}: {qu[int(worst[j]), j].item():.1f} {units[j]}, calibrated "
+             f"{ru[0, j].item():.1f} .. {ru[1, j].item():.1f} {units[j]}" for j in joints[:max_joints]]
+    more = f"; and {len(joints) - max_joints} more joint(s)" if len(joints) > max_joints else ""
+    msg = (f"{rows} of {q.shape[0]} {what} lie outside the calibrated joint range "
+           f"({'; '.join(parts)}{more}); the model extrapolates there")
+    return rows, msg

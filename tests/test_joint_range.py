@@ -162,7 +162,7 @@ def test_prismatic_range_in_mm_round_trip_and_compensate(tmp_path, capsys):
     seeds = tq.clone()
     seeds[0, 2] = hi3 + 2.0
     t = model.predict(theta, make_context(robot, robot.q_from_user(tq)))
-    with pytest.warns(CalibratedRangeWarning, match=rf"2 of 4 targets .*joint 3: {hi3 + 4.0:.1f} mm"):
+    with pytest.warns(CalibratedRangeWarning, match=rf"2 of 4 converged targets .*joint 3: {hi3 + 4.0:.1f} mm"):
         comp = torchcal.compensate(str(path), t, q0=robot.q_from_user(seeds))
     assert comp.converged.all() and comp.outside_range == 2
     assert_close(robot.q_to_user(comp.q)[:, 2], tq[:, 2], rtol=0, atol=1e-6)
@@ -174,4 +174,4 @@ def test_prismatic_range_in_mm_round_trip_and_compensate(tmp_path, capsys):
     assert main(["compensate", str(tmp_path / "targets.csv"), "--model", str(path),
                  "--out", str(tmp_path / "q.csv")]) == 0
     err = capsys.readouterr().err
-    assert "torchcal: warning: 2 of 4 targets lie outside the calibrated joint range (joint 3: " in err
+    assert "torchcal: warning: 2 of 4 converged targets lie outside the calibrated joint range (joint 3: " in err

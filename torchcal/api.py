@@ -226,7 +226,7 @@ def compensate(model, targets, q0=None, **options):
     model: a fitted model (FitResult, MODEL.json path, (model, theta)) or an
     `IntervalModel` (targets assigned to its zones). q0: (M, n) rad starting commands,
     default the nominal inverse from the middle of the joint limits. Returns a
-    `Compensation`; solved commands outside the model's calibrated joint range are
+    `Compensation`; converged solutions outside the model's calibrated joint range are
     counted (``outside_range``) and named in one `CalibratedRangeWarning`.
     """
     from torchcal.calibration.compensate import compensate as run, nominal_inverse
@@ -250,4 +250,5 @@ def compensate(model, targets, q0=None, **options):
     comp = run(cm, theta.to(t), t, q0, zone=zone, **options)
     if q_range is None:
         return comp
-    return dataclasses.replace(comp, outside_range=_warn_range(comp.q, q_range, robot, "targets"))
+    outside = _warn_range(comp.q[comp.converged], q_range, robot, "converged targets")
+    return dataclasses.replace(comp, outside_range=outside)

@@ -48,7 +48,7 @@ class Compensation:
         iterations: (M,) Newton iterations.
         converged: (M,) bool, |residual| <= tol_mm.
         within_limits: (M,) bool, q inside the robot's joint limits.
-        outside_range: number of targets whose q lie outside the joint range the model
+        outside_range: number of converged targets whose q lie outside the joint range the model
             was calibrated on (`torchcal.calibration.joint_range`; set by
             `torchcal.compensate`), None when not checked or unknown.
     """

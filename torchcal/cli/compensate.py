@@ -194,7 +194,9 @@ def run(args) -> int:
     atomic_write(args.out, "\n".join(lines) + "\n", force=args.force, inputs=[args.targets, args.model])
     from torchcal.calibration.joint_range import range_warning
 
-    _, msg = range_warning(comp.q, getattr(im.model, "calibrated_range", None), robot, "targets")
+    # only solutions count: a target that did not converge is named by its own line below
+    _, msg = range_warning(comp.q[comp.converged], getattr(im.model, "calibrated_range", None), robot,
+                           "converged targets")
     if msg is not None:
         sys.stderr.write(f"torchcal: warning: {msg}\n")
     bad_conv = (~comp.converged).nonzero().flatten().tolist()

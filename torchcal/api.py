@@ -236,7 +236,7 @@ def compensate(model, targets, q0=None, **options):
 
     if isinstance(model, IntervalModel):
         cm, theta = model.model, model.theta
-        q_range = getattr(cm, "calibrated_range", None)
+        q_range = model.q_range
     else:
         cm, theta = _fitted(model)
         q_range = _q_range(model, cm)

@@ -379,6 +379,8 @@ class IntervalModel:
         provenance: free-form dict (input file, versions).
         global_fit: the global `IntervalFit` (its `report`, `rms_mm`) when the model comes
             from `torchcal.calibrate`, else None; not stored in the file.
+        q_range: (2, n) [min; max] commanded q of the calibration data, rad / mm
+            (`torchcal.calibration.joint_range`), None when unknown.
     """
 
     model: CalibrationModel
@@ -391,6 +393,7 @@ class IntervalModel:
     method: str = "global"
     provenance: dict | None = None
     global_fit: object = None
+    q_range: torch.Tensor | None = None
 
     @property
     def n_zones(self) -> int:

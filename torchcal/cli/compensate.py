@@ -136,7 +136,7 @@ def load_model(path):
     free = torch.tensor([bool(p.get("identified", True)) for p in obj["parameters"]])
     return IntervalModel(model, theta[None], theta[None], theta[None], free[None],
                          [{"zone": 1, "level": None, "poses": None, "held": [], "rms_mm": None,
-                           "damping": 0.0}], None, "fit")
+                           "damping": 0.0}], None, "fit", q_range=model.calibrated_range)
 
 
 def default_seeds(robot, targets):
@@ -195,8 +195,7 @@ def run(args) -> int:
     from torchcal.calibration.joint_range import range_warning
 
     # only solutions count: a target that did not converge is named by its own line below
-    _, msg = range_warning(comp.q[comp.converged], getattr(im.model, "calibrated_range", None), robot,
-                           "converged targets")
+    _, msg = range_warning(comp.q[comp.converged], im.q_range, robot, "converged targets")
     if msg is not None:
         sys.stderr.write(f"torchcal: warning: {msg}\n")
     bad_conv = (~comp.converged).nonzero().flatten().tolist()

@@ -4,11 +4,13 @@
      "parameter_names", "parameter_units", "method",
      "zones": [{"zone", "level", "poses", "theta", "lower", "upper", "free", "held",
                 "rms_mm", "damping"}...],
-     "partition": {PARTITION.json} or null, "provenance"}
+     "partition": {PARTITION.json} or null, "provenance",
+     "calibrated_range": {"q_min", "q_max", "unit"}}
 
 Values in the model's units (mm, rad, ...); zones 1-based. ``nominal_robot`` embeds the
 nominal robot (the robot-file dict, docs/robots.md); ``partition`` is the file of
-`torchcal.io.partition_file`.
+`torchcal.io.partition_file`; ``calibrated_range`` the calibration data's joint range in
+deg (mm for a prismatic joint; `torchcal.calibration.joint_range`), absent in older files.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from __future__ import annotations
 import torch
 
 from torchcal.calibration.intervals import IntervalModel
+from torchcal.calibration.joint_range import range_from_dict, range_to_dict
 from torchcal.calibration.model import CalibrationModel
 from torchcal.errors import InputError
 from torchcal.io.partition_file import partition_from_dict, partition_to_dict
@@ -33,12 +36,15 @@ def interval_model_to_dict(im: IntervalModel) -> dict:
     for z, info in enumerate(im.zones):
         zones.append({**info, "theta": im.theta[z].tolist(), "lower": im.lower[z].tolist(),
                       "upper": im.upper[z].tolist(), "free": im.free[z].tolist()})
-    return {"format": INTERVAL_MODEL_FORMAT, "robot": m.robot.name,
-            "nominal_robot": robot_to_dict(m.robot), "effects": m.specs(),
-            "parameter_names": m.param_names(), "parameter_units": m.param_units(),
-            "method": im.method, "zones": zones,
-            "partition": None if im.partition is None else partition_to_dict(im.partition),
-            "provenance": im.provenance or {}}
+    out = {"format": INTERVAL_MODEL_FORMAT, "robot": m.robot.name,
+           "nominal_robot": robot_to_dict(m.robot), "effects": m.specs(),
+           "parameter_names": m.param_names(), "parameter_units": m.param_units(),
+           "method": im.method, "zones": zones,
+           "partition": None if im.partition is None else partition_to_dict(im.partition),
+           "provenance": im.provenance or {}}
+    if im.q_range is not None:
+        out["calibrated_range"] = range_to_dict(im.q_range, m.robot)
+    return out
 
 
 def interval_model_from_dict(obj: dict, where: str = "interval model") -> IntervalModel:
@@ -73,5 +79,7 @@ def interval_model_from_dict(obj: dict, where: str = "interval model") -> Interv
         raise InputError(f"{where}: missing or malformed field: {exc}") from None
     if part is not None and part.n_zones != len(zs):
         raise InputError(f"{where}: the partition has {part.n_zones} zones but the model {len(zs)}")
+    q_range = None if obj.get("calibrated_range") is None else \
+        range_from_dict(obj["calibrated_range"], model.robot, where)
     return IntervalModel(model, theta, lower, upper, free, info, part, str(obj.get("method", "global")),
-                         dict(obj.get("provenance") or {}))
+                         dict(obj.get("provenance") or {}), q_range=q_range)

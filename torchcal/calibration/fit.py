@@ -204,7 +204,8 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
 
     Plausibility: free MD-H deviations that end beyond `max_length_mm` (dd, da) or
     `max_angle_deg` (dtheta, dalpha, dbeta) are held at their start value and the fit
-    is repeated (torchcal.calibration.plausibility); they are listed in
+    is repeated (torchcal.calibration.plausibility); so are effect parameters beyond
+    their effect's `plausible_max()` (e.g. gear harmonics above 1 deg). They are listed in
     `FitResult.implausible`. None disables the check.
     """
     from torchcal.calibration import registration as reg

@@ -100,14 +100,20 @@ def check_units(m, robot, length_unit: str = "mm", angle_unit: str = "deg", wher
 def implausible_deviations(model, theta: torch.Tensor, free: torch.Tensor,
                            max_length_mm: float = MAX_LENGTH_MM,
                            max_angle_deg: float = MAX_ANGLE_DEG) -> list[int]:
-    """Indices of free geometric MD-H deviations beyond the plausible size.
+    """Indices of free parameters beyond the plausible size.
 
-    theta (P,), free (P,) bool. Only the 5n MD-H deviations are judged (base frame, tool
-    offsets and effect parameters are not deviations of the robot's table).
+    theta (P,), free (P,) bool. The 5n MD-H deviations are judged against max_length_mm /
+    max_angle_deg; an effect's parameters against its own `Effect.plausible_max()` (none
+    for most effects: base frame and tool offsets are not deviations of the robot).
     """
     n5 = 5 * model.robot.n
-    geo = theta[:n5].detach().cpu().view(-1, 5).abs()
-    lim = torch.tensor([math.radians(max_angle_deg), max_length_mm, max_length_mm,
-                        math.radians(max_angle_deg), math.radians(max_angle_deg)], dtype=geo.dtype)
-    bad = (geo > lim).flatten() & free[:n5].cpu()
+    lim = torch.full((theta.shape[0],), math.inf, dtype=torch.float64)
+    lim[:n5] = torch.tensor([math.radians(max_angle_deg), max_length_mm, max_length_mm,
+                             math.radians(max_angle_deg), math.radians(max_angle_deg)],
+                            dtype=torch.float64).repeat(model.robot.n)
+    for e, sl in zip(model.effects, model.slices[1:]):
+        limits = e.plausible_max()
+        if limits is not None:
+            lim[sl] = torch.as_tensor(limits, dtype=torch.float64)
+    bad = (theta.detach().cpu().to(torch.float64).abs() > lim) & free.cpu()
     return bad.nonzero().flatten().tolist()

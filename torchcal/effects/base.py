@@ -171,6 +171,15 @@ class Effect:
         """Units of the parameters ('rad', 'mm', '1', '1/K', ...), one per entry of p."""
         raise NotImplementedError
 
+    def plausible_max(self) -> list[float] | None:
+        """Largest plausible |p| per parameter, in the units of `param_units` (None: no
+        limit, the default). A fit holds a free parameter that ends beyond its limit at
+        zero and fits again (torchcal.calibration.plausibility), as it does for MD-H
+        deviations: a value no real robot has means the parameter absorbed something
+        else, typically a combination of nearly dependent columns that cancels on the
+        calibration poses and explodes outside them."""
+        return None
+
     @property
     def n_params(self) -> int:
         return len(self.param_names())

@@ -7,11 +7,19 @@ once-per-tooth errors of the input stages are far above what a few hundred poses
 joint J's dtheta and is not repeated here.
 """
 
+import math
+
 import torch
 
 from torchcal.effects.base import Effect, scatter_joints
 
 HARMONICS = (1, 2, 3, 4)
+#: largest plausible sine or cosine amplitude of one harmonic (deg). The transmission
+#: error of an industrial gear is arc minutes; a fit beyond a degree has used the
+#: harmonics as a polynomial over a narrow range of the joint (on a real UR10 session
+#: whose joint 2 spanned 64 deg: amplitudes of 17 rad that cancel on the calibration
+#: poses and gave 1.1 m of error at a pose 32 deg outside that range).
+MAX_AMPLITUDE_DEG = 1.0
 
 
 class GearPeriodic(Effect):
@@ -27,6 +35,9 @@ class GearPeriodic(Effect):
 
     def param_units(self):
         return ["rad"] * self.n_params
+
+    def plausible_max(self):
+        return [math.radians(MAX_AMPLITUDE_DEG)] * self.n_params
 
     def joint_offset(self, p, ctx):
         k = torch.tensor(self.harmonics, dtype=ctx.q.dtype, device=ctx.q.device)

@@ -19,7 +19,7 @@ Example::
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import torch
@@ -232,8 +232,6 @@ def compensate(model, targets, q0=None, **options):
     from torchcal.calibration.compensate import compensate as run, nominal_inverse
     from torchcal.calibration.intervals import IntervalModel
 
-    import dataclasses
-
     if isinstance(model, IntervalModel):
         cm, theta = model.model, model.theta
         q_range = model.q_range
@@ -251,4 +249,4 @@ def compensate(model, targets, q0=None, **options):
     if q_range is None:
         return comp
     outside = _warn_range(comp.q[comp.converged], q_range, robot, "converged targets")
-    return dataclasses.replace(comp, outside_range=outside)
+    return replace(comp, outside_range=outside)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 import warnings
 
 import numpy as np
@@ -126,12 +127,7 @@ def test_cli_writes_range_and_warns_old_file_does_not(session, tmp_path, capsys)
         assert torchcal.evaluate(str(old), val).outside_range is None
 
 
-SCARA = {"name": "scara", "joints": [
-    {"type": "revolute", "theta_offset_deg": 0, "d_mm": 200, "a_mm": 325, "alpha_deg": 0, "lower": -140, "upper": 140},
-    {"type": "revolute", "theta_offset_deg": 0, "d_mm": 0, "a_mm": 275, "alpha_deg": 180, "beta_deg": 0,
-     "lower": -150, "upper": 150},
-    {"type": "prismatic", "theta_offset_deg": 0, "d_mm": 50, "a_mm": 0, "alpha_deg": 0, "lower": 0, "upper": 200},
-    {"type": "revolute", "theta_offset_deg": 0, "d_mm": 0, "a_mm": 0, "alpha_deg": 0, "lower": -360, "upper": 360}]}
+SCARA = json.loads((Path(__file__).resolve().parents[1] / "examples" / "scara.json").read_text())
 
 
 def test_prismatic_range_in_mm_round_trip_and_compensate(tmp_path, capsys):

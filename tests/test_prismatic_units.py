@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import pytest
 import torch
@@ -21,12 +22,7 @@ from torchcal.io.measurement_csv import read_measurements
 from torchcal.robots.robot_file import robot_from_dict
 
 # a SCARA: revolute, revolute, prismatic (mm), revolute
-SCARA = {"name": "scara", "joints": [
-    {"type": "revolute", "theta_offset_deg": 0, "d_mm": 200, "a_mm": 325, "alpha_deg": 0, "lower": -140, "upper": 140},
-    {"type": "revolute", "theta_offset_deg": 0, "d_mm": 0, "a_mm": 275, "alpha_deg": 180, "beta_deg": 0,
-     "lower": -150, "upper": 150},
-    {"type": "prismatic", "theta_offset_deg": 0, "d_mm": 50, "a_mm": 0, "alpha_deg": 0, "lower": 0, "upper": 200},
-    {"type": "revolute", "theta_offset_deg": 0, "d_mm": 0, "a_mm": 0, "alpha_deg": 0, "lower": -360, "upper": 360}]}
+SCARA = json.loads((Path(__file__).resolve().parents[1] / "examples" / "scara.json").read_text())
 Q_USER = [[30.0, -45.0, 120.0, 10.0], [-60.0, 80.0, 35.5, -90.0], [10.0, 20.0, 180.0, 45.0]]  # deg, deg, mm, deg
 
 

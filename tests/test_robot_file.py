@@ -2,6 +2,7 @@
 
 import json
 import math
+from pathlib import Path
 
 import pytest
 import torch
@@ -20,12 +21,7 @@ ARM7 = {"name": "arm7", "joints": [
     {"type": "revolute", "theta_offset_deg": 0, "d_mm": 0, "a_mm": 0, "alpha_deg": 90, "lower": -120, "upper": 120},
     {"type": "revolute", "theta_offset_deg": 0, "d_mm": 126, "a_mm": 0, "alpha_deg": 0, "lower": -175, "upper": 175}],
     "tool": [[1, 0, 0, 10], [0, 1, 0, 0], [0, 0, 1, 50], [0, 0, 0, 1]], "payload_kg": 7}
-SCARA = {"name": "scara", "gravity": [0, 0, -1], "joints": [
-    {"type": "revolute", "theta_offset_deg": 0, "d_mm": 200, "a_mm": 325, "alpha_deg": 0, "lower": -140, "upper": 140},
-    {"type": "revolute", "theta_offset_deg": 0, "d_mm": 0, "a_mm": 275, "alpha_deg": 180, "beta_deg": 0,
-     "lower": -150, "upper": 150},
-    {"type": "prismatic", "theta_offset_deg": 0, "d_mm": 50, "a_mm": 0, "alpha_deg": 0, "lower": 0, "upper": 200},
-    {"type": "revolute", "theta_offset_deg": 0, "d_mm": 0, "a_mm": 0, "alpha_deg": 0, "lower": -360, "upper": 360}]}
+SCARA = json.loads((Path(__file__).resolve().parents[1] / "examples" / "scara.json").read_text())
 
 
 def test_round_trip_and_presets():

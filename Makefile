@@ -18,7 +18,8 @@ demo: $(STAMP)
 	$(VENV)/bin/torchcal demo
 
 test: $(STAMP)
-	$(PY) -m pytest -q
+	# one worker per core (pytest-xdist); each runs torch on one thread (tests/conftest.py)
+	$(PY) -m pytest -q -n auto
 
 bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do $(PY) $$b || exit 1; done

@@ -125,6 +125,20 @@ def basis(v: np.ndarray) -> np.ndarray:
     return H
 
 
+def tcp_columns(robot: Robot, q: torch.Tensor) -> torch.Tensor:
+    """(N, 3, n + 3) float64 on the CPU: dP/dq (a joint-angle error, mm per rad) and I3 (a
+    TCP offset) at the commanded q (N, n) rad: what each variable's smooth model scales."""
+    N = q.shape[0]
+    return torch.cat([robot.joint_jacobian(q.detach().cpu().to(robot.dtype)).to(torch.float64),
+                      torch.eye(3, dtype=torch.float64).expand(N, 3, 3)], -1)
+
+
+def smooth_columns(H: torch.Tensor, D: torch.Tensor) -> torch.Tensor:
+    """(3N, b (n + 3)) columns ``phi_b(v) * D`` of one variable's smooth model: H (N, b) its
+    `basis`, D (N, 3, n + 3) the `tcp_columns`; 3 rows per measurement."""
+    return (H[:, None, :, None] * D[:, :, None, :]).reshape(H.shape[0] * 3, -1)
+
+
 def _fold_of_pose(pose: np.ndarray, seed: int) -> np.ndarray:
     ids, inverse = np.unique(pose, return_inverse=True)
     return (np.random.default_rng(seed).permutation(len(ids)) % FOLDS)[inverse]
@@ -183,14 +197,13 @@ def held_out_prediction(X: torch.Tensor, y: torch.Tensor, fold: np.ndarray) -> t
 
 def _test(name_values: dict, D: torch.Tensor, r: np.ndarray, folds: np.ndarray, pose_idx: np.ndarray):
     """{name: (strength, p, r_hat (N, 3))} for residual rows r (N, 3), see the module doc."""
-    N, P = len(r), int(pose_idx.max()) + 1
+    P = int(pose_idx.max()) + 1
     y = torch.from_numpy(np.ascontiguousarray(r)).reshape(-1)
     total = max(float((r ** 2).sum()), 1e-300)
     rows = np.repeat(folds, 3)
     out = {}
     for name, v in name_values.items():
-        H = torch.from_numpy(basis(v))  # (N, b)
-        X = (H[:, None, :, None] * D[:, :, None, :]).reshape(N * 3, -1)  # (3N, b (n + 3))
+        X = smooth_columns(torch.from_numpy(basis(v)), D)  # (3N, b (n + 3))
         X = X / X.norm(dim=0).clamp_min(1e-300)
         pred = held_out_prediction(X, y, rows).reshape(-1, 3).numpy()
         strength = 1.0 - float(((r - pred) ** 2).sum()) / total
@@ -211,8 +224,7 @@ def unexplained(robot: Robot, m: Measurements, residuals: torch.Tensor, seed: in
     rms = float(np.sqrt((r ** 2).sum(-1).mean()))
     folds = _fold_of_pose(pose, seed)
     _, pose_idx = np.unique(pose, return_inverse=True)
-    D = torch.cat([robot.joint_jacobian(m.q.detach().cpu().to(robot.dtype)).to(torch.float64),
-                   torch.eye(3, dtype=torch.float64).expand(N, 3, 3)], -1)  # (N, 3, n + 3)
+    D = tcp_columns(robot, m.q)  # (N, 3, n + 3)
     values = variables(robot, m) if N > 1 else {}
     first = _test(values, D, r, folds, pose_idx)
     strengths = {k: (s, p) for k, (s, p, _) in first.items()}

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
+import warnings
+from contextlib import contextmanager
 
 
 def _number(text: str, kind, ok, expected: str):
@@ -117,6 +120,22 @@ def units(args) -> dict:
             "angle_unit": getattr(args, "angle_unit", "deg") or "deg"}
 
 
+@contextmanager
+def warnings_to_stderr(*categories):
+    """Warnings of `categories` raised in the block become one ``torchcal: warning: ...``
+    line each on stderr once the block ends (none when it raises: the error line is
+    what the user reads); other warnings pass on unchanged."""
+    with warnings.catch_warnings(record=True) as caught:
+        for c in categories:
+            warnings.simplefilter("always", c)
+        yield
+    for w in caught:
+        if issubclass(w.category, categories):
+            sys.stderr.write(f"torchcal: warning: {w.message}\n")
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+
+
 def read_data(path, robot, args=None, check: bool = True):
     """The measurement CSV for `robot`, in the units of `args` (--length-unit,
     --angle-unit; default mm, deg).
@@ -127,21 +146,14 @@ def read_data(path, robot, args=None, check: bool = True):
     unit plausibility check (torchcal.calibration.plausibility.check_units) refuses
     metres read as mm and radians read as degrees with one line naming the fix.
     """
-    import sys
-    import warnings
-
     from torchcal.calibration.plausibility import check_units
     from torchcal.io.measurement_csv import JointLimitWarning, read_measurements
 
     u = units(args)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", JointLimitWarning)
+    with warnings_to_stderr(JointLimitWarning):
         m = read_measurements(path, robot=robot, **u)
-    if check:
-        check_units(m, robot, where=str(path), **u)
-    for w in caught:
-        if issubclass(w.category, JointLimitWarning):
-            sys.stderr.write(f"torchcal: warning: {w.message}\n")
+        if check:
+            check_units(m, robot, where=str(path), **u)
     return m
 
 

@@ -4,7 +4,8 @@ measured - model. The model file embeds its nominal robot; ``--robot`` only chec
 from __future__ import annotations
 
 from torchcal.io import modelfile
-from torchcal.cli._args import add_effects_module, add_force, add_units, check_outputs, read_data, add_robot, load_robot, check_data_joints
+from torchcal.cli._args import (add_effects_module, add_force, add_units, check_outputs, read_data, add_robot,
+                                load_robot, check_data_joints, warnings_to_stderr)
 from torchcal.io.files import write_json
 
 
@@ -23,21 +24,11 @@ def add_parser(sub):
 def evaluate(model, theta, m) -> dict:
     """The report dict of `torchcal.evaluate` ((model, theta) on measurements m); rows
     outside the model's calibrated joint range: one warning line on stderr."""
-    import sys
-    import warnings
-
     from torchcal.api import evaluate as run
     from torchcal.calibration.joint_range import CalibratedRangeWarning
 
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", CalibratedRangeWarning)
-        rep = run((model, theta), m).to_dict()
-    for w in caught:
-        if issubclass(w.category, CalibratedRangeWarning):
-            sys.stderr.write(f"torchcal: warning: {w.message}\n")
-        else:
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    return rep
+    with warnings_to_stderr(CalibratedRangeWarning):
+        return run((model, theta), m).to_dict()
 
 
 def run(args) -> int:

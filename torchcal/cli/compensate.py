@@ -149,7 +149,10 @@ def default_seeds(robot, targets):
 
 
 def run(args) -> int:
-    from torchcal.calibration.compensate import compensate, nominal_inverse
+    from torchcal.api import compensate
+    from torchcal.calibration.compensate import nominal_inverse
+    from torchcal.calibration.joint_range import CalibratedRangeWarning
+    from torchcal.cli._args import warnings_to_stderr
     from torchcal.io.files import atomic_write
 
     check_outputs([("--out", args.out)], args.force, inputs=[args.targets, args.model])
@@ -180,9 +183,10 @@ def run(args) -> int:
                              f"{[b + 1 for b in bad][:10]} (out of reach?); give seeds q1..q{robot.n}")
     else:
         q0 = robot.q_from_user(seeds_deg)  # deg, mm for a prismatic joint
-    zone = im.assign(targets)
-    comp = compensate(im.model, im.theta, targets, q0, zone=zone,
-                      payload_kg=cond["payload_kg"], temp_c=cond["temp_c"])
+    # converged solutions outside the calibrated joint range: one warning line
+    with warnings_to_stderr(CalibratedRangeWarning):
+        comp = compensate(im, targets, q0, payload_kg=cond["payload_kg"], temp_c=cond["temp_c"])
+    zone = im.assign(targets)  # the zone each target was compensated in (for Q.csv)
     qd = robot.q_to_user(comp.q)
     res = comp.residual_mm.norm(dim=-1)
     lines = [",".join(["point", "zone", *(f"q{k}" for k in range(1, robot.n + 1)), "residual_mm", "converged",
@@ -192,12 +196,6 @@ def run(args) -> int:
                                repr(float(res[i])), str(bool(comp.converged[i])).lower(),
                                str(bool(comp.within_limits[i])).lower()]))
     atomic_write(args.out, "\n".join(lines) + "\n", force=args.force, inputs=[args.targets, args.model])
-    from torchcal.calibration.joint_range import range_warning
-
-    # only solutions count: a target that did not converge is named by its own line below
-    _, msg = range_warning(comp.q[comp.converged], im.q_range, robot, "converged targets")
-    if msg is not None:
-        sys.stderr.write(f"torchcal: warning: {msg}\n")
     bad_conv = (~comp.converged).nonzero().flatten().tolist()
     out_lim = (~comp.within_limits).nonzero().flatten().tolist()
     ok = targets.shape[0] - len(set(bad_conv) | set(out_lim))

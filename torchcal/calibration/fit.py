@@ -102,7 +102,8 @@ class FitResult:
     names of MD-H deviations held because they grew beyond `plausible_limits`;
     orientation: {"sigma_mm", "sigma_deg", "weight_mm_per_rad", "tool_rotation" (3, 3),
     "rms_deg"} when orientations were fitted. q_range: (2, n) min and max of the data's
-    commanded q, rad / mm (`torchcal.calibration.joint_range`).
+    commanded q, rad / mm (`torchcal.calibration.joint_range`). robust, sigma_mm,
+    sigma_deg: the settings of the fit that made it.
     """
 
     model: CalibrationModel
@@ -121,19 +122,22 @@ class FitResult:
         """True only when the solver met its convergence rule (never for a stalled solve)."""
         return self.status == "converged"
 
-    def to_dict(self, source=None, seed: int = 0, robust=None, pose_ids=None) -> dict:
+    def to_dict(self, source=None, seed: int = 0, pose_ids=None) -> dict:
         """The MODEL.json object of ``torchcal fit`` (`torchcal.io.modelfile.to_dict`):
         format, robot, effects, parameters (value, unit, std, ci95), covariance,
         identifiability, fit (n, rms_mm, max_mm, robust, outlier_poses, iterations,
         status), provenance."""
         from torchcal.io.modelfile import to_dict
 
-        return to_dict(self, source=source, seed=seed, robust=robust, pose_ids=pose_ids)
+        return to_dict(self, source=source, seed=seed, pose_ids=pose_ids)
     registration: dict | None = None
     implausible: list = field(default_factory=list)
     orientation: dict | None = None
     plausible_limits: dict | None = None
     q_range: torch.Tensor | None = None  # (2, n) [min; max] commanded q of the data, rad / mm
+    robust: str | None = None
+    sigma_mm: float = SIGMA_MM
+    sigma_deg: float = SIGMA_DEG
 
     @property
     def rms_mm(self) -> float:
@@ -325,4 +329,4 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
                      registration=reg_info, implausible=implausible, orientation=orient,
                      plausible_limits=None if max_length_mm is None else
                      {"max_length_mm": max_length_mm, "max_angle_deg": max_angle_deg},
-                     q_range=joint_range(ctx.q))
+                     q_range=joint_range(ctx.q), robust=robust, sigma_mm=sigma_mm, sigma_deg=sigma_deg)

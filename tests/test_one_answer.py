@@ -153,3 +153,19 @@ def test_compensate_cli_and_api_give_the_same_commands(kr, tmp_path, capsys):
     capsys.readouterr()
     assert main(["compensate", str(far), "--model", str(model), "--out", str(tmp_path / "q2.csv")]) == 2
     assert capsys.readouterr().err == f"torchcal compensate: error: {far}: {str(exc.value).split(': ', 1)[1]}\n"
+
+
+def test_residuals_are_measured_minus_model(kr):
+    """The sign every consumer relies on (viz draws measured - residual as the model; the
+    direction tests of unexplained read it): FitResult.residuals = measured - model, checked
+    against the model's prediction computed here, on noisy data so the sign shows."""
+    model = CalibrationModel(kr, ["base_frame"])
+    q = random_poses(kr, 40, 41)
+    g = torch.Generator().manual_seed(42)
+    xyz = model.predict(model.zeros(), make_context(kr, q))
+    xyz = xyz + 0.05 * torch.randn(xyz.shape, generator=g, dtype=torch.float64)
+    for robust in (None, "huber"):
+        res = torchcal.fit(model, Measurements(torch.arange(40), q, xyz), robust=robust)
+        expected = xyz - res.model.predict(res.theta, make_context(kr, q))
+        assert float(expected.abs().max()) > 0.02  # the noise is there
+        assert_close(res.residuals, expected, rtol=0, atol=1e-9)

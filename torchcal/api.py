@@ -217,13 +217,13 @@ def discover(robot_or_model, measurements, effects=(), folds: int = 5, seed: int
 
 def calibrate(robot_or_model, measurements, effects=(), partition=None, zone_method: str = "damped",
               damping="gcv_shared"):
-    """Interval calibration, global or per zone (`torchcal.workflows.zones.calibrate`).
+    """Interval calibration, global or per zone (`torchcal.workflows.zone_calibration.calibrate`).
 
     partition: a `Partition`, a PARTITION.json path or None. Returns an `IntervalModel`
     (`torchcal.io.interval_model.interval_model_to_dict` gives the MODEL.json of ``torchcal
     calibrate``) whose ``global_fit`` is the global `IntervalFit`.
     """
-    from torchcal.workflows.zones import calibrate as run
+    from torchcal.workflows.zone_calibration import calibrate as run
 
     model = _model(robot_or_model, effects)
     if isinstance(partition, (str, Path)):

@@ -178,18 +178,6 @@ def intervals(lower, upper, name: str, n: int | None) -> tuple[np.ndarray, np.nd
     return lo, hi
 
 
-def check_output(path, force: bool) -> Path:
-    """Check that `path` may be written: its folder exists, and it is absent or `force`."""
-    path = Path(path)
-    if path.exists() and not force:
-        raise InputError(f"{path}: output exists; pass --force to replace it")
-    if path.exists() and path.is_dir():
-        raise InputError(f"{path}: is a folder, expected a file name")
-    if not path.parent.exists():
-        raise InputError(f"{path}: folder {path.parent} does not exist")
-    return path
-
-
 def temp_beside(path: Path) -> Path:
     """A new empty temporary file in `path`'s folder (same file system, for os.replace)."""
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)

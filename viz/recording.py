@@ -60,6 +60,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from torchcal.errors import InputError
+from torchcal.io.files import check_output
 from viz import _common as C
 
 APPLICATION_ID = "torchcal"
@@ -516,7 +517,7 @@ class RecordingWriter:
         """Check the target, start the stream and its file sink (a temporary file beside it)."""
         if self.stream is not None:
             raise InputError(f"{self.path}: recording is already open")
-        C.check_output(self.path, self.force)
+        check_output(self.path, self.force)
         self._tmp = C.temp_beside(self.path)
         stream = rr.RecordingStream(self.application_id, recording_id=recording_id(self.seed, self.application_id),
                                     send_properties=False)
@@ -539,7 +540,7 @@ class RecordingWriter:
             stream.send_blueprint(bp, make_active=True, make_default=True)
             stream.flush()
             stream.disconnect()  # drops the FileSink: the file gets its footer and is complete
-            C.check_output(self.path, self.force)  # nobody created it meanwhile
+            check_output(self.path, self.force)  # nobody created it meanwhile
             os.replace(tmp, self.path)
         except BaseException:
             self._discard()

@@ -12,7 +12,7 @@ Identifiability (at the starting point, on the column-scaled Jacobian):
 The fit is Levenberg-Marquardt (`torchcal.calibration.lm`) on the identifiable parameters, with
 optional robust row weights by IRLS (Huber or Cauchy on the per-pose distance residual,
 scale = the median distance residual, thresholds at 2.5 times it). Standard errors from ``s^2 (J^T W J)^-1``, s^2 = weighted RSS / dof,
-pose-level when poses repeat (`torchcal.calibration.uncertainty`).
+pose-level when poses repeat (`torchcal.calibration.covariance`).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from torchcal.calibration.lm import levenberg_marquardt
 from torchcal.calibration.joint_range import joint_range
 from torchcal.calibration.model import CalibrationModel
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
-from torchcal.calibration.uncertainty import ParameterCovariance, parameter_covariance
+from torchcal.calibration.covariance import ParameterCovariance, parameter_covariance
 
 RANK_TOL = 1e-6
 SIGMA_MM = 0.01   # default position uncertainty of one measurement (laser tracker), mm
@@ -188,7 +188,7 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     """Fit model parameters to measured TCP positions xyz (N, 3) mm [and orientations].
 
     pose: (N,) int pose ids; with repeats the standard errors are pose-level
-    (`torchcal.calibration.uncertainty`).
+    (`torchcal.calibration.covariance`).
 
     free: (P,) bool candidate parameters (default `model.default_free()`); the
     identifiability analysis at the (registered) start may hold more. robust: None,

@@ -20,7 +20,7 @@
 Values are in the units named beside them (mm, rad, 1/K, ...); ``std`` is the standard
 error (0 for parameters held at nominal), ``ci95`` its 95 % interval [lower, upper]
 (Student's t), ``covariance`` the full covariance of the identified parameters (row
-'rows' or 'pose-level' when poses repeat; `torchcal.calibration.uncertainty`); ``fit.status`` is how the
+'rows' or 'pose-level' when poses repeat; `torchcal.calibration.covariance`); ``fit.status`` is how the
 solver stopped ('converged', 'stalled' or 'max_iterations'). Loading rebuilds the `CalibrationModel` and
 theta exactly (floats are written with full precision). ``nominal_robot`` embeds the
 nominal robot (the robot-file dict, docs/robots.md), so a model file needs no preset and

@@ -9,6 +9,7 @@ functions) and check the layer rules of docs/design.md.
   and measurements import nothing of torchcal.io (io reads and writes their results);
   kinematics and calibration do not import torchcal.io.files (calibration may name the
   MODEL.json layout of torchcal.io.modelfile for `FitResult.to_dict`).
+- torchcal.rotations imports nothing of torchcal.
 """
 
 import ast
@@ -56,6 +57,8 @@ RULES.append(("torchcal.workflows", ["torchcal.cli", "viz"]))
 for pkg in ("effects", "reliability", "partition", "diagnosis", "simulation", "measurements"):
     RULES.append((f"torchcal.{pkg}", ["torchcal.io"]))
 RULES.append(("torchcal.calibration", ["torchcal.io.files"]))
+# the rotation convention depends on nothing of torchcal (everything may use it)
+RULES.append(("torchcal.rotations", ["torchcal"]))
 
 
 def hits(mod_imports, forbidden):

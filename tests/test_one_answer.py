@@ -21,7 +21,8 @@ from torchcal.calibration.model import CalibrationModel
 from torchcal.cli import main
 from torchcal.effects import make_context
 from torchcal.io.measurement_csv import write_measurements
-from torchcal.measurements import Measurements, matrix_to_fixed_xyz
+from torchcal.measurements import Measurements
+from torchcal.rotations import matrix_to_fixed_xyz
 from torchcal.robots.poses import random_poses
 from torchcal.robots.robot_file import robot_from_dict
 

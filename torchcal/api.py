@@ -174,7 +174,7 @@ def evaluate(model, measurements) -> Evaluation:
     named in one `CalibratedRangeWarning` (the model extrapolates there)."""
     import math
 
-    from torchcal.calibration.fit import _so3_error
+    from torchcal.rotations import so3_error
     from torchcal.effects import context_of
 
     cm, theta = _fitted(model)
@@ -187,7 +187,7 @@ def evaluate(model, measurements) -> Evaluation:
     orient = None
     tool_r = _tool_rotation(model, cm)
     if m.rxyz is not None and tool_r is not None:
-        e = _so3_error(cm.predict_rotation(theta, ctx) @ tool_r.to(theta), m.rotation)  # (N, 3) rad
+        e = so3_error(cm.predict_rotation(theta, ctx) @ tool_r.to(theta), m.rotation)  # (N, 3) rad
         orient = math.degrees(float(e.norm(dim=-1).pow(2).mean().sqrt()))
     q_range = _q_range(model, cm)
     outside = None if q_range is None else _warn_range(m.q, q_range, cm.robot, "rows")

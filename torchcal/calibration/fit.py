@@ -32,6 +32,7 @@ from torchcal.calibration.joint_range import joint_range
 from torchcal.calibration.model import CalibrationModel
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.calibration.covariance import ParameterCovariance, parameter_covariance
+from torchcal.rotations import procrustes_rotation, so3_error
 
 RANK_TOL = 1e-6
 SIGMA_MM = 0.01   # default position uncertainty of one measurement (laser tracker), mm
@@ -171,14 +172,6 @@ def _generic_rank(model: CalibrationModel, ctx: Context, cand, rank_tol: float) 
     return identifiability(J, model.param_names(), cand, rank_tol).rank
 
 
-def _so3_error(Rp: torch.Tensor, Rm: torch.Tensor) -> torch.Tensor:
-    """Orientation residual (N, 3) rad: the axis times sin(angle) of Rp^T Rm (the
-    rotation vector to third order; smooth at zero, unlike the exact logarithm)."""
-    E = Rp.transpose(-1, -2) @ Rm
-    return 0.5 * torch.stack([E[..., 2, 1] - E[..., 1, 2], E[..., 0, 2] - E[..., 2, 0],
-                              E[..., 1, 0] - E[..., 0, 1]], dim=-1)
-
-
 def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, free=None,
         robust: str | None = None, max_iter: int = 60, rank_tol: float = RANK_TOL,
         pose=None, rotation: torch.Tensor | None = None, sigma_mm: float = SIGMA_MM,
@@ -230,13 +223,13 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
 
     def fit_tool_rotation(theta):
         with torch.no_grad():
-            state["tool_R"] = reg.procrustes_rotation(model.predict_rotation(theta, ctx), rotation)
+            state["tool_R"] = procrustes_rotation(model.predict_rotation(theta, ctx), rotation)
 
     def resid(theta):  # (N, k): model - measured (position mm, orientation mm-equivalent)
         r = model.predict(theta, ctx) - xyz
         if rotation is None:
             return r
-        e = _so3_error(model.predict_rotation(theta, ctx) @ state["tool_R"], rotation)
+        e = so3_error(model.predict_rotation(theta, ctx) @ state["tool_R"], rotation)
         return torch.cat([r, -w_rot * e], dim=-1)
 
     def jac(theta):

@@ -56,7 +56,7 @@ def file_sha256(path) -> str:
 def to_dict(res: FitResult, source=None, seed: int = 0, pose_ids=None) -> dict:
     from torchcal.calibration.joint_range import range_to_dict
     from torchcal.calibration.registration import base_frame_summary
-    from torchcal.measurements import matrix_to_fixed_xyz
+    from torchcal.rotations import matrix_to_fixed_xyz
 
     model = res.model
     dist = res.residuals.norm(dim=-1)
@@ -130,7 +130,7 @@ def load(path, robot: Robot | str | None = None):
     model.tool_rotation = None  # measured tool frame <- nominal tool frame, when fitted
     orient = obj.get("orientation")
     if isinstance(orient, dict) and "tool_rotation_fixed_xyz_deg" in orient:
-        from torchcal.measurements import fixed_xyz_to_matrix
+        from torchcal.rotations import fixed_xyz_to_matrix
         try:
             r = torch.deg2rad(torch.tensor([float(v) for v in orient["tool_rotation_fixed_xyz_deg"]],
                                            dtype=torch.float64))

@@ -195,27 +195,38 @@ def evaluate(model, measurements) -> Evaluation:
                       err.pow(2).mean(0).sqrt().tolist(), orient, outside)
 
 
-def diagnose(robot_or_model, measurements, effects=(), folds: int = 5, seed: int = 0, **options):
+def _set(**options) -> dict:
+    """The options that were given (None: the callee's own default)."""
+    return {k: v for k, v in options.items() if v is not None}
+
+
+def diagnose(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: int = 0, alpha: float | None = None,
+             min_gain: float | None = None):
     """Rank the physical effects missing from the model (`torchcal.diagnosis.diagnose.diagnose`);
-    a `CalibrationModel` contributes its robot and effects. Returns a `Diagnosis`."""
+    a `CalibrationModel` contributes its robot and effects. folds: cross-validation folds;
+    seed: random seed of the fold assignment; alpha: family-wise error level of the tests,
+    min_gain: least relative gain in held-out error for an effect to count (None: the
+    defaults of `torchcal.diagnosis`). Returns a `Diagnosis`."""
     from torchcal.diagnosis.diagnose import diagnose as run
 
     model = _model(robot_or_model, effects)
     return run(model.robot, _measurements(measurements, model.robot), model.specs(), folds=folds, seed=seed,
-               **options)
+               **_set(alpha=alpha, min_gain=min_gain))
 
 
-def discover(robot_or_model, measurements, effects=(), folds: int = 5, seed: int = 0, **options):
-    """Add the best significant missing effect each round (`torchcal.diagnosis.diagnose.discover`).
-    Returns a `Discovery`."""
+def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: int = 0,
+             max_rounds: int | None = None, alpha: float | None = None):
+    """Add the best significant missing effect each round (`torchcal.diagnosis.diagnose.discover`),
+    for at most max_rounds rounds; folds, seed, alpha as in `diagnose` (None: the defaults
+    of `torchcal.diagnosis`). Returns a `Discovery`."""
     from torchcal.diagnosis.diagnose import discover as run
 
     model = _model(robot_or_model, effects)
     return run(model.robot, _measurements(measurements, model.robot), model.specs(), folds=folds, seed=seed,
-               **options)
+               **_set(max_rounds=max_rounds, alpha=alpha))
 
 
-def calibrate(robot_or_model, measurements, effects=(), partition=None, zone_method: str = "damped",
+def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_method: str = "damped",
               damping="gcv_shared"):
     """Interval calibration, global or per zone (`torchcal.workflows.zone_calibration.calibrate`).
 

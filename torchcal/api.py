@@ -273,7 +273,7 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
         raise InputError(f"targets: expected (M, 3) mm, got shape {tuple(t.shape)}")
     if q0 is None:
         q0 = nominal_start(robot, t)
-    zone = model.assign(t) if isinstance(model, IntervalModel) else None
+    zone = model.assign(t) - 1 if isinstance(model, IntervalModel) else None  # row of theta
     comp = run(cm, theta.to(t), t, q0, zone=zone, tol_mm=tol_mm, max_iter=max_iter, max_step_rad=max_step_rad,
                payload_kg=payload_kg, temp_c=temp_c)
     if q_range is None:

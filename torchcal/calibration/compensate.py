@@ -150,7 +150,7 @@ def compensate(model: CalibrationModel, theta, targets, q0, zone=None, tol_mm: f
         theta: (P,) one parameter set for every target, or (Z, P) one per zone.
         targets: (M, 3) mm target positions.
         q0: (M, n) rad seeds, the nominal inverse of the targets.
-        zone: (M,) int zone of each target when theta is (Z, P).
+        zone: (M,) int row of theta (0-based: zone id - 1) for each target when theta is (Z, P).
         tol_mm: stop when every |target - predicted| <= tol_mm.
         max_iter: Newton iterations at most.
         max_step_rad: longest joint step per iteration (norm over joints).

@@ -415,7 +415,9 @@ class IntervalModel:
                    method, provenance)
 
     def assign(self, targets: torch.Tensor) -> torch.Tensor:
-        """(M,) 0-based zone of target positions (M, 3) mm."""
+        """(M,) int64 zone ids 1..Z of target positions (M, 3) mm, numbered as in the
+        partition (`Partition.assign`) and the files; 1 for every target without a partition.
+        Row ``zone - 1`` of `theta` holds that zone's parameters."""
         if self.partition is None:
-            return torch.zeros(targets.shape[0], dtype=torch.long)
-        return self.partition.assign(targets) - 1
+            return torch.ones(targets.shape[0], dtype=torch.long)
+        return self.partition.assign(targets)

@@ -178,7 +178,7 @@ def run(args) -> int:
     lines = [",".join(["point", "zone", *(f"q{k}" for k in range(1, robot.n + 1)), "residual_mm", "converged",
                        "within_limits"])]
     for i in range(targets.shape[0]):
-        lines.append(",".join([str(i + 1), str(int(zone[i]) + 1), *("%.15g" % v for v in qd[i].tolist()),
+        lines.append(",".join([str(i + 1), str(int(zone[i])), *("%.15g" % v for v in qd[i].tolist()),
                                repr(float(res[i])), str(bool(comp.converged[i])).lower(),
                                str(bool(comp.within_limits[i])).lower()]))
     atomic_write(args.out, "\n".join(lines) + "\n", force=args.force, inputs=[args.targets, args.model])

@@ -101,15 +101,6 @@ def subsample(n: int, max_points: int | None) -> np.ndarray:
     return np.unique(np.linspace(0, n - 1, max_points).round().astype(np.int64))
 
 
-def former_name(value, former, name: str, former_name: str):
-    """`value`, or `former` given under a parameter's former name (not both: InputError)."""
-    if former is None:
-        return value
-    if value is not None:
-        raise InputError(f"{name} and {former_name} (its former name) both given; pass one")
-    return former
-
-
 def zone_centers(pos: np.ndarray, zones: np.ndarray, centers_mm=None, zone_names=None):
     """(names, centers (count, 3) mm) of the zones: the given centers, or the mean of
     each zone's points (NaN for an empty zone)."""

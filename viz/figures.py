@@ -69,26 +69,25 @@ def _tagged(k: int, name: str) -> str:
 
 
 def zone_map(path, positions_mm, zones, *, centers_mm=None, zone_names=None, title: str = "Workspace zones",
-             max_points: int | None = MAX_SCATTER, force: bool = False, centres_mm=None) -> Path:
+             max_points: int | None = MAX_SCATTER, force: bool = False) -> Path:
     """Write `zone_map_figure` to the PNG `path` (atomically); returns the path.
 
     ``force`` replaces an existing file; the other arguments are `zone_map_figure`'s.
     """
     check_output(path, force)  # fail before drawing
     fig = zone_map_figure(positions_mm, zones, centers_mm=centers_mm, zone_names=zone_names, title=title,
-                          max_points=max_points, centres_mm=centres_mm)
+                          max_points=max_points)
     return save_figure(fig, path, force)
 
 
 def zone_map_figure(positions_mm, zones, *, centers_mm=None, zone_names=None, title: str = "Workspace zones",
-                    max_points: int | None = MAX_SCATTER, centres_mm=None) -> Figure:
+                    max_points: int | None = MAX_SCATTER) -> Figure:
     """Zone map in three views: x-y (top), x-z (side), y-z (front), coloured by zone.
 
     Args:
         positions_mm: (N, 3) workspace points, mm, robot base frame.
         zones: (N,) integer zone id per point (0-based).
-        centers_mm: (Z, 3) zone centers, mm; default: mean of each zone's points
-            (``centres_mm``: its former name, still accepted).
+        centers_mm: (Z, 3) zone centers, mm; default: mean of each zone's points.
         zone_names: display name per zone id; default ``"zone k"`` (1-based, as in the paper).
         title: figure title.
         max_points: draw at most this many points (evenly spaced); None: all.
@@ -100,8 +99,7 @@ def zone_map_figure(positions_mm, zones, *, centers_mm=None, zone_names=None, ti
     """
     pos = C.points(positions_mm, "positions_mm")
     zs = C.labels(zones, "zones", pos.shape[0])
-    names, centers = C.zone_centers(pos, zs, C.former_name(centers_mm, centres_mm, "centers_mm", "centres_mm"),
-                                    zone_names)
+    names, centers = C.zone_centers(pos, zs, centers_mm, zone_names)
     count = len(names)
     rgb = C.zone_rgb(count) / 255.0
     idx = C.subsample(pos.shape[0], max_points)

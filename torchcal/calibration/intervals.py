@@ -99,8 +99,6 @@ class PoseIntervals:
         """(m, 3) mm mid-range of the repeated measurements."""
         return self._interval.center
 
-    centre = center  # the former name, kept for existing code
-
     @property
     def radius(self) -> torch.Tensor:
         """(m, 3) mm half-range."""

@@ -17,7 +17,7 @@ from torchcal.calibration.joint_range import CalibratedRangeWarning, joint_range
 from torchcal.calibration.lm import LMResult, LMStatus, levenberg_marquardt
 from torchcal.calibration.model import CalibrationModel
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM, check_units, implausible_deviations
-from torchcal.calibration.registration import base_frame_summary, register
+from torchcal.calibration.registration import base_frame_summary, register_frame
 
 __all__ = ["batched_jacobian", "batched_predict", "Compensation", "nominal_inverse", "nominal_start", "predict_rows",
            "ParameterCovariance", "parameter_covariance", "tcp_covariance", "tcp_sigma", "SIGMA_DEG", "SIGMA_MM",
@@ -25,4 +25,4 @@ __all__ = ["batched_jacobian", "batched_predict", "Compensation", "nominal_inver
            "IntervalModel", "PoseIntervals", "identify_intervals", "identify_zones", "pose_intervals",
            "solution_map", "CalibratedRangeWarning", "joint_range", "outside_range", "range_warning", "LMResult",
            "LMStatus", "levenberg_marquardt", "CalibrationModel", "MAX_ANGLE_DEG", "MAX_LENGTH_MM", "check_units",
-           "implausible_deviations", "base_frame_summary", "register"]
+           "implausible_deviations", "base_frame_summary", "register_frame"]

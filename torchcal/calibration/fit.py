@@ -213,7 +213,7 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     if theta0 is None:
         theta0 = model.zeros()
         if register and any(e.name == "base_frame" for e in model.effects) and xyz.shape[0] >= 3:
-            theta0, reg_info = reg.register(model, ctx, xyz)
+            theta0, reg_info = reg.register_frame(model, ctx, xyz)
     cand = model.default_free() if free is None else free
     n_cand = int(cand.sum())
     n_rows = xyz.shape[0]

@@ -3,7 +3,7 @@
 Measurements come in the instrument's (laser tracker's) frame, which may be rotated and
 shifted arbitrarily against the robot's base. A fit that starts with the base frame at
 identity then starts far from the solution (and trades the rotation for joint-1
-deviations). `register` computes the rigid motion that best maps the nominal model's
+deviations). `register_frame` computes the rigid motion that best maps the nominal model's
 points onto the measured ones (Kabsch / Umeyama without scale: SVD of the
 cross-covariance) and writes it into the model's `base_frame` parameters, so that the
 fit starts at the registered frame with every deviation of the robot at zero.
@@ -46,7 +46,7 @@ def base_frame_summary(model, theta: torch.Tensor) -> dict | None:
     return frame_summary(rotvec_to_matrix(p[3:6]), p[:3])
 
 
-def register(model, ctx, xyz: torch.Tensor, theta0: torch.Tensor | None = None):
+def register_frame(model, ctx, xyz: torch.Tensor, theta0: torch.Tensor | None = None):
     """Closed-form registration of the model at theta0 (default zeros) to measured xyz (N, 3).
 
     Returns (theta (P,), info): theta is theta0 with the base_frame parameters set to the

@@ -50,6 +50,15 @@ def test_random_poses_span_a_slides_own_limits():
     assert float(rev.abs().max()) <= math.pi  # revolute joints stay inside +-180 deg
 
 
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_random_poses_draw_on_the_robots_device():
+    robot = SCARA.to("cuda")
+    q = random_poses(robot, 50, 3)
+    assert q.device == robot.device and float(q[:, 2].max()) > 100.0  # a slide in mm, not rad
+    g = torch.Generator().manual_seed(3)  # a CPU generator: its draws are moved
+    assert random_poses(robot, 5, g).device == robot.device
+
+
 def _with_orientation(robot, theta, q, model):
     ctx = make_context(robot, q)
     R = model.predict_rotation(theta, ctx)

@@ -312,3 +312,16 @@ def test_orientation_written_in_degrees_under_its_header(tmp_path):
     assert [float(rows[0][f"q{k}"]) for k in range(1, 7)] == pytest.approx([10.0, -20.0, 30.0, 0.0, 45.0, 90.0])
     back = read_measurements(path)
     torch.testing.assert_close(back.rxyz, rxyz, rtol=0, atol=1e-14)
+
+
+def test_check_output_refuses_a_folder_even_with_force(tmp_path):
+    """The one overwrite rule (also viz's): a folder is never an output file."""
+    from torchcal.errors import OutputExistsError
+    from torchcal.io.files import check_output
+
+    (tmp_path / "d").mkdir()
+    with pytest.raises(OutputExistsError, match="output exists"):
+        check_output(tmp_path / "d")
+    with pytest.raises(InputError, match="is a folder, expected a file name"):
+        check_output(tmp_path / "d", force=True)
+    assert check_output(tmp_path / "new.csv") == tmp_path / "new.csv"

@@ -13,7 +13,8 @@ import time
 
 from torchcal.cli._report import format_report
 from torchcal.io.files import write_json
-from torchcal.workflows.paper import DemoConfig, run_demo
+from torchcal.workflows.paper_config import DemoConfig
+from torchcal.workflows.paper_experiment import run_demo
 
 
 def main() -> None:

@@ -158,7 +158,7 @@ def test_cli_refusal_is_one_line(data, tmp_path, capsys):
 
 
 def _fake_demo_result(seed: int = 0, n: int = 60, zones: int = 4, t: int = 6):
-    """The fields of a torchcal.workflows.paper.PipelineResult that demo_outputs reads (small, fast)."""
+    """The fields of a torchcal.workflows.paper_experiment.PipelineResult that demo_outputs reads (small, fast)."""
     from types import SimpleNamespace as NS
 
     g = torch.Generator().manual_seed(seed)

@@ -1,4 +1,4 @@
-"""`torchcal demo` (torchcal.workflows.paper) and the `calibrate` / `compensate` commands.
+"""`torchcal demo` (torchcal.workflows.paper_experiment) and the `calibrate` / `compensate` commands.
 
 The demo's tests assert properties every honest run must have, on a small configuration
 over two seeds (no figures of the paper, no wall-clock): the issue 13 JSON keys, fresh
@@ -15,8 +15,10 @@ import scipy.stats
 import torch
 
 from torchcal import cli
-from torchcal.workflows.paper import (MAIN_METHODS, METHODS, DemoConfig, mean_ci, paired_comparison,
-                                      reduction_percent, run_demo)
+from torchcal.statistics import mean_ci, paired_comparison
+from torchcal.workflows.paper_config import MAIN_METHODS, METHODS, DemoConfig
+from torchcal.workflows.paper_experiment import run_demo
+from torchcal.workflows.paper_report import reduction_percent
 
 AXES = ("x", "y", "z")
 SMALL = DemoConfig(n_sweep=40, sweep_samples=40, zones_per_level=(2, 2), points_per_zone=10,
@@ -149,7 +151,7 @@ def test_compensation_is_checked(run, doc):
 
 
 def test_demo_command(tmp_path, monkeypatch, run, capsys):
-    import torchcal.workflows.paper as P
+    import torchcal.workflows.paper_experiment as P
 
     seen = {}
 

@@ -50,7 +50,7 @@ def test_hidden_effect_is_named_and_refit_reaches_noise(spec):
     if spec.startswith("joint_clearance"):  # the random part per move counts as noise
         rows_q = m.q
         mean = vr.positions(rows_q, m.payload_kg, m.temp_c)
-        rand = vr.positions(rows_q, m.payload_kg, m.temp_c, generator=torch.Generator().manual_seed(9))
+        rand = vr.positions(rows_q, m.payload_kg, m.temp_c, seed=torch.Generator().manual_seed(9))
         floor = math.sqrt(floor ** 2 + float((rand - mean).norm(dim=-1).pow(2).mean()))
     before = held_out_rms([], m)
     after = held_out_rms([spec], m)
@@ -115,7 +115,7 @@ def test_random_clearance_from_another_generator_is_named(joint):
     geo = VirtualRobot(ROBOT, [], seed=1).theta[: 5 * ROBOT.n].reshape(ROBOT.n, 5)
     q = random_poses(ROBOT, 240, torch.Generator().manual_seed(51))
     g = torch.Generator().manual_seed(100)
-    xyz = ROBOT.fk(q, geo + cm.sample(ROBOT, 240, generator=g)) \
+    xyz = ROBOT.fk(q, geo + cm.sample(ROBOT, 240, seed=g)) \
         + NOISE * torch.randn(240, 3, generator=g, dtype=torch.float64)
     d = diagnose(ROBOT, Measurements(torch.arange(240), q, xyz))
     assert d.verdict is not None and d.verdict.spec == f"joint_clearance:{joint}"

@@ -241,7 +241,7 @@ def test_clearance_spread_within_what_the_clearances_allow(kr):
     m = vr.measure(q, repeats=20, noise_mm=0.0)
     at0 = m.pose == 0
     xyz = m.xyz[at0]
-    mean = vr.positions(m.q, m.payload_kg)[at0]  # generator=None: the load-driven mean
+    mean = vr.positions(m.q, m.payload_kg)[at0]  # seed=None: the load-driven mean
     dev = (xyz - mean).norm(dim=-1)
     ctx = make_context(kr, m.q[at0], m.payload_kg[at0])
     sl = vr.model.slices[1]

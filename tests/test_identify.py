@@ -279,7 +279,7 @@ def test_interval_model_round_trip(noisy_zone):
     assert_close(back.lower, im.lower)
     assert_close(back.upper, im.upper)
     assert back.free.tolist() == im.free.tolist() and back.zones[1]["level"] == 2
-    assert back.assign(torch.zeros(4, 3)).tolist() == [0, 0, 0, 0]  # no partition: one zone
+    assert back.assign(torch.zeros(4, 3)).tolist() == [1, 1, 1, 1]  # no partition: one zone, id 1
     bad = interval_model_to_dict(im)
     bad["zones"][0]["theta"] = bad["zones"][0]["theta"][:-1]
     with pytest.raises(InputError, match="zone 1: theta has 29 values, expected 30"):

@@ -294,3 +294,34 @@ def test_library_overwrite_error_names_no_cli_flag(tmp_path):
     assert "--force" not in str(info.value) and str(info.value).endswith("output exists")
     write_json(path, {"a": 2}, force=True)
     assert path.read_text().count('"a": 2') == 1
+
+
+def test_orientation_written_in_degrees_under_its_header(tmp_path):
+    """rx, ry, rz columns hold degrees (the header's unit), read off the text here, and read
+    back to the same radians."""
+    import csv
+
+    rxyz = torch.tensor([[math.pi / 2, -math.pi / 6, 0.25], [0.0, math.pi / 4, -math.pi]], dtype=torch.float64)
+    q = torch.deg2rad(torch.tensor([[10.0, -20.0, 30.0, 0.0, 45.0, 90.0], [0.0] * 6], dtype=torch.float64))
+    m = Measurements(torch.arange(2), q, torch.tensor([[1000.0, 0.0, 500.0], [900.0, 10.0, 400.0]]), rxyz=rxyz)
+    path = write_measurements(tmp_path / "rot.csv", m)
+    rows = list(csv.DictReader(open(path, newline="")))
+    got = [[float(r[c]) for c in ("rx", "ry", "rz")] for r in rows]
+    assert got[0] == pytest.approx([90.0, -30.0, math.degrees(0.25)], abs=1e-12)
+    assert got[1] == pytest.approx([0.0, 45.0, -180.0], abs=1e-12)
+    assert [float(rows[0][f"q{k}"]) for k in range(1, 7)] == pytest.approx([10.0, -20.0, 30.0, 0.0, 45.0, 90.0])
+    back = read_measurements(path)
+    torch.testing.assert_close(back.rxyz, rxyz, rtol=0, atol=1e-14)
+
+
+def test_check_output_refuses_a_folder_even_with_force(tmp_path):
+    """The one overwrite rule (also viz's): a folder is never an output file."""
+    from torchcal.errors import OutputExistsError
+    from torchcal.io.files import check_output
+
+    (tmp_path / "d").mkdir()
+    with pytest.raises(OutputExistsError, match="output exists"):
+        check_output(tmp_path / "d")
+    with pytest.raises(InputError, match="is a folder, expected a file name"):
+        check_output(tmp_path / "d", force=True)
+    assert check_output(tmp_path / "new.csv") == tmp_path / "new.csv"

@@ -9,6 +9,10 @@ functions) and check the layer rules of docs/design.md.
   and measurements import nothing of torchcal.io (io reads and writes their results);
   kinematics and calibration do not import torchcal.io.files (calibration may name the
   MODEL.json layout of torchcal.io.modelfile for `FitResult.to_dict`).
+- torchcal.rotations and torchcal.statistics import nothing of torchcal;
+- the paper's experiment by concept: workflows.paper_config imports only torchcal.errors,
+  workflows.paper_report never runs the experiment (no paper_experiment, simulation,
+  diagnosis or reliability).
 """
 
 import ast
@@ -56,6 +60,16 @@ RULES.append(("torchcal.workflows", ["torchcal.cli", "viz"]))
 for pkg in ("effects", "reliability", "partition", "diagnosis", "simulation", "measurements"):
     RULES.append((f"torchcal.{pkg}", ["torchcal.io"]))
 RULES.append(("torchcal.calibration", ["torchcal.io.files"]))
+# the rotation convention and the generic statistics depend on nothing of torchcal
+RULES.append(("torchcal.rotations", ["torchcal"]))
+RULES.append(("torchcal.statistics", ["torchcal"]))
+# the paper's experiment by concept: its configuration is plain data (errors only); its
+# report reads results and runs nothing (no experiment, simulation or discovery)
+_PACKAGES = ["torchcal." + p.name for p in sorted(ROOT.iterdir()) if p.is_dir() and (p / "__init__.py").exists()]
+RULES.append(("torchcal.workflows.paper_config", [p for p in _PACKAGES if p != "torchcal.workflows"]
+              + ["torchcal.workflows.paper_experiment", "torchcal.workflows.paper_report", "torchcal.api"]))
+RULES.append(("torchcal.workflows.paper_report", ["torchcal.workflows.paper_experiment", "torchcal.simulation",
+                                                  "torchcal.diagnosis", "torchcal.reliability", "torchcal.cli", "viz"]))
 
 
 def hits(mod_imports, forbidden):

@@ -85,7 +85,7 @@ def test_multiple_points_need_a_point_column(truth):
 def test_orientation_weighted_by_sigma(truth):
     """Measured orientation: a tiny weight fits positions as the position-only fit does; the stated
     weight fits the orientation to its noise and recovers the tool rotation."""
-    from torchcal.measurements import fixed_xyz_to_matrix
+    from torchcal.rotations import fixed_xyz_to_matrix
 
     rob, tm, th = truth
     q = random_poses(rob, 40, 3)

@@ -12,9 +12,11 @@ import torch
 import torchcal
 from torchcal.calibration.fit import fit
 from torchcal.calibration.model import CalibrationModel
-from torchcal.calibration.registration import base_frame_summary, kabsch
+from torchcal.calibration.registration import base_frame_summary
+from torchcal.rotations import kabsch
 from torchcal.effects import context_of
-from torchcal.measurements import Measurements, fixed_xyz_to_matrix
+from torchcal.measurements import Measurements
+from torchcal.rotations import fixed_xyz_to_matrix
 from torchcal.robots.poses import random_poses
 from torchcal.simulation.virtual_robot import VirtualRobot
 

@@ -9,7 +9,7 @@ import torchcal
 from torchcal.calibration.fit import fit
 from torchcal.calibration.lm import levenberg_marquardt
 from torchcal.calibration.model import CalibrationModel
-from torchcal.calibration.uncertainty import parameter_covariance, tcp_sigma
+from torchcal.calibration.covariance import parameter_covariance, tcp_sigma
 from torchcal.effects import make_context
 from torchcal.robots.poses import random_poses
 from torchcal.simulation.virtual_robot import VirtualRobot

@@ -14,7 +14,8 @@ from torchcal.calibration.plausibility import check_units, spread_mm
 from torchcal.cli import main
 from torchcal.errors import InputError
 from torchcal.io.measurement_csv import read_measurements, write_measurements
-from torchcal.measurements import Measurements, fixed_xyz_to_matrix, matrix_to_fixed_xyz
+from torchcal.measurements import Measurements
+from torchcal.rotations import fixed_xyz_to_matrix, matrix_to_fixed_xyz
 from torchcal.robots.poses import random_poses
 from torchcal.simulation.virtual_robot import VirtualRobot
 

@@ -76,6 +76,13 @@ def _q_range(model_or_fit, cm: CalibrationModel):
     return getattr(cm, "calibrated_range", None)
 
 
+def _tool_rotation(model_or_fit, cm: CalibrationModel):
+    """(3, 3) measured tool frame <- nominal tool frame of a model fitted to orientations, else None."""
+    if isinstance(model_or_fit, FitResult):
+        return None if model_or_fit.orientation is None else model_or_fit.orientation["tool_rotation"]
+    return getattr(cm, "tool_rotation", None)
+
+
 def _warn_range(q: torch.Tensor, q_range, robot: Robot, what: str) -> int:
     """Rows of q (N, n) rad / mm outside the calibrated range; one `CalibratedRangeWarning` when any."""
     import warnings
@@ -88,18 +95,18 @@ def _warn_range(q: torch.Tensor, q_range, robot: Robot, what: str) -> int:
     return count
 
 
-def _measurements(measurements, robot: Robot) -> Measurements:
+def _measurements(measurements, robot: Robot, length_unit: str = "mm", angle_unit: str = "deg") -> Measurements:
     if isinstance(measurements, Measurements):
         return measurements
     if isinstance(measurements, (str, Path)):
         from torchcal.io.measurement_csv import read_measurements
-        return read_measurements(measurements, robot=robot)
+        return read_measurements(measurements, robot=robot, length_unit=length_unit, angle_unit=angle_unit)
     raise InputError(f"measurements: expected Measurements or a CSV path, got {type(measurements).__name__}")
 
 
-def fit(robot_or_model, measurements, effects=(), robust: str | None = None, max_iter: int = 60,
+def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, max_iter: int = 60,
         sigma_mm: float = SIGMA_MM, sigma_deg: float = SIGMA_DEG, max_length_mm: float | None = MAX_LENGTH_MM,
-        max_angle_deg: float | None = MAX_ANGLE_DEG) -> FitResult:
+        max_angle_deg: float | None = MAX_ANGLE_DEG, length_unit: str = "mm", angle_unit: str = "deg") -> FitResult:
     """Fit the geometric deviations plus `effects` to measured TCP positions (and
     orientations, when the measurements carry rx, ry, rz).
 
@@ -107,14 +114,21 @@ def fit(robot_or_model, measurements, effects=(), robust: str | None = None, max
     uncertainties (mm, deg) that weigh orientation against position. max_length_mm /
     max_angle_deg: MD-H deviations beyond these are held as implausible (None: no check).
     Measurements with several `point` ids need `tool_offset` (one offset per point).
-    Returns a `FitResult` (``.theta``, ``.status``, ``.rms_mm``, ``.to_dict()`` = the
+    length_unit ('mm' or 'm') / angle_unit ('deg' or 'rad'): the units of the measurement
+    file (a path is read in them; `Measurements` were read in them). Before fitting, the
+    unit check (`torchcal.calibration.plausibility.check_units`) refuses data that look like
+    metres read as mm or radians read as degrees with one InputError line, the line the
+    command line prints. Returns a `FitResult` (``.theta``, ``.status``, ``.rms_mm``, ``.to_dict()`` = the
     MODEL.json of ``torchcal fit``).
     """
     from torchcal.calibration.fit import fit as fit_model
     from torchcal.effects import context_of
 
+    from torchcal.calibration.plausibility import check_units
+
     robot = _robot(robot_or_model)
-    m = _measurements(measurements, robot)
+    m = _measurements(measurements, robot, length_unit, angle_unit)
+    check_units(m, robot, length_unit=length_unit, angle_unit=angle_unit, where=m.source or "measurements")
     if isinstance(robot_or_model, (CalibrationModel, FitResult)):
         model = _model(robot_or_model, effects)
     else:
@@ -160,7 +174,7 @@ def evaluate(model, measurements) -> Evaluation:
     named in one `CalibratedRangeWarning` (the model extrapolates there)."""
     import math
 
-    from torchcal.calibration.fit import _so3_error
+    from torchcal.rotations import so3_error
     from torchcal.effects import context_of
 
     cm, theta = _fitted(model)
@@ -171,9 +185,9 @@ def evaluate(model, measurements) -> Evaluation:
     err = m.xyz - cm.predict(theta, ctx)  # (N, 3) mm
     d = err.norm(dim=-1)
     orient = None
-    tool_r = getattr(cm, "tool_rotation", None)
+    tool_r = _tool_rotation(model, cm)
     if m.rxyz is not None and tool_r is not None:
-        e = _so3_error(cm.predict_rotation(theta, ctx) @ tool_r.to(theta), m.rotation)  # (N, 3) rad
+        e = so3_error(cm.predict_rotation(theta, ctx) @ tool_r.to(theta), m.rotation)  # (N, 3) rad
         orient = math.degrees(float(e.norm(dim=-1).pow(2).mean().sqrt()))
     q_range = _q_range(model, cm)
     outside = None if q_range is None else _warn_range(m.q, q_range, cm.robot, "rows")
@@ -181,35 +195,46 @@ def evaluate(model, measurements) -> Evaluation:
                       err.pow(2).mean(0).sqrt().tolist(), orient, outside)
 
 
-def diagnose(robot_or_model, measurements, effects=(), folds: int = 5, seed: int = 0, **options):
+def _set(**options) -> dict:
+    """The options that were given (None: the callee's own default)."""
+    return {k: v for k, v in options.items() if v is not None}
+
+
+def diagnose(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: int = 0, alpha: float | None = None,
+             min_gain: float | None = None):
     """Rank the physical effects missing from the model (`torchcal.diagnosis.diagnose.diagnose`);
-    a `CalibrationModel` contributes its robot and effects. Returns a `Diagnosis`."""
+    a `CalibrationModel` contributes its robot and effects. folds: cross-validation folds;
+    seed: random seed of the fold assignment; alpha: family-wise error level of the tests,
+    min_gain: least relative gain in held-out error for an effect to count (None: the
+    defaults of `torchcal.diagnosis`). Returns a `Diagnosis`."""
     from torchcal.diagnosis.diagnose import diagnose as run
 
     model = _model(robot_or_model, effects)
     return run(model.robot, _measurements(measurements, model.robot), model.specs(), folds=folds, seed=seed,
-               **options)
+               **_set(alpha=alpha, min_gain=min_gain))
 
 
-def discover(robot_or_model, measurements, effects=(), folds: int = 5, seed: int = 0, **options):
-    """Add the best significant missing effect each round (`torchcal.diagnosis.diagnose.discover`).
-    Returns a `Discovery`."""
+def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: int = 0,
+             max_rounds: int | None = None, alpha: float | None = None):
+    """Add the best significant missing effect each round (`torchcal.diagnosis.diagnose.discover`),
+    for at most max_rounds rounds; folds, seed, alpha as in `diagnose` (None: the defaults
+    of `torchcal.diagnosis`). Returns a `Discovery`."""
     from torchcal.diagnosis.diagnose import discover as run
 
     model = _model(robot_or_model, effects)
     return run(model.robot, _measurements(measurements, model.robot), model.specs(), folds=folds, seed=seed,
-               **options)
+               **_set(max_rounds=max_rounds, alpha=alpha))
 
 
-def calibrate(robot_or_model, measurements, effects=(), partition=None, zone_method: str = "damped",
+def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_method: str = "damped",
               damping="gcv_shared"):
-    """Interval calibration, global or per zone (`torchcal.workflows.zones.calibrate`).
+    """Interval calibration, global or per zone (`torchcal.workflows.zone_calibration.calibrate`).
 
     partition: a `Partition`, a PARTITION.json path or None. Returns an `IntervalModel`
     (`torchcal.io.interval_model.interval_model_to_dict` gives the MODEL.json of ``torchcal
     calibrate``) whose ``global_fit`` is the global `IntervalFit`.
     """
-    from torchcal.workflows.zones import calibrate as run
+    from torchcal.workflows.zone_calibration import calibrate as run
 
     model = _model(robot_or_model, effects)
     if isinstance(partition, (str, Path)):
@@ -220,16 +245,20 @@ def calibrate(robot_or_model, measurements, effects=(), partition=None, zone_met
     return im
 
 
-def compensate(model, targets, q0=None, **options):
+def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int = 30, max_step_rad: float = 0.2,
+               payload_kg=None, temp_c=None):
     """Corrected joint commands (M, n) rad for target positions (M, 3) mm.
 
     model: a fitted model (FitResult, MODEL.json path, (model, theta)) or an
     `IntervalModel` (targets assigned to its zones). q0: (M, n) rad starting commands,
-    default the nominal inverse from the middle of the joint limits. Returns a
+    default `torchcal.calibration.compensate.nominal_start` (the nominal inverse, as the
+    command line seeds it; InputError naming the targets it does not reach). tol_mm,
+    max_iter, max_step_rad: the Newton solve (`torchcal.calibration.compensate.compensate`);
+    payload_kg, temp_c: (M,) conditions of the moves, for load and temperature effects. Returns a
     `Compensation`; converged solutions outside the model's calibrated joint range are
     counted (``outside_range``) and named in one `CalibratedRangeWarning`.
     """
-    from torchcal.calibration.compensate import compensate as run, nominal_inverse
+    from torchcal.calibration.compensate import compensate as run, nominal_start
     from torchcal.calibration.intervals import IntervalModel
 
     if isinstance(model, IntervalModel):
@@ -243,9 +272,10 @@ def compensate(model, targets, q0=None, **options):
     if t.ndim != 2 or t.shape[-1] != 3:
         raise InputError(f"targets: expected (M, 3) mm, got shape {tuple(t.shape)}")
     if q0 is None:
-        q0 = nominal_inverse(robot, t).q
-    zone = model.assign(t) if isinstance(model, IntervalModel) else None
-    comp = run(cm, theta.to(t), t, q0, zone=zone, **options)
+        q0 = nominal_start(robot, t)
+    zone = model.assign(t) - 1 if isinstance(model, IntervalModel) else None  # row of theta
+    comp = run(cm, theta.to(t), t, q0, zone=zone, tol_mm=tol_mm, max_iter=max_iter, max_step_rad=max_step_rad,
+               payload_kg=payload_kg, temp_c=temp_c)
     if q_range is None:
         return comp
     outside = _warn_range(comp.q[comp.converged], q_range, robot, "converged targets")

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import torch
 
 from torchcal.errors import InputError
+from torchcal.rotations import fixed_xyz_to_matrix
 
 _OPTIONAL = ("payload_kg", "temp_c")
 
@@ -187,29 +188,3 @@ class Measurements:
     def rotation(self) -> torch.Tensor | None:
         """(N, 3, 3) measured orientation matrices R = Rz(rz) Ry(ry) Rx(rx), or None."""
         return None if self.rxyz is None else fixed_xyz_to_matrix(self.rxyz)
-
-
-def _rot(axis: int, a: torch.Tensor) -> torch.Tensor:
-    """(..., 3, 3) rotation about axis 0/1/2 (x/y/z) by angles a (...,) rad."""
-    c, s = torch.cos(a), torch.sin(a)
-    o, z = torch.ones_like(a), torch.zeros_like(a)
-    m = {0: [o, z, z, z, c, -s, z, s, c],
-         1: [c, z, s, z, o, z, -s, z, c],
-         2: [c, -s, z, s, c, z, z, z, o]}[axis]
-    return torch.stack(m, dim=-1).reshape(*a.shape, 3, 3)
-
-
-def fixed_xyz_to_matrix(r: torch.Tensor) -> torch.Tensor:
-    """Fixed-axis XYZ angles r (..., 3) rad [rx, ry, rz] -> R = Rz(rz) Ry(ry) Rx(rx) (..., 3, 3)."""
-    return _rot(2, r[..., 2]) @ _rot(1, r[..., 1]) @ _rot(0, r[..., 0])
-
-
-def matrix_to_fixed_xyz(R: torch.Tensor) -> torch.Tensor:
-    """Inverse of `fixed_xyz_to_matrix`: (..., 3, 3) -> (..., 3) rad, ry in [-pi/2, pi/2]
-    (rx = 0 at gimbal lock)."""
-    cy = torch.hypot(R[..., 0, 0], R[..., 1, 0])
-    ry = torch.atan2(-R[..., 2, 0], cy)
-    lock = cy < 1e-9
-    rx = torch.where(lock, torch.zeros_like(ry), torch.atan2(R[..., 2, 1], R[..., 2, 2]))
-    rz = torch.where(lock, torch.atan2(-R[..., 0, 1], R[..., 1, 1]), torch.atan2(R[..., 1, 0], R[..., 0, 0]))
-    return torch.stack([rx, ry, rz], dim=-1)

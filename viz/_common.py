@@ -101,15 +101,6 @@ def subsample(n: int, max_points: int | None) -> np.ndarray:
     return np.unique(np.linspace(0, n - 1, max_points).round().astype(np.int64))
 
 
-def former_name(value, former, name: str, former_name: str):
-    """`value`, or `former` given under a parameter's former name (not both: InputError)."""
-    if former is None:
-        return value
-    if value is not None:
-        raise InputError(f"{name} and {former_name} (its former name) both given; pass one")
-    return former
-
-
 def zone_centers(pos: np.ndarray, zones: np.ndarray, centers_mm=None, zone_names=None):
     """(names, centers (count, 3) mm) of the zones: the given centers, or the mean of
     each zone's points (NaN for an empty zone)."""
@@ -176,18 +167,6 @@ def intervals(lower, upper, name: str, n: int | None) -> tuple[np.ndarray, np.nd
         raise InputError(f"{name}_lower_mm: lower bound above upper bound at test point {t + 1}, axis {AXES[a]} "
                          f"({lo[t, a]:.6g} > {hi[t, a]:.6g} mm)")
     return lo, hi
-
-
-def check_output(path, force: bool) -> Path:
-    """Check that `path` may be written: its folder exists, and it is absent or `force`."""
-    path = Path(path)
-    if path.exists() and not force:
-        raise InputError(f"{path}: output exists; pass --force to replace it")
-    if path.exists() and path.is_dir():
-        raise InputError(f"{path}: is a folder, expected a file name")
-    if not path.parent.exists():
-        raise InputError(f"{path}: folder {path.parent} does not exist")
-    return path
 
 
 def temp_beside(path: Path) -> Path:

@@ -35,7 +35,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from torchcal.errors import InputError
-from torchcal.io.files import atomic_write
+from torchcal.io.files import atomic_write, check_output
 from viz import _common as C
 
 DPI = 110
@@ -55,7 +55,7 @@ def _new_figure(width_in: float, height_in: float) -> Figure:
 
 def save_figure(fig: Figure, path, force: bool = False) -> Path:
     """Render `fig` to PNG bytes and write them atomically to `path`; returns the path."""
-    path = C.check_output(path, force)
+    path = check_output(path, force)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=DPI, metadata={"Software": None})
     return atomic_write(path, buf.getvalue(), force=force)
@@ -69,26 +69,25 @@ def _tagged(k: int, name: str) -> str:
 
 
 def zone_map(path, positions_mm, zones, *, centers_mm=None, zone_names=None, title: str = "Workspace zones",
-             max_points: int | None = MAX_SCATTER, force: bool = False, centres_mm=None) -> Path:
+             max_points: int | None = MAX_SCATTER, force: bool = False) -> Path:
     """Write `zone_map_figure` to the PNG `path` (atomically); returns the path.
 
     ``force`` replaces an existing file; the other arguments are `zone_map_figure`'s.
     """
-    C.check_output(path, force)  # fail before drawing
+    check_output(path, force)  # fail before drawing
     fig = zone_map_figure(positions_mm, zones, centers_mm=centers_mm, zone_names=zone_names, title=title,
-                          max_points=max_points, centres_mm=centres_mm)
+                          max_points=max_points)
     return save_figure(fig, path, force)
 
 
 def zone_map_figure(positions_mm, zones, *, centers_mm=None, zone_names=None, title: str = "Workspace zones",
-                    max_points: int | None = MAX_SCATTER, centres_mm=None) -> Figure:
+                    max_points: int | None = MAX_SCATTER) -> Figure:
     """Zone map in three views: x-y (top), x-z (side), y-z (front), coloured by zone.
 
     Args:
         positions_mm: (N, 3) workspace points, mm, robot base frame.
         zones: (N,) integer zone id per point (0-based).
-        centers_mm: (Z, 3) zone centers, mm; default: mean of each zone's points
-            (``centres_mm``: its former name, still accepted).
+        centers_mm: (Z, 3) zone centers, mm; default: mean of each zone's points.
         zone_names: display name per zone id; default ``"zone k"`` (1-based, as in the paper).
         title: figure title.
         max_points: draw at most this many points (evenly spaced); None: all.
@@ -100,8 +99,7 @@ def zone_map_figure(positions_mm, zones, *, centers_mm=None, zone_names=None, ti
     """
     pos = C.points(positions_mm, "positions_mm")
     zs = C.labels(zones, "zones", pos.shape[0])
-    names, centers = C.zone_centers(pos, zs, C.former_name(centers_mm, centres_mm, "centers_mm", "centres_mm"),
-                                    zone_names)
+    names, centers = C.zone_centers(pos, zs, centers_mm, zone_names)
     count = len(names)
     rgb = C.zone_rgb(count) / 255.0
     idx = C.subsample(pos.shape[0], max_points)
@@ -140,7 +138,7 @@ def zone_map_figure(positions_mm, zones, *, centers_mm=None, zone_names=None, ti
 def rset_histogram(path, r_set, *, bins: int = 20, title: str = "Set reliability R_set over the workspace",
                    force: bool = False) -> Path:
     """Write `rset_histogram_figure` to the PNG `path` (atomically); returns the path."""
-    C.check_output(path, force)  # fail before drawing
+    check_output(path, force)  # fail before drawing
     return save_figure(rset_histogram_figure(r_set, bins=bins, title=title), path, force)
 
 
@@ -187,7 +185,7 @@ def error_intervals(path, before_lower_mm, before_upper_mm, after_lower_mm=None,
                     title: str = "Error interval per test point, before and after compensation",
                     force: bool = False) -> Path:
     """Write `error_intervals_figure` to the PNG `path` (atomically); returns the path."""
-    C.check_output(path, force)  # fail before drawing
+    check_output(path, force)  # fail before drawing
     fig = error_intervals_figure(before_lower_mm, before_upper_mm, after_lower_mm, after_upper_mm,
                                  allowed_mm=allowed_mm, title=title)
     return save_figure(fig, path, force)
@@ -249,7 +247,7 @@ def residual_vs_joints(path, q_rad, residual_mm, *, joint_names: Sequence[str] |
                        title: str = "Residual against each joint angle", max_points: int | None = MAX_SCATTER,
                        force: bool = False) -> Path:
     """Write `residual_vs_joints_figure` to the PNG `path` (atomically); returns the path."""
-    C.check_output(path, force)  # fail before drawing
+    check_output(path, force)  # fail before drawing
     fig = residual_vs_joints_figure(q_rad, residual_mm, joint_names=joint_names, bins=bins, title=title,
                                     max_points=max_points)
     return save_figure(fig, path, force)
@@ -342,7 +340,7 @@ def residual_vs_variables(path, values, residual_mm, strengths, *, correlates=()
                           "Residual against each variable, strongest dependence first",
                           max_points: int | None = MAX_SCATTER, force: bool = False) -> Path:
     """Write `residual_vs_variables_figure` to the PNG `path` (atomically); returns the path."""
-    C.check_output(path, force)
+    check_output(path, force)
     fig = residual_vs_variables_figure(values, residual_mm, strengths, correlates=correlates, components=components,
                                        title=title, max_points=max_points)
     return save_figure(fig, path, force)

@@ -60,6 +60,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from torchcal.errors import InputError
+from torchcal.io.files import check_output
 from viz import _common as C
 
 APPLICATION_ID = "torchcal"
@@ -99,8 +100,7 @@ def _columns(stream: rr.RecordingStream, entity: str, timeline: str, steps, valu
 
 # --------------------------------------------------------------------------- workspace
 def log_workspace(rec, positions_mm, r_set, zones, *, centers_mm=None, zone_names=None,
-                  rset_range=None, max_points: int | None = MAX_POINTS, point_radius_ui: float = 3.0,
-                  centres_mm=None) -> None:
+                  rset_range=None, max_points: int | None = MAX_POINTS, point_radius_ui: float = 3.0) -> None:
     """Log workspace points coloured by R_set and by zone, and the zone centers.
 
     Args:
@@ -108,8 +108,7 @@ def log_workspace(rec, positions_mm, r_set, zones, *, centers_mm=None, zone_name
         positions_mm: (N, 3) workspace points, mm, robot base frame.
         r_set: (N,) set reliability per point, in [0, 1] (1 = fully reliable).
         zones: (N,) integer zone id per point (0-based).
-        centers_mm: (Z, 3) zone centers in space, mm; default: mean of each zone's points
-            (``centres_mm``: its former name, still accepted).
+        centers_mm: (Z, 3) zone centers in space, mm; default: mean of each zone's points.
         zone_names: display name per zone id; default ``"zone k+1"`` (ids are 0-based in
             arrays and shown 1-based, as the paper's zones 1..10).
         rset_range: (low, high) R_set mapped to red..green; default: the data range.
@@ -124,8 +123,7 @@ def log_workspace(rec, positions_mm, r_set, zones, *, centers_mm=None, zone_name
     n = pos.shape[0]
     rs = C.vector(r_set, "r_set", n)
     zs = C.labels(zones, "zones", n)
-    names, centers = C.zone_centers(pos, zs, C.former_name(centers_mm, centres_mm, "centers_mm", "centres_mm"),
-                                    zone_names)
+    names, centers = C.zone_centers(pos, zs, centers_mm, zone_names)
     count = len(names)
     lo, hi = C.rset_range(rs, rset_range)
     rgb = C.zone_rgb(count)
@@ -516,7 +514,7 @@ class RecordingWriter:
         """Check the target, start the stream and its file sink (a temporary file beside it)."""
         if self.stream is not None:
             raise InputError(f"{self.path}: recording is already open")
-        C.check_output(self.path, self.force)
+        check_output(self.path, self.force)
         self._tmp = C.temp_beside(self.path)
         stream = rr.RecordingStream(self.application_id, recording_id=recording_id(self.seed, self.application_id),
                                     send_properties=False)
@@ -539,7 +537,7 @@ class RecordingWriter:
             stream.send_blueprint(bp, make_active=True, make_default=True)
             stream.flush()
             stream.disconnect()  # drops the FileSink: the file gets its footer and is complete
-            C.check_output(self.path, self.force)  # nobody created it meanwhile
+            check_output(self.path, self.force)  # nobody created it meanwhile
             os.replace(tmp, self.path)
         except BaseException:
             self._discard()

@@ -33,7 +33,7 @@ from torchcal.effects.base import Context, approach_directions
 from torchcal.errors import InputError
 from torchcal.calibration.model import CalibrationModel
 
-__all__ = ["Compensation", "compensate", "predict_rows", "nominal_inverse"]
+__all__ = ["Compensation", "compensate", "predict_rows", "nominal_inverse", "nominal_start"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -150,7 +150,7 @@ def compensate(model: CalibrationModel, theta, targets, q0, zone=None, tol_mm: f
         theta: (P,) one parameter set for every target, or (Z, P) one per zone.
         targets: (M, 3) mm target positions.
         q0: (M, n) rad seeds, the nominal inverse of the targets.
-        zone: (M,) int zone of each target when theta is (Z, P).
+        zone: (M,) int row of theta (0-based: zone id - 1) for each target when theta is (Z, P).
         tol_mm: stop when every |target - predicted| <= tol_mm.
         max_iter: Newton iterations at most.
         max_step_rad: longest joint step per iteration (norm over joints).
@@ -220,3 +220,23 @@ def nominal_inverse(robot, targets, q0=None, tol_mm: float = 1e-6, max_iter: int
     seed = seed.expand(t.shape[0], robot.n).clone() if seed.ndim == 1 else seed
     return compensate(CalibrationModel(robot), torch.zeros(5 * robot.n, dtype=robot.dtype, device=robot.device), t, seed,
                       tol_mm=tol_mm, max_iter=max_iter)
+
+
+def nominal_start(robot, targets, where: str = "targets") -> torch.Tensor:
+    """(M, n) rad / mm starting commands for compensating targets (M, 3) mm, the one default
+    of `torchcal.compensate` and ``torchcal compensate``: the nominal inverse
+    (`nominal_inverse`) from joint 1 turned towards each target (atan2(y, x), inside its
+    limits) and the other joints at the middle of their limits. InputError (one line
+    starting with `where`) naming the target rows (1-based) it does not reach."""
+    t = torch.as_tensor(targets, dtype=robot.dtype, device=robot.device)
+    if t.ndim != 2 or t.shape[1] != 3:
+        raise InputError(f"{where}: expected (M, 3) mm, got shape {tuple(t.shape)}")
+    q = robot.limits.mean(-1).expand(t.shape[0], robot.n).clone()
+    q[:, 0] = torch.atan2(t[:, 1], t[:, 0]).clamp(robot.limits[0, 0], robot.limits[0, 1])
+    ni = nominal_inverse(robot, t, q)
+    if not ni.converged.all():
+        bad = (~ni.converged).nonzero().flatten().tolist()
+        raise InputError(f"{where}: no nominal inverse found for target row(s) {[b + 1 for b in bad][:10]} "
+                         f"(out of reach?); give starting commands (q1..q{robot.n} in the targets file, "
+                         "q0 in torchcal.compensate)")
+    return ni.q

@@ -12,7 +12,7 @@ Identifiability (at the starting point, on the column-scaled Jacobian):
 The fit is Levenberg-Marquardt (`torchcal.calibration.lm`) on the identifiable parameters, with
 optional robust row weights by IRLS (Huber or Cauchy on the per-pose distance residual,
 scale = the median distance residual, thresholds at 2.5 times it). Standard errors from ``s^2 (J^T W J)^-1``, s^2 = weighted RSS / dof,
-pose-level when poses repeat (`torchcal.calibration.uncertainty`).
+pose-level when poses repeat (`torchcal.calibration.covariance`).
 """
 
 from __future__ import annotations
@@ -31,7 +31,8 @@ from torchcal.calibration.lm import levenberg_marquardt
 from torchcal.calibration.joint_range import joint_range
 from torchcal.calibration.model import CalibrationModel
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
-from torchcal.calibration.uncertainty import ParameterCovariance, parameter_covariance
+from torchcal.calibration.covariance import ParameterCovariance, parameter_covariance
+from torchcal.rotations import procrustes_rotation, so3_error
 
 RANK_TOL = 1e-6
 SIGMA_MM = 0.01   # default position uncertainty of one measurement (laser tracker), mm
@@ -102,7 +103,8 @@ class FitResult:
     names of MD-H deviations held because they grew beyond `plausible_limits`;
     orientation: {"sigma_mm", "sigma_deg", "weight_mm_per_rad", "tool_rotation" (3, 3),
     "rms_deg"} when orientations were fitted. q_range: (2, n) min and max of the data's
-    commanded q, rad / mm (`torchcal.calibration.joint_range`).
+    commanded q, rad / mm (`torchcal.calibration.joint_range`). robust, sigma_mm,
+    sigma_deg: the settings of the fit that made it.
     """
 
     model: CalibrationModel
@@ -121,19 +123,22 @@ class FitResult:
         """True only when the solver met its convergence rule (never for a stalled solve)."""
         return self.status == "converged"
 
-    def to_dict(self, source=None, seed: int = 0, robust=None, pose_ids=None) -> dict:
+    def to_dict(self, source=None, seed: int = 0, pose_ids=None) -> dict:
         """The MODEL.json object of ``torchcal fit`` (`torchcal.io.modelfile.to_dict`):
         format, robot, effects, parameters (value, unit, std, ci95), covariance,
         identifiability, fit (n, rms_mm, max_mm, robust, outlier_poses, iterations,
         status), provenance."""
         from torchcal.io.modelfile import to_dict
 
-        return to_dict(self, source=source, seed=seed, robust=robust, pose_ids=pose_ids)
+        return to_dict(self, source=source, seed=seed, pose_ids=pose_ids)
     registration: dict | None = None
     implausible: list = field(default_factory=list)
     orientation: dict | None = None
     plausible_limits: dict | None = None
     q_range: torch.Tensor | None = None  # (2, n) [min; max] commanded q of the data, rad / mm
+    robust: str | None = None
+    sigma_mm: float = SIGMA_MM
+    sigma_deg: float = SIGMA_DEG
 
     @property
     def rms_mm(self) -> float:
@@ -167,14 +172,6 @@ def _generic_rank(model: CalibrationModel, ctx: Context, cand, rank_tol: float) 
     return identifiability(J, model.param_names(), cand, rank_tol).rank
 
 
-def _so3_error(Rp: torch.Tensor, Rm: torch.Tensor) -> torch.Tensor:
-    """Orientation residual (N, 3) rad: the axis times sin(angle) of Rp^T Rm (the
-    rotation vector to third order; smooth at zero, unlike the exact logarithm)."""
-    E = Rp.transpose(-1, -2) @ Rm
-    return 0.5 * torch.stack([E[..., 2, 1] - E[..., 1, 2], E[..., 0, 2] - E[..., 2, 0],
-                              E[..., 1, 0] - E[..., 0, 1]], dim=-1)
-
-
 def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, free=None,
         robust: str | None = None, max_iter: int = 60, rank_tol: float = RANK_TOL,
         pose=None, rotation: torch.Tensor | None = None, sigma_mm: float = SIGMA_MM,
@@ -184,7 +181,7 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     """Fit model parameters to measured TCP positions xyz (N, 3) mm [and orientations].
 
     pose: (N,) int pose ids; with repeats the standard errors are pose-level
-    (`torchcal.calibration.uncertainty`).
+    (`torchcal.calibration.covariance`).
 
     free: (P,) bool candidate parameters (default `model.default_free()`); the
     identifiability analysis at the (registered) start may hold more. robust: None,
@@ -216,7 +213,7 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     if theta0 is None:
         theta0 = model.zeros()
         if register and any(e.name == "base_frame" for e in model.effects) and xyz.shape[0] >= 3:
-            theta0, reg_info = reg.register(model, ctx, xyz)
+            theta0, reg_info = reg.register_frame(model, ctx, xyz)
     cand = model.default_free() if free is None else free
     n_cand = int(cand.sum())
     n_rows = xyz.shape[0]
@@ -226,13 +223,13 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
 
     def fit_tool_rotation(theta):
         with torch.no_grad():
-            state["tool_R"] = reg.procrustes_rotation(model.predict_rotation(theta, ctx), rotation)
+            state["tool_R"] = procrustes_rotation(model.predict_rotation(theta, ctx), rotation)
 
     def resid(theta):  # (N, k): model - measured (position mm, orientation mm-equivalent)
         r = model.predict(theta, ctx) - xyz
         if rotation is None:
             return r
-        e = _so3_error(model.predict_rotation(theta, ctx) @ state["tool_R"], rotation)
+        e = so3_error(model.predict_rotation(theta, ctx) @ state["tool_R"], rotation)
         return torch.cat([r, -w_rot * e], dim=-1)
 
     def jac(theta):
@@ -325,4 +322,4 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
                      registration=reg_info, implausible=implausible, orientation=orient,
                      plausible_limits=None if max_length_mm is None else
                      {"max_length_mm": max_length_mm, "max_angle_deg": max_angle_deg},
-                     q_range=joint_range(ctx.q))
+                     q_range=joint_range(ctx.q), robust=robust, sigma_mm=sigma_mm, sigma_deg=sigma_deg)

@@ -99,8 +99,6 @@ class PoseIntervals:
         """(m, 3) mm mid-range of the repeated measurements."""
         return self._interval.center
 
-    centre = center  # the former name, kept for existing code
-
     @property
     def radius(self) -> torch.Tensor:
         """(m, 3) mm half-range."""
@@ -415,7 +413,9 @@ class IntervalModel:
                    method, provenance)
 
     def assign(self, targets: torch.Tensor) -> torch.Tensor:
-        """(M,) 0-based zone of target positions (M, 3) mm."""
+        """(M,) int64 zone ids 1..Z of target positions (M, 3) mm, numbered as in the
+        partition (`Partition.assign`) and the files; 1 for every target without a partition.
+        Row ``zone - 1`` of `theta` holds that zone's parameters."""
         if self.partition is None:
-            return torch.zeros(targets.shape[0], dtype=torch.long)
-        return self.partition.assign(targets) - 1
+            return torch.ones(targets.shape[0], dtype=torch.long)
+        return self.partition.assign(targets)

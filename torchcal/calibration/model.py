@@ -101,7 +101,7 @@ class CalibrationModel:
             g = e.geometric_offset(theta[sl], ctx)
             if g is not None:
                 geo = geo + g
-        T = K.fk_pose(q, robot.table.to(theta), geo, robot.base.to(theta), None)
+        T = K.fk_pose(q, robot.table.to(theta), geo, robot.base.to(theta), None, prismatic=robot.pris)
         R = T[..., :3, :3] @ robot.tool[:3, :3].to(theta)
         for e, sl in parts:
             w = e.world_rotation(theta[sl], ctx)

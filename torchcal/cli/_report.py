@@ -1,4 +1,4 @@
-"""The printed report of `torchcal demo` (the library returns data: `torchcal.workflows.paper.DemoRun`).
+"""The printed report of `torchcal demo` (the library returns data: `torchcal.workflows.paper_report.DemoRun`).
 
 Sections: the virtual robot (its settings), Table 3 (first and last sweep points),
 Table 4 (compact, the paper's method, first seed), Table 5 (test points before and after,
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 
-from torchcal.workflows.paper import AXES, BOUNDS, METHODS, PAPER_REDUCTION_PERCENT
+from torchcal.workflows.paper_config import AXES, BOUNDS, METHODS, PAPER_REDUCTION_PERCENT
 
 LABEL = {"paper_partitioned": "paper part.", "global_geometric": "global geom.",
          "discovered_global": "disc. global", "discovered_partitioned": "disc. part.",

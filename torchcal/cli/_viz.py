@@ -276,7 +276,7 @@ def demo_markdown(run) -> str:
 
 
 def demo_outputs(args, result) -> None:
-    """``demo --rrd/--plots`` for a finished demo (`result`: `torchcal.workflows.paper.DemoRun`, its
+    """``demo --rrd/--plots`` for a finished demo (`result`: `torchcal.workflows.paper_report.DemoRun`, its
     first seed is drawn; or one `PipelineResult`).
 
     Recording: ``workspace/{rset,zones,centres}`` (the sweep points coloured by R_set and by

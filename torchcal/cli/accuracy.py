@@ -47,7 +47,7 @@ def region_names(robot, q: torch.Tensor, pos: torch.Tensor) -> list[str]:
 
 def predicted_sigma(model, theta, cov, q, payload_kg=None, temp_c=None) -> torch.Tensor:
     """(N,) mm predicted TCP sigma at poses q (N, n) rad (Jacobian at theta)."""
-    from torchcal.calibration.uncertainty import tcp_sigma
+    from torchcal.calibration.covariance import tcp_sigma
     from torchcal.effects import make_context
 
     ctx = make_context(model.robot, q, payload_kg, temp_c)

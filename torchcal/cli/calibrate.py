@@ -69,7 +69,7 @@ def run(args) -> int:
     specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
     part = load_partition(args.partition) if args.partition else None
     meas = read_data(args.data, robot, args)
-    im = torchcal.calibrate(robot, meas, specs, part, args.zone_method, args.damping)
+    im = torchcal.calibrate(robot, meas, specs, partition=part, zone_method=args.zone_method, damping=args.damping)
     glob = im.global_fit
     im.provenance = {"input": str(args.data), "input_sha256": file_sha256(args.data),
                      "partition": None if part is None else str(args.partition),

@@ -139,18 +139,9 @@ def load_model(path):
                            "damping": 0.0}], None, "fit", q_range=model.calibrated_range)
 
 
-def default_seeds(robot, targets):
-    """(M, n) rad: joint 1 towards the target (atan2(y, x)), others mid-limits."""
-    import torch
-
-    q = robot.limits.mean(-1).expand(targets.shape[0], robot.n).clone()
-    q[:, 0] = torch.atan2(targets[:, 1], targets[:, 0]).clamp(robot.limits[0, 0], robot.limits[0, 1])
-    return q
-
-
 def run(args) -> int:
     from torchcal.api import compensate
-    from torchcal.calibration.compensate import nominal_inverse
+    from torchcal.calibration.compensate import nominal_start
     from torchcal.calibration.joint_range import CalibratedRangeWarning
     from torchcal.cli._args import warnings_to_stderr
     from torchcal.io.files import atomic_write
@@ -175,12 +166,7 @@ def run(args) -> int:
             raise InputError(f"{args.targets}: the model's effect {e.spec()} needs {need} "
                              f"in the targets, which they lack") from None
     if seeds_deg is None:
-        ni = nominal_inverse(robot, targets, default_seeds(robot, targets))
-        q0 = ni.q
-        if not ni.converged.all():
-            bad = (~ni.converged).nonzero().flatten().tolist()
-            raise InputError(f"{args.targets}: no nominal inverse found for target row(s) "
-                             f"{[b + 1 for b in bad][:10]} (out of reach?); give seeds q1..q{robot.n}")
+        q0 = nominal_start(robot, targets, where=str(args.targets))
     else:
         q0 = robot.q_from_user(seeds_deg)  # deg, mm for a prismatic joint
     # converged solutions outside the calibrated joint range: one warning line
@@ -192,7 +178,7 @@ def run(args) -> int:
     lines = [",".join(["point", "zone", *(f"q{k}" for k in range(1, robot.n + 1)), "residual_mm", "converged",
                        "within_limits"])]
     for i in range(targets.shape[0]):
-        lines.append(",".join([str(i + 1), str(int(zone[i]) + 1), *("%.15g" % v for v in qd[i].tolist()),
+        lines.append(",".join([str(i + 1), str(int(zone[i])), *("%.15g" % v for v in qd[i].tolist()),
                                repr(float(res[i])), str(bool(comp.converged[i])).lower(),
                                str(bool(comp.within_limits[i])).lower()]))
     atomic_write(args.out, "\n".join(lines) + "\n", force=args.force, inputs=[args.targets, args.model])

@@ -1,5 +1,5 @@
 """`torchcal demo [--seeds [K]] [--json OUT] [--seed S] [--force]`: the paper's pipeline as a fair
-experiment on a simulated KR 1000 Titan (torchcal.workflows.paper, docs/demo.md): sweep and
+experiment on a simulated KR 1000 Titan (torchcal.workflows.paper_experiment, docs/demo.md): sweep and
 reliability map (Table 3), partition into levels and zones, the paper's per-zone calibration
 (Table 4), fresh test points (Table 5), and the methods side by side (the paper, global
 geometric, global with the effects `discover` finds, and that plus per-zone correction).
@@ -59,7 +59,8 @@ def run(args) -> int:
     from torchcal.cli._report import format_report
     from torchcal.errors import InputError
     from torchcal.io.files import write_json
-    from torchcal.workflows.paper import DemoConfig, run_demo
+    from torchcal.workflows.paper_config import DemoConfig
+    from torchcal.workflows.paper_experiment import run_demo
 
     if args.seeds < 1:
         raise InputError(f"--seeds: expected a positive number of seeds, got {args.seeds}")

@@ -42,7 +42,7 @@ def calibrated_robot(model, theta):
 
     import torch
 
-    from torchcal.effects.base_frame import rotvec_to_matrix
+    from torchcal.rotations import rotvec_to_matrix
 
     r = model.robot.to("cpu", torch.float64)
     theta = theta.to("cpu", torch.float64)

@@ -48,14 +48,15 @@ def add_parser(sub):
 def fit_file(args):
     """Read, fit (`torchcal.fit`); returns (measurements, FitResult)."""
     from torchcal.api import fit
+    from torchcal.cli._args import units
 
     robot = make_robot(args.robot)
     specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
-    m = read_data(args.data, robot, args)
+    m = read_data(args.data, robot, args)  # the unit check that torchcal.fit repeats, before any warning line
     check = args.max_deviation_mm and args.max_deviation_deg  # 0 turns the check off
     return m, fit(robot, m, specs, robust=args.robust, sigma_mm=args.sigma_mm, sigma_deg=args.sigma_deg,
                   max_length_mm=args.max_deviation_mm if check else None,
-                  max_angle_deg=args.max_deviation_deg if check else None)
+                  max_angle_deg=args.max_deviation_deg if check else None, **units(args))
 
 
 def _still_joints(m) -> list[str]:
@@ -86,7 +87,7 @@ def _largest(res, k: int = 4) -> str:
 def run(args) -> int:
     check_outputs([("--out", args.out)], args.force, inputs=[args.data])
     m, res = fit_file(args)
-    obj = modelfile.to_dict(res, source=args.data, seed=args.seed, robust=args.robust, pose_ids=m.pose.tolist())
+    obj = modelfile.to_dict(res, source=args.data, seed=args.seed, pose_ids=m.pose.tolist())
     write_json(args.out, obj, force=args.force, inputs=[args.data])
     rep = res.report
     print(f"fit {res.model.robot.name} + [{', '.join(res.model.specs()) or 'geometric only'}] on {len(m)} rows: "

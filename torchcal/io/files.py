@@ -17,7 +17,8 @@ from torchcal.errors import InputError, OutputExistsError
 
 def check_output(path, force: bool = False, inputs=()) -> Path:
     """The overwrite rule (library and command line alike): `path` must not be one of
-    `inputs`, must not exist unless `force` (OutputExistsError), and its folder must exist.
+    `inputs`, must not exist unless `force` (OutputExistsError), must not be a folder, and its
+    folder must exist.
     Returns `path` as a Path."""
     path = Path(path)
     for src in inputs:
@@ -25,6 +26,8 @@ def check_output(path, force: bool = False, inputs=()) -> Path:
             raise InputError(f"{path}: refusing to write over the input file")
     if path.exists() and not force:
         raise OutputExistsError(f"{path}: output exists")
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, expected a file name")
     if not path.parent.exists():
         raise InputError(f"{path}: folder {path.parent} does not exist")
     return path

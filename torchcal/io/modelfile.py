@@ -4,7 +4,8 @@
      "effects": [SPEC...],
      "parameters": [{"name", "value", "unit", "std", "identified", "ci95"}...],
      "covariance": {"method", "dof", "sigma_mm", "noise_mm", "pose_mm", "parameters", "matrix"},
-     "identifiability": {...}, "fit": {"n", "rms_mm", "max_mm", "robust", "outliers", "status"},
+     "identifiability": {...}, "fit": {"n", "rms_mm", "max_mm", "robust", "sigma_mm", "sigma_deg", "outlier_poses",
+             "iterations", "status"},
      "provenance": {"input", "input_sha256", "torchcal_version", "seed"},
      "calibrated_range": {"q_min": [...], "q_max": [...], "unit": ["deg" | "mm", ...]}
                      (per joint min and max of the calibration data's commanded q),
@@ -19,7 +20,7 @@
 Values are in the units named beside them (mm, rad, 1/K, ...); ``std`` is the standard
 error (0 for parameters held at nominal), ``ci95`` its 95 % interval [lower, upper]
 (Student's t), ``covariance`` the full covariance of the identified parameters (row
-'rows' or 'pose-level' when poses repeat; `torchcal.calibration.uncertainty`); ``fit.status`` is how the
+'rows' or 'pose-level' when poses repeat; `torchcal.calibration.covariance`); ``fit.status`` is how the
 solver stopped ('converged', 'stalled' or 'max_iterations'). Loading rebuilds the `CalibrationModel` and
 theta exactly (floats are written with full precision). ``nominal_robot`` embeds the
 nominal robot (the robot-file dict, docs/robots.md), so a model file needs no preset and
@@ -52,10 +53,10 @@ def file_sha256(path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-def to_dict(res: FitResult, source=None, seed: int = 0, robust=None, pose_ids=None) -> dict:
+def to_dict(res: FitResult, source=None, seed: int = 0, pose_ids=None) -> dict:
     from torchcal.calibration.joint_range import range_to_dict
     from torchcal.calibration.registration import base_frame_summary
-    from torchcal.measurements import matrix_to_fixed_xyz
+    from torchcal.rotations import matrix_to_fixed_xyz
 
     model = res.model
     dist = res.residuals.norm(dim=-1)
@@ -92,7 +93,8 @@ def to_dict(res: FitResult, source=None, seed: int = 0, robust=None, pose_ids=No
         "covariance": None if res.covariance is None else res.covariance.to_dict(model.param_names()),
         "identifiability": res.report.to_dict(),
         "fit": {"n": int(res.residuals.shape[0]), "rms_mm": res.rms_mm, "max_mm": float(dist.max()),
-                "robust": robust, "outlier_poses": outliers, "iterations": res.n_iter,
+                "robust": res.robust, "sigma_mm": res.sigma_mm, "sigma_deg": res.sigma_deg,
+                "outlier_poses": outliers, "iterations": res.n_iter,
                 "status": res.status},
         "provenance": {"input": None if source is None else str(source),
                        "input_sha256": None if source is None else file_sha256(source),
@@ -128,7 +130,7 @@ def load(path, robot: Robot | str | None = None):
     model.tool_rotation = None  # measured tool frame <- nominal tool frame, when fitted
     orient = obj.get("orientation")
     if isinstance(orient, dict) and "tool_rotation_fixed_xyz_deg" in orient:
-        from torchcal.measurements import fixed_xyz_to_matrix
+        from torchcal.rotations import fixed_xyz_to_matrix
         try:
             r = torch.deg2rad(torch.tensor([float(v) for v in orient["tool_rotation_fixed_xyz_deg"]],
                                            dtype=torch.float64))

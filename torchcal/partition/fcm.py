@@ -483,7 +483,7 @@ class FuzzyCMeans(ClusterMixin, BaseEstimator):
         tol: `fcm`'s eps, stop when ||U(t+1) - U(t)||_F < tol (default 1e-6).
         max_iter: most iterations (default 300).
         n_init: `fcm`'s restarts, batched; lowest objective kept (default 1).
-        random_state: `fcm`'s seed (int, default 0).
+        seed: `fcm`'s random seed (int, default 0).
         c_range: (low, high) inclusive, used when n_clusters="auto" (default (2, 6)).
 
     Attributes (torch tensors on x's device):
@@ -503,20 +503,20 @@ class FuzzyCMeans(ClusterMixin, BaseEstimator):
         (True, True)
     """
 
-    def __init__(self, n_clusters=3, m=2.0, tol=1e-6, max_iter=300, n_init=1, random_state=0,
+    def __init__(self, n_clusters=3, m=2.0, tol=1e-6, max_iter=300, n_init=1, seed=0,
                  c_range=(2, 6)):
         self.n_clusters = n_clusters
         self.m = m
         self.tol = tol
         self.max_iter = max_iter
         self.n_init = n_init
-        self.random_state = random_state
+        self.seed = seed
         self.c_range = c_range
 
     def fit(self, x, y=None):
         """Fit on x (N,) or (N, d); returns self."""
         x = as_points(x)
-        kw = dict(m=self.m, eps=self.tol, max_iter=self.max_iter, seed=self.random_state, restarts=self.n_init)
+        kw = dict(m=self.m, eps=self.tol, max_iter=self.max_iter, seed=self.seed, restarts=self.n_init)
         if isinstance(self.n_clusters, str):
             if self.n_clusters != "auto":
                 raise InputError(f"n_clusters: expected an integer >= 2 or 'auto', got {self.n_clusters!r}")

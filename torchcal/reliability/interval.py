@@ -81,8 +81,6 @@ class Interval:
             raise InputError(f"Interval.from_center_radius: radius must be >= 0, got min {r.min().item()}")
         return cls(c - r, c + r)
 
-    from_centre_radius = from_center_radius  # the former name, kept for existing code
-
     @classmethod
     def point(cls, x) -> "Interval":
         """The degenerate interval ``[x, x]``."""
@@ -93,8 +91,6 @@ class Interval:
     def center(self) -> torch.Tensor:
         """(upper + lower) / 2."""
         return 0.5 * (self.upper + self.lower)
-
-    centre = center  # the former name, kept for existing code
 
     @property
     def radius(self) -> torch.Tensor:

@@ -182,14 +182,14 @@ class ClearanceModel:
         return c.sum(-1) / torch.tensor(self.bearing_length_mm, dtype=torch.float64)
 
     # -- delegates -----------------------------------------------------------------------
-    def sample_states(self, m: int, generator: torch.Generator | None = None, **kw) -> torch.Tensor:
-        return sample_states(self, m, generator, **kw)
+    def sample_states(self, m: int, seed: torch.Generator | int | None = None, **kw) -> torch.Tensor:
+        return sample_states(self, m, seed, **kw)
 
     def deviations(self, robot, states: torch.Tensor) -> torch.Tensor:
         return states_to_deviations(robot, self, states)
 
-    def sample(self, robot, m: int, generator: torch.Generator | None = None, **kw) -> torch.Tensor:
-        return sample_deviations(robot, self, m, generator, **kw)
+    def sample(self, robot, m: int, seed: torch.Generator | int | None = None, **kw) -> torch.Tensor:
+        return sample_deviations(robot, self, m, seed, **kw)
 
     def box(self, robot) -> Interval:
         return box(robot, self)
@@ -325,11 +325,13 @@ def deviation_map(robot, model: ClearanceModel) -> torch.Tensor:
     return D.reshape(5 * n, 4 * n)
 
 
-def sample_states(model: ClearanceModel, m: int, generator: torch.Generator | None = None,
+def sample_states(model: ClearanceModel, m: int, seed: torch.Generator | int | None = None,
                   dtype=torch.float64, device=None) -> torch.Tensor:
-    """Random clearance states: seat offsets (m, 2n, 2) mm (see `ClearanceModel.mode`)."""
+    """Random clearance states: seat offsets (m, 2n, 2) mm (see `ClearanceModel.mode`).
+    seed: a torch.Generator, an int seed for a new one, or None (torch's default generator)."""
     if not isinstance(m, int) or m < 1:
         raise InputError(f"number of clearance states must be a positive integer, got {m!r}")
+    generator = torch.Generator().manual_seed(seed) if isinstance(seed, int) else seed
     c = torch.tensor(model.clearance_mm, dtype=torch.float64)
     phi = 2 * math.pi * torch.rand(m, c.shape[0], generator=generator, dtype=torch.float64)
     rad = c.expand(m, -1)
@@ -349,9 +351,11 @@ def states_to_deviations(robot, model: ClearanceModel, states: torch.Tensor) -> 
     return (flat @ D.T).reshape(*states.shape[:-2], n, 5)
 
 
-def sample_deviations(robot, model: ClearanceModel, m: int, generator: torch.Generator | None = None,
+def sample_deviations(robot, model: ClearanceModel, m: int, seed: torch.Generator | int | None = None,
                       dtype=torch.float64, device=None) -> torch.Tensor:
-    """m random deviation sets (m, n, 5): clearance states (+ the tolerance box, uniform)."""
+    """m random deviation sets (m, n, 5): clearance states (+ the tolerance box, uniform).
+    seed as in `sample_states`."""
+    generator = torch.Generator().manual_seed(seed) if isinstance(seed, int) else seed
     states = sample_states(model, m, generator)
     dev = states_to_deviations(robot, model, states)
     if model.tolerance is not None:

@@ -37,28 +37,11 @@ import torch
 
 from torchcal.errors import InputError
 from torchcal.robots.robot import Robot
+from torchcal.rotations import fixed_xyz_to_matrix, matrix_to_fixed_xyz
 
 PARALLEL_DEG = 1.0  # axes closer than this are treated as parallel (Hayati beta)
 
 _F = torch.float64
-
-
-def rpy_matrix(rpy) -> torch.Tensor:
-    """URDF fixed-axis roll-pitch-yaw: R = Rz(yaw) Ry(pitch) Rx(roll). (3, 3) float64."""
-    r, p, y = (float(v) for v in rpy)
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    return torch.tensor([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                         [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                         [-sp, cp * sr, cp * cr]], dtype=_F)
-
-
-def matrix_rpy(R: torch.Tensor) -> list[float]:
-    """Inverse of `rpy_matrix` (pitch in [-90, 90] deg)."""
-    R = R.tolist()
-    p = math.atan2(-R[2][0], math.hypot(R[0][0], R[1][0]))
-    if abs(math.cos(p)) < 1e-12:  # gimbal lock: put everything in yaw
-        return [0.0, p, math.atan2(-R[0][1], R[1][1])]
-    return [math.atan2(R[2][1], R[2][2]), p, math.atan2(R[1][0], R[0][0])]
 
 
 def _origin(el, where) -> torch.Tensor:
@@ -73,7 +56,7 @@ def _origin(el, where) -> torch.Tensor:
         raise InputError(f"{where}: origin: expected numbers in xyz and rpy") from None
     if len(xyz) != 3 or len(rpy) != 3:
         raise InputError(f"{where}: origin: expected 3 values in xyz and rpy")
-    T[:3, :3] = rpy_matrix(rpy)
+    T[:3, :3] = fixed_xyz_to_matrix(torch.tensor(rpy, dtype=_F))  # URDF rpy: R = Rz(y) Ry(p) Rx(r)
     T[:3, 3] = torch.tensor(xyz, dtype=_F)
     return T
 
@@ -253,7 +236,7 @@ def robot_from_urdf(path, base_link: str, tip_link: str, name: str | None = None
 
 def _origin_xml(T: torch.Tensor) -> str:
     xyz = " ".join(repr(v / 1000.0) for v in T[:3, 3].tolist())
-    rpy = " ".join(repr(v) for v in matrix_rpy(T[:3, :3]))
+    rpy = " ".join(repr(v) for v in matrix_to_fixed_xyz(T[:3, :3]).tolist())
     return f'<origin xyz="{xyz}" rpy="{rpy}"/>'
 
 
@@ -347,4 +330,4 @@ def _set_origin(el, T: torch.Tensor) -> None:
     if o is None:
         o = ET.SubElement(el, "origin")
     o.set("xyz", " ".join(repr(v / 1000.0) for v in T[:3, 3].tolist()))
-    o.set("rpy", " ".join(repr(v) for v in matrix_rpy(T[:3, :3])))
+    o.set("rpy", " ".join(repr(v) for v in matrix_to_fixed_xyz(T[:3, :3]).tolist()))

@@ -178,11 +178,13 @@ class VirtualRobot:
         return float(effect_mm)
 
     # -- measuring ----------------------------------------------------------------------
-    def positions(self, q, payload_kg=None, temp_c=None, generator=None) -> torch.Tensor:
+    def positions(self, q, payload_kg=None, temp_c=None, seed: torch.Generator | int | None = None) -> torch.Tensor:
         """True TCP positions (N, 3) mm for rows q (N, n) rad in movement order; with a
-        generator, the random clearance state per move is drawn too (else its mean)."""
+        seed (a torch.Generator or an int), the random clearance state per move is drawn
+        too (else its mean)."""
         ctx = make_context(self.robot, q, payload_kg, temp_c)
         v = self.model.predict(self.theta, ctx)
+        generator = torch.Generator().manual_seed(seed) if isinstance(seed, int) else seed
         if generator is not None:
             for e, sl in zip(self.model.effects, self.model.slices[1:]):
                 if e.name != "joint_clearance":
@@ -208,6 +210,6 @@ class VirtualRobot:
             else torch.arange(P)
         payload, temp = self._session(len(order), order, P, gen)
         rows_q = q[order]
-        xyz = self.positions(rows_q, payload, temp, generator=gen)
+        xyz = self.positions(rows_q, payload, temp, seed=gen)
         xyz = xyz + noise_mm * torch.randn(xyz.shape, generator=gen, dtype=torch.float64)
         return Measurements(order, rows_q, xyz, payload, temp)

@@ -1,7 +1,8 @@
 """The paper's pipeline (docs/paper.md sections 3-6) as a fair experiment on a simulated KR 1000 Titan.
 
 `run_demo(DemoConfig(), seeds=K)` is what `torchcal demo --seeds K` runs; `run_pipeline(cfg)`
-is one seed. The library returns data; `torchcal.cli._report` formats it.
+is one seed. Its configuration: `torchcal.workflows.paper_config`; the figures and JSON
+of its results: `torchcal.workflows.paper_report`; `torchcal.cli._report` prints them.
 
 1. **The robot** (`build_virtual_robot`): a `VirtualRobot` whose errors are *not all inside
    any fitted model* (sizes and where they come from: docs/demo.md):
@@ -55,119 +56,22 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 
-import scipy.stats
 import torch
 
 from torchcal.reliability import rset as reliability
 from torchcal.calibration.compensate import compensate
 from torchcal.errors import InputError
-from torchcal.calibration.intervals import IntervalFit, identify_zones, pose_intervals
+from torchcal.calibration.intervals import identify_zones, pose_intervals
 from torchcal.calibration.model import CalibrationModel
 from torchcal.diagnosis.diagnose import discover
 from torchcal.partition.zones import partition_workspace
 from torchcal.robots.robot import robot as make_robot
 from torchcal.simulation.virtual_robot import VirtualRobot
 from torchcal.reliability.sweep import SweepResult, sample_workspace, sweep
-
-AXES = ("x", "y", "z")
-BOUNDS = ("lower", "upper")
-#: docs/paper.md section 6, the headline reductions after partitioned compensation (percent).
-PAPER_REDUCTION_PERCENT = {"x": {"lower": 40.16, "upper": 59.36}, "y": {"lower": 59.08, "upper": 40.87},
-                           "z": {"lower": 54.24, "upper": 33.98}}
-
-#: method -> (per zone?, description). The first four are the issue's side-by-side.
-METHODS = {
-    "paper_partitioned": (True, "the paper: geometric + base_frame per zone, eq. 29 damped LS, mu = paper_mu"),
-    "global_geometric": (False, "geometric + base_frame fitted once to the same poses"),
-    "discovered_global": (False, "global, geometric + the effects discover finds on the calibration data"),
-    "discovered_partitioned": (True, "discovered_global + per-zone geometric correction (damped, mu = paper_mu)"),
-    "paper_partitioned_gcv": (True, "variant of the paper: mu per zone by GCV"),
-    "paper_partitioned_more": (True, "variant of the paper: points_per_zone_more poses per zone"),
-}
-MAIN_METHODS = ("paper_partitioned", "global_geometric", "discovered_global", "discovered_partitioned")
-
-
-@dataclass(frozen=True)
-class DemoConfig:
-    """Everything the demo depends on (mm, degrees). Sizes: docs/demo.md.
-
-    Attributes:
-        robot: preset name.
-        seed: seed of every random draw (seed s of a K-seed run: seed + s).
-        n_sweep, sweep_source, sweep_samples: the sweep (Table 3): Latin-hypercube points;
-            "model" (the clearance interval model of Table 2) or "measured" (`repeats` moves
-            of the virtual robot); clearance states per point of the model sweep.
-        repeats: moves to each point (sweep, calibration, test).
-        allowed_distance_mm, allowed_axis_mm: allowed errors [0, D] and +-a (Tables 3, 5).
-        zones_per_level: sub-zones of each reliability level (levels = its length).
-        points_per_zone: calibration poses per zone (the paper: 10).
-        points_per_zone_more: poses per zone of the "more poses" variant.
-        test_per_zone: fresh test points per zone.
-        truth_effects: the virtual robot's effects besides the MD-H deviations.
-        geometric_scale: factor on the MD-H deviation sizes (0.5 mm, 0.02 deg).
-        base_offset_mm, base_tilt_deg: measurement-frame translation and rotation vector.
-        compliance_mm, gear_mm: TCP RMS of joint compliance (payload 0..rated) and of the gear error.
-        clearance_mm: clearance size for robots without a Table 2 (the Titan's is Table 2).
-        clearance_random: share of the clearance tilt that is random per move.
-        noise_mm: measurement noise (standard deviation per axis).
-        paper_mu: eq. 29 damping of the per-zone fits (relative to the column norms).
-        discover_rounds: effects `discover` may add at most (0: no discovery).
-        rank_tol: identifiability threshold (pivot ratio of the scaled Jacobian).
-    """
-
-    robot: str = "kr1000titan"
-    seed: int = 0
-    n_sweep: int = 100
-    sweep_source: str = "model"
-    sweep_samples: int = 300
-    repeats: int = 10
-    allowed_distance_mm: float = 2.5
-    allowed_axis_mm: float = 1.0
-    zones_per_level: tuple = (3, 2, 3, 2)
-    points_per_zone: int = 10
-    points_per_zone_more: int = 30
-    test_per_zone: int = 2
-    truth_effects: tuple = ("base_frame", "joint_compliance:2,3", "gear_periodic:2,3",
-                            "joint_clearance:1,2,3,4,5,6")
-    geometric_scale: float = 2.0
-    base_offset_mm: tuple = (0.3, -0.2, 0.25)
-    base_tilt_deg: tuple = (0.001, -0.001, 0.001)
-    compliance_mm: float = 1.0
-    gear_mm: float = 0.5
-    clearance_mm: float = 0.3
-    clearance_random: float = 0.5
-    noise_mm: float = 0.03
-    paper_mu: float = 1e-3
-    discover_rounds: int = 2
-    rank_tol: float = 1e-6
-
-    def check(self) -> None:
-        """Raise InputError naming the first bad field."""
-        if self.sweep_source not in ("model", "measured"):
-            raise InputError(f"DemoConfig.sweep_source: expected 'model' or 'measured', got {self.sweep_source!r}")
-        for name in ("n_sweep", "sweep_samples", "repeats", "points_per_zone", "points_per_zone_more",
-                     "test_per_zone"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise InputError(f"DemoConfig.{name}: expected a positive integer, got {v!r}")
-        if self.repeats < 2:
-            raise InputError(f"DemoConfig.repeats: intervals need at least 2 repetitions, got {self.repeats}")
-        if not self.zones_per_level or any(int(k) < 1 for k in self.zones_per_level):
-            raise InputError(f"DemoConfig.zones_per_level: expected positive zone counts, got {self.zones_per_level!r}")
-        if isinstance(self.discover_rounds, bool) or not isinstance(self.discover_rounds, int) \
-                or self.discover_rounds < 0:
-            raise InputError(f"DemoConfig.discover_rounds: expected an integer >= 0, got {self.discover_rounds!r}")
-        for name in ("allowed_distance_mm", "allowed_axis_mm", "paper_mu"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise InputError(f"DemoConfig.{name}: expected a positive number, got {v!r}")
-        if "base_frame" not in self.truth_effects:
-            raise InputError("DemoConfig.truth_effects: the measurement frame 'base_frame' must be among them")
-
-    def to_json(self) -> dict:
-        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
+from torchcal.workflows.paper_config import AXES, METHODS, DemoConfig
+from torchcal.workflows.paper_report import DemoRun, reduction_percent
 
 
 # ------------------------------------------------------------------ steps
@@ -265,20 +169,6 @@ def make_partition(sweep: SweepResult, zones_per_level, seed: int, tries: int = 
     return partition_workspace(sweep.positions, sweep.r_set, levels=L, zones=clipped, seed=seed)
 
 
-def reduction_percent(before_lo, before_hi, after_lo, after_hi, absolute: bool = False) -> dict:
-    """Per axis {lower, upper}: 100 * (1 - |mean after| / |mean before|) over the points.
-
-    Bounds (M, 3) mm. absolute=True: the mean of |bound| instead (robust variant).
-    """
-    f = (lambda t: t.abs().mean(0)) if absolute else (lambda t: t.mean(0).abs())  # noqa: E731
-    out: dict = {ax: {} for ax in AXES}
-    for name, b, a in (("lower", before_lo, after_lo), ("upper", before_hi, after_hi)):
-        red = 100.0 * (1.0 - f(a) / f(b).clamp_min(1e-300))
-        for k, ax in enumerate(AXES):
-            out[ax][name] = float(red[k])
-    return out
-
-
 def r_set_table(lo: torch.Tensor, hi: torch.Tensor, dist_hi: torch.Tensor, allowed_axis: float,
                 allowed_dist: float) -> torch.Tensor:
     """(M, 4) R_set per axis (intervals [lo, hi] (M, 3) against +-allowed_axis) and of the
@@ -291,7 +181,7 @@ def r_set_table(lo: torch.Tensor, hi: torch.Tensor, dist_hi: torch.Tensor, allow
 # ------------------------------------------------------------------ results
 
 @dataclass(eq=False)
-class Evaluation:
+class MoveErrors:
     """Moves to the test points with one set of commands.
 
     Attributes:
@@ -328,7 +218,7 @@ class PipelineResult:
 
     fits: {method: [IntervalFit per zone]} (one element for the global methods);
     models: {method: CalibrationModel}; comps: {method: Compensation};
-    after: {method: Evaluation}; cal_q: {"paper": (P, n), "more": (P', n)} rad calibration
+    after: {method: MoveErrors}; cal_q: {"paper": (P, n), "more": (P', n)} rad calibration
     poses; zone_extent: per zone the RMS and largest distance of its sweep points from
     their centroid, mm.
     """
@@ -343,7 +233,7 @@ class PipelineResult:
     test_q: torch.Tensor
     test_zone: torch.Tensor  # (M,) 0-based
     test_targets: torch.Tensor
-    before: Evaluation
+    before: MoveErrors
     after: dict
     comps: dict
     cal_q: dict
@@ -408,40 +298,9 @@ class PipelineResult:
         return ev.point_rms_mm
 
 
-def _fit_json(f: IntervalFit) -> dict:
-    return {"fit_rms_mm": f.rms_mm, "damping": f.damping, "rank": f.report.rank,
-            "condition_number": f.report.condition, "held": f.report.held,
-            "converged": f.converged, "parameters": f.rows(degrees=True)}
-
-
-# ------------------------------------------------------------------ statistics over seeds
-
-def mean_ci(values) -> dict:
-    """{"mean", "ci95"}: the mean of the values and its 95 % Student-t confidence interval
-    (None for a single value: no spread to estimate it from)."""
-    v = torch.as_tensor(list(values), dtype=torch.float64)
-    m = float(v.mean())
-    if len(v) < 2:
-        return {"mean": m, "ci95": None}
-    h = float(scipy.stats.t.ppf(0.975, len(v) - 1) * v.std(unbiased=True) / math.sqrt(len(v)))
-    return {"mean": m, "ci95": [m - h, m + h]}
-
-
-def paired_comparison(a, b, alpha: float = 0.05) -> dict:
-    """Paired two-sided t-test of a - b (equal-length samples): mean difference, 95 % CI,
-    p-value, significant (p < alpha). Identical samples give p = 1."""
-    d = torch.as_tensor(list(a), dtype=torch.float64) - torch.as_tensor(list(b), dtype=torch.float64)
-    out = mean_ci(d)
-    if len(d) < 2 or float(d.std(unbiased=True)) == 0.0:
-        p = 1.0 if float(d.abs().max()) == 0.0 or len(d) < 2 else 0.0
-    else:
-        p = float(scipy.stats.ttest_1samp(d.numpy(), 0.0).pvalue)
-    return {"diff_mm": out["mean"], "ci95": out["ci95"], "p": p, "significant": bool(p < alpha)}
-
-
 # ------------------------------------------------------------------ the pipeline
 
-def _evaluate(vr, q, targets, cfg, seed, predicted=None) -> Evaluation:
+def _evaluate(vr, q, targets, cfg, seed, predicted=None) -> MoveErrors:
     meas = vr.measure(q, repeats=cfg.repeats, noise_mm=cfg.noise_mm, seed=seed)
     lo, hi = error_intervals(meas, targets)
     d_hi = _max_distance(meas, targets)
@@ -449,7 +308,7 @@ def _evaluate(vr, q, targets, cfg, seed, predicted=None) -> Evaluation:
     d2 = (meas.xyz - targets[meas.pose]).pow(2).sum(-1)
     per = torch.zeros(targets.shape[0], dtype=d2.dtype).index_add_(0, meas.pose, d2)
     cnt = torch.zeros_like(per).index_add_(0, meas.pose, torch.ones_like(d2))
-    return Evaluation(q, lo, hi, d_hi, rs, float(d2.mean().sqrt()), predicted, (per / cnt).sqrt())
+    return MoveErrors(q, lo, hi, d_hi, rs, float(d2.mean().sqrt()), predicted, (per / cnt).sqrt())
 
 
 def _zones_of(data, z_of_pose, n_zones):
@@ -539,108 +398,6 @@ def run_pipeline(cfg: DemoConfig | None = None, progress=None) -> PipelineResult
     return PipelineResult(cfg, seed, time.perf_counter() - t0, sw, part, fits, models, q_test, z_test, targets,
                           before, after, comps, {"paper": q_cal, "more": q_more},
                           [str(s) for s in vr.specs], timings)
-
-
-@dataclass(eq=False)
-class DemoRun:
-    """The experiment over seeds ``config.seed .. config.seed + K - 1``: `runs` (one
-    `PipelineResult` each), figures per method as mean and 95 % CI, the paired comparison."""
-
-    config: DemoConfig
-    runs: list
-    seconds: float
-
-    @property
-    def first(self) -> PipelineResult:
-        return self.runs[0]
-
-    def method_stats(self, which: str) -> dict:
-        """The issue's M: fitted effects, test RMS and the six reductions, mean and CI over seeds."""
-        red = [r.reductions(which) for r in self.runs]
-        comp = [r.compensation(which) for r in self.runs]
-        return {"fitted_effects": sorted({s for r in self.runs for s in r.models[which].specs()}),
-                "fitted_effects_per_seed": [r.models[which].specs() for r in self.runs],
-                "test_rms_mm": mean_ci(r.after[which].rms_mm for r in self.runs),
-                "reduction_percent": {ax: {b: mean_ci(x[ax][b] for x in red) for b in BOUNDS} for ax in AXES},
-                "compensation": {k: sum(c[k] for c in comp) for k in comp[0]},
-                "targets_met_seeds": sum(r.targets_met(which)["all"] for r in self.runs)}
-
-    def paired(self, a: str = "paper_partitioned", b: str = "global_geometric") -> dict:
-        """a - b test RMS, paired over seeds (K >= 2) or over test points (K = 1)."""
-        if len(self.runs) >= 2:
-            out = paired_comparison([r.after[a].rms_mm for r in self.runs], [r.after[b].rms_mm for r in self.runs])
-            out["paired_over"] = "seeds"
-        else:
-            out = paired_comparison(self.first.point_rms(a).tolist(), self.first.point_rms(b).tolist())
-            out["paired_over"] = "test points"
-        out["beats"] = bool(out["significant"] and out["diff_mm"] < 0)
-        return out
-
-    def to_json(self) -> dict:
-        """The `torchcal demo --json` document: the first seed's details (issue 6 keys) plus
-        the issue 13 keys (seeds, truth_effects, methods, partitioned_vs_global)."""
-        res, cfg = self.first, self.config
-        ev = res.after["paper_partitioned"]
-        points = []
-        for i in range(res.test_q.shape[0]):
-            points.append({
-                "zone": int(res.test_zone[i]) + 1,
-                "level": res.zone_level[int(res.test_zone[i])],
-                "target_mm": res.test_targets[i].tolist(),
-                "q_nominal_deg": torch.rad2deg(res.test_q[i]).tolist(),
-                "q_compensated_deg": torch.rad2deg(ev.q[i]).tolist(),
-                "error_before_mm": res.before.interval(i),
-                "error_after_mm": ev.interval(i),
-                "r_set_before": res.before.r_set_dict(i),
-                "r_set_after": ev.r_set_dict(i),
-                "predicted_residual_mm": float(ev.predicted_residual_mm[i].norm()),
-                "compensation_ok": {k: bool(c.converged[i] and c.within_limits[i]) for k, c in res.comps.items()},
-                "other_variants": {k: {"error_after_mm": e.interval(i), "r_set_after": e.r_set_dict(i)}
-                                   for k, e in res.after.items() if k != "paper_partitioned"},
-            })
-        zones = [{"zone": z + 1, "level": res.zone_level[z], **res.zone_extent()[z],
-                  **{k: _fit_json(f[z]) for k, f in res.fits.items() if METHODS[k][0]}} for z in range(res.n_zones)]
-        s = res.sweep
-        table3 = [{"point": i + 1, "position_mm": s.positions[i].tolist(),
-                   "distance_error_mm": [float(s.dist_lower[i]), float(s.dist_upper[i])],
-                   "r_set": float(s.r_set[i]), "zone": int(res.partition.labels[i]),
-                   "level": int(res.partition.point_levels[i])} for i in range(len(s))]
-        glob = res.summary("global_geometric")
-        glob["fit"] = _fit_json(res.fits["global_geometric"][0])
-        pvg = self.paired()
-        ext = [[z["rms_radius_mm"] for z in r.zone_extent()] for r in self.runs]
-        return {
-            "zones": res.n_zones,
-            "levels": int(res.partition.n_levels),
-            "seconds": self.seconds,
-            "seeds": len(self.runs),
-            "seed_values": [r.seed for r in self.runs],
-            "truth_effects": res.truth_effects,
-            "methods": {k: self.method_stats(k) for k in METHODS},
-            "partitioned_vs_global": pvg,
-            "discovered_partitioned_vs_global": self.paired("discovered_partitioned", "discovered_global"),
-            "zone_compactness": {
-                "workspace_rms_radius_mm": mean_ci(r.workspace_rms_radius_mm() for r in self.runs),
-                "zone_rms_radius_mm_median": mean_ci(sorted(e)[len(e) // 2] for e in ext),
-                "zone_rms_radius_mm_max": mean_ci(max(e) for e in ext)},
-            "reduction_percent": res.reductions("paper_partitioned"),
-            "test_points": points,
-            "partitioned": res.summary("paper_partitioned"),
-            "global": glob,
-            "partitioned_beats_global": pvg["beats"],
-            "variants": {k: res.summary(k) for k in METHODS},
-            "before": {"test_rms_mm": res.before.rms_mm, "max_abs_error_mm": res.before.max_abs_mm,
-                       "over_seeds": mean_ci(r.before.rms_mm for r in self.runs)},
-            "robust_reduction_percent": res.reductions("paper_partitioned", absolute=True),
-            "paper_reduction_percent": PAPER_REDUCTION_PERCENT,
-            "targets_met": res.targets_met("paper_partitioned"),
-            "zone_parameters": zones,
-            "sweep": {"summary": s.summary(), "table3": table3},
-            "partition": res.partition.summary(),
-            "timings_s": res.timings,
-            "config": cfg.to_json(),
-            "units": {"lengths": "mm", "angles": "deg", "errors": "measured - target, mm"},
-        }
 
 
 def run_demo(cfg: DemoConfig | None = None, seeds: int = 1, progress=None) -> DemoRun:

@@ -1,7 +1,7 @@
 """Zone calibration: interval calibration globally and per zone of a partition.
 
 The one implementation behind ``torchcal calibrate``, `torchcal.calibrate` and the
-paper's pipeline (`torchcal.workflows.paper`):
+paper's pipeline (`torchcal.workflows.paper_experiment`):
 
 - `fit_zones`: given the poses of each zone (`PoseIntervals`) and a global fit, each
   zone's interval parameters, all zones batched. ``method="damped"`` (default): each zone

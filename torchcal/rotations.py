@@ -1,0 +1,103 @@
+"""Rotations: the one convention and the closed-form fits, in one place.
+
+Convention (files, reports, URDF): fixed-axis XYZ angles ``r = [rx, ry, rz]`` rad,
+
+    R = Rz(rz) Ry(ry) Rx(rx),
+
+the same as URDF's roll-pitch-yaw. A rotation vector ``r`` (3,) rad is the axis times
+the angle (Rodrigues). Matrices are (..., 3, 3), float, on the device of their input.
+
+- `fixed_xyz_to_matrix` / `matrix_to_fixed_xyz`: angles <-> matrix (ry in [-pi/2, pi/2]);
+- `rotvec_to_matrix` (differentiable, smooth at 0) / `matrix_to_rotvec` (scipy, off the graph);
+- `nearest_rotation`: the proper rotation closest to a 3x3 matrix (SVD with the det
+  correction), behind `kabsch` (rigid motion between point sets) and
+  `procrustes_rotation` (constant rotation between two sets of rotations);
+- `so3_error`: a smooth orientation residual between two rotations.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+__all__ = ["fixed_xyz_to_matrix", "matrix_to_fixed_xyz", "rotvec_to_matrix", "matrix_to_rotvec",
+           "nearest_rotation", "kabsch", "procrustes_rotation", "so3_error"]
+
+
+def _axis(axis: int, a: torch.Tensor) -> torch.Tensor:
+    """(..., 3, 3) rotation about axis 0/1/2 (x/y/z) by angles a (...,) rad."""
+    c, s = torch.cos(a), torch.sin(a)
+    o, z = torch.ones_like(a), torch.zeros_like(a)
+    m = {0: [o, z, z, z, c, -s, z, s, c],
+         1: [c, z, s, z, o, z, -s, z, c],
+         2: [c, -s, z, s, c, z, z, z, o]}[axis]
+    return torch.stack(m, dim=-1).reshape(*a.shape, 3, 3)
+
+
+def fixed_xyz_to_matrix(r: torch.Tensor) -> torch.Tensor:
+    """Fixed-axis XYZ angles r (..., 3) rad [rx, ry, rz] -> R = Rz(rz) Ry(ry) Rx(rx) (..., 3, 3)."""
+    return _axis(2, r[..., 2]) @ _axis(1, r[..., 1]) @ _axis(0, r[..., 0])
+
+
+def matrix_to_fixed_xyz(R: torch.Tensor) -> torch.Tensor:
+    """Inverse of `fixed_xyz_to_matrix`: (..., 3, 3) -> (..., 3) rad, ry in [-pi/2, pi/2]
+    (rx = 0 at gimbal lock, the whole turn about z then in rz)."""
+    cy = torch.hypot(R[..., 0, 0], R[..., 1, 0])
+    ry = torch.atan2(-R[..., 2, 0], cy)
+    lock = cy < 1e-9
+    rx = torch.where(lock, torch.zeros_like(ry), torch.atan2(R[..., 2, 1], R[..., 2, 2]))
+    rz = torch.where(lock, torch.atan2(-R[..., 0, 1], R[..., 1, 1]), torch.atan2(R[..., 1, 0], R[..., 0, 0]))
+    return torch.stack([rx, ry, rz], dim=-1)
+
+
+def rotvec_to_matrix(r: torch.Tensor) -> torch.Tensor:
+    """Rodrigues' formula, safe (and differentiable) at r = 0. r (3,) rad -> (3, 3)."""
+    theta2 = (r * r).sum()
+    theta = torch.sqrt(theta2 + 1e-300)
+    small = theta2 < 1e-12
+    a = torch.where(small, 1 - theta2 / 6, torch.sin(theta) / theta)
+    b = torch.where(small, 0.5 - theta2 / 24, (1 - torch.cos(theta)) / (theta2 + 1e-300))
+    zero = torch.zeros_like(r[0])
+    k = torch.stack([torch.stack([zero, -r[2], r[1]]),
+                     torch.stack([r[2], zero, -r[0]]),
+                     torch.stack([-r[1], r[0], zero])])
+    return torch.eye(3, dtype=r.dtype, device=r.device) + a * k + b * (k @ k)
+
+
+def matrix_to_rotvec(R: torch.Tensor) -> torch.Tensor:
+    """(3, 3) rotation -> (3,) rotation vector in rad (scipy, off the autograd graph)."""
+    from scipy.spatial.transform import Rotation
+
+    rv = Rotation.from_matrix(R.detach().cpu().numpy()).as_rotvec()
+    return torch.as_tensor(np.asarray(rv), dtype=R.dtype, device=R.device)
+
+
+def nearest_rotation(M: torch.Tensor) -> torch.Tensor:
+    """The proper rotation X (3, 3) maximising trace(X^T M) for M (3, 3): U D V^T from
+    M = U S V^T, D = diag(1, 1, det(U V^T)) so that det X = +1."""
+    U, _, Vt = torch.linalg.svd(M)
+    d = torch.sign(torch.linalg.det(U @ Vt))
+    D = torch.diag(torch.stack([torch.ones_like(d), torch.ones_like(d), d]))
+    return U @ D @ Vt
+
+
+def kabsch(P: torch.Tensor, Q: torch.Tensor):
+    """Rigid (R (3, 3), t (3,)) minimising sum |R p_i + t - q_i|^2; P, Q (N, 3) mm, N >= 3
+    points not all on one line (else the rotation about that line is arbitrary)."""
+    mp, mq = P.mean(0), Q.mean(0)
+    R = nearest_rotation((P - mp).T @ (Q - mq)).T
+    return R, mq - R @ mp
+
+
+def procrustes_rotation(A: torch.Tensor, B: torch.Tensor) -> torch.Tensor:
+    """Rotation X (3, 3) minimising sum |A_i X - B_i|_F^2 for A, B (N, 3, 3) rotations."""
+    return nearest_rotation((A.transpose(1, 2) @ B).sum(0))
+
+
+def so3_error(Rp: torch.Tensor, Rm: torch.Tensor) -> torch.Tensor:
+    """Orientation residual (..., 3) rad between Rp and Rm (..., 3, 3): the axis times
+    sin(angle) of Rp^T Rm (the rotation vector to third order; smooth at zero, unlike the
+    exact logarithm)."""
+    E = Rp.transpose(-1, -2) @ Rm
+    return 0.5 * torch.stack([E[..., 2, 1] - E[..., 1, 2], E[..., 0, 2] - E[..., 2, 0],
+                              E[..., 1, 0] - E[..., 0, 1]], dim=-1)

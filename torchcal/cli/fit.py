@@ -83,11 +83,18 @@ def _largest(res, k: int = 4) -> str:
     return ", ".join(t for _, t in sorted(vals, reverse=True)[:k])
 
 
+def _robot_file(text) -> list[str]:
+    """[the --robot value] when it names a file (an input never written over), else []."""
+    from pathlib import Path
+
+    return [text] if text is not None and Path(text).is_file() else []
+
+
 def run(args) -> int:
-    check_outputs([("--out", args.out)], args.force, inputs=[args.data])
+    check_outputs([("--out", args.out)], args.force, inputs=[args.data, *_robot_file(args.robot)])
     m, res = fit_file(args)
     obj = modelfile.to_dict(res, source=args.data, seed=args.seed, robust=args.robust, pose_ids=m.pose.tolist())
-    write_json(args.out, obj, force=args.force, inputs=[args.data])
+    write_json(args.out, obj, force=args.force, inputs=[args.data, *_robot_file(args.robot)])
     rep = res.report
     print(f"fit {res.model.robot.name} + [{', '.join(res.model.specs()) or 'geometric only'}] on {len(m)} rows: "
           f"rms {res.rms_mm:.4f} mm, max {float(res.residuals.norm(dim=-1).max()):.4f} mm, "

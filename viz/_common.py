@@ -23,6 +23,7 @@ MEASURED_RGB = (31, 119, 180)  # blue: measured positions
 MODEL_BEFORE_RGB = (255, 127, 14)  # orange: model positions before
 MODEL_AFTER_RGB = (148, 103, 189)  # purple: model positions after
 ALLOWED_RGB = (127, 127, 127)  # grey: allowed error band
+ALSO_RGB = ((23, 190, 207), (188, 189, 34), (227, 119, 194))  # cyan, olive, pink: further 'after' methods
 RSET_CMAP = "RdYlGn"  # R_set colormap: red = unreliable, green = reliable
 
 

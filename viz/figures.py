@@ -185,17 +185,18 @@ def rset_histogram_figure(r_set, *, bins: int = 20,
 def error_intervals(path, before_lower_mm, before_upper_mm, after_lower_mm=None, after_upper_mm=None, *,
                     allowed_mm: float | None = 1.0,
                     title: str = "Error interval per test point, before and after compensation",
-                    force: bool = False) -> Path:
+                    after_name: str = "after", also=(), force: bool = False) -> Path:
     """Write `error_intervals_figure` to the PNG `path` (atomically); returns the path."""
     C.check_output(path, force)  # fail before drawing
     fig = error_intervals_figure(before_lower_mm, before_upper_mm, after_lower_mm, after_upper_mm,
-                                 allowed_mm=allowed_mm, title=title)
+                                 allowed_mm=allowed_mm, title=title, after_name=after_name, also=also)
     return save_figure(fig, path, force)
 
 
 def error_intervals_figure(before_lower_mm, before_upper_mm, after_lower_mm=None, after_upper_mm=None, *,
                            allowed_mm: float | None = 1.0,
-                           title: str = "Error interval per test point, before and after compensation") -> Figure:
+                           title: str = "Error interval per test point, before and after compensation",
+                           after_name: str = "after", also=()) -> Figure:
     """Error-interval bars per test point and axis, before and after compensation (Fig. 11).
 
     Args:
@@ -204,6 +205,9 @@ def error_intervals_figure(before_lower_mm, before_upper_mm, after_lower_mm=None
         after_lower_mm, after_upper_mm: (T, 3) the same after compensation, or both None.
         allowed_mm: allowed component error, shaded as the band +-allowed_mm; None: none.
         title: figure title.
+        after_name: legend name of the "after" bars.
+        also: further (name, lower (T, 3), upper (T, 3)) after compensation by other
+            methods, drawn beside "after" (at most 3).
 
     Returns the figure: 3 axes (x, y, z), test points numbered 1..T.
     """
@@ -213,14 +217,18 @@ def error_intervals_figure(before_lower_mm, before_upper_mm, after_lower_mm=None
     stages = [("before", b_lo, b_hi, _rgb(C.BEFORE_RGB))]
     if after_lower_mm is not None:
         a_lo, a_hi = C.intervals(after_lower_mm, after_upper_mm, "after", b_lo.shape[0])
-        stages.append(("after", a_lo, a_hi, _rgb(C.AFTER_RGB)))
+        stages.append((after_name, a_lo, a_hi, _rgb(C.AFTER_RGB)))
+    if len(also) > len(C.ALSO_RGB):
+        raise InputError(f"also: at most {len(C.ALSO_RGB)} further methods, got {len(also)}")
+    for (name, lo, hi), rgb in zip(also, C.ALSO_RGB):
+        stages.append((name, *C.intervals(lo, hi, name, b_lo.shape[0]), _rgb(rgb)))
     if allowed_mm is not None and not (np.isfinite(allowed_mm) and allowed_mm > 0):
         raise InputError(f"allowed_mm: expected a positive number of mm or None, got {allowed_mm!r}")
     t = np.arange(1, b_lo.shape[0] + 1)
     n_t = len(t)
     fig = _new_figure(max(8.0, min(16.0, 0.45 * n_t + 3.0)), 8.0)
     axes = fig.subplots(3, 1, sharex=True)
-    offset = 0.17 if len(stages) == 2 else 0.0
+    offset = 0.34 / len(stages) if len(stages) > 1 else 0.0
     for a, ax in enumerate(axes):
         if allowed_mm is not None:
             ax.axhspan(-allowed_mm, allowed_mm, color=_rgb(C.ALLOWED_RGB), alpha=0.15, linewidth=0,
@@ -230,7 +238,7 @@ def error_intervals_figure(before_lower_mm, before_upper_mm, after_lower_mm=None
         ax.axhline(0.0, color="black", linewidth=0.6)
         for s, (stage, lo, hi, col) in enumerate(stages):
             x = t + (s - (len(stages) - 1) / 2) * 2 * offset
-            ax.vlines(x, lo[:, a], hi[:, a], color=col, linewidth=3.0, label=stage)
+            ax.vlines(x, lo[:, a], hi[:, a], color=col, linewidth=3.0 if len(stages) <= 2 else 2.2, label=stage)
             ax.scatter(np.r_[x, x], np.r_[lo[:, a], hi[:, a]], marker="_", s=60, color=col, linewidths=1.5)
         ax.set_ylabel(f"{C.AXES[a]} error (mm)")
         ax.grid(True, axis="y", alpha=0.3)

@@ -210,7 +210,7 @@ def log_residuals(rec, stage: str, measured_mm, model_mm, *, arrow_scale: float 
 
 # --------------------------------------------------------------------------- error intervals (Fig. 11)
 def log_error_intervals(rec, before_lower_mm, before_upper_mm, after_lower_mm=None, after_upper_mm=None, *,
-                        allowed_mm: float | None = 1.0) -> None:
+                        allowed_mm: float | None = 1.0, also=()) -> None:
     """Log error intervals per test point before and after compensation (the paper's Fig. 11).
 
     Args:
@@ -219,6 +219,8 @@ def log_error_intervals(rec, before_lower_mm, before_upper_mm, after_lower_mm=No
             each test point before compensation, mm.
         after_lower_mm, after_upper_mm: (T, 3) the same after compensation, or both None.
         allowed_mm: the allowed component error, drawn as the band +-allowed_mm; None: none.
+        also: further (name, lower (T, 3), upper (T, 3)) after compensation by other
+            methods, logged as stages of their own (name: an entity path part).
 
     Logs Scalars on the sequence timeline ``test_point`` (1..T) at
     ``error_intervals/{axis}/{stage}/{lower,upper}`` and ``error_intervals/{axis}/allowed/...``,
@@ -232,6 +234,8 @@ def log_error_intervals(rec, before_lower_mm, before_upper_mm, after_lower_mm=No
     if after_lower_mm is not None:
         a_lo, a_hi = C.intervals(after_lower_mm, after_upper_mm, "after", b_lo.shape[0])
         stages.append(("after", a_lo, a_hi, C.AFTER_RGB))
+    for (name, lo, hi), rgb in zip(also, C.ALSO_RGB):
+        stages.append((name, *C.intervals(lo, hi, name, b_lo.shape[0]), rgb))
     if allowed_mm is not None and not (np.isfinite(allowed_mm) and allowed_mm > 0):
         raise InputError(f"allowed_mm: expected a positive number of mm or None, got {allowed_mm!r}")
     steps = np.arange(1, b_lo.shape[0] + 1)

@@ -103,3 +103,44 @@ def test_urdf_import_prints_nothing_of_the_parser(tmp_path, capfd):
     robot = robot_from_urdf(u, "l0", "l2")
     out, err = capfd.readouterr()
     assert robot.n == 2 and out == "" and err == ""
+
+
+def test_simulate_pose_seed_fresh_poses_of_the_same_robot(tmp_path, capsys):
+    def sim(name, *extra):
+        out, truth = tmp_path / f"{name}.csv", tmp_path / f"{name}.json"
+        assert main(["simulate", "--robot", "ur5e", "--effects", "joint_compliance:2", "--n", "15", "--seed", "3",
+                     *extra, "--out", str(out), "--truth", str(truth)]) == 0
+        return out.read_text(), json.loads(truth.read_text())
+    a, ta = sim("a")
+    b, tb = sim("b", "--pose-seed", "9")
+    same, _ = sim("same", "--pose-seed", "3")
+    c, tc = sim("c", "--seed", "4")  # argparse: the last --seed wins: another robot
+    assert same == a  # --pose-seed = --seed: the file without it, byte for byte
+    assert ta["parameters"] == tb["parameters"] != tc["parameters"]  # the same hidden robot
+    qa = {line.split(",")[1] for line in a.splitlines()[1:]}
+    qb = {line.split(",")[1] for line in b.splitlines()[1:]}
+    assert a.splitlines()[0] == b.splitlines()[0] and not qa & qb  # fresh poses
+
+
+def test_plan_and_accuracy_refuse_existing_pngs_before_any_work(tmp_path, capsys, monkeypatch):
+    import torchcal.planning.design as design
+    import torchcal.reliability.sweep as sweep
+
+    def boom(*a, **k):
+        raise AssertionError("computed before checking the outputs")
+    monkeypatch.setattr(design, "candidate_jacobian", boom)
+    monkeypatch.setattr(sweep, "sample_workspace", boom)
+    plots = tmp_path / "plots"
+    plots.mkdir()
+    (plots / "plan_criterion.png").write_bytes(b"old")
+    out = tmp_path / "poses.csv"
+    assert main(["plan", "--robot", "ur5e", "--n", "10", "--out", str(out), "--plots", str(plots)]) == 2
+    err = capsys.readouterr().err
+    assert "plan_criterion.png" in err and "--force" in err and not out.exists()
+    (plots / "accuracy_hist.png").write_bytes(b"old")
+    assert main(["accuracy", str(tmp_path / "model.json"), "--plots", str(plots)]) == 2
+    err = capsys.readouterr().err
+    assert "accuracy_hist.png" in err and "--force" in err
+    new = tmp_path / "new" / "plots"  # a missing --plots folder is made, as before
+    assert main(["accuracy", str(tmp_path / "model.json"), "--plots", str(new)]) == 2
+    assert "model file does not exist" in capsys.readouterr().err and new.is_dir()

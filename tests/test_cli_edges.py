@@ -144,3 +144,24 @@ def test_plan_and_accuracy_refuse_existing_pngs_before_any_work(tmp_path, capsys
     new = tmp_path / "new" / "plots"  # a missing --plots folder is made, as before
     assert main(["accuracy", str(tmp_path / "model.json"), "--plots", str(new)]) == 2
     assert "model file does not exist" in capsys.readouterr().err and new.is_dir()
+
+
+def test_a_few_corrupted_rows_hint_at_robust(tmp_path, capsys):
+    data = tmp_path / "d.csv"
+    assert main(["simulate", "--robot", "ur5e", "--n", "60", "--seed", "2", "--out", str(data)]) == 0
+    lines = data.read_text().splitlines()
+    bad = lines[:]
+    for i in (7, 33):  # two rows with a corrupted x (a slipped digit)
+        cells = bad[i].split(",")
+        cells[7] = repr(float(cells[7]) + 500.0)
+        bad[i] = ",".join(cells)
+    (tmp_path / "bad.csv").write_text("\n".join(bad) + "\n")
+    capsys.readouterr()
+    assert main(["fit", str(data), "--robot", "ur5e", "--out", str(tmp_path / "m1.json")]) == 0
+    assert "--robust" not in capsys.readouterr().out
+    assert main(["fit", str(tmp_path / "bad.csv"), "--robot", "ur5e", "--out", str(tmp_path / "m2.json")]) == 0
+    hint = [ln for ln in capsys.readouterr().out.splitlines() if "--robust" in ln]
+    assert len(hint) == 1 and hint[0].startswith("2 row(s)")
+    assert main(["fit", str(tmp_path / "bad.csv"), "--robot", "ur5e", "--robust", "huber",
+                 "--out", str(tmp_path / "m3.json")]) == 0
+    assert "try --robust" not in capsys.readouterr().out

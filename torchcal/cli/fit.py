@@ -83,6 +83,21 @@ def _largest(res, k: int = 4) -> str:
     return ", ".join(t for _, t in sorted(vals, reverse=True)[:k])
 
 
+def _robust_hint(res, robust) -> str | None:
+    """One line pointing at --robust when a few rows (at most 5 %) lie beyond 10 x the
+    median distance error: gross outliers (corrupted or mis-typed rows) pull a least-squares
+    fit; None when robust is already on or nothing stands out."""
+    if robust is not None:
+        return None
+    d = res.residuals.norm(dim=-1)
+    med = float(d.median())
+    far = int((d > 10 * med).sum())
+    if far == 0 or far > max(1, int(0.05 * len(d))):
+        return None
+    return (f"{far} row(s) with errors beyond 10 x the median (max {float(d.max()):.4g} mm, median {med:.4g} mm): "
+            f"gross outliers pull this fit; try --robust huber (it down-weights them and lists their pose ids)")
+
+
 def _robot_file(text) -> list[str]:
     """[the --robot value] when it names a file (an input never written over), else []."""
     from pathlib import Path
@@ -138,5 +153,8 @@ def run(args) -> int:
                       f"[{p['ci95'][0]:+.6g}, {p['ci95'][1]:+.6g}]")
     if res.outliers:
         print(f"outliers (pose ids): {', '.join(map(str, obj['fit']['outlier_poses']))}")
+    hint = _robust_hint(res, args.robust)
+    if hint:
+        print(hint)
     print(f"wrote {args.out}")
     return 0

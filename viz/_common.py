@@ -145,6 +145,24 @@ def rset_rgb(r_set: np.ndarray, vmin: float, vmax: float) -> np.ndarray:
     return (colormaps[RSET_CMAP](t)[:, :3] * 255).round().astype(np.uint8)
 
 
+ERROR_CMAP = "magma_r"  # error maps: light = small, dark red/black = large
+
+
+def error_scale(error_mm: np.ndarray) -> float:
+    """Top of the colour scale of an error map, mm: the 99th percentile (one wild row
+    does not wash out the rest; rows above it get the top colour)."""
+    top = float(np.percentile(error_mm, 99)) if error_mm.size else 1.0
+    return top if top > 0 else 1.0
+
+
+def error_rgb(error_mm: np.ndarray, vmax: float) -> np.ndarray:
+    """(N, 3) uint8 colours of errors (mm) on `ERROR_CMAP` over [0, vmax]."""
+    from matplotlib import colormaps
+
+    t = np.clip(error_mm / vmax, 0.0, 1.0)
+    return (colormaps[ERROR_CMAP](t)[:, :3] * 255).round().astype(np.uint8)
+
+
 def rset_range(r_set: np.ndarray, given) -> tuple[float, float]:
     """Colour range of R_set: `given` (lo, hi), or the data range ([0, 1] when all equal)."""
     if given is not None:

@@ -252,6 +252,61 @@ def error_intervals_figure(before_lower_mm, before_upper_mm, after_lower_mm=None
     return fig
 
 
+# --------------------------------------------------------------------------- error map
+def error_map(path, positions_mm, error_mm, *, title: str = "Distance error over the workspace",
+              force: bool = False) -> Path:
+    """Write `error_map_figure` to the PNG `path` (atomically); returns the path."""
+    C.check_output(path, force)  # fail before drawing
+    return save_figure(error_map_figure(positions_mm, error_mm, title=title), path, force)
+
+
+def error_map_figure(positions_mm, error_mm, *, title: str = "Distance error over the workspace") -> Figure:
+    """Where the error is: the measured positions coloured by their distance error.
+
+    Args:
+        positions_mm: (N, 3) TCP positions, mm (the measurement frame).
+        error_mm: (N,) distance error |measured - model| per row, mm.
+        title: figure title.
+
+    Returns the figure: a 3-D view and the x-y (top) and x-z (side) views, one colour
+    scale (0 .. the 99th percentile, `viz._common.error_scale`; the largest errors drawn
+    on top and ringed).
+    """
+    pos = C.points(positions_mm, "positions_mm")
+    e = C.vector(error_mm, "error_mm", len(pos))
+    top = C.error_scale(e)
+    order = np.argsort(e)  # the largest errors drawn last, on top
+    worst = order[-min(5, len(order)):] if len(order) else order
+    fig = _new_figure(16.0, 5.6)
+    grid = fig.add_gridspec(1, 3, width_ratios=[1.25, 1.0, 1.0])
+    ax3 = fig.add_subplot(grid[0], projection="3d")
+    ax3.set_box_aspect(None, zoom=0.82)  # room for the z label beside the next panel
+    sc = ax3.scatter(pos[order, 0], pos[order, 1], pos[order, 2], c=e[order], cmap=C.ERROR_CMAP, vmin=0.0,
+                     vmax=top, s=8, depthshade=False)
+    ax3.set_xlabel("x (mm)")
+    ax3.set_ylabel("y (mm)")
+    ax3.set_zlabel("z (mm)", labelpad=8)
+    ax3.scatter(pos[worst, 0], pos[worst, 1], pos[worst, 2], s=60, facecolors="none", edgecolors="tab:blue",
+                linewidths=1.0, depthshade=False)
+    ax3.set_title("3-D")
+    for k, (i, j, lab) in enumerate([(0, 1, "x-y (top)"), (0, 2, "x-z (side)")]):
+        ax = fig.add_subplot(grid[k + 1])
+        ax.scatter(pos[order, i], pos[order, j], c=e[order], cmap=C.ERROR_CMAP, vmin=0.0, vmax=top, s=8)
+        ax.scatter(pos[worst, i], pos[worst, j], s=60, facecolors="none", edgecolors="tab:blue", linewidths=1.0,
+                   label=f"{len(worst)} largest")
+        ax.set_xlabel("xyz"[i] + " (mm)")
+        ax.set_ylabel("xyz"[j] + " (mm)")
+        ax.set_title(lab)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.grid(True, alpha=0.3)
+    fig.axes[-1].legend(loc="upper right", fontsize=8)
+    fig.colorbar(sc, ax=fig.axes[1:], label=f"distance error (mm; scale to the 99th percentile, {top:.3g})",
+                 shrink=0.9)
+    fig.suptitle(f"{title}: {len(e)} rows, RMS {float(np.sqrt(np.mean(e ** 2))) if len(e) else 0.0:.4g} mm, "
+                 f"max {float(e.max()) if len(e) else 0.0:.4g} mm")
+    return fig
+
+
 # --------------------------------------------------------------------------- residual vs joints
 def residual_vs_joints(path, q_rad, residual_mm, *, joint_names: Sequence[str] | None = None, bins: int = 12,
                        title: str = "Residual against each joint angle", max_points: int | None = MAX_SCATTER,

@@ -8,6 +8,9 @@ One function per command, called after its computation with its parsed ``args``
 - `discovery_outputs` (``discover``): the error after each round as a time series, the
   residual arrows before (round 0) and after (final model), the summary; PNGs of the
   residual against each joint angle before and after.
+- `evaluation_outputs` (``evaluate``): the (held-out) error over the workspace, 3-D and
+  coloured; the residual against each joint angle and every variable (PNGs, as
+  ``diagnose``); a recording with the error map, residual arrows and the summary.
 - `demo_outputs` (``demo``): workspace by R_set and by zone, error intervals per test
   point before and after compensation (the paper's Fig. 11), the summary; PNGs of the
   zone map, the R_set histogram and the error intervals (the paper's per-zone method and,
@@ -32,6 +35,7 @@ PLOTS = {
     "diagnose": ("residual_vs_joints.png", "residual_vs_variables.png"),
     "discover": ("residual_vs_joints_before.png", "residual_vs_joints_after.png", "residual_vs_variables.png"),
     "demo": ("zone_map.png", "rset_histogram.png", "error_intervals.png"),
+    "evaluate": ("error_map.png", "residual_vs_joints.png", "residual_vs_variables.png"),
 }
 
 
@@ -172,6 +176,63 @@ def _variables_rrd(rec, robot, m, un) -> None:
     data = _variables(robot, m, un)
     if data is not None:
         log_residual_vs_variables(rec, **data)
+
+
+# --------------------------------------------------------------------------- evaluate
+def evaluation_markdown(model, m, ev, un) -> str:
+    """The ``evaluate`` summary as markdown: the model, the rows, the errors, what they depend on."""
+    from viz.recording import summary_markdown
+
+    rep = ev.to_dict()
+    facts = {"robot": model.robot.name, "model effects": _effects_text(model.specs()),
+             "data": str(m.source) if m.source else "(in memory)", "rows": rep["n"], "RMS (mm)": rep["rms_mm"],
+             "mean (mm)": rep["mean_mm"], "max (mm)": rep["max_mm"]}
+    if "outside_range" in rep:
+        facts["rows outside the calibrated range"] = rep["outside_range"]
+    if "orientation_rms_deg" in rep:
+        facts["orientation RMS (deg)"] = rep["orientation_rms_deg"]
+    return summary_markdown("torchcal evaluate", facts, notes=[un.describe()] if un is not None else [])
+
+
+def evaluation_outputs(args, model, m, ev) -> None:
+    """``evaluate --rrd/--plots``: where the model fails on these (held-out) rows, drawn
+    with the figures of ``diagnose``.
+
+    PNGs: ``error_map.png`` (the rows' measured positions coloured by the distance error:
+    3-D, top and side), ``residual_vs_joints.png`` and ``residual_vs_variables.png`` (the
+    residual against every variable, `torchcal.diagnosis.unexplained` on these rows).
+    Recording: ``error_map/...``, ``residuals/after/...`` (measured, model, arrows),
+    ``variables/...`` and ``summary``.
+    """
+    from torchcal.diagnosis.unexplained import unexplained
+
+    rrd, pngs = check_outputs(args, "evaluate")
+    robot = model.robot
+    xyz, res = _np(m.xyz), _np(ev.residuals_mm)
+    e = np.linalg.norm(res, axis=1)
+    force = bool(args.force)
+    un = unexplained(robot, m, ev.residuals_mm, seed=0) if len(m) >= 10 else None
+    what = f"evaluate [{_effects_text(model.specs())}] on {Path(str(m.source)).name if m.source else 'data'}"
+    if pngs:
+        from viz import figures
+
+        figures.error_map(pngs[0], xyz, e, force=force, title=f"{what}: distance error over the workspace")
+        figures.residual_vs_joints(pngs[1], _np(m.q), res, force=force,
+                                   title=f"{what}: residual against each joint angle")
+        if un is not None:
+            _variables_png(pngs[2], robot, m, un, force, what)
+    if rrd is not None:
+        from viz.recording import RecordingWriter, log_error_map, log_residuals, log_summary
+
+        names = _pose_names(m)
+        with RecordingWriter(rrd, seed=0, force=force) as rec:
+            log_error_map(rec, xyz, e, point_names=names)
+            log_residuals(rec, "after", xyz, xyz - res, point_names=names)
+            if un is not None:
+                _variables_rrd(rec, robot, m, un)
+            log_summary(rec, evaluation_markdown(model, m, ev, un))
+    for p in ([rrd] if rrd is not None else []) + [p for p in pngs if p.exists()]:
+        print(f"wrote {p}")
 
 
 # --------------------------------------------------------------------------- discover

@@ -12,6 +12,8 @@ nominal and reported (docs/formats.md)."""
 
 from __future__ import annotations
 
+import math
+
 from torchcal.io import modelfile
 from torchcal.cli._args import add_effects_module, add_force, add_units, check_outputs, read_data, add_robot
 from torchcal.cli._args import nonneg_float, positive_float
@@ -67,7 +69,6 @@ def _still_joints(m) -> list[str]:
 
 def _largest(res, k: int = 4) -> str:
     """The k largest fitted MD-H deviations, readable (mm, deg)."""
-    import math
 
     n5 = 5 * res.model.robot.n
     names, units = res.model.param_names()[:n5], res.model.param_units()[:n5]
@@ -126,7 +127,7 @@ def run(args) -> int:
               f"rotation fixed-XYZ [{r[0]:.4f}, {r[1]:.4f}, {r[2]:.4f}] deg")
     if res.orientation is not None:
         o = res.orientation
-        print(f"orientation: rms {o['rms_deg'] * 1000:.4g} mdeg (weight {o['weight_mm_per_rad']:.4g} mm/rad "
+        print(f"orientation: rms {o['rms_deg'] * 1000:.4g} mdeg (weight {math.radians(o['weight_mm_per_rad']):.4g} mm/deg "
               f"from sigma {o['sigma_mm']:g} mm, {o['sigma_deg']:g} deg)")
     held = [n for n in rep.held if n not in res.implausible]
     if held:

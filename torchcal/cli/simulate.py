@@ -15,8 +15,8 @@ robot: ``--seed 0 --out train.csv`` and ``--seed 0 --pose-seed 1 --out test.csv`
 training and a held-out set of one robot; ``--seed 1`` is another robot.
 
 ``--truth FILE`` writes the true parameters as JSON: ``{"robot", "seed", "effects",
-"parameters": {name: {"value", "unit"}}}`` with values in the model's units (mm, rad, ...;
-see `CalibrationModel.param_units`).
+"parameters": {name: {"value", "unit"}}}`` with values in the units of MODEL.json (mm,
+deg, ...; `torchcal.io.modelfile.file_unit`).
 """
 
 from __future__ import annotations
@@ -72,8 +72,11 @@ def run(args) -> int:
     m = vr.measure(q, repeats=args.repeats, noise_mm=args.noise, seed=pose_seed * 1_000_003 + 17)
     write_measurements(out, m, force=args.force, robot=robot)
     if truth is not None:
-        names, units = vr.model.param_names(), vr.model.param_units()
-        values = vr.theta.detach().cpu().tolist()
+        from torchcal.io.modelfile import file_units
+
+        names = vr.model.param_names()
+        units, k = file_units(vr.model)  # degrees and mm, as MODEL.json
+        values = (vr.theta.detach().to("cpu", torch.float64) * k).tolist()
         write_json(truth, {
             "robot": robot.name,
             "seed": args.seed,

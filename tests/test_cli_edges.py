@@ -165,3 +165,22 @@ def test_a_few_corrupted_rows_hint_at_robust(tmp_path, capsys):
     assert main(["fit", str(tmp_path / "bad.csv"), "--robot", "ur5e", "--robust", "huber",
                  "--out", str(tmp_path / "m3.json")]) == 0
     assert "try --robust" not in capsys.readouterr().out
+
+
+def test_progress_bars_stay_off_when_stderr_is_not_a_terminal(tmp_path, capfd, monkeypatch):
+    """A log file (stderr redirected) gets no tqdm lines: sweep's bar and demo's bar."""
+    out = tmp_path / "s.csv"
+    assert main(["sweep", "--robot", "kr1000titan", "--n", "30", "--samples", "20", "--out", str(out)]) == 0
+    err = capfd.readouterr().err
+    assert "sweep" not in err and "it/s" not in err and "pt/s" not in err and out.is_file()
+
+    import torchcal.workflows.paper as P
+
+    def fake(cfg, seeds=1, progress=None):
+        for step, done in (("seed 1/1: sweep", 0.0), ("seed 1/1: test", 0.9), ("seed 1/1: done", 1.0)):
+            progress(step, done)
+        raise KeyboardInterrupt  # stop here: only the bar is under test
+    monkeypatch.setattr(P, "run_demo", fake)
+    assert main(["demo"]) == 130
+    err = capfd.readouterr().err
+    assert "%" not in err and "demo" not in err

@@ -14,7 +14,10 @@ function              what                                                    ax
 `zone_map`            workspace points by zone in x-y, x-z, y-z; centers      3
 `rset_histogram`      histogram of R_set over the workspace points            1
 `error_intervals`     error interval per test point and axis, before/after    3
-                      compensation, with the allowed band (paper's Fig. 11)
+                      compensation (and further methods beside), with the
+                      allowed band (paper's Fig. 11)
+`error_map`           positions coloured by their distance error: 3-D, x-y,   3
+                      x-z (for ``evaluate``)
 `residual_vs_joints`  residual against each joint angle (for ``diagnose``)    n
 `residual_vs_         residual (length, or signed component along the fitted  one per
 variables`            dependence) against each variable, strongest first      variable

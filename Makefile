@@ -1,10 +1,12 @@
-# Two set-up commands for a fresh machine: `make demo` and `make test`.
-# Each creates .venv and installs torchcal (with its dev extra) when missing.
+# Set-up commands for a fresh machine: `make .venv` (only the environment), `make demo` and
+# `make test`. Each creates .venv and installs torchcal (with its dev extra) when missing;
+# then `. .venv/bin/activate` puts `torchcal` and the venv's `python` (numpy, torch, ...)
+# on the PATH, or call `.venv/bin/torchcal` and `.venv/bin/python` directly.
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench clean
+.PHONY: .venv demo test bench clean
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -13,6 +15,10 @@ $(STAMP): pyproject.toml
 	-$(PY) -m pip install -q --no-index --no-deps torch==2.13.0 2>/dev/null
 	$(PY) -m pip install -q -e '.[dev]'
 	touch $(STAMP)
+
+# `make .venv`: the environment alone (phony: it re-installs when pyproject.toml changed)
+.venv: $(STAMP)
+	@echo "torchcal is installed in .venv: run '. .venv/bin/activate' (or call .venv/bin/torchcal)"
 
 demo: $(STAMP)
 	$(VENV)/bin/torchcal demo

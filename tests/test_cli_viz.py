@@ -197,3 +197,33 @@ def test_demo_outputs(tmp_path):
         _png_ok(plots / name)
     with pytest.raises(InputError, match="output exists"):
         demo_outputs(args, res)
+
+
+def test_demo_error_intervals_show_the_best_method_beside_the_papers(tmp_path, monkeypatch):
+    """The best method (lowest mean test RMS) is drawn and recorded next to the paper's
+    per-zone one; when the paper's is the best, it alone."""
+    from types import SimpleNamespace as NS
+
+    import torchcal.cli._report
+    from torchcal.cli._viz import demo_outputs
+    from viz.figures import error_intervals_figure
+
+    monkeypatch.setattr(torchcal.cli._report, "format_report", lambda run: "REPORT")
+    res = _fake_demo_result()
+    paper, glob, worse = (res.after["partitioned"], NS(**{**vars(res.after["partitioned"])}), res.before)
+    glob.lower, glob.upper, glob.rms_mm = 0.5 * paper.lower, 0.5 * paper.upper, 0.1
+    runs = [NS(**{**vars(res), "after": {"paper_partitioned": paper, "global_geometric": glob,
+                                          "discovered_global": worse}})]
+    run = NS(runs=runs, first=runs[0], config=res.config, format_report=res.format_report)
+    rrd = tmp_path / "demo.rrd"
+    demo_outputs(argparse.Namespace(rrd=str(rrd), plots=None, force=False, seed=0), run)
+    lo = [v[0] for v in _column(rrd, "/error_intervals/y/best_global_geometric/lower", "Scalars:scalars")]
+    np.testing.assert_allclose(lo, glob.lower[:, 1].numpy())
+    fig = error_intervals_figure(res.before.lower, res.before.upper, paper.lower, paper.upper,
+                                 after_name="after, paper", also=[("after, global (best)", glob.lower, glob.upper)])
+    labels = fig.axes[0].get_legend_handles_labels()[1]
+    assert labels[-3:] == ["before", "after, paper", "after, global (best)"]
+    glob.rms_mm = 0.3  # the paper's method is now the best: nothing beside it
+    rrd2 = tmp_path / "demo2.rrd"
+    demo_outputs(argparse.Namespace(rrd=str(rrd2), plots=None, force=False, seed=0), run)
+    assert not any("best_" in e for e in _entities(rrd2))

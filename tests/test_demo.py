@@ -25,9 +25,32 @@ SMALL = DemoConfig(n_sweep=40, sweep_samples=40, zones_per_level=(2, 2), points_
                    points_per_zone_more=12, test_per_zone=2, repeats=3, discover_rounds=0)
 
 
+PROGRESS = []  # (message, share of the work done) as the `run` fixture reported them
+
+
 @pytest.fixture(scope="module")
 def run():
-    return run_demo(SMALL, seeds=2)
+    return run_demo(SMALL, seeds=2, progress=lambda msg, done: PROGRESS.append((msg, done)))
+
+
+def test_progress_reports_the_work_done_not_the_steps_started(run):
+    """Each step start reports the shares of the steps before it (discovery's big share
+    counted only once it is done); 100 % only when the last seed has finished."""
+    from torchcal.workflows.paper import step_shares
+
+    share = step_shares(SMALL)
+    steps = ["sweep", "partition", "calibrate", "discover", "test", "done"]
+    expected, done = [], 0.0
+    for k in range(2):
+        for st in steps:
+            expected.append((f"seed {k + 1}/2: {st}", (k + (1.0 if st == "done" else done)) / 2))
+            done += share.get(st, 0.0)
+        done = 0.0
+    assert [m for m, _ in PROGRESS] == [m for m, _ in expected]
+    np.testing.assert_allclose([d for _, d in PROGRESS], [d for _, d in expected], atol=1e-12)
+    assert math.isclose(sum(share.values()), 1.0) and [d for _, d in PROGRESS].index(1.0) == len(PROGRESS) - 1
+    full = step_shares(DemoConfig())  # with discovery, the bar is at 16 % when it starts, not 60 %
+    assert full["sweep"] + full["partition"] + full["calibrate"] < 0.2 and full["discover"] > 0.7
 
 
 @pytest.fixture(scope="module")

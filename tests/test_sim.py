@@ -9,6 +9,7 @@
 """
 
 import json
+import math
 
 import pytest
 import torch
@@ -120,8 +121,11 @@ def test_cli_simulate_writes_deterministic_file(kr, tmp_path, capsys):
     assert t["effects"] == ["joint_compliance:2,3", "thermal_expansion"] and t["seed"] == 7
     names, units = vr.model.param_names(), vr.model.param_units()
     assert set(t["parameters"]) == set(names)
-    for n, u, v in zip(names, units, vr.theta.tolist()):
-        assert t["parameters"][n] == {"value": v, "unit": u}
+    for n, u, v in zip(names, units, vr.theta.tolist()):  # degrees and mm, as MODEL.json
+        want = {"rad": ("deg", math.degrees(v)), "rad/mm": ("deg/mm", math.degrees(v)),
+                "rad/(kg mm)": ("deg/(N m)", math.degrees(v) / 9.80665e-3)}.get(u, (u, v))
+        assert t["parameters"][n]["unit"] == want[0]
+        assert t["parameters"][n]["value"] == pytest.approx(want[1], rel=1e-14, abs=1e-300)
 
     # a second run without --force: exit 2, one line, file untouched
     before = out.read_bytes()

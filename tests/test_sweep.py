@@ -386,7 +386,7 @@ def test_cli_bad_option_exits_2_with_one_line(argv, capsys):
         cli.main(argv)
     assert exc.value.code == 2
     err = capsys.readouterr().err
-    assert _one_line(err) and err.startswith("torchcal: error:")
+    assert _one_line(err) and err.startswith("torchcal sweep: error:")
 
 
 def test_cli_runs_and_refuses_to_overwrite(tmp_path, capsys):

@@ -189,6 +189,7 @@ def test_model_json_has_std_intervals_and_covariance(tmp_path, capsys):
         else:
             assert lo == hi == p["value"] and p["name"] not in names
     model, _ = modelfile.load(out)
-    cov = modelfile.load_covariance(out, model)
-    assert torch.allclose(cov.diagonal().sqrt(), torch.tensor([p["std"] for p in obj["parameters"]],
-                                                             dtype=torch.float64))
+    cov = modelfile.load_covariance(out, model)  # radians inside, degrees in the file
+    k = modelfile.file_units(model)[1]
+    assert torch.allclose(cov.diagonal().sqrt() * k, torch.tensor([p["std"] for p in obj["parameters"]],
+                                                                 dtype=torch.float64))

@@ -19,7 +19,7 @@ Example::
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import torch
@@ -145,7 +145,11 @@ class Evaluation:
     [x, y, z]; orientation_rms_deg when the data carry rx, ry, rz and the model was fitted
     to orientations (else None); outside_range: rows whose commanded q lie outside the
     joint range the model was calibrated on (`torchcal.calibration.joint_range`), None
-    when the model does not record it (a MODEL.json written before it existed)."""
+    when the model does not record it (a MODEL.json written before it existed).
+
+    Per row (not in `to_dict`): residuals_mm (N, 3) measured - model; orientation_deg
+    (N,) orientation error angle, deg (None as for orientation_rms_deg); outside (N,)
+    bool, the row lies outside the calibrated range (None as for outside_range)."""
 
     n: int
     rms_mm: float
@@ -154,6 +158,9 @@ class Evaluation:
     per_axis_rms_mm: list
     orientation_rms_deg: float | None = None
     outside_range: int | None = None
+    residuals_mm: torch.Tensor | None = field(default=None, compare=False, repr=False)
+    orientation_deg: torch.Tensor | None = field(default=None, compare=False, repr=False)
+    outside: torch.Tensor | None = field(default=None, compare=False, repr=False)
 
     def to_dict(self) -> dict:
         """{"n", "rms_mm", "mean_mm", "max_mm", "per_axis_rms_mm"[, "orientation_rms_deg"]
@@ -184,15 +191,20 @@ def evaluate(model, measurements) -> Evaluation:
     theta = theta.to(m.xyz)
     err = m.xyz - cm.predict(theta, ctx)  # (N, 3) mm
     d = err.norm(dim=-1)
-    orient = None
+    orient = orient_rows = None
     tool_r = _tool_rotation(model, cm)
     if m.rxyz is not None and tool_r is not None:
         e = so3_error(cm.predict_rotation(theta, ctx) @ tool_r.to(theta), m.rotation)  # (N, 3) rad
         orient = math.degrees(float(e.norm(dim=-1).pow(2).mean().sqrt()))
+        orient_rows = torch.rad2deg(e.norm(dim=-1)).detach()
     q_range = _q_range(model, cm)
     outside = None if q_range is None else _warn_range(m.q, q_range, cm.robot, "rows")
+    rows_out = None
+    if q_range is not None:
+        from torchcal.calibration.joint_range import outside_range
+        rows_out = outside_range(m.q, q_range, cm.robot.prismatic).any(dim=-1)
     return Evaluation(len(m), float(d.pow(2).mean().sqrt()), float(d.mean()), float(d.max()),
-                      err.pow(2).mean(0).sqrt().tolist(), orient, outside)
+                      err.pow(2).mean(0).sqrt().tolist(), orient, outside, err.detach(), orient_rows, rows_out)
 
 
 def _set(**options) -> dict:

@@ -23,6 +23,7 @@ MEASURED_RGB = (31, 119, 180)  # blue: measured positions
 MODEL_BEFORE_RGB = (255, 127, 14)  # orange: model positions before
 MODEL_AFTER_RGB = (148, 103, 189)  # purple: model positions after
 ALLOWED_RGB = (127, 127, 127)  # grey: allowed error band
+ALSO_RGB = ((23, 190, 207), (188, 189, 34), (227, 119, 194))  # cyan, olive, pink: further 'after' methods
 RSET_CMAP = "RdYlGn"  # R_set colormap: red = unreliable, green = reliable
 
 
@@ -133,6 +134,24 @@ def rset_rgb(r_set: np.ndarray, vmin: float, vmax: float) -> np.ndarray:
     span = vmax - vmin
     t = np.clip((r_set - vmin) / span, 0.0, 1.0) if span > 0 else np.ones_like(r_set)
     return (colormaps[RSET_CMAP](t)[:, :3] * 255).round().astype(np.uint8)
+
+
+ERROR_CMAP = "magma_r"  # error maps: light = small, dark red/black = large
+
+
+def error_scale(error_mm: np.ndarray) -> float:
+    """Top of the colour scale of an error map, mm: the 99th percentile (one wild row
+    does not wash out the rest; rows above it get the top colour)."""
+    top = float(np.percentile(error_mm, 99)) if error_mm.size else 1.0
+    return top if top > 0 else 1.0
+
+
+def error_rgb(error_mm: np.ndarray, vmax: float) -> np.ndarray:
+    """(N, 3) uint8 colours of errors (mm) on `ERROR_CMAP` over [0, vmax]."""
+    from matplotlib import colormaps
+
+    t = np.clip(error_mm / vmax, 0.0, 1.0)
+    return (colormaps[ERROR_CMAP](t)[:, :3] * 255).round().astype(np.uint8)
 
 
 def rset_range(r_set: np.ndarray, given) -> tuple[float, float]:

@@ -14,7 +14,10 @@ function              what                                                    ax
 `zone_map`            workspace points by zone in x-y, x-z, y-z; centers      3
 `rset_histogram`      histogram of R_set over the workspace points            1
 `error_intervals`     error interval per test point and axis, before/after    3
-                      compensation, with the allowed band (paper's Fig. 11)
+                      compensation (and further methods beside), with the
+                      allowed band (paper's Fig. 11)
+`error_map`           positions coloured by their distance error: 3-D, x-y,   3
+                      x-z (for ``evaluate``)
 `residual_vs_joints`  residual against each joint angle (for ``diagnose``)    n
 `residual_vs_         residual (length, or signed component along the fitted  one per
 variables`            dependence) against each variable, strongest first      variable
@@ -183,17 +186,18 @@ def rset_histogram_figure(r_set, *, bins: int = 20,
 def error_intervals(path, before_lower_mm, before_upper_mm, after_lower_mm=None, after_upper_mm=None, *,
                     allowed_mm: float | None = 1.0,
                     title: str = "Error interval per test point, before and after compensation",
-                    force: bool = False) -> Path:
+                    after_name: str = "after", also=(), force: bool = False) -> Path:
     """Write `error_intervals_figure` to the PNG `path` (atomically); returns the path."""
     check_output(path, force)  # fail before drawing
     fig = error_intervals_figure(before_lower_mm, before_upper_mm, after_lower_mm, after_upper_mm,
-                                 allowed_mm=allowed_mm, title=title)
+                                 allowed_mm=allowed_mm, title=title, after_name=after_name, also=also)
     return save_figure(fig, path, force)
 
 
 def error_intervals_figure(before_lower_mm, before_upper_mm, after_lower_mm=None, after_upper_mm=None, *,
                            allowed_mm: float | None = 1.0,
-                           title: str = "Error interval per test point, before and after compensation") -> Figure:
+                           title: str = "Error interval per test point, before and after compensation",
+                           after_name: str = "after", also=()) -> Figure:
     """Error-interval bars per test point and axis, before and after compensation (Fig. 11).
 
     Args:
@@ -202,6 +206,9 @@ def error_intervals_figure(before_lower_mm, before_upper_mm, after_lower_mm=None
         after_lower_mm, after_upper_mm: (T, 3) the same after compensation, or both None.
         allowed_mm: allowed component error, shaded as the band +-allowed_mm; None: none.
         title: figure title.
+        after_name: legend name of the "after" bars.
+        also: further (name, lower (T, 3), upper (T, 3)) after compensation by other
+            methods, drawn beside "after" (at most 3).
 
     Returns the figure: 3 axes (x, y, z), test points numbered 1..T.
     """
@@ -211,14 +218,18 @@ def error_intervals_figure(before_lower_mm, before_upper_mm, after_lower_mm=None
     stages = [("before", b_lo, b_hi, _rgb(C.BEFORE_RGB))]
     if after_lower_mm is not None:
         a_lo, a_hi = C.intervals(after_lower_mm, after_upper_mm, "after", b_lo.shape[0])
-        stages.append(("after", a_lo, a_hi, _rgb(C.AFTER_RGB)))
+        stages.append((after_name, a_lo, a_hi, _rgb(C.AFTER_RGB)))
+    if len(also) > len(C.ALSO_RGB):
+        raise InputError(f"also: at most {len(C.ALSO_RGB)} further methods, got {len(also)}")
+    for (name, lo, hi), rgb in zip(also, C.ALSO_RGB):
+        stages.append((name, *C.intervals(lo, hi, name, b_lo.shape[0]), _rgb(rgb)))
     if allowed_mm is not None and not (np.isfinite(allowed_mm) and allowed_mm > 0):
         raise InputError(f"allowed_mm: expected a positive number of mm or None, got {allowed_mm!r}")
     t = np.arange(1, b_lo.shape[0] + 1)
     n_t = len(t)
     fig = _new_figure(max(8.0, min(16.0, 0.45 * n_t + 3.0)), 8.0)
     axes = fig.subplots(3, 1, sharex=True)
-    offset = 0.17 if len(stages) == 2 else 0.0
+    offset = 0.34 / len(stages) if len(stages) > 1 else 0.0
     for a, ax in enumerate(axes):
         if allowed_mm is not None:
             ax.axhspan(-allowed_mm, allowed_mm, color=_rgb(C.ALLOWED_RGB), alpha=0.15, linewidth=0,
@@ -228,7 +239,7 @@ def error_intervals_figure(before_lower_mm, before_upper_mm, after_lower_mm=None
         ax.axhline(0.0, color="black", linewidth=0.6)
         for s, (stage, lo, hi, col) in enumerate(stages):
             x = t + (s - (len(stages) - 1) / 2) * 2 * offset
-            ax.vlines(x, lo[:, a], hi[:, a], color=col, linewidth=3.0, label=stage)
+            ax.vlines(x, lo[:, a], hi[:, a], color=col, linewidth=3.0 if len(stages) <= 2 else 2.2, label=stage)
             ax.scatter(np.r_[x, x], np.r_[lo[:, a], hi[:, a]], marker="_", s=60, color=col, linewidths=1.5)
         ax.set_ylabel(f"{C.AXES[a]} error (mm)")
         ax.grid(True, axis="y", alpha=0.3)
@@ -239,6 +250,61 @@ def error_intervals_figure(before_lower_mm, before_upper_mm, after_lower_mm=None
     handles, labels_ = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels_, loc="outside lower center", ncols=len(handles), frameon=False)
     fig.suptitle(title)
+    return fig
+
+
+# --------------------------------------------------------------------------- error map
+def error_map(path, positions_mm, error_mm, *, title: str = "Distance error over the workspace",
+              force: bool = False) -> Path:
+    """Write `error_map_figure` to the PNG `path` (atomically); returns the path."""
+    C.check_output(path, force)  # fail before drawing
+    return save_figure(error_map_figure(positions_mm, error_mm, title=title), path, force)
+
+
+def error_map_figure(positions_mm, error_mm, *, title: str = "Distance error over the workspace") -> Figure:
+    """Where the error is: the measured positions coloured by their distance error.
+
+    Args:
+        positions_mm: (N, 3) TCP positions, mm (the measurement frame).
+        error_mm: (N,) distance error |measured - model| per row, mm.
+        title: figure title.
+
+    Returns the figure: a 3-D view and the x-y (top) and x-z (side) views, one colour
+    scale (0 .. the 99th percentile, `viz._common.error_scale`; the largest errors drawn
+    on top and ringed).
+    """
+    pos = C.points(positions_mm, "positions_mm")
+    e = C.vector(error_mm, "error_mm", len(pos))
+    top = C.error_scale(e)
+    order = np.argsort(e)  # the largest errors drawn last, on top
+    worst = order[-min(5, len(order)):] if len(order) else order
+    fig = _new_figure(16.0, 5.6)
+    grid = fig.add_gridspec(1, 3, width_ratios=[1.25, 1.0, 1.0])
+    ax3 = fig.add_subplot(grid[0], projection="3d")
+    ax3.set_box_aspect(None, zoom=0.82)  # room for the z label beside the next panel
+    sc = ax3.scatter(pos[order, 0], pos[order, 1], pos[order, 2], c=e[order], cmap=C.ERROR_CMAP, vmin=0.0,
+                     vmax=top, s=8, depthshade=False)
+    ax3.set_xlabel("x (mm)")
+    ax3.set_ylabel("y (mm)")
+    ax3.set_zlabel("z (mm)", labelpad=8)
+    ax3.scatter(pos[worst, 0], pos[worst, 1], pos[worst, 2], s=60, facecolors="none", edgecolors="tab:blue",
+                linewidths=1.0, depthshade=False)
+    ax3.set_title("3-D")
+    for k, (i, j, lab) in enumerate([(0, 1, "x-y (top)"), (0, 2, "x-z (side)")]):
+        ax = fig.add_subplot(grid[k + 1])
+        ax.scatter(pos[order, i], pos[order, j], c=e[order], cmap=C.ERROR_CMAP, vmin=0.0, vmax=top, s=8)
+        ax.scatter(pos[worst, i], pos[worst, j], s=60, facecolors="none", edgecolors="tab:blue", linewidths=1.0,
+                   label=f"{len(worst)} largest")
+        ax.set_xlabel("xyz"[i] + " (mm)")
+        ax.set_ylabel("xyz"[j] + " (mm)")
+        ax.set_title(lab)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.grid(True, alpha=0.3)
+    fig.axes[-1].legend(loc="upper right", fontsize=8)
+    fig.colorbar(sc, ax=fig.axes[1:], label=f"distance error (mm; scale to the 99th percentile, {top:.3g})",
+                 shrink=0.9)
+    fig.suptitle(f"{title}: {len(e)} rows, RMS {float(np.sqrt(np.mean(e ** 2))) if len(e) else 0.0:.4g} mm, "
+                 f"max {float(e.max()) if len(e) else 0.0:.4g} mm")
     return fig
 
 

@@ -27,6 +27,8 @@ Entity paths (positions in mm in the robot base frame, z up; rerun scene units a
 - ``residuals/{before,after}/residual``: Arrows3D from model to measured, drawn
   ``arrow_scale`` times the residual (default `RESIDUAL_ARROW_SCALE` = 100: a 1 mm residual
   is a 100 mm arrow); each label gives the true length in mm.
+- ``error_map/points``: Points3D, positions coloured by their distance error (light = small,
+  dark = large; `log_error_map`); ``error_map/error_mm``: the values.
 - ``error_intervals/{x,y,z}/{before,after}/{lower,upper}``: Scalars in mm on the sequence
   timeline ``test_point`` (1, 2, ...): the paper's Fig. 11, one time-series plot per axis.
 - ``error_intervals/{x,y,z}/allowed/{lower,upper}``: Scalars, the allowed band (+-1 mm).
@@ -206,9 +208,36 @@ def log_residuals(rec, stage: str, measured_mm, model_mm, *, arrow_scale: float 
         show_labels=False), static=True)
 
 
+def log_error_map(rec, positions_mm, error_mm, *, point_names: Sequence[str] | None = None,
+                  point_radius_ui: float = 4.0) -> None:
+    """Log the positions coloured by their distance error (the twin of `viz.figures.error_map`).
+
+    Args:
+        rec: a `rerun.RecordingStream` or a `RecordingWriter`.
+        positions_mm: (N, 3) measured TCP positions, mm.
+        error_mm: (N,) distance error per row, mm.
+        point_names: (N,) names for the labels (default ``"point i"``).
+
+    Logs ``error_map/points`` (Points3D on `viz._common.ERROR_CMAP`, 0 .. the 99th
+    percentile; each label gives the error in mm) and ``error_map/error_mm`` (the values), static.
+    """
+    stream = _stream(rec, "error_map")
+    pos = C.points(positions_mm, "positions_mm")
+    e = C.vector(error_mm, "error_mm", len(pos))
+    if point_names is None:
+        point_names = [f"point {i}" for i in range(len(pos))]
+    elif len(point_names) != len(pos):
+        raise InputError(f"point_names: expected {len(pos)} names (one per point), got {len(point_names)}")
+    stream.log("error_map/points", rr.Points3D(pos, colors=C.error_rgb(e, C.error_scale(e)),
+                                               radii=rr.Radius.ui_points(point_radius_ui),
+                                               labels=[f"{s}: {v:.4f} mm" for s, v in zip(point_names, e)],
+                                               show_labels=False), static=True)
+    stream.log("error_map/error_mm", rr.AnyValues(error_mm=e), static=True)
+
+
 # --------------------------------------------------------------------------- error intervals (Fig. 11)
 def log_error_intervals(rec, before_lower_mm, before_upper_mm, after_lower_mm=None, after_upper_mm=None, *,
-                        allowed_mm: float | None = 1.0) -> None:
+                        allowed_mm: float | None = 1.0, also=()) -> None:
     """Log error intervals per test point before and after compensation (the paper's Fig. 11).
 
     Args:
@@ -217,6 +246,8 @@ def log_error_intervals(rec, before_lower_mm, before_upper_mm, after_lower_mm=No
             each test point before compensation, mm.
         after_lower_mm, after_upper_mm: (T, 3) the same after compensation, or both None.
         allowed_mm: the allowed component error, drawn as the band +-allowed_mm; None: none.
+        also: further (name, lower (T, 3), upper (T, 3)) after compensation by other
+            methods, logged as stages of their own (name: an entity path part).
 
     Logs Scalars on the sequence timeline ``test_point`` (1..T) at
     ``error_intervals/{axis}/{stage}/{lower,upper}`` and ``error_intervals/{axis}/allowed/...``,
@@ -230,6 +261,8 @@ def log_error_intervals(rec, before_lower_mm, before_upper_mm, after_lower_mm=No
     if after_lower_mm is not None:
         a_lo, a_hi = C.intervals(after_lower_mm, after_upper_mm, "after", b_lo.shape[0])
         stages.append(("after", a_lo, a_hi, C.AFTER_RGB))
+    for (name, lo, hi), rgb in zip(also, C.ALSO_RGB):
+        stages.append((name, *C.intervals(lo, hi, name, b_lo.shape[0]), rgb))
     if allowed_mm is not None and not (np.isfinite(allowed_mm) and allowed_mm > 0):
         raise InputError(f"allowed_mm: expected a positive number of mm or None, got {allowed_mm!r}")
     steps = np.arange(1, b_lo.shape[0] + 1)
@@ -415,8 +448,8 @@ def log_summary(rec, markdown: str) -> None:
 
 
 # --------------------------------------------------------------------------- blueprint
-ALL_SECTIONS = frozenset({"workspace", "residuals/before", "residuals/after", "error_intervals", "discover",
-                          "summary", "variables"})
+ALL_SECTIONS = frozenset({"workspace", "residuals/before", "residuals/after", "error_map", "error_intervals",
+                          "discover", "summary", "variables"})
 
 
 def default_blueprint(sections=ALL_SECTIONS, *, arrow_scale: float = RESIDUAL_ARROW_SCALE,
@@ -440,6 +473,9 @@ def default_blueprint(sections=ALL_SECTIONS, *, arrow_scale: float = RESIDUAL_AR
                                          contents=["+ /workspace/rset", "+ /workspace/centres"]))
         spatial.append(rrb.Spatial3DView(origin="/", name="Workspace: zones",
                                          contents=["+ /workspace/zones", "+ /workspace/centres"]))
+    if "error_map" in sections:
+        spatial.append(rrb.Spatial3DView(origin="/", name="Distance error (dark = large)",
+                                         contents=["+ /error_map/points"]))
     for stage in STAGES:
         if f"residuals/{stage}" in sections:
             spatial.append(rrb.Spatial3DView(origin="/", name=f"Residuals {stage} (arrows x{arrow_scale:g})",

@@ -24,8 +24,11 @@ COMMANDS = (
 
 
 class _Parser(argparse.ArgumentParser):
-    def error(self, message):  # one line, exit 2, as for every other user mistake
-        sys.stderr.write(f"torchcal: error: {message}\n")
+    command = None  # the sub-command named on the command line (set by `main`)
+
+    def error(self, message):  # one line naming the sub-command, exit 2, as for every other user mistake
+        prog = f"torchcal {self.command}" if self.prog == "torchcal" and self.command else self.prog
+        sys.stderr.write(f"{prog}: error: {message}\n")
         raise SystemExit(2)
 
 
@@ -56,9 +59,19 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from torchcal.cli._pipe import quiet_broken_pipe
+
+    argv = sys.argv[1:] if argv is None else list(argv)
+    first = next((a for a in argv if not a.startswith("-")), None)  # the sub-command, named in argparse errors
+    _Parser.command = first if first in COMMANDS else None
+    args = build_parser().parse_args(argv)
+    with quiet_broken_pipe():  # `torchcal ... | head` ends quietly
+        return _run(args)
+
+
+def _run(args) -> int:
     from torchcal.cli._args import load_effects_modules
 
-    args = build_parser().parse_args(argv)
     try:
         load_effects_modules(args)  # before any effect spec or model file is read
         return int(args.func(args) or 0)

@@ -106,6 +106,19 @@ def check_folder(opt: str, path) -> None:
         raise InputError(f"{path}: {opt} expects a folder, but this is a file")
 
 
+def plot_outputs(folder, names) -> list:
+    """[("--plots", folder/name)...] for `check_outputs`, to check the PNGs a ``--plots``
+    folder will get before any work ([] without --plots); creates the folder when missing
+    (after `check_folder`)."""
+    from pathlib import Path
+
+    if folder is None:
+        return []
+    check_folder("--plots", folder)
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    return [("--plots", Path(folder) / n) for n in names]
+
+
 def add_units(p, what: str = "measurements"):
     """--length-unit mm|m and --angle-unit deg|rad for a command that reads `what`."""
     p.add_argument("--length-unit", choices=["mm", "m"], default="mm",

@@ -8,9 +8,13 @@ One function per command, called after its computation with its parsed ``args``
 - `discovery_outputs` (``discover``): the error after each round as a time series, the
   residual arrows before (round 0) and after (final model), the summary; PNGs of the
   residual against each joint angle before and after.
+- `evaluation_outputs` (``evaluate``): the (held-out) error over the workspace, 3-D and
+  coloured; the residual against each joint angle and every variable (PNGs, as
+  ``diagnose``); a recording with the error map, residual arrows and the summary.
 - `demo_outputs` (``demo``): workspace by R_set and by zone, error intervals per test
   point before and after compensation (the paper's Fig. 11), the summary; PNGs of the
-  zone map, the R_set histogram and the error intervals.
+  zone map, the R_set histogram and the error intervals (the paper's per-zone method and,
+  beside it, the method with the lowest test RMS).
 
 Every output is checked before anything is written (`check_outputs`; commands may also
 call it before their computation to fail early): an existing file is refused with one
@@ -31,6 +35,7 @@ PLOTS = {
     "diagnose": ("residual_vs_joints.png", "residual_vs_variables.png"),
     "discover": ("residual_vs_joints_before.png", "residual_vs_joints_after.png", "residual_vs_variables.png"),
     "demo": ("zone_map.png", "rset_histogram.png", "error_intervals.png"),
+    "evaluate": ("error_map.png", "residual_vs_joints.png", "residual_vs_variables.png"),
 }
 
 
@@ -173,6 +178,63 @@ def _variables_rrd(rec, robot, m, un) -> None:
         log_residual_vs_variables(rec, **data)
 
 
+# --------------------------------------------------------------------------- evaluate
+def evaluation_markdown(model, m, ev, un) -> str:
+    """The ``evaluate`` summary as markdown: the model, the rows, the errors, what they depend on."""
+    from viz.recording import summary_markdown
+
+    rep = ev.to_dict()
+    facts = {"robot": model.robot.name, "model effects": _effects_text(model.specs()),
+             "data": str(m.source) if m.source else "(in memory)", "rows": rep["n"], "RMS (mm)": rep["rms_mm"],
+             "mean (mm)": rep["mean_mm"], "max (mm)": rep["max_mm"]}
+    if "outside_range" in rep:
+        facts["rows outside the calibrated range"] = rep["outside_range"]
+    if "orientation_rms_deg" in rep:
+        facts["orientation RMS (deg)"] = rep["orientation_rms_deg"]
+    return summary_markdown("torchcal evaluate", facts, notes=[un.describe()] if un is not None else [])
+
+
+def evaluation_outputs(args, model, m, ev) -> None:
+    """``evaluate --rrd/--plots``: where the model fails on these (held-out) rows, drawn
+    with the figures of ``diagnose``.
+
+    PNGs: ``error_map.png`` (the rows' measured positions coloured by the distance error:
+    3-D, top and side), ``residual_vs_joints.png`` and ``residual_vs_variables.png`` (the
+    residual against every variable, `torchcal.diagnosis.unexplained` on these rows).
+    Recording: ``error_map/...``, ``residuals/after/...`` (measured, model, arrows),
+    ``variables/...`` and ``summary``.
+    """
+    from torchcal.diagnosis.unexplained import unexplained
+
+    rrd, pngs = check_outputs(args, "evaluate")
+    robot = model.robot
+    xyz, res = _np(m.xyz), _np(ev.residuals_mm)
+    e = np.linalg.norm(res, axis=1)
+    force = bool(args.force)
+    un = unexplained(robot, m, ev.residuals_mm, seed=0) if len(m) >= 10 else None
+    what = f"evaluate [{_effects_text(model.specs())}] on {Path(str(m.source)).name if m.source else 'data'}"
+    if pngs:
+        from viz import figures
+
+        figures.error_map(pngs[0], xyz, e, force=force, title=f"{what}: distance error over the workspace")
+        figures.residual_vs_joints(pngs[1], _np(m.q), res, force=force,
+                                   title=f"{what}: residual against each joint angle")
+        if un is not None:
+            _variables_png(pngs[2], robot, m, un, force, what)
+    if rrd is not None:
+        from viz.recording import RecordingWriter, log_error_map, log_residuals, log_summary
+
+        names = _pose_names(m)
+        with RecordingWriter(rrd, seed=0, force=force) as rec:
+            log_error_map(rec, xyz, e, point_names=names)
+            log_residuals(rec, "after", xyz, xyz - res, point_names=names)
+            if un is not None:
+                _variables_rrd(rec, robot, m, un)
+            log_summary(rec, evaluation_markdown(model, m, ev, un))
+    for p in ([rrd] if rrd is not None else []) + [p for p in pngs if p.exists()]:
+        print(f"wrote {p}")
+
+
 # --------------------------------------------------------------------------- discover
 def _added(history) -> list[str | None]:
     """Effect added in each round (None for round 0)."""
@@ -250,6 +312,18 @@ def _demo_after(result):
     return after["paper_partitioned"] if "paper_partitioned" in after else after["partitioned"]
 
 
+def _demo_best(run) -> str | None:
+    """The method with the lowest mean test RMS over the seeds, when it is not the paper's
+    per-zone one (None then, or for a result without methods)."""
+    runs = getattr(run, "runs", [run])
+    after = runs[0].after
+    if not isinstance(after, dict) or "paper_partitioned" not in after:
+        return None
+    mean = {k: float(np.mean([float(r.after[k].rms_mm) for r in runs])) for k in after}
+    best = min(mean, key=mean.get)
+    return None if best == "paper_partitioned" else best
+
+
 def demo_markdown(run) -> str:
     """The ``demo`` summary as markdown: key numbers (first seed), then the printed report verbatim."""
     from viz.recording import summary_markdown
@@ -281,7 +355,8 @@ def demo_outputs(args, result) -> None:
 
     Recording: ``workspace/{rset,zones,centres}`` (the sweep points coloured by R_set and by
     zone, zone centres labelled), ``error_intervals/{x,y,z}/{before,after,allowed}/...`` per
-    test point (the paper's Fig. 11; after = per-zone compensation) and ``summary``.
+    test point (the paper's Fig. 11; after = per-zone compensation; ``best_METHOD`` = the
+    method with the lowest mean test RMS, when it is another) and ``summary``.
     PNGs: ``zone_map.png`` (three views), ``rset_histogram.png``, ``error_intervals.png``.
     """
     rrd, pngs = check_outputs(args, "demo")
@@ -293,6 +368,13 @@ def demo_outputs(args, result) -> None:
     before, after = result.before, _demo_after(result)
     b_lo, b_hi, a_lo, a_hi = (_np(t) for t in (before.lower, before.upper, after.lower, after.upper))
     allowed = float(result.config.allowed_axis_mm)
+    best = _demo_best(run)  # drawn beside the paper's method
+    also = []
+    if best is not None:
+        from torchcal.cli._report import LABEL
+
+        ev = result.after[best]
+        also = [(f"after, {LABEL.get(best, best)} (best test RMS)", _np(ev.lower), _np(ev.upper))]
     if pngs:
         from viz import figures
 
@@ -300,13 +382,16 @@ def demo_outputs(args, result) -> None:
                          title="Workspace zones of the sweep (partition by R_set and position)")
         figures.rset_histogram(pngs[1], r_set, force=force)
         figures.error_intervals(pngs[2], b_lo, b_hi, a_lo, a_hi, allowed_mm=allowed, force=force,
-                                title="Error interval per test point, before and after per-zone compensation")
+                                after_name="after, paper part. (per zone)", also=also,
+                                title="Error interval per test point, before and after compensation: the paper's "
+                                      "per-zone method" + (" and the best method" if also else " (also the best)"))
     if rrd is not None:
         from viz.recording import RecordingWriter, log_error_intervals, log_summary, log_workspace
 
         with RecordingWriter(rrd, seed=int(getattr(args, "seed", 0) or 0), force=force) as rec:
             log_workspace(rec, pos, r_set, zones)
-            log_error_intervals(rec, b_lo, b_hi, a_lo, a_hi, allowed_mm=allowed)
+            log_error_intervals(rec, b_lo, b_hi, a_lo, a_hi, allowed_mm=allowed,
+                                also=[(f"best_{best}", lo, hi) for _, lo, hi in also])
             log_summary(rec, demo_markdown(run))
     for p in ([rrd] if rrd is not None else []) + pngs:
         print(f"wrote {p}")

@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import torch
 
-from torchcal.cli._args import add_force, check_folder, check_outputs, nonneg_float, positive_int
+from torchcal.cli._args import add_force, check_outputs, nonneg_float, plot_outputs, positive_int
+
+PNGS = ("accuracy_map.png", "accuracy_hist.png")  # in the --plots folder
 
 
 def add_parser(sub):
@@ -61,8 +63,8 @@ def run(args) -> int:
     from torchcal.effects import make_context
     from torchcal.reliability.sweep import sample_workspace
 
-    check_outputs([("--rrd", args.rrd)], args.force, inputs=[args.model])
-    check_folder("--plots", args.plots)
+    check_outputs([("--rrd", args.rrd), *plot_outputs(args.plots, PNGS)], args.force,
+                  inputs=[args.model])  # all before the work
     model, theta = modelfile.load(args.model)
     cov = modelfile.load_covariance(args.model, model)
     robot = model.robot
@@ -88,9 +90,8 @@ def run(args) -> int:
     if args.plots:
         from viz import planning as vp
 
-        Path(args.plots).mkdir(parents=True, exist_ok=True)
-        vp.accuracy_map(Path(args.plots) / "accuracy_map.png", pos, sigma, force=args.force)
-        vp.accuracy_histogram(Path(args.plots) / "accuracy_hist.png", sigma, force=args.force)
+        vp.accuracy_map(Path(args.plots) / PNGS[0], pos, sigma, force=args.force)
+        vp.accuracy_histogram(Path(args.plots) / PNGS[1], sigma, force=args.force)
         print(f"wrote {args.plots}/accuracy_map.png, accuracy_hist.png")
     if args.rrd:
         from viz import planning as vp

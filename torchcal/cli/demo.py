@@ -70,13 +70,14 @@ def run(args) -> int:
     if args.rrd or args.plots:  # the PNG names too, before the run
         from torchcal.cli._viz import check_outputs as check_visual_outputs
         check_visual_outputs(args, "demo")
-    steps = ["sweep", "partition", "calibrate", "discover", "test"]
-    with tqdm(total=len(steps) * args.seeds, desc="demo", unit="step", file=sys.stderr, leave=False,
-              dynamic_ncols=True) as bar:
-        def progress(step):
-            bar.set_postfix_str(step)
-            bar.update(1)
-        result = run_demo(DemoConfig(seed=args.seed, discover_rounds=args.discover_rounds), seeds=args.seeds, progress=progress)
+    # percent of the work done (steps weighed by their share of the time); only on a terminal
+    with tqdm(total=100, desc="demo", unit="%", file=sys.stderr, leave=False, dynamic_ncols=True, disable=None,
+              bar_format="{l_bar}{bar}| {elapsed}<{remaining}{postfix}") as bar:
+        def progress(step, done):
+            bar.set_postfix_str(step, refresh=False)
+            bar.update(round(100 * done, 1) - bar.n)
+        result = run_demo(DemoConfig(seed=args.seed, discover_rounds=args.discover_rounds), seeds=args.seeds,
+                          progress=progress)
     print(format_report(result))
     if args.json:
         write_json(args.json, result.to_json(), force=args.force)

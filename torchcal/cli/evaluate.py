@@ -1,11 +1,23 @@
-"""`torchcal evaluate DATA --model MODEL.json [--robot ROBOT] [--json OUT]`: distance errors
-measured - model. The model file embeds its nominal robot; ``--robot`` only checks it."""
+"""`torchcal evaluate DATA --model MODEL.json [--robot ROBOT] [--json OUT] [--residuals OUT.csv]
+[--plots DIR] [--rrd FILE]`: distance errors measured - model, typically on held-out poses.
+The model file embeds its nominal robot; ``--robot`` only checks it.
+
+``--residuals OUT.csv`` writes one row per measurement, in the data file's order:
+``row,pose[,point],ex_mm,ey_mm,ez_mm,e_mm[,orientation_deg][,outside_range]`` (row: the
+data row, 1-based; e = measured - model, mm; orientation_deg: the orientation error angle
+when the data carry rx, ry, rz and the model was fitted to them; outside_range: true for a
+row outside the joint range the model was calibrated on, when the model records it).
+Pooled cross-validation: concatenate the folds' files.
+
+``--plots DIR`` / ``--rrd FILE`` show where the model fails on these rows, with the
+figures of ``diagnose``: the error over the workspace (3-D, coloured), the residual
+against each joint angle and against every variable (docs/diagnosis.md)."""
 
 from __future__ import annotations
 
 from torchcal.io import modelfile
-from torchcal.cli._args import (add_effects_module, add_force, add_units, check_outputs, read_data, add_robot,
-                                load_robot, check_data_joints, warnings_to_stderr)
+from torchcal.cli._args import (add_effects_module, add_force, add_units, add_viz, check_outputs, read_data,
+                                add_robot, load_robot, check_data_joints, warnings_to_stderr)
 from torchcal.io.files import write_json
 
 
@@ -15,34 +27,72 @@ def add_parser(sub):
     p.add_argument("--model", required=True, help="MODEL.json from `torchcal fit`")
     add_robot(p, required=False, what="check that the model is for this robot")
     p.add_argument("--json", help="write the report here")
+    p.add_argument("--residuals", metavar="OUT.csv", help="write one row per measurement (errors in mm) here")
+    add_viz(p)
     add_units(p)
     add_force(p)
     add_effects_module(p)
     p.set_defaults(func=run)
 
 
-def evaluate(model, theta, m) -> dict:
-    """The report dict of `torchcal.evaluate` ((model, theta) on measurements m); rows
-    outside the model's calibrated joint range: one warning line on stderr."""
+def evaluate(model, theta, m):
+    """The `torchcal.evaluate` result ((model, theta) on measurements m); rows outside the
+    model's calibrated joint range: one warning line on stderr."""
     from torchcal.api import evaluate as run
     from torchcal.calibration.joint_range import CalibratedRangeWarning
 
     with warnings_to_stderr(CalibratedRangeWarning):
-        return run((model, theta), m).to_dict()
+        return run((model, theta), m)
+
+
+def residuals_csv(m, ev) -> str:
+    """The ``--residuals`` CSV text (module doc) of Evaluation `ev` on measurements m."""
+    cols = ["row", "pose"] + (["point"] if m.point is not None else []) + ["ex_mm", "ey_mm", "ez_mm", "e_mm"]
+    cols += (["orientation_deg"] if ev.orientation_deg is not None else [])
+    cols += (["outside_range"] if ev.outside is not None else [])
+    err = ev.residuals_mm.detach().to("cpu", dtype=ev.residuals_mm.dtype).double()
+    e = err.norm(dim=-1).tolist()
+    pose = m.pose.tolist()
+    point = m.point.tolist() if m.point is not None else None
+    orient = ev.orientation_deg.tolist() if ev.orientation_deg is not None else None
+    out = ev.outside.tolist() if ev.outside is not None else None
+    lines = [",".join(cols)]
+    for i, (x, y, z) in enumerate(err.tolist()):
+        row = [str(i + 1), str(pose[i])] + ([str(point[i])] if point is not None else [])
+        row += [repr(x), repr(y), repr(z), repr(e[i])]
+        row += [repr(orient[i])] if orient is not None else []
+        row += ["true" if out[i] else "false"] if out is not None else []
+        lines.append(",".join(row))
+    return "\n".join(lines) + "\n"
 
 
 def run(args) -> int:
-    check_outputs([("--json", args.json)], args.force, inputs=[args.data, args.model])
+    from torchcal.io.files import atomic_write
+
+    inputs = [args.data, args.model]
+    check_outputs([("--json", args.json), ("--residuals", args.residuals), ("--rrd", args.rrd)], args.force,
+                  inputs=inputs)
+    if args.rrd or args.plots:  # the PNG names too, before any work
+        from torchcal.cli._viz import check_outputs as check_visual_outputs
+        check_visual_outputs(args, "evaluate")
     robot = load_robot(args.robot)  # unknown robot: its own clear message
     model, theta = modelfile.load(args.model, robot=robot)
     check_data_joints(args.data, model.robot, args.model)
     m = read_data(args.data, model.robot, args)
-    rep = evaluate(model, theta, m)
+    ev = evaluate(model, theta, m)
+    rep = ev.to_dict()
     if args.json:
-        write_json(args.json, rep, force=args.force, inputs=[args.data, args.model])
+        write_json(args.json, rep, force=args.force, inputs=inputs)
+    if args.residuals:
+        atomic_write(args.residuals, residuals_csv(m, ev), force=args.force, inputs=inputs)
     x, y, z = rep["per_axis_rms_mm"]
     print(f"{rep['n']} rows: rms {rep['rms_mm']:.4f} mm, mean {rep['mean_mm']:.4f} mm, "
           f"max {rep['max_mm']:.4f} mm; per axis rms x {x:.4f} y {y:.4f} z {z:.4f} mm"
           + (f"; orientation rms {rep['orientation_rms_deg'] * 1000:.4g} mdeg"
              if "orientation_rms_deg" in rep else ""))
+    if args.residuals:
+        print(f"wrote {args.residuals}")
+    if args.rrd or args.plots:
+        from torchcal.cli._viz import evaluation_outputs
+        evaluation_outputs(args, model, m, ev)
     return 0

@@ -12,6 +12,8 @@ nominal and reported (docs/formats.md)."""
 
 from __future__ import annotations
 
+import math
+
 from torchcal.io import modelfile
 from torchcal.cli._args import add_effects_module, add_force, add_units, check_outputs, read_data, add_robot
 from torchcal.cli._args import nonneg_float, positive_float
@@ -68,7 +70,6 @@ def _still_joints(m) -> list[str]:
 
 def _largest(res, k: int = 4) -> str:
     """The k largest fitted MD-H deviations, readable (mm, deg)."""
-    import math
 
     n5 = 5 * res.model.robot.n
     names, units = res.model.param_names()[:n5], res.model.param_units()[:n5]
@@ -84,11 +85,33 @@ def _largest(res, k: int = 4) -> str:
     return ", ".join(t for _, t in sorted(vals, reverse=True)[:k])
 
 
+def _robust_hint(res, robust) -> str | None:
+    """One line pointing at --robust when a few rows (at most 5 %) lie beyond 10 x the
+    median distance error: gross outliers (corrupted or mis-typed rows) pull a least-squares
+    fit; None when robust is already on or nothing stands out."""
+    if robust is not None:
+        return None
+    d = res.residuals.norm(dim=-1)
+    med = float(d.median())
+    far = int((d > 10 * med).sum())
+    if far == 0 or far > max(1, int(0.05 * len(d))):
+        return None
+    return (f"{far} row(s) with errors beyond 10 x the median (max {float(d.max()):.4g} mm, median {med:.4g} mm): "
+            f"gross outliers pull this fit; try --robust huber (it down-weights them and lists their pose ids)")
+
+
+def _robot_file(text) -> list[str]:
+    """[the --robot value] when it names a file (an input never written over), else []."""
+    from pathlib import Path
+
+    return [text] if text is not None and Path(text).is_file() else []
+
+
 def run(args) -> int:
-    check_outputs([("--out", args.out)], args.force, inputs=[args.data])
+    check_outputs([("--out", args.out)], args.force, inputs=[args.data, *_robot_file(args.robot)])
     m, res = fit_file(args)
     obj = modelfile.to_dict(res, source=args.data, seed=args.seed, pose_ids=m.pose.tolist())
-    write_json(args.out, obj, force=args.force, inputs=[args.data])
+    write_json(args.out, obj, force=args.force, inputs=[args.data, *_robot_file(args.robot)])
     rep = res.report
     print(f"fit {res.model.robot.name} + [{', '.join(res.model.specs()) or 'geometric only'}] on {len(m)} rows: "
           f"rms {res.rms_mm:.4f} mm, max {float(res.residuals.norm(dim=-1).max()):.4f} mm, "
@@ -105,7 +128,7 @@ def run(args) -> int:
               f"rotation fixed-XYZ [{r[0]:.4f}, {r[1]:.4f}, {r[2]:.4f}] deg")
     if res.orientation is not None:
         o = res.orientation
-        print(f"orientation: rms {o['rms_deg'] * 1000:.4g} mdeg (weight {o['weight_mm_per_rad']:.4g} mm/rad "
+        print(f"orientation: rms {o['rms_deg'] * 1000:.4g} mdeg (weight {math.radians(o['weight_mm_per_rad']):.4g} mm/deg "
               f"from sigma {o['sigma_mm']:g} mm, {o['sigma_deg']:g} deg)")
     held = [n for n in rep.held if n not in res.implausible]
     if held:
@@ -132,5 +155,8 @@ def run(args) -> int:
                       f"[{p['ci95'][0]:+.6g}, {p['ci95'][1]:+.6g}]")
     if res.outliers:
         print(f"outliers (pose ids): {', '.join(map(str, obj['fit']['outlier_poses']))}")
+    hint = _robust_hint(res, args.robust)
+    if hint:
+        print(hint)
     print(f"wrote {args.out}")
     return 0

@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import torch
 
-from torchcal.cli._args import add_force, add_robot, check_folder, check_outputs, nonneg_float, positive_int
+from torchcal.cli._args import add_force, add_robot, check_outputs, nonneg_float, plot_outputs, positive_int
+
+PNGS = ("plan_poses.png", "plan_criterion.png")  # in the --plots folder
 
 
 def add_parser(sub):
@@ -59,8 +61,7 @@ def run(args) -> int:
     from torchcal.reliability.sweep import Workspace, sample_workspace
     from torchcal.robots.robot import robot as make_robot
 
-    check_outputs([("--out", args.out)], args.force)
-    check_folder("--plots", args.plots)
+    check_outputs([("--out", args.out), *plot_outputs(args.plots, PNGS)], args.force)  # all before the work
     robot = make_robot(args.robot)
     specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
     model = CalibrationModel(robot, specs)
@@ -85,8 +86,6 @@ def run(args) -> int:
     obs_p = design.observability(J[idx], model, free)
     obs_r = [design.observability(J[r], model, free) for r in rand]
     text = plan_csv(q[idx])
-    if args.plots:
-        Path(args.plots).mkdir(parents=True, exist_ok=True)
     atomic_write(args.out, text.encode(), force=args.force)
     names = ", ".join(specs) or "geometric only"
     print(f"plan {args.robot} + [{names}]: {args.n} of {M} candidate poses, {K} identifiable parameters, "
@@ -109,7 +108,7 @@ def run(args) -> int:
         from viz import planning as vp
 
         pos = robot.fk(q)
-        vp.plan_poses(Path(args.plots) / "plan_poses.png", pos, pos[idx], force=args.force)
+        vp.plan_poses(Path(args.plots) / PNGS[0], pos, pos[idx], force=args.force)
         ns = list(range(1, args.n + 1))
         rand_curve = []
         for k in ns:
@@ -118,7 +117,7 @@ def run(args) -> int:
                 continue
             vals = [design.criterion(A[torch.randperm(M, generator=gen)[:k]], args.criterion) for _ in range(5)]
             rand_curve.append(sum(vals) / len(vals))
-        vp.criterion_vs_n(Path(args.plots) / "plan_criterion.png", ns, plan.history, rand_curve,
+        vp.criterion_vs_n(Path(args.plots) / PNGS[1], ns, plan.history, rand_curve,
                           args.criterion, force=args.force)
         print(f"wrote {args.plots}/plan_poses.png, plan_criterion.png")
     return 0

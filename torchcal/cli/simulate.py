@@ -3,16 +3,20 @@
     torchcal simulate --robot kr1000titan --effects joint_compliance:2,3 thermal_expansion \\
         --n 60 --repeats 3 --noise 0.02 --seed 0 --out data.csv [--truth truth.json]
 
-Draws N random poses inside the joint limits (seed S), builds a `torchcal.simulation.virtual_robot.VirtualRobot`
+Draws N random poses inside the joint limits (seed P), builds a `torchcal.simulation.virtual_robot.VirtualRobot`
 with hidden geometric deviations and the chosen effects (seed S), measures each pose K
-times with isotropic Gaussian noise of MM mm (1 sigma per axis) and writes the CSV
-atomically (an existing file is only replaced with --force). The session writes the
+times with isotropic Gaussian noise of MM mm (1 sigma per axis; session seed P) and writes
+the CSV atomically (an existing file is only replaced with --force). The session writes the
 ``payload_kg`` / ``temp_c`` columns when an effect depends on them. The same arguments
 give a byte-identical file.
 
+``--pose-seed P`` (default: S) draws fresh poses and a fresh session of the same simulated
+robot: ``--seed 0 --out train.csv`` and ``--seed 0 --pose-seed 1 --out test.csv`` are a
+training and a held-out set of one robot; ``--seed 1`` is another robot.
+
 ``--truth FILE`` writes the true parameters as JSON: ``{"robot", "seed", "effects",
-"parameters": {name: {"value", "unit"}}}`` with values in the model's units (mm, rad, ...;
-see `CalibrationModel.param_units`).
+"parameters": {name: {"value", "unit"}}}`` with values in the units of MODEL.json (mm,
+deg, ...; `torchcal.io.modelfile.file_unit`).
 """
 
 from __future__ import annotations
@@ -34,7 +38,11 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    help="measurements per pose K (default 1)")
     p.add_argument("--noise", type=nonneg_float, default=0.02,
                    help="measurement noise, mm (1 sigma per axis; default 0.02)")
-    p.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the simulated robot and, without "
+                   "--pose-seed, of the poses and the session (default 0)")
+    p.add_argument("--pose-seed", type=int, default=None, metavar="P",
+                   help="seed of the poses and the measurement session (default: --seed); another P: "
+                        "fresh poses of the same robot")
     p.add_argument("--out", required=True, help="output measurement CSV")
     p.add_argument("--truth", default=None, help="also write the true parameters (JSON)")
     add_force(p)
@@ -57,13 +65,18 @@ def run(args) -> int:
     check_outputs([("--out", args.out), ("--truth", args.truth)], args.force)
     out, truth = Path(args.out), Path(args.truth) if args.truth else None
 
-    q = random_poses(robot, args.n, torch.Generator().manual_seed(args.seed))
+    pose_seed = args.seed if args.pose_seed is None else args.pose_seed
+    q = random_poses(robot, args.n, torch.Generator().manual_seed(pose_seed))
     vr = VirtualRobot(robot, specs, seed=args.seed)
-    m = vr.measure(q, repeats=args.repeats, noise_mm=args.noise)
+    # the session's seed as VirtualRobot.measure derives it from its own seed (same file without --pose-seed)
+    m = vr.measure(q, repeats=args.repeats, noise_mm=args.noise, seed=pose_seed * 1_000_003 + 17)
     write_measurements(out, m, force=args.force, robot=robot)
     if truth is not None:
-        names, units = vr.model.param_names(), vr.model.param_units()
-        values = vr.theta.detach().cpu().tolist()
+        from torchcal.io.modelfile import file_units
+
+        names = vr.model.param_names()
+        units, k = file_units(vr.model)  # degrees and mm, as MODEL.json
+        values = (vr.theta.detach().to("cpu", torch.float64) * k).tolist()
         write_json(truth, {
             "robot": robot.name,
             "seed": args.seed,
@@ -74,5 +87,5 @@ def run(args) -> int:
     extra = f" (+ {', '.join(cols)})" if cols else ""
     print(f"simulate: {robot.name}, effects [{' '.join(specs) or 'none'}], {args.n} poses x "
           f"{args.repeats} repeats = {len(m)} rows{extra}, noise {args.noise:g} mm, "
-          f"seed {args.seed} -> {out}" + (f"; truth -> {truth}" if truth else ""))
+          f"seed {args.seed}" + (f", pose seed {pose_seed}" if args.pose_seed is not None else "") + f" -> {out}" + (f"; truth -> {truth}" if truth else ""))
     return 0

@@ -382,7 +382,7 @@ def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_m
             sweep runs (and restored after): the workers use the cores instead. Results do
             not depend on it.
         device, dtype: where and in which float type to compute (float64 default).
-        progress: tqdm progress bar on stderr.
+        progress: tqdm progress bar on stderr (only when stderr is a terminal).
 
     Returns:
         SweepResult (tensors on `device`).
@@ -422,7 +422,7 @@ def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_m
     threads = threads or (1 if gpu else torch.get_num_threads())
     lin_lo = lin_hi = lin_far = rs_axis = et_axis = None
     with _serial_ops(not gpu):
-        with tqdm(total=q.shape[0], unit="pt", desc="sweep", file=sys.stderr, disable=not progress,
+        with tqdm(total=q.shape[0], unit="pt", desc="sweep", file=sys.stderr, disable=None if progress else True,
                   dynamic_ncols=True) as bar:
             e_lo, e_hi, d_lo, d_hi = _envelope(rb, q, deviations, include_nominal, chunk, bar, threads)
         if linear:

@@ -18,7 +18,8 @@
 MD-H link transform A_i = Rz(theta) Tz(d) Tx(a) Rx(alpha) Ry(beta). A revolute joint's q
 (rad inside, degrees in files) adds to theta; a prismatic joint's q (mm) adds to d.
 Unknown keys are errors (a typo must not be ignored); every error is one line naming the
-file and the key.
+file and the key. Provenance and notes are free: the keys "notes" and "source" and any key
+that starts with "x_" (at the top level and in a joint) are accepted and ignored.
 """
 
 from __future__ import annotations
@@ -34,6 +35,12 @@ from torchcal.robots.robot import Robot
 JOINT_KEYS = {"type", "theta_offset_deg", "d_mm", "a_mm", "alpha_deg", "beta_deg", "lower", "upper"}
 TOP_KEYS = {"name", "joints", "base", "tool", "payload_kg", "gravity", "urdf", "effects", "clearance"}
 URDF_KEYS = {"path", "base_link", "tip_link"}
+NOTE_KEYS = {"notes", "source"}  # free provenance / notes, with any key starting "x_"
+
+
+def _unknown(obj: dict, known: set) -> list[str]:
+    """Keys of `obj` that are neither `known` nor notes (NOTE_KEYS, "x_..."), sorted."""
+    return sorted(k for k in set(obj) - known - NOTE_KEYS if not str(k).startswith("x_"))
 
 
 def _num(where: str, key: str, v) -> float:
@@ -63,9 +70,10 @@ def robot_from_dict(obj, where: str = "robot file") -> Robot:
     `where` names the source in error messages (the file path)."""
     if not isinstance(obj, dict):
         raise InputError(f"{where}: expected a JSON object with keys name, joints[, base, tool, payload_kg, gravity]")
-    unknown = sorted(set(obj) - TOP_KEYS)
+    unknown = _unknown(obj, TOP_KEYS)
     if unknown:
-        raise InputError(f"{where}: unknown key(s) {', '.join(unknown)}; expected {', '.join(sorted(TOP_KEYS))}")
+        raise InputError(f"{where}: unknown key(s) {', '.join(unknown)}; expected {', '.join(sorted(TOP_KEYS))} "
+                         f"(notes: {', '.join(sorted(NOTE_KEYS))} or any key starting with x_)")
     for key in ("name", "joints"):
         if key not in obj:
             raise InputError(f"{where}: missing key {key!r}")
@@ -80,10 +88,11 @@ def robot_from_dict(obj, where: str = "robot file") -> Robot:
         key = f"joints[{i}]"  # 1-based, as joints are numbered everywhere else
         if not isinstance(j, dict):
             raise InputError(f"{where}: {key}: expected an object")
-        unknown = sorted(set(j) - JOINT_KEYS)
+        unknown = _unknown(j, JOINT_KEYS)
         if unknown:
             raise InputError(f"{where}: {key}: unknown key(s) {', '.join(unknown)}; "
-                             f"expected {', '.join(sorted(JOINT_KEYS))}")
+                             f"expected {', '.join(sorted(JOINT_KEYS))} "
+                             f"(notes: {', '.join(sorted(NOTE_KEYS))} or any key starting with x_)")
         missing = [k for k in ("type", "theta_offset_deg", "d_mm", "a_mm", "alpha_deg", "lower", "upper") if k not in j]
         if missing:
             raise InputError(f"{where}: {key}: missing key(s) {', '.join(missing)}")
@@ -160,6 +169,10 @@ def load_robot_file(path) -> Robot:
     """The `Robot` of the robot file at `path`; one InputError line naming file and key."""
     from torchcal.io.files import read_json
 
+    p = Path(path)
+    if p.suffix.lower() in (".urdf", ".xacro", ".xml") or (p.is_file() and p.read_bytes()[:200].lstrip().startswith(b"<")):
+        raise InputError(f"{path}: this is a URDF (XML), not a torchcal robot file (JSON); convert it first: "
+                         f"torchcal robot import {path} --base BASE_LINK --tip TIP_LINK --out ROBOT.json")
     return robot_from_dict(read_json(path, "robot file"), str(path))
 
 

@@ -63,10 +63,14 @@ def _origin(el, where) -> torch.Tensor:
 
 def _chain_joint_names(path: Path, base_link: str, tip_link: str) -> list[str]:
     """Joint names from base to tip (fixed ones included), by pytorch-kinematics."""
+    import io
+    from contextlib import redirect_stderr
+
     import pytorch_kinematics as pk
 
-    try:
-        chain = pk.build_serial_chain_from_urdf(path.read_bytes(), tip_link, base_link)
+    try:  # its parser prints 'Unknown attribute / tag' for every non-kinematic URDF element: silenced
+        with redirect_stderr(io.StringIO()):
+            chain = pk.build_serial_chain_from_urdf(path.read_bytes(), tip_link, base_link)
     except Exception as exc:  # pk raises ValueError / KeyError / AttributeError
         raise InputError(f"{path}: no serial chain from {base_link!r} to {tip_link!r}: {exc}") from None
     frames = chain._serial_frames

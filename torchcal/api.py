@@ -31,7 +31,7 @@ from torchcal.errors import InputError
 from torchcal.measurements import Measurements
 from torchcal.robots.robot import Robot, robot as make_robot
 
-__all__ = ["fit", "evaluate", "diagnose", "discover", "calibrate", "compensate", "Evaluation"]
+__all__ = ["fit", "evaluate", "diagnose", "discover", "calibrate", "compensate", "register", "Evaluation"]
 
 
 def _robot(robot_or_model) -> Robot:
@@ -74,6 +74,13 @@ def _q_range(model_or_fit, cm: CalibrationModel):
     if isinstance(model_or_fit, FitResult):
         return model_or_fit.q_range
     return getattr(cm, "calibrated_range", None)
+
+
+def _training_rms(model_or_fit, cm: CalibrationModel):
+    """RMS mm of the fit a model came from (None when unknown)."""
+    if isinstance(model_or_fit, FitResult):
+        return model_or_fit.rms_mm
+    return getattr(cm, "training_rms_mm", None)
 
 
 def _warn_range(q: torch.Tensor, q_range, robot: Robot, what: str) -> int:
@@ -156,6 +163,9 @@ class Evaluation:
 def evaluate(model, measurements) -> Evaluation:
     """Errors of a fitted model (FitResult, MODEL.json path or (model, theta)) on measurements.
 
+    Data that cannot come from the model (another robot, a moved measuring frame, units;
+    `torchcal.calibration.mismatch`) are refused with one InputError line.
+
     Rows outside the model's calibrated joint range are counted (``outside_range``) and
     named in one `CalibratedRangeWarning` (the model extrapolates there)."""
     import math
@@ -163,11 +173,14 @@ def evaluate(model, measurements) -> Evaluation:
     from torchcal.calibration.fit import _so3_error
     from torchcal.effects import context_of
 
+    from torchcal.calibration.mismatch import check_measurements, enforce
+
     cm, theta = _fitted(model)
     m = _measurements(measurements, cm.robot)
     ctx = context_of(cm.robot, m)
     cm.check_context(ctx)
     theta = theta.to(m.xyz)
+    enforce(check_measurements(cm, theta, m, _training_rms(model, cm)))  # another robot, frame, units
     err = m.xyz - cm.predict(theta, ctx)  # (N, 3) mm
     d = err.norm(dim=-1)
     orient = None
@@ -183,12 +196,32 @@ def evaluate(model, measurements) -> Evaluation:
 
 def diagnose(robot_or_model, measurements, effects=(), folds: int = 5, seed: int = 0, **options):
     """Rank the physical effects missing from the model (`torchcal.diagnosis.diagnose.diagnose`);
-    a `CalibrationModel` contributes its robot and effects. Returns a `Diagnosis`."""
+    a `CalibrationModel` contributes its robot and effects. Returns a `Diagnosis`.
+
+    Data that no registration of the model (a `FitResult`) or of the nominal robot brings
+    near the measurements are refused (InputError: another robot, units); a fitted model
+    whose measuring frame moved gives a `MismatchWarning` (the diagnosis refits the frame)."""
     from torchcal.diagnosis.diagnose import diagnose as run
 
     model = _model(robot_or_model, effects)
-    return run(model.robot, _measurements(measurements, model.robot), model.specs(), folds=folds, seed=seed,
-               **options)
+    m = _measurements(measurements, model.robot)
+    check_diagnosis_data(robot_or_model, model, m)
+    return run(model.robot, m, model.specs(), folds=folds, seed=seed, **options)
+
+
+def check_diagnosis_data(robot_or_model, model: CalibrationModel, m: Measurements, theta=None):
+    """The gross-mismatch check of `diagnose`: a fitted model (FitResult, or `theta`) as it
+    is, else the nominal robot registered (`torchcal.calibration.mismatch`)."""
+    from torchcal.calibration.mismatch import check_measurements, enforce
+
+    if isinstance(robot_or_model, FitResult):
+        theta = robot_or_model.theta
+    fitted = theta is not None
+    train = _training_rms(robot_or_model, model) if fitted else None
+    res = check_measurements(model, model.zeros() if theta is None else theta, m, train)
+    if not fitted and res.verdict == "frame":
+        return res  # a nominal robot in the instrument's frame: what base_frame is for
+    return enforce(res, refuse_frame=False, refuse_mismatch=True)
 
 
 def discover(robot_or_model, measurements, effects=(), folds: int = 5, seed: int = 0, **options):
@@ -220,14 +253,16 @@ def calibrate(robot_or_model, measurements, effects=(), partition=None, zone_met
     return im
 
 
-def compensate(model, targets, q0=None, **options):
+def compensate(model, targets, q0=None, *, check: bool = True, **options):
     """Corrected joint commands (M, n) rad for target positions (M, 3) mm.
 
     model: a fitted model (FitResult, MODEL.json path, (model, theta)) or an
     `IntervalModel` (targets assigned to its zones). q0: (M, n) rad starting commands,
     default the nominal inverse from the middle of the joint limits. Returns a
     `Compensation`; converged solutions outside the model's calibrated joint range are
-    counted (``outside_range``) and named in one `CalibratedRangeWarning`.
+    counted (``outside_range``) and named in one `CalibratedRangeWarning`. check: targets
+    inside the robot's base (metres read as mm) are refused, targets beyond its reach
+    named in a `MismatchWarning` (`torchcal.calibration.mismatch.check_targets`).
     """
     from torchcal.calibration.compensate import compensate as run, nominal_inverse
     from torchcal.calibration.intervals import IntervalModel
@@ -242,6 +277,9 @@ def compensate(model, targets, q0=None, **options):
     t = torch.as_tensor(targets, dtype=robot.dtype, device=robot.device)
     if t.ndim != 2 or t.shape[-1] != 3:
         raise InputError(f"targets: expected (M, 3) mm, got shape {tuple(t.shape)}")
+    if check:
+        from torchcal.calibration.mismatch import check_targets
+        check_targets(cm, theta if theta.ndim == 1 else theta[0], t)
     if q0 is None:
         q0 = nominal_inverse(robot, t).q
     zone = model.assign(t) if isinstance(model, IntervalModel) else None
@@ -250,3 +288,75 @@ def compensate(model, targets, q0=None, **options):
         return comp
     outside = _warn_range(comp.q[comp.converged], q_range, robot, "converged targets")
     return replace(comp, outside_range=outside)
+
+
+def register(model, measurements, *, tool: bool = False) -> FitResult:
+    """Re-estimate only the measuring frame of a fitted model on new measurements: the
+    base frame, and the tool offset when `tool` (`torchcal.calibration.registration.reregister`).
+
+    model: a fitted model (FitResult, MODEL.json path or (CalibrationModel, theta)),
+    whose geometry, effects, covariance and calibrated joint range are kept; or a robot
+    (preset name, robot file, `Robot`): a registration-only model (nominal geometry in
+    the best frame), calibrated on these rows. Data that no frame brings near the model
+    (another robot, units) are refused (InputError, `torchcal.calibration.mismatch`).
+    Returns a `FitResult` whose ``rms_mm`` and ``residuals`` are those on `measurements`
+    and whose ``registration`` records the frame and the rms before and after.
+    """
+    from torchcal.calibration.joint_range import joint_range
+    from torchcal.calibration.mismatch import check_measurements, enforce
+    from torchcal.calibration.registration import reregister
+    from torchcal.effects import context_of
+
+    if _is_model(model):
+        cm, theta = _fitted(model)
+        train = _training_rms(model, cm)
+        cov = identified = None
+        if isinstance(model, FitResult):
+            cov, identified = model.covariance, model.report.free
+        elif isinstance(model, (str, Path)):
+            cov, identified = _file_covariance(model, cm)
+        q_range = _q_range(model, cm)
+    else:
+        robot = _robot(model)
+        cm, theta, train, cov, identified, q_range = CalibrationModel(robot), None, None, None, None, None
+    m = _measurements(measurements, cm.robot)
+    if theta is None:  # registration only: the nominal robot, calibrated on these rows
+        cm = CalibrationModel.for_measurements(cm.robot, ["base_frame"] + (["tool_offset"] if tool else []), m)
+        theta, identified, q_range = cm.zeros(), torch.zeros(cm.n_params, dtype=torch.bool), joint_range(m.q)
+    ctx = context_of(cm.robot, m)
+    cm.check_context(ctx)
+    if len(m) < 3:
+        raise InputError(f"{m.source or 'measurements'}: registration needs at least 3 rows, got {len(m)}")
+    res = reregister(cm, theta.to(m.xyz), ctx, m.xyz, tool=tool, pose=m.pose, covariance=cov,
+                     identified=identified, q_range=q_range)
+    enforce(check_measurements(res.model, res.theta, m, train))  # still off: another robot, units
+    return res
+
+
+def _is_model(obj) -> bool:
+    """True for a fitted model (FitResult, (model, theta), a MODEL.json path), False for a robot."""
+    if isinstance(obj, (FitResult, tuple)):
+        return True
+    if isinstance(obj, (str, Path)) and str(obj).endswith(".json") and Path(obj).is_file():
+        from torchcal.io.files import read_json
+        from torchcal.io.modelfile import FORMAT
+
+        return read_json(obj, "model or robot file").get("format") == FORMAT
+    return False
+
+
+def _file_covariance(path, cm: CalibrationModel):
+    """(ParameterCovariance or None, identified (P,) bool) of a MODEL.json."""
+    from torchcal.calibration.uncertainty import ParameterCovariance
+    from torchcal.io.files import read_json
+    from torchcal.io.modelfile import load_covariance
+
+    obj = read_json(path, "model file")
+    identified = torch.tensor([bool(p.get("identified", True)) for p in obj["parameters"]])
+    c = obj.get("covariance")
+    try:
+        cov = load_covariance(path, cm)
+    except InputError:
+        return None, identified
+    return ParameterCovariance(cov, int(c.get("dof", 1)), float(c.get("sigma_mm", 0.0)), str(c.get("method", "rows")),
+                               c.get("noise_mm"), c.get("pose_mm")), identified

@@ -174,6 +174,9 @@ def run(args) -> int:
             need = "column temp_c" if e.name == "thermal_expansion" else str(exc)
             raise InputError(f"{args.targets}: the model's effect {e.spec()} needs {need} "
                              f"in the targets, which they lack") from None
+    from torchcal.calibration.mismatch import MismatchWarning, check_targets
+    with warnings_to_stderr(MismatchWarning):  # metres read as mm: refused; beyond the reach: one line
+        check_targets(im.model, im.theta[0], targets, where=str(args.targets))
     if seeds_deg is None:
         ni = nominal_inverse(robot, targets, default_seeds(robot, targets))
         q0 = ni.q
@@ -185,7 +188,7 @@ def run(args) -> int:
         q0 = robot.q_from_user(seeds_deg)  # deg, mm for a prismatic joint
     # converged solutions outside the calibrated joint range: one warning line
     with warnings_to_stderr(CalibratedRangeWarning):
-        comp = compensate(im, targets, q0, payload_kg=cond["payload_kg"], temp_c=cond["temp_c"])
+        comp = compensate(im, targets, q0, check=False, payload_kg=cond["payload_kg"], temp_c=cond["temp_c"])
     zone = im.assign(targets)  # the zone each target was compensated in (for Q.csv)
     qd = robot.q_to_user(comp.q)
     res = comp.residual_mm.norm(dim=-1)

@@ -175,8 +175,10 @@ def run(args) -> int:
             raise InputError(f"{args.targets}: the model's effect {e.spec()} needs {need} "
                              f"in the targets, which they lack") from None
     from torchcal.calibration.mismatch import MismatchWarning, check_targets
-    with warnings_to_stderr(MismatchWarning):  # metres read as mm: refused; beyond the reach: one line
-        check_targets(im.model, im.theta[0], targets, where=str(args.targets))
+    import warnings
+    with warnings.catch_warnings():  # metres read as mm: refused; beyond the reach: named in the failure line
+        warnings.simplefilter("ignore", MismatchWarning)
+        far = check_targets(im.model, im.theta[0], targets, where=str(args.targets))
     if seeds_deg is None:
         ni = nominal_inverse(robot, targets, default_seeds(robot, targets))
         q0 = ni.q
@@ -209,7 +211,8 @@ def run(args) -> int:
         def rows(ix):
             return ", ".join(map(str, [i + 1 for i in ix][:20])) + (" ..." if len(ix) > 20 else "")
         parts = ([f"not converged: target(s) {rows(bad_conv)}"] if bad_conv else []) + \
-                ([f"outside the joint limits: target(s) {rows(out_lim)}"] if out_lim else [])
+                ([f"outside the joint limits: target(s) {rows(out_lim)}"] if out_lim else []) + \
+                ([f"beyond the reach of {robot.name}: target(s) {rows(far)}"] if far else [])
         sys.stderr.write(f"torchcal compensate: error: {len(set(bad_conv) | set(out_lim))} target(s) failed "
                          f"({'; '.join(parts)}); see {args.out}\n")
         return 1

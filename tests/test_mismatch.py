@@ -149,3 +149,13 @@ def test_cli_compensate_metres(ur10, tmp_path, capsys):
     rc = main(["compensate", str(tmp_path / "t.csv"), "--model", str(tmp_path / "m.json"),
                "--out", str(tmp_path / "q.csv"), "--length-unit", "m"])
     assert rc == 0 and math.isfinite(float((tmp_path / "q.csv").read_text().splitlines()[1].split(",")[-3]))
+
+
+def test_cli_diagnose_refuses_another_robot(tmp_path, capsys):
+    from torchcal.cli import main
+
+    write_measurements(tmp_path / "titan.csv", titan_data(), robot=torchcal.robot("kr1000titan"))
+    rc = main(["diagnose", str(tmp_path / "titan.csv"), "--robot", str(UR10), "--effects", "base_frame",
+               "--json", str(tmp_path / "d.json")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "cannot come from" in err and err.count("\n") == 1 and not (tmp_path / "d.json").exists()

@@ -1,5 +1,5 @@
 """The one way in: ``torchcal.fit(robot_or_model, measurements, effects=...)`` and the same
-shape for `evaluate`, `diagnose`, `discover`, `calibrate` and `compensate`.
+shape for `evaluate`, `diagnose`, `discover`, `calibrate`, `compensate` and `register`.
 
 Forgiving entry, strict kernels: the first argument may be a preset name or robot file
 (``"kr1000titan"``), a `Robot`, a `CalibrationModel` or a fitted model (`FitResult`, or a

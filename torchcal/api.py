@@ -211,17 +211,25 @@ def diagnose(robot_or_model, measurements, effects=(), folds: int = 5, seed: int
 
 def check_diagnosis_data(robot_or_model, model: CalibrationModel, m: Measurements, theta=None):
     """The gross-mismatch check of `diagnose`: a fitted model (FitResult, or `theta`) as it
-    is, else the nominal robot registered (`torchcal.calibration.mismatch`)."""
+    is, else the nominal robot in its best frame (and with its best tool offsets when the
+    model fits them; `torchcal.calibration.mismatch`)."""
     from torchcal.calibration.mismatch import check_measurements, enforce
 
     if isinstance(robot_or_model, FitResult):
         theta = robot_or_model.theta
-    fitted = theta is not None
-    train = _training_rms(robot_or_model, model) if fitted else None
-    res = check_measurements(model, model.zeros() if theta is None else theta, m, train)
-    if not fitted and res.verdict == "frame":
-        return res  # a nominal robot in the instrument's frame: what base_frame is for
-    return enforce(res, refuse_frame=False, refuse_mismatch=True)
+    if theta is not None:
+        res = check_measurements(model, theta, m, _training_rms(robot_or_model, model))
+        return enforce(res, refuse_frame=False, refuse_mismatch=True)
+    from torchcal.calibration.registration import reregister
+    from torchcal.effects import context_of
+
+    cm = CalibrationModel.for_measurements(model.robot, model.specs(), m)
+    try:
+        reg = reregister(cm, cm.zeros(), context_of(cm.robot, m), m.xyz, pose=m.pose,
+                         tool=any(e.name == "tool_offset" for e in cm.effects))
+    except InputError:
+        return None  # too few rows, missing columns: the diagnosis says it in its own words
+    return enforce(check_measurements(reg.model, reg.theta, m), refuse_frame=False, refuse_mismatch=True)
 
 
 def discover(robot_or_model, measurements, effects=(), folds: int = 5, seed: int = 0, **options):

@@ -1,5 +1,5 @@
 """The one way in: ``torchcal.fit(robot_or_model, measurements, effects=...)`` and the same
-shape for `evaluate`, `diagnose`, `discover`, `calibrate` and `compensate`.
+shape for `evaluate`, `diagnose`, `discover`, `calibrate`, `compensate` and `register`.
 
 Forgiving entry, strict kernels: the first argument may be a preset name or robot file
 (``"kr1000titan"``), a `Robot`, a `CalibrationModel` or a fitted model (`FitResult`, or a
@@ -31,7 +31,7 @@ from torchcal.errors import InputError
 from torchcal.measurements import Measurements
 from torchcal.robots.robot import Robot, robot as make_robot
 
-__all__ = ["fit", "evaluate", "diagnose", "discover", "calibrate", "compensate", "Evaluation"]
+__all__ = ["fit", "evaluate", "diagnose", "discover", "calibrate", "compensate", "register", "Evaluation"]
 
 
 def _robot(robot_or_model) -> Robot:
@@ -81,6 +81,13 @@ def _tool_rotation(model_or_fit, cm: CalibrationModel):
     if isinstance(model_or_fit, FitResult):
         return None if model_or_fit.orientation is None else model_or_fit.orientation["tool_rotation"]
     return getattr(cm, "tool_rotation", None)
+
+
+def _training_rms(model_or_fit, cm: CalibrationModel):
+    """RMS mm of the fit a model came from (None when unknown)."""
+    if isinstance(model_or_fit, FitResult):
+        return model_or_fit.rms_mm
+    return getattr(cm, "training_rms_mm", None)
 
 
 def _warn_range(q: torch.Tensor, q_range, robot: Robot, what: str) -> int:
@@ -177,6 +184,9 @@ class Evaluation:
 def evaluate(model, measurements) -> Evaluation:
     """Errors of a fitted model (FitResult, MODEL.json path or (model, theta)) on measurements.
 
+    Data that cannot come from the model (another robot, a moved measuring frame, units;
+    `torchcal.calibration.mismatch`) are refused with one InputError line.
+
     Rows outside the model's calibrated joint range are counted (``outside_range``) and
     named in one `CalibratedRangeWarning` (the model extrapolates there)."""
     import math
@@ -184,11 +194,14 @@ def evaluate(model, measurements) -> Evaluation:
     from torchcal.rotations import so3_error
     from torchcal.effects import context_of
 
+    from torchcal.calibration.mismatch import check_measurements, enforce
+
     cm, theta = _fitted(model)
     m = _measurements(measurements, cm.robot)
     ctx = context_of(cm.robot, m)
     cm.check_context(ctx)
     theta = theta.to(m.xyz)
+    enforce(check_measurements(cm, theta, m, _training_rms(model, cm)))  # another robot, frame, units
     err = m.xyz - cm.predict(theta, ctx)  # (N, 3) mm
     d = err.norm(dim=-1)
     orient = orient_rows = None
@@ -218,12 +231,40 @@ def diagnose(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     a `CalibrationModel` contributes its robot and effects. folds: cross-validation folds;
     seed: random seed of the fold assignment; alpha: family-wise error level of the tests,
     min_gain: least relative gain in held-out error for an effect to count (None: the
-    defaults of `torchcal.diagnosis`). Returns a `Diagnosis`."""
+    defaults of `torchcal.diagnosis`). Returns a `Diagnosis`.
+
+    Data that no registration of the model (a `FitResult`) or of the nominal robot brings
+    near the measurements are refused (InputError: another robot, units); a fitted model
+    whose measuring frame moved gives a `MismatchWarning` (the diagnosis refits the frame)."""
     from torchcal.diagnosis.diagnose import diagnose as run
 
     model = _model(robot_or_model, effects)
-    return run(model.robot, _measurements(measurements, model.robot), model.specs(), folds=folds, seed=seed,
-               **_set(alpha=alpha, min_gain=min_gain))
+    m = _measurements(measurements, model.robot)
+    check_diagnosis_data(robot_or_model, model, m)
+    return run(model.robot, m, model.specs(), folds=folds, seed=seed, **_set(alpha=alpha, min_gain=min_gain))
+
+
+def check_diagnosis_data(robot_or_model, model: CalibrationModel, m: Measurements, theta=None):
+    """The gross-mismatch check of `diagnose`: a fitted model (FitResult, or `theta`) as it
+    is, else the nominal robot in its best frame (and with its best tool offsets when the
+    model fits them; `torchcal.calibration.mismatch`)."""
+    from torchcal.calibration.mismatch import check_measurements, enforce
+
+    if isinstance(robot_or_model, FitResult):
+        theta = robot_or_model.theta
+    if theta is not None:
+        res = check_measurements(model, theta, m, _training_rms(robot_or_model, model))
+        return enforce(res, refuse_frame=False, refuse_mismatch=True)
+    from torchcal.calibration.registration import reregister
+    from torchcal.effects import context_of
+
+    cm = CalibrationModel.for_measurements(model.robot, model.specs(), m)
+    try:
+        reg = reregister(cm, cm.zeros(), context_of(cm.robot, m), m.xyz, pose=m.pose,
+                         tool=any(e.name == "tool_offset" for e in cm.effects))
+    except InputError:
+        return None  # too few rows, missing columns: the diagnosis says it in its own words
+    return enforce(check_measurements(reg.model, reg.theta, m), refuse_frame=False, refuse_mismatch=True)
 
 
 def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: int = 0,
@@ -258,7 +299,7 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
 
 
 def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int = 30, max_step_rad: float = 0.2,
-               payload_kg=None, temp_c=None):
+               payload_kg=None, temp_c=None, check: bool = True):
     """Corrected joint commands (M, n) rad for target positions (M, 3) mm.
 
     model: a fitted model (FitResult, MODEL.json path, (model, theta)) or an
@@ -268,7 +309,9 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
     max_iter, max_step_rad: the Newton solve (`torchcal.calibration.compensate.compensate`);
     payload_kg, temp_c: (M,) conditions of the moves, for load and temperature effects. Returns a
     `Compensation`; converged solutions outside the model's calibrated joint range are
-    counted (``outside_range``) and named in one `CalibratedRangeWarning`.
+    counted (``outside_range``) and named in one `CalibratedRangeWarning`. check: targets
+    inside the robot's base (metres read as mm) are refused, targets beyond its reach
+    named in a `MismatchWarning` (`torchcal.calibration.mismatch.check_targets`).
     """
     from torchcal.calibration.compensate import compensate as run, nominal_start
     from torchcal.calibration.intervals import IntervalModel
@@ -283,6 +326,9 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
     t = torch.as_tensor(targets, dtype=robot.dtype, device=robot.device)
     if t.ndim != 2 or t.shape[-1] != 3:
         raise InputError(f"targets: expected (M, 3) mm, got shape {tuple(t.shape)}")
+    if check:
+        from torchcal.calibration.mismatch import check_targets
+        check_targets(cm, theta if theta.ndim == 1 else theta[0], t)
     if q0 is None:
         q0 = nominal_start(robot, t)
     zone = model.assign(t) - 1 if isinstance(model, IntervalModel) else None  # row of theta
@@ -292,3 +338,75 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
         return comp
     outside = _warn_range(comp.q[comp.converged], q_range, robot, "converged targets")
     return replace(comp, outside_range=outside)
+
+
+def register(model, measurements, *, tool: bool = False) -> FitResult:
+    """Re-estimate only the measuring frame of a fitted model on new measurements: the
+    base frame, and the tool offset when `tool` (`torchcal.calibration.registration.reregister`).
+
+    model: a fitted model (FitResult, MODEL.json path or (CalibrationModel, theta)),
+    whose geometry, effects, covariance and calibrated joint range are kept; or a robot
+    (preset name, robot file, `Robot`): a registration-only model (nominal geometry in
+    the best frame), calibrated on these rows. Data that no frame brings near the model
+    (another robot, units) are refused (InputError, `torchcal.calibration.mismatch`).
+    Returns a `FitResult` whose ``rms_mm`` and ``residuals`` are those on `measurements`
+    and whose ``registration`` records the frame and the rms before and after.
+    """
+    from torchcal.calibration.joint_range import joint_range
+    from torchcal.calibration.mismatch import check_measurements, enforce
+    from torchcal.calibration.registration import reregister
+    from torchcal.effects import context_of
+
+    if _is_model(model):
+        cm, theta = _fitted(model)
+        train = _training_rms(model, cm)
+        cov = identified = None
+        if isinstance(model, FitResult):
+            cov, identified = model.covariance, model.report.free
+        elif isinstance(model, (str, Path)):
+            cov, identified = _file_covariance(model, cm)
+        q_range = _q_range(model, cm)
+    else:
+        robot = _robot(model)
+        cm, theta, train, cov, identified, q_range = CalibrationModel(robot), None, None, None, None, None
+    m = _measurements(measurements, cm.robot)
+    if theta is None:  # registration only: the nominal robot, calibrated on these rows
+        cm = CalibrationModel.for_measurements(cm.robot, ["base_frame"] + (["tool_offset"] if tool else []), m)
+        theta, identified, q_range = cm.zeros(), torch.zeros(cm.n_params, dtype=torch.bool), joint_range(m.q)
+    ctx = context_of(cm.robot, m)
+    cm.check_context(ctx)
+    if len(m) < 3:
+        raise InputError(f"{m.source or 'measurements'}: registration needs at least 3 rows, got {len(m)}")
+    res = reregister(cm, theta.to(m.xyz), ctx, m.xyz, tool=tool, pose=m.pose, covariance=cov,
+                     identified=identified, q_range=q_range)
+    enforce(check_measurements(res.model, res.theta, m, train))  # still off: another robot, units
+    return res
+
+
+def _is_model(obj) -> bool:
+    """True for a fitted model (FitResult, (model, theta), a MODEL.json path), False for a robot."""
+    if isinstance(obj, (FitResult, tuple)):
+        return True
+    if isinstance(obj, (str, Path)) and str(obj).endswith(".json") and Path(obj).is_file():
+        from torchcal.io.files import read_json
+        from torchcal.io.modelfile import FORMAT
+
+        return read_json(obj, "model or robot file").get("format") == FORMAT
+    return False
+
+
+def _file_covariance(path, cm: CalibrationModel):
+    """(ParameterCovariance or None, identified (P,) bool) of a MODEL.json."""
+    from torchcal.calibration.uncertainty import ParameterCovariance
+    from torchcal.io.files import read_json
+    from torchcal.io.modelfile import load_covariance
+
+    obj = read_json(path, "model file")
+    identified = torch.tensor([bool(p.get("identified", True)) for p in obj["parameters"]])
+    c = obj.get("covariance")
+    try:
+        cov = load_covariance(path, cm)
+    except InputError:
+        return None, identified
+    return ParameterCovariance(cov, int(c.get("dof", 1)), float(c.get("sigma_mm", 0.0)), str(c.get("method", "rows")),
+                               c.get("noise_mm"), c.get("pose_mm")), identified

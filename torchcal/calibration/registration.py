@@ -8,9 +8,14 @@ points onto the measured ones (Kabsch / Umeyama without scale: SVD of the
 cross-covariance) and writes it into the model's `base_frame` parameters, so that the
 fit starts at the registered frame with every deviation of the robot at zero.
 
-The fit does the same for measured orientations: the constant rotation between the robot's
-nominal tool frame and the measured (e.g. T-Mac) frame, as the orthogonal Procrustes
-solution over all rows (`torchcal.rotations.procrustes_rotation`).
+`reregister` moves a fitted model to a new set-up: only the measuring frame (base frame,
+and the tool offset if asked) is estimated on new measurements, from the closed-form
+start, while the geometry, the effects, their covariance and the calibrated range stay
+(docs/registration.md).
+
+The fit does the same for measured orientations: the constant rotation between
+the robot's nominal tool frame and the measured (e.g. T-Mac) frame, as the orthogonal
+Procrustes solution over all rows (`torchcal.rotations.procrustes_rotation`).
 """
 
 from __future__ import annotations
@@ -69,3 +74,82 @@ def register_frame(model, ctx, xyz: torch.Tensor, theta0: torch.Tensor | None = 
     angle = math.degrees(math.acos(max(-1.0, min(1.0, (float(torch.trace(R)) - 1) / 2))))
     info["rotation_angle_deg"] = angle
     return theta, info
+
+
+def frame_slices(model, tool: bool = False) -> list:
+    """Slices of theta (P,) that carry the measuring frame: base_frame, and tool_offset
+    when `tool`."""
+    names = ("base_frame", "tool_offset") if tool else ("base_frame",)
+    return [sl for e, sl in zip(model.effects, model.slices[1:]) if e.name in names]
+
+
+def with_frame(model, theta: torch.Tensor, tool: bool = False):
+    """(model, theta) with base_frame (and tool_offset when `tool`) among the effects:
+    the model itself, or a copy with the missing effects appended at zero (the other
+    parameters keep their places)."""
+    from torchcal.calibration.model import CalibrationModel
+
+    have = {e.name for e in model.effects}
+    add = [n for n in (("base_frame", "tool_offset") if tool else ("base_frame",)) if n not in have]
+    if not add:
+        return model, theta
+    new = CalibrationModel(model.robot, [*model.effects, *add], points=model.points or None)
+    for attr in ("tool_rotation", "calibrated_range", "training_rms_mm"):
+        if hasattr(model, attr):
+            setattr(new, attr, getattr(model, attr))
+    return new, torch.cat([theta, theta.new_zeros(new.n_params - theta.shape[0])])
+
+
+def reregister(model, theta: torch.Tensor, ctx, xyz: torch.Tensor, *, tool: bool = False, pose=None,
+               covariance=None, identified=None, q_range=None):
+    """Re-estimate only the measuring frame of a fitted model on new measurements.
+
+    model, theta (P,): the fitted model; ctx, xyz (N, 3) mm: the new measurements (their
+    context). The base frame (and the tool offset when `tool`) starts at the closed-form
+    `register` and is refined by Levenberg-Marquardt with every other parameter fixed;
+    a model without base_frame (or tool_offset) gets it appended. covariance: the
+    model's `ParameterCovariance` (None: unknown); its rows and columns of the frame are
+    replaced by the registration's own estimate (no cross terms: the frame is estimated
+    from other data). identified: (P,) bool identified parameters of the model (default:
+    nonzero variance, else its default free set). q_range: the calibrated joint range
+    (2, n), kept.
+
+    Returns a `FitResult` on the registration data: ``registration`` holds
+    "rms_before_mm" (the model as it was), "closed_form_rms_mm", "rms_after_mm" and the
+    frame; ``rms_mm`` is the error on these data.
+    """
+    import dataclasses
+
+    from torchcal.calibration.fit import fit
+    from torchcal.calibration.uncertainty import ParameterCovariance
+
+    P0 = theta.shape[0]
+    model, theta = with_frame(model, theta.detach().to(xyz), tool)
+    with torch.no_grad():
+        before = float((model.predict(theta, ctx) - xyz).norm(dim=-1).pow(2).mean().sqrt())
+    start, info = register(model, ctx, xyz, theta)
+    free = torch.zeros(model.n_params, dtype=torch.bool)
+    for sl in frame_slices(model, tool):
+        free[sl] = True
+    res = fit(model, ctx, xyz, theta0=start, free=free, pose=pose, register=False,
+              max_length_mm=None, max_angle_deg=None)
+    if identified is None:
+        identified = (torch.diagonal(covariance.cov) > 0) if covariance is not None else \
+            model.default_free()[:P0]
+    ident = torch.zeros(model.n_params, dtype=torch.bool)
+    ident[:P0] = torch.as_tensor(identified, dtype=torch.bool).cpu()
+    ident[free] = res.report.free[free]
+    cov = res.covariance
+    if covariance is not None:
+        c = torch.zeros(model.n_params, model.n_params, dtype=torch.float64)
+        c[:P0, :P0] = covariance.cov.detach().to("cpu", torch.float64)
+        c[free, :] = 0.0
+        c[:, free] = 0.0
+        fb = free.nonzero().flatten()
+        c[fb[:, None], fb[None, :]] = res.covariance.cov.detach().to("cpu", torch.float64)[fb[:, None], fb[None, :]]
+        cov = dataclasses.replace(covariance, cov=c.to(theta))
+    info = {"rms_before_mm": before, "closed_form_rms_mm": info["rms_after_mm"], "rms_after_mm": res.rms_mm,
+            **base_frame_summary(model, res.theta), "n": int(xyz.shape[0]), "tool": bool(tool)}
+    return dataclasses.replace(res, std=cov.std, covariance=cov, report=dataclasses.replace(res.report, free=ident),
+                               registration=info, q_range=q_range, plausible_limits=None, implausible=[])
+

@@ -19,7 +19,7 @@ from torchcal.errors import InputError, OutputExistsError
 COMMANDS = (
     "demo", "simulate", "fit", "evaluate", "diagnose", "discover",
     "sweep", "partition", "calibrate", "compensate", "robot", "export",
-    "plan", "accuracy",
+    "plan", "accuracy", "register",
 )
 
 

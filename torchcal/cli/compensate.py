@@ -165,13 +165,18 @@ def run(args) -> int:
             need = "column temp_c" if e.name == "thermal_expansion" else str(exc)
             raise InputError(f"{args.targets}: the model's effect {e.spec()} needs {need} "
                              f"in the targets, which they lack") from None
+    from torchcal.calibration.mismatch import MismatchWarning, check_targets
+    import warnings
+    with warnings.catch_warnings():  # metres read as mm: refused; beyond the reach: named in the failure line
+        warnings.simplefilter("ignore", MismatchWarning)
+        far = check_targets(im.model, im.theta[0], targets, where=str(args.targets))
     if seeds_deg is None:
         q0 = nominal_start(robot, targets, where=str(args.targets))
     else:
         q0 = robot.q_from_user(seeds_deg)  # deg, mm for a prismatic joint
     # converged solutions outside the calibrated joint range: one warning line
     with warnings_to_stderr(CalibratedRangeWarning):
-        comp = compensate(im, targets, q0, payload_kg=cond["payload_kg"], temp_c=cond["temp_c"])
+        comp = compensate(im, targets, q0, check=False, payload_kg=cond["payload_kg"], temp_c=cond["temp_c"])
     zone = im.assign(targets)  # the zone each target was compensated in (for Q.csv)
     qd = robot.q_to_user(comp.q)
     res = comp.residual_mm.norm(dim=-1)
@@ -192,7 +197,8 @@ def run(args) -> int:
         def rows(ix):
             return ", ".join(map(str, [i + 1 for i in ix][:20])) + (" ..." if len(ix) > 20 else "")
         parts = ([f"not converged: target(s) {rows(bad_conv)}"] if bad_conv else []) + \
-                ([f"outside the joint limits: target(s) {rows(out_lim)}"] if out_lim else [])
+                ([f"outside the joint limits: target(s) {rows(out_lim)}"] if out_lim else []) + \
+                ([f"beyond the reach of {robot.name}: target(s) {rows(far)}"] if far else [])
         sys.stderr.write(f"torchcal compensate: error: {len(set(bad_conv) | set(out_lim))} target(s) failed "
                          f"({'; '.join(parts)}); see {args.out}\n")
         return 1

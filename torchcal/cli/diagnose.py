@@ -60,9 +60,15 @@ def run(args) -> int:
         raise InputError("--model and --effects both give the baseline effects; pass one of them")
     robot = make_robot(args.robot)
     # the baseline effects: the MODEL.json's (checked against --robot) or --effects
-    effects = modelfile.load(args.model, robot=robot)[0].specs() if args.model else args.effects or []
+    fitted = modelfile.load(args.model, robot=robot) if args.model else None
+    effects = fitted[0].specs() if args.model else args.effects or []
     m = read_data(args.data, robot, args)
-    d = api.diagnose(robot, m, effects, folds=args.folds, seed=args.seed)
+    from torchcal.calibration.mismatch import MismatchWarning
+    from torchcal.cli._args import warnings_to_stderr
+    with warnings_to_stderr(MismatchWarning):  # the model's own frame and error first, then the nominal robot's
+        if fitted is not None:
+            api.check_diagnosis_data(fitted, fitted[0], m, theta=fitted[1])
+        d = api.diagnose(robot, m, effects, folds=args.folds, seed=args.seed)
     print_table(d)
     if args.json:
         write_json(args.json, d.to_dict(), force=args.force, inputs=[args.data, args.model])

@@ -9,8 +9,15 @@ the calibrated geometry for a controller or a simulator.
   minimal URDF (links base_link, link1..linkN, tcp; `minimal_urdf`).
 - ``--table``: CSV ``joint,type,theta_offset_deg,d_mm,a_mm,alpha_deg,beta_deg,lower,upper``.
 
-Effects a URDF or an MD-H table cannot hold (compliance, backlash, gear, thermal...) are
-named on stderr and listed in the robot file under ``"effects"`` with their values.
+Effects a URDF or an MD-H table cannot hold (compliance, backlash, gear, thermal...): the
+model's MD-H deviations were fitted together with them and absorbed part of them, so its
+geometry alone is worse than the best geometry-only robot. With ``--data DATA.csv`` the
+geometry alone is refitted on DATA, starting from the model
+(torchcal.calibration.geometry_only), that geometry is exported, and one line gives the
+RMS on DATA of the exported robot alone, of the full model and of the model's geometry
+without its effects. Without ``--data`` the effects are listed in the robot file under
+``"effects"`` with their values and one line says that the exported geometry alone is
+worse and that by how much cannot be told without data.
 The model's first parameter set is exported (zone 1 of an interval model).
 """
 
@@ -19,9 +26,8 @@ from __future__ import annotations
 import math
 import sys
 
-from torchcal.cli._args import add_force, check_outputs
+from torchcal.cli._args import add_force, add_units, check_outputs
 
-FOLDED = ("base_frame", "tool_offset")
 
 
 def add_parser(sub):
@@ -31,6 +37,9 @@ def add_parser(sub):
     p.add_argument("--robot-file", help="write the calibrated robot file (.json) here")
     p.add_argument("--urdf", help="write the calibrated URDF here")
     p.add_argument("--table", help="write the calibrated MD-H table (CSV, deg and mm) here")
+    p.add_argument("--data", help="measurement CSV: refit the geometry alone on it when the model has effects "
+                                  "a URDF cannot hold (best: the calibration data)")
+    add_units(p)
     add_force(p)
     p.set_defaults(func=run)
     return p
@@ -76,6 +85,23 @@ def table_csv(r) -> str:
     return "\n".join(lines) + "\n"
 
 
+def refit_export(model, theta, args, identified=None):
+    """(robot, []) of the geometry alone refitted on --data, after one line with the RMS of
+    the exported robot alone, the full model and the model's geometry without its effects."""
+    from torchcal.calibration.geometry_only import refit_geometry
+    from torchcal.calibration.mismatch import check_measurements, enforce
+    from torchcal.cli._args import read_data
+
+    m = read_data(args.data, model.robot, args)
+    enforce(check_measurements(model, theta.to(m.xyz), m, getattr(model, "training_rms_mm", None)))
+    r = refit_geometry(model, theta, m, identified=identified)
+    print(f"geometry alone refitted on {len(m)} rows of {args.data} (without {', '.join(r.dropped)}): exported robot "
+          f"alone rms {r.refit_rms_mm:.4f} mm; full model {r.full_rms_mm:.4f} mm; the model's geometry without its "
+          f"effects {r.naive_rms_mm:.4f} mm (solver {r.fit.status})")
+    cal, _ = calibrated_robot(r.fit.model, r.fit.theta)
+    return cal, []
+
+
 def run(args) -> int:
     from torchcal.cli.compensate import load_model
     from torchcal.errors import InputError
@@ -86,12 +112,19 @@ def run(args) -> int:
     outs = [("--robot-file", args.robot_file), ("--urdf", args.urdf), ("--table", args.table)]
     if not any(p for _, p in outs):
         raise InputError("export: give at least one of --robot-file, --urdf, --table")
-    check_outputs(outs, args.force, inputs=[args.model])
+    check_outputs(outs, args.force, inputs=[args.model, args.data])
     im = load_model(args.model)
     cal, rest = calibrated_robot(im.model, im.theta[0])
-    if rest:
+    if rest and args.data:
+        cal, rest = refit_export(im.model, im.theta[0], args, identified=im.free[0])
+    elif rest:
         sys.stderr.write("torchcal export: warning: effects not held by an MD-H table or a URDF (listed under "
-                         f"\"effects\" in the robot file): {', '.join(e['spec'] for e in rest)}\n")
+                         f"\"effects\" in the robot file): {', '.join(e['spec'] for e in rest)}; the exported "
+                         "geometry alone is worse than the full model (its deviations were fitted together with "
+                         "those effects) and by how much cannot be told without data: pass --data DATA.csv to "
+                         "refit the geometry alone and see both figures\n")
+    elif args.data:
+        print(f"{args.model}: every effect is held by the exported robot; --data not needed")
     import dataclasses
     from pathlib import Path
 

@@ -183,6 +183,9 @@ def load(path, robot: Robot | str | None = None):
         if bad:
             raise InputError(f"{path}: parameter unit(s) not those of {FORMAT}: {', '.join(bad[:3])}")
         theta = theta / k
+    fit = obj.get("fit")  # the training rms, for the gross-mismatch check (torchcal.calibration.mismatch)
+    rms = fit.get("rms_mm") if isinstance(fit, dict) else None
+    model.training_rms_mm = float(rms) if isinstance(rms, (int, float)) else None
     model.calibrated_range = None  # (2, n) rad / mm; absent from files written before it existed
     if obj.get("calibrated_range") is not None:
         from torchcal.calibration.joint_range import range_from_dict

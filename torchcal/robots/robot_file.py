@@ -134,6 +134,10 @@ def robot_from_dict(obj, where: str = "robot file") -> Robot:
         from torchcal.reliability.uncertainty import clearance_from_dict
 
         clearance = clearance_from_dict(obj["clearance"], f"{where}: clearance", len(rows)).to_dict()
+    from torchcal.calibration.mismatch import check_robot_lengths
+
+    check_robot_lengths(torch.tensor(rows, dtype=torch.float64), torch.tensor(pris),
+                        torch.tensor(limits, dtype=torch.float64), where)  # lengths in metres
     return Robot(name, torch.tensor(rows, dtype=torch.float64), torch.tensor(has_beta),
                  torch.tensor(limits, dtype=torch.float64), base, tool, payload, gravity,
                  torch.tensor(pris), None if urdf is None else dict(urdf), clearance)

@@ -1,0 +1,161 @@
+"""Gross mismatch: a UR10 model on data of another robot, in a moved measuring frame, on
+targets in metres, and a robot file in metres, each get one line naming the cause; data
+of the right robot in the right frame pass silently."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import warnings
+from pathlib import Path
+
+import pytest
+import torch
+
+import torchcal
+from torchcal.calibration.mismatch import GROSS_MM, MismatchWarning, check_points
+from torchcal.errors import InputError
+from torchcal.io.measurement_csv import write_measurements
+from torchcal.measurements import fixed_xyz_to_matrix
+from torchcal.robots.poses import random_poses
+from torchcal.robots.robot_file import robot_from_dict
+from torchcal.simulation.virtual_robot import VirtualRobot
+
+UR10 = Path(__file__).resolve().parents[1] / "examples" / "ur10" / "ur10.json"
+
+
+def moved(m, deg=10.0, shift=(500.0, 0.0, 0.0)):
+    """Measurements m seen from a tracker turned `deg` about z and shifted `shift` mm."""
+    R = fixed_xyz_to_matrix(torch.deg2rad(torch.tensor([0.0, 0.0, deg], dtype=torch.float64)))
+    return dataclasses.replace(m, xyz=m.xyz @ R.T + torch.tensor(shift, dtype=torch.float64))
+
+
+@pytest.fixture(scope="module")
+def ur10():
+    rob = torchcal.robot(UR10)
+    # the "real" UR10 sits in a tracker frame and carries compliance its model lacks
+    vr = VirtualRobot(rob, ["base_frame", "joint_compliance:2,3"], seed=1)
+    fitted = torchcal.fit(rob, vr.measure(random_poses(rob, 60, 3), seed=4), ["base_frame", "tool_offset"])
+    val = vr.measure(random_poses(rob, 40, 5), seed=6)
+    return rob, vr, fitted, val
+
+
+def titan_data():
+    ti = torchcal.robot("kr1000titan")
+    return VirtualRobot(ti, [], seed=2).measure(random_poses(ti, 40, 7), seed=8)
+
+
+def test_right_data_pass_silently(ur10):
+    _, _, fitted, val = ur10
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MismatchWarning)
+        warnings.simplefilter("ignore", UserWarning)  # calibrated-range lines are not the subject
+        ev = torchcal.evaluate(fitted, val)
+    assert ev.rms_mm < 3 * fitted.rms_mm
+
+
+def test_another_robot_is_refused_by_evaluate_and_diagnose(ur10):
+    rob, _, fitted, _ = ur10
+    data = titan_data()
+    with pytest.raises(InputError, match="cannot come from the model of ur10.*another robot or units"):
+        torchcal.evaluate(fitted, data)
+    with pytest.raises(InputError, match="cannot come from"):
+        torchcal.diagnose(rob, data, ["base_frame"])
+
+
+def test_moved_frame_points_at_register(ur10):
+    _, _, fitted, val = ur10
+    with pytest.raises(InputError, match=r"measuring frame moved.*torchcal register") as exc:
+        torchcal.evaluate(fitted, moved(val))
+    # the line names the motion: 10 deg, about 500 mm
+    assert "10 deg" in str(exc.value)
+    # diagnose refits the frame: a warning, not a refusal
+    with pytest.warns(MismatchWarning, match="measuring frame moved"):
+        torchcal.api.check_diagnosis_data(fitted, fitted.model, moved(val))
+
+
+def test_units_hint_from_the_spread(ur10):
+    _, _, fitted, val = ur10
+    with pytest.raises(InputError, match="metres read as mm"):
+        torchcal.evaluate(fitted, dataclasses.replace(val, xyz=val.xyz * 1000))
+
+
+def test_bound_is_ratio_and_absolute():
+    g = torch.Generator().manual_seed(0)
+    p = torch.randn(50, 3, generator=g, dtype=torch.float64) * 500
+    off = torch.zeros_like(p)
+    off[:, 0] = 0.9 * GROSS_MM  # a 9 mm error: large, yet not gross whatever the training rms
+    assert check_points(p, p + off, training_rms_mm=0.01).verdict is None
+    off[:, 0] = 2.0 * GROSS_MM
+    assert check_points(p, p + off, training_rms_mm=0.01).verdict == "frame"  # a pure shift
+    assert check_points(p, p + off, training_rms_mm=5.0).verdict is None  # within 10x a poor fit
+    # a scaled copy: no rigid motion explains it
+    r = check_points(p, p * 1.5, training_rms_mm=0.01)
+    assert r.verdict == "mismatch" and r.spread_ratio == pytest.approx(1.5)
+
+
+def test_targets_in_metres_are_refused(ur10):
+    _, _, fitted, val = ur10
+    with pytest.raises(InputError, match="metres read as mm; pass --length-unit m"):
+        torchcal.compensate(fitted, val.xyz[:5] / 1000)
+
+
+def test_targets_beyond_reach_are_named(ur10):
+    _, _, fitted, val = ur10
+    t = val.xyz[:3].clone()
+    far = t.clone()
+    far[1] = far[1] * 4  # about 4 times the distance of a reachable point
+    with pytest.warns(MismatchWarning, match=r"1 target\(s\) lie beyond the reach.*row\(s\) 2"):
+        torchcal.compensate(fitted, far, max_iter=2)
+
+
+def test_robot_file_in_metres_is_refused():
+    obj = json.loads(UR10.read_text())
+    for j in obj["joints"]:
+        j["d_mm"], j["a_mm"] = j["d_mm"] / 1000, j["a_mm"] / 1000
+    with pytest.raises(InputError, match="lengths look like metres"):
+        robot_from_dict(obj, "ur10_m.json")
+    robot_from_dict(json.loads(UR10.read_text()), "ur10.json")  # in mm: fine
+
+
+def test_cli_evaluate_refuses_and_writes_nothing(ur10, tmp_path):
+    from torchcal.cli import main
+    from torchcal.io.modelfile import to_dict
+    from torchcal.io.files import write_json
+
+    rob, _, fitted, val = ur10
+    write_json(tmp_path / "m.json", to_dict(fitted))
+    write_measurements(tmp_path / "moved.csv", moved(val), robot=rob)
+    rc = main(["evaluate", str(tmp_path / "moved.csv"), "--model", str(tmp_path / "m.json"),
+               "--json", str(tmp_path / "out.json")])
+    assert rc == 2 and not (tmp_path / "out.json").exists()
+
+
+def test_cli_compensate_metres(ur10, tmp_path, capsys):
+    from torchcal.cli import main
+    from torchcal.io.modelfile import to_dict
+    from torchcal.io.files import write_json
+
+    _, _, fitted, val = ur10
+    write_json(tmp_path / "m.json", to_dict(fitted))
+    t = val.xyz[:4] / 1000
+    (tmp_path / "t.csv").write_text("x,y,z\n" + "".join(f"{a},{b},{c}\n" for a, b, c in t.tolist()))
+    rc = main(["compensate", str(tmp_path / "t.csv"), "--model", str(tmp_path / "m.json"),
+               "--out", str(tmp_path / "q.csv")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--length-unit m" in err and err.count("\n") == 1
+    assert not (tmp_path / "q.csv").exists()
+    rc = main(["compensate", str(tmp_path / "t.csv"), "--model", str(tmp_path / "m.json"),
+               "--out", str(tmp_path / "q.csv"), "--length-unit", "m"])
+    assert rc == 0 and math.isfinite(float((tmp_path / "q.csv").read_text().splitlines()[1].split(",")[-3]))
+
+
+def test_cli_diagnose_refuses_another_robot(tmp_path, capsys):
+    from torchcal.cli import main
+
+    write_measurements(tmp_path / "titan.csv", titan_data(), robot=torchcal.robot("kr1000titan"))
+    rc = main(["diagnose", str(tmp_path / "titan.csv"), "--robot", str(UR10), "--effects", "base_frame",
+               "--json", str(tmp_path / "d.json")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "cannot come from" in err and err.count("\n") == 1 and not (tmp_path / "d.json").exists()

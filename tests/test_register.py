@@ -1,0 +1,140 @@
+"""Re-registration: a fitted model moved to a measuring frame turned 10 deg and shifted
+500 mm recovers that frame (to noise) from 30 poses and evaluates there as the original
+does in its own frame; geometry, effects, covariance and calibrated range are kept."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import pytest
+import torch
+
+import torchcal
+from torchcal.calibration.registration import frame_slices
+from torchcal.effects.base_frame import rotvec_to_matrix
+from torchcal.errors import InputError
+from torchcal.io.files import read_json, write_json
+from torchcal.io.measurement_csv import write_measurements
+from torchcal.io.modelfile import to_dict
+from torchcal.measurements import fixed_xyz_to_matrix
+from torchcal.robots.poses import random_poses
+from torchcal.simulation.virtual_robot import VirtualRobot
+
+UR10 = Path(__file__).resolve().parents[1] / "examples" / "ur10" / "ur10.json"
+TURN = fixed_xyz_to_matrix(torch.deg2rad(torch.tensor([2.0, -1.0, 10.0], dtype=torch.float64)))
+SHIFT = torch.tensor([500.0, -200.0, 50.0], dtype=torch.float64)
+
+
+def moved(m):
+    return dataclasses.replace(m, xyz=m.xyz @ TURN.T + SHIFT)
+
+
+def frame(model, theta):
+    """(R, t) measurement <- robot base of a model's base_frame."""
+    p = theta[frame_slices(model)[0]]
+    return rotvec_to_matrix(p[3:6]), p[:3]
+
+
+@pytest.fixture(scope="module")
+def ur10():
+    rob = torchcal.robot(UR10)
+    vr = VirtualRobot(rob, ["base_frame", "joint_compliance:2,3"], seed=1)  # compliance: not in the model
+    fitted = torchcal.fit(rob, vr.measure(random_poses(rob, 60, 3), seed=4), ["base_frame", "tool_offset"])
+    new = moved(vr.measure(random_poses(rob, 30, 9), seed=10))
+    val = vr.measure(random_poses(rob, 40, 5), seed=6)
+    return rob, fitted, new, val
+
+
+@pytest.mark.filterwarnings("ignore::UserWarning")
+def test_register_recovers_the_moved_frame(ur10):
+    _, fitted, new, val = ur10
+    res = torchcal.register(fitted, new)
+    R0, t0 = frame(fitted.model, fitted.theta)
+    R1, t1 = frame(res.model, res.theta)
+    # expected: the old frame followed by the tracker's motion
+    Re, te = TURN @ R0, TURN @ t0 + SHIFT
+    angle = math.degrees(math.acos(min(1.0, (float(torch.trace(Re.T @ R1)) - 1) / 2)))
+    assert angle < 0.01 and float((t1 - te).norm()) < 0.2  # noise 0.02 mm, unmodelled compliance 0.3 mm
+    # and it evaluates in the new frame as the original does in its own
+    e0 = torchcal.evaluate(fitted, val).rms_mm
+    e1 = torchcal.evaluate(res, moved(val)).rms_mm
+    assert abs(e1 - e0) < 0.2 * e0
+
+
+def test_register_keeps_geometry_effects_covariance_and_range(ur10):
+    _, fitted, new, _ = ur10
+    res = torchcal.register(fitted, new)
+    keep = torch.ones(fitted.theta.shape[0], dtype=torch.bool)
+    keep[frame_slices(fitted.model)[0]] = False
+    assert res.model.specs() == fitted.model.specs()
+    assert torch.equal(res.theta[keep], fitted.theta[keep])
+    c0, c1 = fitted.covariance.cov, res.covariance.cov
+    assert torch.equal(c1[keep][:, keep], c0[keep][:, keep])
+    assert float(c1[~keep][:, ~keep].diagonal().min()) > 0  # the frame's own uncertainty
+    assert float(c1[~keep][:, keep].abs().max()) == 0.0
+    assert torch.equal(res.q_range, fitted.q_range)
+    assert res.registration["rms_before_mm"] > 100 and res.registration["rms_after_mm"] < 1
+
+
+def test_register_appends_a_base_frame_and_tool(ur10):
+    rob, fitted, new, _ = ur10
+    geo = torchcal.fit(rob, ur10[3], [])  # fitted in the robot base frame, no frame effect
+    res = torchcal.register(geo, moved(ur10[3]), tool=True)
+    assert res.model.specs() == ["base_frame", "tool_offset"]
+    assert torch.equal(res.theta[: geo.theta.shape[0]], geo.theta)
+    R, t = frame(res.model, res.theta)
+    # the simulated robot's own frame is within a mm / a tenth of a degree of identity
+    assert float((t - SHIFT).norm()) < 5.0 and float((R - TURN).abs().max()) < 2e-3
+
+
+def test_registration_only_is_the_closed_form_optimum(ur10):
+    rob, _, new, _ = ur10
+    from torchcal.calibration.registration import kabsch
+
+    res = torchcal.register(rob, new)
+    assert res.model.specs() == ["base_frame"]
+    assert float(res.theta[: 5 * rob.n].abs().max()) == 0.0
+    nominal = rob.fk(new.q)
+    R, t = kabsch(nominal, new.xyz)
+    ref = float((nominal @ R.T + t - new.xyz).norm(dim=-1).pow(2).mean().sqrt())
+    assert res.rms_mm <= ref + 1e-9
+
+
+def test_register_refuses_another_robot(ur10):
+    _, fitted, _, _ = ur10
+    ti = torchcal.robot("kr1000titan")
+    data = VirtualRobot(ti, [], seed=2).measure(random_poses(ti, 30, 7), seed=8)
+    with pytest.raises(InputError, match="cannot come from"):
+        torchcal.register(fitted, data)
+
+
+def test_cli_register(ur10, tmp_path, capsys):
+    from torchcal.cli import main
+
+    rob, fitted, new, val = ur10
+    write_json(tmp_path / "m.json", to_dict(fitted))
+    write_measurements(tmp_path / "new.csv", new, robot=rob)
+    write_measurements(tmp_path / "val.csv", moved(val), robot=rob)
+    assert main(["register", str(tmp_path / "new.csv"), "--model", str(tmp_path / "m.json"),
+                 "--out", str(tmp_path / "r.json")]) == 0
+    old, obj = read_json(tmp_path / "m.json"), read_json(tmp_path / "r.json")
+    for key in ("fit", "calibrated_range", "effects", "identifiability", "provenance"):
+        assert obj[key] == old[key], key
+    assert obj["registration"]["n"] == 30 and obj["registration"]["model"] == str(tmp_path / "m.json")
+    capsys.readouterr()
+    assert main(["evaluate", str(tmp_path / "val.csv"), "--model", str(tmp_path / "r.json")]) == 0
+    rms = float(capsys.readouterr().out.split("rms ")[1].split()[0])
+    assert rms < 2 * fitted.rms_mm
+    # the original model on the moved data is refused, pointing at register
+    assert main(["evaluate", str(tmp_path / "val.csv"), "--model", str(tmp_path / "m.json")]) == 2
+    assert "torchcal register" in capsys.readouterr().err
+    # registration only: nominal robot, best frame, no "implausible" lines
+    assert main(["register", str(tmp_path / "new.csv"), "--robot", str(UR10), "--out",
+                 str(tmp_path / "nom.json")]) == 0
+    out = capsys.readouterr()
+    assert "implausible" not in out.out + out.err
+    nom = read_json(tmp_path / "nom.json")
+    assert nom["effects"] == ["base_frame"] and nom["fit"]["n"] == 30

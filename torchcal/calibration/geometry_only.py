@@ -1,0 +1,73 @@
+"""The geometry alone: refit a model's MD-H deviations without the effects a robot file or
+a URDF cannot hold, for `torchcal export`.
+
+In a model with physical effects (joint compliance, gear error, backlash, ...) the MD-H
+deviations are fitted together with those effects and absorb part of them (a length
+deviation takes up part of the compliance's sag). Exported alone, such geometry is worse
+than it could be: the controller or simulator that reads the URDF has no effects to add
+back. `refit_geometry` starts from the model's geometry (and its base frame and tool
+offset, which export folds into the robot's base and tool) and fits that geometry alone
+to measurements, so that the exported robot is the best geometry-only robot for those
+data. `FOLDED` are the effects a robot file holds; every other effect is dropped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+FOLDED = ("base_frame", "tool_offset")
+
+
+@dataclass(frozen=True)
+class GeometryRefit:
+    """fit: the geometry-only `FitResult` (its model holds the FOLDED effects only);
+    full_rms_mm: the full model on the data; naive_rms_mm: the full model's geometry
+    without its other effects; refit_rms_mm: the refitted geometry (mm, on the same data);
+    dropped: specs of the effects left out."""
+
+    fit: object
+    full_rms_mm: float
+    naive_rms_mm: float
+    refit_rms_mm: float
+    dropped: list
+
+
+def geometry_model(model, theta: torch.Tensor):
+    """(geometry-only CalibrationModel, its theta (P',), index (P',) of its parameters in
+    `model`'s): the MD-H deviations and the FOLDED effects of `model` at their values in
+    theta (P,)."""
+    from torchcal.calibration.model import CalibrationModel
+
+    keep = [(e, sl) for e, sl in zip(model.effects, model.slices[1:]) if e.name in FOLDED]
+    geo = CalibrationModel(model.robot, [e for e, _ in keep])
+    geo.points = model.points
+    idx = torch.cat([torch.arange(model.slices[0].start, model.slices[0].stop),
+                     *[torch.arange(sl.start, sl.stop) for _, sl in keep]])
+    return geo, theta[idx.to(theta.device)], idx
+
+
+def refit_geometry(model, theta: torch.Tensor, m, *, identified=None, max_iter: int = 60) -> GeometryRefit:
+    """Fit the geometry of `model` alone to Measurements m, starting from theta (P,).
+
+    identified: (P,) bool, the parameters the model identified (default its
+    `default_free`): the others stay held, so the refit keeps the model's choice among
+    dependent parameters (e.g. base_rz or dtheta1). The MD-H deviations beyond the usual
+    plausible sizes are held at their start (the model's values), as in every fit
+    (`torchcal.calibration.plausibility`)."""
+    from torchcal.calibration.fit import fit
+    from torchcal.effects import context_of
+
+    ctx = context_of(model.robot, m)
+    model.check_context(ctx)
+    geo, theta0, idx = geometry_model(model, theta.to(m.xyz))
+    free = (model.default_free() if identified is None else torch.as_tensor(identified, dtype=torch.bool).cpu())[idx]
+
+    def rms(mod, th):
+        with torch.no_grad():
+            return float((mod.predict(th, ctx) - m.xyz).norm(dim=-1).pow(2).mean().sqrt())
+
+    res = fit(geo, ctx, m.xyz, theta0=theta0, free=free, pose=m.pose, register=False, max_iter=max_iter)
+    return GeometryRefit(res, rms(model, theta.to(m.xyz)), rms(geo, theta0), res.rms_mm,
+                         [e.spec() for e in model.effects if e.name not in FOLDED])

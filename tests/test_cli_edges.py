@@ -174,7 +174,7 @@ def test_progress_bars_stay_off_when_stderr_is_not_a_terminal(tmp_path, capfd, m
     err = capfd.readouterr().err
     assert "sweep" not in err and "it/s" not in err and "pt/s" not in err and out.is_file()
 
-    import torchcal.workflows.paper as P
+    import torchcal.workflows.paper_experiment as P
 
     def fake(cfg, seeds=1, progress=None):
         for step, done in (("seed 1/1: sweep", 0.0), ("seed 1/1: test", 0.9), ("seed 1/1: done", 1.0)):

@@ -257,7 +257,7 @@ def error_intervals_figure(before_lower_mm, before_upper_mm, after_lower_mm=None
 def error_map(path, positions_mm, error_mm, *, title: str = "Distance error over the workspace",
               force: bool = False) -> Path:
     """Write `error_map_figure` to the PNG `path` (atomically); returns the path."""
-    C.check_output(path, force)  # fail before drawing
+    check_output(path, force)  # fail before drawing
     return save_figure(error_map_figure(positions_mm, error_mm, title=title), path, force)
 
 

@@ -76,13 +76,16 @@ def _q_range(model_or_fit, cm: CalibrationModel):
     return getattr(cm, "calibrated_range", None)
 
 
-def _warn_range(q: torch.Tensor, q_range, robot: Robot, what: str) -> int:
-    """Rows of q (N, n) rad / mm outside the calibrated range; one `CalibratedRangeWarning` when any."""
+def _warn_range(q: torch.Tensor, q_range, robot: Robot, what: str, stage=None) -> int:
+    """Rows of q (N, n) rad / mm outside the calibrated range; one `CalibratedRangeWarning` when any
+    (saying so when a residual stage `stage` is applied there)."""
     import warnings
 
     from torchcal.calibration.joint_range import CalibratedRangeWarning, range_warning
 
     count, msg = range_warning(q, q_range, robot, what)
+    if msg is not None and stage is not None:
+        msg += "; its non-physical residual stage extrapolates worst of all"
     if msg is not None:
         warnings.warn(msg, CalibratedRangeWarning, stacklevel=3)
     return count
@@ -99,7 +102,7 @@ def _measurements(measurements, robot: Robot) -> Measurements:
 
 def fit(robot_or_model, measurements, effects=(), robust: str | None = None, max_iter: int = 60,
         sigma_mm: float = SIGMA_MM, sigma_deg: float = SIGMA_DEG, max_length_mm: float | None = MAX_LENGTH_MM,
-        max_angle_deg: float | None = MAX_ANGLE_DEG) -> FitResult:
+        max_angle_deg: float | None = MAX_ANGLE_DEG, *, residual_model: str | None = None) -> FitResult:
     """Fit the geometric deviations plus `effects` to measured TCP positions (and
     orientations, when the measurements carry rx, ry, rz).
 
@@ -107,6 +110,9 @@ def fit(robot_or_model, measurements, effects=(), robust: str | None = None, max
     uncertainties (mm, deg) that weigh orientation against position. max_length_mm /
     max_angle_deg: MD-H deviations beyond these are held as implausible (None: no check).
     Measurements with several `point` ids need `tool_offset` (one offset per point).
+    residual_model: 'kernel' adds the non-physical residual stage
+    (`torchcal.calibration.residual_model`) as ``res.model.residual_model`` (None when no
+    joint angle predicts the residual); evaluate and compensate apply it.
     Returns a `FitResult` (``.theta``, ``.status``, ``.rms_mm``, ``.to_dict()`` = the
     MODEL.json of ``torchcal fit``).
     """
@@ -120,9 +126,13 @@ def fit(robot_or_model, measurements, effects=(), robust: str | None = None, max
     else:
         model = CalibrationModel.for_measurements(robot, effects, m)
     ctx = context_of(model.robot, m)
-    return fit_model(model, ctx, m.xyz, robust=robust, max_iter=max_iter, pose=m.pose, rotation=m.rotation,
-                     sigma_mm=sigma_mm, sigma_deg=sigma_deg, max_length_mm=max_length_mm,
-                     max_angle_deg=max_angle_deg)
+    res = fit_model(model, ctx, m.xyz, robust=robust, max_iter=max_iter, pose=m.pose, rotation=m.rotation,
+                    sigma_mm=sigma_mm, sigma_deg=sigma_deg, max_length_mm=max_length_mm,
+                    max_angle_deg=max_angle_deg)
+    if residual_model is not None:
+        from torchcal.calibration.residual_model import fit_residual_model
+        res.model.residual_model = fit_residual_model(model.robot, m, res.residuals, kind=residual_model)
+    return res
 
 
 @dataclass(frozen=True)
@@ -168,7 +178,10 @@ def evaluate(model, measurements) -> Evaluation:
     ctx = context_of(cm.robot, m)
     cm.check_context(ctx)
     theta = theta.to(m.xyz)
-    err = m.xyz - cm.predict(theta, ctx)  # (N, 3) mm
+    stage = getattr(cm, "residual_model", None)
+    err = m.xyz - cm.predict(theta, ctx)  # (N, 3) mm; minus the residual stage's correction
+    if stage is not None:
+        err = err - stage.predict(m.q).to(err)
     d = err.norm(dim=-1)
     orient = None
     tool_r = getattr(cm, "tool_rotation", None)
@@ -176,7 +189,7 @@ def evaluate(model, measurements) -> Evaluation:
         e = _so3_error(cm.predict_rotation(theta, ctx) @ tool_r.to(theta), m.rotation)  # (N, 3) rad
         orient = math.degrees(float(e.norm(dim=-1).pow(2).mean().sqrt()))
     q_range = _q_range(model, cm)
-    outside = None if q_range is None else _warn_range(m.q, q_range, cm.robot, "rows")
+    outside = None if q_range is None else _warn_range(m.q, q_range, cm.robot, "rows", stage)
     return Evaluation(len(m), float(d.pow(2).mean().sqrt()), float(d.mean()), float(d.max()),
                       err.pow(2).mean(0).sqrt().tolist(), orient, outside)
 
@@ -220,6 +233,26 @@ def calibrate(robot_or_model, measurements, effects=(), partition=None, zone_met
     return im
 
 
+def _with_stage(stage, cm, theta, t, comp, zone, options, max_rounds: int = 10):
+    """Compensation through physical model + residual stage: solve the physical model for
+    the target minus the stage's correction at the current solution, until the correction
+    changes by at most tol_mm (it varies slowly with q: a few rounds)."""
+    from torchcal.calibration.compensate import compensate as run
+
+    tol = float(options.get("tol_mm", 1e-6))
+    corr = stage.predict(comp.q).to(t)
+    for _ in range(max_rounds):
+        comp = run(cm, theta, t - corr, comp.q, zone=zone, **options)
+        new = stage.predict(comp.q).to(t)
+        moved = float((new - corr).norm(dim=-1).max()) if len(t) else 0.0
+        corr = new
+        if moved <= tol:
+            break
+    pred = comp.predicted_mm + corr
+    res = t - pred
+    return replace(comp, predicted_mm=pred, residual_mm=res, converged=comp.converged & (res.norm(dim=-1) <= tol))
+
+
 def compensate(model, targets, q0=None, **options):
     """Corrected joint commands (M, n) rad for target positions (M, 3) mm.
 
@@ -227,7 +260,9 @@ def compensate(model, targets, q0=None, **options):
     `IntervalModel` (targets assigned to its zones). q0: (M, n) rad starting commands,
     default the nominal inverse from the middle of the joint limits. Returns a
     `Compensation`; converged solutions outside the model's calibrated joint range are
-    counted (``outside_range``) and named in one `CalibratedRangeWarning`.
+    counted (``outside_range``) and named in one `CalibratedRangeWarning`. A model with a
+    residual stage (``model.residual_model``) is inverted with it (the physical model is
+    solved for the target minus the stage's correction, repeated until it settles).
     """
     from torchcal.calibration.compensate import compensate as run, nominal_inverse
     from torchcal.calibration.intervals import IntervalModel
@@ -246,7 +281,10 @@ def compensate(model, targets, q0=None, **options):
         q0 = nominal_inverse(robot, t).q
     zone = model.assign(t) if isinstance(model, IntervalModel) else None
     comp = run(cm, theta.to(t), t, q0, zone=zone, **options)
+    stage = getattr(cm, "residual_model", None)
+    if stage is not None:
+        comp = _with_stage(stage, cm, theta.to(t), t, comp, zone, options)
     if q_range is None:
         return comp
-    outside = _warn_range(comp.q[comp.converged], q_range, robot, "converged targets")
+    outside = _warn_range(comp.q[comp.converged], q_range, robot, "converged targets", stage)
     return replace(comp, outside_range=outside)

@@ -88,6 +88,9 @@ def run(args) -> int:
         raise InputError("export: give at least one of --robot-file, --urdf, --table")
     check_outputs(outs, args.force, inputs=[args.model])
     im = load_model(args.model)
+    if getattr(im.model, "residual_model", None) is not None:
+        print(f"{args.model}: its non-physical residual stage is dropped (a URDF, robot file or table holds only "
+              f"the physical model)")
     cal, rest = calibrated_robot(im.model, im.theta[0])
     if rest:
         sys.stderr.write("torchcal export: warning: effects not held by an MD-H table or a URDF (listed under "

@@ -128,7 +128,7 @@ def block_cv(K: torch.Tensor, Y: torch.Tensor, blocks: list, ridges=RIDGES):
     return pred, alpha
 
 
-def _inputs(feats: dict, names) -> torch.Tensor:
+def stack_inputs(feats: dict, names) -> torch.Tensor:
     return torch.from_numpy(np.hstack([feats[k] for k in names]))
 
 
@@ -221,7 +221,7 @@ def probe(values: dict, residuals: np.ndarray, pose: np.ndarray, *, seed: int = 
         train = fold != f
         inputs, ell, lam, _ = choose(feats, names, Y, fold, subsample(fold, train, pose, seed + 1 + int(f)))
         if inputs:
-            X, T = _inputs(feats, inputs), torch.from_numpy(train)
+            X, T = stack_inputs(feats, inputs), torch.from_numpy(train)
             alpha = fit_dual(X[T], Y[T], ell, lam)
             pred[fold == f] = (rbf(X[torch.from_numpy(fold == f)], X[T], ell) @ alpha).numpy()
     learn = float(np.sqrt(((r - pred) ** 2).sum(-1).mean()))
@@ -239,7 +239,7 @@ def probe(values: dict, residuals: np.ndarray, pose: np.ndarray, *, seed: int = 
         rest = [n for n in inputs if n != k]
         without = total
         if rest:
-            X = _inputs(feats, rest)[torch.from_numpy(rows)]
+            X = stack_inputs(feats, rest)[torch.from_numpy(rows)]
             pr, _ = block_cv(rbf(X, X, ell), Yr, blocks, (lam,))
             without = float((pr[0] - Yr).pow(2).sum(-1).mean())
         relevance[k] = (without - mse) / (total - mse) if total - mse > 1e-12 * total else 0.0

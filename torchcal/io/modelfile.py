@@ -14,7 +14,9 @@
                       "rotation_angle_deg"} (the closed-form start),
      "plausibility": {"max_length_mm", "max_angle_deg", "held": [NAME...]},
      "orientation": {"sigma_mm", "sigma_deg", "weight_mm_per_rad", "rms_deg",
-                     "tool_rotation_fixed_xyz_deg"}}
+                     "tool_rotation_fixed_xyz_deg"},
+     "residual_model": {...} (the optional non-physical residual stage,
+                       `torchcal.calibration.residual_model`)}
 
 Values are in the units named beside them (mm, rad, 1/K, ...); ``std`` is the standard
 error (0 for parameters held at nominal), ``ci95`` its 95 % interval [lower, upper]
@@ -78,6 +80,9 @@ def to_dict(res: FitResult, source=None, seed: int = 0, robust=None, pose_ids=No
         extra["orientation"] = {k: o[k] for k in ("sigma_mm", "sigma_deg", "weight_mm_per_rad", "rms_deg")}
         extra["orientation"]["tool_rotation_fixed_xyz_deg"] = torch.rad2deg(
             matrix_to_fixed_xyz(o["tool_rotation"].detach().cpu().double())).tolist()
+    stage = getattr(model, "residual_model", None)
+    if stage is not None:
+        extra["residual_model"] = stage.to_dict()
     return {
         "format": FORMAT,
         "robot": model.robot.name,
@@ -141,6 +146,10 @@ def load(path, robot: Robot | str | None = None):
     if obj.get("calibrated_range") is not None:
         from torchcal.calibration.joint_range import range_from_dict
         model.calibrated_range = range_from_dict(obj["calibrated_range"], nominal, str(path))
+    model.residual_model = None  # the optional non-physical residual stage
+    if obj.get("residual_model") is not None:
+        from torchcal.calibration.residual_model import from_dict
+        model.residual_model = from_dict(obj["residual_model"], nominal, str(path))
     return model, torch.tensor(values, dtype=torch.float64)
 
 

@@ -117,10 +117,9 @@ class Unexplained:
             return (f"\n  learnable: nothing beyond chance: a kernel probe on the recorded variables does not beat "
                     f"the model on held-out poses (p {pr.p_value:.2g}; it leaves {self.learnable_rms_mm:.4f} mm)")
         by = ", ".join(v for v, _ in self.carried_by) or ", ".join(pr.inputs)
-        return (f"\n  learnable: of {self.rms_mm:.4f} mm RMS the model leaves, {pr.learnable_mm:.4f} mm is learnable "
-                f"from {by} (a kernel probe on held-out poses brings it to {self.learnable_rms_mm:.4f} mm, "
-                f"p {pr.p_value:.2g}); the model explains the rest of the error, the noise floor is "
-                f"{self.noise_floor_mm:.4f} mm")
+        return (f"\n  learnable: of {self.rms_mm:.4f} mm RMS, the model leaves {pr.learnable_mm:.4f} mm learnable "
+                f"from {by}: a kernel probe on held-out poses brings it to {self.learnable_rms_mm:.4f} mm "
+                f"(p {pr.p_value:.2g}); the rest is not predictable from the recorded variables")
 
     def describe(self) -> str:
         """The same in words (one or two lines)."""

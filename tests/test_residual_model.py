@@ -155,3 +155,18 @@ def test_probe_prediction_of_a_fold_never_sees_that_fold():
     assert np.abs(a.prediction[fold != 1] - b.prediction[fold != 1]).max() > 1e-3
     assert a.p_value < 1e-6 and [v for v, _ in a.carried_by()] == ["q1"], (a.p_value, a.relevance)
     assert a.learnable_rms_mm < 0.5 * a.rms_mm
+
+
+def test_compensate_cli_applies_the_stage(sessions, tmp_path):
+    train, test, res = sessions
+    (tmp_path / "m.json").write_text(json.dumps(modelfile.to_dict(res)))
+    q0 = torch.rad2deg(test.q[:10]).numpy()
+    xyz = test.xyz[:10].numpy()
+    head = "x,y,z," + ",".join(f"q{j + 1}" for j in range(ROBOT.n))
+    np.savetxt(tmp_path / "t.csv", np.hstack([xyz, q0]), delimiter=",", header=head, comments="", fmt="%.12g")
+    assert main(["compensate", str(tmp_path / "t.csv"), "--model", str(tmp_path / "m.json"),
+                 "--out", str(tmp_path / "q.csv")]) == 0
+    out = np.genfromtxt(tmp_path / "q.csv", delimiter=",", names=True)
+    q_cli = np.stack([out[f"q{j + 1}"] for j in range(ROBOT.n)], -1)
+    lib = torchcal.compensate(res, test.xyz[:10], q0=test.q[:10])
+    np.testing.assert_allclose(q_cli, torch.rad2deg(lib.q).numpy(), atol=1e-6)

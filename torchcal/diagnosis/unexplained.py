@@ -66,7 +66,7 @@ import numpy as np
 import scipy.stats
 import torch
 
-from torchcal.diagnosis.probe import Probe, probe
+from torchcal.diagnosis.probe import Probe, fold_of_pose, probe
 from torchcal.measurements import Measurements
 from torchcal.robots.robot import Robot
 
@@ -180,11 +180,6 @@ def smooth_columns(H: torch.Tensor, D: torch.Tensor) -> torch.Tensor:
     return (H[:, None, :, None] * D[:, :, None, :]).reshape(H.shape[0] * 3, -1)
 
 
-def _fold_of_pose(pose: np.ndarray, seed: int) -> np.ndarray:
-    ids, inverse = np.unique(pose, return_inverse=True)
-    return (np.random.default_rng(seed).permutation(len(ids)) % FOLDS)[inverse]
-
-
 def noise_floor_from_repeats(pose: np.ndarray, r: np.ndarray) -> float | None:
     """Pooled within-pose distance RMS of residual rows r (N, 3), or None without repeats."""
     _, inv, counts = np.unique(pose, return_inverse=True, return_counts=True)
@@ -263,7 +258,7 @@ def unexplained(robot: Robot, m: Measurements, residuals: torch.Tensor, seed: in
     N = len(r)
     pose = m.pose.cpu().numpy()
     rms = float(np.sqrt((r ** 2).sum(-1).mean()))
-    folds = _fold_of_pose(pose, seed)
+    folds = fold_of_pose(pose, seed, FOLDS)
     _, pose_idx = np.unique(pose, return_inverse=True)
     D = tcp_columns(robot, m.q)  # (N, 3, n + 3)
     values = variables(robot, m) if N > 1 else {}

@@ -2,19 +2,19 @@
 variables, held out by pose.
 
 The residual r (N, 3) mm of a fitted model is regressed on the variables of each row:
-every joint angle as (sin q, cos q) (a prismatic joint, and temp_c, payload_kg, as its
-value over its standard deviation) and, as a second candidate input set, also the approach
-direction of each joint (sign of q - q_prev, +-1). The model is kernel ridge regression
-(the posterior mean of a Gaussian process) with the RBF kernel
-``k(x, x') = exp(-|x - x'|^2 / (2 l^2))``, one length scale l for all inputs, and the
-three components of r as three outputs that share the kernel:
+each revolute joint angle as (sin q, cos q), each approach direction ``approach_qJ`` as
++-1, and temp_c, payload_kg and a prismatic joint as value over standard deviation. The
+model is kernel ridge regression (the posterior mean of a Gaussian process) with the RBF
+kernel ``k(x, x') = exp(-|x - x'|^2 / (2 l^2))``, one length scale l for the chosen
+inputs, and the three components of r as three outputs that share the kernel:
 ``r_hat(x) = k(x, X) alpha``, ``alpha = (K + lam I)^-1 R``.
 
-Hyper-parameters (input set, l in `LENGTH_SCALES`, lam in `RIDGES`) are chosen by
-pose-grouped cross-validation, nested so that the held-out figure is honest: poses are
-split into `FOLDS` folds; fold f is predicted by the model trained on the other folds with
-the hyper-parameters that predicted best *within* those folds (each inner fold from the
-other inner folds). All ridges of one (input set, l, training set) come from one
+The inputs (an ARD that switches variables on or off) and the hyper-parameters (l in
+`LENGTH_SCALES`, lam in `RIDGES`) are chosen by pose-grouped cross-validation (`choose`:
+forward selection, on at most about MAX_ROWS rows), nested so that the held-out figure is
+honest: poses are split into `FOLDS` folds; fold f is predicted by the model trained on
+the other folds with the inputs and hyper-parameters that predicted best *within* those
+folds (each inner fold from the other inner folds). All ridges of one (inputs, l, training set) come from one
 eigendecomposition K = V diag(w) V^T: the held-out residual of a block B of rows is exactly
 ``[(A^-1)_BB]^-1 (A^-1 R)_B`` with A = K + lam I (the block leave-out identity of
 Gaussian-process regression), A^-1 = V diag(1 / (w + lam)) V^T.

@@ -14,7 +14,7 @@ cases: the simulated robot carries only the fitted model's errors (geometric) pl
   noise, a 0.05 mm error per axis shared by each pose's repeats (no physical effect);
 - null_small: UR5e, geometric only, 30 poses x 2, 0.02 mm noise;
 - smooth60 / smooth240: UR5e, 60 / 240 poses, a hidden smooth error 0.1 mm * sin(2 q2)
-  along x (no effect models it);
+  along x (no effect models it); weak60 / weak240: the same at 0.03 mm (about the noise);
 - bent: Titan, 240 poses, a TCP error 0.2 mm * sin(2 q3) along z that no effect models;
 - coupling30/60/120: UR5e with the user effect examples/joint_coupling.py hidden
   (joint_coupling:3), N poses x 2; `discover` runs without the module, then the report.
@@ -62,14 +62,14 @@ def session(case, seed):
         shared = 0.05 * torch.randn(60, 3, generator=torch.Generator().manual_seed(seed + 3), dtype=torch.float64)
         m = with_error(m, shared[m.pose])
         return ti, m, geometric_residuals(ti, m), ""
-    if case.startswith("null_norep") or case == "null_rep30" or case.startswith("smooth"):
+    if case.startswith("null_norep") or case == "null_rep30" or case.startswith(("smooth", "weak")):
         n = int("".join(c for c in case if c.isdigit()))
         m = VirtualRobot(ur, [], seed=seed).measure(random_poses(ur, n, torch.Generator().manual_seed(seed)),
                                                     repeats=2 if case == "null_rep30" else 1, noise_mm=0.02,
                                                     seed=seed + 1)
-        if case.startswith("smooth"):
+        if case.startswith(("smooth", "weak")):
             e = torch.zeros(len(m), 3, dtype=torch.float64)
-            e[:, 0] = 0.1 * torch.sin(2 * m.q[:, 1])
+            e[:, 0] = (0.1 if case.startswith("smooth") else 0.03) * torch.sin(2 * m.q[:, 1])
             m = with_error(m, e)
         return ur, m, geometric_residuals(ur, m), ""
     if case == "null_small":
@@ -111,4 +111,4 @@ def main(cases):
 
 if __name__ == "__main__":
     main(sys.argv[1:] or ["null_norep60", "null_norep240", "null_rep30", "null_shared", "null_small", "smooth60",
-                          "smooth240", "bent", "coupling60"])
+                          "smooth240", "weak60", "weak240", "bent", "coupling60"])

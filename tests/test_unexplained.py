@@ -52,7 +52,8 @@ def test_repeats_with_a_shared_pose_error_give_no_verdict(repeated_null):
 def test_noise_floor_from_repeats_is_the_simulated_noise(repeated_null):
     m, d = repeated_null
     u = d.to_dict()["unexplained"]
-    assert set(u) == {"significant", "rms_mm", "noise_floor_mm", "correlates_with"}
+    assert set(u) == {"significant", "rms_mm", "noise_floor_mm", "correlates_with", "learnable_rms_mm", "carried_by",
+                      "probe"}
     truth = NOISE * math.sqrt(3)  # distance RMS of the per-axis noise
     assert abs(u["noise_floor_mm"] - truth) < 0.15 * truth, (u, truth)
     assert u["rms_mm"] > 1.5 * u["noise_floor_mm"]  # the shared pose error is above the floor
@@ -146,3 +147,19 @@ def test_held_out_prediction_never_sees_the_rows_it_predicts():
     a, b = held_out_prediction(X, noisy, fold), held_out_prediction(X, moved, fold)
     torch.testing.assert_close(a[fold == 2], b[fold == 2])
     assert (a[fold != 2] - b[fold != 2]).abs().max() > 1e-3  # the other folds do see it
+
+
+def test_probe_reports_a_smooth_error_as_learnable_from_its_joint():
+    """0.2 mm * sin(2 q3) along z (the bent link): the probe's held-out RMS falls well
+    below the residual's, q3 carries it, and the words say how much is learnable."""
+    vr = VirtualRobot(ROBOT, [], seed=71)
+    m = vr.measure(random_poses(ROBOT, 120, 72), noise_mm=NOISE, seed=73)
+    bend = torch.zeros(len(m), 3, dtype=torch.float64)
+    bend[:, 2] = 0.2 * torch.sin(2 * m.q[:, 2])
+    m = with_error(m, bend)
+    u = unexplained(ROBOT, m, geometric_residuals(m))
+    d = u.to_dict()
+    assert d["significant"] and d["probe"]["p_value"] < 1e-6
+    assert d["learnable_rms_mm"] < 0.6 * d["rms_mm"], d
+    assert [c["variable"] for c in d["carried_by"]] == ["q3"], d["carried_by"]
+    assert "mm learnable from q3" in u.describe()

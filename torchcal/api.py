@@ -90,13 +90,16 @@ def _training_rms(model_or_fit, cm: CalibrationModel):
     return getattr(cm, "training_rms_mm", None)
 
 
-def _warn_range(q: torch.Tensor, q_range, robot: Robot, what: str) -> int:
-    """Rows of q (N, n) rad / mm outside the calibrated range; one `CalibratedRangeWarning` when any."""
+def _warn_range(q: torch.Tensor, q_range, robot: Robot, what: str, stage=None) -> int:
+    """Rows of q (N, n) rad / mm outside the calibrated range; one `CalibratedRangeWarning` when any
+    (saying so when a residual stage `stage` is applied there)."""
     import warnings
 
     from torchcal.calibration.joint_range import CalibratedRangeWarning, range_warning
 
     count, msg = range_warning(q, q_range, robot, what)
+    if msg is not None and stage is not None:
+        msg += "; its non-physical residual stage extrapolates worst of all"
     if msg is not None:
         warnings.warn(msg, CalibratedRangeWarning, stacklevel=3)
     return count
@@ -113,7 +116,8 @@ def _measurements(measurements, robot: Robot, length_unit: str = "mm", angle_uni
 
 def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, max_iter: int = 60,
         sigma_mm: float = SIGMA_MM, sigma_deg: float = SIGMA_DEG, max_length_mm: float | None = MAX_LENGTH_MM,
-        max_angle_deg: float | None = MAX_ANGLE_DEG, length_unit: str = "mm", angle_unit: str = "deg") -> FitResult:
+        max_angle_deg: float | None = MAX_ANGLE_DEG, length_unit: str = "mm", angle_unit: str = "deg",
+        residual_model: str | None = None) -> FitResult:
     """Fit the geometric deviations plus `effects` to measured TCP positions (and
     orientations, when the measurements carry rx, ry, rz).
 
@@ -125,7 +129,11 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     file (a path is read in them; `Measurements` were read in them). Before fitting, the
     unit check (`torchcal.calibration.plausibility.check_units`) refuses data that look like
     metres read as mm or radians read as degrees with one InputError line, the line the
-    command line prints. Returns a `FitResult` (``.theta``, ``.status``, ``.rms_mm``, ``.to_dict()`` = the
+    command line prints.
+    residual_model: 'kernel' adds the non-physical residual stage
+    (`torchcal.calibration.residual_model`) as ``res.model.residual_model`` (None when no
+    joint angle predicts the residual); evaluate and compensate apply it.
+    Returns a `FitResult` (``.theta``, ``.status``, ``.rms_mm``, ``.to_dict()`` = the
     MODEL.json of ``torchcal fit``).
     """
     from torchcal.calibration.fit import fit as fit_model
@@ -141,9 +149,13 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     else:
         model = CalibrationModel.for_measurements(robot, effects, m)
     ctx = context_of(model.robot, m)
-    return fit_model(model, ctx, m.xyz, robust=robust, max_iter=max_iter, pose=m.pose, rotation=m.rotation,
-                     sigma_mm=sigma_mm, sigma_deg=sigma_deg, max_length_mm=max_length_mm,
-                     max_angle_deg=max_angle_deg)
+    res = fit_model(model, ctx, m.xyz, robust=robust, max_iter=max_iter, pose=m.pose, rotation=m.rotation,
+                    sigma_mm=sigma_mm, sigma_deg=sigma_deg, max_length_mm=max_length_mm,
+                    max_angle_deg=max_angle_deg)
+    if residual_model is not None:
+        from torchcal.calibration.residual_model import fit_residual_model
+        res.model.residual_model = fit_residual_model(model.robot, m, res.residuals, kind=residual_model)
+    return res
 
 
 @dataclass(frozen=True)
@@ -202,7 +214,10 @@ def evaluate(model, measurements) -> Evaluation:
     cm.check_context(ctx)
     theta = theta.to(m.xyz)
     enforce(check_measurements(cm, theta, m, _training_rms(model, cm)))  # another robot, frame, units
-    err = m.xyz - cm.predict(theta, ctx)  # (N, 3) mm
+    stage = getattr(cm, "residual_model", None)
+    err = m.xyz - cm.predict(theta, ctx)  # (N, 3) mm; minus the residual stage's correction
+    if stage is not None:
+        err = err - stage.predict(m.q).to(err)
     d = err.norm(dim=-1)
     orient = orient_rows = None
     tool_r = _tool_rotation(model, cm)
@@ -211,7 +226,7 @@ def evaluate(model, measurements) -> Evaluation:
         orient = math.degrees(float(e.norm(dim=-1).pow(2).mean().sqrt()))
         orient_rows = torch.rad2deg(e.norm(dim=-1)).detach()
     q_range = _q_range(model, cm)
-    outside = None if q_range is None else _warn_range(m.q, q_range, cm.robot, "rows")
+    outside = None if q_range is None else _warn_range(m.q, q_range, cm.robot, "rows", stage)
     rows_out = None
     if q_range is not None:
         from torchcal.calibration.joint_range import outside_range
@@ -298,6 +313,26 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
     return im
 
 
+def _with_stage(stage, cm, theta, t, comp, zone, options, max_rounds: int = 10):
+    """Compensation through physical model + residual stage: solve the physical model for
+    the target minus the stage's correction at the current solution, until the correction
+    changes by at most tol_mm (it varies slowly with q: a few rounds)."""
+    from torchcal.calibration.compensate import compensate as run
+
+    tol = float(options.get("tol_mm", 1e-6))
+    corr = stage.predict(comp.q).to(t)
+    for _ in range(max_rounds):
+        comp = run(cm, theta, t - corr, comp.q, zone=zone, **options)
+        new = stage.predict(comp.q).to(t)
+        moved = float((new - corr).norm(dim=-1).max()) if len(t) else 0.0
+        corr = new
+        if moved <= tol:
+            break
+    pred = comp.predicted_mm + corr
+    res = t - pred
+    return replace(comp, predicted_mm=pred, residual_mm=res, converged=comp.converged & (res.norm(dim=-1) <= tol))
+
+
 def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int = 30, max_step_rad: float = 0.2,
                payload_kg=None, temp_c=None, check: bool = True):
     """Corrected joint commands (M, n) rad for target positions (M, 3) mm.
@@ -312,6 +347,9 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
     counted (``outside_range``) and named in one `CalibratedRangeWarning`. check: targets
     inside the robot's base (metres read as mm) are refused, targets beyond its reach
     named in a `MismatchWarning` (`torchcal.calibration.mismatch.check_targets`).
+ A model with a
+    residual stage (``model.residual_model``) is inverted with it (the physical model is
+    solved for the target minus the stage's correction, repeated until it settles).
     """
     from torchcal.calibration.compensate import compensate as run, nominal_start
     from torchcal.calibration.intervals import IntervalModel
@@ -334,9 +372,14 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
     zone = model.assign(t) - 1 if isinstance(model, IntervalModel) else None  # row of theta
     comp = run(cm, theta.to(t), t, q0, zone=zone, tol_mm=tol_mm, max_iter=max_iter, max_step_rad=max_step_rad,
                payload_kg=payload_kg, temp_c=temp_c)
+    stage = getattr(cm, "residual_model", None)
+    if stage is not None:
+        options = dict(tol_mm=tol_mm, max_iter=max_iter, max_step_rad=max_step_rad, payload_kg=payload_kg,
+                       temp_c=temp_c)
+        comp = _with_stage(stage, cm, theta.to(t), t, comp, zone, options)
     if q_range is None:
         return comp
-    outside = _warn_range(comp.q[comp.converged], q_range, robot, "converged targets")
+    outside = _warn_range(comp.q[comp.converged], q_range, robot, "converged targets", stage)
     return replace(comp, outside_range=outside)
 
 

@@ -90,6 +90,8 @@ def run(args) -> int:
           f"max {rep['max_mm']:.4f} mm; per axis rms x {x:.4f} y {y:.4f} z {z:.4f} mm"
           + (f"; orientation rms {rep['orientation_rms_deg'] * 1000:.4g} mdeg"
              if "orientation_rms_deg" in rep else ""))
+    if getattr(model, "residual_model", None) is not None:
+        print("(errors of the physical model plus its non-physical residual stage, docs/residual-model.md)")
     if args.residuals:
         print(f"wrote {args.residuals}")
     if args.rrd or args.plots:

@@ -114,6 +114,9 @@ def run(args) -> int:
         raise InputError("export: give at least one of --robot-file, --urdf, --table")
     check_outputs(outs, args.force, inputs=[args.model, args.data])
     im = load_model(args.model)
+    if getattr(im.model, "residual_model", None) is not None:
+        print(f"{args.model}: its non-physical residual stage is dropped (a URDF, robot file or table holds only "
+              f"the physical model)")
     cal, rest = calibrated_robot(im.model, im.theta[0])
     if rest and args.data:
         cal, rest = refit_export(im.model, im.theta[0], args, identified=im.free[0])

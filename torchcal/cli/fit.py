@@ -40,6 +40,9 @@ def add_parser(sub):
                    help=f"hold fitted |dd|, |da| beyond this at nominal (default {MAX_LENGTH_MM}; 0 = no check)")
     p.add_argument("--max-deviation-deg", type=nonneg_float, default=MAX_ANGLE_DEG,
                    help=f"hold fitted |dtheta|, |dalpha|, |dbeta| beyond this (default {MAX_ANGLE_DEG}; 0 = no check)")
+    p.add_argument("--residual-model", choices=["kernel"],
+                   help="add a non-physical residual stage: kernel ridge of the residual on the joint angles, "
+                        "applied by evaluate and compensate, dropped by export (docs/residual-model.md)")
     p.add_argument("--out", required=True, help="MODEL.json to write")
     add_units(p)
     add_force(p)
@@ -58,7 +61,8 @@ def fit_file(args):
     check = args.max_deviation_mm and args.max_deviation_deg  # 0 turns the check off
     return m, fit(robot, m, specs, robust=args.robust, sigma_mm=args.sigma_mm, sigma_deg=args.sigma_deg,
                   max_length_mm=args.max_deviation_mm if check else None,
-                  max_angle_deg=args.max_deviation_deg if check else None, **units(args))
+                  max_angle_deg=args.max_deviation_deg if check else None,
+                  residual_model=getattr(args, "residual_model", None), **units(args))
 
 
 def _still_joints(m) -> list[str]:
@@ -153,6 +157,10 @@ def run(args) -> int:
             if p["identified"]:
                 print(f"  {p['name']:<16} {p['value']:+.6g} +- {p['std']:.3g} {p['unit']}  "
                       f"[{p['ci95'][0]:+.6g}, {p['ci95'][1]:+.6g}]")
+    if getattr(args, "residual_model", None):
+        stage = getattr(res.model, "residual_model", None)
+        print(stage.describe() + "; evaluate and compensate apply it, export drops it" if stage is not None else
+              "residual stage: not added, no joint angle predicts the residual on held-out poses")
     if res.outliers:
         print(f"outliers (pose ids): {', '.join(map(str, obj['fit']['outlier_poses']))}")
     hint = _robust_hint(res, args.robust)

@@ -44,7 +44,18 @@
   listed one (in random poses the approach direction of a joint goes with its angle) is
   not listed, and a variable that explains nothing on its own is never listed.
   The strength reported is the variable's own (first-step) R^2.
-- significant: structured error remains, i.e. at least one variable correlates.
+- learnable_rms_mm: what a flexible smooth model of the residual on the recorded
+  variables leaves on held-out poses (`torchcal.diagnosis.probe`: kernel ridge on the
+  joint angles, temp_c, payload_kg and the approach directions, hyper-parameters and
+  inputs by nested pose-grouped CV). ``sqrt(rms^2 - learnable_rms^2)`` is the part of the
+  error that is learnable from the recorded variables; carried_by names the variables
+  the probe needs for it (share of it lost without each).
+- significant: structured error remains: the probe beats the model on held-out poses
+  beyond chance (one-sided paired t-test over poses at PROBE_ALPHA), or a variable is
+  listed in correlates_with. Calibrated on simulated null sessions
+  (benchmarks/study_unexplained.py, docs/diagnosis.md).
+- noise_floor_mm without repeats is the smaller of the estimate above and
+  learnable_rms_mm (both are upper bounds of the noise).
 """
 
 from __future__ import annotations
@@ -55,6 +66,7 @@ import numpy as np
 import scipy.stats
 import torch
 
+from torchcal.diagnosis.probe import Probe, fold_of_pose, probe
 from torchcal.measurements import Measurements
 from torchcal.robots.robot import Robot
 
@@ -62,13 +74,17 @@ ALPHA = 1e-3
 MIN_STRENGTH = 0.02
 KNOTS = 6
 FOLDS = 5
+#: level of the probe's one-sided test over poses (held-out gain > 0).
+PROBE_ALPHA = 0.01
 
 
 @dataclass
 class Unexplained:
     """What remains. rms_mm, noise_floor_mm: distance RMS in mm; floor_from: 'repeats' or
     'estimate'; correlates_with: [(variable, strength)] strongest first (significant only);
-    strengths: every variable tested -> (strength, p-value)."""
+    strengths: every variable tested -> (strength, p-value); learnable_rms_mm: what the
+    kernel probe leaves on held-out poses (mm), carried_by: [(variable, relevance)] of the
+    probe, probe: the full `torchcal.diagnosis.probe.Probe`."""
 
     significant: bool
     rms_mm: float
@@ -77,16 +93,41 @@ class Unexplained:
     floor_from: str = "repeats"
     strengths: dict = field(default_factory=dict, repr=False)
     residuals: np.ndarray | None = field(default=None, repr=False)  # (N, 3) mm, what was looked at
+    learnable_rms_mm: float | None = None
+    carried_by: list = field(default_factory=list)
+    probe: Probe | None = field(default=None, repr=False)
 
     def to_dict(self) -> dict:
-        return {"significant": self.significant, "rms_mm": self.rms_mm, "noise_floor_mm": self.noise_floor_mm,
-                "correlates_with": [{"variable": v, "strength": s} for v, s in self.correlates_with]}
+        out = {"significant": self.significant, "rms_mm": self.rms_mm, "noise_floor_mm": self.noise_floor_mm,
+               "correlates_with": [{"variable": v, "strength": s} for v, s in self.correlates_with]}
+        if self.probe is not None:
+            pr = self.probe
+            out["learnable_rms_mm"] = self.learnable_rms_mm
+            out["carried_by"] = [{"variable": v, "relevance": float(s)} for v, s in self.carried_by]
+            out["probe"] = {"p_value": pr.p_value, "inputs": list(pr.inputs), "length_scale_rad": pr.length_scale,
+                            "ridge": pr.ridge}
+        return out
+
+    def learnable_words(self) -> str:
+        """How much of the error is learnable from the recorded variables, in words."""
+        pr = self.probe
+        if pr is None:
+            return ""
+        if pr.p_value >= PROBE_ALPHA:
+            return (f"\n  learnable: nothing beyond chance: a kernel probe on the recorded variables does not beat "
+                    f"the model on held-out poses (p {pr.p_value:.2g}; it leaves {self.learnable_rms_mm:.4f} mm)")
+        by = ", ".join(v for v, _ in self.carried_by) or ", ".join(pr.inputs)
+        return (f"\n  learnable: of {self.rms_mm:.4f} mm RMS, the model leaves {pr.learnable_mm:.4f} mm learnable "
+                f"from {by}: a kernel probe on held-out poses brings it to {self.learnable_rms_mm:.4f} mm "
+                f"(p {pr.p_value:.2g}); the rest is not predictable from the recorded variables")
 
     def describe(self) -> str:
         """The same in words (one or two lines)."""
         floor = f"noise floor {self.noise_floor_mm:.4f} mm ({'from repeats' if self.floor_from == 'repeats' else 'estimated, no repeats: an upper bound'})"
-        head = f"unexplained: rms {self.rms_mm:.4f} mm, {floor}"
+        head = f"unexplained: rms {self.rms_mm:.4f} mm, {floor}" + self.learnable_words()
         if self.significant:
+            if not self.correlates_with:
+                return head + "\n  structured error remains: no single variable's smooth model lists it"
             deps = ", ".join(f"{v} (held-out R2 {s:.2f})" for v, s in self.correlates_with)
             return head + f"\n  structured error remains: it depends on {deps}"
         if self.floor_from == "repeats" and self.rms_mm > 1.2 * self.noise_floor_mm:
@@ -137,11 +178,6 @@ def smooth_columns(H: torch.Tensor, D: torch.Tensor) -> torch.Tensor:
     """(3N, b (n + 3)) columns ``phi_b(v) * D`` of one variable's smooth model: H (N, b) its
     `basis`, D (N, 3, n + 3) the `tcp_columns`; 3 rows per measurement."""
     return (H[:, None, :, None] * D[:, :, None, :]).reshape(H.shape[0] * 3, -1)
-
-
-def _fold_of_pose(pose: np.ndarray, seed: int) -> np.ndarray:
-    ids, inverse = np.unique(pose, return_inverse=True)
-    return (np.random.default_rng(seed).permutation(len(ids)) % FOLDS)[inverse]
 
 
 def noise_floor_from_repeats(pose: np.ndarray, r: np.ndarray) -> float | None:
@@ -222,7 +258,7 @@ def unexplained(robot: Robot, m: Measurements, residuals: torch.Tensor, seed: in
     N = len(r)
     pose = m.pose.cpu().numpy()
     rms = float(np.sqrt((r ** 2).sum(-1).mean()))
-    folds = _fold_of_pose(pose, seed)
+    folds = fold_of_pose(pose, seed, FOLDS)
     _, pose_idx = np.unique(pose, return_inverse=True)
     D = tcp_columns(robot, m.q)  # (N, 3, n + 3)
     values = variables(robot, m) if N > 1 else {}
@@ -239,9 +275,13 @@ def unexplained(robot: Robot, m: Measurements, residuals: torch.Tensor, seed: in
         rest = rest - tested[name][2]
         left = {k: v for k, v in values.items() if k not in {c for c, _ in corr}}
         tested, step = _test(left, D, rest, folds, pose_idx), step + 1
+    pr = probe({k: v for k, v in values.items()}, r, pose, seed=seed,
+               prismatic=robot.prismatic.nonzero().flatten().tolist())
     floor = noise_floor_from_repeats(pose, r)
     source = "repeats"
     if floor is None:
         best = max((s for s, _ in strengths.values()), default=0.0)
-        floor, source = rms * float(np.sqrt(1 - min(max(best, 0.0), 1.0))), "estimate"
-    return Unexplained(bool(corr), rms, floor, [(k, float(s)) for k, s in corr], source, strengths, r)
+        floor, source = min(rms * float(np.sqrt(1 - min(max(best, 0.0), 1.0))), pr.learnable_rms_mm), "estimate"
+    found = pr.p_value < PROBE_ALPHA
+    return Unexplained(bool(corr) or found, rms, floor, [(k, float(s)) for k, s in corr], source, strengths, r,
+                       pr.learnable_rms_mm, pr.carried_by() if found else [], pr)

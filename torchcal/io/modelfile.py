@@ -15,7 +15,9 @@
                       "rotation_angle_deg"} (the closed-form start),
      "plausibility": {"max_length_mm", "max_angle_deg", "held": [NAME...]},
      "orientation": {"sigma_mm", "sigma_deg", "weight_mm_per_deg", "rms_deg",
-                     "tool_rotation_fixed_xyz_deg"}}
+                     "tool_rotation_fixed_xyz_deg"},
+     "residual_model": {...} (the optional non-physical residual stage,
+                       `torchcal.calibration.residual_model`)}
 
 Values are in the units named beside them: mm and degrees (radians inside; `file_unit`:
 'rad' -> 'deg', 'rad/mm' -> 'deg/mm', the joint_compliance payload term -> the joint's
@@ -109,6 +111,9 @@ def to_dict(res: FitResult, source=None, seed: int = 0, pose_ids=None) -> dict:
         extra["orientation"]["weight_mm_per_deg"] = math.radians(o["weight_mm_per_rad"])
         extra["orientation"]["tool_rotation_fixed_xyz_deg"] = torch.rad2deg(
             matrix_to_fixed_xyz(o["tool_rotation"].detach().cpu().double())).tolist()
+    stage = getattr(model, "residual_model", None)
+    if stage is not None:
+        extra["residual_model"] = stage.to_dict()
     units, k = file_units(model)  # degrees and mm in the file, radians inside
     cov = None
     if res.covariance is not None:
@@ -190,6 +195,10 @@ def load(path, robot: Robot | str | None = None):
     if obj.get("calibrated_range") is not None:
         from torchcal.calibration.joint_range import range_from_dict
         model.calibrated_range = range_from_dict(obj["calibrated_range"], nominal, str(path))
+    model.residual_model = None  # the optional non-physical residual stage
+    if obj.get("residual_model") is not None:
+        from torchcal.calibration.residual_model import from_dict
+        model.residual_model = from_dict(obj["residual_model"], nominal, str(path))
     return model, theta
 
 

@@ -1,0 +1,172 @@
+"""The optional residual stage (a non-physical kernel correction on top of the physical
+model) and the kernel probe it is built from.
+
+Data: the project's simulator (UR5e, geometric deviations as the "real" robot), 0.02 mm
+noise per axis, plus a smooth error the physical model cannot hold, injected here by hand:
+0.3 mm * sin(2 q2) along x and 0.2 mm * cos(q3) along z.
+"""
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+import torchcal
+from torchcal.calibration.joint_range import CalibratedRangeWarning
+from torchcal.cli import main
+from torchcal.diagnosis import probe as P
+from torchcal.io import modelfile
+from torchcal.io.measurement_csv import write_measurements
+from torchcal.measurements import Measurements
+from torchcal.robots.poses import random_poses
+from torchcal.simulation.virtual_robot import VirtualRobot
+
+ROBOT = torchcal.robot("ur5e")
+pytestmark = pytest.mark.filterwarnings("ignore::torchcal.calibration.joint_range.CalibratedRangeWarning")
+
+
+def hidden(m: Measurements) -> Measurements:
+    e = torch.zeros(len(m), 3, dtype=torch.float64)
+    e[:, 0] = 0.3 * torch.sin(2 * m.q[:, 1])
+    e[:, 2] = 0.2 * torch.cos(m.q[:, 2])
+    return Measurements(m.pose, m.q, m.xyz + e, m.payload_kg, m.temp_c, q_prev=m.q_prev)
+
+
+@pytest.fixture(scope="module")
+def sessions():
+    vr = VirtualRobot(ROBOT, [], seed=61)
+    train = hidden(vr.measure(random_poses(ROBOT, 200, torch.Generator().manual_seed(62)), noise_mm=0.02, seed=63))
+    test = hidden(vr.measure(random_poses(ROBOT, 100, torch.Generator().manual_seed(64)), noise_mm=0.02, seed=65))
+    return train, test, torchcal.fit(ROBOT, train, residual_model="kernel")
+
+
+def test_stage_improves_held_out_error_of_a_hidden_smooth_effect(sessions):
+    train, test, res = sessions
+    stage = res.model.residual_model
+    assert stage is not None and "q2" in stage.inputs, stage
+    with_stage = torchcal.evaluate(res, test).rms_mm
+    res.model.residual_model = None
+    try:
+        without = torchcal.evaluate(res, test).rms_mm
+    finally:
+        res.model.residual_model = stage
+    assert with_stage < 0.6 * without, (with_stage, without)
+
+
+def test_stage_prediction_is_kernel_ridge_by_hand(sessions):
+    """predict(q) = k(x(q), X) (K + lam I)^-1 R with the fit's residuals R, in numpy."""
+    train, test, res = sessions
+    s = res.model.residual_model
+    x = lambda q: np.hstack([np.sin(q), np.cos(q)])  # noqa: E731
+    Xt, Xs = x(train.q.numpy()[:, s.joints]), x(test.q.numpy()[:, s.joints])
+    k = lambda a, b: np.exp(-((a[:, None] - b[None]) ** 2).sum(-1) / (2 * s.length_scale ** 2))  # noqa: E731
+    alpha = np.linalg.solve(k(Xt, Xt) + s.ridge * np.eye(len(Xt)), res.residuals.numpy())
+    np.testing.assert_allclose(s.predict(test.q).numpy(), k(Xs, Xt) @ alpha, atol=1e-9)
+
+
+def test_model_file_round_trip_gives_identical_predictions(sessions, tmp_path):
+    train, test, res = sessions
+    obj = modelfile.to_dict(res)
+    text = json.dumps(obj)
+    assert obj["residual_model"]["non_physical"] is True
+    (tmp_path / "m.json").write_text(text)
+    cm, theta = modelfile.load(tmp_path / "m.json")
+    torch.testing.assert_close(cm.residual_model.predict(test.q), res.model.residual_model.predict(test.q),
+                               rtol=0, atol=1e-12)
+    a, b = torchcal.evaluate(res, test), torchcal.evaluate(tmp_path / "m.json", test)
+    assert a.rms_mm == pytest.approx(b.rms_mm, rel=1e-12) and a.max_mm == pytest.approx(b.max_mm, rel=1e-12)
+
+
+def test_compensate_inverts_physical_model_plus_stage(sessions):
+    train, test, res = sessions
+    targets = test.xyz[:20]
+    comp = torchcal.compensate(res, targets, q0=test.q[:20])
+    assert bool(comp.converged.all())
+    from torchcal.effects import make_context
+    phys = res.model.predict(res.theta, make_context(ROBOT, comp.q))
+    reached = phys + res.model.residual_model.predict(comp.q)
+    assert float((reached - targets).norm(dim=-1).max()) < 1e-5
+
+
+def test_stage_warns_once_outside_the_calibrated_range(sessions):
+    train, test, res = sessions
+    q = test.q.clone()
+    q[:5, 1] = res.q_range[1, 1] + 0.3  # joint 2 beyond what the fit saw
+    far = Measurements(test.pose, q, test.xyz, test.payload_kg, test.temp_c)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        torchcal.evaluate(res, far)
+    ours = [w for w in caught if issubclass(w.category, CalibratedRangeWarning)]
+    assert len(ours) == 1 and "residual stage extrapolates" in str(ours[0].message)
+
+
+def test_export_drops_the_stage_with_one_line(sessions, tmp_path, capsys):
+    train, test, res = sessions
+    (tmp_path / "m.json").write_text(json.dumps(modelfile.to_dict(res)))
+    assert main(["export", str(tmp_path / "m.json"), "--robot-file", str(tmp_path / "cal.json")]) == 0
+    out = capsys.readouterr().out
+    assert sum("residual stage is dropped" in line for line in out.splitlines()) == 1
+    assert "residual" not in (tmp_path / "cal.json").read_text()
+
+
+def test_fit_cli_stores_the_stage_and_evaluate_applies_it(sessions, tmp_path, capsys):
+    train, test, res = sessions
+    write_measurements(tmp_path / "tr.csv", train)
+    write_measurements(tmp_path / "te.csv", test)
+    assert main(["fit", str(tmp_path / "tr.csv"), "--robot", "ur5e", "--residual-model", "kernel",
+                 "--out", str(tmp_path / "m.json")]) == 0
+    assert "non-physical" in capsys.readouterr().out
+    assert main(["evaluate", str(tmp_path / "te.csv"), "--model", str(tmp_path / "m.json"),
+                 "--json", str(tmp_path / "e.json")]) == 0
+    got = json.loads((tmp_path / "e.json").read_text())["rms_mm"]
+    assert got == pytest.approx(torchcal.evaluate(res, test).rms_mm, rel=1e-6)
+
+
+# ------------------------------------------------------------------------- the probe
+def test_block_cv_matches_explicit_kernel_ridge_solves():
+    g = np.random.default_rng(5)
+    X, Y = torch.from_numpy(g.normal(size=(30, 2))), torch.from_numpy(g.normal(size=(30, 3)))
+    K = P.rbf(X, X, 0.8)
+    blocks = [torch.arange(0, 10), torch.arange(10, 30)]
+    pred, alpha = P.block_cv(K, Y, blocks, (0.01, 1.0))
+    Kn, Yn = K.numpy(), Y.numpy()
+    for i, lam in enumerate((0.01, 1.0)):
+        np.testing.assert_allclose(alpha[i].numpy(), np.linalg.solve(Kn + lam * np.eye(30), Yn), atol=1e-9)
+        for B in blocks:
+            b = B.numpy()
+            rest = np.setdiff1d(np.arange(30), b)
+            a = np.linalg.solve(Kn[np.ix_(rest, rest)] + lam * np.eye(len(rest)), Yn[rest])
+            np.testing.assert_allclose(pred[i, B].numpy(), Kn[np.ix_(b, rest)] @ a, atol=1e-9)
+
+
+def test_probe_prediction_of_a_fold_never_sees_that_fold():
+    g = np.random.default_rng(6)
+    q = g.uniform(-3, 3, size=(120, 2))
+    r = np.stack([np.sin(2 * q[:, 0]), np.zeros(120), 0.1 * g.normal(size=120)], -1)
+    pose = np.arange(120)
+    fold = P.fold_of_pose(pose, 0)
+    a = P.probe({"q1": q[:, 0], "q2": q[:, 1]}, r, pose)
+    moved = r.copy()
+    moved[fold == 1] += 5.0
+    b = P.probe({"q1": q[:, 0], "q2": q[:, 1]}, moved, pose)
+    np.testing.assert_allclose(a.prediction[fold == 1], b.prediction[fold == 1], atol=1e-12)
+    assert np.abs(a.prediction[fold != 1] - b.prediction[fold != 1]).max() > 1e-3
+    assert a.p_value < 1e-6 and [v for v, _ in a.carried_by()] == ["q1"], (a.p_value, a.relevance)
+    assert a.learnable_rms_mm < 0.5 * a.rms_mm
+
+
+def test_compensate_cli_applies_the_stage(sessions, tmp_path):
+    train, test, res = sessions
+    (tmp_path / "m.json").write_text(json.dumps(modelfile.to_dict(res)))
+    q0 = torch.rad2deg(test.q[:10]).numpy()
+    xyz = test.xyz[:10].numpy()
+    head = "x,y,z," + ",".join(f"q{j + 1}" for j in range(ROBOT.n))
+    np.savetxt(tmp_path / "t.csv", np.hstack([xyz, q0]), delimiter=",", header=head, comments="", fmt="%.12g")
+    assert main(["compensate", str(tmp_path / "t.csv"), "--model", str(tmp_path / "m.json"),
+                 "--out", str(tmp_path / "q.csv")]) == 0
+    out = np.genfromtxt(tmp_path / "q.csv", delimiter=",", names=True)
+    q_cli = np.stack([out[f"q{j + 1}"] for j in range(ROBOT.n)], -1)
+    lib = torchcal.compensate(res, test.xyz[:10], q0=test.q[:10])
+    np.testing.assert_allclose(q_cli, torch.rad2deg(lib.q).numpy(), atol=1e-6)

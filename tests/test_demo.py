@@ -36,7 +36,7 @@ def run():
 def test_progress_reports_the_work_done_not_the_steps_started(run):
     """Each step start reports the shares of the steps before it (discovery's big share
     counted only once it is done); 100 % only when the last seed has finished."""
-    from torchcal.workflows.paper import step_shares
+    from torchcal.workflows.paper_experiment import step_shares
 
     share = step_shares(SMALL)
     steps = ["sweep", "partition", "calibrate", "discover", "test", "done"]

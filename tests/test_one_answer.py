@@ -128,7 +128,9 @@ def test_fit_refuses_metres_with_the_cli_line(kr, tmp_path, capsys):
     res = torchcal.fit("kr1000titan", data, length_unit="m")
     assert main(["fit", str(data), "--robot", "kr1000titan", "--length-unit", "m", "--out", str(out)]) == 0
     cli = json.loads(out.read_text())
-    assert [p["value"] for p in cli["parameters"]] == pytest.approx(res.theta.tolist(), abs=1e-12)
+    from torchcal.io.modelfile import file_units
+    _, k = file_units(res.model)  # the file's units (deg, mm) per parameter
+    assert [p["value"] for p in cli["parameters"]] == pytest.approx((res.theta * k).tolist(), abs=1e-10)
 
 
 def _targets(tmp_path, rows, name="targets.csv"):

@@ -94,7 +94,9 @@ def test_stage_warns_once_outside_the_calibrated_range(sessions):
     train, test, res = sessions
     q = test.q.clone()
     q[:5, 1] = res.q_range[1, 1] + 0.3  # joint 2 beyond what the fit saw
-    far = Measurements(test.pose, q, test.xyz, test.payload_kg, test.temp_c)
+    from torchcal.effects import make_context
+    moved = res.model.predict(res.theta, make_context(ROBOT, q)) - res.model.predict(res.theta, make_context(ROBOT, test.q))
+    far = Measurements(test.pose, q, test.xyz + moved, test.payload_kg, test.temp_c)  # what the arm would measure there
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         torchcal.evaluate(res, far)

@@ -440,7 +440,7 @@ def _is_model(obj) -> bool:
 
 def _file_covariance(path, cm: CalibrationModel):
     """(ParameterCovariance or None, identified (P,) bool) of a MODEL.json."""
-    from torchcal.calibration.uncertainty import ParameterCovariance
+    from torchcal.calibration.covariance import ParameterCovariance
     from torchcal.io.files import read_json
     from torchcal.io.modelfile import load_covariance
 

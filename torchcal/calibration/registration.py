@@ -106,7 +106,7 @@ def reregister(model, theta: torch.Tensor, ctx, xyz: torch.Tensor, *, tool: bool
 
     model, theta (P,): the fitted model; ctx, xyz (N, 3) mm: the new measurements (their
     context). The base frame (and the tool offset when `tool`) starts at the closed-form
-    `register` and is refined by Levenberg-Marquardt with every other parameter fixed;
+    `register_frame` and is refined by Levenberg-Marquardt with every other parameter fixed;
     a model without base_frame (or tool_offset) gets it appended. covariance: the
     model's `ParameterCovariance` (None: unknown); its rows and columns of the frame are
     replaced by the registration's own estimate (no cross terms: the frame is estimated
@@ -121,13 +121,13 @@ def reregister(model, theta: torch.Tensor, ctx, xyz: torch.Tensor, *, tool: bool
     import dataclasses
 
     from torchcal.calibration.fit import fit
-    from torchcal.calibration.uncertainty import ParameterCovariance
+    from torchcal.calibration.covariance import ParameterCovariance
 
     P0 = theta.shape[0]
     model, theta = with_frame(model, theta.detach().to(xyz), tool)
     with torch.no_grad():
         before = float((model.predict(theta, ctx) - xyz).norm(dim=-1).pow(2).mean().sqrt())
-    start, info = register(model, ctx, xyz, theta)
+    start, info = register_frame(model, ctx, xyz, theta)
     free = torch.zeros(model.n_params, dtype=torch.bool)
     for sl in frame_slices(model, tool):
         free[sl] = True

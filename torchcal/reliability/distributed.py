@@ -1,0 +1,294 @@
+"""The workspace sweep in blocks: in this process or on a Dask cluster, streamed, resumable.
+
+    plan = plan_sweep(robot, n_points=10**6, n_samples=1000, allowed_mm=2.5, seed=0)
+    with connect(workers=2) as client:            # or connect(scheduler="tcp://host:8786")
+        summary = run_sweep(plan, "sweep.csv", client=client)
+
+A block of points (`torchcal.reliability.sweep.sweep_block`: its points drawn from the
+block's own seed, the same clearance states for every block) is one task; each worker runs
+the sweep's batched kernel on it and sends back the block's CSV rows and summary
+statistics, which this process writes block by block (`torchcal.io.sweep_blocks`), so its
+memory does not grow with N. The output file is the same, byte for byte, as
+`write_sweep(sweep(robot, n_points=..., seed=..., block=...))` in one process, whatever the
+number of workers. A run that stops (killed, a lost connection) leaves its finished blocks;
+the same run started again computes only the missing ones. A worker that dies mid-block
+is replaced by Dask and its task run again; a block reaches the output once.
+
+Dask is imported only here, and only when a cluster is asked for (`connect`): it is the
+optional extra ``pip install 'torchcal[distributed]'``. docs/scale.md: running on a cluster.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import sys
+import uuid
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from torchcal.errors import InputError
+from torchcal.reliability.interval import Interval
+from torchcal.reliability.sweep import (DEFAULT_BLOCK, SweepResult, Workspace, _check_allowed, _check_count,
+                                        block_range, sweep_block, sweep_states)
+
+EXTRA_HINT = "pip install 'torchcal[distributed]'"
+R_BINS = 10_000  # R_set histogram over [0, 1]: the summary's median to 1e-4
+RATIO_BINS = 20_000  # sampled / linearised half-width over [0, 2]: its median to 1e-4
+
+
+@dataclass(frozen=True, eq=False)
+class SweepPlan:
+    """Everything a block needs (sent once to every worker). Build it with `plan_sweep`.
+
+    Attributes:
+        robot: the `torchcal.Robot` (CPU, float64).
+        n_points, n_samples: N points, M clearance states.
+        allowed_mm: allowed distance error D (mm).
+        seed: seed of the points (per block, `block_seed`) and of the states.
+        block: points per block.
+        deviations: (M, n, 5) the clearance states as MD-H deviations (rad, mm).
+        dev_box: Interval (n, 5) of the deviations (the linearised hull's box).
+        workspace: the Workspace filter (None: default).
+    """
+
+    robot: object
+    n_points: int
+    n_samples: int
+    allowed_mm: float
+    seed: int
+    block: int
+    deviations: torch.Tensor
+    dev_box: Interval
+    workspace: Workspace | None = None
+
+    @property
+    def n_blocks(self) -> int:
+        return -(-self.n_points // self.block)
+
+    def block_points(self, index: int) -> int:
+        a0, a1 = block_range(index, n_points=self.n_points, block=self.block)
+        return a1 - a0
+
+    def manifest(self) -> dict:
+        """What the sweep computes: a rerun takes up a partial output only if this matches."""
+        r = self.robot.to("cpu", torch.float64)
+        robot = _digest([r.table, r.limits, r.base, r.tool, r.prismatic])
+        states = _digest([self.deviations, self.dev_box.lower, self.dev_box.upper])
+        return {"format": "torchcal sweep blocks 1", "robot": r.name, "robot_sha256": robot,
+                "states_sha256": states, "points": self.n_points, "samples": self.n_samples,
+                "allowed_mm": self.allowed_mm, "seed": self.seed, "block": self.block,
+                "workspace": asdict(self.workspace or Workspace())}
+
+    def compute(self, index: int, threads: int = 1) -> tuple[str, dict]:
+        """Block `index`: its CSV rows (torchcal.io.sweep_csv) and statistics (`block_stats`)."""
+        from torchcal.io.sweep_csv import sweep_csv_rows
+
+        r = sweep_block(self.robot, index, n_points=self.n_points, deviations=self.deviations,
+                        dev_box=self.dev_box, allowed_mm=self.allowed_mm, seed=self.seed, block=self.block,
+                        workspace=self.workspace, threads=threads)
+        return sweep_csv_rows(r), block_stats(r)
+
+
+def _digest(tensors) -> str:
+    h = hashlib.sha256()
+    for t in tensors:
+        h.update(t.detach().to("cpu", torch.float64).contiguous().numpy().tobytes())
+    return h.hexdigest()
+
+
+def plan_sweep(robot, *, n_points: int, n_samples: int = 300, allowed_mm: float = 2.5, seed: int = 0,
+               model=None, block: int = DEFAULT_BLOCK, workspace: Workspace | None = None) -> SweepPlan:
+    """The plan of `sweep(robot, n_points=..., n_samples=..., seed=..., model=..., block=...)`
+    computed block by block (the clearance states are drawn here, once)."""
+    _check_count(n_points, "number of workspace points")
+    _check_count(block, "points per block")
+    _check_allowed(allowed_mm, None)
+    deviations, dev_box = sweep_states(robot, n_samples=n_samples, seed=seed, model=model)
+    return SweepPlan(robot=robot.to("cpu", torch.float64), n_points=int(n_points), n_samples=int(n_samples),
+                     allowed_mm=float(allowed_mm), seed=int(seed), block=int(block), deviations=deviations,
+                     dev_box=dev_box, workspace=workspace)
+
+
+def block_stats(r: SweepResult) -> dict:
+    """Summary statistics of a block, to merge over blocks (`merge_summary`): counts, exact
+    minima and maxima, histograms of R_set and of the linear ratio (for the medians)."""
+    rs = r.r_set.detach().double().cpu().numpy()
+    out = {"points": np.int64(len(rs)), "r_set_min": rs.min(), "r_set_max": rs.max(),
+           "r_set_1": np.int64((rs >= 1.0).sum()), "r_set_hist": np.histogram(rs[rs < 1.0], R_BINS, (0.0, 1.0))[0],
+           "dist_upper_min": r.dist_upper.min().item(), "dist_upper_max": r.dist_upper.max().item()}
+    ratio = r.linear_ratio()
+    if ratio is not None:
+        ratio = ratio.detach().double().cpu().numpy().ravel()
+        out["ratio_max"] = ratio.max()
+        out["ratio_hist"] = np.histogram(np.clip(ratio, 0.0, 2.0), RATIO_BINS, (0.0, 2.0))[0]
+    return {k: np.asarray(v) for k, v in out.items()}
+
+
+def _hist_median(hist: np.ndarray, lo: float, hi: float, top: int = 0, top_value: float = 1.0) -> float:
+    """Median of the values counted in `hist` (bins over [lo, hi]) and `top` values equal
+    to top_value (above every bin): bin centers, the mean of the two middle ones for an
+    even count, as numpy's median."""
+    cum = np.cumsum(hist)
+    n = int(cum[-1]) + top
+    width = (hi - lo) / len(hist)
+
+    def at(rank):  # 0-based rank
+        if rank >= cum[-1]:
+            return top_value
+        return lo + (np.searchsorted(cum, rank, side="right") + 0.5) * width
+
+    return 0.5 * (at((n - 1) // 2) + at(n // 2))
+
+
+def merge_summary(stats) -> dict:
+    """`SweepResult.summary()` of a sweep from the `block_stats` of its blocks, an iterable
+    read once (medians to 1e-4)."""
+    acc = None
+    for s in stats:
+        if acc is None:
+            acc = {k: np.array(v) for k, v in s.items()}
+            continue
+        for k in ("points", "r_set_1", "r_set_hist", "ratio_hist"):
+            if k in acc:
+                acc[k] = acc[k] + s[k]
+        for k in ("r_set_min", "dist_upper_min"):
+            acc[k] = np.minimum(acc[k], s[k])
+        for k in ("r_set_max", "dist_upper_max", "ratio_max"):
+            if k in acc:
+                acc[k] = np.maximum(acc[k], s[k])
+    n, r1 = int(acc["points"]), int(acc["r_set_1"])
+    out = {"points": n, "r_set_min": float(acc["r_set_min"]),
+           "r_set_median": _hist_median(acc["r_set_hist"], 0.0, 1.0, r1),
+           "r_set_max": float(acc["r_set_max"]), "share_r_set_1": r1 / n,
+           "dist_upper_min_mm": float(acc["dist_upper_min"]), "dist_upper_max_mm": float(acc["dist_upper_max"])}
+    if "ratio_hist" in acc:
+        out["linear_ratio_median"] = _hist_median(acc["ratio_hist"], 0.0, 2.0)
+        out["linear_ratio_max"] = float(acc["ratio_max"])
+    return out
+
+
+def _dask():
+    try:
+        from dask import distributed
+    except ImportError:
+        raise InputError(f"a sweep on a cluster (--scheduler, --workers) needs Dask: {EXTRA_HINT}") from None
+    return distributed
+
+
+@contextmanager
+def connect(*, scheduler: str | None = None, workers: int | None = None, timeout_s: float = 60.0):
+    """A dask.distributed Client of the scheduler at `scheduler` (an address such as
+    tcp://host:8786), or of a LocalCluster of `workers` processes of one thread each, or
+    None (neither given: the sweep runs in this process). Closed when the block ends."""
+    if scheduler is None and workers is None:
+        yield None
+        return
+    if scheduler is not None and workers is not None:
+        raise InputError("give either a scheduler address or a number of local workers, not both")
+    distributed = _dask()
+    cluster = None
+    try:
+        if scheduler is not None:
+            client = distributed.Client(scheduler, timeout=timeout_s)
+        else:
+            _check_count(workers, "number of workers")
+            cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                               dashboard_address=None)
+            client = distributed.Client(cluster, timeout=timeout_s)
+    except (OSError, TimeoutError) as exc:
+        if cluster is not None:
+            cluster.close(timeout=timeout_s)
+        where = f"scheduler {scheduler}" if scheduler is not None else f"local cluster of {workers} workers"
+        raise InputError(f"cannot connect to the Dask {where}: {exc}") from None
+    try:
+        yield client
+    finally:
+        client.close(timeout=timeout_s)
+        if cluster is not None:
+            cluster.close(timeout=timeout_s)
+
+
+def _run_block(plan: SweepPlan, index: int):
+    """One task on a worker: block `index` on one thread."""
+    return plan.compute(index, threads=1)
+
+
+def run_sweep(plan: SweepPlan, out, *, client=None, force: bool = False, progress: bool = False,
+              on_block=None, log=None) -> dict:
+    """Compute the missing blocks of `plan` and write the sweep CSV `out` block by block.
+
+    client: a dask.distributed Client (`connect`): blocks are its tasks, at most two per
+        worker thread at a time, written here as they come back; None: computed in this
+        process (torch.get_num_threads() threads within a block).
+    force: discard a partial output of a sweep with other arguments (same arguments:
+        its blocks are kept and the run goes on from them).
+    on_block: called with the index of each block once it is written.
+    log: called with one line when finished blocks are taken up.
+
+    Returns the summary (`merge_summary`: `SweepResult.summary()` keys). InputError when
+    `out` exists without force or `out`.blocks holds another sweep.
+    """
+    from torchcal.io.files import check_output
+    from torchcal.io.sweep_blocks import BlockFolder
+    from torchcal.io.sweep_csv import sweep_columns
+
+    out = check_output(out, force)
+    folder = BlockFolder(out)
+    done = folder.open(plan.manifest(), force=force)
+    missing = [b for b in range(plan.n_blocks) if b not in done]
+    if done and log is not None:
+        log(f"sweep: resuming {out}: {len(done)} of {plan.n_blocks} blocks already done in {folder.path}, "
+            f"computing the {len(missing)} missing")
+    with tqdm(total=plan.n_points, initial=sum(plan.block_points(b) for b in done), unit="pt", desc="sweep",
+              file=sys.stderr, disable=not progress, dynamic_ncols=True) as bar:
+        def write(index, rows, stats):
+            folder.write(index, rows, stats)
+            bar.update(plan.block_points(index))
+            if on_block is not None:
+                on_block(index)
+
+        if client is None:
+            for b in missing:
+                write(b, *plan.compute(b, threads=torch.get_num_threads()))
+        else:
+            _run_on(client, plan, missing, write)
+    summary = merge_summary(folder.stats(b) for b in range(plan.n_blocks))
+    folder.assemble(",".join(sweep_columns(plan.robot.n)) + "\n", plan.n_blocks)
+    return summary
+
+
+def _run_on(client, plan: SweepPlan, missing: list[int], write) -> None:
+    """The blocks `missing` as tasks of `client`, a bounded number in flight; write each once."""
+    distributed = _dask()
+    if not missing:
+        return
+    token = uuid.uuid4().hex[:12]
+    plan_f = client.scatter(plan, broadcast=True, hash=False)
+    window = max(2, 2 * sum(client.nthreads().values()))
+    todo = iter(missing)
+    running = {}  # key -> (future, block)
+    ac = distributed.as_completed()
+
+    def submit():
+        b = next(todo, None)
+        if b is not None:
+            f = client.submit(_run_block, plan_f, b, key=f"torchcal-sweep-{token}-{b}")
+            running[f.key] = (f, b)
+            ac.add(f)
+
+    try:
+        for _ in range(window):
+            submit()
+        for f in ac:
+            rows, stats = f.result()
+            write(running.pop(f.key)[1], rows, stats)
+            f.release()
+            submit()
+    finally:
+        if running:  # stopped early: nothing more for the workers to do
+            client.cancel([f for f, _ in running.values()])
+        plan_f.release()

@@ -180,7 +180,7 @@ def _dask():
 
 
 @contextmanager
-def connect(*, scheduler: str | None = None, workers: int | None = None, timeout_s: float = 60.0):
+def connect(*, scheduler: str | None = None, workers: int | None = None, timeout_s: float = 30.0):
     """A dask.distributed Client of the scheduler at `scheduler` (an address such as
     tcp://host:8786), or of a LocalCluster of `workers` processes of one thread each, or
     None (neither given: the sweep runs in this process). Closed when the block ends."""
@@ -197,7 +197,7 @@ def connect(*, scheduler: str | None = None, workers: int | None = None, timeout
         else:
             _check_count(workers, "number of workers")
             cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                               dashboard_address=None)
+                                               dashboard_address=":0")
             client = distributed.Client(cluster, timeout=timeout_s)
     except (OSError, TimeoutError) as exc:
         if cluster is not None:

@@ -123,10 +123,12 @@ def test_resume_computes_only_the_missing_blocks(kr, reference, tmp_path):
     assert not out.exists()
     assert len(list((tmp_path / "s.csv.blocks").glob("block-*.csv"))) == 3
     lines, second = [], []
-    run_sweep(_plan(kr), out, on_block=second.append, log=lines.append)
+    s = run_sweep(_plan(kr), out, on_block=second.append, log=lines.append)
     assert len(lines) == 1 and "3 of 7 blocks already done" in lines[0] and "the 4 missing" in lines[0]
     assert sorted(first + second) == list(range(7))  # each block computed once
     assert out.read_text() == reference[1]
+    ref = reference[0].summary()  # the blocks done before count in the summary
+    assert s["points"] == N and s["r_set_min"] == ref["r_set_min"] and s["share_r_set_1"] == ref["share_r_set_1"]
 
 
 def test_other_arguments_over_a_partial_output_refuse(kr, tmp_path):

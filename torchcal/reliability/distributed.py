@@ -114,8 +114,9 @@ def plan_sweep(robot, *, n_points: int, n_samples: int = 300, allowed_mm: float 
 
 
 def block_stats(r: SweepResult) -> dict:
-    """Summary statistics of a block, to merge over blocks (`merge_summary`): counts, exact
-    minima and maxima, histograms of R_set and of the linear ratio (for the medians)."""
+    """Summary statistics of a block: counts, exact
+    minima and maxima, histograms of R_set and of the linear ratio (for the medians): merge
+    them with `merge_stats`, read them with `summary_of`."""
     rs = r.r_set.detach().double().cpu().numpy()
     out = {"points": np.int64(len(rs)), "r_set_min": rs.min(), "r_set_max": rs.max(),
            "r_set_1": np.int64((rs >= 1.0).sum()), "r_set_hist": np.histogram(rs[rs < 1.0], R_BINS, (0.0, 1.0))[0],
@@ -144,30 +145,32 @@ def _hist_median(hist: np.ndarray, lo: float, hi: float, top: int = 0, top_value
     return 0.5 * (at((n - 1) // 2) + at(n // 2))
 
 
-def merge_summary(stats) -> dict:
-    """`SweepResult.summary()` of a sweep from the `block_stats` of its blocks, an iterable
-    read once (medians to 1e-4)."""
-    acc = None
-    for s in stats:
-        if acc is None:
-            acc = {k: np.array(v) for k, v in s.items()}
-            continue
-        for k in ("points", "r_set_1", "r_set_hist", "ratio_hist"):
-            if k in acc:
-                acc[k] = acc[k] + s[k]
-        for k in ("r_set_min", "dist_upper_min"):
-            acc[k] = np.minimum(acc[k], s[k])
-        for k in ("r_set_max", "dist_upper_max", "ratio_max"):
-            if k in acc:
-                acc[k] = np.maximum(acc[k], s[k])
-    n, r1 = int(acc["points"]), int(acc["r_set_1"])
-    out = {"points": n, "r_set_min": float(acc["r_set_min"]),
-           "r_set_median": _hist_median(acc["r_set_hist"], 0.0, 1.0, r1),
-           "r_set_max": float(acc["r_set_max"]), "share_r_set_1": r1 / n,
-           "dist_upper_min_mm": float(acc["dist_upper_min"]), "dist_upper_max_mm": float(acc["dist_upper_max"])}
-    if "ratio_hist" in acc:
-        out["linear_ratio_median"] = _hist_median(acc["ratio_hist"], 0.0, 2.0)
-        out["linear_ratio_max"] = float(acc["ratio_max"])
+def merge_stats(acc: dict | None, stats: dict) -> dict:
+    """The `block_stats` of two sets of blocks merged into one (acc None: a copy of stats)."""
+    if acc is None:
+        return {k: np.array(v) for k, v in stats.items()}
+    out = dict(acc)
+    for k in ("points", "r_set_1", "r_set_hist", "ratio_hist"):
+        if k in out:
+            out[k] = out[k] + stats[k]
+    for k in ("r_set_min", "dist_upper_min"):
+        out[k] = np.minimum(out[k], stats[k])
+    for k in ("r_set_max", "dist_upper_max", "ratio_max"):
+        if k in out:
+            out[k] = np.maximum(out[k], stats[k])
+    return out
+
+
+def summary_of(stats: dict) -> dict:
+    """`SweepResult.summary()` from the merged `block_stats` of all blocks (medians to 1e-4)."""
+    n, r1 = int(stats["points"]), int(stats["r_set_1"])
+    out = {"points": n, "r_set_min": float(stats["r_set_min"]),
+           "r_set_median": _hist_median(stats["r_set_hist"], 0.0, 1.0, r1),
+           "r_set_max": float(stats["r_set_max"]), "share_r_set_1": r1 / n,
+           "dist_upper_min_mm": float(stats["dist_upper_min"]), "dist_upper_max_mm": float(stats["dist_upper_max"])}
+    if "ratio_hist" in stats:
+        out["linear_ratio_median"] = _hist_median(stats["ratio_hist"], 0.0, 2.0)
+        out["linear_ratio_max"] = float(stats["ratio_max"])
     return out
 
 
@@ -229,7 +232,7 @@ def run_sweep(plan: SweepPlan, out, *, client=None, force: bool = False, progres
     on_block: called with the index of each block once it is written.
     log: called with one line when finished blocks are taken up.
 
-    Returns the summary (`merge_summary`: `SweepResult.summary()` keys). InputError when
+    Returns the summary (`summary_of`: the keys of `SweepResult.summary()`). InputError when
     `out` exists without force or `out`.blocks holds another sweep.
     """
     from torchcal.io.files import check_output
@@ -245,8 +248,14 @@ def run_sweep(plan: SweepPlan, out, *, client=None, force: bool = False, progres
             f"computing the {len(missing)} missing")
     with tqdm(total=plan.n_points, initial=sum(plan.block_points(b) for b in done), unit="pt", desc="sweep",
               file=sys.stderr, disable=not progress, dynamic_ncols=True) as bar:
+        acc = None
+        for b in sorted(done):  # the statistics of the blocks done before, merged as they come
+            acc = merge_stats(acc, folder.stats(b))
+
         def write(index, rows, stats):
+            nonlocal acc
             folder.write(index, rows, stats)
+            acc = merge_stats(acc, stats)
             bar.update(plan.block_points(index))
             if on_block is not None:
                 on_block(index)
@@ -256,7 +265,7 @@ def run_sweep(plan: SweepPlan, out, *, client=None, force: bool = False, progres
                 write(b, *plan.compute(b, threads=torch.get_num_threads()))
         else:
             _run_on(client, plan, missing, write)
-    summary = merge_summary(folder.stats(b) for b in range(plan.n_blocks))
+    summary = summary_of(acc)
     folder.assemble(",".join(sweep_columns(plan.robot.n)) + "\n", plan.n_blocks)
     return summary
 

@@ -513,10 +513,10 @@ def sweep_block(robot, index: int, *, n_points: int, deviations: torch.Tensor, d
     """
     _check_allowed(allowed_mm, allowed_axis_mm)
     rb = robot.to("cpu", dtype)
-    q = rb.check_q(block_points(robot, index, n_points=n_points, block=block, seed=seed, workspace=workspace))
-    q = q.to(dtype=dtype)
     a0, a1 = block_range(index, n_points=n_points, block=block)
     with _serial_ops(True):
+        q = rb.check_q(block_points(robot, index, n_points=n_points, block=block, seed=seed, workspace=workspace))
+        q = q.to(dtype=dtype)
         r = _sweep_points(rb, q, deviations.to(dtype=dtype), dev_box, include_nominal=include_nominal,
                           linear=dev_box is not None, allowed_mm=allowed_mm, allowed_axis_mm=allowed_axis_mm,
                           chunk=chunk or DEFAULT_CHUNK, threads=threads, bar=None)

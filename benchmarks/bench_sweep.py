@@ -140,9 +140,12 @@ HEADER = (f"{'N':>9} {'M':>6} {'t_sample':>9} {'t_sweep':>9} {'cpu':>8} {'ns/eva
 def _timed_run(plan, out, client=None):
     from torchcal.reliability.distributed import run_sweep
 
+    w0 = sum(client.run(_cpu_s).values()) if client is not None else 0.0
     t0, c0 = time.perf_counter(), _cpu_s()
     s = run_sweep(plan, out, client=client)
-    return time.perf_counter() - t0, _cpu_s() - c0, s
+    t, c = time.perf_counter() - t0, _cpu_s() - c0
+    w = sum(client.run(_cpu_s).values()) - w0 if client is not None else 0.0
+    return t, c, w, s  # wall, this process's cpu (client and LocalCluster scheduler), workers' cpu
 
 
 def distributed_case(n: int, m: int, workers: int = 2) -> int:
@@ -163,7 +166,7 @@ def distributed_case(n: int, m: int, workers: int = 2) -> int:
           f"{workers} worker processes x 1 thread; load average {os.getloadavg()[0]:.1f}")
     with tempfile.TemporaryDirectory() as tmp:
         _timed_run(plan_sweep(robot, n_points=64, n_samples=16), f"{tmp}/warm.csv")  # warm-up
-        t_in, cpu_in, s_in = _timed_run(plan, f"{tmp}/in.csv")
+        t_in, cpu_in, _, s_in = _timed_run(plan, f"{tmp}/in.csv")
         print(f"  in-process:  {t_in:8.1f} s (cpu {cpu_in:.1f} s), {t_in / (n * m) * 1e9:.0f} ns per (point, state), "
               f"R_set min {s_in['r_set_min']:.3f}", flush=True)
         t0 = time.perf_counter()
@@ -172,11 +175,12 @@ def distributed_case(n: int, m: int, workers: int = 2) -> int:
             client.run(lambda: __import__("torchcal.reliability.distributed"))  # workers import torch
             reset_ok = _reset_peak()
             rss0 = _status_mb("VmRSS") if reset_ok else _peak_mb(False)
-            t_cl, cpu_cl, s_cl = _timed_run(plan, f"{tmp}/cl.csv", client)
+            t_cl, cpu_cl, cpu_w, s_cl = _timed_run(plan, f"{tmp}/cl.csv", client)
             client_mb = _peak_mb(reset_ok) - rss0
             same = filecmp.cmp(f"{tmp}/in.csv", f"{tmp}/cl.csv", shallow=False)
             size_mb = os.path.getsize(f"{tmp}/cl.csv") / 2**20
-            print(f"  cluster:     {t_cl:8.1f} s (+{t_start:.1f} s to start it; client cpu {cpu_cl:.1f} s), "
+            print(f"  cluster:     {t_cl:8.1f} s (+{t_start:.1f} s to start it; cpu: workers {cpu_w:.1f} s, "
+                  f"client {cpu_cl:.1f} s = {cpu_cl / plan.n_blocks * 1e3:.0f} ms per block), "
                   f"{t_cl / t_in:.2f} x the in-process time; CSV {size_mb:.0f} MB "
                   f"{'identical, byte for byte' if same else 'DIFFERENT'}; client memory +{client_mb:.0f} MB "
                   f"(results {n * 250 / 2**20:.0f} MB if held)", flush=True)
@@ -186,23 +190,28 @@ def distributed_case(n: int, m: int, workers: int = 2) -> int:
             rows = []
             for where, cl in (("in-process", None), ("cluster", client)):
                 w = THREADS if cl is None else workers
-                ts = {}
+                ts, cs = {}, {}
                 for b in (b_small, b_large):
                     p = plan_sweep(robot, n_points=n_o, n_samples=m_o, seed=1, block=b)
-                    ts[b] = _timed_run(p, f"{tmp}/o-{where}-{b}.csv", cl)[0]
-                k_small, k_large = n_o // b_small, n_o // b_large
-                o = w * (ts[b_small] - ts[b_large]) / (k_small - k_large)
-                rows.append((where, ts, o))
-                print(f"  overhead {where:>10}: N = {n_o:,d} x M = {m_o:,d} in {k_small} blocks {ts[b_small]:.2f} s, "
-                      f"in {k_large} blocks {ts[b_large]:.2f} s -> {o * 1e3:.1f} ms per block "
-                      f"(worker-seconds, {w} workers)", flush=True)
-    per_point = t_in * THREADS / n  # core-seconds per point at M states
-    o_cl = max(rows[1][2], 1e-4)
+                    t, c, cw, _ = _timed_run(p, f"{tmp}/o-{where}-{b}.csv", cl)
+                    ts[b], cs[b] = t, c + cw
+                dk = n_o // b_small - n_o // b_large
+                o_wall = w * (ts[b_small] - ts[b_large]) / dk
+                o_cpu = (cs[b_small] - cs[b_large]) / dk
+                rows.append((where, o_wall, o_cpu))
+                print(f"  overhead {where:>10}: N = {n_o:,d} x M = {m_o:,d} in {n_o // b_small} blocks {ts[b_small]:.2f} s "
+                      f"(cpu {cs[b_small]:.2f} s), in {n_o // b_large} blocks {ts[b_large]:.2f} s (cpu {cs[b_large]:.2f} s)"
+                      f" -> per block {o_wall * 1e3:.1f} ms of wall x {w} workers, {o_cpu * 1e3:.1f} ms cpu", flush=True)
+    per_point = cpu_w / n  # cpu-seconds per point at M states, on the cluster's workers
+    o_cl = max(rows[1][2], 1e-4)  # cpu: the wall estimate is at the mercy of the load (the window of
+    # two tasks per worker hides the round trip's latency, so what a block costs is its cpu)
     b_min = int(math.ceil(100 * o_cl / per_point))
-    print(f"  compute per point at M = {m:,d}: {per_point * 1e3:.3f} ms of one core; a block of B points "
-          f"costs {per_point * 1e3:.3f} B ms + {o_cl * 1e3:.1f} ms on the cluster")
+    print(f"  compute per point at M = {m:,d}: {per_point * 1e3:.3f} ms of one core (workers' cpu / N); a block of "
+          f"B points costs {per_point * 1e3:.3f} B ms + {o_cl * 1e3:.1f} ms on the cluster")
     print(f"  -> overhead under 1% from B >= {b_min:,d} points; DEFAULT_BLOCK = {DEFAULT_BLOCK:,d}: "
-          f"{100 * o_cl / (per_point * DEFAULT_BLOCK):.2f}% overhead, {per_point * DEFAULT_BLOCK:.2f} s per block")
+          f"{100 * o_cl / (per_point * DEFAULT_BLOCK):.2f}% overhead, {per_point * DEFAULT_BLOCK:.2f} s per block; "
+          f"client: {cpu_cl / plan.n_blocks * 1e3:.0f} ms cpu per block, so one client keeps up with about "
+          f"{per_point * DEFAULT_BLOCK / max(cpu_cl / plan.n_blocks, 1e-6):.0f} workers")
     return 0 if same else 1
 
 

@@ -265,3 +265,17 @@ def test_cli_workers_equals_in_process(tmp_path, capsys, watchdog):
     out = capsys.readouterr().out.splitlines()
     assert out[1] == out[4]  # the same summary
     assert (tmp_path / "a.csv").read_text() == (tmp_path / "b.csv").read_text()
+
+
+def test_cli_scheduler_address(kr, client, tmp_path, watchdog):
+    """--scheduler ADDRESS: the blocks are tasks of that cluster (the fixture's); the same CSV."""
+    from dask.distributed import get_task_stream
+
+    out = tmp_path / "s.csv"
+    argv = ["sweep", "--n", "250", "--samples", "30", "--block", "100", "--no-progress", "--out", str(out)]
+    with get_task_stream(client) as ts:
+        assert cli.main(argv + ["--scheduler", client.scheduler.address]) == 0
+    blocks = sorted(int(t["key"].rsplit("-", 1)[1]) for t in ts.data
+                    if str(t["key"]).startswith("torchcal-sweep-"))
+    assert blocks == [0, 1, 2]
+    assert out.read_text() == sweep_csv_text(sweep(kr, n_points=250, n_samples=30, block=100))

@@ -277,26 +277,27 @@ def _run_on(client, plan: SweepPlan, missing: list[int], write) -> None:
         return
     token = uuid.uuid4().hex[:12]
     plan_f = client.scatter(plan, broadcast=True, hash=False)
-    window = max(2, 2 * sum(client.nthreads().values()))
     todo = iter(missing)
     running = {}  # key -> (future, block)
     ac = distributed.as_completed()
 
-    def submit():
-        b = next(todo, None)
-        if b is not None:
+    def top_up():  # two blocks per worker thread (workers may join or leave meanwhile)
+        window = max(2, 2 * sum(client.nthreads().values()))
+        while len(running) < window:
+            b = next(todo, None)
+            if b is None:
+                return
             f = client.submit(_run_block, plan_f, b, key=f"torchcal-sweep-{token}-{b}")
             running[f.key] = (f, b)
             ac.add(f)
 
     try:
-        for _ in range(window):
-            submit()
+        top_up()
         for f in ac:
             rows, stats = f.result()
             write(running.pop(f.key)[1], rows, stats)
             f.release()
-            submit()
+            top_up()
     finally:
         if running:  # stopped early: nothing more for the workers to do
             client.cancel([f for f, _ in running.values()])

@@ -422,6 +422,7 @@ def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_m
         if q.ndim != 2:
             raise InputError(f"q: expected workspace points of shape (N, {robot.n}), got {tuple(q.shape)}")
         n_points = q.shape[0]
+        _check_count(n_points, "number of workspace points")
     else:
         _check_count(n_points, "number of workspace points")
     deviations, dev_box = sweep_states(robot, n_samples=n_samples, seed=seed, model=model,

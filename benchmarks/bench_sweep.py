@@ -28,7 +28,7 @@ resource's ru_maxrss (the whole process) is used and the table says so. Columns:
 Memory per point stays flat: the N x M work runs in fixed buffers (7 x 16384 float64
 per thread), only the per-point results grow with N.
 
---distributed (torchcal.reliability.distributed; needs the extra torchcal[distributed]):
+--distributed (torchcal.workflows.distributed; needs the extra torchcal[distributed]):
 the streamed sweep of N x M (default 1e6 x 1e3, DEFAULT_BLOCK points per block) in this
 process on 2 threads vs on a LocalCluster of 2 worker processes (1 thread each), the two
 CSVs compared byte for byte; the client's resident memory (peak - start) during the cluster
@@ -138,7 +138,7 @@ HEADER = (f"{'N':>9} {'M':>6} {'t_sample':>9} {'t_sweep':>9} {'cpu':>8} {'ns/eva
 
 
 def _timed_run(plan, out, client=None):
-    from torchcal.reliability.distributed import run_sweep
+    from torchcal.workflows.distributed import run_sweep
 
     w0 = sum(client.run(_cpu_s).values()) if client is not None else 0.0
     t0, c0 = time.perf_counter(), _cpu_s()
@@ -156,7 +156,7 @@ def distributed_case(n: int, m: int, workers: int = 2) -> int:
 
     torch.set_num_threads(THREADS)
     import torchcal
-    from torchcal.reliability.distributed import connect, plan_sweep
+    from torchcal.workflows.distributed import connect, plan_sweep
     from torchcal.reliability.sweep import DEFAULT_BLOCK
 
     robot = torchcal.robot("kr1000titan")
@@ -172,7 +172,7 @@ def distributed_case(n: int, m: int, workers: int = 2) -> int:
         t0 = time.perf_counter()
         with connect(workers=workers) as client:
             t_start = time.perf_counter() - t0
-            client.run(lambda: __import__("torchcal.reliability.distributed"))  # workers import torch
+            client.run(lambda: __import__("torchcal.workflows.distributed"))  # workers import torch
             reset_ok = _reset_peak()
             rss0 = _status_mb("VmRSS") if reset_ok else _peak_mb(False)
             t_cl, cpu_cl, cpu_w, s_cl = _timed_run(plan, f"{tmp}/cl.csv", client)

@@ -1,5 +1,5 @@
 """Tests of the sweep in blocks (torchcal.reliability.sweep.sweep_block, block_seed), its
-streamed and resumable output (torchcal.reliability.distributed.run_sweep,
+streamed and resumable output (torchcal.workflows.distributed.run_sweep,
 torchcal.io.sweep_blocks) and its runs on a Dask LocalCluster of 2 worker processes.
 
 What is checked, and against what:
@@ -36,7 +36,7 @@ import torchcal
 from torchcal import cli
 from torchcal.errors import InputError
 from torchcal.io.sweep_csv import sweep_csv_text
-from torchcal.reliability.distributed import _hist_median, plan_sweep, run_sweep
+from torchcal.workflows.distributed import _hist_median, plan_sweep, run_sweep
 from torchcal.reliability.sweep import block_seed, sample_workspace, sweep, sweep_block, sweep_states
 
 N, M, BLOCK = 700, 40, 100  # 7 blocks

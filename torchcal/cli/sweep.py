@@ -47,7 +47,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    help="joint-clearance model {radii_mm, clearance_mm, bearing_length_mm} (mm); "
                         "default: the robot file's \"clearance\" section, or Table 2 for kr1000titan")
     p.add_argument("--block", type=positive_int, default=None, metavar="POINTS",
-                   help="points per block (default 10000): the unit of seeding, of the cluster's "
+                   help="points per block (default 20000): the unit of seeding, of the cluster's "
                         "tasks and of the resumable output; the result depends on it")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--scheduler", metavar="ADDRESS",
@@ -64,7 +64,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
 def run(args) -> int:
     import torchcal
     from torchcal.io.files import read_json
-    from torchcal.reliability.distributed import connect, plan_sweep, run_sweep
+    from torchcal.workflows.distributed import connect, plan_sweep, run_sweep
     from torchcal.reliability.sweep import DEFAULT_BLOCK
     from torchcal.reliability.uncertainty import ClearanceModel, clearance_from_dict
 

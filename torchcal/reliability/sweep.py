@@ -10,7 +10,7 @@ each point, distance-error interval per point, R_set":
    of `block` points (default DEFAULT_BLOCK), block b from its own seed (`block_seed`:
    block 0 from `seed` itself, so a sweep of at most one block is the plain hypercube of
    `seed`); a block is then a function of (seed, b) alone, and a sweep computed block by
-   block anywhere (`sweep_block`, torchcal.reliability.distributed) equals the in-process
+   block anywhere (`sweep_block`, torchcal.workflows.distributed) equals the in-process
    one bit for bit, whatever the number of workers.
 2. M perturbed parameter sets: clearance states of a `ClearanceModel` turned into MD-H
    deviations (torchcal.reliability.uncertainty), the same M sets for every point (common random
@@ -69,9 +69,10 @@ from torchcal.reliability.uncertainty import ClearanceModel, sample_deviations
 DEFAULT_CHUNK = 1 << 14
 DEFAULT_CHUNK_GPU = 1 << 22
 # workspace points per block (the unit of seeding, of distributed tasks and of the streamed
-# output): ~1.5 s of one core at M = 1e3 states, against a per-block overhead on a local
-# Dask cluster of a few ms (benchmarks/bench_sweep.py, docs/scale.md)
-DEFAULT_BLOCK = 10_000
+# output): measured (benchmarks/bench_sweep.py --distributed, docs/scale.md) a block costs
+# 0.070 ms of one core per point at M = 1e3 states plus ~11 ms per block on a local Dask
+# cluster: under 1% overhead from 16000 points; 20000 points = 1.4 s of one core
+DEFAULT_BLOCK = 20_000
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,8 @@
         summary = run_sweep(plan, "sweep.csv", client=client)
 
 A block of points (`torchcal.reliability.sweep.sweep_block`: its points drawn from the
-block's own seed, the same clearance states for every block) is one task; each worker runs
+block's own seed, the same clearance states for every block) is one task (it carries the
+plan: robot and states); each worker runs
 the sweep's batched kernel on it and sends back the block's CSV rows and summary
 statistics, which this process writes block by block (`torchcal.io.sweep_blocks`), so its
 memory does not grow with N. The output file is the same, byte for byte, as
@@ -31,6 +32,9 @@ import torch
 from tqdm import tqdm
 
 from torchcal.errors import InputError
+from torchcal.io.files import check_output
+from torchcal.io.sweep_blocks import BlockFolder
+from torchcal.io.sweep_csv import sweep_columns, sweep_csv_rows
 from torchcal.reliability.interval import Interval
 from torchcal.reliability.sweep import (DEFAULT_BLOCK, SweepResult, Workspace, _check_allowed, _check_count,
                                         block_range, sweep_block, sweep_states)
@@ -42,7 +46,7 @@ RATIO_BINS = 20_000  # sampled / linearised half-width over [0, 2]: its median t
 
 @dataclass(frozen=True, eq=False)
 class SweepPlan:
-    """Everything a block needs (sent once to every worker). Build it with `plan_sweep`.
+    """Everything a block needs (sent with every task). Build it with `plan_sweep`.
 
     Attributes:
         robot: the `torchcal.Robot` (CPU, float64).
@@ -85,8 +89,6 @@ class SweepPlan:
 
     def compute(self, index: int, threads: int = 1) -> tuple[str, dict]:
         """Block `index`: its CSV rows (torchcal.io.sweep_csv) and statistics (`block_stats`)."""
-        from torchcal.io.sweep_csv import sweep_csv_rows
-
         r = sweep_block(self.robot, index, n_points=self.n_points, deviations=self.deviations,
                         dev_box=self.dev_box, allowed_mm=self.allowed_mm, seed=self.seed, block=self.block,
                         workspace=self.workspace, threads=threads)
@@ -235,10 +237,6 @@ def run_sweep(plan: SweepPlan, out, *, client=None, force: bool = False, progres
     Returns the summary (`summary_of`: the keys of `SweepResult.summary()`). InputError when
     `out` exists without force or `out`.blocks holds another sweep.
     """
-    from torchcal.io.files import check_output
-    from torchcal.io.sweep_blocks import BlockFolder
-    from torchcal.io.sweep_csv import sweep_columns
-
     out = check_output(out, force)
     folder = BlockFolder(out)
     done = folder.open(plan.manifest(), force=force)
@@ -276,7 +274,6 @@ def _run_on(client, plan: SweepPlan, missing: list[int], write) -> None:
     if not missing:
         return
     token = uuid.uuid4().hex[:12]
-    plan_f = client.scatter(plan, broadcast=True, hash=False)
     todo = iter(missing)
     running = {}  # key -> (future, block)
     ac = distributed.as_completed()
@@ -287,7 +284,9 @@ def _run_on(client, plan: SweepPlan, missing: list[int], write) -> None:
             b = next(todo, None)
             if b is None:
                 return
-            f = client.submit(_run_block, plan_f, b, key=f"torchcal-sweep-{token}-{b}")
+            # the plan travels with each task (M x n x 5 floats: 240 kB at M = 1e3), not as
+            # scattered data, which dies with the workers holding it
+            f = client.submit(_run_block, plan, b, key=f"torchcal-sweep-{token}-{b}")
             running[f.key] = (f, b)
             ac.add(f)
 
@@ -301,4 +300,3 @@ def _run_on(client, plan: SweepPlan, missing: list[int], write) -> None:
     finally:
         if running:  # stopped early: nothing more for the workers to do
             client.cancel([f for f, _ in running.values()])
-        plan_f.release()

@@ -122,11 +122,14 @@ def test_resume_computes_only_the_missing_blocks(kr, reference, tmp_path):
         run_sweep(_plan(kr), out, on_block=_stop_after(3, first))
     assert not out.exists()
     assert len(list((tmp_path / "s.csv.blocks").glob("block-*.csv"))) == 3
+    # a write cut short by a kill leaves a temporary file, never a block: it is cleared
+    (tmp_path / "s.csv.blocks" / ".block-000005.csv.x1y2.tmp").write_text("0,1,2\n")
     lines, second = [], []
     s = run_sweep(_plan(kr), out, on_block=second.append, log=lines.append)
     assert len(lines) == 1 and "3 of 7 blocks already done" in lines[0] and "the 4 missing" in lines[0]
     assert sorted(first + second) == list(range(7))  # each block computed once
     assert out.read_text() == reference[1]
+    assert not (tmp_path / "s.csv.blocks").exists() and len(list(tmp_path.iterdir())) == 1
     ref = reference[0].summary()  # the blocks done before count in the summary
     assert s["points"] == N and s["r_set_min"] == ref["r_set_min"] and s["share_r_set_1"] == ref["share_r_set_1"]
 

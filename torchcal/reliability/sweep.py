@@ -70,8 +70,8 @@ DEFAULT_CHUNK = 1 << 14
 DEFAULT_CHUNK_GPU = 1 << 22
 # workspace points per block (the unit of seeding, of distributed tasks and of the streamed
 # output): measured (benchmarks/bench_sweep.py --distributed, docs/scale.md) a block costs
-# 0.070 ms of one core per point at M = 1e3 states plus ~11 ms per block on a local Dask
-# cluster: under 1% overhead from 16000 points; 20000 points = 1.4 s of one core
+# 0.067 ms of one core per point at M = 1e3 states plus 12.6 ms per block on a local Dask
+# cluster: under 1% overhead from 18700 points; 20000 points = 1.34 s of one core
 DEFAULT_BLOCK = 20_000
 
 

@@ -34,6 +34,12 @@ __all__ = ["BlockFolder"]
 MANIFEST = "manifest.json"
 
 
+def _differs(key: str, there, here) -> str:
+    if key.endswith("_sha256"):  # digests say only that something differs
+        return f"{key[:-len('_sha256')].replace('_', ' ')} differ"
+    return f"{key} {there!r} there, {here!r} here"
+
+
 class BlockFolder:
     """The folder ``OUT.blocks`` of finished blocks of the sweep written to `out`."""
 
@@ -61,7 +67,7 @@ class BlockFolder:
             old = self._read_manifest()
             if old != manifest:
                 if not force:
-                    diff = "; ".join(f"{k} {old.get(k)!r} there, {manifest.get(k)!r} here"
+                    diff = "; ".join(_differs(k, old.get(k), manifest.get(k))
                                      for k in sorted(set(old) | set(manifest)) if old.get(k) != manifest.get(k))
                     raise InputError(f"{self.path}: holds a partial sweep with other arguments ({diff}); "
                                      "rerun with the same arguments to finish it, or pass --force to discard it")

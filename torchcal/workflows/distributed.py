@@ -22,6 +22,7 @@ optional extra ``pip install 'torchcal[distributed]'``. docs/scale.md: running o
 from __future__ import annotations
 
 import hashlib
+import logging
 import sys
 import uuid
 from contextlib import contextmanager
@@ -82,8 +83,8 @@ class SweepPlan:
         r = self.robot.to("cpu", torch.float64)
         robot = _digest([r.table, r.limits, r.base, r.tool, r.prismatic])
         states = _digest([self.deviations, self.dev_box.lower, self.dev_box.upper])
-        return {"format": "torchcal sweep blocks 1", "robot": r.name, "robot_sha256": robot,
-                "states_sha256": states, "points": self.n_points, "samples": self.n_samples,
+        return {"format": "torchcal sweep blocks 1", "robot": r.name, "robot_parameters_sha256": robot,
+                "clearance_states_sha256": states, "points": self.n_points, "samples": self.n_samples,
                 "allowed_mm": self.allowed_mm, "seed": self.seed, "block": self.block,
                 "workspace": asdict(self.workspace or Workspace())}
 
@@ -201,8 +202,10 @@ def connect(*, scheduler: str | None = None, workers: int | None = None, timeout
             client = distributed.Client(scheduler, timeout=timeout_s)
         else:
             _check_count(workers, "number of workers")
+            # silence_logs: the cluster's own warnings (a worker slow to exit at shutdown on a
+            # busy machine, then stopped) are not the user's business; errors still show
             cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                               dashboard_address=":0")
+                                               dashboard_address=":0", silence_logs=logging.ERROR)
             client = distributed.Client(cluster, timeout=timeout_s)
     except (OSError, TimeoutError) as exc:
         if cluster is not None:

@@ -199,9 +199,10 @@ def distributed_case(n: int, m: int, workers: int = 2) -> int:
                 o_wall = w * (ts[b_small] - ts[b_large]) / dk
                 o_cpu = (cs[b_small] - cs[b_large]) / dk
                 rows.append((where, o_wall, o_cpu))
-                print(f"  overhead {where:>10}: N = {n_o:,d} x M = {m_o:,d} in {n_o // b_small} blocks {ts[b_small]:.2f} s "
-                      f"(cpu {cs[b_small]:.2f} s), in {n_o // b_large} blocks {ts[b_large]:.2f} s (cpu {cs[b_large]:.2f} s)"
-                      f" -> per block {o_wall * 1e3:.1f} ms of wall x {w} workers, {o_cpu * 1e3:.1f} ms cpu", flush=True)
+                print(f"  overhead {where:>10}: N = {n_o:,d} x M = {m_o:,d} in {n_o // b_small} blocks "
+                      f"{ts[b_small]:.2f} s (cpu {cs[b_small]:.2f} s), in {n_o // b_large} blocks {ts[b_large]:.2f} s "
+                      f"(cpu {cs[b_large]:.2f} s) -> per block {o_wall * 1e3:.1f} ms of wall x {w} workers, "
+                      f"{o_cpu * 1e3:.1f} ms cpu", flush=True)
     per_point = cpu_w / n  # cpu-seconds per point at M states, on the cluster's workers
     o_cl = max(rows[1][2], 1e-4)  # cpu: the wall estimate is at the mercy of the load (the window of
     # two tasks per worker hides the round trip's latency, so what a block costs is its cpu)

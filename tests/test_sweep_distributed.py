@@ -138,7 +138,8 @@ def test_other_arguments_over_a_partial_output_refuse(kr, tmp_path):
     out = tmp_path / "s.csv"
     with pytest.raises(Stop):
         run_sweep(_plan(kr), out, on_block=_stop_after(2, []))
-    with pytest.raises(InputError, match=r"partial sweep with other arguments \(clearance states differ; seed 5 there, 6 here\).*--force"):
+    refusal = r"partial sweep with other arguments \(clearance states differ; seed 5 there, 6 here\).*--force"
+    with pytest.raises(InputError, match=refusal):
         run_sweep(_plan(kr, seed=6), out)
     with pytest.raises(InputError, match=r"samples 40 there, 41 here"):
         run_sweep(_plan(kr, n_samples=41), out)

@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/bench_sweep.py            # headline + scaling table
     .venv/bin/python benchmarks/bench_sweep.py --quick    # small sizes only
+    .venv/bin/python benchmarks/bench_sweep.py --distributed [--n 1000000 --m 1000]
 
 Headline: N = 1e5 workspace points x M = 1e3 clearance states of the default KR 1000
 Titan model, on 2 CPU threads (torch.set_num_threads(2) and 2 sweep workers). Then a
@@ -26,12 +27,24 @@ resource's ru_maxrss (the whole process) is used and the table says so. Columns:
 - dense: what one N x M x 3 float64 tensor of the errors would need (N M 24 bytes).
 Memory per point stays flat: the N x M work runs in fixed buffers (7 x 16384 float64
 per thread), only the per-point results grow with N.
+
+--distributed (torchcal.workflows.distributed; needs the extra torchcal[distributed]):
+the streamed sweep of N x M (default 1e6 x 1e3, DEFAULT_BLOCK points per block) in this
+process on 2 threads vs on a LocalCluster of 2 worker processes (1 thread each), the two
+CSVs compared byte for byte; the client's resident memory (peak - start) during the cluster
+run; then the overhead per block, from the slope of the run time against the number of
+blocks: the same N_o points at M states in blocks of B_small and of B_large,
+o = W (T_small - T_large) / (blocks_small - blocks_large) worker-seconds per block (task
+round trip, pickling, the block's two files, the per-block set-up of the kernel), in this
+process and on the cluster; and from it the smallest block whose overhead is under 1% of
+its compute at M states.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import resource
 import subprocess
@@ -124,9 +137,92 @@ HEADER = (f"{'N':>9} {'M':>6} {'t_sample':>9} {'t_sweep':>9} {'cpu':>8} {'ns/eva
           f"{'':>9} {'':>6} {'s':>9} {'s':>9} {'s':>8} {'':>8} {'MB':>7} {'MB':>7} {'MB':>8} {'':>6} {'MB':>10}")
 
 
+def _timed_run(plan, out, client=None):
+    from torchcal.workflows.distributed import run_sweep
+
+    w0 = sum(client.run(_cpu_s).values()) if client is not None else 0.0
+    t0, c0 = time.perf_counter(), _cpu_s()
+    s = run_sweep(plan, out, client=client)
+    t, c = time.perf_counter() - t0, _cpu_s() - c0
+    w = sum(client.run(_cpu_s).values()) - w0 if client is not None else 0.0
+    return t, c, w, s  # wall, this process's cpu (client and LocalCluster scheduler), workers' cpu
+
+
+def distributed_case(n: int, m: int, workers: int = 2) -> int:
+    import filecmp
+    import tempfile
+
+    import torch
+
+    torch.set_num_threads(THREADS)
+    import torchcal
+    from torchcal.workflows.distributed import connect, plan_sweep
+    from torchcal.reliability.sweep import DEFAULT_BLOCK
+
+    robot = torchcal.robot("kr1000titan")
+    plan = plan_sweep(robot, n_points=n, n_samples=m, seed=0)
+    print(f"\ndistributed: N = {n:,d} points x M = {m:,d} states, blocks of {plan.block:,d} points "
+          f"({plan.n_blocks} blocks); in this process on {THREADS} threads vs a LocalCluster of "
+          f"{workers} worker processes x 1 thread; load average {os.getloadavg()[0]:.1f}")
+    with tempfile.TemporaryDirectory() as tmp:
+        _timed_run(plan_sweep(robot, n_points=64, n_samples=16), f"{tmp}/warm.csv")  # warm-up
+        t_in, cpu_in, _, s_in = _timed_run(plan, f"{tmp}/in.csv")
+        print(f"  in-process:  {t_in:8.1f} s (cpu {cpu_in:.1f} s), {t_in / (n * m) * 1e9:.0f} ns per (point, state), "
+              f"R_set min {s_in['r_set_min']:.3f}", flush=True)
+        t0 = time.perf_counter()
+        with connect(workers=workers) as client:
+            t_start = time.perf_counter() - t0
+            client.run(lambda: __import__("torchcal.workflows.distributed"))  # workers import torch
+            reset_ok = _reset_peak()
+            rss0 = _status_mb("VmRSS") if reset_ok else _peak_mb(False)
+            t_cl, cpu_cl, cpu_w, s_cl = _timed_run(plan, f"{tmp}/cl.csv", client)
+            client_mb = _peak_mb(reset_ok) - rss0
+            same = filecmp.cmp(f"{tmp}/in.csv", f"{tmp}/cl.csv", shallow=False)
+            size_mb = os.path.getsize(f"{tmp}/cl.csv") / 2**20
+            print(f"  cluster:     {t_cl:8.1f} s (+{t_start:.1f} s to start it; cpu: workers {cpu_w:.1f} s, "
+                  f"client {cpu_cl:.1f} s = {cpu_cl / plan.n_blocks * 1e3:.0f} ms per block), "
+                  f"{t_cl / t_in:.2f} x the in-process time; CSV {size_mb:.0f} MB "
+                  f"{'identical, byte for byte' if same else 'DIFFERENT'}; client memory +{client_mb:.0f} MB "
+                  f"(results {n * 250 / 2**20:.0f} MB if held)", flush=True)
+
+            # overhead per block: the same points in small and large blocks
+            n_o, m_o, b_small, b_large = 20_000, m, 200, 5_000
+            rows = []
+            for where, cl in (("in-process", None), ("cluster", client)):
+                w = THREADS if cl is None else workers
+                ts, cs = {}, {}
+                for b in (b_small, b_large):
+                    p = plan_sweep(robot, n_points=n_o, n_samples=m_o, seed=1, block=b)
+                    t, c, cw, _ = _timed_run(p, f"{tmp}/o-{where}-{b}.csv", cl)
+                    ts[b], cs[b] = t, c + cw
+                dk = n_o // b_small - n_o // b_large
+                o_wall = w * (ts[b_small] - ts[b_large]) / dk
+                o_cpu = (cs[b_small] - cs[b_large]) / dk
+                rows.append((where, o_wall, o_cpu))
+                print(f"  overhead {where:>10}: N = {n_o:,d} x M = {m_o:,d} in {n_o // b_small} blocks "
+                      f"{ts[b_small]:.2f} s (cpu {cs[b_small]:.2f} s), in {n_o // b_large} blocks {ts[b_large]:.2f} s "
+                      f"(cpu {cs[b_large]:.2f} s) -> per block {o_wall * 1e3:.1f} ms of wall x {w} workers, "
+                      f"{o_cpu * 1e3:.1f} ms cpu", flush=True)
+    per_point = cpu_w / n  # cpu-seconds per point at M states, on the cluster's workers
+    o_cl = max(rows[1][2], 1e-4)  # cpu: the wall estimate is at the mercy of the load (the window of
+    # two tasks per worker hides the round trip's latency, so what a block costs is its cpu)
+    b_min = int(math.ceil(100 * o_cl / per_point))
+    print(f"  compute per point at M = {m:,d}: {per_point * 1e3:.3f} ms of one core (workers' cpu / N); a block of "
+          f"B points costs {per_point * 1e3:.3f} B ms + {o_cl * 1e3:.1f} ms on the cluster")
+    print(f"  -> overhead under 1% from B >= {b_min:,d} points; DEFAULT_BLOCK = {DEFAULT_BLOCK:,d}: "
+          f"{100 * o_cl / (per_point * DEFAULT_BLOCK):.2f}% overhead, {per_point * DEFAULT_BLOCK:.2f} s per block; "
+          f"client: {cpu_cl / plan.n_blocks * 1e3:.0f} ms cpu per block, so one client keeps up with about "
+          f"{per_point * DEFAULT_BLOCK / max(cpu_cl / plan.n_blocks, 1e-6):.0f} workers")
+    return 0 if same else 1
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="N = 1e3, 1e4 only")
+    ap.add_argument("--distributed", action="store_true",
+                    help="in-process vs a 2-worker local Dask cluster, and the overhead per block")
+    ap.add_argument("--n", type=int, default=1_000_000, help="points of the --distributed case")
+    ap.add_argument("--m", type=int, default=1000, help="states of the --distributed case")
     ap.add_argument("--child", nargs=3, type=int, metavar=("N", "M", "THREADS"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child:
@@ -139,6 +235,8 @@ def main(argv=None) -> int:
     print(f"torchcal sweep benchmark: KR 1000 Titan, default clearance model, float64, {THREADS} CPU threads")
     print(f"torch {torch.__version__}, {platform.processor() or platform.machine()}, "
           f"{os.cpu_count()} cores visible, load average {os.getloadavg()[0]:.1f} at start")
+    if args.distributed:
+        return distributed_case(args.n, args.m)
     if args.quick:
         print(HEADER)
         for n in (1000, 10000):

@@ -16,6 +16,13 @@ revolute and prismatic joints (q in mm in the CSV for a prismatic joint).
 e* the error interval per axis and dist_* the distance-error interval (mm), eta (eq. 23)
 and r_set (eq. 24) against the allowed distance error [0, --allowed] mm. Prints a short
 summary (R_set min / median / max, share of points with R_set = 1) on stdout.
+
+The points are computed in blocks of --block points (each drawn from its own seed), written
+block by block into OUT.blocks/ and copied into OUT when all are done: an interrupted run
+started again with the same arguments computes only the missing blocks (and says so); with
+other arguments it refuses unless --force. ``--workers N`` runs the blocks on a local Dask
+cluster of N processes, ``--scheduler ADDRESS`` on an existing Dask cluster (the extra
+``pip install 'torchcal[distributed]'``, docs/scale.md); the CSV is the same in every case.
 """
 
 from __future__ import annotations
@@ -39,6 +46,14 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--clearance", metavar="FILE.json",
                    help="joint-clearance model {radii_mm, clearance_mm, bearing_length_mm} (mm); "
                         "default: the robot file's \"clearance\" section, or Table 2 for kr1000titan")
+    p.add_argument("--block", type=positive_int, default=None, metavar="POINTS",
+                   help="points per block (default 20000): the unit of seeding, of the cluster's "
+                        "tasks and of the resumable output; the result depends on it")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help="run the blocks on the Dask cluster of this scheduler (tcp://host:8786)")
+    where.add_argument("--workers", type=positive_int, metavar="N",
+                       help="run the blocks on a local Dask cluster of N worker processes")
     p.add_argument("--out", required=True, help="output CSV")
     add_force(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -48,26 +63,25 @@ def add_parser(sub) -> argparse.ArgumentParser:
 
 def run(args) -> int:
     import torchcal
-    from torchcal.io.sweep_csv import write_sweep
-    from torchcal.reliability.sweep import sweep
+    from torchcal.io.files import read_json
+    from torchcal.workflows.distributed import connect, plan_sweep, run_sweep
+    from torchcal.reliability.sweep import DEFAULT_BLOCK
+    from torchcal.reliability.uncertainty import ClearanceModel, clearance_from_dict
 
     check_outputs([("--out", args.out)], args.force)  # fail before the work, not after it
     out = Path(args.out)
-    from torchcal.io.files import read_json
-    from torchcal.reliability.uncertainty import ClearanceModel, clearance_from_dict
-
     robot = torchcal.robot(args.robot)
     model = (clearance_from_dict(read_json(args.clearance, "clearance file"), args.clearance, robot.n)
              if args.clearance else ClearanceModel.defaults(robot))
-    result = sweep(robot, n_points=args.n, n_samples=args.samples, allowed_mm=args.allowed,
-                   seed=args.seed, model=model, progress=not args.no_progress)
-    write_sweep(result, out, force=args.force)
-    s = result.summary()
-    r = result.r_set
+    plan = plan_sweep(robot, n_points=args.n, n_samples=args.samples, allowed_mm=args.allowed, seed=args.seed,
+                      model=model, block=args.block or DEFAULT_BLOCK)
+    with connect(scheduler=args.scheduler, workers=args.workers) as client:
+        s = run_sweep(plan, out, client=client, force=args.force, progress=not args.no_progress, log=print)
+    n1 = round(s["share_r_set_1"] * s["points"])
     print(f"sweep: {s['points']} points x {args.samples} clearance states, allowed distance error "
           f"[0, {args.allowed:g}] mm -> {out}")
     print(f"R_set min {s['r_set_min']:.3f}  median {s['r_set_median']:.3f}  max {s['r_set_max']:.3f}  "
-          f"R_set = 1 at {100 * s['share_r_set_1']:.1f}% of the points ({int((r >= 1).sum())}/{len(r)})")
+          f"R_set = 1 at {100 * s['share_r_set_1']:.1f}% of the points ({n1}/{s['points']})")
     print(f"distance error upper bound {s['dist_upper_min_mm']:.3f} .. {s['dist_upper_max_mm']:.3f} mm; "
           f"sampled / linearised half-width, median {s['linear_ratio_median']:.2f} "
           f"(max {s['linear_ratio_max']:.2f})")

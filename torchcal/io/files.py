@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
 from torchcal.errors import InputError, OutputExistsError
@@ -39,21 +40,28 @@ def atomic_write(path, data: str | bytes, force: bool = False, inputs=()) -> Pat
     Raises OutputExistsError if `path` exists and not `force`, InputError if `path` is
     one of `inputs` or its folder does not exist.
     """
+    with atomic_open(path, "wb" if isinstance(data, bytes) else "w", force=force, inputs=inputs) as fh:
+        fh.write(data)
+    return Path(path)
+
+
+@contextmanager
+def atomic_open(path, mode: str = "w", force: bool = False, inputs=()):
+    """A file object for writing `path` piece by piece: a temporary file in its folder that
+    replaces `path` when the block ends (removed, `path` untouched, on an error)."""
     path = check_output(path, force, inputs)
-    mode = "wb" if isinstance(data, bytes) else "w"
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         umask = os.umask(0o022)  # read the umask (there is no getter), then put it back
         os.umask(umask)
         os.fchmod(fd, 0o666 & ~umask)  # normal file permissions, not mkstemp's 0600
         with os.fdopen(fd, mode) as fh:
-            fh.write(data)
+            yield fh
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
-    return path
 
 
 def dumps_json(obj) -> str:

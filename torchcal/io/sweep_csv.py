@@ -23,7 +23,7 @@ from torchcal.errors import InputError
 from torchcal.io.files import atomic_write
 from torchcal.reliability.sweep import SweepResult
 
-__all__ = ["sweep_columns", "sweep_csv_text", "write_sweep", "read_sweep"]
+__all__ = ["sweep_columns", "sweep_csv_text", "sweep_csv_rows", "write_sweep", "read_sweep"]
 
 
 def sweep_columns(n: int) -> list[str]:
@@ -34,6 +34,11 @@ def sweep_columns(n: int) -> list[str]:
 
 def sweep_csv_text(result: SweepResult) -> str:
     """The CSV text of a sweep: q in degrees (mm for a prismatic joint), mm."""
+    return ",".join(sweep_columns(result.q.shape[1])) + "\n" + sweep_csv_rows(result)
+
+
+def sweep_csv_rows(result: SweepResult) -> str:
+    """The data rows of the sweep CSV (no header), ids from `result.point` (default 0..N-1)."""
     q = torch.rad2deg(result.q)
     if result.prismatic is not None:
         q = torch.where(result.prismatic.to(q.device), result.q, q)
@@ -42,7 +47,6 @@ def sweep_csv_text(result: SweepResult) -> str:
             result.dist_lower[:, None], result.dist_upper[:, None], result.eta[:, None], result.r_set[:, None]]
     data = torch.cat([c.detach().to("cpu", torch.float64) for c in cols], dim=1).numpy()
     buf = _io.StringIO()
-    buf.write(",".join(sweep_columns(result.q.shape[1])) + "\n")
     ids = range(len(data)) if result.point is None else result.point.tolist()
     for i, row in zip(ids, data.tolist()):
         buf.write(f"{i}," + ",".join(map(repr, row)) + "\n")

@@ -6,7 +6,12 @@ each point, distance-error interval per point, R_set":
 1. `sample_workspace`: a Latin hypercube (scipy.stats.qmc.LatinHypercube, explicit seed)
    of joint space inside the robot's limits, filtered by a `Workspace` (TCP above the
    floor, outside the base column, within reach); rounds of fresh hypercubes are drawn
-   until N points pass, and the first N are kept.
+   until N points pass, and the first N are kept. The sweep draws its points in blocks
+   of `block` points (default DEFAULT_BLOCK), block b from its own seed (`block_seed`:
+   block 0 from `seed` itself, so a sweep of at most one block is the plain hypercube of
+   `seed`); a block is then a function of (seed, b) alone, and a sweep computed block by
+   block anywhere (`sweep_block`, torchcal.workflows.distributed) equals the in-process
+   one bit for bit, whatever the number of workers.
 2. M perturbed parameter sets: clearance states of a `ClearanceModel` turned into MD-H
    deviations (torchcal.reliability.uncertainty), the same M sets for every point (common random
    numbers: the envelope is a deterministic function of q for a given seed).
@@ -63,6 +68,11 @@ from torchcal.reliability.uncertainty import ClearanceModel, sample_deviations
 # 32768 elements on); on a GPU large enough to fill it
 DEFAULT_CHUNK = 1 << 14
 DEFAULT_CHUNK_GPU = 1 << 22
+# workspace points per block (the unit of seeding, of distributed tasks and of the streamed
+# output): measured (benchmarks/bench_sweep.py --distributed, docs/scale.md) a block costs
+# 0.067 ms of one core per point at M = 1e3 states plus 12.6 ms per block on a local Dask
+# cluster: under 1% overhead from 18700 points; 20000 points = 1.34 s of one core
+DEFAULT_BLOCK = 20_000
 
 
 @dataclass(frozen=True)
@@ -106,20 +116,29 @@ class Workspace:
         return ok
 
 
-def _lhs(d: int, seed: int):
+def _lhs(d: int, seed):
     from scipy.stats import qmc
+    if isinstance(seed, np.random.SeedSequence):
+        seed = np.random.default_rng(seed)
     try:
         return qmc.LatinHypercube(d=d, rng=seed)
     except TypeError:  # scipy < 1.15
         return qmc.LatinHypercube(d=d, seed=seed)
 
 
-def sample_workspace(robot, n: int, seed: int = 0, workspace: Workspace | None = None,
+def block_seed(seed: int, index: int):
+    """The seed of block `index` of a sweep: `seed` itself for block 0, else the numpy
+    SeedSequence(seed, spawn_key=(index,)) (independent streams, a function of (seed, index))."""
+    return int(seed) if index == 0 else np.random.SeedSequence(int(seed), spawn_key=(int(index),))
+
+
+def sample_workspace(robot, n: int, seed=0, workspace: Workspace | None = None,
                      max_rounds: int = 50) -> torch.Tensor:
     """n joint configurations (n, dof) rad, float64 on the CPU, inside limits and workspace.
 
-    Rounds of Latin hypercubes (scipy LatinHypercube with rng=seed) are scaled to the
-    joint limits and filtered by `workspace` until n pass; the first n are returned.
+    Rounds of Latin hypercubes (scipy LatinHypercube with rng=seed; seed an int or a
+    numpy SeedSequence) are scaled to the joint limits and filtered by `workspace` until
+    n pass; the first n are returned.
     """
     if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 1:
         raise InputError(f"number of workspace points must be a positive integer, got {n!r}")
@@ -293,7 +312,8 @@ def _envelope(robot, q, dev, include_nominal, chunk, bar, threads):
         return a1 - a0
 
     for done in _map_chunks(work, range(0, N, n_step), threads):
-        bar.update(done)
+        if bar is not None:
+            bar.update(done)
     return e_lo, e_hi, d_lo, d_hi
 
 
@@ -355,12 +375,13 @@ def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_m
           seed: int = 0, model: ClearanceModel | None = None, workspace: Workspace | None = None,
           deviations: torch.Tensor | None = None, include_nominal: bool = True, linear: bool = True,
           allowed_axis_mm: float | None = None, chunk: int | None = None, threads: int | None = None,
-          device=None, dtype=torch.float64, progress: bool = False):
+          block: int = DEFAULT_BLOCK, device=None, dtype=torch.float64, progress: bool = False):
     """Sweep the workspace: error envelopes, linearised hull, eta and R_set per point.
 
     Args:
         robot: a `torchcal.Robot`.
-        q: optional (N, n) rad points; default `sample_workspace(robot, n_points, seed, workspace)`.
+        q: optional (N, n) rad points; default N = n_points points drawn block by block
+            (`block_points`: block b from `block_seed(seed, b)`).
         n_points: N when q is None.
         n_samples: M perturbed parameter sets (clearance states), drawn with a
             torch.Generator seeded with `seed`.
@@ -381,65 +402,161 @@ def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_m
             CPU, 1 on a GPU). On a CPU torch's own intra-op threads are set to 1 while the
             sweep runs (and restored after): the workers use the cores instead. Results do
             not depend on it.
+        block: points per block (default DEFAULT_BLOCK): the points of block b are drawn
+            from `block_seed(seed, b)`, so the result depends on `block` (not on chunk,
+            threads or on how many machines compute the blocks: `sweep_block`).
         device, dtype: where and in which float type to compute (float64 default).
         progress: tqdm progress bar on stderr (only when stderr is a terminal).
 
     Returns:
         SweepResult (tensors on `device`).
     """
-    if chunk is not None and (not isinstance(chunk, int) or chunk < 1):
-        raise InputError(f"chunk must be a positive integer, got {chunk!r}")
-    if threads is not None and (not isinstance(threads, int) or threads < 1):
-        raise InputError(f"threads must be a positive integer, got {threads!r}")
-    if not (isinstance(allowed_mm, (int, float)) and math.isfinite(allowed_mm) and allowed_mm > 0):
-        raise InputError(f"allowed distance error must be a positive number of mm, got {allowed_mm!r}")
+    for name, v in (("chunk", chunk), ("threads", threads)):
+        if v is not None and (not isinstance(v, int) or v < 1):
+            raise InputError(f"{name} must be a positive integer, got {v!r}")
+    _check_count(block, "points per block")
+    _check_allowed(allowed_mm, allowed_axis_mm)
     device = torch.device(device) if device is not None else robot.device
     rb = robot.to(device, dtype)
-    if q is None:
-        q = sample_workspace(robot.to("cpu", torch.float64), n_points, seed, workspace)
-    q = rb.check_q(q).to(device=device, dtype=dtype)
-    if q.ndim != 2:
-        raise InputError(f"q: expected workspace points of shape (N, {robot.n}), got {tuple(q.shape)}")
-    dev_box = None
+    if q is not None:
+        q = rb.check_q(q).to(device=device, dtype=dtype)
+        if q.ndim != 2:
+            raise InputError(f"q: expected workspace points of shape (N, {robot.n}), got {tuple(q.shape)}")
+        n_points = q.shape[0]
+        _check_count(n_points, "number of workspace points")
+    else:
+        _check_count(n_points, "number of workspace points")
+    deviations, dev_box = sweep_states(robot, n_samples=n_samples, seed=seed, model=model,
+                                       deviations=deviations, linear=linear)
+    deviations = deviations.to(device=device, dtype=dtype)
+    gpu = rb.table.device.type != "cpu"
+    chunk = chunk or (DEFAULT_CHUNK_GPU if gpu else DEFAULT_CHUNK)
+    threads = threads or (1 if gpu else torch.get_num_threads())
+    parts = []
+    with _serial_ops(not gpu):
+        with tqdm(total=n_points, unit="pt", desc="sweep", file=sys.stderr, disable=None if progress else True,
+                  dynamic_ncols=True) as bar:
+            for b in range(-(-n_points // block)):
+                a0, a1 = block_range(b, n_points=n_points, block=block)
+                if q is None:
+                    qb = block_points(robot, b, n_points=n_points, block=block, seed=seed, workspace=workspace)
+                    qb = rb.check_q(qb).to(device=device, dtype=dtype)
+                else:
+                    qb = q[a0:a1]
+                parts.append(_sweep_points(rb, qb, deviations, dev_box, include_nominal=include_nominal,
+                                           linear=linear, allowed_mm=allowed_mm, allowed_axis_mm=allowed_axis_mm,
+                                           chunk=chunk, threads=threads, bar=bar))
+    return parts[0] if len(parts) == 1 else _concat(parts)
+
+
+def _check_count(v, what: str) -> None:
+    if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
+        raise InputError(f"{what} must be a positive integer, got {v!r}")
+
+
+def _check_allowed(allowed_mm, allowed_axis_mm) -> None:
+    if not (isinstance(allowed_mm, (int, float)) and math.isfinite(allowed_mm) and allowed_mm > 0):
+        raise InputError(f"allowed distance error must be a positive number of mm, got {allowed_mm!r}")
+    if allowed_axis_mm is not None and not (isinstance(allowed_axis_mm, (int, float))
+                                            and math.isfinite(allowed_axis_mm) and allowed_axis_mm > 0):
+        raise InputError(f"allowed axis error must be a positive number of mm, got {allowed_axis_mm!r}")
+
+
+def sweep_states(robot, *, n_samples: int = 300, seed: int = 0, model: ClearanceModel | None = None,
+                 deviations: torch.Tensor | None = None, linear: bool = True):
+    """The M deviation sets of a sweep and their box: ((M, n, 5) float64 CPU, Interval (n, 5) or None).
+
+    Drawn with a torch.Generator seeded with `seed` from `model` (default
+    `ClearanceModel.defaults(robot)`) unless `deviations` are given; the box (None unless
+    `linear`) is `model.box(robot)`, or the sample hull of `deviations` given without a model.
+    """
     if deviations is None:
-        if not isinstance(n_samples, (int, np.integer)) or isinstance(n_samples, bool) or n_samples < 1:
-            raise InputError(f"number of samples must be a positive integer, got {n_samples!r}")
+        _check_count(n_samples, "number of samples")
         model = ClearanceModel.defaults(robot) if model is None else model
         gen = torch.Generator().manual_seed(int(seed))
         deviations = sample_deviations(robot, model, int(n_samples), gen)
     else:
-        deviations = rb.check_params(deviations, "deviations")
+        deviations = robot.to("cpu", torch.float64).check_params(deviations, "deviations")
         if deviations.ndim != 3:
             raise InputError(f"deviations: expected shape (M, {robot.n}, 5), got {tuple(deviations.shape)}")
+    dev_box = None
     if linear:
         dev_box = model.box(robot) if model is not None else Interval(*torch.aminmax(deviations, dim=0))
-    deviations = deviations.to(device=device, dtype=dtype)
-    if allowed_axis_mm is not None and not (isinstance(allowed_axis_mm, (int, float))
-                                            and math.isfinite(allowed_axis_mm) and allowed_axis_mm > 0):
-        raise InputError(f"allowed axis error must be a positive number of mm, got {allowed_axis_mm!r}")
+    return deviations, dev_box
+
+
+def block_range(index: int, *, n_points: int, block: int) -> tuple[int, int]:
+    """Rows [start, stop) of block `index` among n_points points in blocks of `block`."""
+    return index * block, min(n_points, (index + 1) * block)
+
+
+def block_points(robot, index: int, *, n_points: int, block: int = DEFAULT_BLOCK, seed: int = 0,
+                 workspace: Workspace | None = None) -> torch.Tensor:
+    """The workspace points (B, n) rad, float64 CPU, of block `index` of a sweep of n_points:
+    `sample_workspace` of the block's size from `block_seed(seed, index)`."""
+    a0, a1 = block_range(index, n_points=n_points, block=block)
+    if not 0 <= a0 < a1:
+        raise InputError(f"block {index} is outside a sweep of {n_points} points in blocks of {block}")
+    return sample_workspace(robot.to("cpu", torch.float64), a1 - a0, block_seed(seed, index), workspace)
+
+
+def sweep_block(robot, index: int, *, n_points: int, deviations: torch.Tensor, dev_box: Interval | None = None,
+                allowed_mm: float = 2.5, seed: int = 0, block: int = DEFAULT_BLOCK,
+                workspace: Workspace | None = None, include_nominal: bool = True,
+                allowed_axis_mm: float | None = None, chunk: int | None = None, threads: int = 1,
+                dtype=torch.float64) -> SweepResult:
+    """Block `index` of `sweep(robot, n_points=n_points, seed=seed, block=block, ...)` on the CPU.
+
+    deviations, dev_box: `sweep_states(robot, n_samples=M, seed=seed, model=...)` (the
+    same for every block); the linearised hull is computed when dev_box is given. The
+    result's `point` holds the global point ids; it equals the block's rows of the
+    in-process sweep bit for bit (same points, same kernel on the same block), whatever
+    `threads` and `chunk` (CPU default).
+    """
+    _check_allowed(allowed_mm, allowed_axis_mm)
+    rb = robot.to("cpu", dtype)
+    a0, a1 = block_range(index, n_points=n_points, block=block)
+    with _serial_ops(True):
+        q = rb.check_q(block_points(robot, index, n_points=n_points, block=block, seed=seed, workspace=workspace))
+        q = q.to(dtype=dtype)
+        r = _sweep_points(rb, q, deviations.to(dtype=dtype), dev_box, include_nominal=include_nominal,
+                          linear=dev_box is not None, allowed_mm=allowed_mm, allowed_axis_mm=allowed_axis_mm,
+                          chunk=chunk or DEFAULT_CHUNK, threads=threads, bar=None)
+    return SweepResult(**{**{f.name: getattr(r, f.name) for f in fields(r)}, "point": torch.arange(a0, a1)})
+
+
+def _sweep_points(rb, q, deviations, dev_box, *, include_nominal, linear, allowed_mm, allowed_axis_mm,
+                  chunk, threads, bar) -> SweepResult:
+    """The sweep of the points q (N, n) against deviations (M, n, 5), both on rb's device."""
     gpu = q.device.type != "cpu"
-    chunk = chunk or (DEFAULT_CHUNK_GPU if gpu else DEFAULT_CHUNK)
-    threads = threads or (1 if gpu else torch.get_num_threads())
     lin_lo = lin_hi = lin_far = rs_axis = et_axis = None
-    with _serial_ops(not gpu):
-        with tqdm(total=q.shape[0], unit="pt", desc="sweep", file=sys.stderr, disable=None if progress else True,
-                  dynamic_ncols=True) as bar:
-            e_lo, e_hi, d_lo, d_hi = _envelope(rb, q, deviations, include_nominal, chunk, bar, threads)
-        if linear:
-            hull, lin_far = linear_bounds(rb, q, dev_box, chunk=1 << 16 if gpu else 1024, threads=threads)
-            lin_lo, lin_hi = hull.lower, hull.upper
-        positions = rb.fk(q)
-        rs, et = torch.empty_like(d_lo), torch.empty_like(d_lo)
-        piece = 1 << 16  # in pieces: the temporaries of eta and R_set stay small
-        for a in range(0, d_lo.shape[0], piece):
-            dist = (d_lo[a:a + piece], d_hi[a:a + piece])
-            rs[a:a + piece] = reliability.r_set((0.0, float(allowed_mm)), dist)
-            et[a:a + piece] = reliability.eta((None, float(allowed_mm)), dist)
-        if allowed_axis_mm is not None:
-            a = float(allowed_axis_mm)
-            rs_axis = reliability.r_set((-a, a), (e_lo, e_hi))
-            et_axis = reliability.eta((-a, a), (e_lo, e_hi))
+    e_lo, e_hi, d_lo, d_hi = _envelope(rb, q, deviations, include_nominal, chunk, bar, threads)
+    if linear:
+        hull, lin_far = linear_bounds(rb, q, dev_box, chunk=1 << 16 if gpu else 1024, threads=threads)
+        lin_lo, lin_hi = hull.lower, hull.upper
+    positions = rb.fk(q)
+    rs, et = torch.empty_like(d_lo), torch.empty_like(d_lo)
+    piece = 1 << 16  # in pieces: the temporaries of eta and R_set stay small
+    for a in range(0, d_lo.shape[0], piece):
+        dist = (d_lo[a:a + piece], d_hi[a:a + piece])
+        rs[a:a + piece] = reliability.r_set((0.0, float(allowed_mm)), dist)
+        et[a:a + piece] = reliability.eta((None, float(allowed_mm)), dist)
+    if allowed_axis_mm is not None:
+        a = float(allowed_axis_mm)
+        rs_axis = reliability.r_set((-a, a), (e_lo, e_hi))
+        et_axis = reliability.eta((-a, a), (e_lo, e_hi))
     return SweepResult(q=q, positions=positions, err_lower=e_lo, err_upper=e_hi, dist_lower=d_lo,
                        dist_upper=d_hi, eta=et, r_set=rs, lin_lower=lin_lo, lin_upper=lin_hi,
                        lin_dist_upper=lin_far, allowed_mm=float(allowed_mm), n_samples=deviations.shape[0],
                        r_set_axis=rs_axis, eta_axis=et_axis, prismatic=rb.pris)
+
+
+def _concat(parts: list[SweepResult]) -> SweepResult:
+    """The rows of several sweeps of the same robot, states and allowed error, in order."""
+    kw = {}
+    for f in fields(SweepResult):
+        v = getattr(parts[0], f.name)
+        if isinstance(v, torch.Tensor) and f.name != "prismatic":
+            v = torch.cat([getattr(p, f.name) for p in parts])
+        kw[f.name] = v
+    return SweepResult(**kw)

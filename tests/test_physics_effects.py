@@ -195,6 +195,10 @@ def test_refusals_are_one_clear_line():
     assert "\n" not in str(ei.value)
     with pytest.raises(InputError, match="base_compliance"):
         build("axis_tilt:1", TITAN)
+    # all joints: those where the effect exists
+    assert build("axis_tilt", TITAN).param_names() == [f"tilt_{j}" for j in range(2, 7)]
+    assert build("cross_coupling:1,2", TITAN).param_names() == ["coupling_1_2"]
+    assert build("link_bending", TITAN).param_names() == ["bend_1", "bend_2", "bend_3", "bend_4", "bend_6"]
     with pytest.raises(InputError, match="no joint before it"):
         build("cross_coupling:1", TITAN)
     with pytest.raises(InputError, match="without length"):

@@ -22,7 +22,8 @@ axis z_{J-1}; exact for a row whose nominal beta is 0). Measured orientations se
 
 Parameters (1 per joint): ``tilt_J`` rad, the tilt at the reference moment. Joint 1's
 bearing tilts the whole arm with the overturning moment: that is `base_compliance` (mount
-and joint-1 bearing are the same rotation and cannot be told apart), so joints are 2..n.
+and joint-1 bearing are the same rotation and cannot be told apart), so joint 1 gets no
+parameter (``axis_tilt`` alone means joints 2..n; ``axis_tilt:1`` alone is refused).
 """
 
 import math
@@ -65,23 +66,24 @@ class AxisTilt(Effect):
 
     def __init__(self, robot, joints=()):
         super().__init__(robot, joints)
-        if 1 in self.joints:
+        self.tilted = tuple(j for j in self.joints if j > 1)  # joints with a parameter
+        if not self.tilted:
             raise InputError("axis_tilt:1: joint 1's bearing tilts the whole arm, which is base_compliance; "
-                             "axis_tilt takes joints 2..n")
+                             "axis_tilt acts on joints 2..n")
 
     def param_names(self):
-        return [f"tilt_{j}" for j in self.joints]
+        return [f"tilt_{j}" for j in self.tilted]
 
     def param_units(self):
-        return ["rad"] * len(self.joints)
+        return ["rad"] * len(self.tilted)
 
     def plausible_max(self):
-        return [math.radians(MAX_TILT_DEG)] * len(self.joints)
+        return [math.radians(MAX_TILT_DEG)] * len(self.tilted)
 
     def geometric_offset_jacobian(self, p, ctx):  # (N, n, 5, k)
         f = ctx.frames
-        out = f.new_zeros(f.shape[0], f.shape[1] - 2, 5, len(self.joints))
-        for i, j in enumerate(self.joints):
+        out = f.new_zeros(f.shape[0], f.shape[1] - 2, 5, len(self.tilted))
+        for i, j in enumerate(self.tilted):
             m = torch.einsum("nij,ni->nj", f[:, j - 1, :3, :3], load_moment(ctx, self.robot, j))  # R^T M
             out[:, j - 2, 3, i] = m[:, 0]
             out[:, j - 2, 4, i] = m[:, 1]

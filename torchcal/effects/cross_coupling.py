@@ -10,7 +10,8 @@ turns by
 
 Parameters (J - 1 per joint): ``coupling_I_J`` (dimensionless, rad of joint J per rad of
 joint I), I = 1..J-1. A spec's joints are the *driven* ones; the fit says which joint
-drives. Joint 1 has no joint before it (no ``cross_coupling:1``). The term ``c_{J,J} q_J``
+drives. Joint 1 has no joint before it: it gets no parameter (``cross_coupling:1`` alone
+is refused). The term ``c_{J,J} q_J``
 is `encoder_scale` and the constant is joint J's dtheta; neither is repeated here.
 """
 
@@ -30,7 +31,7 @@ class CrossCoupling(Effect):
 
     def __init__(self, robot, joints=()):
         super().__init__(robot, joints)
-        if 1 in self.joints:
+        if not self.pairs():
             raise InputError("cross_coupling:1: joint 1 has no joint before it to be coupled to; "
                              "list driven joints 2..n")
 

@@ -11,8 +11,8 @@ b_J L g_perp and turns by the cantilever's tip slope, 1.5 b_J (tip-loaded beam: 
 
 Parameters (1 per joint): ``bend_J`` rad, the tip deflection over the link length when the
 link is horizontal. The payload's share of the load is left out (the sag is that of the
-arm's own weight). Links without length (a wrist's intersecting axes) cannot bend:
-``link_bending:J`` refuses them. Measured orientations do not see it (a displacement).
+arm's own weight). Links without length (a wrist's intersecting axes) cannot bend: they get
+no parameter (``link_bending:J`` of such a link alone is refused). Measured orientations do not see it (a displacement).
 
 Identifiability: for a link whose inclination follows one joint only (the upper arm of an
 arm with a vertical joint 1: cos of q2 + const), the rotation about the link's root is
@@ -41,27 +41,27 @@ class LinkBending(Effect):
     def __init__(self, robot, joints=()):
         super().__init__(robot, joints)
         t = robot.table.detach().cpu().double()
-        short = [j for j in self.joints
-                 if not bool(robot.prismatic[j - 1]) and float(torch.hypot(t[j - 1, 1], t[j - 1, 2])) < MIN_LENGTH_MM]
-        if short:
-            raise InputError(f"link_bending:{','.join(map(str, short))}: link(s) without length (|a|, |d| "
-                             f"< {MIN_LENGTH_MM:g} mm) cannot bend")
+        self.links = tuple(j for j in self.joints if bool(robot.prismatic[j - 1])
+                           or float(torch.hypot(t[j - 1, 1], t[j - 1, 2])) >= MIN_LENGTH_MM)
+        if not self.links:
+            raise InputError(f"{self.spec()}: link(s) without length (|a|, |d| < {MIN_LENGTH_MM:g} mm) "
+                             f"cannot bend")
 
     def param_names(self):
-        return [f"bend_{j}" for j in self.joints]
+        return [f"bend_{j}" for j in self.links]
 
     def param_units(self):
-        return ["rad"] * len(self.joints)
+        return ["rad"] * len(self.links)
 
     def plausible_max(self):
-        return [math.radians(MAX_BEND_DEG)] * len(self.joints)
+        return [math.radians(MAX_BEND_DEG)] * len(self.links)
 
     def _parts(self, ctx, v):
         """Per parameter: tip shift (N, 3, k) mm and rotation axis u x g (N, 3, k) with the
         tip o_J (N, 3, k)."""
         o = ctx.frames[:, :, :3, 3]
         shift, axis, tip = [], [], []
-        for j in self.joints:
+        for j in self.links:
             link = o[:, j] - o[:, j - 1]
             length = link.norm(dim=-1, keepdim=True)
             u = link / length.clamp_min(1e-9)

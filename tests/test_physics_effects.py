@@ -115,7 +115,8 @@ def test_gear_transmission_against_numpy_at_the_reducer_ratio():
 def _tilted_tcp_numpy(robot, ctx, joint, tilt, moment_only=False):
     """TCP after tilting everything beyond joint `joint`'s bearing (numpy, first principles):
     equal masses at link midpoints J..n, payload (in rated payloads) at the TCP, moment about
-    o_{J-1}, normalised; rotation tilt x (perpendicular part) about o_{J-1} (scipy)."""
+    o_{J-1}, normalised by the joint's reference moment; rotation tilt x (perpendicular
+    part) about o_{J-1} (scipy)."""
     f = ctx.frames.numpy()
     o = f[:, :, :3, 3]
     n = robot.n
@@ -125,9 +126,12 @@ def _tilted_tcp_numpy(robot, ctx, joint, tilt, moment_only=False):
         piv = o[r, joint - 1]
         arm = sum(0.5 * (o[r, k - 1] + o[r, k]) - piv for k in range(joint, n + 1))
         arm = arm + ctx.payload_kg[r].item() / max(robot.payload_kg, 1.0) * (o[r, -1] - piv)
-        M = np.cross(arm, g) / reference_moment_mm(robot)
+        M = np.cross(arm, g) / reference_moment_mm(robot, joint)
         z = f[r, joint - 1, :3, 2]
         w = tilt * (M - (M @ z) * z)
+        if moment_only == "rotvec":
+            out.append(w)
+            continue
         if moment_only:
             out.append(np.linalg.norm(w))
             continue
@@ -152,6 +156,12 @@ def test_axis_tilt_rotates_the_arm_beyond_the_bearing_like_numpy(joint):
     # the row's Rx(dalpha) Ry(dbeta) is the rotation vector to first order (relative
     # difference of the order of the angle, < 1e-4); a wrong pivot or axis is O(1)
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-3 * moved.max())
+    # measured orientations see it: the TCP frame turns by the same rotation
+    w = _tilted_tcp_numpy(robot, ctx, joint, tilt, moment_only="rotvec")
+    rot = model.predict_rotation(theta, ctx).numpy()
+    rot0 = model.predict_rotation(model.zeros(), ctx).numpy()
+    turn = Rotation.from_matrix(rot @ np.swapaxes(rot0, -1, -2)).as_rotvec()
+    np.testing.assert_allclose(turn, w, rtol=0, atol=1e-3 * np.abs(w).max())
 
 
 def test_base_compliance_by_hand_anisotropic_and_follows_q1():

@@ -9,10 +9,11 @@ Load model (`load_moment`): the masses beyond the bearing are unknown, so each l
 k = J..n is one equal mass at its midpoint (half way between the frame origins o_{k-1}
 and o_k of the nominal kinematics at the commanded pose) and the payload (``payload_kg``
 per row, 0 when not measured) sits at the TCP, in units of one link mass (the rated
-payload). The moment about o_{J-1} is normalised by the reference moment
-``M_ref = (n / 2 + 1) x reach`` (about that of the arm stretched out horizontally with its
-rated payload; reach = sum over rows of sqrt(a^2 + d^2) plus the tool's offset), so the
-one parameter per joint absorbs the unknown mass and stiffness:
+payload). The moment about o_{J-1} is normalised by the joint's reference moment
+``M_ref = ((n - J + 1) / 2 + 1) x reach_J`` (about that of the links J..n stretched out
+horizontally with the rated payload; reach_J = sum over rows J..n of sqrt(a^2 + d^2) plus
+the tool's offset), so the one parameter per joint absorbs the unknown mass and
+stiffness:
 
     tilt (rad, in frame J-1) = tilt_J x (m_x, m_y, 0),   m = R_{J-1}^T M / M_ref,
 
@@ -20,7 +21,7 @@ applied as per-row deviations of row J-1 (dalpha_{J-1} += tilt_J m_x, dbeta_{J-1
 tilt_J m_y: rotations of frame J-1 about its x and y axes, both perpendicular to joint J's
 axis z_{J-1}; exact for a row whose nominal beta is 0). Measured orientations see it.
 
-Parameters (1 per joint): ``tilt_J`` rad, the tilt at the reference moment. Joint 1's
+Parameters (1 per joint): ``tilt_J`` rad, the tilt at the joint's reference moment. Joint 1's
 bearing tilts the whole arm with the overturning moment: that is `base_compliance` (mount
 and joint-1 bearing are the same rotation and cannot be told apart), so joint 1 gets no
 parameter (``axis_tilt`` alone means joints 2..n; ``axis_tilt:1`` alone is refused).
@@ -38,25 +39,28 @@ from torchcal.errors import InputError
 MAX_TILT_DEG = 0.2
 
 
-def reference_moment_mm(robot) -> float:
-    """M_ref (mm, in unit link masses): (n / 2 + 1) x reach, reach = sum of the rows'
-    sqrt(a^2 + d^2) plus the tool's offset (mm)."""
-    t = robot.table.detach().cpu().double()
+def reference_moment_mm(robot, first: int = 1) -> float:
+    """M_ref (mm, in unit link masses) of the part of the arm beyond joint `first`:
+    (number of links / 2 + 1) x reach, reach = sum of the rows first..n's sqrt(a^2 + d^2)
+    plus the tool's offset (mm): about the moment of that part stretched out horizontally
+    with the rated payload."""
+    t = robot.table.detach().cpu().double()[first - 1:]
     reach = float(torch.sqrt(t[:, 1] ** 2 + t[:, 2] ** 2).sum() + robot.tool[:3, 3].detach().cpu().double().norm())
-    return (robot.n / 2 + 1) * max(reach, 1.0)
+    return ((robot.n - first + 1) / 2 + 1) * max(reach, 1.0)
 
 
 def load_moment(ctx, robot, first: int) -> torch.Tensor:
     """Normalised gravity moment (N, 3), world frame, about the origin o_{first-1} of
     links first..n (equal masses at their midpoints) and the payload at the TCP (in units
-    of one link mass = the rated payload, at least 1 kg), divided by `reference_moment_mm`."""
+    of one link mass = the rated payload, at least 1 kg), divided by
+    `reference_moment_mm(robot, first)`."""
     o = ctx.frames[:, :, :3, 3]  # (N, n + 2, 3): base, frames 1..n, TCP
     n = o.shape[1] - 2
     pivot = o[:, first - 1]
     mid = 0.5 * (o[:, first - 1:n] + o[:, first:n + 1])  # (N, n - first + 1, 3)
     link_kg = max(float(robot.payload_kg), 1.0)
     arm = (mid - pivot.unsqueeze(1)).sum(1) + (ctx.payload_kg / link_kg).unsqueeze(-1) * (o[:, -1] - pivot)
-    return torch.linalg.cross(arm, ctx.gravity.expand_as(arm)) / reference_moment_mm(robot)
+    return torch.linalg.cross(arm, ctx.gravity.expand_as(arm)) / reference_moment_mm(robot, first)
 
 
 class AxisTilt(Effect):

@@ -28,7 +28,7 @@ from torchcal.effects.axis_tilt import MAX_TILT_DEG, load_moment
 from torchcal.effects.base import Effect
 
 
-def _skew(w: torch.Tensor) -> torch.Tensor:
+def skew(w: torch.Tensor) -> torch.Tensor:
     """(N, 3) -> (N, 3, 3) with skew(w) x = w x x."""
     z = torch.zeros_like(w[:, 0])
     return torch.stack([torch.stack([z, -w[:, 2], w[:, 1]], -1),
@@ -63,4 +63,4 @@ class BaseCompliance(Effect):
         axes = self._axes(ctx)
         lever = (v - ctx.frames[:, 0, :3, 3]).unsqueeze(-1).expand_as(axes)
         dp = torch.linalg.cross(axes, lever, dim=1)
-        return dp, _skew(axes @ p)
+        return dp, skew(axes @ p)

@@ -25,7 +25,7 @@ import math
 import torch
 
 from torchcal.effects.base import Effect
-from torchcal.effects.base_compliance import _skew
+from torchcal.effects.base_compliance import skew
 from torchcal.errors import InputError
 
 #: largest plausible tip deflection over length (deg): 0.1 deg is 1.7 mm per metre of link.
@@ -56,25 +56,23 @@ class LinkBending(Effect):
     def plausible_max(self):
         return [math.radians(MAX_BEND_DEG)] * len(self.links)
 
-    def _parts(self, ctx, v):
-        """Per parameter: tip shift (N, 3, k) mm and rotation axis u x g (N, 3, k) with the
-        tip o_J (N, 3, k)."""
+    def _columns(self, ctx, v):
+        """dv / dp (N, 3, k) mm per rad, and the slope axes 1.5 u x g (N, 3, k)."""
         o = ctx.frames[:, :, :3, 3]
-        shift, axis, tip = [], [], []
+        cols, axes = [], []
         for j in self.links:
             link = o[:, j] - o[:, j - 1]
             length = link.norm(dim=-1, keepdim=True)
             u = link / length.clamp_min(1e-9)
             g = ctx.gravity.expand_as(u)
-            shift.append(length * (g - (g * u).sum(-1, keepdim=True) * u))
-            axis.append(TIP_SLOPE * torch.linalg.cross(u, g))
-            tip.append(o[:, j])
-        return torch.stack(shift, -1), torch.stack(axis, -1), torch.stack(tip, -1)
-
-    def displacement_jacobian(self, p, ctx, v):  # (N, 3, k), (N, 3, 3)
-        shift, axis, tip = self._parts(ctx, v)
-        dp = shift + torch.linalg.cross(axis, v.unsqueeze(-1) - tip, dim=1)
-        return dp, _skew(axis @ p)
+            axis = TIP_SLOPE * torch.linalg.cross(u, g)
+            cols.append(length * (g - (g * u).sum(-1, keepdim=True) * u) + torch.linalg.cross(axis, v - o[:, j]))
+            axes.append(axis)
+        return torch.stack(cols, -1), torch.stack(axes, -1)
 
     def displacement(self, p, ctx, v):  # (N, 3) mm
-        return self.displacement_jacobian(p, ctx, v)[0] @ p
+        return self._columns(ctx, v)[0] @ p
+
+    def displacement_jacobian(self, p, ctx, v):  # (N, 3, k), (N, 3, 3)
+        cols, axes = self._columns(ctx, v)
+        return cols, skew(axes @ p)

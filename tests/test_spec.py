@@ -16,7 +16,9 @@ PLAIN_EFFECTS = sorted(k for k, v in EFFECTS.items() if not v)
 def test_vocabulary_matches_design():
     assert EFFECTS == {"base_frame": False, "tool_offset": False, "joint_compliance": True,
                        "gear_periodic": True, "backlash": True, "encoder_scale": True,
-                       "thermal_expansion": False, "joint_clearance": True}
+                       "thermal_expansion": False, "joint_clearance": True, "cross_coupling": True,
+                       "axis_tilt": True, "base_compliance": False, "link_bending": True,
+                       "gear_transmission": True}
 
 
 @pytest.mark.parametrize("text,name,joints,as_str", [
@@ -51,8 +53,9 @@ def test_parse_spec(text, name, joints, as_str):
     ("backlash:1:2", r"joint '1:2' is not a joint number"),
     ("base_frame:1", r"effect spec 'base_frame:1': effect 'base_frame' takes no joints; write it as 'base_frame'"),
     ("thermal_expansion:", r"effect 'thermal_expansion' takes no joints"),
-    ("foo", r"effect spec 'foo': unknown effect 'foo'; expected one of backlash, base_frame, encoder_scale, "
-            r"gear_periodic, joint_clearance, joint_compliance, thermal_expansion, tool_offset"),
+    ("foo", r"effect spec 'foo': unknown effect 'foo'; expected one of axis_tilt, backlash, base_compliance, "
+            r"base_frame, cross_coupling, encoder_scale, gear_periodic, gear_transmission, joint_clearance, "
+            r"joint_compliance, link_bending, thermal_expansion, tool_offset"),
     ("backlsh:1", r"unknown effect 'backlsh' \(did you mean 'backlash'\?\); expected one of"),
     ("Backlash", r"unknown effect 'Backlash' \(did you mean 'backlash'\?\)"),
     ("geometric", r"'geometric' is always part of the model; leave it out"),

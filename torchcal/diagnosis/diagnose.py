@@ -391,8 +391,9 @@ class _Linear:
 
 def _candidate_specs(robot: Robot, present: dict, ctx) -> list[tuple[str, tuple]]:
     """Effects of the registry (built-in and user effects) not in the model yet; joint
-    effects on each joint they do not cover yet; none whose data are missing (its
-    `check_context` fails, e.g. thermal_expansion without temp_c)."""
+    effects on each joint they do not cover yet; none whose data are missing or that
+    refuse the robot or joint (building it or its `check_context` raises InputError, e.g.
+    thermal_expansion without temp_c, gear_transmission without gear_ratio, axis_tilt:1)."""
     from torchcal.effects import lookup
     from torchcal.errors import InputError
 
@@ -400,14 +401,13 @@ def _candidate_specs(robot: Robot, present: dict, ctx) -> list[tuple[str, tuple]
     for name, takes in EFFECTS.items():
         if name in present and not takes:
             continue
-        try:
-            lookup(name)(robot, (1,) if takes else ()).check_context(ctx)
-        except InputError:
-            continue
-        if takes:
-            out += [(name, (j,)) for j in range(1, robot.n + 1) if j not in present.get(name, ())]
-        else:
-            out.append((name, ()))
+        joints = [(j,) for j in range(1, robot.n + 1) if j not in present.get(name, ())] if takes else [()]
+        for js in joints:
+            try:  # the data lack a column, or the effect does not exist there (axis_tilt:1)
+                lookup(name)(robot, js).check_context(ctx)
+            except InputError:
+                continue
+            out.append((name, js))
     return out
 
 

@@ -9,19 +9,25 @@ command line's ``--effects-module``) or an installed package's ``torchcal.effect
 entry point. docs/effects.md shows how to write one.
 """
 
+from torchcal.effects.axis_tilt import AxisTilt
 from torchcal.effects.backlash import Backlash
 from torchcal.effects.base import Context, Effect, context_of, make_context
+from torchcal.effects.base_compliance import BaseCompliance
 from torchcal.effects.base_frame import BaseFrame
+from torchcal.effects.cross_coupling import CrossCoupling
 from torchcal.effects.encoder_scale import EncoderScale
 from torchcal.effects.gear_periodic import GearPeriodic
+from torchcal.effects.gear_transmission import GearTransmission
 from torchcal.effects.joint_clearance import JointClearance
 from torchcal.effects.joint_compliance import JointCompliance
+from torchcal.effects.link_bending import LinkBending
 from torchcal.effects.registry import REGISTRY, load_entry_points, load_module, lookup, register, unregister
 from torchcal.effects.thermal_expansion import ThermalExpansion
 from torchcal.effects.tool_offset import ToolOffset
 
 for _cls in (BaseFrame, ToolOffset, JointCompliance, GearPeriodic, Backlash, EncoderScale,
-             ThermalExpansion, JointClearance):
+             ThermalExpansion, JointClearance, CrossCoupling, AxisTilt, BaseCompliance, LinkBending,
+             GearTransmission):
     register(_cls, "torchcal.effects", builtin=True)
 
 
@@ -34,5 +40,5 @@ def build(spec, robot) -> Effect:
     return lookup(spec.name)(robot, spec.joints)
 
 
-__all__ = ["Context", "Effect", "REGISTRY", "build", "context_of", "load_entry_points", "load_module",
+__all__ = ["AxisTilt", "BaseCompliance", "Context", "CrossCoupling", "Effect", "GearTransmission", "LinkBending", "REGISTRY", "build", "context_of", "load_entry_points", "load_module",
            "lookup", "make_context", "register", "unregister"]

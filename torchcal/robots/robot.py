@@ -48,6 +48,9 @@ class Robot:
         clearance: the robot file's optional "clearance" section (validated dict with
             radii_mm, clearance_mm, bearing_length_mm[, mode]; mm), the joint-clearance
             model of `torchcal sweep` (torchcal.reliability.uncertainty), else None.
+        gear_ratio: per joint the reducer ratio (motor turns per joint turn, > 0) or None
+            where unknown; None: no ratios given (the robot file's optional "gear_ratio";
+            read by the `gear_transmission` effect).
     """
 
     name: str
@@ -61,6 +64,7 @@ class Robot:
     prismatic: torch.Tensor | None = None
     urdf: dict | None = None
     clearance: dict | None = None
+    gear_ratio: tuple | None = None
 
     def __post_init__(self):
         if self.prismatic is None:
@@ -73,6 +77,7 @@ class Robot:
             return NotImplemented
         tensors = ("table", "has_beta", "limits", "base", "tool", "gravity", "prismatic")
         return (self.name == other.name and self.n == other.n and self.payload_kg == other.payload_kg
+                and self.gear_ratio == other.gear_ratio
                 and all(getattr(self, t).shape == getattr(other, t).shape
                         and torch.equal(getattr(self, t).cpu(), getattr(other, t).cpu().to(getattr(self, t).dtype))
                         for t in tensors))
@@ -126,7 +131,7 @@ class Robot:
             return t.to(device=device, dtype=dtype if t.is_floating_point() else None)
         return Robot(self.name, mv(self.table), self.has_beta.to(device), mv(self.limits),
                      mv(self.base), mv(self.tool), self.payload_kg, mv(self.gravity),
-                     self.prismatic.to(device), self.urdf, self.clearance)
+                     self.prismatic.to(device), self.urdf, self.clearance, self.gear_ratio)
 
     # -- validation -----------------------------------------------------------------
     def check_q(self, q, name: str = "q") -> torch.Tensor:

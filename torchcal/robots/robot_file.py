@@ -13,7 +13,9 @@
      "clearance": {"radii_mm": [2n], "clearance_mm": [2n], "bearing_length_mm": [n],
                    "mode": "contact" | "disc"} (optional: the joint-clearance model of
                    `torchcal sweep`, mm, seats 2j-1 and 2j belong to joint j; radii_mm and
-                   mode may be left out; torchcal.reliability.uncertainty)}
+                   mode may be left out; torchcal.reliability.uncertainty),
+     "gear_ratio": [r1, ..., rn] (optional: per joint the reducer ratio, motor turns per
+                   joint turn, > 0, or null where unknown; the `gear_transmission` effect)}
 
 MD-H link transform A_i = Rz(theta) Tz(d) Tx(a) Rx(alpha) Ry(beta). A revolute joint's q
 (rad inside, degrees in files) adds to theta; a prismatic joint's q (mm) adds to d.
@@ -33,7 +35,8 @@ from torchcal.errors import InputError
 from torchcal.robots.robot import Robot
 
 JOINT_KEYS = {"type", "theta_offset_deg", "d_mm", "a_mm", "alpha_deg", "beta_deg", "lower", "upper"}
-TOP_KEYS = {"name", "joints", "base", "tool", "payload_kg", "gravity", "urdf", "effects", "clearance"}
+TOP_KEYS = {"name", "joints", "base", "tool", "payload_kg", "gravity", "urdf", "effects", "clearance",
+            "gear_ratio"}
 URDF_KEYS = {"path", "base_link", "tip_link"}
 NOTE_KEYS = {"notes", "source"}  # free provenance / notes, with any key starting "x_"
 
@@ -138,9 +141,24 @@ def robot_from_dict(obj, where: str = "robot file") -> Robot:
 
     check_robot_lengths(torch.tensor(rows, dtype=torch.float64), torch.tensor(pris),
                         torch.tensor(limits, dtype=torch.float64), where)  # lengths in metres
+    ratio = _gear_ratio(where, obj["gear_ratio"], len(rows)) if "gear_ratio" in obj else None
     return Robot(name, torch.tensor(rows, dtype=torch.float64), torch.tensor(has_beta),
                  torch.tensor(limits, dtype=torch.float64), base, tool, payload, gravity,
-                 torch.tensor(pris), None if urdf is None else dict(urdf), clearance)
+                 torch.tensor(pris), None if urdf is None else dict(urdf), clearance, ratio)
+
+
+def _gear_ratio(where: str, v, n: int) -> tuple:
+    """The "gear_ratio" list: n entries, each a number > 0 or None (unknown)."""
+    if not isinstance(v, list) or len(v) != n:
+        raise InputError(f"{where}: gear_ratio: expected a list of {n} reducer ratios (one per joint, "
+                         f"null where unknown)")
+    out = []
+    for i, x in enumerate(v, start=1):
+        r = None if x is None else _num(where, f"gear_ratio[{i}]", x)
+        if r is not None and r <= 0:
+            raise InputError(f"{where}: gear_ratio[{i}]: expected a ratio > 0 or null, got {r:g}")
+        out.append(r)
+    return tuple(out)
 
 
 def robot_to_dict(robot: Robot, effects=None) -> dict:
@@ -164,6 +182,8 @@ def robot_to_dict(robot: Robot, effects=None) -> dict:
         obj["urdf"] = dict(r.urdf)
     if r.clearance is not None:
         obj["clearance"] = dict(r.clearance)
+    if r.gear_ratio is not None:
+        obj["gear_ratio"] = list(r.gear_ratio)
     if effects:
         obj["effects"] = list(effects)
     return obj

@@ -248,7 +248,7 @@ def run_sweep(plan: SweepPlan, out, *, client=None, force: bool = False, progres
         log(f"sweep: resuming {out}: {len(done)} of {plan.n_blocks} blocks already done in {folder.path}, "
             f"computing the {len(missing)} missing")
     with tqdm(total=plan.n_points, initial=sum(plan.block_points(b) for b in done), unit="pt", desc="sweep",
-              file=sys.stderr, disable=not progress, dynamic_ncols=True) as bar:
+              file=sys.stderr, disable=None if progress else True, dynamic_ncols=True) as bar:
         acc = None
         for b in sorted(done):  # the statistics of the blocks done before, merged as they come
             acc = merge_stats(acc, folder.stats(b))

@@ -175,6 +175,17 @@ def _so3_error(Rp: torch.Tensor, Rm: torch.Tensor) -> torch.Tensor:
                               E[..., 1, 0] - E[..., 0, 1]], dim=-1)
 
 
+def _so3_error_jacobian(Rp: torch.Tensor, Rm: torch.Tensor, W: torch.Tensor) -> torch.Tensor:
+    """d `_so3_error`(Rp, Rm) / d theta (N, 3, P) for d Rp / d theta_k = [W_k]x Rp,
+    W (N, 3, P) rad per unit (`CalibrationModel.rotation_jacobian`): with E = Rp^T Rm,
+    dE_k = -Rp^T [W_k]x Rm and the error is the axial vector of (E - E^T) / 2."""
+    WxRm = torch.linalg.cross(W.transpose(1, 2).unsqueeze(-1), Rm.unsqueeze(1), dim=-2)  # (N, P, 3, 3)
+    dE = -Rp.transpose(-1, -2).unsqueeze(1) @ WxRm
+    e = torch.stack([dE[..., 2, 1] - dE[..., 1, 2], dE[..., 0, 2] - dE[..., 2, 0],
+                     dE[..., 1, 0] - dE[..., 0, 1]], dim=-1)  # (N, P, 3)
+    return 0.5 * e.transpose(1, 2)
+
+
 def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, free=None,
         robust: str | None = None, max_iter: int = 60, rank_tol: float = RANK_TOL,
         pose=None, rotation: torch.Tensor | None = None, sigma_mm: float = SIGMA_MM,
@@ -235,8 +246,12 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
         e = _so3_error(model.predict_rotation(theta, ctx) @ state["tool_R"], rotation)
         return torch.cat([r, -w_rot * e], dim=-1)
 
-    def jac(theta):
-        return torch.func.jacfwd(resid)(theta)  # (N, k, P)
+    def jac(theta):  # (N, k, P), analytic (CalibrationModel.jacobians)
+        J, W = model.jacobians(theta, ctx, rotation=rotation is not None)
+        if rotation is None:
+            return J
+        Rp = model.predict_rotation(theta, ctx) @ state["tool_R"]
+        return torch.cat([J, -w_rot * _so3_error_jacobian(Rp, rotation, W)], dim=1)
 
     if rotation is not None:
         fit_tool_rotation(theta0)

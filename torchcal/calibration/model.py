@@ -101,7 +101,7 @@ class CalibrationModel:
             g = e.geometric_offset(theta[sl], ctx)
             if g is not None:
                 geo = geo + g
-        T = K.fk_pose(q, robot.table.to(theta), geo, robot.base.to(theta), None)
+        T = K.fk_pose(q, robot.table.to(theta), geo, robot.base.to(theta), None, prismatic=robot.pris)
         R = T[..., :3, :3] @ robot.tool[:3, :3].to(theta)
         for e, sl in parts:
             w = e.world_rotation(theta[sl], ctx)
@@ -147,5 +147,105 @@ class CalibrationModel:
         return v
 
     def jacobian(self, theta: torch.Tensor, ctx: Context) -> torch.Tensor:
-        """d predict / d theta: (N, 3, P), forward mode (P is small, N*3 large)."""
-        return torch.func.jacfwd(lambda t: self.predict(t, ctx))(theta)
+        """d predict / d theta (N, 3, P), mm per unit of each parameter, analytic.
+
+        The chain rule through the steps of `predict`: the MD-H kernel's derivatives
+        w.r.t. q, the deviations and the tool point (`torchcal.kinematics.mdh.chain_jacobians`),
+        times each effect's hook companions (`torchcal.effects.base`; forward-mode
+        autodiff of the hook alone for an effect that gives none).
+        """
+        return self.jacobians(theta, ctx)[0]
+
+    def rotation_jacobian(self, theta: torch.Tensor, ctx: Context) -> torch.Tensor:
+        """Angular velocity (N, 3, P) rad per unit of each parameter of the frame of
+        `predict_rotation`, measurement frame: d R / d theta_k = [W[..., k]]x R."""
+        return self.jacobians(theta, ctx, rotation=True)[1]
+
+    def jacobians(self, theta: torch.Tensor, ctx: Context, rotation: bool = False):
+        """(J (N, 3, P) of `jacobian`, W (N, 3, P) of `rotation_jacobian` or None)."""
+        robot = self.robot
+        n, P = robot.n, self.n_params
+        geo = theta[self.slices[0]].reshape(n, 5)
+        q = ctx.q
+        tool = robot.tool[:3, 3].to(theta)
+        parts = list(zip(self.effects, self.slices[1:]))
+        d_q, d_geo, d_tool, scales = [], [], [], []  # (slice, companion)
+        for e, sl in parts:
+            p = theta[sl]
+            dq = e.joint_offset(p, ctx)
+            if dq is not None:
+                q = q + dq
+                d_q.append((sl, e.joint_offset_jacobian(p, ctx)))
+            g = e.geometric_offset(p, ctx)
+            if g is not None:
+                geo = geo + g
+                d_geo.append((sl, e.geometric_offset_jacobian(p, ctx)))
+            t = e.tool_point(p, ctx)
+            if t is not None:
+                tool = tool + t
+                d_tool.append((sl, e.tool_point_jacobian(p, ctx)))
+            s = e.chain_scale(p, ctx)
+            if s is not None:
+                scales.append((sl, s, e.chain_scale_jacobian(p, ctx)))
+        cj = K.chain_jacobians(q, robot.table.to(theta), geo, None, tool, prismatic=robot.pris)
+        N = q.shape[0]
+        J = theta.new_zeros(N, 3, P)
+        J[..., : 5 * n] = cj.dparams
+        W = None
+        if rotation:
+            W = theta.new_zeros(N, 3, P)
+            W[..., : 5 * n] = cj.wparams
+        for sl, D in d_q:  # (N, n, k)
+            J[..., sl] += cj.dq @ D
+            if rotation:
+                W[..., sl] += cj.wq @ D
+        for sl, G in d_geo:  # (N, n, 5, k)
+            G = G.reshape(N, 5 * n, -1)
+            J[..., sl] += cj.dparams @ G
+            if rotation:
+                W[..., sl] += cj.wparams @ G
+        for sl, T in d_tool:  # (3, k) or (N, 3, k)
+            J[..., sl] += cj.rotation @ T
+        v = cj.position
+        if scales:
+            total = torch.stack([s.expand(N) for _, s, _ in scales]).prod(0)  # (N,)
+            J = J * total[:, None, None]
+            for i, (sl, _, S) in enumerate(scales):
+                others = torch.ones_like(total)
+                for j, (_, s, _) in enumerate(scales):
+                    if j != i:
+                        others = others * s
+                J[..., sl] += v.unsqueeze(-1) * (others[:, None] * S).unsqueeze(1)
+            v = v * total.unsqueeze(-1)
+        base = robot.base.to(theta)
+        J = base[:3, :3] @ J
+        if rotation:
+            W = base[:3, :3] @ W
+        v = v @ base[:3, :3].T + base[:3, 3]
+        for e, sl in parts:
+            p = theta[sl]
+            dv = e.displacement(p, ctx, v)
+            if dv is not None:
+                Dp, Dv = e.displacement_jacobian(p, ctx, v)
+                if Dv is not None:
+                    J = J + Dv @ J
+                J[..., sl] += Dp
+                v = v + dv
+        for e, sl in parts:
+            p = theta[sl]
+            w = e.world(p, ctx, v)
+            if w is not None:
+                Dp, Dv = e.world_jacobian(p, ctx, v)
+                J = Dv @ J
+                J[..., sl] += Dp
+                v = w
+        if rotation:
+            for e, sl in parts:
+                p = theta[sl]
+                Rw = e.world_rotation(p, ctx)
+                if Rw is not None:
+                    W = Rw @ W
+                    dR = e.world_rotation_jacobian(p, ctx)  # (3, 3, k)
+                    Om = torch.einsum("ijk,lj->kil", dR, Rw)  # dR_k Rw^T, skew (k, 3, 3)
+                    W[..., sl] += torch.stack([Om[:, 2, 1], Om[:, 0, 2], Om[:, 1, 0]], dim=0)
+        return J, W

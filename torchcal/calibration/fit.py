@@ -177,13 +177,13 @@ def _so3_error(Rp: torch.Tensor, Rm: torch.Tensor) -> torch.Tensor:
 
 def _so3_error_jacobian(Rp: torch.Tensor, Rm: torch.Tensor, W: torch.Tensor) -> torch.Tensor:
     """d `_so3_error`(Rp, Rm) / d theta (N, 3, P) for d Rp / d theta_k = [W_k]x Rp,
-    W (N, 3, P) rad per unit (`CalibrationModel.rotation_jacobian`): with E = Rp^T Rm,
-    dE_k = -Rp^T [W_k]x Rm and the error is the axial vector of (E - E^T) / 2."""
-    WxRm = torch.linalg.cross(W.transpose(1, 2).unsqueeze(-1), Rm.unsqueeze(1), dim=-2)  # (N, P, 3, 3)
-    dE = -Rp.transpose(-1, -2).unsqueeze(1) @ WxRm
-    e = torch.stack([dE[..., 2, 1] - dE[..., 1, 2], dE[..., 0, 2] - dE[..., 2, 0],
-                     dE[..., 1, 0] - dE[..., 0, 1]], dim=-1)  # (N, P, 3)
-    return 0.5 * e.transpose(1, 2)
+    W (N, 3, P) rad per unit (`CalibrationModel.rotation_jacobian`). With E = Rp^T Rm,
+    dE_k = -[w_k]x E for w_k = Rp^T W_k, and the axial vector of the skew part of
+    [w]x E is (tr(E) I - E) w / 2."""
+    E = Rp.transpose(-1, -2) @ Rm
+    tr = E.diagonal(dim1=-2, dim2=-1).sum(-1)
+    M = torch.diag_embed(tr.unsqueeze(-1).expand(-1, 3)) - E
+    return -0.5 * (M @ Rp.transpose(-1, -2)) @ W
 
 
 def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, free=None,

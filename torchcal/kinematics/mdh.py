@@ -24,6 +24,7 @@ temporaries stay bounded (and cache-sized) whatever the batch.
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import torch
@@ -226,14 +227,42 @@ def fk_positions(q, table, params=None, base=None, tool=None, chunk: int = DEFAU
     dim = max(range(len(batch)), key=lambda k: batch[k])
     step = max(1, chunk * batch[dim] // total)
     out = torch.empty(*batch, 3, dtype=table.dtype, device=table.device)
-    for start in range(0, batch[dim], step):
+
+    def run(start):
         size = min(step, batch[dim] - start)
         qc = q.narrow(dim, start, size) if q.shape[dim] > 1 else q
         pc = params
         if params is not None and params.shape[dim] > 1:
             pc = params.narrow(dim, start, size)
         _positions_kernel(qc, table, pc, base, tool_point, out=out.narrow(dim, start, size), prismatic=prismatic)
+
+    starts = range(0, batch[dim], step)
+    workers = min(torch.get_num_threads(), len(starts)) if out.device.type == "cpu" else 1
+    if workers <= 1:
+        for start in starts:
+            run(start)
+        return out
+    _map_single_threaded(run, starts, workers)
     return out
+
+
+def _map_single_threaded(fn, items, workers: int) -> None:
+    """fn(item) for every item, on `workers` Python threads that each run torch with one
+    intra-op thread. The chunks are handed out one at a time, so a thread that the OS
+    deschedules (a busy machine) delays only its current chunk; the threads meet once,
+    at the end, instead of at a barrier in every torch op (docs/performance.md)."""
+    before = torch.get_num_threads()
+
+    def one(item):
+        torch.set_num_threads(1)
+        fn(item)
+
+    try:
+        with ThreadPoolExecutor(workers) as pool:
+            for _ in pool.map(one, items):
+                pass
+    finally:
+        torch.set_num_threads(before)
 
 
 class ChainJacobians(NamedTuple):

@@ -208,9 +208,8 @@ def _discover_part(train: Path, repeats: int) -> dict:
         disc = torchcal.discover(robot, m, EFFECTS)
         wall.append(time.perf_counter() - w)
         cpu.append(time.process_time() - c)
-    added = getattr(disc, "added", None)
     return {"wall_s": statistics.median(wall), "cpu_s": statistics.median(cpu), "peak_gb": _peak_gb(),
-            "added": [str(a) for a in added] if added is not None else None}
+            "added": [str(a) for a in disc.final_effects if str(a) not in EFFECTS]}
 
 
 def _import_part() -> dict:

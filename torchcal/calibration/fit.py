@@ -66,7 +66,12 @@ def identifiability(J: torch.Tensor, names, candidate_free, rank_tol: float = RA
     cand = np.flatnonzero(candidate_free.cpu().numpy())
     norms = np.linalg.norm(J[:, cand], axis=0)
     live = cand[norms > 1e-12 * max(norms.max(initial=0.0), 1e-300)]
-    Js = J[:, live] / np.linalg.norm(J[:, live], axis=0)
+    # unit columns, rounded to 1e-10: columns equal in exact arithmetic (dd of parallel
+    # axes, base_rz and dtheta1) become equal in floating point too, and a norm larger by
+    # at most 1e-8 for earlier columns makes the pivoting keep the first of them (the
+    # robot's before the base frame's), whatever the rounding of the Jacobian
+    Js = np.round(J[:, live] / np.linalg.norm(J[:, live], axis=0), 10)
+    Js = Js * (1 + 1e-8 * np.arange(len(live), 0, -1) / max(len(live), 1))
     free = torch.zeros(J.shape[1], dtype=torch.bool)
     if live.size:
         _, R, piv = scipy.linalg.qr(Js, mode="economic", pivoting=True)

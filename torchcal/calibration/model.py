@@ -161,7 +161,7 @@ class CalibrationModel:
         `predict_rotation`, measurement frame: d R / d theta_k = [W[..., k]]x R."""
         return self.jacobians(theta, ctx, rotation=True)[1]
 
-    def jacobians(self, theta: torch.Tensor, ctx: Context, rotation: bool = False):
+    def jacobians(self, theta: torch.Tensor, ctx: Context, *, rotation: bool = False):
         """(J (N, 3, P) of `jacobian`, W (N, 3, P) of `rotation_jacobian` or None)."""
         robot = self.robot
         n, P = robot.n, self.n_params
@@ -169,24 +169,20 @@ class CalibrationModel:
         q = ctx.q
         tool = robot.tool[:3, 3].to(theta)
         parts = list(zip(self.effects, self.slices[1:]))
-        d_q, d_geo, d_tool, scales = [], [], [], []  # (slice, companion)
+        # per hook: the inputs of the chain it adds to, and (slice, value, companion) per effect
+        terms = {"joint_offset": [], "geometric_offset": [], "tool_point": [], "chain_scale": []}
         for e, sl in parts:
             p = theta[sl]
-            dq = e.joint_offset(p, ctx)
-            if dq is not None:
-                q = q + dq
-                d_q.append((sl, e.joint_offset_jacobian(p, ctx)))
-            g = e.geometric_offset(p, ctx)
-            if g is not None:
-                geo = geo + g
-                d_geo.append((sl, e.geometric_offset_jacobian(p, ctx)))
-            t = e.tool_point(p, ctx)
-            if t is not None:
-                tool = tool + t
-                d_tool.append((sl, e.tool_point_jacobian(p, ctx)))
-            s = e.chain_scale(p, ctx)
-            if s is not None:
-                scales.append((sl, s, e.chain_scale_jacobian(p, ctx)))
+            for hook, found in terms.items():
+                value = getattr(e, hook)(p, ctx)
+                if value is not None:
+                    found.append((sl, value, getattr(e, hook + "_jacobian")(p, ctx)))
+        q = q + sum(v for _, v, _ in terms["joint_offset"])
+        geo = geo + sum(v for _, v, _ in terms["geometric_offset"])  # (N, n, 5) with per-row terms
+        tool = tool + sum(v for _, v, _ in terms["tool_point"])
+        d_q, d_geo, d_tool = ([(sl, D) for sl, _, D in terms[h]] for h in ("joint_offset", "geometric_offset",
+                                                                             "tool_point"))
+        scales = terms["chain_scale"]
         cj = K.chain_jacobians(q, robot.table.to(theta), geo, None, tool, prismatic=robot.pris)
         N = q.shape[0]
         J = theta.new_zeros(N, 3, P)

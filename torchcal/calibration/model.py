@@ -214,9 +214,9 @@ class CalibrationModel:
                 J[..., sl] += v.unsqueeze(-1) * (others[:, None] * S).unsqueeze(1)
             v = v * total.unsqueeze(-1)
         base = robot.base.to(theta)
-        J = base[:3, :3] @ J
+        J = _rows_times(base[:3, :3], J)
         if rotation:
-            W = base[:3, :3] @ W
+            W = _rows_times(base[:3, :3], W)
         v = v @ base[:3, :3].T + base[:3, 3]
         for e, sl in parts:
             p = theta[sl]
@@ -224,7 +224,7 @@ class CalibrationModel:
             if dv is not None:
                 Dp, Dv = e.displacement_jacobian(p, ctx, v)
                 if Dv is not None:
-                    J = J + Dv @ J
+                    J = J + _rows_times(Dv, J)
                 J[..., sl] += Dp
                 v = v + dv
         for e, sl in parts:
@@ -232,7 +232,7 @@ class CalibrationModel:
             w = e.world(p, ctx, v)
             if w is not None:
                 Dp, Dv = e.world_jacobian(p, ctx, v)
-                J = Dv @ J
+                J = _rows_times(Dv, J)
                 J[..., sl] += Dp
                 v = w
         if rotation:
@@ -240,8 +240,16 @@ class CalibrationModel:
                 p = theta[sl]
                 Rw = e.world_rotation(p, ctx)
                 if Rw is not None:
-                    W = Rw @ W
+                    W = _rows_times(Rw, W)
                     dR = e.world_rotation_jacobian(p, ctx)  # (3, 3, k)
                     Om = torch.einsum("ijk,lj->kil", dR, Rw)  # dR_k Rw^T, skew (k, 3, 3)
                     W[..., sl] += torch.stack([Om[:, 2, 1], Om[:, 0, 2], Om[:, 1, 0]], dim=0)
         return J, W
+
+
+def _rows_times(M: torch.Tensor, J: torch.Tensor) -> torch.Tensor:
+    """M_i @ J_i for every row: M (N, 3, 3) or one (3, 3) (also an expanded one), J (N, 3, P).
+    One matrix for all rows runs as a single GEMM instead of N small ones."""
+    if M.dim() == 2 or M.stride(0) == 0:
+        return torch.einsum("ij,njp->nip", M if M.dim() == 2 else M[0], J)
+    return M @ J

@@ -221,3 +221,24 @@ def test_so3_error_jacobian(ur10):
 def test_lookup_sees_every_built_in():
     for spec in BUILT_IN:
         assert lookup(spec.split(":")[0]) is not None
+
+
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
+    not torch.cuda.is_available(), reason="no CUDA device"))])
+def test_model_jacobian_on_device(ur10, device):
+    """The analytic Jacobian (positions and orientation) on the robot's device equals the
+    CPU one and autodiff on that device; nothing falls back to the CPU."""
+    points = (1, 2, 5)
+    cpu_ctx = _context(ur10, 20, points=points)
+    robot = ur10.to(device)
+    ctx = make_context(robot, cpu_ctx.q.to(device), cpu_ctx.payload_kg.to(device), cpu_ctx.temp_c.to(device),
+                       point=cpu_ctx.point.to(device))
+    model, cpu_model = _all_effects_model(robot, points), _all_effects_model(ur10, points)
+    theta = _theta(cpu_model)
+    J, W = model.jacobians(theta.to(device), ctx, rotation=True)
+    assert J.device.type == device and W.device.type == device
+    Jc, Wc = cpu_model.jacobians(theta, cpu_ctx, rotation=True)
+    assert_close(J.cpu(), Jc)
+    assert_close(W.cpu(), Wc)
+    ref = torch.func.jacfwd(lambda t: model.predict(t, ctx))(theta.to(device))
+    assert_close(J, ref)

@@ -11,7 +11,8 @@ its own), fits the training rows and reports the validation position RMS (mm):
   standard-DH model (d, theta offset, a, alpha per joint; d1, theta1 absorbed by the base
   and a6, d6, alpha6 by the tool held) + base frame (translation, rotation vector) + tool
   point, vectorised numpy FK, started from the closed-form registration (Kabsch) of the
-  nominal model: the short script a user would write instead;
+  nominal model: the short script a user would write instead (one BLAS thread, its
+  fastest setting here; all contenders run with OMP_WAIT_POLICY=PASSIVE);
 - FIGAROH: not run (see the printed line).
 
 Also times `torchcal.discover` on the training rows (target <= 20 s on 2 quiet cores).
@@ -222,7 +223,10 @@ def _import_part() -> dict:
 
 
 def _run_part(part: str, folder: Path, repeats: int, threads: int) -> dict:
+    if part == "scipy":  # its BLAS calls are tiny: one thread is its fastest setting on a busy machine
+        threads = 1
     env = dict(os.environ, OMP_NUM_THREADS=str(threads), TORCHCAL_THREADS=str(threads),
+               OPENBLAS_NUM_THREADS=str(threads), MKL_NUM_THREADS=str(threads), OMP_WAIT_POLICY="PASSIVE",
                PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     out = subprocess.run([sys.executable, __file__, "--part", part, "--folder", str(folder),
                           "--repeats", str(repeats)], capture_output=True, text=True, env=env)

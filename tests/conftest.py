@@ -5,6 +5,7 @@ import torchcal  # first: sets OMP_WAIT_POLICY=PASSIVE before torch loads (torch
 
 import pytest
 import torch
+from threadpoolctl import threadpool_limits
 
 from torchcal import threads
 
@@ -15,6 +16,7 @@ from torchcal import threads
 # two). Tests that exercise threads set them themselves.
 threads.apply()
 torch.set_num_threads(threads.threads_for(0, torch.get_num_threads()))
+threadpool_limits(limits=torch.get_num_threads())  # numpy's / scipy's BLAS too, for the session
 
 
 @pytest.fixture(scope="module")

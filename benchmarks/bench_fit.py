@@ -13,7 +13,8 @@ its own), fits the training rows and reports the validation position RMS (mm):
   point, vectorised numpy FK, started from the closed-form registration (Kabsch) of the
   nominal model: the short script a user would write instead (one BLAS thread, its
   fastest setting here; all contenders run with OMP_WAIT_POLICY=PASSIVE);
-- FIGAROH: not run (see the printed line).
+- FIGAROH: not run (see the printed line: not installed, and its calibration needs a
+  URDF, a YAML configuration and its own data layout).
 
 Also times `torchcal.discover` on the training rows (target <= 20 s on 2 quiet cores).
 Targets: torchcal >= 10x faster than the scipy baseline at the same validation RMS, peak
@@ -264,7 +265,8 @@ def main(argv=None) -> int:
                for p in ("import", "scipy", "torchcal", "torchcal+orientation")}
         if not args.skip_discover:
             res["discover"] = _run_part("discover", folder, 1, args.threads)
-    print("FIGAROH: not run (it installs, pin 4.1; its calibration needs a URDF, a YAML "
+    print("FIGAROH: not run (pip resolves figaroh 1.0.2 with pin 4.1 and about 40 more packages, "
+          "not installed into the project's environment; its calibration also needs a URDF, a YAML "
           "configuration and its own data layout, not written for this benchmark)")
     print(f"\n{'contender':24s} {'wall s':>8s} {'cpu s':>8s} {'val RMS mm':>11s} {'peak RSS GB':>12s}")
     for name in ("scipy", "torchcal", "torchcal+orientation"):

@@ -1,15 +1,22 @@
-"""Fixtures shared by the test modules; one torch thread for the session."""
+"""Fixtures shared by the test modules; the thread policy of torchcal.threads, with one
+torch thread for the session."""
+
+import torchcal  # first: sets OMP_WAIT_POLICY=PASSIVE before torch loads (torchcal.threads)
 
 import pytest
 import torch
+from threadpoolctl import threadpool_limits
 
-import torchcal
+from torchcal import threads
 
-# The suite's tensors are small: torch's intra-op threads gain nothing on them, and on a
-# machine whose cores are busy with other work they stall on their barriers (measured on
-# the 2-core development machine under load: `diagnose` of an 80-row 7-joint session 0.9-1.0 s
-# on one thread, 6.9-23.7 s on two). Tests that exercise threads set them themselves.
-torch.set_num_threads(1)
+# The suite's tensors are small: by the policy's size rule (torchcal.threads.threads_for)
+# none of them earns a second thread, and on a machine whose cores are busy with other work
+# a second one stalls at its barriers (measured on the 2-core development machine under
+# load: `diagnose` of an 80-row 7-joint session 0.9-1.0 s on one thread, 6.9-23.7 s on
+# two). Tests that exercise threads set them themselves.
+threads.apply()
+torch.set_num_threads(threads.threads_for(0, torch.get_num_threads()))
+threadpool_limits(limits=torch.get_num_threads())  # numpy's / scipy's BLAS too, for the session
 
 
 @pytest.fixture(scope="module")

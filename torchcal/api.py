@@ -24,6 +24,7 @@ from pathlib import Path
 
 import torch
 
+from torchcal import threads
 from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.calibration.model import CalibrationModel
@@ -114,6 +115,12 @@ def _measurements(measurements, robot: Robot, length_unit: str = "mm", angle_uni
     raise InputError(f"measurements: expected Measurements or a CSV path, got {type(measurements).__name__}")
 
 
+def _work(model: CalibrationModel, m: Measurements) -> int:
+    """Elements of the largest tensors of a fit of `model` to `m` (its Jacobian), for the
+    thread policy (`torchcal.threads.for_work`)."""
+    return 3 * m.q.shape[0] * model.n_params
+
+
 def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, max_iter: int = 60,
         sigma_mm: float = SIGMA_MM, sigma_deg: float = SIGMA_DEG, max_length_mm: float | None = MAX_LENGTH_MM,
         max_angle_deg: float | None = MAX_ANGLE_DEG, length_unit: str = "mm", angle_unit: str = "deg",
@@ -149,9 +156,10 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     else:
         model = CalibrationModel.for_measurements(robot, effects, m)
     ctx = context_of(model.robot, m)
-    res = fit_model(model, ctx, m.xyz, robust=robust, max_iter=max_iter, pose=m.pose, rotation=m.rotation,
-                    sigma_mm=sigma_mm, sigma_deg=sigma_deg, max_length_mm=max_length_mm,
-                    max_angle_deg=max_angle_deg)
+    with threads.for_work(_work(model, m)):
+        res = fit_model(model, ctx, m.xyz, robust=robust, max_iter=max_iter, pose=m.pose, rotation=m.rotation,
+                         sigma_mm=sigma_mm, sigma_deg=sigma_deg, max_length_mm=max_length_mm,
+                         max_angle_deg=max_angle_deg)
     if residual_model is not None:
         from torchcal.calibration.residual_model import fit_residual_model
         res.model.residual_model = fit_residual_model(model.robot, m, res.residuals, kind=residual_model)
@@ -256,7 +264,8 @@ def diagnose(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     model = _model(robot_or_model, effects)
     m = _measurements(measurements, model.robot)
     check_diagnosis_data(robot_or_model, model, m)
-    return run(model.robot, m, model.specs(), folds=folds, seed=seed, **_set(alpha=alpha, min_gain=min_gain))
+    with threads.for_work(_work(model, m)):
+        return run(model.robot, m, model.specs(), folds=folds, seed=seed, **_set(alpha=alpha, min_gain=min_gain))
 
 
 def check_diagnosis_data(robot_or_model, model: CalibrationModel, m: Measurements, theta=None):
@@ -290,8 +299,9 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     from torchcal.diagnosis.diagnose import discover as run
 
     model = _model(robot_or_model, effects)
-    return run(model.robot, _measurements(measurements, model.robot), model.specs(), folds=folds, seed=seed,
-               **_set(max_rounds=max_rounds, alpha=alpha))
+    m = _measurements(measurements, model.robot)
+    with threads.for_work(_work(model, m)):
+        return run(model.robot, m, model.specs(), folds=folds, seed=seed, **_set(max_rounds=max_rounds, alpha=alpha))
 
 
 def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_method: str = "damped",
@@ -308,7 +318,9 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
     if isinstance(partition, (str, Path)):
         from torchcal.io.partition_file import load_partition
         partition = load_partition(partition)
-    im, glob = run(model, _measurements(measurements, model.robot), partition, zone_method, damping)
+    m = _measurements(measurements, model.robot)
+    with threads.for_work(_work(model, m)):
+        im, glob = run(model, m, partition, zone_method, damping)
     im.global_fit = glob
     return im
 

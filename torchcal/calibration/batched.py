@@ -2,8 +2,8 @@
 
 `batched_predict` / `batched_jacobian` stack per-zone contexts with equal row counts and
 evaluate ``x (B, P)``: geometric-only models through the MD-H kernel with a broadcast
-parameter batch, models with effects by vmap / forward-mode autodiff of
-`CalibrationModel.predict`. Used by `torchcal.calibration.intervals.identify_zones`.
+parameter batch, models with effects by vmap of `CalibrationModel.predict` and the
+analytic `CalibrationModel.jacobian` per zone. Used by `torchcal.calibration.intervals.identify_zones`.
 Units: parameters as in `CalibrationModel.param_units` (rad, mm); positions mm.
 """
 
@@ -13,7 +13,6 @@ import torch
 
 from torchcal.kinematics import mdh as K
 from torchcal.effects.base import Context
-from torchcal.calibration.lm import batched_jacobian as lm_jacobian
 from torchcal.calibration.model import CalibrationModel
 
 __all__ = ["batched_predict", "batched_jacobian"]
@@ -56,8 +55,9 @@ def batched_predict(model: CalibrationModel, x: torch.Tensor, ctxs: list[Context
 def batched_jacobian(model: CalibrationModel, x: torch.Tensor, ctxs: list[Context]) -> torch.Tensor:
     """d positions / d x for B zones: (B, m, 3, P).
 
-    Geometric-only models: the analytic MD-H parameter Jacobian (docs/paper.md eq. 17);
-    otherwise forward-mode autodiff of `batched_predict`.
+    Geometric-only models: the analytic MD-H parameter Jacobian (docs/paper.md eq. 17)
+    with a broadcast parameter batch; otherwise the analytic `CalibrationModel.jacobian`
+    zone by zone.
     """
     robot = model.robot
     if not model.effects:
@@ -65,6 +65,4 @@ def batched_jacobian(model: CalibrationModel, x: torch.Tensor, ctxs: list[Contex
         geo = x[:, : 5 * robot.n].reshape(-1, 1, robot.n, 5)
         return K.param_jacobian(st["q"].to(x), robot.table.to(x), geo, robot.base.to(x), robot.tool.to(x),
                                     prismatic=robot.pris)
-    B, P = x.shape
-    J = lm_jacobian(lambda z: batched_predict(model, z, ctxs).reshape(B, -1), x)  # (B, 3m, P)
-    return J.reshape(B, -1, 3, P)
+    return torch.stack([model.jacobian(xb, c) for xb, c in zip(x, ctxs)])

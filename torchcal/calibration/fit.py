@@ -67,7 +67,12 @@ def identifiability(J: torch.Tensor, names, candidate_free, rank_tol: float = RA
     cand = np.flatnonzero(candidate_free.cpu().numpy())
     norms = np.linalg.norm(J[:, cand], axis=0)
     live = cand[norms > 1e-12 * max(norms.max(initial=0.0), 1e-300)]
-    Js = J[:, live] / np.linalg.norm(J[:, live], axis=0)
+    # unit columns, rounded to 1e-10: columns equal in exact arithmetic (dd of parallel
+    # axes, base_rz and dtheta1) become equal in floating point too, and a norm larger by
+    # at most 1e-8 for earlier columns makes the pivoting keep the first of them (the
+    # robot's before the base frame's), whatever the rounding of the Jacobian
+    Js = np.round(J[:, live] / np.linalg.norm(J[:, live], axis=0), 10)
+    Js = Js * (1 + 1e-8 * np.arange(len(live), 0, -1) / max(len(live), 1))
     free = torch.zeros(J.shape[1], dtype=torch.bool)
     if live.size:
         _, R, piv = scipy.linalg.qr(Js, mode="economic", pivoting=True)
@@ -172,6 +177,17 @@ def _generic_rank(model: CalibrationModel, ctx: Context, cand, rank_tol: float) 
     return identifiability(J, model.param_names(), cand, rank_tol).rank
 
 
+def _so3_error_jacobian(Rp: torch.Tensor, Rm: torch.Tensor, W: torch.Tensor) -> torch.Tensor:
+    """d `so3_error`(Rp, Rm) / d theta (N, 3, P) for d Rp / d theta_k = [W_k]x Rp,
+    W (N, 3, P) rad per unit (`CalibrationModel.rotation_jacobian`). With E = Rp^T Rm,
+    dE_k = -[w_k]x E for w_k = Rp^T W_k, and the axial vector of the skew part of
+    [w]x E is (tr(E) I - E) w / 2."""
+    E = Rp.transpose(-1, -2) @ Rm
+    tr = E.diagonal(dim1=-2, dim2=-1).sum(-1)
+    M = torch.diag_embed(tr.unsqueeze(-1).expand(-1, 3)) - E
+    return -0.5 * (M @ Rp.transpose(-1, -2)) @ W
+
+
 def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, free=None,
         robust: str | None = None, max_iter: int = 60, rank_tol: float = RANK_TOL,
         pose=None, rotation: torch.Tensor | None = None, sigma_mm: float = SIGMA_MM,
@@ -232,8 +248,12 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
         e = so3_error(model.predict_rotation(theta, ctx) @ state["tool_R"], rotation)
         return torch.cat([r, -w_rot * e], dim=-1)
 
-    def jac(theta):
-        return torch.func.jacfwd(resid)(theta)  # (N, k, P)
+    def jac(theta):  # (N, k, P), analytic (CalibrationModel.jacobians)
+        J, W = model.jacobians(theta, ctx, rotation=rotation is not None)
+        if rotation is None:
+            return J
+        Rp = model.predict_rotation(theta, ctx) @ state["tool_R"]
+        return torch.cat([J, -w_rot * _so3_error_jacobian(Rp, rotation, W)], dim=1)
 
     if rotation is not None:
         fit_tool_rotation(theta0)

@@ -147,5 +147,109 @@ class CalibrationModel:
         return v
 
     def jacobian(self, theta: torch.Tensor, ctx: Context) -> torch.Tensor:
-        """d predict / d theta: (N, 3, P), forward mode (P is small, N*3 large)."""
-        return torch.func.jacfwd(lambda t: self.predict(t, ctx))(theta)
+        """d predict / d theta (N, 3, P), mm per unit of each parameter, analytic.
+
+        The chain rule through the steps of `predict`: the MD-H kernel's derivatives
+        w.r.t. q, the deviations and the tool point (`torchcal.kinematics.mdh.chain_jacobians`),
+        times each effect's hook companions (`torchcal.effects.base`; forward-mode
+        autodiff of the hook alone for an effect that gives none).
+        """
+        return self.jacobians(theta, ctx)[0]
+
+    def rotation_jacobian(self, theta: torch.Tensor, ctx: Context) -> torch.Tensor:
+        """Angular velocity (N, 3, P) rad per unit of each parameter of the frame of
+        `predict_rotation`, measurement frame: d R / d theta_k = [W[..., k]]x R."""
+        return self.jacobians(theta, ctx, rotation=True)[1]
+
+    def jacobians(self, theta: torch.Tensor, ctx: Context, *, rotation: bool = False):
+        """(J (N, 3, P) of `jacobian`, W (N, 3, P) of `rotation_jacobian` or None)."""
+        robot = self.robot
+        n, P = robot.n, self.n_params
+        geo = theta[self.slices[0]].reshape(n, 5)
+        q = ctx.q
+        tool = robot.tool[:3, 3].to(theta)
+        parts = list(zip(self.effects, self.slices[1:]))
+        # per hook: the inputs of the chain it adds to, and (slice, value, companion) per effect
+        terms = {"joint_offset": [], "geometric_offset": [], "tool_point": [], "chain_scale": []}
+        for e, sl in parts:
+            p = theta[sl]
+            for hook, found in terms.items():
+                value = getattr(e, hook)(p, ctx)
+                if value is not None:
+                    found.append((sl, value, getattr(e, hook + "_jacobian")(p, ctx)))
+        q = q + sum(v for _, v, _ in terms["joint_offset"])
+        geo = geo + sum(v for _, v, _ in terms["geometric_offset"])  # (N, n, 5) with per-row terms
+        tool = tool + sum(v for _, v, _ in terms["tool_point"])
+        d_q, d_geo, d_tool = ([(sl, D) for sl, _, D in terms[h]] for h in ("joint_offset", "geometric_offset",
+                                                                             "tool_point"))
+        scales = terms["chain_scale"]
+        cj = K.chain_jacobians(q, robot.table.to(theta), geo, None, tool, prismatic=robot.pris)
+        N = q.shape[0]
+        J = theta.new_zeros(N, 3, P)
+        J[..., : 5 * n] = cj.dparams
+        W = None
+        if rotation:
+            W = theta.new_zeros(N, 3, P)
+            W[..., : 5 * n] = cj.wparams
+        for sl, D in d_q:  # (N, n, k)
+            J[..., sl] += cj.dq @ D
+            if rotation:
+                W[..., sl] += cj.wq @ D
+        for sl, G in d_geo:  # (N, n, 5, k)
+            G = G.reshape(N, 5 * n, -1)
+            J[..., sl] += cj.dparams @ G
+            if rotation:
+                W[..., sl] += cj.wparams @ G
+        for sl, T in d_tool:  # (3, k) or (N, 3, k)
+            J[..., sl] += cj.rotation @ T
+        v = cj.position
+        if scales:
+            total = torch.stack([s.expand(N) for _, s, _ in scales]).prod(0)  # (N,)
+            J = J * total[:, None, None]
+            for i, (sl, _, S) in enumerate(scales):
+                others = torch.ones_like(total)
+                for j, (_, s, _) in enumerate(scales):
+                    if j != i:
+                        others = others * s
+                J[..., sl] += v.unsqueeze(-1) * (others[:, None] * S).unsqueeze(1)
+            v = v * total.unsqueeze(-1)
+        base = robot.base.to(theta)
+        J = _rows_times(base[:3, :3], J)
+        if rotation:
+            W = _rows_times(base[:3, :3], W)
+        v = v @ base[:3, :3].T + base[:3, 3]
+        for e, sl in parts:
+            p = theta[sl]
+            dv = e.displacement(p, ctx, v)
+            if dv is not None:
+                Dp, Dv = e.displacement_jacobian(p, ctx, v)
+                if Dv is not None:
+                    J = J + _rows_times(Dv, J)
+                J[..., sl] += Dp
+                v = v + dv
+        for e, sl in parts:
+            p = theta[sl]
+            w = e.world(p, ctx, v)
+            if w is not None:
+                Dp, Dv = e.world_jacobian(p, ctx, v)
+                J = _rows_times(Dv, J)
+                J[..., sl] += Dp
+                v = w
+        if rotation:
+            for e, sl in parts:
+                p = theta[sl]
+                Rw = e.world_rotation(p, ctx)
+                if Rw is not None:
+                    W = _rows_times(Rw, W)
+                    dR = e.world_rotation_jacobian(p, ctx)  # (3, 3, k)
+                    Om = torch.einsum("ijk,lj->kil", dR, Rw)  # dR_k Rw^T, skew (k, 3, 3)
+                    W[..., sl] += torch.stack([Om[:, 2, 1], Om[:, 0, 2], Om[:, 1, 0]], dim=0)
+        return J, W
+
+
+def _rows_times(M: torch.Tensor, J: torch.Tensor) -> torch.Tensor:
+    """M_i @ J_i for every row: M (N, 3, 3) or one (3, 3) (also an expanded one), J (N, 3, P).
+    One matrix for all rows runs as a single GEMM instead of N small ones."""
+    if M.dim() == 2 or M.stride(0) == 0:
+        return torch.einsum("ij,njp->nip", M if M.dim() == 2 else M[0], J)
+    return M @ J

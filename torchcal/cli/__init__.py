@@ -16,11 +16,32 @@ import sys
 from torchcal.cli._args import FORCE_HINT
 from torchcal.errors import InputError, OutputExistsError
 
-COMMANDS = (
-    "demo", "simulate", "fit", "evaluate", "diagnose", "discover",
-    "sweep", "partition", "calibrate", "compensate", "robot", "export",
-    "plan", "accuracy", "register",
-)
+#: the sub-commands and their one-line help (the same text as each module's
+#: ``add_parser(help=...)``; tests/test_startup.py checks that they agree)
+SUMMARIES = {
+    "demo": "the paper's whole pipeline on a simulated KR 1000 Titan",
+    "simulate": "simulate a measurement session of a virtual robot (CSV)",
+    "fit": "fit geometric model + effects to a measurement CSV",
+    "evaluate": "errors of a fitted model on a measurement CSV",
+    "diagnose": "rank the physical effects the model is missing",
+    "discover": "add missing effects round by round",
+    "sweep": "error envelopes and R_set over the workspace (CSV)",
+    "partition": "hierarchical fuzzy c-means partition of a sweep CSV",
+    "calibrate": "interval calibration (global or per zone) from repeated measurements",
+    "compensate": "corrected joint commands for target positions",
+    "robot": "show a robot's MD-H table; import a URDF as a robot file",
+    "export": "calibrated geometry as a robot file, a URDF or an MD-H table",
+    "plan": "choose optimal measurement poses (CSV)",
+    "accuracy": "predicted TCP sigma of a fitted model over the workspace",
+    "register": "re-estimate only the measuring frame of a model on new poses",
+}
+COMMANDS = tuple(SUMMARIES)
+
+#: names of the built-in effects (torchcal.effects registers these classes; the top-level
+#: --help lists them without importing torch, tests/test_startup.py checks the list)
+BUILTIN_EFFECTS = ("axis_tilt", "backlash", "base_compliance", "base_frame", "cross_coupling", "encoder_scale",
+                   "gear_periodic", "gear_transmission", "joint_clearance", "joint_compliance", "link_bending",
+                   "thermal_expansion", "tool_offset")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -41,15 +62,32 @@ Effects (for --effects): NAME or NAME:J[,J...] with 1-based joints, e.g. joint_c
 """
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from torchcal import __version__
-    from torchcal.effects import REGISTRY
+def _effect_names() -> list[str]:
+    """Every registered effect name: the registry when it is loaded, else the built-in
+    names and those of installed packages' entry points (no torch import)."""
+    registry = sys.modules.get("torchcal.effects.registry")
+    if registry is not None:
+        return sorted(registry.REGISTRY)
+    import importlib.metadata
 
-    desc = DESCRIPTION + "Known effects: " + ", ".join(sorted(REGISTRY)) + "."
+    plugins = [ep.name for ep in importlib.metadata.entry_points(group="torchcal.effects")]
+    return sorted(set(BUILTIN_EFFECTS) | set(plugins))
+
+
+def build_parser(commands=COMMANDS) -> argparse.ArgumentParser:
+    """The parser; only the sub-commands in `commands` import their module and get their
+    options (the others are listed with their one-line help), so ``--help``,
+    ``--version`` and each sub-command import only what they use."""
+    from torchcal import __version__
+
+    desc = DESCRIPTION + "Known effects: " + ", ".join(_effect_names()) + "."
     parser = _Parser(prog="torchcal", description=desc, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"torchcal {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser, metavar="COMMAND")
     for name in COMMANDS:
+        if name not in commands:
+            sub.add_parser(name, help=SUMMARIES[name])
+            continue
         module = importlib.import_module(f"torchcal.cli.{name}")
         module.add_parser(sub)
         p = sub.choices[name]  # the whole module docstring is the command's description
@@ -64,7 +102,10 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     first = next((a for a in argv if not a.startswith("-")), None)  # the sub-command, named in argparse errors
     _Parser.command = first if first in COMMANDS else None
-    args = build_parser().parse_args(argv)
+    args = build_parser((first,) if first in COMMANDS else ()).parse_args(argv)
+    from torchcal import threads
+
+    threads.apply()
     with quiet_broken_pipe():  # `torchcal ... | head` ends quietly
         return _run(args)
 

@@ -422,10 +422,7 @@ def candidate_columns(robot, base_model: CalibrationModel, theta, ctx, spec: str
     if k == 0:  # an effect with no parameters here (e.g. a user effect on joint 1): nothing to add
         return np.zeros((3 * ctx.n_rows, 0))
 
-    def f(pc):
-        return aug.predict(torch.cat([theta, pc]), ctx)
-
-    C = torch.func.jacfwd(f)(torch.zeros(k, dtype=theta.dtype))
+    C = aug.jacobian(torch.cat([theta, theta.new_zeros(k)]), ctx)[..., base_model.n_params:]
     return C.reshape(-1, k).detach().numpy()
 
 
@@ -440,10 +437,8 @@ def all_candidate_columns(robot, base_model: CalibrationModel, theta, ctx, specs
     aug = CalibrationModel(robot, list(base_model.effects) + extra)
     k = aug.n_params - base_model.n_params
 
-    def f(pc):
-        return aug.predict(torch.cat([theta, pc]), ctx)
-
-    C = torch.func.jacfwd(f)(torch.zeros(k, dtype=theta.dtype)).reshape(-1, k).detach().numpy()
+    C = aug.jacobian(torch.cat([theta, theta.new_zeros(k)]), ctx)[..., base_model.n_params:]
+    C = C.reshape(-1, k).detach().numpy()
     out, start = {}, 0
     for spec, e in zip(specs, extra):
         out[spec] = C[:, start:start + e.n_params]

@@ -6,7 +6,7 @@ from the - direction ``backlash_J / 2`` before it: offset ``approach * backlash_
 The approach direction comes from the measurement order (`Context.approach`).
 """
 
-from torchcal.effects.base import Effect, scatter_joints
+from torchcal.effects.base import Effect, joint_columns, scatter_joints
 
 
 class Backlash(Effect):
@@ -22,3 +22,7 @@ class Backlash(Effect):
     def joint_offset(self, p, ctx):
         cols = ctx.approach[:, [j - 1 for j in self.joints]] * (0.5 * p)  # (N, J)
         return scatter_joints(cols, self.joints, ctx.q.shape[1])
+
+    def joint_offset_jacobian(self, p, ctx):
+        cols = 0.5 * ctx.approach[:, [j - 1 for j in self.joints]]  # (N, J)
+        return joint_columns(cols.unsqueeze(-1).to(p), self.joints, ctx.q.shape[1])

@@ -31,7 +31,18 @@ vector ``p (k,)`` (same dtype/device as ctx.q) and the `Context` of N rows, n jo
 - ``world(p, ctx, v) -> (N, 3) mm``: maps base-frame positions ``v (N, 3)`` to the
   measurement frame (the last step; use for a frame change).
 
-A hook an effect does not use returns None (the default). At p = 0 an effect should do
+A hook an effect does not use returns None (the default).
+
+Each hook has a companion giving its derivative w.r.t. p, used by the analytic Jacobian
+of `torchcal.calibration.model.CalibrationModel.jacobian` (shapes for p (k,)):
+``joint_offset_jacobian -> (N, n, k)``, ``geometric_offset_jacobian -> (N, n, 5, k)``,
+``tool_point_jacobian -> (3, k)`` (``(N, 3, k)`` for a per-row tool point),
+``chain_scale_jacobian -> (N, k)``, ``world_rotation_jacobian -> (3, 3, k)``,
+``displacement_jacobian(p, ctx, v)`` and ``world_jacobian(p, ctx, v) -> (dp (N, 3, k),
+dv (N, 3, 3))`` (dv None for a displacement that does not depend on v). The built-in
+effects give them analytically; an effect that does not is differentiated by forward-mode
+autodiff of that hook alone (the defaults here, which assume, as every hook does, that
+row i of the output depends on row i of v only). At p = 0 an effect should do
 nothing (diagnosis linearises candidates around p = 0). Minimal example, an encoder
 scale error of the listed joints::
 
@@ -213,6 +224,59 @@ class Effect:
     def world_rotation(self, p, ctx):
         """(3, 3) rotation part of `world` (for measured orientations), or None."""
         return None
+
+    # derivatives of the hooks w.r.t. p (module docstring); defaults: autodiff of the hook
+    def joint_offset_jacobian(self, p, ctx):
+        """(N, n, k) d joint_offset / d p."""
+        return torch.func.jacfwd(lambda t: self.joint_offset(t, ctx))(p)
+
+    def tool_point_jacobian(self, p, ctx):
+        """(3, k) (or (N, 3, k)) d tool_point / d p."""
+        return torch.func.jacfwd(lambda t: self.tool_point(t, ctx))(p)
+
+    def geometric_offset_jacobian(self, p, ctx):
+        """(N, n, 5, k) d geometric_offset / d p."""
+        return torch.func.jacfwd(lambda t: self.geometric_offset(t, ctx))(p)
+
+    def chain_scale_jacobian(self, p, ctx):
+        """(N, k) d chain_scale / d p."""
+        return torch.func.jacfwd(lambda t: self.chain_scale(t, ctx))(p)
+
+    def world_rotation_jacobian(self, p, ctx):
+        """(3, 3, k) d world_rotation / d p."""
+        return torch.func.jacfwd(lambda t: self.world_rotation(t, ctx))(p)
+
+    def displacement_jacobian(self, p, ctx, v):
+        """(d / d p (N, 3, k), d / d v (N, 3, 3) or None) of displacement."""
+        return row_jacobians(lambda t, u: self.displacement(t, ctx, u), p, v)
+
+    def world_jacobian(self, p, ctx, v):
+        """(d / d p (N, 3, k), d / d v (N, 3, 3)) of world."""
+        return row_jacobians(lambda t, u: self.world(t, ctx, u), p, v)
+
+
+def row_jacobians(fn, p: torch.Tensor, v: torch.Tensor):
+    """Forward-mode derivatives of a row-wise map fn(p (k,), v (N, 3)) -> (N, 3):
+    (d / d p (N, 3, k), d / d v (N, 3, 3)), from k + 3 Jacobian-vector products (the
+    v tangents move every row at once, valid because row i depends on v_i only)."""
+    k = p.shape[0]
+    eye = torch.eye(k + 3, dtype=p.dtype, device=p.device)
+    tp = eye[:, :k]  # (k + 3, k)
+    tv = eye[:, k:].unsqueeze(1).expand(k + 3, *v.shape)  # (k + 3, N, 3)
+    out = torch.func.vmap(lambda a, b: torch.func.jvp(fn, (p, v), (a, b))[1])(tp, tv)  # (k + 3, N, 3)
+    out = out.permute(1, 2, 0)
+    return out[..., :k], out[..., k:]
+
+
+def joint_columns(values: torch.Tensor, joints, n: int) -> torch.Tensor:
+    """Jacobian of a joint offset whose parameters act joint by joint: values (N, J, m),
+    the derivative of joint ``joints[i]``'s offset w.r.t. its m parameters (parameter
+    index ``i m + r``) -> (N, n, J m)."""
+    N, J, m = values.shape
+    out = values.new_zeros(N, n, J, m)
+    idx = torch.arange(J, device=values.device)
+    out[:, [j - 1 for j in joints], idx] = values
+    return out.reshape(N, n, J * m)
 
 
 def scatter_joints(values: torch.Tensor, joints, n: int) -> torch.Tensor:

@@ -4,7 +4,7 @@ Parameters (1 per joint): ``scale_J`` (dimensionless); the joint turns
 ``q * (1 + scale_J)``, i.e. an offset ``scale_J * q`` rad.
 """
 
-from torchcal.effects.base import Effect, scatter_joints
+from torchcal.effects.base import Effect, joint_columns, scatter_joints
 
 
 class EncoderScale(Effect):
@@ -20,3 +20,7 @@ class EncoderScale(Effect):
     def joint_offset(self, p, ctx):
         cols = ctx.q[:, [j - 1 for j in self.joints]] * p  # (N, J)
         return scatter_joints(cols, self.joints, ctx.q.shape[1])
+
+    def joint_offset_jacobian(self, p, ctx):
+        cols = ctx.q[:, [j - 1 for j in self.joints]]  # (N, J)
+        return joint_columns(cols.unsqueeze(-1).to(p), self.joints, ctx.q.shape[1])

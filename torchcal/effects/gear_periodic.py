@@ -11,7 +11,7 @@ import math
 
 import torch
 
-from torchcal.effects.base import Effect, scatter_joints
+from torchcal.effects.base import Effect, joint_columns, scatter_joints
 
 HARMONICS = (1, 2, 3, 4)
 #: largest plausible sine or cosine amplitude of one harmonic (deg). The transmission
@@ -39,10 +39,17 @@ class GearPeriodic(Effect):
     def plausible_max(self):
         return [math.radians(MAX_AMPLITUDE_DEG)] * self.n_params
 
-    def joint_offset(self, p, ctx):
+    def _basis(self, ctx):
+        """(N, J, H, 2) sin and cos of each harmonic of each listed joint's angle."""
         k = torch.tensor(self.harmonics, dtype=ctx.q.dtype, device=ctx.q.device)
         q = ctx.q[:, [j - 1 for j in self.joints]]  # (N, J)
         arg = q.unsqueeze(-1) * k  # (N, J, H)
-        basis = torch.stack([torch.sin(arg), torch.cos(arg)], dim=-1)  # (N, J, H, 2)
+        return torch.stack([torch.sin(arg), torch.cos(arg)], dim=-1)
+
+    def joint_offset(self, p, ctx):
         coef = p.reshape(len(self.joints), len(self.harmonics), 2)
-        return scatter_joints((basis * coef).sum((-1, -2)), self.joints, ctx.q.shape[1])
+        return scatter_joints((self._basis(ctx) * coef).sum((-1, -2)), self.joints, ctx.q.shape[1])
+
+    def joint_offset_jacobian(self, p, ctx):
+        basis = self._basis(ctx).to(p)
+        return joint_columns(basis.reshape(*basis.shape[:2], -1), self.joints, ctx.q.shape[1])

@@ -69,3 +69,21 @@ class JointClearance(Effect):
             m_dir, f_dir, _, o = load_directions(ctx, j)
             out = out + p[2 * i] * torch.linalg.cross(m_dir, v - o) + p[2 * i + 1] * f_dir
         return out
+
+    def displacement_jacobian(self, p, ctx, v):
+        """d / d p: the columns m x (v - o) and f per joint (N, 3, 2 J); d / d v: sum of
+        tilt_J [m_J]x (N, 3, 3)."""
+        dp, dv = [], torch.zeros(*v.shape, 3, dtype=v.dtype, device=v.device)
+        for i, j in enumerate(self.joints):
+            m_dir, f_dir, _, o = load_directions(ctx, j)
+            dp += [torch.linalg.cross(m_dir, v - o), f_dir.expand_as(v)]
+            dv = dv + p[2 * i] * skew(m_dir)
+        return torch.stack(dp, dim=-1), dv
+
+
+def skew(w: torch.Tensor) -> torch.Tensor:
+    """Cross-product matrices: w (..., 3) -> (..., 3, 3) with skew(w) x = w x x."""
+    zero = torch.zeros_like(w[..., 0])
+    return torch.stack([torch.stack([zero, -w[..., 2], w[..., 1]], -1),
+                        torch.stack([w[..., 2], zero, -w[..., 0]], -1),
+                        torch.stack([-w[..., 1], w[..., 0], zero], -1)], -2)

@@ -87,6 +87,14 @@ class JointCompliance(Effect):
             start += k
         return scatter_joints(torch.stack(cols, dim=-1), self.joints, ctx.q.shape[1])
 
+    def joint_offset_jacobian(self, p, ctx):
+        out = p.new_zeros(ctx.q.shape[0], ctx.q.shape[1], p.shape[0])
+        start = 0
+        for j, phi in zip(self.joints, self.regressors(ctx)):
+            out[:, j - 1, start:start + phi.shape[1]] = phi
+            start += phi.shape[1]
+        return out
+
     @staticmethod
     def params_from_physics(robot, joints, masses_kg, coms_mm, stiffness_nm_per_rad) -> torch.Tensor:
         """True parameters for simulation: masses (n,) kg, centers (n, 3) mm in link

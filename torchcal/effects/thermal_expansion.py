@@ -46,3 +46,11 @@ class ThermalExpansion(Effect):
             place[k, 5 * i + c] = float(self.robot.table[i, c])
         dT = (ctx.temp_c - REFERENCE_C).unsqueeze(-1)  # (N, 1)
         return ((dT * p) @ place).reshape(-1, n, 5)
+
+    def geometric_offset_jacobian(self, p, ctx):
+        """(N, n, 5, k): d dd_i or da_i / d c_L = L (temp_c - 20)."""
+        out = p.new_zeros(ctx.temp_c.shape[0], self.robot.n, 5, len(self.lengths))
+        dT = (ctx.temp_c - REFERENCE_C).to(p)
+        for k, (i, c) in enumerate(self.lengths):
+            out[:, i, c, k] = dT * float(self.robot.table[i, c])
+        return out

@@ -50,3 +50,13 @@ class ToolOffset(Effect):
         known = torch.tensor(self.points, device=p.device)
         idx = torch.searchsorted(known, ctx.point.to(p.device))
         return p.view(len(self.points), 3)[idx]  # (N, 3)
+
+    def tool_point_jacobian(self, p, ctx):
+        """(3, 3) identity, or (N, 3, 3 m) with one offset per point: row r picks its point's."""
+        eye = torch.eye(3, dtype=p.dtype, device=p.device)
+        if not self.points:
+            return eye
+        known = torch.tensor(self.points, device=p.device)
+        idx = torch.searchsorted(known, ctx.point.to(p.device))  # (N,)
+        onehot = torch.nn.functional.one_hot(idx, len(self.points)).to(p)  # (N, m)
+        return (onehot[:, None, :, None] * eye[None, :, None, :]).reshape(-1, 3, 3 * len(self.points))

@@ -24,6 +24,8 @@ temporaries stay bounded (and cache-sized) whatever the batch.
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
+from typing import NamedTuple
 
 import torch
 
@@ -225,14 +227,107 @@ def fk_positions(q, table, params=None, base=None, tool=None, chunk: int = DEFAU
     dim = max(range(len(batch)), key=lambda k: batch[k])
     step = max(1, chunk * batch[dim] // total)
     out = torch.empty(*batch, 3, dtype=table.dtype, device=table.device)
-    for start in range(0, batch[dim], step):
+
+    def run(start):
         size = min(step, batch[dim] - start)
         qc = q.narrow(dim, start, size) if q.shape[dim] > 1 else q
         pc = params
         if params is not None and params.shape[dim] > 1:
             pc = params.narrow(dim, start, size)
         _positions_kernel(qc, table, pc, base, tool_point, out=out.narrow(dim, start, size), prismatic=prismatic)
+
+    starts = range(0, batch[dim], step)
+    workers = min(torch.get_num_threads(), len(starts)) if out.device.type == "cpu" else 1
+    if workers <= 1:
+        for start in starts:
+            run(start)
+        return out
+    _map_single_threaded(run, starts, workers)
     return out
+
+
+def _map_single_threaded(fn, items, workers: int) -> None:
+    """fn(item) for every item, on `workers` Python threads that each run torch with one
+    intra-op thread. The chunks are handed out one at a time, so a thread that the OS
+    deschedules (a busy machine) delays only its current chunk; the threads meet once,
+    at the end, instead of at a barrier in every torch op (docs/performance.md)."""
+    before = torch.get_num_threads()
+
+    def one(item):
+        torch.set_num_threads(1)
+        fn(item)
+
+    try:
+        with ThreadPoolExecutor(workers) as pool:
+            for _ in pool.map(one, items):
+                pass
+    finally:
+        torch.set_num_threads(before)
+
+
+class ChainJacobians(NamedTuple):
+    """Derivatives of the TCP of one MD-H chain (`chain_jacobians`), frame of `base`.
+
+    position (..., 3) mm; rotation (..., 3, 3) (flange rotation, the tool point does not
+    rotate it); dq (..., 3, n) d position / d q (mm/rad, mm/mm prismatic);
+    dparams (..., 3, 5n) d position / d deviations (columns as ``params.reshape(..., 5n)``);
+    wq (..., 3, n) and wparams (..., 3, 5n): the angular velocity of the TCP frame per unit
+    of q and of the deviations (rad per unit), i.e. d rotation = [w]x rotation.
+    """
+
+    position: torch.Tensor
+    rotation: torch.Tensor
+    dq: torch.Tensor
+    dparams: torch.Tensor
+    wq: torch.Tensor
+    wparams: torch.Tensor
+
+
+def chain_jacobians(q, table, params=None, base=None, tool_point=None, prismatic=None) -> ChainJacobians:
+    """Analytic TCP Jacobians w.r.t. q and the MD-H deviations (docs/paper.md eqs. 14-18).
+
+    q (..., n) rad / mm, table (n, 5), params (..., n, 5) or None, base (4, 4) or None,
+    tool_point (..., 3) mm in the flange frame or None -> `ChainJacobians`.
+    The TCP's derivative w.r.t. the tool point is ``rotation`` (mm/mm).
+
+    For link i with input frame F (world pose of joint i's axis) and TCP p:
+    dtheta rotates about z_F through o_F, dd translates along z_F, da along the x axis
+    after Rz(theta), dalpha rotates about that x axis and dbeta about the y axis after
+    Rx(alpha), both through the link's end origin o_i. A revolute q_i acts as dtheta_i,
+    a prismatic one as dd_i.
+    """
+    frames = fk_frames(q, table, params, base, None, prismatic)  # (..., n+2, 4, 4), last = flange
+    n = table.shape[0]
+    R = frames[..., -1, :3, :3]
+    p = frames[..., -1, :3, 3]
+    if tool_point is not None:
+        p = p + (R @ tool_point.to(R).unsqueeze(-1)).squeeze(-1)
+    F = frames[..., :n, :, :]  # input frame of each link (..., n, 4, 4)
+    z, o = F[..., :3, 2], F[..., :3, 3]
+    off, d, a, alpha, beta = _effective(table, params)
+    theta = _split(q, prismatic)[0] + off
+    ct, st = torch.cos(theta).unsqueeze(-1), torch.sin(theta).unsqueeze(-1)
+    ca, sa = torch.cos(alpha).unsqueeze(-1), torch.sin(alpha).unsqueeze(-1)
+    x_mid = F[..., :3, 0] * ct + F[..., :3, 1] * st  # R Rz(theta) e_x
+    y_rz = -F[..., :3, 0] * st + F[..., :3, 1] * ct  # R Rz(theta) e_y
+    y_mid = y_rz * ca + z * sa  # R Rz Rx(alpha) e_y
+    o_end = frames[..., 1:n + 1, :3, 3]
+    pp = p.unsqueeze(-2)
+    x_mid, y_mid, z, o, o_end, pp = torch.broadcast_tensors(x_mid, y_mid, z, o, o_end, pp)
+    zero = torch.zeros_like(z)
+    rot_z = torch.linalg.cross(z, pp - o)
+    cols = torch.stack([rot_z, z, x_mid,
+                        torch.linalg.cross(x_mid, pp - o_end),
+                        torch.linalg.cross(y_mid, pp - o_end)], dim=-1)  # (..., n, 3, 5)
+    wcols = torch.stack([z, zero, zero, x_mid, y_mid], dim=-1)
+    batch = cols.shape[:-3]
+    dparams = cols.movedim(-3, -2).reshape(*batch, 3, 5 * n)
+    wparams = wcols.movedim(-3, -2).reshape(*batch, 3, 5 * n)
+    dq, wq = rot_z, z
+    if prismatic is not None:
+        lin = prismatic.unsqueeze(-1)
+        dq, wq = torch.where(lin, z, rot_z), torch.where(lin, zero, z)
+    return ChainJacobians(p, R, dq.transpose(-1, -2), dparams, wq.transpose(-1, -2), wparams)
 
 
 def param_jacobian(q, table, params=None, base=None, tool=None, prismatic=None) -> torch.Tensor:
@@ -240,49 +335,17 @@ def param_jacobian(q, table, params=None, base=None, tool=None, prismatic=None) 
 
     q (..., n) rad, params (..., n, 5) or None -> (..., 3, 5n), columns ordered as
     ``params.reshape(..., 5n)``: joint 1's [dtheta, dd, da, dalpha, dbeta], joint 2's...
-    Units: mm/rad for angle columns, mm/mm for length columns.
-
-    For link i with input frame F (world pose of joint i's axis) and TCP p:
-    dtheta rotates about z_F through o_F, dd translates along z_F, da along the x axis
-    after Rz(theta), dalpha rotates about that x axis and dbeta about the y axis after
-    Rx(alpha), both through the link's end origin o_i.
+    Units: mm/rad for angle columns, mm/mm for length columns (`chain_jacobians`).
     """
-    frames = fk_frames(q, table, params, base, tool, prismatic)  # (..., n+2, 4, 4)
-    n = table.shape[0]
-    p = frames[..., -1, :3, 3].unsqueeze(-2)  # (..., 1, 3)
-    F = frames[..., :n, :, :]  # input frame of each link (..., n, 4, 4)
-    z, o = F[..., :3, 2], F[..., :3, 3]
-    off, d, a, alpha, beta = _effective(table, params)
-    theta = _split(q, prismatic)[0] + off
-    ct, st = torch.cos(theta), torch.sin(theta)
-    ca, sa = torch.cos(alpha), torch.sin(alpha)
-    x_mid = F[..., :3, 0] * ct.unsqueeze(-1) + F[..., :3, 1] * st.unsqueeze(-1)  # R Rz(theta) e_x
-    y_rz = -F[..., :3, 0] * st.unsqueeze(-1) + F[..., :3, 1] * ct.unsqueeze(-1)  # R Rz(theta) e_y
-    y_mid = y_rz * ca.unsqueeze(-1) + z * sa.unsqueeze(-1)  # R Rz Rx(alpha) e_y
-    o_end = frames[..., 1:n + 1, :3, 3]
-    x_mid, y_mid, z, o, o_end, p = torch.broadcast_tensors(x_mid, y_mid, z, o, o_end, p)
-    cols = torch.stack([
-        torch.linalg.cross(z, p - o),
-        z,
-        x_mid,
-        torch.linalg.cross(x_mid, p - o_end),
-        torch.linalg.cross(y_mid, p - o_end),
-    ], dim=-1)  # (..., n, 3, 5)
-    return cols.movedim(-3, -2).reshape(*cols.shape[:-3], 3, 5 * n)
+    tp = None if tool is None else tool[:3, 3]
+    return chain_jacobians(q, table, params, base, tp, prismatic).dparams
 
 
 def joint_jacobian(q, table, params=None, base=None, tool=None, prismatic=None) -> torch.Tensor:
     """Position Jacobian dP/dq. q (..., n) rad / mm -> (..., 3, n) mm/rad (revolute
     columns: z x (p - o)) or mm/mm (prismatic columns: z)."""
-    frames = fk_frames(q, table, params, base, tool, prismatic)
-    n = table.shape[0]
-    p = frames[..., -1, :3, 3].unsqueeze(-2)
-    z, o = frames[..., :n, :3, 2], frames[..., :n, :3, 3]
-    z, o, p = torch.broadcast_tensors(z, o, p)
-    J = torch.linalg.cross(z, p - o)
-    if prismatic is not None:
-        J = torch.where(prismatic.unsqueeze(-1), z, J)
-    return J.transpose(-1, -2)
+    tp = None if tool is None else tool[:3, 3]
+    return chain_jacobians(q, table, params, base, tp, prismatic).dq
 
 
 def outer_factors(table: torch.Tensor, dev: torch.Tensor) -> list[torch.Tensor]:

@@ -1,0 +1,73 @@
+"""Start-up: `torchcal --version` / `--help` load neither torch nor scikit-learn, a
+sub-command imports its own module only, and the parser's static lists (one-line help
+of each command, built-in effect names) agree with the modules they stand for."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from torchcal import cli
+
+ROOT = Path(__file__).resolve().parents[1]
+HEAVY = ("torch", "sklearn", "scipy", "numpy")
+
+
+def _modules_after(code: str) -> set:
+    """Module names loaded by `code` in a fresh interpreter (then prints them as JSON)."""
+    probe = code + "\nimport json, sys\nprint('@@' + json.dumps(sorted(sys.modules)))"
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, env=env, cwd=ROOT)
+    line = [x for x in out.stdout.splitlines() if x.startswith("@@")]
+    assert line, out.stderr
+    return set(json.loads(line[-1][2:]))
+
+
+@pytest.mark.parametrize("flag", ["--version", "--help"])
+def test_version_and_help_import_no_heavy_module(flag):
+    code = f"import torchcal.cli\ntry:\n    torchcal.cli.main([{flag!r}])\nexcept SystemExit:\n    pass"
+    loaded = _modules_after(code)
+    assert not {m for m in loaded if m.split(".")[0] in HEAVY}
+    assert "torchcal.cli.fit" not in loaded
+
+
+def test_python_m_torchcal_version_does_not_import_torch():
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = subprocess.run([sys.executable, "-X", "importtime", "-m", "torchcal", "--version"],
+                         capture_output=True, text=True, env=env, cwd=ROOT)
+    assert out.returncode == 0 and out.stdout.strip().startswith("torchcal ")
+    imported = {line.split("|")[-1].strip() for line in out.stderr.splitlines() if line.startswith("import time:")}
+    assert "torch" not in imported and "sklearn" not in imported
+
+
+def test_a_sub_command_imports_only_its_own_module():
+    code = "import torchcal.cli\ntry:\n    torchcal.cli.main(['evaluate', '--help'])\nexcept SystemExit:\n    pass"
+    loaded = _modules_after(code)
+    cmds = {m.rsplit(".", 1)[-1] for m in loaded if m.startswith("torchcal.cli.") and not m.startswith("torchcal.cli._")}
+    assert "evaluate" in cmds
+    assert "sklearn" not in {m.split(".")[0] for m in loaded}
+    assert not cmds & {"partition", "demo", "sweep", "plan"}
+
+
+def test_import_torchcal_is_lazy_and_sets_the_wait_policy():
+    loaded = _modules_after("import os\nos.environ.pop('OMP_WAIT_POLICY', None)\nimport torchcal\n"
+                            "assert os.environ['OMP_WAIT_POLICY'] == 'PASSIVE'")
+    assert "torch" not in loaded
+
+
+def test_static_summaries_match_the_modules():
+    parser = cli.build_parser()  # every module's own add_parser
+    sub = next(a for a in parser._actions if a.dest == "command")
+    helps = {a.dest: a.help for a in sub._choices_actions}
+    assert helps == cli.SUMMARIES
+
+
+def test_builtin_effect_names_match_the_registry():
+    from torchcal.effects import registry
+
+    assert set(cli.BUILTIN_EFFECTS) == set(registry._BUILTIN)

@@ -10,7 +10,8 @@ import pytest
 import torch
 
 import torchcal
-from torchcal.calibration.fit import _so3_error, _so3_error_jacobian
+from torchcal.calibration.fit import _so3_error_jacobian
+from torchcal.rotations import so3_error as _so3_error
 from torchcal.calibration.model import CalibrationModel
 from torchcal.effects import build, make_context
 from torchcal.effects.base import Effect

@@ -5,7 +5,14 @@ Identifiability (at the starting point, on the column-scaled Jacobian):
 - QR with column pivoting orders the free parameters from most to least independent;
   those whose pivot |R_kk| falls below ``rank_tol * |R_00|`` cannot be identified from
   these poses. They are reported by name and *held at nominal* (zero deviation) instead
-  of being silently damped as eq. 29 would.
+  of being silently damped as eq. 29 would. This is what removes the gauge (a base frame
+  against joint 1's dtheta and dd, a tool offset against the last link): it is decided
+  once, at the registered start, and nothing else is held.
+- Plausibility is part of the estimation: a weak Gaussian prior on each parameter's
+  physical scale (`torchcal.calibration.plausibility.plausible_scales`), one residual row
+  ``rho * theta_i / s_i`` each, with rho the fit's own per-axis residual RMS (a first
+  solve with rho = sigma_mm gives it, a second, warm-started, solve uses it).
+  Parameters that end beyond their scale anyway are named (`FitResult.implausible`).
 - Singular values of the identifiable columns give the condition number and the
   observability indices of Borm & Menq / Nahvi & Hollerbach (O1..O5, m = number of poses).
 
@@ -99,7 +106,9 @@ class FitResult:
     status: how the (last) LM solve stopped, 'converged', 'stalled' or 'max_iterations'
     (`torchcal.calibration.lm.LMStatus`).
     registration: the closed-form start (rms before/after, frame) or None; implausible:
-    names of MD-H deviations held because they grew beyond `plausible_limits`;
+    names of free parameters that end beyond their plausible scale although the prior
+    shrinks them (none is held for it); plausible_limits: {"max_length_mm",
+    "max_angle_deg", "prior_sigma_mm"} (rho of the prior rows) or None (no prior);
     orientation: {"sigma_mm", "sigma_deg", "weight_mm_per_rad", "tool_rotation" (3, 3),
     "rms_deg"} when orientations were fitted. q_range: (2, n) min and max of the data's
     commanded q, rad / mm (`torchcal.calibration.joint_range`).
@@ -180,7 +189,7 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
         pose=None, rotation: torch.Tensor | None = None, sigma_mm: float = SIGMA_MM,
         sigma_deg: float = SIGMA_DEG, register: bool = True,
         max_length_mm: float | None = MAX_LENGTH_MM,
-        max_angle_deg: float | None = MAX_ANGLE_DEG) -> FitResult:
+        max_angle_deg: float | None = MAX_ANGLE_DEG, prior_sigma_mm: float | None = None) -> FitResult:
     """Fit model parameters to measured TCP positions xyz (N, 3) mm [and orientations].
 
     pose: (N,) int pose ids; with repeats the standard errors are pose-level
@@ -202,14 +211,16 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     constant rotation between the nominal tool frame and the measured frame is solved in
     closed form (Procrustes) at the start and again after the first fit.
 
-    Plausibility: free MD-H deviations that end beyond `max_length_mm` (dd, da) or
-    `max_angle_deg` (dtheta, dalpha, dbeta) are held at their start value and the fit
-    is repeated (torchcal.calibration.plausibility); so are effect parameters beyond
-    their effect's `plausible_max()` (e.g. gear harmonics above 1 deg). They are listed in
-    `FitResult.implausible`. None disables the check.
+    Plausibility (the prior, module doc): MD-H deviations have the scales `max_length_mm`
+    (dd, da) and `max_angle_deg` (dtheta, dalpha, dbeta), effect parameters their
+    effect's `plausible_max()`; None for the MD-H scales drops their prior. rho: the
+    per-axis RMS of the position residual of a first solve with rho = sigma_mm, or
+    `prior_sigma_mm` when given (one solve; the fold refits of a cross-validation pass
+    the full fit's). Free parameters ending beyond their scale are listed in
+    `FitResult.implausible`.
     """
     from torchcal.calibration import registration as reg
-    from torchcal.calibration.plausibility import implausible_deviations
+    from torchcal.calibration.plausibility import beyond_plausible, plausible_scales
 
     model.check_context(ctx)
     reg_info = None
@@ -254,13 +265,25 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     if n_cand and report.rank == 0:
         raise InputError("no parameter is identifiable from these poses")
 
-    def solve(x, free_now):
+    scales = plausible_scales(model, max_length_mm, max_angle_deg).to(theta0)
+    has_prior = bool(torch.isfinite(scales).any())
+    inv_scale = torch.where(torch.isfinite(scales), 1.0 / scales, torch.zeros_like(scales))  # (P,)
+
+    def solve(x, free_now, rho):
+        """LM on the measurement rows plus the prior rows rho * theta / s (module doc)."""
         weights = torch.ones(n_rows, dtype=xyz.dtype, device=xyz.device)
         rounds = 1 if robust is None else 8
+        prior = rho * inv_scale
+
+        def res_fn(z):
+            return torch.cat([resid(z[0]).reshape(-1), prior * z[0]]).unsqueeze(0)
+
+        def jac_fn(z):
+            return torch.cat([jac(z[0]).reshape(-1, z.shape[-1]), torch.diag(prior)]).unsqueeze(0)
+
         for _ in range(rounds):
-            w = weights.repeat_interleave(k).unsqueeze(0)
-            res = levenberg_marquardt(lambda z: resid(z[0]).reshape(1, -1), x, free=free_now, weights=w,
-                                      jacobian_fn=lambda z: jac(z[0]).reshape(1, -1, z.shape[-1]),
+            w = torch.cat([weights.repeat_interleave(k), torch.ones_like(prior)]).unsqueeze(0)
+            res = levenberg_marquardt(res_fn, x, free=free_now, weights=w, jacobian_fn=jac_fn,
                                       max_iter=max_iter)
             x = res.x
             if robust is None:
@@ -274,28 +297,16 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
         return x, weights, int(res.n_iter[0]), res.status_labels()[0]
 
     free_now = report.free.clone()
-    x, weights, n_iter, status = solve(theta0.unsqueeze(0), free_now)
+    rho = sigma_mm if prior_sigma_mm is None else prior_sigma_mm
+    x, weights, n_iter, status = solve(theta0.unsqueeze(0), free_now, rho if has_prior else 0.0)
     if rotation is not None:
         fit_tool_rotation(x[0])
-        x, weights, n_iter, status = solve(x, free_now)
-    implausible: list[str] = []
-    if max_length_mm is not None and max_angle_deg is not None:
-        names = model.param_names()
-        for _ in range(5):
-            bad = implausible_deviations(model, x[0], free_now, max_length_mm, max_angle_deg)
-            if not bad:
-                break
-            implausible += [names[i] for i in bad]
-            x = x.clone()
-            x[0, bad] = theta0[bad]
-            # judge identifiability again without them: a parameter held as redundant
-            # with one of them (e.g. tool_z with dd6) is free again
-            cand = cand.clone()
-            cand[[names.index(n) for n in implausible]] = False
-            report = identifiability(jac(x[0]), names, cand, rank_tol)
-            free_now = report.free.clone()
-            x, weights, n_iter, status = solve(x, free_now)
-        report.held = report.held + [n for n in implausible if n not in report.held]
+    if has_prior and prior_sigma_mm is None:  # the prior's rho from this fit's own residual
+        with torch.no_grad():
+            rho = max(sigma_mm, float((model.predict(x[0], ctx) - xyz).pow(2).mean().sqrt()))
+    if rotation is not None or (has_prior and prior_sigma_mm is None):
+        x, weights, n_iter, status = solve(x, free_now, rho if has_prior else 0.0)
+    implausible = beyond_plausible(model, x[0], free_now, scales.cpu()) if has_prior else []
     theta = x[0]
     r = resid(theta).detach()
     resid_pos = -r[:, :3]
@@ -323,6 +334,6 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     return FitResult(model, theta.detach(), std, resid_pos, weights, report, n_iter, outliers, covariance,
                      status=status,
                      registration=reg_info, implausible=implausible, orientation=orient,
-                     plausible_limits=None if max_length_mm is None else
-                     {"max_length_mm": max_length_mm, "max_angle_deg": max_angle_deg},
+                     plausible_limits=None if not has_prior else
+                     {"max_length_mm": max_length_mm, "max_angle_deg": max_angle_deg, "prior_sigma_mm": rho},
                      q_range=joint_range(ctx.q))

@@ -30,8 +30,8 @@ def add_parser(sub):
 def print_table(d) -> None:
     rep = d.to_dict()
     b = rep["baseline"]
-    print(f"baseline [{', '.join(b['effects']) or 'geometric only'}]: rms {b['rms_mm']:.4f} mm, "
-          f"cv rms {b['cv_rms_mm']:.4f} mm, max {b['max_mm']:.4f} mm")
+    print(f"pre-screen (linearised refit, ranks the candidates; current model [{', '.join(b['effects']) or 'geometric only'}] "
+          f"max {b['max_mm']:.4f} mm):")
     print(f"{'candidate':<26}{'k':>4}{'rms mm':>10}{'cv rms mm':>11}{'cv gain %':>10}{'score':>8}"
           f"{'p-value':>10}  significant")
     for c in d.candidates[:10]:
@@ -42,11 +42,19 @@ def print_table(d) -> None:
     if worst:
         print(f"worst region: reach {worst['reach_mm'][0]:.0f}-{worst['reach_mm'][1]:.0f} mm, {worst['z']} half: "
               f"rms {worst['rms_mm']:.4f} mm over {worst['n']} rows")
+    print_step(d.step)
     v = d.verdict
-    print("verdict: " + ("nothing significant: the residual is at the noise level" if v is None else
-                         f"missing {v.spec} (cv rms {b['cv_rms_mm']:.4f} -> {v.cv_rms_mm:.4f} mm)"))
+    print("verdict: " + ("nothing accepted: no refitted candidate lowers the held-out error beyond chance"
+                         if v is None else
+                         f"missing {v.spec} (refit cv rms {b['cv_rms_mm']:.4f} -> {d.step.accepted.cv_rms_mm:.4f} mm)"))
     if d.unexplained is not None:
         print(("with the verdict, " if v is not None else "") + d.unexplained.describe())
+
+
+def print_step(step) -> None:
+    """The figures of one step (full refits); `discover` prints the same for each round."""
+    for line in step.lines():
+        print(line)
 
 
 def run(args) -> int:

@@ -7,6 +7,7 @@ from torchcal import api
 from torchcal.io import modelfile
 from torchcal.cli._args import (add_cv, add_effects_module, add_force, add_units, add_viz, check_folder, check_outputs,
                                 read_data, add_robot)
+from torchcal.cli.diagnose import print_step
 from torchcal.io.files import write_json
 from torchcal.robots.robot import robot as make_robot
 
@@ -36,9 +37,9 @@ def run(args) -> int:
     robot = make_robot(args.robot)
     m = read_data(args.data, robot, args)
     res = api.discover(robot, m, args.effects, folds=args.folds, seed=args.seed)
-    for i, h in enumerate(res.history):
-        print(f"round {i}: [{', '.join(h['effects']) or 'geometric only'}] rms {h['rms_mm']:.4f} mm, "
-              f"cv rms {h['cv_rms_mm']:.4f} mm")
+    for i, (h, d) in enumerate(zip(res.history, res.diagnoses)):
+        print(f"round {i}:")
+        print_step(d.step)
     print(f"final effects: {', '.join(res.final_effects) or 'none'}")
     if res.unexplained is not None:
         print(res.unexplained.describe())

@@ -145,7 +145,7 @@ def test_linear_base_with_a_column_in_the_span_of_the_others_cross_validates_lik
     alone (numpy lstsq, an independent reference), and the basis keeps the rank."""
     import numpy as np
 
-    from torchcal.diagnosis.diagnose import _Linear, fold_ids
+    from torchcal.diagnosis.crossval import LinearRefit as _Linear, fold_ids
 
     rng = np.random.default_rng(0)
     N, p = 60, 5

@@ -7,7 +7,7 @@ import pytest
 import scipy.optimize
 import torch
 
-from torchcal.diagnosis.diagnose import _variance_loglik, fit_variances
+from torchcal.diagnosis.variance import fit_variances, variance_loglik as _variance_loglik
 
 
 def sample(K, tau, M, seed):

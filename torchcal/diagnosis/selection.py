@@ -74,7 +74,7 @@ def shortlist(ranked: list, verdict: Candidate | None, refits: int = REFITS) -> 
     """The candidates to refit in full (`Candidate`s, at most `refits`): the pre-screen's
     verdict first, then the ranked candidates with a positive pre-screen held-out gain
     (a different effect-and-joints than those already listed)."""
-    out = [] if verdict is None else [verdict]
+    out = [] if verdict is None or refits < 1 else [verdict]
     for c in ranked:
         if len(out) >= refits:
             break

@@ -11,15 +11,16 @@
    (`torchcal.diagnosis.selection`).
 4. Decide (`torchcal.diagnosis.step`): the proposed candidate and the next best (3 at
    most) are refitted in full and cross-validated by pose on the same folds as the current
-   model; a candidate is accepted only when its held-out error drops beyond chance
-   (paired one-sided test over poses, Bonferroni over the candidates refitted). The
-   rejected ones are listed with their reason.
+   model; a candidate significant in the pre-screen is accepted only when its held-out
+   error drops beyond chance (paired one-sided test over poses, Bonferroni over the
+   candidates refitted). The rejected ones are listed with their reason.
 5. What remains unexplained after the accepted candidate (or the current model).
 
 `discover` repeats the step: the accepted candidate's full fit and its CV become the
 next round's current model, so a round prints exactly the figures `diagnose` prints for
-that step. Round i runs at alpha / 2^i (`diagnose` splits its alpha in two: the pre-screen
-and the refits), so all the tests of all rounds keep the family-wise error below alpha.
+that step. Round i is `diagnose` with budget alpha / 2^i, whose pre-screen spends half of
+it, so all the pre-screen tests of all rounds keep the family-wise error below alpha; the
+refit tests are a second condition.
 Everything is deterministic for a given seed (fold assignment).
 """
 
@@ -35,7 +36,7 @@ from torchcal.calibration.model import CalibrationModel
 from torchcal.diagnosis.candidates import Candidate
 from torchcal.diagnosis.crossval import fold_ids
 from torchcal.diagnosis.screen import prescreen
-from torchcal.diagnosis.selection import ALPHA, MIN_GAIN, REFITS, shortlist
+from torchcal.diagnosis.selection import ALPHA, MIN_GAIN, REFIT_ALPHA, REFITS, shortlist
 from torchcal.diagnosis.step import Scored, Step, fit_options, score_current, score_step
 from torchcal.diagnosis.unexplained import Unexplained, unexplained
 from torchcal.effects import context_of
@@ -104,11 +105,13 @@ def where_it_fails(robot: Robot, m: Measurements, residuals: torch.Tensor, bins:
 
 def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: int = 0, *,
              alpha: float = ALPHA, min_gain: float = MIN_GAIN, base_fit: FitResult | None = None,
-             current: Scored | None = None, refits: int = REFITS, sigma_mm: float = SIGMA_MM,
-             sigma_deg: float = SIGMA_DEG) -> Diagnosis:
+             current: Scored | None = None, refits: int = REFITS, refit_alpha: float = REFIT_ALPHA,
+             sigma_mm: float = SIGMA_MM, sigma_deg: float = SIGMA_DEG) -> Diagnosis:
     """Which effect is missing from `robot` + `effects` on measurements m (module doc).
 
-    alpha: half for the pre-screen, half for the refits. base_fit: the current model's
+    alpha: the budget of the step (its pre-screen spends half of it, so that `discover`'s
+    round 0 is this call); refit_alpha: the refit tests' level (Bonferroni over
+    the candidates refitted; torchcal.diagnosis.selection). base_fit: the current model's
     fit (default: fitted here as `torchcal fit` does; its model then overrides
     `effects`); current: its already scored figures (`discover` passes the accepted
     refit of the previous round). sigma_mm / sigma_deg: the orientation weighting, as in
@@ -121,11 +124,11 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
         base_fit = fit(model, ctx, m.xyz, **fit_options(m, sigma_mm=sigma_mm, sigma_deg=sigma_deg))
     specs = base_fit.model.specs()
     folds_ = fold_ids(m.pose, folds, seed)
-    screen = prescreen(robot, base_fit.model, specs, base_fit, m, ctx, folds_, alpha=alpha, min_gain=min_gain)
+    screen = prescreen(robot, base_fit.model, specs, base_fit, m, ctx, folds_, alpha=alpha / 2, min_gain=min_gain)
     if current is None:
         current = score_current(base_fit, m, ctx, folds_, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
     step = score_step(current, shortlist(screen.candidates, screen.verdict, refits), m, ctx, folds_,
-                      alpha=alpha / 2, min_gain=min_gain, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
+                      alpha=refit_alpha, min_gain=min_gain, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
     acc = step.accepted
     verdict = None if acc is None else next(c for c in screen.candidates if c.spec == acc.spec)
     where = where_it_fails(robot, m, base_fit.residuals)

@@ -143,4 +143,13 @@ def prescreen(robot, model, specs: list, base_fit, m, ctx, folds_: np.ndarray, *
             chosen.append(best.joints[0])
         if len(chosen) > 1:
             C_all = np.hstack([columns[(verdict.effect, (j,))] for j in chosen])
+            Bs_all = None if verdict.effect != "joint_clearance" else \
+                np.concatenate([variance[(verdict.effect, (j,))] for j in chosen], -1)
+            B = lin.new_columns(C_all)
+            cv, ll = lin.cross_validate(B, Bs_all)
+            e = lin.residual(B)
+            verdict = Candidate(verdict.effect, tuple(sorted(chosen)), float(np.sqrt(e @ e / (n_eq / 3))),
+                                cv, ll - base_ll, verdict.p_value, B.shape[1], True,
+                                (base_cv - cv) / max(base_cv, 1e-300), deterministic=verdict.deterministic)
+            cands.insert(0, verdict)
     return Screen(cands, verdict, base_cv)

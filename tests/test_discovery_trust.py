@@ -163,3 +163,21 @@ def test_diagnose_fits_orientation_exactly_as_fit_does():
     assert torch.allclose(got.theta, ref.theta, atol=1e-10)
     assert torch.allclose(got.orientation["tool_rotation"], ref.orientation["tool_rotation"], atol=1e-12)
     assert isinstance(d.step.current, Scored) and d.step.refits == []
+
+
+def test_prescreen_significance_is_bonferroni_over_its_candidates(seed141):
+    """The pre-screen's first family: a candidate is significant by its deterministic part
+    exactly when its F-test p-value is below (alpha / 2) / 2 / (number of candidates)
+    (diagnose gives half its budget to the pre-screen, whose first family gets half of
+    that, split evenly) and its held-out gain is at least min_gain. A large alpha and no
+    gain rule put candidates between the corrected and the uncorrected level."""
+    alpha = 0.5
+    _, m = seed141
+    d = diagnose(ROBOT, m, alpha=alpha, min_gain=0.0, refits=0)
+    first = [c for c in d.candidates if len(c.joints) <= 1]  # the forward-selected one is a later family
+    level = alpha / 4 / len(first)
+    window = [c for c in first if c.k and c.cv_gain >= 0 and level <= c.p_value < alpha / 4]
+    assert window, "no candidate between the corrected and the uncorrected level: the check would be vacuous"
+    for c in first:
+        if c.effect != "joint_clearance":  # its random part has its own test
+            assert c.deterministic == (c.k > 0 and c.p_value < level and c.cv_gain >= 0), c.to_dict()

@@ -44,6 +44,7 @@ class Scored:
     p_value: float = 1.0
     accepted: bool = False
     reason: str = ""
+    passed: bool = False  # met the acceptance rule (accepted unless one ranked before it was)
 
     @property
     def held(self) -> list:
@@ -57,7 +58,8 @@ class Scored:
         out = {"effects": list(self.effects), "rms_mm": self.rms_mm, "cv_rms_mm": self.cv_rms_mm,
                "held": self.held, "beyond_plausible": self.beyond}
         if self.spec:
-            out.update(candidate=self.spec, p_value=self.p_value, accepted=self.accepted, reason=self.reason)
+            out.update(candidate=self.spec, p_value=self.p_value, passed=self.passed, accepted=self.accepted,
+                       reason=self.reason)
         return out
 
 
@@ -80,8 +82,9 @@ class Step:
                f"refit cv rms {c.cv_rms_mm:.4f} mm"]
         out += _plausibility_lines(c)
         for s in self.refits:
+            verdict = "accepted" if s.accepted else "passed, not taken" if s.passed else "rejected"
             out.append(f"  + {s.spec:<24} rms {s.rms_mm:.4f} mm, refit cv rms {s.cv_rms_mm:.4f} mm: "
-                       f"{'accepted' if s.accepted else 'rejected'} ({s.reason})")
+                       f"{verdict} ({s.reason})")
             out += ["  " + ln for ln in _plausibility_lines(s)]
         return out
 
@@ -145,11 +148,11 @@ def score_step(current: Scored, candidates: list, m, ctx, folds: np.ndarray, *, 
                                     random_only=c.significant and not c.deterministic)
         if cv.error:
             ok, why = False, f"fold refit impossible: {cv.error}"
-        refits.append(Scored(f.model.specs(), c.spec, f.rms_mm, cv.cv_rms_mm, f, cv, p, False, why))
+        refits.append(Scored(f.model.specs(), c.spec, f.rms_mm, cv.cv_rms_mm, f, cv, p, False, why, ok))
         oks.append(ok)
     if any(oks):  # the first accepted one in shortlist order
         refits[oks.index(True)].accepted = True
-    for s, ok in zip(refits, oks):
-        if ok and not s.accepted:
-            s.reason += "; passed, but a candidate ranked before it was accepted"
+    for s in refits:
+        if s.passed and not s.accepted:
+            s.reason += "; a candidate ranked before it was accepted"
     return Step(current, refits, alpha / max(len(candidates), 1))

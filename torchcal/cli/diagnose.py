@@ -30,8 +30,8 @@ def add_parser(sub):
 def print_table(d) -> None:
     rep = d.to_dict()
     b = rep["baseline"]
-    print(f"pre-screen (linearised refit, ranks the candidates; current model [{', '.join(b['effects']) or 'geometric only'}] "
-          f"max {b['max_mm']:.4f} mm):")
+    print(f"pre-screen (linearised refit, ranks the candidates; current model "
+          f"[{', '.join(b['effects']) or 'geometric only'}] max {b['max_mm']:.4f} mm):")
     print(f"{'candidate':<26}{'k':>4}{'rms mm':>10}{'cv rms mm':>11}{'cv gain %':>10}{'score':>8}"
           f"{'p-value':>10}  significant")
     for c in d.candidates[:10]:

@@ -38,7 +38,8 @@ def add_parser(sub):
     p.add_argument("--max-deviation-mm", type=nonneg_float, default=MAX_LENGTH_MM,
                    help=f"plausible scale of |dd|, |da| (the prior; default {MAX_LENGTH_MM}; 0 = no prior on MD-H)")
     p.add_argument("--max-deviation-deg", type=nonneg_float, default=MAX_ANGLE_DEG,
-                   help=f"plausible scale of |dtheta|, |dalpha|, |dbeta| (default {MAX_ANGLE_DEG}; 0 = no prior on MD-H)")
+                   help=f"plausible scale of |dtheta|, |dalpha|, |dbeta| "
+                        f"(default {MAX_ANGLE_DEG}; 0 = no prior on MD-H)")
     p.add_argument("--out", required=True, help="MODEL.json to write")
     add_units(p)
     add_force(p)

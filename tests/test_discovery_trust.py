@@ -181,3 +181,25 @@ def test_prescreen_significance_is_bonferroni_over_its_candidates(seed141):
     for c in first:
         if c.effect != "joint_clearance":  # its random part has its own test
             assert c.deterministic == (c.k > 0 and c.p_value < level and c.cv_gain >= 0), c.to_dict()
+
+
+def test_held_and_beyond_are_printed_and_written_by_diagnose(seed141, tmp_path, capsys):
+    """diagnose prints one line of held (unidentifiable) parameters per model and writes the
+    same names to its JSON; fit writes them to MODEL.json."""
+    import json
+
+    path, _ = seed141
+    out = tmp_path / "diag.json"
+    assert main(["diagnose", str(path), "--robot", "kr1000titan", "--json", str(out)]) == 0
+    text = capsys.readouterr().out.splitlines()
+    obj = json.loads(out.read_text())
+    cur = obj["refits"]["current"]
+    line = next(ln for ln in text if ln.startswith("  held at nominal (not identifiable): "))
+    assert line.split(": ", 1)[1].split(", ") == cur["held"] == obj["baseline"]["held"] and cur["held"]
+    for r in obj["refits"]["refits"]:
+        assert {"held", "beyond_plausible", "reason", "accepted", "p_value"} <= set(r)
+    model = tmp_path / "model.json"
+    assert main(["fit", str(path), "--robot", "kr1000titan", "--out", str(model)]) == 0
+    mj = json.loads(model.read_text())
+    assert mj["identifiability"]["held_at_nominal"] == cur["held"]
+    assert "beyond" in mj["plausibility"] and mj["plausibility"]["prior_sigma_mm"] > 0

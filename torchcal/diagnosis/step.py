@@ -80,12 +80,12 @@ class Step:
         c = self.current
         out = [f"model [{', '.join(c.effects) or 'geometric only'}]: rms {c.rms_mm:.4f} mm, "
                f"refit cv rms {c.cv_rms_mm:.4f} mm"]
-        out += _plausibility_lines(c)
+        out += _plausibility_lines(c, [])
         for s in self.refits:
             verdict = "accepted" if s.accepted else "passed, not taken" if s.passed else "rejected"
             out.append(f"  + {s.spec:<24} rms {s.rms_mm:.4f} mm, refit cv rms {s.cv_rms_mm:.4f} mm: "
                        f"{verdict} ({s.reason})")
-            out += ["  " + ln for ln in _plausibility_lines(s)]
+            out += ["  " + ln for ln in _plausibility_lines(s, c.held)]
         return out
 
     def to_dict(self) -> dict:
@@ -93,10 +93,13 @@ class Step:
                 "level": self.level, "accepted": None if self.accepted is None else self.accepted.spec}
 
 
-def _plausibility_lines(s: Scored) -> list[str]:
+def _plausibility_lines(s: Scored, current_held: list) -> list[str]:
+    """The held line (only the names beyond `current_held`) and the beyond-plausible line."""
     out = []
-    if s.held:
-        out.append(f"  held at nominal (not identifiable): {', '.join(s.held)}")
+    held = [n for n in s.held if n not in current_held]
+    if held:
+        also = ", besides the current model's" if current_held else ""
+        out.append(f"  held at nominal (not identifiable{also}): {', '.join(held)}")
     if s.beyond:
         out.append(f"  beyond plausible size (shrunk by the prior): {', '.join(s.beyond)}")
     return out
@@ -109,16 +112,20 @@ def fit_options(m, *, sigma_mm: float = SIGMA_MM, sigma_deg: float = SIGMA_DEG) 
 
 def candidate_fit(base: FitResult, spec: str, m, ctx, *, sigma_mm: float, sigma_deg: float) -> FitResult:
     """The full fit of the current model plus `spec` on all of m, from the current fit
-    (parameters matched by name; the new ones start at zero)."""
+    (parameters matched by name; the new ones start at zero), with the parameters the
+    current fit held still held (the identifiability analysis may hold more)."""
     robot = base.model.robot
     specs = [str(s) for s in parse_specs(base.model.specs() + [spec], robot.n)]
     model = CalibrationModel.for_measurements(robot, specs, m)
-    names = base.model.param_names()
-    theta0 = model.zeros()
+    names, held = base.model.param_names(), set(base.report.held)
+    theta0, free = model.zeros(), model.default_free()
     for i, n in enumerate(model.param_names()):
         if n in names:
             theta0[i] = base.theta[names.index(n)]
-    return fit(model, ctx, m.xyz, theta0=theta0, **fit_options(m, sigma_mm=sigma_mm, sigma_deg=sigma_deg))
+        free[i] &= n not in held  # the current model's gauge stays: the same parameters held
+    res = fit(model, ctx, m.xyz, theta0=theta0, free=free, **fit_options(m, sigma_mm=sigma_mm, sigma_deg=sigma_deg))
+    res.report.held = [n for n in model.param_names() if n in held] + res.report.held
+    return res
 
 
 def score_current(base: FitResult, m, ctx, folds: np.ndarray, *, sigma_mm: float = SIGMA_MM,

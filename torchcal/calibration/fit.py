@@ -7,11 +7,17 @@ Identifiability (at the starting point, on the column-scaled Jacobian):
   these poses. They are reported by name and *held at nominal* (zero deviation) instead
   of being silently damped as eq. 29 would. This is what removes the gauge (a base frame
   against joint 1's dtheta and dd, a tool offset against the last link): it is decided
-  once, at the registered start, and nothing else is held.
+  at the registered start, the parameters without a plausibility prior (the frames)
+  pivoted first, so the robot's deviation is the one held; from a cold start it is
+  judged once more at the first solution (a held parameter is freed only where its
+  pivot reaches `RECHECK_TOL`). Nothing is held for its size.
 - Plausibility is part of the estimation: a weak Gaussian prior on each parameter's
   physical scale (`torchcal.calibration.plausibility.plausible_scales`), one residual row
   ``rho * theta_i / s_i`` each, with rho the fit's own per-axis residual RMS (a first
-  solve with rho = sigma_mm gives it, a second, warm-started, solve uses it).
+  solve with rho = sigma_mm gives it, a second, warm-started, solve uses it, and up to
+  three more while rho moves by more than 10 %). From a
+  cold start (nominal or registration) the identifiability is judged once more at the
+  first solution, before the second solve.
   Parameters that end beyond their scale anyway are named (`FitResult.implausible`).
 - Singular values of the identifiable columns give the condition number and the
   observability indices of Borm & Menq / Nahvi & Hollerbach (O1..O5, m = number of poses).
@@ -41,6 +47,7 @@ from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.calibration.uncertainty import ParameterCovariance, parameter_covariance
 
 RANK_TOL = 1e-6
+RECHECK_TOL = 1e-2  # pivot a parameter held at a cold start needs at the first solution
 SIGMA_MM = 0.01   # default position uncertainty of one measurement (laser tracker), mm
 SIGMA_DEG = 0.01  # default orientation uncertainty (36 arcsec, tracker 6-D probe), deg
 
@@ -66,8 +73,28 @@ class Identifiability:
                 "observability": self.observability, "poses": self.n_rows}
 
 
-def identifiability(J: torch.Tensor, names, candidate_free, rank_tol: float = RANK_TOL) -> Identifiability:
-    """J (N, 3, P) or (R, P) position Jacobian; candidate_free (P,) bool."""
+def _pivoted(Js: np.ndarray, Q: np.ndarray, rank_tol: float) -> np.ndarray:
+    """Indices of the columns of Js (unit columns) kept, in pivot order, by a QR with
+    column pivoting of Js projected off the orthonormal Q: those whose pivot |R_kk|
+    exceeds rank_tol (the columns' norm is 1)."""
+    if not Js.shape[1]:
+        return np.zeros(0, dtype=int)
+    P = Js - Q @ (Q.T @ Js) if Q.shape[1] else Js
+    _, R, piv = scipy.linalg.qr(P, mode="economic", pivoting=True)
+    d = np.abs(np.diag(R))
+    return piv[: int((d > rank_tol).sum())]
+
+
+def identifiability(J: torch.Tensor, names, candidate_free, rank_tol: float = RANK_TOL,
+                    first=None, rest_tol: float | None = None) -> Identifiability:
+    """J (N, 3, P) or (R, P) position Jacobian; candidate_free (P,) bool.
+
+    first: (P,) bool, columns chosen before the others (the gauge: of a base frame and
+    joint 1's dtheta / dd, or a tool offset and the last link's length, the ones in
+    `first` are kept and the others held). The fit passes the parameters without a
+    plausibility prior (frames), so the prior falls on a robot deviation only where
+    the data determine it. rest_tol: the pivot threshold of the columns not in `first`
+    (default rank_tol)."""
     n_rows = J.shape[0]
     J = J.reshape(-1, J.shape[-1]).detach().cpu().double().numpy()
     cand = np.flatnonzero(candidate_free.cpu().numpy())
@@ -76,12 +103,14 @@ def identifiability(J: torch.Tensor, names, candidate_free, rank_tol: float = RA
     Js = J[:, live] / np.linalg.norm(J[:, live], axis=0)
     free = torch.zeros(J.shape[1], dtype=torch.bool)
     if live.size:
-        _, R, piv = scipy.linalg.qr(Js, mode="economic", pivoting=True)
-        d = np.abs(np.diag(R))
-        rank = int((d > rank_tol * d[0]).sum())
-        keep = live[piv[:rank]]
-        free[torch.as_tensor(np.sort(keep))] = True
-        s = np.linalg.svd(Js[:, np.sort(piv[:rank])], compute_uv=False)
+        pri = np.zeros(live.size, dtype=bool) if first is None else np.asarray(first.cpu())[live]
+        a = np.flatnonzero(pri)[_pivoted(Js[:, pri], np.zeros((Js.shape[0], 0)), rank_tol)]
+        Qa = np.linalg.qr(Js[:, a])[0] if a.size else np.zeros((Js.shape[0], 0))
+        b = np.flatnonzero(~pri)[_pivoted(Js[:, ~pri], Qa, rank_tol if rest_tol is None else rest_tol)]
+        kept = np.sort(np.concatenate([a, b]))
+        rank = kept.size
+        free[torch.as_tensor(live[kept])] = True
+        s = np.linalg.svd(Js[:, kept], compute_uv=False)
     else:
         rank, s = 0, np.ones(1)
     held = [names[i] for i in cand if not free[i]]
@@ -224,6 +253,7 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
 
     model.check_context(ctx)
     reg_info = None
+    cold = theta0 is None  # a start at nominal / registration, possibly far from the fit
     if theta0 is None:
         theta0 = model.zeros()
         if register and any(e.name == "base_frame" for e in model.effects) and xyz.shape[0] >= 3:
@@ -252,7 +282,8 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     if rotation is not None:
         fit_tool_rotation(theta0)
     J0 = jac(theta0)
-    report = identifiability(J0, model.param_names(), cand, rank_tol)
+    scales = plausible_scales(model, max_length_mm, max_angle_deg).to(theta0)
+    report = identifiability(J0, model.param_names(), cand, rank_tol, first=~torch.isfinite(scales))
     if k * n_rows <= report.rank:
         # the equations, not the model, bound the rank here: count the identifiable
         # parameters at generic poses (seeded, so the message is reproducible)
@@ -265,7 +296,6 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     if n_cand and report.rank == 0:
         raise InputError("no parameter is identifiable from these poses")
 
-    scales = plausible_scales(model, max_length_mm, max_angle_deg).to(theta0)
     has_prior = bool(torch.isfinite(scales).any())
     inv_scale = torch.where(torch.isfinite(scales), 1.0 / scales, torch.zeros_like(scales))  # (P,)
 
@@ -301,11 +331,35 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     x, weights, n_iter, status = solve(theta0.unsqueeze(0), free_now, rho if has_prior else 0.0)
     if rotation is not None:
         fit_tool_rotation(x[0])
-    if has_prior and prior_sigma_mm is None:  # the prior's rho from this fit's own residual
+    again = rotation is not None or (has_prior and prior_sigma_mm is None)
+    if cold:  # identifiability once more at the first solution (a far start, e.g. a tool
+        # 60 mm off its nominal point, can make parameters look dependent that are not):
+        # the free ones stay, a held one is freed where it is clearly identifiable there
+        # (RECHECK_TOL; small deviations only break an exact symmetry of the nominal
+        # geometry to their own order, which would free near-gauge parameters)
+        report = identifiability(jac(x[0]), model.param_names(), cand, rank_tol, first=free_now,
+                                 rest_tol=RECHECK_TOL)
+        if not torch.equal(report.free, free_now):
+            newly = free_now & ~report.free
+            x = x.clone()
+            x[0, newly] = theta0[newly]
+            free_now, again = report.free.clone(), True
+    def residual_rms():
         with torch.no_grad():
-            rho = max(sigma_mm, float((model.predict(x[0], ctx) - xyz).pow(2).mean().sqrt()))
-    if rotation is not None or (has_prior and prior_sigma_mm is None):
+            return max(float((model.predict(x[0], ctx) - xyz).pow(2).mean().sqrt()), 1e-12)
+
+    if has_prior and prior_sigma_mm is None:  # the prior's rho from this fit's own residual
+        rho = residual_rms()
+    if again:
         x, weights, n_iter, status = solve(x, free_now, rho if has_prior else 0.0)
+    for _ in range(3):  # rho and the fit agree (a first solve far from the optimum gives a rho too large)
+        if not has_prior or prior_sigma_mm is not None:
+            break
+        new = residual_rms()
+        if abs(new - rho) <= 0.1 * rho:
+            break
+        rho = new
+        x, weights, n_iter, status = solve(x, free_now, rho)
     implausible = beyond_plausible(model, x[0], free_now, scales.cpu()) if has_prior else []
     theta = x[0]
     r = resid(theta).detach()

@@ -47,6 +47,7 @@ from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.calibration.uncertainty import ParameterCovariance, parameter_covariance
 
 RANK_TOL = 1e-6
+RHO_EXACT = 1e-9  # mm: a residual RMS below it is a fit to rounding (the prior is left out)
 RECHECK_TOL = 1e-2  # pivot a parameter held at a cold start needs at the first solution
 SIGMA_MM = 0.01   # default position uncertainty of one measurement (laser tracker), mm
 SIGMA_DEG = 0.01  # default orientation uncertainty (36 arcsec, tracker 6-D probe), deg
@@ -74,15 +75,25 @@ class Identifiability:
 
 
 def _pivoted(Js: np.ndarray, Q: np.ndarray, rank_tol: float) -> np.ndarray:
-    """Indices of the columns of Js (unit columns) kept, in pivot order, by a QR with
-    column pivoting of Js projected off the orthonormal Q: those whose pivot |R_kk|
-    exceeds rank_tol (the columns' norm is 1)."""
-    if not Js.shape[1]:
-        return np.zeros(0, dtype=int)
-    P = Js - Q @ (Q.T @ Js) if Q.shape[1] else Js
-    _, R, piv = scipy.linalg.qr(P, mode="economic", pivoting=True)
-    d = np.abs(np.diag(R))
-    return piv[: int((d > rank_tol).sum())]
+    """Indices of the columns of Js (unit columns) kept, in pivot order, by Gram-Schmidt
+    with column pivoting of Js projected off the orthonormal Q: at each step the column
+    with the largest remaining norm (the lowest index among those equal to rounding, so
+    that exactly dependent columns of a symmetric geometry are chosen the same way
+    whatever the last digits of the data), while that norm exceeds rank_tol."""
+    P = Js - Q @ (Q.T @ Js) if Q.shape[1] else Js.copy()
+    kept: list[int] = []
+    for _ in range(P.shape[1]):
+        norms = np.linalg.norm(P, axis=0)
+        norms[kept] = -1.0
+        best = norms.max(initial=-1.0)
+        if best <= rank_tol:
+            break
+        i = int(np.flatnonzero(norms >= best * (1 - 1e-9))[0])
+        q = P[:, i] / norms[i]
+        P = P - np.outer(q, q @ P)
+        P = P - np.outer(q, q @ P)  # twice is enough (Kahan): orthogonal to rounding
+        kept.append(i)
+    return np.array(kept, dtype=int)
 
 
 def identifiability(J: torch.Tensor, names, candidate_free, rank_tol: float = RANK_TOL,
@@ -331,7 +342,7 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     x, weights, n_iter, status = solve(theta0.unsqueeze(0), free_now, rho if has_prior else 0.0)
     if rotation is not None:
         fit_tool_rotation(x[0])
-    again = rotation is not None or (has_prior and prior_sigma_mm is None)
+    again = rotation is not None
     if cold:  # identifiability once more at the first solution (a far start, e.g. a tool
         # 60 mm off its nominal point, can make parameters look dependent that are not):
         # the free ones stay, a held one is freed where it is clearly identifiable there
@@ -350,13 +361,14 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
 
     if has_prior and prior_sigma_mm is None:  # the prior's rho from this fit's own residual
         rho = residual_rms()
+        again = again or rho >= RHO_EXACT  # below it the data are fitted exactly: no prior needed
     if again:
         x, weights, n_iter, status = solve(x, free_now, rho if has_prior else 0.0)
     for _ in range(3):  # rho and the fit agree (a first solve far from the optimum gives a rho too large)
         if not has_prior or prior_sigma_mm is not None:
             break
         new = residual_rms()
-        if abs(new - rho) <= 0.1 * rho:
+        if abs(new - rho) <= 0.1 * rho or new < RHO_EXACT:
             break
         rho = new
         x, weights, n_iter, status = solve(x, free_now, rho)

@@ -19,12 +19,25 @@ def add_parser(sub):
     p.add_argument("--model", help="MODEL.json: its effects are the baseline (default geometric only)")
     p.add_argument("--effects", nargs="*", default=None, metavar="SPEC", help="baseline effects (instead of --model)")
     add_cv(p)
+    add_sigmas(p)
     p.add_argument("--json", help="write the report here")
     add_viz(p)
     add_units(p)
     add_force(p)
     add_effects_module(p)
     p.set_defaults(func=run)
+
+
+def add_sigmas(p) -> None:
+    """--sigma-mm / --sigma-deg: the orientation weighting of `torchcal fit`, so that diagnose
+    and discover fit the rx, ry, rz columns exactly as fit does."""
+    from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM
+    from torchcal.cli._args import positive_float
+
+    p.add_argument("--sigma-mm", type=positive_float, default=SIGMA_MM,
+                   help=f"position uncertainty of one measurement, mm (default {SIGMA_MM}; as in fit)")
+    p.add_argument("--sigma-deg", type=positive_float, default=SIGMA_DEG,
+                   help=f"orientation uncertainty (rx, ry, rz columns), deg (default {SIGMA_DEG}; as in fit)")
 
 
 def print_table(d) -> None:
@@ -70,7 +83,8 @@ def run(args) -> int:
     # the baseline effects: the MODEL.json's (checked against --robot) or --effects
     effects = modelfile.load(args.model, robot=robot)[0].specs() if args.model else args.effects or []
     m = read_data(args.data, robot, args)
-    d = api.diagnose(robot, m, effects, folds=args.folds, seed=args.seed)
+    d = api.diagnose(robot, m, effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,
+                     sigma_deg=args.sigma_deg)
     print_table(d)
     if args.json:
         write_json(args.json, d.to_dict(), force=args.force, inputs=[args.data, args.model])

@@ -35,7 +35,6 @@ from dataclasses import dataclass, field
 import math
 
 import numpy as np
-import scipy.linalg
 import torch
 
 from torchcal.effects.base import Context

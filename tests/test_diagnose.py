@@ -145,7 +145,7 @@ def test_linear_base_with_a_column_in_the_span_of_the_others_cross_validates_lik
     alone (numpy lstsq, an independent reference), and the basis keeps the rank."""
     import numpy as np
 
-    from torchcal.diagnosis.diagnose import _Linear, fold_ids
+    from torchcal.diagnosis.crossval import LinearRefit, fold_ids
 
     rng = np.random.default_rng(0)
     N, p = 60, 5
@@ -153,7 +153,7 @@ def test_linear_base_with_a_column_in_the_span_of_the_others_cross_validates_lik
     r = A @ rng.normal(size=p) + 0.1 * rng.normal(size=3 * N)
     folds = fold_ids(torch.arange(N), 5, 0)
     dependent = np.hstack([A, A[:, :2] @ np.array([[0.3], [-1.2]])])  # a sixth column in span(A)
-    lin = _Linear(r, dependent, folds)
+    lin = LinearRefit(r, dependent, folds)
     assert lin.Q.shape[1] == p and lin.Qb.shape[1] == p
     rows = np.repeat(folds, 3)
     held = np.empty_like(r)

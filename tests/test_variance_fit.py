@@ -7,7 +7,7 @@ import pytest
 import scipy.optimize
 import torch
 
-from torchcal.diagnosis.diagnose import _variance_loglik, fit_variances
+from torchcal.diagnosis.variance import fit_variances, variance_loglik
 
 
 def sample(K, tau, M, seed):
@@ -22,7 +22,7 @@ def reference(r, Bs):
     K = Bs.shape[-1] // 2
     s = np.log((r ** 2).mean())
     lt = s - np.log((Bs ** 2).sum((1, 2)).mean())
-    res = scipy.optimize.minimize(lambda x: -_variance_loglik(r, Bs, x).sum(), np.r_[s, [lt] * K],
+    res = scipy.optimize.minimize(lambda x: -variance_loglik(r, Bs, x).sum(), np.r_[s, [lt] * K],
                                   method="L-BFGS-B", bounds=[(s - 9, s + 5)] + [(lt - 30, lt + 10)] * K,
                                   options={"ftol": 1e-15, "gtol": 1e-10, "maxiter": 2000})
     return res.x, -res.fun
@@ -33,7 +33,7 @@ def test_newton_matches_scipy_inside(K, tau, M):
     r, Bs = sample(K, tau, M, seed=K)
     x_ref, ll_ref = reference(r, Bs)
     x = fit_variances(torch.from_numpy(r)[None], torch.from_numpy(Bs))[0].numpy()
-    assert _variance_loglik(r, Bs, x).sum() >= ll_ref - 1e-7
+    assert variance_loglik(r, Bs, x).sum() >= ll_ref - 1e-7
     np.testing.assert_allclose(x, x_ref, atol=2e-3)
 
 
@@ -46,7 +46,7 @@ def test_residual_outside_the_random_directions_puts_tau_at_its_bound():
     r = n / np.linalg.norm(n, axis=1, keepdims=True) * np.random.default_rng(6).normal(size=(300, 1)) * 0.03
     x = fit_variances(torch.from_numpy(r)[None], torch.from_numpy(Bs))[0].numpy()
     _, ll_ref = reference(r, Bs)
-    assert _variance_loglik(r, Bs, x).sum() >= ll_ref - 1e-7
+    assert variance_loglik(r, Bs, x).sum() >= ll_ref - 1e-7
     s2 = (r ** 2).mean()
     assert abs(np.exp(x[0]) / s2 - 1) < 1e-6
     assert np.exp(x[1]) * (Bs ** 2).sum((1, 2)).mean() < 1e-9 * s2
@@ -63,4 +63,4 @@ def test_batches_and_row_weights_equal_separate_fits_of_the_subsets():
         keep = folds != f
         x_f = fit_variances(torch.from_numpy(r[keep])[None], torch.from_numpy(Bs[keep]))[0].numpy()
         np.testing.assert_allclose(x[f], x_f, atol=1e-6)
-        assert _variance_loglik(r[keep], Bs[keep], x[f]).sum() >= reference(r[keep], Bs[keep])[1] - 1e-7
+        assert variance_loglik(r[keep], Bs[keep], x[f]).sum() >= reference(r[keep], Bs[keep])[1] - 1e-7

@@ -16,7 +16,7 @@ from torchcal.calibration.intervals import (IntervalFit, IntervalModel, PoseInte
 from torchcal.calibration.joint_range import CalibratedRangeWarning, joint_range, outside_range, range_warning
 from torchcal.calibration.lm import LMResult, LMStatus, levenberg_marquardt
 from torchcal.calibration.model import CalibrationModel
-from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM, check_units, implausible_deviations
+from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM, beyond_plausible, check_units, plausible_scales
 from torchcal.calibration.registration import base_frame_summary, register_frame
 
 __all__ = ["batched_jacobian", "batched_predict", "Compensation", "nominal_inverse", "nominal_start", "predict_rows",
@@ -25,4 +25,4 @@ __all__ = ["batched_jacobian", "batched_predict", "Compensation", "nominal_inver
            "IntervalModel", "PoseIntervals", "identify_intervals", "identify_zones", "pose_intervals",
            "solution_map", "CalibratedRangeWarning", "joint_range", "outside_range", "range_warning", "LMResult",
            "LMStatus", "levenberg_marquardt", "CalibrationModel", "MAX_ANGLE_DEG", "MAX_LENGTH_MM", "check_units",
-           "implausible_deviations", "base_frame_summary", "register_frame"]
+           "beyond_plausible", "plausible_scales", "base_frame_summary", "register_frame"]

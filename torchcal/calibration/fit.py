@@ -5,7 +5,20 @@ Identifiability (at the starting point, on the column-scaled Jacobian):
 - QR with column pivoting orders the free parameters from most to least independent;
   those whose pivot |R_kk| falls below ``rank_tol * |R_00|`` cannot be identified from
   these poses. They are reported by name and *held at nominal* (zero deviation) instead
-  of being silently damped as eq. 29 would.
+  of being silently damped as eq. 29 would. This is what removes the gauge (a base frame
+  against joint 1's dtheta and dd, a tool offset against the last link): it is decided
+  at the registered start, the parameters without a plausibility prior (the frames)
+  pivoted first, so the robot's deviation is the one held; from a cold start it is
+  judged once more at the first solution (a held parameter is freed only where its
+  pivot reaches `RECHECK_TOL`). Nothing is held for its size.
+- Plausibility is part of the estimation: a weak Gaussian prior on each parameter's
+  physical scale (`torchcal.calibration.plausibility.plausible_scales`), one residual row
+  ``rho * theta_i / s_i`` each, with rho the fit's own per-axis residual RMS (a first
+  solve with rho = sigma_mm gives it, a second, warm-started, solve uses it, and up to
+  three more while rho moves by more than 10 %). From a
+  cold start (nominal or registration) the identifiability is judged once more at the
+  first solution, before the second solve.
+  Parameters that end beyond their scale anyway are named (`FitResult.implausible`).
 - Singular values of the identifiable columns give the condition number and the
   observability indices of Borm & Menq / Nahvi & Hollerbach (O1..O5, m = number of poses).
 
@@ -22,7 +35,6 @@ from dataclasses import dataclass, field
 import math
 
 import numpy as np
-import scipy.linalg
 import torch
 
 from torchcal.effects.base import Context
@@ -35,6 +47,8 @@ from torchcal.calibration.covariance import ParameterCovariance, parameter_covar
 from torchcal.rotations import procrustes_rotation, so3_error
 
 RANK_TOL = 1e-6
+RHO_EXACT = 1e-9  # mm: a residual RMS below it is a fit to rounding (the prior is left out)
+RECHECK_TOL = 1e-2  # pivot a parameter held at a cold start needs at the first solution
 SIGMA_MM = 0.01   # default position uncertainty of one measurement (laser tracker), mm
 SIGMA_DEG = 0.01  # default orientation uncertainty (36 arcsec, tracker 6-D probe), deg
 
@@ -60,8 +74,38 @@ class Identifiability:
                 "observability": self.observability, "poses": self.n_rows}
 
 
-def identifiability(J: torch.Tensor, names, candidate_free, rank_tol: float = RANK_TOL) -> Identifiability:
-    """J (N, 3, P) or (R, P) position Jacobian; candidate_free (P,) bool."""
+def _pivoted(Js: np.ndarray, Q: np.ndarray, rank_tol: float) -> np.ndarray:
+    """Indices of the columns of Js (unit columns) kept, in pivot order, by Gram-Schmidt
+    with column pivoting of Js projected off the orthonormal Q: at each step the column
+    with the largest remaining norm (the lowest index among those equal to rounding, so
+    that exactly dependent columns of a symmetric geometry are chosen the same way
+    whatever the last digits of the data), while that norm exceeds rank_tol."""
+    P = Js - Q @ (Q.T @ Js) if Q.shape[1] else Js.copy()
+    kept: list[int] = []
+    for _ in range(P.shape[1]):
+        norms = np.linalg.norm(P, axis=0)
+        norms[kept] = -1.0
+        best = norms.max(initial=-1.0)
+        if best <= rank_tol:
+            break
+        i = int(np.flatnonzero(norms >= best * (1 - 1e-9))[0])
+        q = P[:, i] / norms[i]
+        P = P - np.outer(q, q @ P)
+        P = P - np.outer(q, q @ P)  # twice is enough (Kahan): orthogonal to rounding
+        kept.append(i)
+    return np.array(kept, dtype=int)
+
+
+def identifiability(J: torch.Tensor, names, candidate_free, rank_tol: float = RANK_TOL,
+                    first=None, rest_tol: float | None = None) -> Identifiability:
+    """J (N, 3, P) or (R, P) position Jacobian; candidate_free (P,) bool.
+
+    first: (P,) bool, columns chosen before the others (the gauge: of a base frame and
+    joint 1's dtheta / dd, or a tool offset and the last link's length, the ones in
+    `first` are kept and the others held). The fit passes the parameters without a
+    plausibility prior (frames), so the prior falls on a robot deviation only where
+    the data determine it. rest_tol: the pivot threshold of the columns not in `first`
+    (default rank_tol)."""
     n_rows = J.shape[0]
     J = J.reshape(-1, J.shape[-1]).detach().cpu().double().numpy()
     cand = np.flatnonzero(candidate_free.cpu().numpy())
@@ -75,12 +119,14 @@ def identifiability(J: torch.Tensor, names, candidate_free, rank_tol: float = RA
     Js = Js * (1 + 1e-8 * np.arange(len(live), 0, -1) / max(len(live), 1))
     free = torch.zeros(J.shape[1], dtype=torch.bool)
     if live.size:
-        _, R, piv = scipy.linalg.qr(Js, mode="economic", pivoting=True)
-        d = np.abs(np.diag(R))
-        rank = int((d > rank_tol * d[0]).sum())
-        keep = live[piv[:rank]]
-        free[torch.as_tensor(np.sort(keep))] = True
-        s = np.linalg.svd(Js[:, np.sort(piv[:rank])], compute_uv=False)
+        pri = np.zeros(live.size, dtype=bool) if first is None else np.asarray(first.cpu())[live]
+        a = np.flatnonzero(pri)[_pivoted(Js[:, pri], np.zeros((Js.shape[0], 0)), rank_tol)]
+        Qa = np.linalg.qr(Js[:, a])[0] if a.size else np.zeros((Js.shape[0], 0))
+        b = np.flatnonzero(~pri)[_pivoted(Js[:, ~pri], Qa, rank_tol if rest_tol is None else rest_tol)]
+        kept = np.sort(np.concatenate([a, b]))
+        rank = kept.size
+        free[torch.as_tensor(live[kept])] = True
+        s = np.linalg.svd(Js[:, kept], compute_uv=False)
     else:
         rank, s = 0, np.ones(1)
     held = [names[i] for i in cand if not free[i]]
@@ -105,7 +151,9 @@ class FitResult:
     status: how the (last) LM solve stopped, 'converged', 'stalled' or 'max_iterations'
     (`torchcal.calibration.lm.LMStatus`).
     registration: the closed-form start (rms before/after, frame) or None; implausible:
-    names of MD-H deviations held because they grew beyond `plausible_limits`;
+    names of free parameters that end beyond their plausible scale although the prior
+    shrinks them (none is held for it); plausible_limits: {"max_length_mm",
+    "max_angle_deg", "prior_sigma_mm"} (rho of the prior rows) or None (no prior);
     orientation: {"sigma_mm", "sigma_deg", "weight_mm_per_rad", "tool_rotation" (3, 3),
     "rms_deg"} when orientations were fitted. q_range: (2, n) min and max of the data's
     commanded q, rad / mm (`torchcal.calibration.joint_range`). robust, sigma_mm,
@@ -193,7 +241,7 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
         pose=None, rotation: torch.Tensor | None = None, sigma_mm: float = SIGMA_MM,
         sigma_deg: float = SIGMA_DEG, register: bool = True,
         max_length_mm: float | None = MAX_LENGTH_MM,
-        max_angle_deg: float | None = MAX_ANGLE_DEG) -> FitResult:
+        max_angle_deg: float | None = MAX_ANGLE_DEG, prior_sigma_mm: float | None = None) -> FitResult:
     """Fit model parameters to measured TCP positions xyz (N, 3) mm [and orientations].
 
     pose: (N,) int pose ids; with repeats the standard errors are pose-level
@@ -215,17 +263,20 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     constant rotation between the nominal tool frame and the measured frame is solved in
     closed form (Procrustes) at the start and again after the first fit.
 
-    Plausibility: free MD-H deviations that end beyond `max_length_mm` (dd, da) or
-    `max_angle_deg` (dtheta, dalpha, dbeta) are held at their start value and the fit
-    is repeated (torchcal.calibration.plausibility); so are effect parameters beyond
-    their effect's `plausible_max()` (e.g. gear harmonics above 1 deg). They are listed in
-    `FitResult.implausible`. None disables the check.
+    Plausibility (the prior, module doc): MD-H deviations have the scales `max_length_mm`
+    (dd, da) and `max_angle_deg` (dtheta, dalpha, dbeta), effect parameters their
+    effect's `plausible_max()`; None for the MD-H scales drops their prior. rho: the
+    per-axis RMS of the position residual of a first solve with rho = sigma_mm, or
+    `prior_sigma_mm` when given (one solve; the fold refits of a cross-validation pass
+    the full fit's). Free parameters ending beyond their scale are listed in
+    `FitResult.implausible`.
     """
     from torchcal.calibration import registration as reg
-    from torchcal.calibration.plausibility import implausible_deviations
+    from torchcal.calibration.plausibility import beyond_plausible, plausible_scales
 
     model.check_context(ctx)
     reg_info = None
+    cold = theta0 is None  # a start at nominal / registration, possibly far from the fit
     if theta0 is None:
         theta0 = model.zeros()
         if register and any(e.name == "base_frame" for e in model.effects) and xyz.shape[0] >= 3:
@@ -258,7 +309,8 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     if rotation is not None:
         fit_tool_rotation(theta0)
     J0 = jac(theta0)
-    report = identifiability(J0, model.param_names(), cand, rank_tol)
+    scales = plausible_scales(model, max_length_mm, max_angle_deg).to(theta0)
+    report = identifiability(J0, model.param_names(), cand, rank_tol, first=~torch.isfinite(scales))
     if k * n_rows <= report.rank:
         # the equations, not the model, bound the rank here: count the identifiable
         # parameters at generic poses (seeded, so the message is reproducible)
@@ -271,13 +323,24 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     if n_cand and report.rank == 0:
         raise InputError("no parameter is identifiable from these poses")
 
-    def solve(x, free_now):
+    has_prior = bool(torch.isfinite(scales).any())
+    inv_scale = torch.where(torch.isfinite(scales), 1.0 / scales, torch.zeros_like(scales))  # (P,)
+
+    def solve(x, free_now, rho):
+        """LM on the measurement rows plus the prior rows rho * theta / s (module doc)."""
         weights = torch.ones(n_rows, dtype=xyz.dtype, device=xyz.device)
         rounds = 1 if robust is None else 8
+        prior = rho * inv_scale
+
+        def res_fn(z):
+            return torch.cat([resid(z[0]).reshape(-1), prior * z[0]]).unsqueeze(0)
+
+        def jac_fn(z):
+            return torch.cat([jac(z[0]).reshape(-1, z.shape[-1]), torch.diag(prior)]).unsqueeze(0)
+
         for _ in range(rounds):
-            w = weights.repeat_interleave(k).unsqueeze(0)
-            res = levenberg_marquardt(lambda z: resid(z[0]).reshape(1, -1), x, free=free_now, weights=w,
-                                      jacobian_fn=lambda z: jac(z[0]).reshape(1, -1, z.shape[-1]),
+            w = torch.cat([weights.repeat_interleave(k), torch.ones_like(prior)]).unsqueeze(0)
+            res = levenberg_marquardt(res_fn, x, free=free_now, weights=w, jacobian_fn=jac_fn,
                                       max_iter=max_iter)
             x = res.x
             if robust is None:
@@ -291,28 +354,41 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
         return x, weights, int(res.n_iter[0]), res.status_labels()[0]
 
     free_now = report.free.clone()
-    x, weights, n_iter, status = solve(theta0.unsqueeze(0), free_now)
+    rho = sigma_mm if prior_sigma_mm is None else prior_sigma_mm
+    x, weights, n_iter, status = solve(theta0.unsqueeze(0), free_now, rho if has_prior else 0.0)
     if rotation is not None:
         fit_tool_rotation(x[0])
-        x, weights, n_iter, status = solve(x, free_now)
-    implausible: list[str] = []
-    if max_length_mm is not None and max_angle_deg is not None:
-        names = model.param_names()
-        for _ in range(5):
-            bad = implausible_deviations(model, x[0], free_now, max_length_mm, max_angle_deg)
-            if not bad:
-                break
-            implausible += [names[i] for i in bad]
+    again = rotation is not None
+    if cold:  # identifiability once more at the first solution (a far start, e.g. a tool
+        # 60 mm off its nominal point, can make parameters look dependent that are not):
+        # the free ones stay, a held one is freed where it is clearly identifiable there
+        # (RECHECK_TOL; small deviations only break an exact symmetry of the nominal
+        # geometry to their own order, which would free near-gauge parameters)
+        report = identifiability(jac(x[0]), model.param_names(), cand, rank_tol, first=free_now,
+                                 rest_tol=RECHECK_TOL)
+        if not torch.equal(report.free, free_now):
+            newly = free_now & ~report.free
             x = x.clone()
-            x[0, bad] = theta0[bad]
-            # judge identifiability again without them: a parameter held as redundant
-            # with one of them (e.g. tool_z with dd6) is free again
-            cand = cand.clone()
-            cand[[names.index(n) for n in implausible]] = False
-            report = identifiability(jac(x[0]), names, cand, rank_tol)
-            free_now = report.free.clone()
-            x, weights, n_iter, status = solve(x, free_now)
-        report.held = report.held + [n for n in implausible if n not in report.held]
+            x[0, newly] = theta0[newly]
+            free_now, again = report.free.clone(), True
+    def residual_rms():
+        with torch.no_grad():
+            return max(float((model.predict(x[0], ctx) - xyz).pow(2).mean().sqrt()), 1e-12)
+
+    if has_prior and prior_sigma_mm is None:  # the prior's rho from this fit's own residual
+        rho = residual_rms()
+        again = again or rho >= RHO_EXACT  # below it the data are fitted exactly: no prior needed
+    if again:
+        x, weights, n_iter, status = solve(x, free_now, rho if has_prior else 0.0)
+    for _ in range(3):  # rho and the fit agree (a first solve far from the optimum gives a rho too large)
+        if not has_prior or prior_sigma_mm is not None:
+            break
+        new = residual_rms()
+        if abs(new - rho) <= 0.1 * rho or new < RHO_EXACT:
+            break
+        rho = new
+        x, weights, n_iter, status = solve(x, free_now, rho)
+    implausible = beyond_plausible(model, x[0], free_now, scales.cpu()) if has_prior else []
     theta = x[0]
     r = resid(theta).detach()
     resid_pos = -r[:, :3]
@@ -340,6 +416,6 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     return FitResult(model, theta.detach(), std, resid_pos, weights, report, n_iter, outliers, covariance,
                      status=status,
                      registration=reg_info, implausible=implausible, orientation=orient,
-                     plausible_limits=None if max_length_mm is None else
-                     {"max_length_mm": max_length_mm, "max_angle_deg": max_angle_deg},
+                     plausible_limits=None if not has_prior else
+                     {"max_length_mm": max_length_mm, "max_angle_deg": max_angle_deg, "prior_sigma_mm": rho},
                      q_range=joint_range(ctx.q), robust=robust, sigma_mm=sigma_mm, sigma_deg=sigma_deg)

@@ -1,4 +1,4 @@
-"""Plausibility checks before and after a fit: measurement units and deviation sizes.
+"""Plausibility: measurement units before a fit, and the plausible size of each parameter.
 
 Units (before any fit, `check_units`). Measurements are compared with the nominal model at
 the same joint angles by a registration-invariant spread: the RMS distance of the points
@@ -21,14 +21,19 @@ point moves it by tens of percent at most); a unit mistake moves it by about 100
 The check needs at least 3 rows and a nominal spread of at least 1 mm; otherwise it
 says nothing.
 
-Deviation sizes (after registration and the fit, `implausible_deviations`). A calibrated
-industrial arm differs from its nominal MD-H table by tenths of a mm and hundredths of a
-degree; manufacturing tolerances of the links are below a few mm and assembly angles
-below a few tenths of a degree. A fitted |dd|, |da| above `MAX_LENGTH_MM` = 5 mm or
-|dtheta|, |dalpha|, |dbeta| above `MAX_ANGLE_DEG` = 1 deg therefore means the parameter
-absorbed something else (a frame, a tool, noise along a nearly dependent direction).
-The fit holds such parameters at nominal and fits again, and names them in its output
-and in MODEL.json ("plausibility").
+Plausible sizes (the prior of the fit, `plausible_scales`). A calibrated industrial arm
+differs from its nominal MD-H table by tenths of a mm and hundredths of a degree;
+manufacturing tolerances of the links are below a few mm and assembly angles below a few
+tenths of a degree. Each parameter i gets a physical scale s_i: `MAX_LENGTH_MM` = 5 mm for
+dd, da, `MAX_ANGLE_DEG` = 1 deg for dtheta, dalpha, dbeta, and each effect's
+`Effect.plausible_max()` (docs/effects.md). The fit adds one residual row
+``rho * theta_i / s_i`` per parameter (a Gaussian prior theta_i ~ N(0, s_i^2) for
+residuals of per-axis scale rho, rho estimated from the fit itself): a parameter that the
+data determine well is untouched, one along a nearly dependent direction (a combination
+that cancels on the calibration poses) is shrunk towards nominal instead of growing to
+metres. Nothing is held or refitted for being large; a parameter that still ends beyond
+its scale is named (`beyond_plausible`, `FitResult.implausible`) in the output and in
+MODEL.json ("plausibility"), as a sign that it absorbed something else.
 """
 
 from __future__ import annotations
@@ -97,23 +102,29 @@ def check_units(m, robot, length_unit: str = "mm", angle_unit: str = "deg", wher
     return out
 
 
-def implausible_deviations(model, theta: torch.Tensor, free: torch.Tensor,
-                           max_length_mm: float = MAX_LENGTH_MM,
-                           max_angle_deg: float = MAX_ANGLE_DEG) -> list[int]:
-    """Indices of free parameters beyond the plausible size.
+def plausible_scales(model, max_length_mm: float | None = MAX_LENGTH_MM,
+                     max_angle_deg: float | None = MAX_ANGLE_DEG) -> torch.Tensor:
+    """(P,) float64 plausible size s_i of every parameter, in its unit (inf: no prior).
 
-    theta (P,), free (P,) bool. The 5n MD-H deviations are judged against max_length_mm /
-    max_angle_deg; an effect's parameters against its own `Effect.plausible_max()` (none
-    for most effects: base frame and tool offsets are not deviations of the robot).
-    """
+    The 5n MD-H deviations: `max_length_mm` for dd, da and `max_angle_deg` (as rad) for
+    dtheta, dalpha, dbeta (None: no prior on them); an effect's parameters: its
+    `Effect.plausible_max()` (None or inf entries: none, e.g. base frame and tool offset,
+    which are frames, not deviations of the robot)."""
     n5 = 5 * model.robot.n
-    lim = torch.full((theta.shape[0],), math.inf, dtype=torch.float64)
-    lim[:n5] = torch.tensor([math.radians(max_angle_deg), max_length_mm, max_length_mm,
-                             math.radians(max_angle_deg), math.radians(max_angle_deg)],
-                            dtype=torch.float64).repeat(model.robot.n)
+    s = torch.full((model.n_params,), math.inf, dtype=torch.float64)
+    if max_length_mm is not None and max_angle_deg is not None:
+        s[:n5] = torch.tensor([math.radians(max_angle_deg), max_length_mm, max_length_mm,
+                               math.radians(max_angle_deg), math.radians(max_angle_deg)],
+                              dtype=torch.float64).repeat(model.robot.n)
     for e, sl in zip(model.effects, model.slices[1:]):
         limits = e.plausible_max()
         if limits is not None:
-            lim[sl] = torch.as_tensor(limits, dtype=torch.float64)
-    bad = (theta.detach().cpu().to(torch.float64).abs() > lim) & free.cpu()
-    return bad.nonzero().flatten().tolist()
+            s[sl] = torch.as_tensor(limits, dtype=torch.float64)
+    return s
+
+
+def beyond_plausible(model, theta: torch.Tensor, free: torch.Tensor, scales: torch.Tensor) -> list[str]:
+    """Names of free parameters whose fitted |theta| (P,) exceeds its plausible scale."""
+    bad = (theta.detach().cpu().to(torch.float64).abs() > scales) & free.cpu()
+    names = model.param_names()
+    return [names[i] for i in bad.nonzero().flatten().tolist()]

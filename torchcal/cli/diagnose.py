@@ -19,6 +19,7 @@ def add_parser(sub):
     p.add_argument("--model", help="MODEL.json: its effects are the baseline (default geometric only)")
     p.add_argument("--effects", nargs="*", default=None, metavar="SPEC", help="baseline effects (instead of --model)")
     add_cv(p)
+    add_sigmas(p)
     p.add_argument("--json", help="write the report here")
     add_viz(p)
     add_units(p)
@@ -27,11 +28,23 @@ def add_parser(sub):
     p.set_defaults(func=run)
 
 
+def add_sigmas(p) -> None:
+    """--sigma-mm / --sigma-deg: the orientation weighting of `torchcal fit`, so that diagnose
+    and discover fit the rx, ry, rz columns exactly as fit does."""
+    from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM
+    from torchcal.cli._args import positive_float
+
+    p.add_argument("--sigma-mm", type=positive_float, default=SIGMA_MM,
+                   help=f"position uncertainty of one measurement, mm (default {SIGMA_MM}; as in fit)")
+    p.add_argument("--sigma-deg", type=positive_float, default=SIGMA_DEG,
+                   help=f"orientation uncertainty (rx, ry, rz columns), deg (default {SIGMA_DEG}; as in fit)")
+
+
 def print_table(d) -> None:
     rep = d.to_dict()
     b = rep["baseline"]
-    print(f"baseline [{', '.join(b['effects']) or 'geometric only'}]: rms {b['rms_mm']:.4f} mm, "
-          f"cv rms {b['cv_rms_mm']:.4f} mm, max {b['max_mm']:.4f} mm")
+    print(f"pre-screen (linearised refit, ranks the candidates; current model "
+          f"[{', '.join(b['effects']) or 'geometric only'}] max {b['max_mm']:.4f} mm):")
     print(f"{'candidate':<26}{'k':>4}{'rms mm':>10}{'cv rms mm':>11}{'cv gain %':>10}{'score':>8}"
           f"{'p-value':>10}  significant")
     for c in d.candidates[:10]:
@@ -42,11 +55,19 @@ def print_table(d) -> None:
     if worst:
         print(f"worst region: reach {worst['reach_mm'][0]:.0f}-{worst['reach_mm'][1]:.0f} mm, {worst['z']} half: "
               f"rms {worst['rms_mm']:.4f} mm over {worst['n']} rows")
+    print_step(d.step)
     v = d.verdict
-    print("verdict: " + ("nothing significant: the residual is at the noise level" if v is None else
-                         f"missing {v.spec} (cv rms {b['cv_rms_mm']:.4f} -> {v.cv_rms_mm:.4f} mm)"))
+    print("verdict: " + ("nothing accepted: no refitted candidate lowers the held-out error beyond chance"
+                         if v is None else
+                         f"missing {v.spec} (refit cv rms {b['cv_rms_mm']:.4f} -> {d.step.accepted.cv_rms_mm:.4f} mm)"))
     if d.unexplained is not None:
         print(("with the verdict, " if v is not None else "") + d.unexplained.describe())
+
+
+def print_step(step) -> None:
+    """The figures of one step (full refits); `discover` prints the same for each round."""
+    for line in step.lines():
+        print(line)
 
 
 def run(args) -> int:
@@ -68,7 +89,8 @@ def run(args) -> int:
     with warnings_to_stderr(MismatchWarning):  # the model's own frame and error first, then the nominal robot's
         if fitted is not None:
             api.check_diagnosis_data(fitted, fitted[0], m, theta=fitted[1])
-        d = api.diagnose(robot, m, effects, folds=args.folds, seed=args.seed)
+        d = api.diagnose(robot, m, effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,
+                         sigma_deg=args.sigma_deg)
     print_table(d)
     if args.json:
         write_json(args.json, d.to_dict(), force=args.force, inputs=[args.data, args.model])

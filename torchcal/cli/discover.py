@@ -7,6 +7,7 @@ from torchcal import api
 from torchcal.io import modelfile
 from torchcal.cli._args import (add_cv, add_effects_module, add_force, add_units, add_viz, check_folder, check_outputs,
                                 read_data, add_robot)
+from torchcal.cli.diagnose import add_sigmas, print_step
 from torchcal.io.files import write_json
 from torchcal.robots.robot import robot as make_robot
 
@@ -17,6 +18,7 @@ def add_parser(sub):
     add_robot(p)
     p.add_argument("--effects", nargs="*", default=[], metavar="SPEC", help="effects to start from")
     add_cv(p)
+    add_sigmas(p)
     p.add_argument("--json", help="write the history here")
     p.add_argument("--out", help="write the final MODEL.json here")
     add_viz(p)
@@ -35,10 +37,11 @@ def run(args) -> int:
         check_visual_outputs(args, "discover")
     robot = make_robot(args.robot)
     m = read_data(args.data, robot, args)
-    res = api.discover(robot, m, args.effects, folds=args.folds, seed=args.seed)
-    for i, h in enumerate(res.history):
-        print(f"round {i}: [{', '.join(h['effects']) or 'geometric only'}] rms {h['rms_mm']:.4f} mm, "
-              f"cv rms {h['cv_rms_mm']:.4f} mm")
+    res = api.discover(robot, m, args.effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,
+                       sigma_deg=args.sigma_deg)
+    for i, (h, d) in enumerate(zip(res.history, res.diagnoses)):
+        print(f"round {i}:")
+        print_step(d.step)
     print(f"final effects: {', '.join(res.final_effects) or 'none'}")
     if res.unexplained is not None:
         print(res.unexplained.describe())

@@ -7,8 +7,9 @@ With `base_frame` among the effects the fit starts from the closed-form registra
 the nominal model onto the measurements (instrument frame), reported as the base frame in
 mm and degrees. A data file with a `point` column gets one tool offset per point (needs
 `tool_offset`); rx, ry, rz columns add the measured orientation, weighed against position
-by --sigma-mm / --sigma-deg. MD-H deviations beyond --max-deviation-mm / -deg are held at
-nominal and reported (docs/formats.md)."""
+by --sigma-mm / --sigma-deg. Every parameter has a plausible scale (--max-deviation-mm /
+-deg for the MD-H deviations, each effect's range of docs/effects.md): a weak prior
+shrinks what the poses barely determine, and what ends beyond its scale is named."""
 
 from __future__ import annotations
 
@@ -37,9 +38,10 @@ def add_parser(sub):
     p.add_argument("--sigma-deg", type=positive_float, default=SIGMA_DEG,
                    help=f"orientation uncertainty (rx, ry, rz columns), deg (default {SIGMA_DEG})")
     p.add_argument("--max-deviation-mm", type=nonneg_float, default=MAX_LENGTH_MM,
-                   help=f"hold fitted |dd|, |da| beyond this at nominal (default {MAX_LENGTH_MM}; 0 = no check)")
+                   help=f"plausible scale of |dd|, |da| (the prior; default {MAX_LENGTH_MM}; 0 = no prior on MD-H)")
     p.add_argument("--max-deviation-deg", type=nonneg_float, default=MAX_ANGLE_DEG,
-                   help=f"hold fitted |dtheta|, |dalpha|, |dbeta| beyond this (default {MAX_ANGLE_DEG}; 0 = no check)")
+                   help=f"plausible scale of |dtheta|, |dalpha|, |dbeta| "
+                        f"(default {MAX_ANGLE_DEG}; 0 = no prior on MD-H)")
     p.add_argument("--residual-model", choices=["kernel"],
                    help="add a non-physical residual stage: kernel ridge of the residual on the joint angles, "
                         "applied by evaluate and compensate, dropped by export (docs/residual-model.md)")
@@ -63,6 +65,18 @@ def fit_file(args):
                   max_length_mm=args.max_deviation_mm if check else None,
                   max_angle_deg=args.max_deviation_deg if check else None,
                   residual_model=getattr(args, "residual_model", None), **units(args))
+
+
+def plausibility_line(res) -> str | None:
+    """One line naming the parameters that end beyond their plausible scale (the prior
+    shrinks them, nothing is held for it), or None. fit, diagnose and discover print it."""
+    if not res.implausible:
+        return None
+    lim = res.plausible_limits or {}
+    geo = (f"{lim['max_length_mm']:g} mm / {lim['max_angle_deg']:g} deg for MD-H deviations, "
+           if lim.get("max_length_mm") is not None else "")
+    return (f"beyond plausible size (shrunk by the prior: {geo}the effects' ranges in docs/effects.md): "
+            f"{', '.join(res.implausible)}")
 
 
 def _still_joints(m) -> list[str]:
@@ -134,16 +148,15 @@ def run(args) -> int:
         o = res.orientation
         print(f"orientation: rms {o['rms_deg'] * 1000:.4g} mdeg (weight {math.radians(o['weight_mm_per_rad']):.4g} mm/deg "
               f"from sigma {o['sigma_mm']:g} mm, {o['sigma_deg']:g} deg)")
-    held = [n for n in rep.held if n not in res.implausible]
+    held = list(rep.held)
     if held:
         print(f"held at nominal (not identifiable from these poses): {', '.join(held)}")
         still = _still_joints(m)
         if still:
             print(f"joints that never move in {args.data}: {', '.join(still)}; move them to identify more")
-    if res.implausible:
-        lim = res.plausible_limits
-        print(f"held at nominal (implausible size, beyond {lim['max_length_mm']:g} mm / "
-              f"{lim['max_angle_deg']:g} deg for a calibrated arm): {', '.join(res.implausible)}")
+    line = plausibility_line(res)
+    if line:
+        print(line)
     big = _largest(res)
     if big:
         print(f"largest deviations: {big}")

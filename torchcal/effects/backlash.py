@@ -6,7 +6,12 @@ from the - direction ``backlash_J / 2`` before it: offset ``approach * backlash_
 The approach direction comes from the measurement order (`Context.approach`).
 """
 
+import math
+
 from torchcal.effects.base import Effect, joint_columns, scatter_joints
+
+#: plausible full lost motion (deg): reducers of industrial arms lose arc minutes
+MAX_BACKLASH_DEG = 0.2
 
 
 class Backlash(Effect):
@@ -18,6 +23,9 @@ class Backlash(Effect):
 
     def param_units(self):
         return ["rad"] * len(self.joints)
+
+    def plausible_max(self):
+        return [math.radians(MAX_BACKLASH_DEG)] * len(self.joints)
 
     def joint_offset(self, p, ctx):
         cols = ctx.approach[:, [j - 1 for j in self.joints]] * (0.5 * p)  # (N, J)

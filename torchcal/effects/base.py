@@ -183,12 +183,13 @@ class Effect:
         raise NotImplementedError
 
     def plausible_max(self) -> list[float] | None:
-        """Largest plausible |p| per parameter, in the units of `param_units` (None: no
-        limit, the default). A fit holds a free parameter that ends beyond its limit at
-        zero and fits again (torchcal.calibration.plausibility), as it does for MD-H
-        deviations: a value no real robot has means the parameter absorbed something
-        else, typically a combination of nearly dependent columns that cancels on the
-        calibration poses and explodes outside them."""
+        """Plausible size |p| per parameter, in the units of `param_units` (None: no
+        prior, the default; an inf entry: none for that parameter). The fit puts a weak
+        Gaussian prior of this scale on each parameter (torchcal.calibration.plausibility),
+        as it does on the MD-H deviations, and names the parameters that end beyond it: a
+        value no real robot has means the parameter absorbed something else, typically a
+        combination of nearly dependent columns that cancels on the calibration poses and
+        explodes outside them. docs/effects.md lists the built-in effects' scales."""
         return None
 
     @property

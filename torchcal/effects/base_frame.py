@@ -21,6 +21,10 @@ class BaseFrame(Effect):
     def param_units(self):
         return ["mm", "mm", "mm", "rad", "rad", "rad"]
 
+    def plausible_max(self):
+        """No prior: the base frame is where the instrument stands, any pose."""
+        return None
+
     def world(self, p, ctx, v):
         return v @ rotvec_to_matrix(p[3:6]).T + p[:3]
 

@@ -6,6 +6,10 @@ Parameters (1 per joint): ``scale_J`` (dimensionless); the joint turns
 
 from torchcal.effects.base import Effect, joint_columns, scatter_joints
 
+#: plausible relative scale error: an encoder or a gear ratio off by more than 0.5 %
+#: would be a wrong robot file, not a calibration error
+MAX_SCALE = 5e-3
+
 
 class EncoderScale(Effect):
     name = "encoder_scale"
@@ -16,6 +20,9 @@ class EncoderScale(Effect):
 
     def param_units(self):
         return ["1"] * len(self.joints)
+
+    def plausible_max(self):
+        return [MAX_SCALE] * len(self.joints)
 
     def joint_offset(self, p, ctx):
         cols = ctx.q[:, [j - 1 for j in self.joints]] * p  # (N, J)

@@ -14,12 +14,13 @@ import torch
 from torchcal.effects.base import Effect, joint_columns, scatter_joints
 
 HARMONICS = (1, 2, 3, 4)
-#: largest plausible sine or cosine amplitude of one harmonic (deg). The transmission
-#: error of an industrial gear is arc minutes; a fit beyond a degree has used the
+#: plausible sine or cosine amplitude of one harmonic (deg), the scale of the fit's prior.
+#: The transmission error of an industrial reducer (harmonic drive, RV, cycloid) is about
+#: an arc minute (0.017 deg); 0.1 deg is six times that. Larger fits have used the
 #: harmonics as a polynomial over a narrow range of the joint (on a real UR10 session
 #: whose joint 2 spanned 64 deg: amplitudes of 17 rad that cancel on the calibration
 #: poses and gave 1.1 m of error at a pose 32 deg outside that range).
-MAX_AMPLITUDE_DEG = 1.0
+MAX_AMPLITUDE_DEG = 0.1
 
 
 class GearPeriodic(Effect):

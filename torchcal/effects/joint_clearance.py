@@ -13,10 +13,16 @@ Random role (simulation, and the variance model of `diagnose`): `random_basis` g
 TCP displacement per unit tilt of the axis about the two directions perpendicular to it.
 """
 
+import math
+
 import torch
 
 from torchcal.effects.base import Effect
 
+#: plausible axis tilt (deg) and shift (mm) inside a bearing: clearances of hundredths of
+#: a mm over bearing lengths of tens of mm
+MAX_TILT_DEG = 0.1
+MAX_SHIFT_MM = 0.5
 SATURATION_MM = 50.0  # lever below which the pushing moment fades (smooth sign)
 SATURATION_FORCE = 0.05  # fraction of gravity below which the pushing force fades
 
@@ -62,6 +68,9 @@ class JointClearance(Effect):
 
     def param_units(self):
         return ["rad", "mm"] * len(self.joints)
+
+    def plausible_max(self):
+        return [math.radians(MAX_TILT_DEG), MAX_SHIFT_MM] * len(self.joints)
 
     def displacement(self, p, ctx, v):
         out = torch.zeros_like(v)

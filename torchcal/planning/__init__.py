@@ -1,6 +1,9 @@
-"""Measurement planning: optimal pose selection (design) and pose ordering (order)."""
+"""Measurement planning: optimal pose selection (design) and pose ordering (order).
+"""
 
-from torchcal.planning.design import CRITERIA, Plan, criterion, observability, select
-from torchcal.planning.order import order_poses, path_length
+from torchcal._lazy import attach
 
-__all__ = ["CRITERIA", "Plan", "criterion", "observability", "select", "order_poses", "path_length"]
+__getattr__, __dir__, __all__ = attach(__name__, {
+    "torchcal.planning.design": ["CRITERIA", "Plan", "criterion", "observability", "select"],
+    "torchcal.planning.order": ["order_poses", "path_length"],
+})

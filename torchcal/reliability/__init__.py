@@ -1,14 +1,15 @@
 """Interval reliability: interval arithmetic, the reliability index R_set, joint-clearance
 uncertainty and the workspace sweep of the paper.
 
-`torchcal.reliability.sweep.sweep` is reached through its module (it shares its name)."""
+`torchcal.reliability.sweep.sweep` is reached through its module (it shares its name).
+"""
 
-from torchcal.reliability.interval import Interval, linear_hull, sample_hull
-from torchcal.reliability.rset import eta, interference, r_set
-from torchcal.reliability.sweep import SweepResult, Workspace, linear_bounds, sample_workspace
-from torchcal.reliability.uncertainty import (ClearanceModel, clearance_from_dict, deviation_map, sample_deviations,
-                                              sample_states, states_to_deviations)
+from torchcal._lazy import attach
 
-__all__ = ["Interval", "linear_hull", "sample_hull", "eta", "interference", "r_set", "SweepResult", "Workspace",
-           "linear_bounds", "sample_workspace", "ClearanceModel", "clearance_from_dict", "deviation_map",
-           "sample_deviations", "sample_states", "states_to_deviations"]
+__getattr__, __dir__, __all__ = attach(__name__, {
+    "torchcal.reliability.interval": ["Interval", "linear_hull", "sample_hull"],
+    "torchcal.reliability.rset": ["eta", "interference", "r_set"],
+    "torchcal.reliability.sweep": ["SweepResult", "Workspace", "linear_bounds", "sample_workspace"],
+    "torchcal.reliability.uncertainty": ["ClearanceModel", "clearance_from_dict", "deviation_map",
+                                         "sample_deviations", "sample_states", "states_to_deviations"],
+})

@@ -1,5 +1,8 @@
-"""Simulation: a virtual robot that carries errors its fitted model may lack (poses: `torchcal.robots.random_poses`)."""
+"""Simulation: a virtual robot that carries errors its fitted model may lack (poses: `torchcal.robots.random_poses`).
+"""
 
-from torchcal.simulation.virtual_robot import VirtualRobot, default_masses
+from torchcal._lazy import attach
 
-__all__ = ["VirtualRobot", "default_masses"]
+__getattr__, __dir__, __all__ = attach(__name__, {
+    "torchcal.simulation.virtual_robot": ["VirtualRobot", "default_masses"],
+})

@@ -1,4 +1,4 @@
-"""Time `diagnose` and `discover` at real-data scale (issue 14).
+"""Time `diagnose` and `discover` at real-data scale.
 
 Simulated sessions of the KR 1000 Titan (the project's simulator): 250, 1000 and 4000
 poses, one row each, 0.02 mm noise, with two hidden effects (``joint_compliance:2`` and

@@ -1,7 +1,7 @@
 """`torchcal demo` (torchcal.workflows.paper_experiment) and the `calibrate` / `compensate` commands.
 
 The demo's tests assert properties every honest run must have, on a small configuration
-over two seeds (no figures of the paper, no wall-clock): the issue 13 JSON keys, fresh
+over two seeds (no figures of the paper, no wall-clock): the multi-seed JSON keys, fresh
 test moves and disjoint poses, the reduction formula against a hand computation, the
 confidence intervals and the paired test against numpy/scipy, and checked compensation.
 """

@@ -1,4 +1,4 @@
-"""Gross outliers (issue 9): 2% of 240 training rows off by 5 mm in a random direction.
+"""Gross outliers: 2% of 240 training rows off by 5 mm in a random direction.
 `torchcal fit --robust huber|cauchy` flags those pose ids and the fit is not corrupted:
 the held-out RMS on 120 clean poses stays within 10% of the fit on clean data."""
 

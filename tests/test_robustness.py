@@ -1,4 +1,4 @@
-"""Robustness of the command line (issue 9): every bad input gives one clear line on
+"""Robustness of the command line: every bad input gives one clear line on
 stderr naming the file / row / column or the option, a non-zero exit, no traceback and no
 output file (an existing output is left untouched); too few poses and rank-deficient data
 are explained; the same inputs and seed give byte-identical JSON."""

@@ -1,4 +1,4 @@
-"""What the model leaves unexplained (issue 14): repeats of a pose are one piece of
+"""What the model leaves unexplained: repeats of a pose are one piece of
 evidence; the noise floor comes from repeats; structure outside the vocabulary is reported
 with the variable it depends on; a right model leaves nothing significant.
 
@@ -163,3 +163,18 @@ def test_probe_reports_a_smooth_error_as_learnable_from_its_joint():
     assert d["learnable_rms_mm"] < 0.6 * d["rms_mm"], d
     assert [c["variable"] for c in d["carried_by"]] == ["q3"], d["carried_by"]
     assert "mm learnable from q3" in u.describe()
+
+
+def test_discover_json_is_valid_when_the_probe_chooses_no_input(tmp_path):
+    """Nothing learnable (geometric-only data): the probe picks no input, and the history
+    JSON (strict JSON, no NaN) says so with null length scale and ridge."""
+    import json
+
+    from torchcal.cli import main
+
+    data, hist = tmp_path / "d.csv", tmp_path / "h.json"
+    assert main(["simulate", "--robot", "ur5e", "--n", "60", "--noise", "0.02", "--seed", "4",
+                 "--out", str(data)]) == 0
+    assert main(["discover", str(data), "--robot", "ur5e", "--json", str(hist)]) == 0
+    probe = json.loads(hist.read_text())["unexplained"]["probe"]
+    assert probe["inputs"] == [] and probe["length_scale_rad"] is None and probe["ridge"] is None

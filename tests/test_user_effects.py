@@ -130,7 +130,7 @@ def test_q_prev_gives_full_session_directions_on_any_subset():
 
 
 def test_backlash_fits_exactly_on_every_other_row():
-    """Noise-free backlash:3: the fit on every other row leaves < 1e-6 mm (issue 14; it
+    """Noise-free backlash:3: the fit on every other row leaves < 1e-6 mm (it
     was 0.25 mm when the subset's own order gave the approach directions)."""
     robot = torchcal.robot("kr1000titan")
     vr = VirtualRobot(robot, ["backlash:3"], seed=1, geometric_scale=0)

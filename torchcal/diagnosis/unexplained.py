@@ -104,8 +104,10 @@ class Unexplained:
             pr = self.probe
             out["learnable_rms_mm"] = self.learnable_rms_mm
             out["carried_by"] = [{"variable": v, "relevance": float(s)} for v, s in self.carried_by]
-            out["probe"] = {"p_value": pr.p_value, "inputs": list(pr.inputs), "length_scale_rad": pr.length_scale,
-                            "ridge": pr.ridge}
+            chosen = bool(pr.inputs)  # no input chosen: no kernel, so no length scale or ridge (null)
+            out["probe"] = {"p_value": pr.p_value, "inputs": list(pr.inputs),
+                            "length_scale_rad": pr.length_scale if chosen else None,
+                            "ridge": pr.ridge if chosen else None}
         return out
 
     def learnable_words(self) -> str:

@@ -70,8 +70,8 @@ class DemoRun:
         return out
 
     def to_json(self) -> dict:
-        """The `torchcal demo --json` document: the first seed's details (issue 6 keys) plus
-        the issue 13 keys (seeds, truth_effects, methods, partitioned_vs_global)."""
+        """The `torchcal demo --json` document: the first seed's details (the single-seed keys) plus
+        the multi-seed keys (seeds, truth_effects, methods, partitioned_vs_global)."""
         res, cfg = self.first, self.config
         ev = res.after["paper_partitioned"]
         points = []

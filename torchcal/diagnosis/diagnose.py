@@ -106,7 +106,7 @@ def where_it_fails(robot: Robot, m: Measurements, residuals: torch.Tensor, bins:
 def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: int = 0, *,
              alpha: float = ALPHA, min_gain: float = MIN_GAIN, base_fit: FitResult | None = None,
              current: Scored | None = None, refits: int = REFITS, refit_alpha: float = REFIT_ALPHA,
-             sigma_mm: float = SIGMA_MM, sigma_deg: float = SIGMA_DEG) -> Diagnosis:
+             sigma_mm: float = SIGMA_MM, sigma_deg: float = SIGMA_DEG, report_rest: bool = True) -> Diagnosis:
     """Which effect is missing from `robot` + `effects` on measurements m (module doc).
 
     alpha: the budget of the step (its pre-screen spends half of it, so that `discover`'s
@@ -115,7 +115,8 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
     fit (default: fitted here as `torchcal fit` does; its model then overrides
     `effects`); current: its already scored figures (`discover` passes the accepted
     refit of the previous round). sigma_mm / sigma_deg: the orientation weighting, as in
-    `fit`.
+    `fit`. report_rest: also probe what remains (`unexplained`); `discover` probes only its
+    final model.
     """
     ctx = context_of(robot, m)
     if base_fit is None:
@@ -134,7 +135,7 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
     where = where_it_fails(robot, m, base_fit.residuals)
     rest = base_fit.residuals if acc is None else acc.fit.residuals
     return Diagnosis(specs, base_fit, current.cv_rms_mm, screen.candidates, verdict, step, where,
-                     unexplained(robot, m, rest, seed=seed))
+                     unexplained(robot, m, rest, seed=seed) if report_rest else None)
 
 
 @dataclass
@@ -167,7 +168,7 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
     current = None
     for i in range(max_rounds + 1):
         d = diagnose(robot, m, folds=folds, seed=seed, base_fit=base, current=current, alpha=alpha / 2 ** i,
-                     sigma_mm=sigma_mm, sigma_deg=sigma_deg)
+                     sigma_mm=sigma_mm, sigma_deg=sigma_deg, report_rest=False)  # the final model's, once, below
         diagnoses.append(d)
         cur = d.step.current
         history.append({"effects": list(cur.effects), "rms_mm": cur.rms_mm, "cv_rms_mm": cur.cv_rms_mm,

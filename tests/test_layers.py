@@ -130,3 +130,26 @@ def test_the_kernel_checker_sees_calls():
     """Not vacuous: the model's calls of the position kernel are found."""
     assert any(name == "positions" for _, name in _calls(ROOT / "calibration" / "model.py"))
     assert len(SOURCES) > 100
+
+
+# -- Context in its own module ---------------------------------------------------------------
+CONTEXT_NAMES = {"Context", "make_context", "context_of", "approach_directions"}
+
+
+def test_context_is_defined_in_its_own_module():
+    """Context and its builders are defined in torchcal.effects.context only, and nothing
+    imports them from torchcal.effects.base (no alias left there)."""
+    defined = {}
+    for p in sorted(ROOT.rglob("*.py")):
+        for node in ast.parse(p.read_text()).body:
+            if isinstance(node, (ast.ClassDef, ast.FunctionDef)) and node.name in CONTEXT_NAMES:
+                defined.setdefault(node.name, []).append(str(p.relative_to(ROOT.parent)))
+    assert defined == {name: ["torchcal/effects/context.py"] for name in CONTEXT_NAMES}
+    bad = [f"{p.relative_to(ROOT.parent)}:{node.lineno}" for p in SOURCES for node in ast.walk(ast.parse(p.read_text()))
+           if isinstance(node, ast.ImportFrom) and node.module == "torchcal.effects.base"
+           and CONTEXT_NAMES & {a.name for a in node.names}]
+    assert not bad, bad
+    import torchcal.effects as effects
+    import torchcal.effects.base as base
+    assert effects.Context.__module__ == "torchcal.effects.context"
+    assert not CONTEXT_NAMES & set(vars(base))

@@ -12,7 +12,7 @@ from __future__ import annotations
 import torch
 
 from torchcal.kinematics import mdh as K
-from torchcal.effects.base import Context
+from torchcal.effects.context import Context
 from torchcal.calibration.model import CalibrationModel
 
 __all__ = ["batched_predict", "batched_jacobian"]

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import torch
 
 from torchcal.kinematics import mdh as K
-from torchcal.effects.base import Context, approach_directions
+from torchcal.effects.context import Context, approach_directions
 from torchcal.errors import InputError
 from torchcal.calibration.model import CalibrationModel
 

@@ -23,7 +23,7 @@ import torch
 
 from torchcal.kinematics import mdh as K
 from torchcal.effects import Effect, build
-from torchcal.effects.base import Context
+from torchcal.effects.context import Context
 from torchcal.robots.robot import Robot
 
 

@@ -119,7 +119,7 @@ def pk_chain(robot, params, dtype, device):
     zero = torch.zeros(1, dtype=torch.float64)
 
     def md_h(row):  # (5,) -> (4, 4): A at q = 0
-        return K.link_transforms(zero, row.view(1, 5))[0]
+        return K.link_transforms(zero, K.Chain.revolute(row.view(1, 5)))[0]
 
     prev = robot.base.to(torch.float64)
     origins = []

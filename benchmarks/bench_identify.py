@@ -84,8 +84,7 @@ def run_case(title, r, model, zones, repeat):
         jac = lambda x: batched_jacobian(model, x, ctxs).reshape(Z, 3 * m, P)  # noqa: E731
         return levenberg_marquardt(res, x0, free=free, jacobian_fn=jac)
 
-    table, base, tool = r.table, r.base, r.tool
-    tool_point = tool[:3, 3]
+    chain = r.chain
 
     def scipy_zone(z):
         idx = free[z].nonzero().flatten()
@@ -104,12 +103,11 @@ def run_case(title, r, model, zones, repeat):
                 return model.jacobian(full(xf), ctx).reshape(3 * m, P)[:, idx].numpy()
         else:  # MD-H kernel and its analytic Jacobian (eq. 17)
             def fun(xf):
-                return (K._positions_kernel(ctx.q, table, full(xf).reshape(r.n, 5), base, tool_point)
+                return (K.positions(ctx.q, chain, full(xf).reshape(r.n, 5))
                         - t).reshape(-1).numpy()
 
             def jac(xf):
-                return K.param_jacobian(ctx.q, table, full(xf).reshape(r.n, 5), base, tool
-                                        ).reshape(3 * m, P)[:, idx].numpy()
+                return K.param_jacobian(ctx.q, chain, full(xf).reshape(r.n, 5)).reshape(3 * m, P)[:, idx].numpy()
         return scipy.optimize.least_squares(fun, np.zeros(len(idx)), jac=jac, method="lm",
                                             xtol=1e-12, ftol=1e-12, gtol=1e-12)
 

@@ -46,8 +46,8 @@ def _fk_part(poses: int, sets: int, repeats: int, serial: bool) -> dict:
     q = torch.rand(poses, robot.n, generator=g, dtype=torch.float64) * 2 - 1
     params = (torch.rand(sets, 1, robot.n, 5, generator=g, dtype=torch.float64) - 0.5) * 1e-3
     if serial:  # the old way: every chunk on the calling thread, ops split over all threads
-        fk = lambda: [K._positions_kernel(q, robot.table, params[i:i + 64], None,  # noqa: E731
-                                          robot.tool[:3, 3]) for i in range(0, sets, 64)]
+        fk = lambda: [K.positions(q, robot.chain, params[i:i + 64])  # noqa: E731
+                      for i in range(0, sets, 64)]
     else:
         fk = lambda: robot.fk(q, params)  # noqa: E731
     fk()

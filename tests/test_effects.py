@@ -19,7 +19,7 @@ import torch
 from torch.testing import assert_close
 
 from torchcal.effects import REGISTRY, build, make_context
-from torchcal.effects.base import approach_directions
+from torchcal.effects.context import approach_directions
 from torchcal.effects.joint_clearance import load_directions
 from torchcal.effects.joint_compliance import G_NM_PER_KG_MM, JointCompliance
 from torchcal.errors import InputError

@@ -67,13 +67,12 @@ def test_chain_jacobians_match_autodiff(name, ur10):
     robot = ur10 if name == "ur10" else torchcal.robot(name)
     ctx = _context(robot, 12)
     geo = (torch.rand(robot.n, 5, generator=torch.Generator().manual_seed(3), dtype=torch.float64) - 0.5) * 0.02
-    table, tp = robot.table, torch.tensor([10.0, -20.0, 130.0], dtype=torch.float64)
-    base = robot.base
+    chain, tp = robot.chain, torch.tensor([10.0, -20.0, 130.0], dtype=torch.float64)
 
     def pos(q, params, t):
-        return K._positions_kernel(q, table, params.reshape(robot.n, 5), base, t)
+        return K.positions(q, chain, params.reshape(robot.n, 5), tool_point=t)
 
-    cj = K.chain_jacobians(ctx.q, table, geo, base, tp)
+    cj = K.chain_jacobians(ctx.q, chain, geo, tool_point=tp)
     assert_close(cj.position, pos(ctx.q, geo, tp))
     jq = torch.func.vmap(torch.func.jacfwd(lambda q: pos(q, geo, tp)))(ctx.q)
     assert_close(cj.dq, jq)
@@ -82,7 +81,7 @@ def test_chain_jacobians_match_autodiff(name, ur10):
     jt = torch.func.jacfwd(lambda t: pos(ctx.q, geo, t))(tp)
     assert_close(cj.rotation, jt)
     # angular velocity: dR/dx R^T = [w]x
-    rot = lambda p: K.fk_pose(ctx.q, table, p.reshape(robot.n, 5), base)[..., :3, :3]  # noqa: E731
+    rot = lambda p: K.fk_pose(ctx.q, chain.flange, p.reshape(robot.n, 5))[..., :3, :3]  # noqa: E731
     dR = torch.func.jacfwd(rot)(geo.reshape(-1))  # (N, 3, 3, 5n)
     Om = torch.einsum("nijk,nlj->nkil", dR, rot(geo.reshape(-1)))
     assert_close(cj.wparams, torch.stack([Om[..., 2, 1], Om[..., 0, 2], Om[..., 1, 0]], dim=1))

@@ -235,8 +235,7 @@ def _jac_case(name, batch, dtype, seed=5):
     gen = _gen(seed)
     q = _random_q(robot, batch, gen, dtype)
     params = _random_params(robot, batch, gen, dtype)
-    table, base, tool = robot.table.to(dtype), robot.base.to(dtype), robot.tool.to(dtype)
-    return robot, q, params, table, base, tool
+    return robot, q, params, robot.chain.to(dtype)
 
 
 def _per_sample(fn, q, params, n):
@@ -255,15 +254,15 @@ def _assert_close_rel(actual, expected, rel):
 @pytest.mark.parametrize("batch", BATCHES, ids=str)
 @pytest.mark.parametrize("name", PRESETS)
 def test_param_jacobian_matches_autograd(name, batch, dtype):
-    robot, q, params, table, base, tool = _jac_case(name, batch, dtype)
+    robot, q, params, chain = _jac_case(name, batch, dtype)
     n = robot.n
 
     def fk(qi, pi):  # the strict kernel: Robot.fk's input checks are data-dependent
-        return K.fk_positions(qi, table, pi, base, tool)
+        return K.fk_positions(qi, chain, pi)
 
     auto = _per_sample(lambda qi, pi: torch.func.jacrev(fk, argnums=1)(qi, pi), q, params, n)
     auto = auto.reshape(*batch, 3, 5 * n)  # (..., 3, n, 5) -> joint-major columns
-    ana = K.param_jacobian(q, table, params, base, tool)
+    ana = K.param_jacobian(q, chain, params)
     assert ana.shape == (*batch, 3, 5 * n) and ana.dtype == dtype
     _assert_close_rel(ana, auto, 1e-9 if dtype == torch.float64 else 2e-5)
     # the Robot entry point gives the same
@@ -274,13 +273,13 @@ def test_param_jacobian_matches_autograd(name, batch, dtype):
 @pytest.mark.parametrize("batch", BATCHES, ids=str)
 @pytest.mark.parametrize("name", PRESETS)
 def test_joint_jacobian_matches_autograd(name, batch, dtype):
-    robot, q, params, table, base, tool = _jac_case(name, batch, dtype, seed=6)
+    robot, q, params, chain = _jac_case(name, batch, dtype, seed=6)
 
     def fk(qi, pi):
-        return K.fk_positions(qi, table, pi, base, tool)
+        return K.fk_positions(qi, chain, pi)
 
     auto = _per_sample(lambda qi, pi: torch.func.jacrev(fk, argnums=0)(qi, pi), q, params, robot.n)
-    ana = K.joint_jacobian(q, table, params, base, tool)
+    ana = K.joint_jacobian(q, chain, params)
     assert ana.shape == (*batch, 3, robot.n) and ana.dtype == dtype
     _assert_close_rel(ana, auto, 1e-9 if dtype == torch.float64 else 2e-5)
 
@@ -288,20 +287,20 @@ def test_joint_jacobian_matches_autograd(name, batch, dtype):
 @pytest.mark.parametrize("batch", BATCHES, ids=str)
 @pytest.mark.parametrize("name", PRESETS)
 def test_jacobians_match_central_differences(name, batch):
-    robot, q, params, table, base, tool = _jac_case(name, batch, torch.float64, seed=7)
+    robot, q, params, chain = _jac_case(name, batch, torch.float64, seed=7)
     n, h = robot.n, 1e-6  # rad or mm
 
     def fk(q_, p_):
-        return K.fk_positions(q_, table, p_, base, tool)
+        return K.fk_positions(q_, chain, p_)
 
     # parameters: all 5n perturbations as one leading batch dim
     E = torch.eye(5 * n, dtype=torch.float64).reshape(5 * n, *(1,) * len(batch), n, 5) * h
     fd = (fk(q, params + E) - fk(q, params - E)) / (2 * h)  # (5n, ..., 3)
-    _assert_close_rel(K.param_jacobian(q, table, params, base, tool), fd.movedim(0, -1), 1e-6)
+    _assert_close_rel(K.param_jacobian(q, chain, params), fd.movedim(0, -1), 1e-6)
     # joints
     E = torch.eye(n, dtype=torch.float64).reshape(n, *(1,) * len(batch), n) * h
     fd = (fk(q + E, params) - fk(q - E, params)) / (2 * h)  # (n, ..., 3)
-    _assert_close_rel(K.joint_jacobian(q, table, params, base, tool), fd.movedim(0, -1), 1e-6)
+    _assert_close_rel(K.joint_jacobian(q, chain, params), fd.movedim(0, -1), 1e-6)
 
 
 def test_param_jacobian_without_params_is_at_nominal():
@@ -358,16 +357,16 @@ def test_chunked_equals_unchunked(q_batch, p_batch, dtype):
     gen = _gen(11)
     q = _random_q(robot, q_batch, gen, dtype)
     params = None if p_batch is None else _random_params(robot, p_batch, gen, dtype)
-    table, base, tool = robot.table.to(dtype), robot.base.to(dtype), robot.tool.to(dtype)
-    whole = K.fk_positions(q, table, params, base, tool, chunk=10 ** 9)
-    pieces = K.fk_positions(q, table, params, base, tool, chunk=64)
+    chain = robot.chain.to(dtype)
+    whole = K.fk_positions(q, chain, params, chunk=10 ** 9)
+    pieces = K.fk_positions(q, chain, params, chunk=64)
     expected_shape = torch.broadcast_shapes(q_batch, () if p_batch is None else p_batch) + (3,)
     assert whole.shape == pieces.shape == expected_shape
     # equal up to rounding (vectorised and scalar-tail trig paths differ in the last bit)
     eps = torch.finfo(dtype).eps
     torch.testing.assert_close(pieces, whole, atol=16 * eps * whole.abs().max().item(), rtol=0)
     # and the position kernel agrees with the 4x4 chain
-    pose = K.fk_pose(q, table, params, base, tool)
+    pose = K.fk_pose(q, chain, params)
     atol = 1e-9 if dtype == torch.float64 else 5e-3
     torch.testing.assert_close(whole, pose[..., :3, 3].expand_as(whole), atol=atol, rtol=0)
 
@@ -460,12 +459,13 @@ def test_outer_positions_equals_fk_positions():
     g = torch.Generator().manual_seed(3)
     q = torch.rand(7, 6, generator=g, dtype=torch.float64) * 2 - 1
     dev = torch.randn(5, 6, 5, generator=g, dtype=torch.float64) * 1e-3
-    tool = torch.tensor([10.0, -20.0, 150.0], dtype=torch.float64)
-    F = K.outer_factors(robot.table, dev)
+    tool = torch.eye(4, dtype=torch.float64)
+    tool[:3, 3] = torch.tensor([10.0, -20.0, 150.0], dtype=torch.float64)
+    chain = K.Chain(robot.table, robot.prismatic, torch.eye(4, dtype=torch.float64), tool)
+    F = K.outer_factors(chain, dev)
     bufs = [torch.empty(7, 5, dtype=torch.float64) for _ in range(7)]
-    got = torch.stack(K.outer_positions(torch.cos(q).T.contiguous(), torch.sin(q).T.contiguous(), F, tool, bufs), -1)
-    want = K.fk_positions(q[:, None, :], robot.table, dev[None], tool=torch.eye(4, dtype=torch.float64).index_put(
-        (torch.arange(3), torch.full((3,), 3)), tool))
+    got = torch.stack(K.outer_positions(K.outer_angles(q, chain), chain, F, bufs), -1)
+    want = K.fk_positions(q[:, None, :], chain, dev[None])
     torch.testing.assert_close(got, want, rtol=0, atol=1e-9)
 
 

@@ -95,3 +95,61 @@ def test_the_checker_sees_imports():
     assert any(i.startswith("torchcal.") for i in MODULES["torchcal.cli.fit"])
     assert hits({"torchcal.cli._args"}, ["torchcal.cli"]) and not hits({"torchcal.client"}, ["torchcal.cli"])
     assert "torchcal.reliability.sweep" in MODULES["torchcal.io.sweep_csv"]
+
+
+# -- one kinematic structure: the kernels of torchcal.kinematics.mdh take a Chain -----------
+KERNEL_NAMES = {"link_transforms", "fk_frames", "fk_pose", "positions", "fk_positions", "chain_jacobians",
+                "param_jacobian", "joint_jacobian", "outer_factors", "outer_angles", "outer_positions"}
+SOURCES = sorted(p for d in ("torchcal", "tests", "benchmarks", "viz", "examples")
+                 for p in (ROOT.parent / d).rglob("*.py"))
+
+
+def _calls(path: Path):
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Call):
+            f = node.func
+            yield node, f.attr if isinstance(f, ast.Attribute) else getattr(f, "id", None)
+
+
+def test_no_module_passes_a_prismatic_keyword_to_a_kernel():
+    bad = [f"{p.relative_to(ROOT.parent)}:{c.lineno}" for p in SOURCES for c, name in _calls(p)
+           if name in KERNEL_NAMES and any(k.arg in ("prismatic", "table", "base", "tool", "tz") for k in c.keywords)]
+    assert not bad, bad
+
+
+def test_no_module_uses_a_private_kernel_or_the_pris_alias():
+    bad = []
+    for p in SOURCES:
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, ast.Attribute) and (node.attr in ("pris", "_positions_kernel")):
+                bad.append(f"{p.relative_to(ROOT.parent)}:{node.lineno} .{node.attr}")
+    assert not bad, bad
+
+
+def test_the_kernel_checker_sees_calls():
+    """Not vacuous: the model's calls of the position kernel are found."""
+    assert any(name == "positions" for _, name in _calls(ROOT / "calibration" / "model.py"))
+    assert len(SOURCES) > 100
+
+
+# -- Context in its own module ---------------------------------------------------------------
+CONTEXT_NAMES = {"Context", "make_context", "context_of", "approach_directions"}
+
+
+def test_context_is_defined_in_its_own_module():
+    """Context and its builders are defined in torchcal.effects.context only, and nothing
+    imports them from torchcal.effects.base (no alias left there)."""
+    defined = {}
+    for p in sorted(ROOT.rglob("*.py")):
+        for node in ast.parse(p.read_text()).body:
+            if isinstance(node, (ast.ClassDef, ast.FunctionDef)) and node.name in CONTEXT_NAMES:
+                defined.setdefault(node.name, []).append(str(p.relative_to(ROOT.parent)))
+    assert defined == {name: ["torchcal/effects/context.py"] for name in CONTEXT_NAMES}
+    bad = [f"{p.relative_to(ROOT.parent)}:{node.lineno}" for p in SOURCES for node in ast.walk(ast.parse(p.read_text()))
+           if isinstance(node, ast.ImportFrom) and node.module == "torchcal.effects.base"
+           and CONTEXT_NAMES & {a.name for a in node.names}]
+    assert not bad, bad
+    import torchcal.effects as effects
+    import torchcal.effects.base as base
+    assert effects.Context.__module__ == "torchcal.effects.context"
+    assert not CONTEXT_NAMES & set(vars(base))

@@ -25,6 +25,7 @@ import torch
 import torchcal
 from torchcal import cli
 from torchcal.kinematics import mdh as K
+from torchcal.kinematics.chain import Chain
 from torchcal.errors import InputError
 from torchcal.reliability.interval import Interval
 from torchcal.io.sweep_csv import read_sweep, write_sweep
@@ -51,7 +52,7 @@ def _rotvec(w):
 def _explicit_tcp(robot, model, q, states):
     """TCP with each joint axis moved as a rigid body (the model's definition, exact)."""
     table = robot.table
-    A = K.link_transforms(q, table)  # (n, 4, 4)
+    A = K.link_transforms(q, robot.chain)  # (n, 4, 4)
     L = model.bearing_length_mm
     T = torch.eye(4, dtype=torch.float64)
     for j in range(robot.n):
@@ -64,7 +65,7 @@ def _explicit_tcp(robot, model, q, states):
             Rz = torch.eye(4, dtype=torch.float64)
             c, s = torch.cos(q[0] + table[0, 0]), torch.sin(q[0] + table[0, 0])
             Rz[0, 0], Rz[0, 1], Rz[1, 0], Rz[1, 1] = c, -s, s, c
-            S = K.link_transforms(-table[:1, 0], table[:1])[0]
+            S = K.link_transforms(-table[:1, 0], Chain.revolute(table[:1]))[0]
             T = T @ Rz @ E @ S
         else:  # joint j: pivot at the origin of frame j-1, fixed to link j-1
             T = T @ E @ A[j]
@@ -115,7 +116,7 @@ def test_eq14_twist_columns_match_autograd():
         q = torch.randn(1, generator=g, dtype=torch.float64)
 
         def A(p):
-            return K.link_transforms(q, row[None], p[None])[0]
+            return K.link_transforms(q, Chain.revolute(row[None]), p[None])[0]
 
         p0 = torch.zeros(5, dtype=torch.float64)
         dA = torch.autograd.functional.jacobian(A, p0)  # (4, 4, 5)

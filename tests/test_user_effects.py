@@ -16,7 +16,7 @@ from torchcal.calibration.fit import fit
 from torchcal.calibration.model import CalibrationModel
 from torchcal.cli import main
 from torchcal.effects import REGISTRY, build, load_entry_points, load_module, make_context, unregister
-from torchcal.effects.base import approach_directions
+from torchcal.effects.context import approach_directions
 from torchcal.effects.spec import EFFECTS
 from torchcal.errors import InputError
 from torchcal.robots.poses import random_poses

@@ -59,7 +59,7 @@ class Measurements:
             row: per joint, the last commanded angle before the row that differs from the
             row's (the previous row where the joint moved; a repeat of a pose looks past
             the rows that did not move it), all-zero joints before the first row. Its sign
-            against q is the approach direction (`torchcal.effects.base.make_context`).
+            against q is the approach direction (`torchcal.effects.context.make_context`).
             Computed from `q` when not given, and carried by `subset`, so
             direction-dependent effects (backlash) stay right on a subset. Not stored in
             the file: writing a subset and reading it back recomputes it from the

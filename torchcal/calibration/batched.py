@@ -12,7 +12,7 @@ from __future__ import annotations
 import torch
 
 from torchcal.kinematics import mdh as K
-from torchcal.effects.base import Context
+from torchcal.effects.context import Context
 from torchcal.calibration.model import CalibrationModel
 
 __all__ = ["batched_predict", "batched_jacobian"]
@@ -38,9 +38,7 @@ def batched_predict(model: CalibrationModel, x: torch.Tensor, ctxs: list[Context
     robot = model.robot
     if not model.effects:
         geo = x[:, : 5 * robot.n].reshape(-1, 1, robot.n, 5)  # (B, 1, n, 5)
-        tool = robot.tool[:3, 3].to(x)
-        return K._positions_kernel(st["q"].to(x), robot.table.to(x), geo, robot.base.to(x), tool,
-                                    prismatic=robot.pris)
+        return K.positions(st["q"].to(x), robot.chain.to(x), geo)
     g = st["gravity"]
     if st["temp"] is None:
         def one(th, q, pl, ap, fr):
@@ -63,6 +61,5 @@ def batched_jacobian(model: CalibrationModel, x: torch.Tensor, ctxs: list[Contex
     if not model.effects:
         st = _stack_contexts(ctxs)
         geo = x[:, : 5 * robot.n].reshape(-1, 1, robot.n, 5)
-        return K.param_jacobian(st["q"].to(x), robot.table.to(x), geo, robot.base.to(x), robot.tool.to(x),
-                                    prismatic=robot.pris)
+        return K.param_jacobian(st["q"].to(x), robot.chain.to(x), geo)
     return torch.stack([model.jacobian(xb, c) for xb, c in zip(x, ctxs)])

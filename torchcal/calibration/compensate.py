@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import torch
 
 from torchcal.kinematics import mdh as K
-from torchcal.effects.base import Context, approach_directions
+from torchcal.effects.context import Context, approach_directions
 from torchcal.errors import InputError
 from torchcal.calibration.model import CalibrationModel
 
@@ -94,7 +94,7 @@ def _per_row_theta(model: CalibrationModel, theta, zone, M: int) -> torch.Tensor
 
 def _context(model: CalibrationModel, q, approach, payload, temp) -> Context:
     robot = model.robot
-    frames = K.fk_frames(q, robot.table.to(q), None, robot.base.to(q), robot.tool.to(q), robot.pris)
+    frames = K.fk_frames(q, robot.chain.to(q))
     return Context(q, payload, temp, approach, frames, robot.gravity.to(q))
 
 
@@ -109,8 +109,7 @@ def predict_rows(model: CalibrationModel, thetas: torch.Tensor, q: torch.Tensor,
     M = q.shape[0]
     if not model.effects:
         geo = thetas[:, : 5 * robot.n].reshape(M, robot.n, 5)
-        return K._positions_kernel(q, robot.table.to(q), geo, robot.base.to(q), robot.tool[:3, 3].to(q),
-                                    prismatic=robot.pris)
+        return K.positions(q, robot.chain.to(q), geo)
     approach = approach_directions(q.detach()) if approach is None else approach
     payload = torch.zeros(M, dtype=q.dtype, device=q.device) if payload_kg is None else payload_kg
     ctx = _context(model, q, approach, payload, temp_c)
@@ -132,7 +131,7 @@ def _joint_jacobian(model, thetas, q, approach, payload, temp):
     if not model.effects:
         M = q.shape[0]
         geo = thetas[:, : 5 * robot.n].reshape(M, robot.n, 5)
-        J = K.joint_jacobian(q, robot.table.to(q), geo, robot.base.to(q), robot.tool.to(q), robot.pris)
+        J = K.joint_jacobian(q, robot.chain.to(q), geo)
         return J, predict_rows(model, thetas, q)
     qv = q.detach().clone().requires_grad_(True)
     with torch.enable_grad():

@@ -37,7 +37,7 @@ import math
 import numpy as np
 import torch
 
-from torchcal.effects.base import Context
+from torchcal.effects.context import Context
 from torchcal.errors import InputError
 from torchcal.calibration.lm import levenberg_marquardt
 from torchcal.calibration.joint_range import joint_range

@@ -50,7 +50,7 @@ from dataclasses import dataclass
 
 import torch
 
-from torchcal.effects.base import Context, make_context
+from torchcal.effects.context import Context, make_context
 from torchcal.errors import InputError
 from torchcal.calibration.batched import batched_jacobian, batched_predict
 from torchcal.calibration.fit import RANK_TOL, Identifiability, identifiability

@@ -23,7 +23,7 @@ import torch
 
 from torchcal.kinematics import mdh as K
 from torchcal.effects import Effect, build
-from torchcal.effects.base import Context
+from torchcal.effects.context import Context
 from torchcal.robots.robot import Robot
 
 
@@ -101,7 +101,7 @@ class CalibrationModel:
             g = e.geometric_offset(theta[sl], ctx)
             if g is not None:
                 geo = geo + g
-        T = K.fk_pose(q, robot.table.to(theta), geo, robot.base.to(theta), None, prismatic=robot.pris)
+        T = K.fk_pose(q, robot.chain.to(theta).flange, geo)
         R = T[..., :3, :3] @ robot.tool[:3, :3].to(theta)
         for e, sl in parts:
             w = e.world_rotation(theta[sl], ctx)
@@ -131,7 +131,7 @@ class CalibrationModel:
             s = e.chain_scale(p, ctx)
             if s is not None:
                 scale = s if scale is None else scale * s
-        v = K._positions_kernel(q, robot.table.to(theta), geo, None, tool, prismatic=robot.pris)  # (N, 3)
+        v = K.positions(q, robot.chain.to(theta).local, geo, tool_point=tool)  # (N, 3), joint-1 frame
         if scale is not None:
             v = v * scale.unsqueeze(-1)
         base = robot.base.to(theta)
@@ -183,7 +183,7 @@ class CalibrationModel:
         d_q, d_geo, d_tool = ([(sl, D) for sl, _, D in terms[h]] for h in ("joint_offset", "geometric_offset",
                                                                              "tool_point"))
         scales = terms["chain_scale"]
-        cj = K.chain_jacobians(q, robot.table.to(theta), geo, None, tool, prismatic=robot.pris)
+        cj = K.chain_jacobians(q, robot.chain.to(theta).local, geo, tool_point=tool)
         N = q.shape[0]
         J = theta.new_zeros(N, 3, P)
         J[..., : 5 * n] = cj.dparams

@@ -11,9 +11,10 @@ entry point. docs/effects.md shows how to write one.
 
 from torchcal.effects.axis_tilt import AxisTilt
 from torchcal.effects.backlash import Backlash
-from torchcal.effects.base import Context, Effect, context_of, make_context
+from torchcal.effects.base import Effect
 from torchcal.effects.base_compliance import BaseCompliance
 from torchcal.effects.base_frame import BaseFrame
+from torchcal.effects.context import Context, approach_directions, context_of, make_context
 from torchcal.effects.cross_coupling import CrossCoupling
 from torchcal.effects.encoder_scale import EncoderScale
 from torchcal.effects.gear_periodic import GearPeriodic
@@ -40,5 +41,5 @@ def build(spec, robot) -> Effect:
     return lookup(spec.name)(robot, spec.joints)
 
 
-__all__ = ["AxisTilt", "BaseCompliance", "Context", "CrossCoupling", "Effect", "GearTransmission", "LinkBending", "REGISTRY", "build", "context_of", "load_entry_points", "load_module",
+__all__ = ["AxisTilt", "BaseCompliance", "Context", "CrossCoupling", "Effect", "approach_directions", "GearTransmission", "LinkBending", "REGISTRY", "build", "context_of", "load_entry_points", "load_module",
            "lookup", "make_context", "register", "unregister"]

@@ -7,14 +7,15 @@ MD-H link transform (docs/paper.md eqs. 5-7), per joint i::
 Conventions (inside torchcal): millimetres and radians, float64 unless the caller
 passes float32. Shapes, batch dims first:
 
-- ``table (n, 5)``: nominal [theta_offset rad, d mm, a mm, alpha rad, beta rad];
+- ``chain``: a `torchcal.kinematics.chain.Chain`, the structure every kernel takes: the
+  nominal table (n, 5) [theta_offset rad, d mm, a mm, alpha rad, beta rad], the joint
+  types (prismatic (n,) bool), base (4, 4) world <- joint-1 frame and tool (4, 4)
+  flange <- TCP (mm). The kernels use it in the dtype and device it has
+  (``chain.to(q)`` casts it);
 - ``q (..., n)`` rad: joint angles; the actual joint rotation is q + theta_offset + dtheta;
   for a prismatic joint q is in mm and adds to d instead (theta = theta_offset + dtheta);
-- ``prismatic (n,) bool`` or None (all revolute): every kernel takes it as a keyword;
 - ``params (..., n, 5)``: deviations [dtheta rad, dd mm, da mm, dalpha rad, dbeta rad]
-  that broadcast against the batch dims of ``q``;
-- ``base (4, 4)`` and ``tool (4, 4)`` homogeneous transforms (mm), world <- joint-1
-  frame and flange <- TCP.
+  that broadcast against the batch dims of ``q``.
 
 The kernels check nothing: `torchcal.robots.robot.Robot` validates user input once and calls
 them. `fk_positions` chunks its work along the largest broadcast batch dim so that the
@@ -28,6 +29,8 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import torch
+
+from torchcal.kinematics.chain import Chain
 
 PARAM_NAMES = ("dtheta", "dd", "da", "dalpha", "dbeta")
 PARAM_UNITS = ("rad", "mm", "mm", "rad", "rad")
@@ -46,21 +49,20 @@ def _effective(table: torch.Tensor, params: torch.Tensor | None):
     return eff.unbind(-1)
 
 
-def _split(q, prismatic):
-    """(rotation q, translation q or None): q (..., n) with prismatic (n,) bool or None."""
-    if prismatic is None:
+def _split(q, chain: Chain):
+    """(rotation q, translation q or None): q (..., n); None when no joint is prismatic."""
+    if not chain.linear:
         return q, None
-    return q.masked_fill(prismatic, 0.0), q.masked_fill(~prismatic, 0.0)
+    return q.masked_fill(chain.prismatic, 0.0), q.masked_fill(~chain.prismatic, 0.0)
 
 
-def link_transforms(q: torch.Tensor, table: torch.Tensor, params: torch.Tensor | None = None,
-                    prismatic=None) -> torch.Tensor:
-    """The MD-H link transforms A_i.
+def link_transforms(q: torch.Tensor, chain: Chain, params: torch.Tensor | None = None) -> torch.Tensor:
+    """The MD-H link transforms A_i (the table and joint types of `chain`).
 
-    q (..., n) rad / mm, table (n, 5), params (..., n, 5) or None -> (..., n, 4, 4) mm
+    q (..., n) rad / mm, params (..., n, 5) or None -> (..., n, 4, 4) mm
     """
-    off, d, a, alpha, beta = _effective(table, params)
-    qr, qt = _split(q, prismatic)
+    off, d, a, alpha, beta = _effective(chain.table, params)
+    qr, qt = _split(q, chain)
     theta = qr + off
     if qt is not None:
         d = d + qt
@@ -83,35 +85,34 @@ def link_transforms(q: torch.Tensor, table: torch.Tensor, params: torch.Tensor |
     return torch.stack(rows, dim=-2)
 
 
-def fk_frames(q, table, params=None, base=None, tool=None, prismatic=None) -> torch.Tensor:
+def fk_frames(q, chain: Chain, params=None) -> torch.Tensor:
     """World poses of every joint frame and of the TCP.
 
-    q (..., n) rad, params (..., n, 5) or None, base/tool (4, 4) or None
-    -> (..., n + 2, 4, 4): index 0 is the base (frame of joint 1's axis), index i the
+    q (..., n) rad / mm, params (..., n, 5) or None
+    -> (..., n + 2, 4, 4) mm: index 0 is the base (frame of joint 1's axis), index i the
     frame after link i, index n + 1 the TCP (last frame times tool).
     """
-    A = link_transforms(q, table, params, prismatic)  # (..., n, 4, 4)
+    A = link_transforms(q, chain, params)  # (..., n, 4, 4)
     batch = A.shape[:-3]
-    eye = torch.eye(4, dtype=A.dtype, device=A.device)
-    T = (eye if base is None else base.to(A)).expand(*batch, 4, 4)
+    T = chain.base.to(A).expand(*batch, 4, 4)
     frames = [T]
     for i in range(A.shape[-3]):
         T = T @ A[..., i, :, :]
         frames.append(T)
-    frames.append(T if tool is None else T @ tool.to(A))
+    frames.append(T if chain.plain_tool else T @ chain.tool.to(A))
     return torch.stack(frames, dim=-3)
 
 
-def fk_pose(q, table, params=None, base=None, tool=None, prismatic=None) -> torch.Tensor:
-    """TCP pose. q (..., n) rad / mm, params (..., n, 5) -> (..., 4, 4) mm."""
-    A = link_transforms(q, table, params, prismatic)
+def fk_pose(q, chain: Chain, params=None) -> torch.Tensor:
+    """TCP pose, world <- TCP. q (..., n) rad / mm, params (..., n, 5) or None -> (..., 4, 4) mm."""
+    A = link_transforms(q, chain, params)
     T = A[..., 0, :, :]
     for i in range(1, A.shape[-3]):
         T = T @ A[..., i, :, :]
-    if base is not None:
-        T = base.to(T) @ T
-    if tool is not None:
-        T = T @ tool.to(T)
+    if not chain.plain_base:
+        T = chain.base.to(T) @ T
+    if not chain.plain_tool:
+        T = T @ chain.tool.to(T)
     return T
 
 
@@ -134,8 +135,16 @@ def _rotate(R, i, w, start=None):
     return u
 
 
-def _positions_kernel(q, table, params, base, tool_point, out=None, prismatic=None):
-    """TCP positions by a backward recursion over the links, 3-vectors only.
+def positions(q, chain: Chain, params=None, *, tool_point=None, out=None) -> torch.Tensor:
+    """TCP positions (world frame) by a backward recursion over the links, 3-vectors only.
+
+    q (..., n) rad (revolute) / mm (prismatic), params (..., n, 5) MD-H deviations
+    [dtheta rad, dd mm, da mm, dalpha rad, dbeta rad] or None, tool_point (..., 3) mm in
+    the flange frame (None: the chain's tool point ``chain.tool[:3, 3]``) -> (..., 3) mm,
+    the broadcast batch of q, params and tool_point. Differentiable (autograd, vmap).
+    With `out` (a (..., 3) view of the broadcast shape) the result is written there
+    instead of stacked (saves a copy; not for vmap). `fk_positions` runs this kernel in
+    chunks for large batches; ``chain.local`` gives positions in the joint-1 frame.
 
     With the offsets and deviations folded into R_i = Rz(off_i) Rx(alpha_i) Ry(beta_i),
     t_i = Rz(off_i) [a_i, 0, d_i] and k_i = R_i^T t_i, link i maps a point v of its end
@@ -148,12 +157,12 @@ def _positions_kernel(q, table, params, base, tool_point, out=None, prismatic=No
     full broadcast batch sees 14 multiply-adds per joint, each a single fused torch op
     with at most one operand broadcast along the innermost dim (vectorised on CPU).
 
-    q (..., n) rad, table (n, 5), params (..., n, 5) or None, base (4, 4) or None,
-    tool_point (..., 3) mm -> (..., 3) mm. With `out` (a (..., 3) view of the broadcast
-    shape) the result is written there instead of stacked (saves a copy; not for vmap).
-    A prismatic joint i (``prismatic (n,) bool``) has Rz(q_i) = I and k_i + q_i R_i^T e_z.
+    A prismatic joint i has Rz(q_i) = I and k_i + q_i R_i^T e_z.
     """
+    table = chain.table
     n = table.shape[0]
+    if tool_point is None:
+        tool_point = chain.tool[:3, 3].to(table)
     off, d, a, alpha, beta = _effective(table, params)  # each (..., n) or (n,)
     co, so = torch.cos(off), torch.sin(off)
     ca, sa = torch.cos(alpha), torch.sin(alpha)
@@ -166,10 +175,10 @@ def _positions_kernel(q, table, params, base, tool_point, out=None, prismatic=No
     tx, ty = co * a, so * a  # t = Rz(off) [a, 0, d]
     k = [R[0][c] * tx + R[1][c] * ty + R[2][c] * d for c in range(3)]  # R^T t, each (..., n)
     qj = q.movedim(-1, 0)  # (n, ...): one contiguous block of angles per joint
-    if prismatic is not None:
-        lin = prismatic.nonzero().flatten().tolist()
+    if chain.linear:
+        lin = list(chain.linear)
         qt = qj[lin]  # (p, ...) mm
-        qj = qj.masked_fill(prismatic.view(-1, *([1] * (qj.ndim - 1))), 0.0)
+        qj = qj.masked_fill(chain.prismatic.view(-1, *([1] * (qj.ndim - 1))), 0.0)
         # k_i + q_i R_i^T e_z: row 2 of R_i, now with the pose batch
         k = [list(kc.unbind(-1)) for kc in k]
         for m, i in enumerate(lin):
@@ -185,10 +194,11 @@ def _positions_kernel(q, table, params, base, tool_point, out=None, prismatic=No
              torch.addcmul(torch.addcmul(k[1][..., i - 1], s, u[0]), c, u[1]),
              u[2] + k[2][..., i - 1]]
     c, s = cq[0], sq[0]
-    if base is None:
+    if chain.plain_base:
         u = _rotate(R, 0, w)
         v = [torch.addcmul(c * u[0], s, u[1], value=-1.0), torch.addcmul(s * u[0], c, u[1]), u[2]]
     else:
+        base = chain.base
         Rb, b = base[:3, :3], base[:3, 3]
         B = [(Rb[r, 0] * c + Rb[r, 1] * s, Rb[r, 1] * c - Rb[r, 0] * s, Rb[r, 2]) for r in range(3)]
         h = [B[0][j] * b[0] + B[1][j] * b[1] + B[2][j] * b[2] for j in range(3)]  # B^T b, pose batch
@@ -201,25 +211,20 @@ def _positions_kernel(q, table, params, base, tool_point, out=None, prismatic=No
     return out
 
 
-def fk_positions(q, table, params=None, base=None, tool=None, chunk: int = DEFAULT_CHUNK,
-                 prismatic=None) -> torch.Tensor:
+def fk_positions(q, chain: Chain, params=None, *, chunk: int = DEFAULT_CHUNK) -> torch.Tensor:
     """TCP positions for every (pose, parameter set) of the broadcast batch.
 
-    q (..., n) rad, params (..., n, 5) or None -> (..., 3) mm.
+    q (..., n) rad / mm, params (..., n, 5) or None -> (..., 3) mm (`positions`).
     Work is cut along the largest broadcast batch dim into pieces of about `chunk`
     evaluations, so temporaries stay bounded; the output is the full (..., 3).
     """
-    tool_point = (torch.zeros(3, dtype=table.dtype, device=table.device) if tool is None
-                  else tool[:3, 3].to(table))
-    base = None if base is None else base.to(table)
-    if base is not None and torch.equal(base, torch.eye(4, dtype=base.dtype, device=base.device)):
-        base = None  # the usual case: skip the base rotation on the full batch
+    table = chain.table
     qb = q.shape[:-1]
     pb = () if params is None else params.shape[:-2]
     batch = torch.broadcast_shapes(qb, pb)
     total = math.prod(batch)
     if total <= chunk or len(batch) == 0:
-        return _positions_kernel(q, table, params, base, tool_point, prismatic=prismatic)
+        return positions(q, chain, params)
     # align leading dims, pick the largest batch dim to cut along
     q = q.reshape((1,) * (len(batch) - len(qb)) + q.shape)
     if params is not None:
@@ -234,7 +239,7 @@ def fk_positions(q, table, params=None, base=None, tool=None, chunk: int = DEFAU
         pc = params
         if params is not None and params.shape[dim] > 1:
             pc = params.narrow(dim, start, size)
-        _positions_kernel(qc, table, pc, base, tool_point, out=out.narrow(dim, start, size), prismatic=prismatic)
+        positions(qc, chain, pc, out=out.narrow(dim, start, size))
 
     starts = range(0, batch[dim], step)
     workers = min(torch.get_num_threads(), len(starts)) if out.device.type == "cpu" else 1
@@ -283,11 +288,12 @@ class ChainJacobians(NamedTuple):
     wparams: torch.Tensor
 
 
-def chain_jacobians(q, table, params=None, base=None, tool_point=None, prismatic=None) -> ChainJacobians:
+def chain_jacobians(q, chain: Chain, params=None, *, tool_point=None) -> ChainJacobians:
     """Analytic TCP Jacobians w.r.t. q and the MD-H deviations (docs/paper.md eqs. 14-18).
 
-    q (..., n) rad / mm, table (n, 5), params (..., n, 5) or None, base (4, 4) or None,
-    tool_point (..., 3) mm in the flange frame or None -> `ChainJacobians`.
+    q (..., n) rad / mm, params (..., n, 5) or None, tool_point (..., 3) mm in the flange
+    frame (None: the chain's ``tool[:3, 3]``) -> `ChainJacobians` in the world frame of
+    the chain's base (``chain.local``: the joint-1 frame).
     The TCP's derivative w.r.t. the tool point is ``rotation`` (mm/mm).
 
     For link i with input frame F (world pose of joint i's axis) and TCP p:
@@ -296,16 +302,18 @@ def chain_jacobians(q, table, params=None, base=None, tool_point=None, prismatic
     Rx(alpha), both through the link's end origin o_i. A revolute q_i acts as dtheta_i,
     a prismatic one as dd_i.
     """
-    frames = fk_frames(q, table, params, base, None, prismatic)  # (..., n+2, 4, 4), last = flange
+    frames = fk_frames(q, chain.flange, params)  # (..., n+2, 4, 4), last = flange
+    table = chain.table
     n = table.shape[0]
     R = frames[..., -1, :3, :3]
     p = frames[..., -1, :3, 3]
-    if tool_point is not None:
-        p = p + (R @ tool_point.to(R).unsqueeze(-1)).squeeze(-1)
+    if tool_point is None:
+        tool_point = chain.tool[:3, 3]
+    p = p + (R @ tool_point.to(R).unsqueeze(-1)).squeeze(-1)
     F = frames[..., :n, :, :]  # input frame of each link (..., n, 4, 4)
     z, o = F[..., :3, 2], F[..., :3, 3]
     off, d, a, alpha, beta = _effective(table, params)
-    theta = _split(q, prismatic)[0] + off
+    theta = _split(q, chain)[0] + off
     ct, st = torch.cos(theta).unsqueeze(-1), torch.sin(theta).unsqueeze(-1)
     ca, sa = torch.cos(alpha).unsqueeze(-1), torch.sin(alpha).unsqueeze(-1)
     x_mid = F[..., :3, 0] * ct + F[..., :3, 1] * st  # R Rz(theta) e_x
@@ -324,55 +332,74 @@ def chain_jacobians(q, table, params=None, base=None, tool_point=None, prismatic
     dparams = cols.movedim(-3, -2).reshape(*batch, 3, 5 * n)
     wparams = wcols.movedim(-3, -2).reshape(*batch, 3, 5 * n)
     dq, wq = rot_z, z
-    if prismatic is not None:
-        lin = prismatic.unsqueeze(-1)
+    if chain.linear:
+        lin = chain.prismatic.unsqueeze(-1)
         dq, wq = torch.where(lin, z, rot_z), torch.where(lin, zero, z)
     return ChainJacobians(p, R, dq.transpose(-1, -2), dparams, wq.transpose(-1, -2), wparams)
 
 
-def param_jacobian(q, table, params=None, base=None, tool=None, prismatic=None) -> torch.Tensor:
+def param_jacobian(q, chain: Chain, params=None) -> torch.Tensor:
     """Analytic position Jacobian dP/d[params] (docs/paper.md eqs. 14-18).
 
-    q (..., n) rad, params (..., n, 5) or None -> (..., 3, 5n), columns ordered as
+    q (..., n) rad / mm, params (..., n, 5) or None -> (..., 3, 5n), columns ordered as
     ``params.reshape(..., 5n)``: joint 1's [dtheta, dd, da, dalpha, dbeta], joint 2's...
     Units: mm/rad for angle columns, mm/mm for length columns (`chain_jacobians`).
     """
-    tp = None if tool is None else tool[:3, 3]
-    return chain_jacobians(q, table, params, base, tp, prismatic).dparams
+    return chain_jacobians(q, chain, params).dparams
 
 
-def joint_jacobian(q, table, params=None, base=None, tool=None, prismatic=None) -> torch.Tensor:
+def joint_jacobian(q, chain: Chain, params=None) -> torch.Tensor:
     """Position Jacobian dP/dq. q (..., n) rad / mm -> (..., 3, n) mm/rad (revolute
     columns: z x (p - o)) or mm/mm (prismatic columns: z)."""
-    tp = None if tool is None else tool[:3, 3]
-    return chain_jacobians(q, table, params, base, tp, prismatic).dq
+    return chain_jacobians(q, chain, params).dq
 
 
-def outer_factors(table: torch.Tensor, dev: torch.Tensor) -> list[torch.Tensor]:
+def outer_factors(chain: Chain, dev: torch.Tensor) -> list[torch.Tensor]:
     """Per-set trig and lengths of the perturbed links: 8 tensors (n, M).
 
-    table (n, 5), dev (M, n, 5) -> cos/sin of (theta_offset + dtheta), of alpha, of beta,
+    dev (M, n, 5) -> cos/sin of (theta_offset + dtheta), of alpha, of beta,
     then a and d, each transposed to (n, M) so that joint i's row is contiguous.
     """
-    off, d, a, alpha, beta = (table + dev).unbind(-1)  # each (M, n)
+    off, d, a, alpha, beta = (chain.table + dev).unbind(-1)  # each (M, n)
     return [t.T.contiguous() for t in (torch.cos(off), torch.sin(off), torch.cos(alpha), torch.sin(alpha),
                                        torch.cos(beta), torch.sin(beta), a, d)]
 
 
-def outer_positions(cq, sq, F, tool_point, bufs, tz=None):
+class OuterAngles(NamedTuple):
+    """Joint values of Nc points for `outer_positions` (`outer_angles`).
+
+    cos, sin (n, Nc): of the joint rotations (0 at a prismatic joint), joint i's row
+    contiguous; travel (Nc, n) rad / mm: the joint values, read at the prismatic joints.
+    """
+
+    cos: torch.Tensor
+    sin: torch.Tensor
+    travel: torch.Tensor
+
+
+def outer_angles(q: torch.Tensor, chain: Chain) -> OuterAngles:
+    """q (Nc, n) rad / mm -> `OuterAngles` (computed once per block of points)."""
+    qr = q.masked_fill(chain.prismatic, 0.0) if chain.linear else q
+    return OuterAngles(torch.cos(qr).T.contiguous(), torch.sin(qr).T.contiguous(), q)
+
+
+def outer_positions(q: OuterAngles, chain: Chain, F, bufs):
     """TCP positions in the joint-1 frame for (Nc points) x (Mc sets), in place.
 
-    The outer-product layout of the backward recursion of `_positions_kernel` (which
+    The outer-product layout of the backward recursion of `positions` (which
     serves any broadcast batch and autograd); this one serves the sweep's blocks,
     v <- Rz(q + off) (Rx(alpha) Ry(beta) v + [a, 0, d]), with every full-size temporary
     in one of the 7 preallocated buffers (Nc, Mc) and fused multiply-adds (addcmul):
     18 full-size operations per joint and no allocation, several times faster than the
-    general kernel on a CPU. cq, sq (n, Nc) cos / sin of q; F: `outer_factors` sliced to
-    the Mc sets; tool_point (3,). Returns three (Nc, Mc) views into `bufs`.
-    Prismatic joints: tz, a list of n entries, None (revolute) or the joint's travel
-    (Nc,) mm, which adds to d (pass cos / sin of 0 for that joint in cq, sq).
+    general kernel on a CPU. q: `outer_angles` of the Nc points; F: `outer_factors`
+    sliced to the Mc sets; the tool point is the chain's. Returns three (Nc, Mc) views
+    into `bufs`, mm. A prismatic joint's travel adds to d.
     """
-    tz = [None] * cq.shape[0] if tz is None else tz
+    cq, sq = q.cos, q.sin
+    tz = [None] * chain.n
+    for i in chain.linear:
+        tz[i] = q.travel[:, i]
+    tool_point = chain.tool[:3, 3]
     co, so, ca, sa, cb, sb, a, d = F
     ct, st, b0, b1, b2, b3, b4 = bufs
     n = cq.shape[0]

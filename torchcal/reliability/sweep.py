@@ -100,10 +100,8 @@ class Workspace:
     def accept(self, robot, q: torch.Tensor) -> torch.Tensor:
         """(N,) bool for q (N, n) rad."""
         q = robot.check_q(q)
-        table = robot.table.to(q)
         p = robot.fk(q)  # (N, 3) TCP
-        shoulder = K.fk_positions(q[:, :1], table[:1], None, robot.base.to(q),
-                                  prismatic=robot.prismatic[:1] if robot.pris is not None else None)
+        shoulder = K.fk_positions(q[:, :1], robot.chain.to(q).first(1))
         ok = p[:, 2] > self.floor_z_mm
         radial = p[:, :2].norm(dim=-1)
         ok &= ~((radial < self.column_radius_mm) & (p[:, 2] < self.column_height_mm))
@@ -257,13 +255,10 @@ def _envelope(robot, q, dev, include_nominal, chunk, bar, threads):
     on a chunk of <= 32768 elements runs on one core, so the workers do not fight over
     the cores the way intra-op threads of large ops do on a busy machine).
     """
-    table = robot.table.to(q)
-    base, tool = robot.base.to(q), robot.tool.to(q)
-    tool_point = tool[:3, 3]
-    pris = robot.pris
+    chain = robot.chain.to(q)
     N, M = q.shape[0], dev.shape[0]
-    F = K.outer_factors(table, dev)
-    R = base[:3, :3]
+    F = K.outer_factors(chain, dev)
+    R = chain.base[:3, :3]
     rotate = not torch.equal(R, torch.eye(3, dtype=R.dtype, device=R.device))
     e_lo = torch.empty(N, 3, dtype=q.dtype, device=q.device)
     e_hi = torch.empty_like(e_lo)
@@ -279,18 +274,14 @@ def _envelope(robot, q, dev, include_nominal, chunk, bar, threads):
             bufs = local.bufs = [torch.empty(n_step, m_step, dtype=q.dtype, device=q.device) for _ in range(7)]
         a1 = min(N, a0 + n_step)
         qc = q[a0:a1]
-        nom = K._positions_kernel(qc, table, None, None, tool_point, prismatic=pris)  # (Nc, 3), joint-1 frame
-        tz = None
-        if pris is not None:  # a prismatic joint's travel adds to d, its rotation is 0
-            tz = [qc[:, i] if p else None for i, p in enumerate(pris.tolist())]
-            qc = qc.masked_fill(pris, 0.0)
-        cq, sq = torch.cos(qc).T.contiguous(), torch.sin(qc).T.contiguous()  # (n, Nc)
+        nom = K.positions(qc, chain.local, tool_point=chain.tool[:3, 3])  # (Nc, 3), joint-1 frame
+        angles = K.outer_angles(qc, chain)
         lo = hi = dlo = dhi = None
         for b0 in range(0, M, m_step):
             b1 = min(M, b0 + m_step)
             views = [t[:a1 - a0, :b1 - b0] for t in bufs]
             Fc = [f[:, b0:b1] for f in F]
-            ex, ey, ez = K.outer_positions(cq, sq, Fc, tool_point, views, tz)
+            ex, ey, ez = K.outer_positions(angles, chain, Fc, views)
             ex.sub_(nom[:, 0:1]), ey.sub_(nom[:, 1:2]), ez.sub_(nom[:, 2:3])
             if rotate:  # error vectors into the world frame
                 ex, ey, ez = (R[k, 0] * ex + R[k, 1] * ey + R[k, 2] * ez for k in range(3))
@@ -323,15 +314,14 @@ def linear_bounds(robot, q: torch.Tensor, dev_box: Interval, chunk: int = 1024, 
     q (N, n) rad, dev_box Interval (n, 5) of MD-H deviations; chunks of `chunk` points
     shared among `threads` workers.
     """
-    table = robot.table.to(q)
-    base, tool = robot.base.to(q), robot.tool.to(q)
+    chain = robot.chain.to(q)
     flat = Interval(dev_box.lower.reshape(-1), dev_box.upper.reshape(-1)).to(q.device, q.dtype)
     N = q.shape[0]
     lo = torch.empty(N, 3, dtype=q.dtype, device=q.device)
     hi, far = torch.empty_like(lo), torch.empty(N, dtype=q.dtype, device=q.device)
 
     def work(a):
-        J = K.param_jacobian(q[a:a + chunk], table, None, base, tool, prismatic=robot.pris)  # (Nc, 3, 5n)
+        J = K.param_jacobian(q[a:a + chunk], chain)  # (Nc, 3, 5n)
         h = linear_hull(J, flat)
         lo[a:a + chunk], hi[a:a + chunk] = h.lower, h.upper
         far[a:a + chunk] = torch.maximum(h.lower.abs(), h.upper.abs()).square().sum(-1).sqrt()
@@ -548,7 +538,7 @@ def _sweep_points(rb, q, deviations, dev_box, *, include_nominal, linear, allowe
     return SweepResult(q=q, positions=positions, err_lower=e_lo, err_upper=e_hi, dist_lower=d_lo,
                        dist_upper=d_hi, eta=et, r_set=rs, lin_lower=lin_lo, lin_upper=lin_hi,
                        lin_dist_upper=lin_far, allowed_mm=float(allowed_mm), n_samples=deviations.shape[0],
-                       r_set_axis=rs_axis, eta_axis=et_axis, prismatic=rb.pris)
+                       r_set_axis=rs_axis, eta_axis=et_axis, prismatic=rb.prismatic if rb.chain.linear else None)
 
 
 def _concat(parts: list[SweepResult]) -> SweepResult:

@@ -64,6 +64,7 @@ from dataclasses import dataclass
 import torch
 
 from torchcal.kinematics import mdh as K
+from torchcal.kinematics.chain import Chain
 from torchcal.errors import InputError
 from torchcal.reliability.interval import Interval
 
@@ -303,7 +304,7 @@ def deviation_map(robot, model: ClearanceModel) -> torch.Tensor:
             row = table[:1].clone()
             if bool(robot.prismatic[0]):
                 row[0, 1] = 0.0
-            S = K.link_transforms(-row[:, 0], row)[0]
+            S = K.link_transforms(-row[:, 0], Chain.revolute(row))[0]
             R, pos = S[:3, :3], S[:3, 3]
             v, w = xi[:3], xi[3:]
             xi = torch.cat([R.T @ (v + torch.linalg.cross(w.T, pos.expand(4, 3)).T), R.T @ w])

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import torch
 
 from torchcal.kinematics import mdh as K
+from torchcal.kinematics.chain import Chain
 from torchcal.errors import InputError
 
 G_MM_S2 = 9806.65  # standard gravity, mm/s^2
@@ -51,6 +52,8 @@ class Robot:
         gear_ratio: per joint the reducer ratio (motor turns per joint turn, > 0) or None
             where unknown; None: no ratios given (the robot file's optional "gear_ratio";
             read by the `gear_transmission` effect).
+        chain: the kinematic structure (table, prismatic, base, tool) as the kernels of
+            `torchcal.kinematics.mdh` take it (built from the fields above).
     """
 
     name: str
@@ -65,11 +68,13 @@ class Robot:
     urdf: dict | None = None
     clearance: dict | None = None
     gear_ratio: tuple | None = None
+    chain: Chain = field(init=False, repr=False)
 
     def __post_init__(self):
         if self.prismatic is None:
             object.__setattr__(self, "prismatic", torch.zeros(self.table.shape[0], dtype=torch.bool,
                                                               device=self.table.device))
+        object.__setattr__(self, "chain", Chain(self.table, self.prismatic, self.base, self.tool))
 
     def __eq__(self, other) -> bool:
         """Same name, joint types, table, limits, frames, payload and gravity (exact)."""
@@ -92,11 +97,6 @@ class Robot:
             return False
         return all(torch.allclose(getattr(self, t).cpu().double(), getattr(other, t).cpu().double(),
                                   rtol=0, atol=atol) for t in ("table", "base", "tool"))
-
-    @property
-    def pris(self) -> torch.Tensor | None:
-        """`prismatic` when any joint is prismatic, else None (the kernels' fast path)."""
-        return self.prismatic if bool(self.prismatic.any()) else None
 
     def q_from_user(self, q) -> torch.Tensor:
         """Joint values in file / command-line units (deg revolute, mm prismatic) -> rad / mm."""
@@ -174,38 +174,33 @@ class Robot:
                 raise InputError(f"q batch {tuple(q.shape[:-1])} and params batch "
                                  f"{tuple(params.shape[:-2])} do not broadcast") from None
         dtype = q.dtype if params is None else torch.promote_types(q.dtype, params.dtype)
-        table = self.table.to(dtype)
-        return q.to(dtype), None if params is None else params.to(dtype), table
+        return q.to(dtype), None if params is None else params.to(dtype), self.chain.to(dtype)
 
     # -- kinematics -----------------------------------------------------------------
     def fk(self, q, params=None, chunk: int = K.DEFAULT_CHUNK) -> torch.Tensor:
         """TCP positions (..., 3) mm for q (..., n) rad and deviations params (..., n, 5)."""
-        q, params, table = self._prep(q, params)
-        return K.fk_positions(q, table, params, self.base, self.tool, chunk=chunk, prismatic=self.pris)
+        q, params, chain = self._prep(q, params)
+        return K.fk_positions(q, chain, params, chunk=chunk)
 
     def fk_pose(self, q, params=None) -> torch.Tensor:
         """TCP poses (..., 4, 4) mm."""
-        q, params, table = self._prep(q, params)
-        return K.fk_pose(q, table, params, self.base.to(table), self.tool.to(table),
-                        prismatic=self.pris)
+        q, params, chain = self._prep(q, params)
+        return K.fk_pose(q, chain, params)
 
     def frames(self, q, params=None) -> torch.Tensor:
         """World poses of base, each link frame and TCP: (..., n + 2, 4, 4)."""
-        q, params, table = self._prep(q, params)
-        return K.fk_frames(q, table, params, self.base.to(table), self.tool.to(table),
-                        prismatic=self.pris)
+        q, params, chain = self._prep(q, params)
+        return K.fk_frames(q, chain, params)
 
     def param_jacobian(self, q, params=None) -> torch.Tensor:
         """(..., 3, 5n) analytic dP/d[params] (mm per rad or mm per mm)."""
-        q, params, table = self._prep(q, params)
-        return K.param_jacobian(q, table, params, self.base.to(table), self.tool.to(table),
-                        prismatic=self.pris)
+        q, params, chain = self._prep(q, params)
+        return K.param_jacobian(q, chain, params)
 
     def joint_jacobian(self, q, params=None) -> torch.Tensor:
         """(..., 3, n) dP/dq in mm/rad."""
-        q, params, table = self._prep(q, params)
-        return K.joint_jacobian(q, table, params, self.base.to(table), self.tool.to(table),
-                        prismatic=self.pris)
+        q, params, chain = self._prep(q, params)
+        return K.joint_jacobian(q, chain, params)
 
     def within_limits(self, q) -> torch.Tensor:
         """(...,) bool: every joint inside its limits. q (..., n) rad."""

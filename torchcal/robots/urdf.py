@@ -152,8 +152,9 @@ def _axis_angle(u, t):
 
 def _row_transform(row) -> torch.Tensor:
     from torchcal.kinematics import mdh as K
+    from torchcal.kinematics.chain import Chain
 
-    return K.link_transforms(torch.zeros(1, dtype=_F), torch.tensor([row], dtype=_F))[0]
+    return K.link_transforms(torch.zeros(1, dtype=_F), Chain.revolute(torch.tensor([row], dtype=_F)))[0]
 
 
 def _solve_row(o, u, use_beta: bool, x_hint=None) -> list[float]:

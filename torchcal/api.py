@@ -351,10 +351,10 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
     `Compensation`; converged solutions outside the model's calibrated joint range are
     counted (``outside_range``) and named in one `CalibratedRangeWarning`. check: targets
     inside the robot's base (metres read as mm) are refused, targets beyond its reach
-    named in a `MismatchWarning` (`torchcal.calibration.mismatch.check_targets`).
- A model with a
-    residual stage (``model.residual_model``, of a FitResult or an IntervalModel) is inverted with it (the physical model is
-    solved for the target minus the stage's correction, repeated until it settles).
+    named in a `MismatchWarning` (`torchcal.calibration.mismatch.check_targets`). A model
+    with a residual stage (``model.residual_model``, of a FitResult or an IntervalModel) is
+    inverted with it (the physical model is solved for the target minus the stage's
+    correction, repeated until it settles).
     """
     from torchcal.calibration.compensate import compensate as run, nominal_start
     from torchcal.calibration.intervals import IntervalModel

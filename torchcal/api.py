@@ -258,17 +258,14 @@ def diagnose(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
                    **_set(alpha=alpha, min_gain=min_gain))
 
 
-def check_diagnosis_data(robot_or_model, model: CalibrationModel, m: Measurements, theta=None):
-    """The gross-mismatch check of `diagnose`: a fitted model (FitResult, or `theta`) as it
-    is, else the nominal robot in its best frame (and with its best tool offsets when the
-    model fits them; `torchcal.calibration.mismatch`)."""
+def check_diagnosis_data(robot_or_model, model: CalibrationModel, m: Measurements):
+    """The gross-mismatch check of `diagnose`: a fitted model (`FitResult`) as it is, else
+    the nominal robot in its best frame (and with its best tool offsets when the model
+    fits them; `torchcal.calibration.mismatch`)."""
     from torchcal.calibration.mismatch import check_measurements, enforce
 
     if isinstance(robot_or_model, FitResult):
-        theta = robot_or_model.theta
-    if theta is not None:
-        train = robot_or_model.training_rms_mm if isinstance(robot_or_model, FitResult) else None
-        res = check_measurements(model, theta, m, train)
+        res = check_measurements(model, robot_or_model.theta, m, robot_or_model.training_rms_mm)
         return enforce(res, refuse_frame=False, refuse_mismatch=True)
     from torchcal.calibration.registration import reregister
     from torchcal.effects import context_of

@@ -130,3 +130,21 @@ def test_a_calibration_model_holds_no_fitted_state(session):
     assert set(vars(back.model)) == set(vars(fresh)) == set(vars(res.model))
     for attr in ("tool_rotation", "calibrated_range", "training_rms_mm", "residual_model"):
         assert not hasattr(back.model, attr), attr
+
+
+def test_evaluate_command_reports_what_the_fit_in_memory_gives(session, tmp_path):
+    """`torchcal evaluate --json` on the MODEL.json = `torchcal.evaluate` of the fit in
+    memory, orientation included."""
+    from torchcal.cli import main
+
+    res, _, path, _ = session
+    lines = (EXAMPLES / "series_d.csv").read_text().splitlines()
+    data = tmp_path / "test.csv"
+    data.write_text("\n".join([lines[0], *lines[121:181]]) + "\n")  # held-out rows
+    out = tmp_path / "ev.json"
+    assert main(["evaluate", str(data), "--model", str(path), "--json", str(out)]) == 0
+    with pytest.warns(Warning):  # rows outside the calibrated range
+        ref = torchcal.evaluate(res, data).to_dict()
+    got = json.loads(out.read_text())
+    assert "orientation_rms_deg" in got
+    same(ref, got, "evaluate --json")

@@ -46,7 +46,8 @@ def test_residuals_csv_one_row_per_measurement(session, tmp_path, capsys):
     rows, doc = _rows(out), json.loads(rep.read_text())
     assert list(rows[0]) == ["row", "pose", "ex_mm", "ey_mm", "ez_mm", "e_mm", "outside_range"]  # no rx: no orientation
     m = read_measurements(data, robot=torchcal.robot("ur5e"))
-    model, theta = load(session / "m.json")
+    fitted = load(session / "m.json")
+    model, theta = fitted.model, fitted.theta
     expected = (m.xyz - model.predict(theta, context_of(model.robot, m))).numpy()
     e = np.array([[float(r[k]) for k in ("ex_mm", "ey_mm", "ez_mm")] for r in rows])
     np.testing.assert_allclose(e, expected, atol=1e-9)

@@ -28,7 +28,8 @@ def test_exported_robot_file_reproduces_model_predictions(fitted, capsys):
     d = fitted
     assert main(["export", str(d / "m.json"), "--robot-file", str(d / "cal.json"), "--urdf", str(d / "cal.urdf"),
                  "--table", str(d / "cal.csv"), "--force"]) == 0
-    model, theta = modelfile.load(d / "m.json")
+    fitted = modelfile.load(d / "m.json")
+    model, theta = fitted.model, fitted.theta
     m = read_measurements(d / "s.csv", robot=model.robot)
     pred = model.predict(theta, make_context(model.robot, m.q, m.payload_kg, m.temp_c))
     cal = load_robot_file(d / "cal.json")
@@ -94,5 +95,6 @@ def test_old_model_file_with_preset_name_loads(fitted):
     del obj["nominal_robot"]
     old = fitted / "old.json"
     old.write_text(json.dumps(obj))
-    model, theta = modelfile.load(old)
+    fitted = modelfile.load(old)
+    model, theta = fitted.model, fitted.theta
     assert model.robot == torchcal.robot("ur5e")

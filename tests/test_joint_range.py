@@ -116,7 +116,7 @@ def test_cli_writes_range_and_warns_old_file_does_not(session, tmp_path, capsys)
     del obj["calibrated_range"]
     old = tmp_path / "old.json"
     old.write_text(json.dumps(obj))
-    assert load(old)[0].calibrated_range is None
+    assert load(old).q_range is None
     assert main(["evaluate", str(val), "--model", str(old), "--json", str(tmp_path / "old_rep.json")]) == 0
     cap = capsys.readouterr()
     assert "calibrated joint range" not in cap.err and cap.out.startswith("40 rows: rms ")
@@ -147,8 +147,9 @@ def test_prismatic_range_in_mm_round_trip_and_compensate(tmp_path, capsys):
     assert rng["q_max"][0] == pytest.approx(float(user[:, 0].max()), abs=1e-12)  # deg
     path = tmp_path / "scara_model.json"
     path.write_text(json.dumps(res.to_dict()))
-    model, theta = load(path)
-    assert_close(model.calibrated_range, joint_range(q), rtol=0, atol=1e-12)
+    fitted = load(path)
+    model, theta = fitted.model, fitted.theta
+    assert_close(fitted.q_range, joint_range(q), rtol=0, atol=1e-12)
     # compensate: the solved slide position, not the seed, is what is checked
     hi3 = float(user[:, 2].max())
     tq = user[:4].clone()

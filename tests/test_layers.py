@@ -10,6 +10,9 @@ functions) and check the layer rules of docs/design.md.
   kinematics and calibration do not import torchcal.io.files (calibration may name the
   MODEL.json layout of torchcal.io.modelfile for `FitResult.to_dict`).
 - torchcal.rotations and torchcal.statistics import nothing of torchcal;
+- a `CalibrationModel` holds no fitted state: no module but its own sets an attribute
+  on one (``model.x = ...``, ``cm.x = ...``, ``fit.model.x = ...``, ``setattr``); the
+  fitted facts are fields of `FitResult`.
 - the paper's experiment by concept: workflows.paper_config imports only torchcal.errors,
   workflows.paper_report never runs the experiment (no paper_experiment, simulation,
   diagnosis or reliability).
@@ -153,3 +156,39 @@ def test_context_is_defined_in_its_own_module():
     import torchcal.effects.base as base
     assert effects.Context.__module__ == "torchcal.effects.context"
     assert not CONTEXT_NAMES & set(vars(base))
+
+
+MODEL_NAMES = ("model", "cm", "calibration_model")
+
+
+def model_attribute_writes(source: str) -> list[str]:
+    """Assignments to an attribute of something named like a CalibrationModel (`MODEL_NAMES`,
+    or ``<x>.model``) and setattr calls on a name, as source lines."""
+    out = []
+    for node in ast.walk(ast.parse(source)):
+        targets = node.targets if isinstance(node, ast.Assign) else \
+            [node.target] if isinstance(node, (ast.AnnAssign, ast.AugAssign)) else []
+        for t in targets:
+            for x in ast.walk(t):
+                if isinstance(x, ast.Attribute) and isinstance(x.ctx, ast.Store):
+                    v = x.value
+                    if (isinstance(v, ast.Name) and v.id in MODEL_NAMES) or \
+                            (isinstance(v, ast.Attribute) and v.attr == "model"):
+                        out.append(ast.unparse(t))
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "setattr" and \
+                isinstance(node.args[0], (ast.Name, ast.Attribute)):  # not setattr(sys.modules[...], ...)
+            out.append(ast.unparse(node))
+    return out
+
+
+def test_no_module_sets_fitted_state_on_a_calibration_model():
+    bad = {str(p.relative_to(ROOT)): w for p in sorted(ROOT.rglob("*.py"))
+           if p != ROOT / "calibration" / "model.py" and (w := model_attribute_writes(p.read_text()))}
+    assert not bad, f"attributes set on a CalibrationModel outside its class (make them FitResult fields): {bad}"
+
+
+def test_the_model_attribute_checker_sees_writes():
+    assert model_attribute_writes("res.model.residual_model = None") == ["res.model.residual_model"]
+    assert model_attribute_writes("model.tool_rotation = r\nsetattr(new, a, 1)") == \
+        ["model.tool_rotation", "setattr(new, a, 1)"]
+    assert model_attribute_writes("x = model.theta\nres.theta = 1\nsetattr(sys.modules[p], n, v)") == []

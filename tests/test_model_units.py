@@ -49,7 +49,8 @@ def test_model_file_in_degrees_round_trips_to_radians(fitted, tmp_path, capsys):
         seen.add(want_unit)
     assert {"deg", "mm", "deg/mm", "deg/(N m)"} <= seen and "rad" not in json.dumps(obj["parameters"])
     assert p["base_rz"]["unit"] == "deg" and abs(p["base_rz"]["value"]) > 1e-3
-    model, back = modelfile.load(out)
+    fitted = modelfile.load(out)
+    model, back = fitted.model, fitted.theta
     torch.testing.assert_close(back, res.theta, rtol=1e-13, atol=1e-15)
     # the printed table: every angle in deg, every parameter with its unit
     rows = [ln.split() for ln in text.splitlines() if ln.startswith("  ") and "+-" in ln]
@@ -67,7 +68,8 @@ def test_covariance_in_file_units_loads_back_in_radians(fitted, tmp_path, capsys
     out = tmp_path / "m.json"
     modelfile_obj = modelfile.to_dict(res)
     out.write_text(json.dumps(modelfile_obj))
-    model, _ = modelfile.load(out)
+    fitted = modelfile.load(out)
+    model, _ = fitted.model, fitted.theta
     cov = modelfile.load_covariance(out, model)
     torch.testing.assert_close(cov, res.covariance.cov.to(cov), rtol=1e-10, atol=1e-30)
     c = modelfile_obj["covariance"]
@@ -93,7 +95,8 @@ def test_version_1_file_in_radians_still_loads(fitted, tmp_path):
     c["matrix"] = [[c["matrix"][a][b] / (k[i] * k[j]).item() for b, j in enumerate(idx)] for a, i in enumerate(idx)]
     old = tmp_path / "old.json"
     old.write_text(json.dumps(obj))
-    model, theta = modelfile.load(old)
+    fitted = modelfile.load(old)
+    model, theta = fitted.model, fitted.theta
     torch.testing.assert_close(theta, res.theta, rtol=0, atol=0)
     torch.testing.assert_close(modelfile.load_covariance(old, model), res.covariance.cov.to(theta), rtol=1e-10,
                                atol=1e-30)

@@ -44,21 +44,21 @@ def sessions():
 
 def test_stage_improves_held_out_error_of_a_hidden_smooth_effect(sessions):
     train, test, res = sessions
-    stage = res.model.residual_model
+    stage = res.residual_model
     assert stage is not None and "q2" in stage.inputs, stage
     with_stage = torchcal.evaluate(res, test).rms_mm
-    res.model.residual_model = None
+    res.residual_model = None
     try:
         without = torchcal.evaluate(res, test).rms_mm
     finally:
-        res.model.residual_model = stage
+        res.residual_model = stage
     assert with_stage < 0.6 * without, (with_stage, without)
 
 
 def test_stage_prediction_is_kernel_ridge_by_hand(sessions):
     """predict(q) = k(x(q), X) (K + lam I)^-1 R with the fit's residuals R, in numpy."""
     train, test, res = sessions
-    s = res.model.residual_model
+    s = res.residual_model
     x = lambda q: np.hstack([np.sin(q), np.cos(q)])  # noqa: E731
     Xt, Xs = x(train.q.numpy()[:, s.joints]), x(test.q.numpy()[:, s.joints])
     k = lambda a, b: np.exp(-((a[:, None] - b[None]) ** 2).sum(-1) / (2 * s.length_scale ** 2))  # noqa: E731
@@ -72,8 +72,8 @@ def test_model_file_round_trip_gives_identical_predictions(sessions, tmp_path):
     text = json.dumps(obj)
     assert obj["residual_model"]["non_physical"] is True
     (tmp_path / "m.json").write_text(text)
-    cm, theta = modelfile.load(tmp_path / "m.json")
-    torch.testing.assert_close(cm.residual_model.predict(test.q), res.model.residual_model.predict(test.q),
+    back = modelfile.load(tmp_path / "m.json")
+    torch.testing.assert_close(back.residual_model.predict(test.q), res.residual_model.predict(test.q),
                                rtol=0, atol=1e-12)
     a, b = torchcal.evaluate(res, test), torchcal.evaluate(tmp_path / "m.json", test)
     assert a.rms_mm == pytest.approx(b.rms_mm, rel=1e-12) and a.max_mm == pytest.approx(b.max_mm, rel=1e-12)
@@ -86,7 +86,7 @@ def test_compensate_inverts_physical_model_plus_stage(sessions):
     assert bool(comp.converged.all())
     from torchcal.effects import make_context
     phys = res.model.predict(res.theta, make_context(ROBOT, comp.q))
-    reached = phys + res.model.residual_model.predict(comp.q)
+    reached = phys + res.residual_model.predict(comp.q)
     assert float((reached - targets).norm(dim=-1).max()) < 1e-5
 
 

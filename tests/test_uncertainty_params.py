@@ -192,7 +192,8 @@ def test_model_json_has_std_intervals_and_covariance(tmp_path, capsys):
             assert f"{p['name']:<16}" in text
         else:
             assert lo == hi == p["value"] and p["name"] not in names
-    model, _ = modelfile.load(out)
+    fitted = modelfile.load(out)
+    model, _ = fitted.model, fitted.theta
     cov = modelfile.load_covariance(out, model)  # radians inside, degrees in the file
     k = modelfile.file_units(model)[1]
     assert torch.allclose(cov.diagonal().sqrt() * k, torch.tensor([p["std"] for p in obj["parameters"]],

@@ -27,10 +27,11 @@ _LAZY = {
     "discover": "torchcal.api",
     "evaluate": "torchcal.api",
     "fit": "torchcal.api",
+    "load": "torchcal.api",
     "register": "torchcal.api",
 }
 __all__ = ["InputError", "PRESETS", "Robot", "robot", "__version__",
-           "fit", "evaluate", "diagnose", "discover", "calibrate", "compensate", "register"]
+           "fit", "load", "evaluate", "diagnose", "discover", "calibrate", "compensate", "register"]
 
 
 def __getattr__(name):

@@ -32,7 +32,7 @@ from torchcal.errors import InputError
 from torchcal.measurements import Measurements
 from torchcal.robots.robot import Robot, robot as make_robot
 
-__all__ = ["fit", "evaluate", "diagnose", "discover", "calibrate", "compensate", "register", "Evaluation"]
+__all__ = ["fit", "load", "evaluate", "diagnose", "discover", "calibrate", "compensate", "register", "Evaluation"]
 
 
 def _robot(robot_or_model) -> Robot:
@@ -57,38 +57,24 @@ def _model(robot_or_model, effects=()) -> CalibrationModel:
     return CalibrationModel(_robot(robot_or_model), [str(s) for s in effects])
 
 
-def _fitted(model_or_fit):
-    """(CalibrationModel, theta (P,)) of a FitResult, a MODEL.json path or (model, theta)."""
-    if isinstance(model_or_fit, FitResult):
-        return model_or_fit.model, model_or_fit.theta
-    if isinstance(model_or_fit, (str, Path)) and str(model_or_fit).endswith(".json"):
-        from torchcal.io.modelfile import load
-        return load(model_or_fit)
-    if isinstance(model_or_fit, tuple) and len(model_or_fit) == 2 and isinstance(model_or_fit[0], CalibrationModel):
-        return model_or_fit
-    raise InputError(f"model: expected a FitResult, a MODEL.json path or (CalibrationModel, theta), "
-                     f"got {type(model_or_fit).__name__}")
+def _fitted(model) -> FitResult:
+    """The fitted model: a `FitResult` as it is, a MODEL.json path loaded into one
+    (`torchcal.io.modelfile.load`)."""
+    if isinstance(model, FitResult):
+        return model
+    if isinstance(model, (str, Path)) and str(model).endswith(".json"):
+        return load(model)
+    raise InputError(f"model: expected a FitResult (a fitted model) or a MODEL.json path, "
+                     f"got {type(model).__name__}")
 
 
-def _q_range(model_or_fit, cm: CalibrationModel):
-    """(2, n) calibrated joint range rad / mm of a fitted model, or None (unknown)."""
-    if isinstance(model_or_fit, FitResult):
-        return model_or_fit.q_range
-    return getattr(cm, "calibrated_range", None)
+def load(path, *, robot=None) -> FitResult:
+    """The fitted model of a MODEL.json (`torchcal.io.modelfile.load`): parameters,
+    effects, settings, tool rotation, calibrated range, covariance, residual stage.
+    robot: a `Robot`, preset name or robot file the model must be for (None: no check)."""
+    from torchcal.io.modelfile import load as read
 
-
-def _tool_rotation(model_or_fit, cm: CalibrationModel):
-    """(3, 3) measured tool frame <- nominal tool frame of a model fitted to orientations, else None."""
-    if isinstance(model_or_fit, FitResult):
-        return None if model_or_fit.orientation is None else model_or_fit.orientation["tool_rotation"]
-    return getattr(cm, "tool_rotation", None)
-
-
-def _training_rms(model_or_fit, cm: CalibrationModel):
-    """RMS mm of the fit a model came from (None when unknown)."""
-    if isinstance(model_or_fit, FitResult):
-        return model_or_fit.rms_mm
-    return getattr(cm, "training_rms_mm", None)
+    return read(path, robot=robot)
 
 
 def _warn_range(q: torch.Tensor, q_range, robot: Robot, what: str, stage=None) -> int:
@@ -139,7 +125,7 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     metres read as mm or radians read as degrees with one InputError line, the line the
     command line prints.
     residual_model: 'kernel' adds the non-physical residual stage
-    (`torchcal.calibration.residual_model`) as ``res.model.residual_model`` (None when no
+    (`torchcal.calibration.residual_model`) as ``res.residual_model`` (None when no
     joint angle predicts the residual); evaluate and compensate apply it.
     Returns a `FitResult` (``.theta``, ``.status``, ``.rms_mm``, ``.to_dict()`` = the
     MODEL.json of ``torchcal fit``).
@@ -163,7 +149,7 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
                          max_angle_deg=max_angle_deg)
     if residual_model is not None:
         from torchcal.calibration.residual_model import fit_residual_model
-        res.model.residual_model = fit_residual_model(model.robot, m, res.residuals, kind=residual_model)
+        res.residual_model = fit_residual_model(model.robot, m, res.residuals, kind=residual_model)
     return res
 
 
@@ -203,7 +189,7 @@ class Evaluation:
 
 
 def evaluate(model, measurements) -> Evaluation:
-    """Errors of a fitted model (FitResult, MODEL.json path or (model, theta)) on measurements.
+    """Errors of a fitted model (`FitResult`, or a MODEL.json path) on measurements.
 
     Data that cannot come from the model (another robot, a moved measuring frame, units;
     `torchcal.calibration.mismatch`) are refused with one InputError line.
@@ -217,24 +203,25 @@ def evaluate(model, measurements) -> Evaluation:
 
     from torchcal.calibration.mismatch import check_measurements, enforce
 
-    cm, theta = _fitted(model)
+    fm = _fitted(model)
+    cm = fm.model
     m = _measurements(measurements, cm.robot)
     ctx = context_of(cm.robot, m)
     cm.check_context(ctx)
-    theta = theta.to(m.xyz)
-    enforce(check_measurements(cm, theta, m, _training_rms(model, cm)))  # another robot, frame, units
-    stage = getattr(cm, "residual_model", None)
+    theta = fm.theta.to(m.xyz)
+    enforce(check_measurements(cm, theta, m, fm.training_rms_mm))  # another robot, frame, units
+    stage = fm.residual_model
     err = m.xyz - cm.predict(theta, ctx)  # (N, 3) mm; minus the residual stage's correction
     if stage is not None:
         err = err - stage.predict(m.q).to(err)
     d = err.norm(dim=-1)
     orient = orient_rows = None
-    tool_r = _tool_rotation(model, cm)
+    tool_r = fm.tool_rotation
     if m.rxyz is not None and tool_r is not None:
         e = so3_error(cm.predict_rotation(theta, ctx) @ tool_r.to(theta), m.rotation)  # (N, 3) rad
         orient = math.degrees(float(e.norm(dim=-1).pow(2).mean().sqrt()))
         orient_rows = torch.rad2deg(e.norm(dim=-1)).detach()
-    q_range = _q_range(model, cm)
+    q_range = fm.q_range
     outside = None if q_range is None else _warn_range(m.q, q_range, cm.robot, "rows", stage)
     rows_out = None
     if q_range is not None:
@@ -271,16 +258,14 @@ def diagnose(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
                    **_set(alpha=alpha, min_gain=min_gain))
 
 
-def check_diagnosis_data(robot_or_model, model: CalibrationModel, m: Measurements, theta=None):
-    """The gross-mismatch check of `diagnose`: a fitted model (FitResult, or `theta`) as it
-    is, else the nominal robot in its best frame (and with its best tool offsets when the
-    model fits them; `torchcal.calibration.mismatch`)."""
+def check_diagnosis_data(robot_or_model, model: CalibrationModel, m: Measurements):
+    """The gross-mismatch check of `diagnose`: a fitted model (`FitResult`) as it is, else
+    the nominal robot in its best frame (and with its best tool offsets when the model
+    fits them; `torchcal.calibration.mismatch`)."""
     from torchcal.calibration.mismatch import check_measurements, enforce
 
     if isinstance(robot_or_model, FitResult):
-        theta = robot_or_model.theta
-    if theta is not None:
-        res = check_measurements(model, theta, m, _training_rms(robot_or_model, model))
+        res = check_measurements(model, robot_or_model.theta, m, robot_or_model.training_rms_mm)
         return enforce(res, refuse_frame=False, refuse_mismatch=True)
     from torchcal.calibration.registration import reregister
     from torchcal.effects import context_of
@@ -354,7 +339,7 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
                payload_kg=None, temp_c=None, check: bool = True):
     """Corrected joint commands (M, n) rad for target positions (M, 3) mm.
 
-    model: a fitted model (FitResult, MODEL.json path, (model, theta)) or an
+    model: a fitted model (`FitResult`, or a MODEL.json path) or an
     `IntervalModel` (targets assigned to its zones). q0: (M, n) rad starting commands,
     default `torchcal.calibration.compensate.nominal_start` (the nominal inverse, as the
     command line seeds it; InputError naming the targets it does not reach). tol_mm,
@@ -363,20 +348,17 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
     `Compensation`; converged solutions outside the model's calibrated joint range are
     counted (``outside_range``) and named in one `CalibratedRangeWarning`. check: targets
     inside the robot's base (metres read as mm) are refused, targets beyond its reach
-    named in a `MismatchWarning` (`torchcal.calibration.mismatch.check_targets`).
- A model with a
-    residual stage (``model.residual_model``) is inverted with it (the physical model is
-    solved for the target minus the stage's correction, repeated until it settles).
+    named in a `MismatchWarning` (`torchcal.calibration.mismatch.check_targets`). A model
+    with a residual stage (``model.residual_model``, of a FitResult or an IntervalModel) is
+    inverted with it (the physical model is solved for the target minus the stage's
+    correction, repeated until it settles).
     """
     from torchcal.calibration.compensate import compensate as run, nominal_start
     from torchcal.calibration.intervals import IntervalModel
 
-    if isinstance(model, IntervalModel):
-        cm, theta = model.model, model.theta
-        q_range = model.q_range
-    else:
-        cm, theta = _fitted(model)
-        q_range = _q_range(model, cm)
+    if not isinstance(model, IntervalModel):
+        model = _fitted(model)
+    cm, theta, q_range, stage = model.model, model.theta, model.q_range, model.residual_model
     robot = cm.robot
     t = torch.as_tensor(targets, dtype=robot.dtype, device=robot.device)
     if t.ndim != 2 or t.shape[-1] != 3:
@@ -389,7 +371,6 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
     zone = model.assign(t) - 1 if isinstance(model, IntervalModel) else None  # row of theta
     comp = run(cm, theta.to(t), t, q0, zone=zone, tol_mm=tol_mm, max_iter=max_iter, max_step_rad=max_step_rad,
                payload_kg=payload_kg, temp_c=temp_c)
-    stage = getattr(cm, "residual_model", None)
     if stage is not None:
         options = dict(tol_mm=tol_mm, max_iter=max_iter, max_step_rad=max_step_rad, payload_kg=payload_kg,
                        temp_c=temp_c)
@@ -404,8 +385,9 @@ def register(model, measurements, *, tool: bool = False) -> FitResult:
     """Re-estimate only the measuring frame of a fitted model on new measurements: the
     base frame, and the tool offset when `tool` (`torchcal.calibration.registration.reregister`).
 
-    model: a fitted model (FitResult, MODEL.json path or (CalibrationModel, theta)),
-    whose geometry, effects, covariance and calibrated joint range are kept; or a robot
+    model: a fitted model (`FitResult` or a MODEL.json path), whose geometry, effects,
+    covariance, calibrated joint range, settings, tool rotation, residual stage and
+    training rms are kept; or a robot
     (preset name, robot file, `Robot`): a registration-only model (nominal geometry in
     the best frame), calibrated on these rows. Data that no frame brings near the model
     (another robot, units) are refused (InputError, `torchcal.calibration.mismatch`).
@@ -417,15 +399,10 @@ def register(model, measurements, *, tool: bool = False) -> FitResult:
     from torchcal.calibration.registration import reregister
     from torchcal.effects import context_of
 
-    if _is_model(model):
-        cm, theta = _fitted(model)
-        train = _training_rms(model, cm)
-        cov = identified = None
-        if isinstance(model, FitResult):
-            cov, identified = model.covariance, model.report.free
-        elif isinstance(model, (str, Path)):
-            cov, identified = _file_covariance(model, cm)
-        q_range = _q_range(model, cm)
+    fm = _fitted(model) if _is_model(model) else None
+    if fm is not None:
+        cm, theta, train, cov = fm.model, fm.theta, fm.training_rms_mm, fm.covariance
+        identified, q_range = fm.report.free, fm.q_range
     else:
         robot = _robot(model)
         cm, theta, train, cov, identified, q_range = CalibrationModel(robot), None, None, None, None, None
@@ -440,33 +417,19 @@ def register(model, measurements, *, tool: bool = False) -> FitResult:
     res = reregister(cm, theta.to(m.xyz), ctx, m.xyz, tool=tool, pose=m.pose, covariance=cov,
                      identified=identified, q_range=q_range)
     enforce(check_measurements(res.model, res.theta, m, train))  # still off: another robot, units
-    return res
+    if fm is None:
+        return res
+    return replace(res, orientation=fm.orientation, robust=fm.robust, sigma_mm=fm.sigma_mm, sigma_deg=fm.sigma_deg,
+                   residual_model=fm.residual_model, training=fm.training, provenance=fm.provenance)
 
 
 def _is_model(obj) -> bool:
-    """True for a fitted model (FitResult, (model, theta), a MODEL.json path), False for a robot."""
-    if isinstance(obj, (FitResult, tuple)):
+    """True for a fitted model (FitResult, a MODEL.json path), False for a robot."""
+    if isinstance(obj, FitResult):
         return True
     if isinstance(obj, (str, Path)) and str(obj).endswith(".json") and Path(obj).is_file():
         from torchcal.io.files import read_json
-        from torchcal.io.modelfile import FORMAT
+        from torchcal.io.modelfile import FORMAT, FORMAT_RAD
 
-        return read_json(obj, "model or robot file").get("format") == FORMAT
+        return read_json(obj, "model or robot file").get("format") in (FORMAT, FORMAT_RAD)
     return False
-
-
-def _file_covariance(path, cm: CalibrationModel):
-    """(ParameterCovariance or None, identified (P,) bool) of a MODEL.json."""
-    from torchcal.calibration.covariance import ParameterCovariance
-    from torchcal.io.files import read_json
-    from torchcal.io.modelfile import load_covariance
-
-    obj = read_json(path, "model file")
-    identified = torch.tensor([bool(p.get("identified", True)) for p in obj["parameters"]])
-    c = obj.get("covariance")
-    try:
-        cov = load_covariance(path, cm)
-    except InputError:
-        return None, identified
-    return ParameterCovariance(cov, int(c.get("dof", 1)), float(c.get("sigma_mm", 0.0)), str(c.get("method", "rows")),
-                               c.get("noise_mm"), c.get("pose_mm")), identified

@@ -143,38 +143,89 @@ def identifiability(J: torch.Tensor, names, candidate_free, rank_tol: float = RA
 
 @dataclass
 class FitResult:
-    """A fitted model.
+    """THE fitted model: what `torchcal.fit`, `torchcal.register` and
+    `torchcal.io.modelfile.load` (``torchcal.load``) return and what `evaluate`,
+    `compensate`, `export` and `accuracy` take. Every fact about a fitted model lives
+    here, as a declared field; the `CalibrationModel` (``model``) is the structure only
+    (robot, effects, parameter layout) and holds no fitted value. One type rather than a
+    fit result beside a loaded (model, theta) pair: the two carried different facts
+    (settings, tool rotation, calibrated range), and whichever way a model comes in, in
+    memory or from MODEL.json, evaluate and compensate now see the same fields. The name
+    stays `FitResult` (every fitted model comes from a fit; registration only moves its
+    frame).
 
-    theta: (P,) parameters; std: (P,) standard errors (0 where held); residuals: (N, 3)
-    mm measured - model; weights: (N,) final robust weights (ones when not robust);
-    report: identifiability; outliers: row indices with weight below 0.1 (robust fits);
-    status: how the (last) LM solve stopped, 'converged', 'stalled' or 'max_iterations'
+    model: the `CalibrationModel`; theta: (P,) parameters in the model's units (mm, rad);
+    std: (P,) standard errors (0 where held); residuals: (N, 3) mm measured - model on the
+    data of the fit (None after `load`: MODEL.json stores no rows); weights: (N,) final
+    robust weights (ones when not robust; None after `load`); report: identifiability
+    (``report.free`` the identified parameters, ``report.held`` those held at nominal);
+    n_iter: solver iterations; outliers: row indices with weight below 0.1 (robust fits;
+    after `load` the file's ``outlier_poses``, pose ids when it was written with them);
+    covariance: the (P, P) `ParameterCovariance` (None when unknown); status: how the
+    (last) LM solve stopped, 'converged', 'stalled' or 'max_iterations'
     (`torchcal.calibration.lm.LMStatus`).
-    registration: the closed-form start (rms before/after, frame) or None; implausible:
-    names of free parameters that end beyond their plausible scale although the prior
-    shrinks them (none is held for it); plausible_limits: {"max_length_mm",
-    "max_angle_deg", "prior_sigma_mm"} (rho of the prior rows) or None (no prior);
-    orientation: {"sigma_mm", "sigma_deg", "weight_mm_per_rad", "tool_rotation" (3, 3),
-    "rms_deg"} when orientations were fitted. q_range: (2, n) min and max of the data's
-    commanded q, rad / mm (`torchcal.calibration.joint_range`). robust, sigma_mm,
-    sigma_deg: the settings of the fit that made it.
+    registration: the closed-form start (rms before/after, frame), or after `register` the
+    re-registration, or None; implausible: names of free parameters that end beyond their
+    plausible scale although the prior shrinks them (none is held for it);
+    plausible_limits: {"max_length_mm", "max_angle_deg", "prior_sigma_mm"} (rho of the
+    prior rows) or None (no prior); orientation: {"sigma_mm", "sigma_deg",
+    "weight_mm_per_rad", "tool_rotation" (3, 3), "rms_deg"} when orientations were fitted,
+    else None. q_range: (2, n) calibrated joint range, the min and max of the data's
+    commanded q, rad / mm (`torchcal.calibration.joint_range`; None when unknown).
+    robust, sigma_mm, sigma_deg: the settings of the fit that made it. residual_model: the
+    optional non-physical residual stage (`torchcal.calibration.residual_model`), applied
+    by evaluate and compensate. training: {"n", "rms_mm", "max_mm"} of the data the model
+    was fitted on (kept by `register`, whose residuals are those of the new data).
+    provenance: MODEL.json's {"input", "input_sha256", "torchcal_version", "seed"} after
+    `load`; None for a fit in memory (`to_dict` writes it from its arguments).
     """
 
     model: CalibrationModel
     theta: torch.Tensor
     std: torch.Tensor
-    residuals: torch.Tensor
-    weights: torch.Tensor
+    residuals: torch.Tensor | None
+    weights: torch.Tensor | None
     report: Identifiability
     n_iter: int
     outliers: list = field(default_factory=list)
     covariance: ParameterCovariance | None = None  # (P, P) and how it was estimated
     status: str = "converged"
+    registration: dict | None = None
+    implausible: list = field(default_factory=list)
+    orientation: dict | None = None
+    plausible_limits: dict | None = None
+    q_range: torch.Tensor | None = None  # (2, n) [min; max] commanded q of the data, rad / mm
+    robust: str | None = None
+    sigma_mm: float = SIGMA_MM
+    sigma_deg: float = SIGMA_DEG
+    residual_model: object = None
+    training: dict | None = None
+    provenance: dict | None = None
 
     @property
     def converged(self) -> bool:
         """True only when the solver met its convergence rule (never for a stalled solve)."""
         return self.status == "converged"
+
+    @property
+    def rms_mm(self) -> float:
+        """RMS of the distance residual per pose, mm (of ``residuals``; after `load`, the
+        training rms)."""
+        if self.residuals is None:
+            return self.training_rms_mm
+        return float(self.residuals.norm(dim=-1).pow(2).mean().sqrt())
+
+    @property
+    def training_rms_mm(self) -> float | None:
+        """RMS mm of the fit the model came from (None when unknown), the scale of the
+        gross-mismatch check (`torchcal.calibration.mismatch`)."""
+        return None if self.training is None else self.training.get("rms_mm")
+
+    @property
+    def tool_rotation(self) -> torch.Tensor | None:
+        """(3, 3) measured tool frame <- nominal tool frame of a model fitted to
+        orientations, else None."""
+        return None if self.orientation is None else self.orientation["tool_rotation"]
 
     def to_dict(self, source=None, seed: int = 0, pose_ids=None) -> dict:
         """The MODEL.json object of ``torchcal fit`` (`torchcal.io.modelfile.to_dict`):
@@ -184,19 +235,12 @@ class FitResult:
         from torchcal.io.modelfile import to_dict
 
         return to_dict(self, source=source, seed=seed, pose_ids=pose_ids)
-    registration: dict | None = None
-    implausible: list = field(default_factory=list)
-    orientation: dict | None = None
-    plausible_limits: dict | None = None
-    q_range: torch.Tensor | None = None  # (2, n) [min; max] commanded q of the data, rad / mm
-    robust: str | None = None
-    sigma_mm: float = SIGMA_MM
-    sigma_deg: float = SIGMA_DEG
 
-    @property
-    def rms_mm(self) -> float:
-        """RMS of the distance residual per pose, mm."""
-        return float(self.residuals.norm(dim=-1).pow(2).mean().sqrt())
+
+def training_summary(residuals: torch.Tensor) -> dict:
+    """{"n", "rms_mm", "max_mm"} of residuals (N, 3) mm."""
+    d = residuals.detach().norm(dim=-1)
+    return {"n": int(d.shape[0]), "rms_mm": float(d.pow(2).mean().sqrt()), "max_mm": float(d.max())}
 
 
 def _robust_weights(dist: torch.Tensor, kind: str) -> torch.Tensor:
@@ -418,4 +462,5 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
                      registration=reg_info, implausible=implausible, orientation=orient,
                      plausible_limits=None if not has_prior else
                      {"max_length_mm": max_length_mm, "max_angle_deg": max_angle_deg, "prior_sigma_mm": rho},
-                     q_range=joint_range(ctx.q), robust=robust, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
+                     q_range=joint_range(ctx.q), robust=robust, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
+                     training=training_summary(resid_pos))

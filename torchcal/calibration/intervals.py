@@ -379,6 +379,8 @@ class IntervalModel:
             from `torchcal.calibrate`, else None; not stored in the file.
         q_range: (2, n) [min; max] commanded q of the calibration data, rad / mm
             (`torchcal.calibration.joint_range`), None when unknown.
+        residual_model: the non-physical residual stage of a fitted model read as one
+            zone (`torchcal.calibration.residual_model`), else None.
     """
 
     model: CalibrationModel
@@ -392,6 +394,7 @@ class IntervalModel:
     provenance: dict | None = None
     global_fit: object = None
     q_range: torch.Tensor | None = None
+    residual_model: object = None
 
     @property
     def n_zones(self) -> int:

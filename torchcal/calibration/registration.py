@@ -94,9 +94,6 @@ def with_frame(model, theta: torch.Tensor, tool: bool = False):
     if not add:
         return model, theta
     new = CalibrationModel(model.robot, [*model.effects, *add], points=model.points or None)
-    for attr in ("tool_rotation", "calibrated_range", "training_rms_mm", "residual_model"):
-        if hasattr(model, attr):
-            setattr(new, attr, getattr(model, attr))
     return new, torch.cat([theta, theta.new_zeros(new.n_params - theta.shape[0])])
 
 

@@ -65,7 +65,8 @@ def run(args) -> int:
 
     check_outputs([("--rrd", args.rrd), *plot_outputs(args.plots, PNGS)], args.force,
                   inputs=[args.model])  # all before the work
-    model, theta = modelfile.load(args.model)
+    fitted = modelfile.load(args.model)
+    model, theta = fitted.model, fitted.theta
     cov = modelfile.load_covariance(args.model, model)
     robot = model.robot
     q = sample_workspace(robot, args.n, seed=args.seed)

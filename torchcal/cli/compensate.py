@@ -122,8 +122,6 @@ def read_targets(path, n: int, length_unit: str = "mm", angle_unit: str = "deg",
 
 def load_model(path):
     """An `IntervalModel` from a calibrate MODEL.json or a fit MODEL.json (one zone)."""
-    import torch
-
     from torchcal.io import modelfile
     from torchcal.calibration.intervals import IntervalModel
     from torchcal.io.interval_model import INTERVAL_MODEL_FORMAT, interval_model_from_dict
@@ -132,11 +130,12 @@ def load_model(path):
     obj = read_json(path, "model file")
     if obj.get("format") == INTERVAL_MODEL_FORMAT:
         return interval_model_from_dict(obj, str(path))
-    model, theta = modelfile.load(path)
-    free = torch.tensor([bool(p.get("identified", True)) for p in obj["parameters"]])
-    return IntervalModel(model, theta[None], theta[None], theta[None], free[None],
-                         [{"zone": 1, "level": None, "poses": None, "held": [], "rms_mm": None,
-                           "damping": 0.0}], None, "fit", q_range=model.calibrated_range)
+    fitted = modelfile.load(path)
+    theta = fitted.theta
+    return IntervalModel(fitted.model, theta[None], theta[None], theta[None], fitted.report.free[None],
+                         [{"zone": 1, "level": None, "poses": None, "held": [], "rms_mm": fitted.training_rms_mm,
+                           "damping": 0.0}], None, "fit", q_range=fitted.q_range,
+                         residual_model=fitted.residual_model)
 
 
 def run(args) -> int:

@@ -82,13 +82,13 @@ def run(args) -> int:
     robot = make_robot(args.robot)
     # the baseline effects: the MODEL.json's (checked against --robot) or --effects
     fitted = modelfile.load(args.model, robot=robot) if args.model else None
-    effects = fitted[0].specs() if args.model else args.effects or []
+    effects = fitted.model.specs() if args.model else args.effects or []
     m = read_data(args.data, robot, args)
     from torchcal.calibration.mismatch import MismatchWarning
     from torchcal.cli._args import warnings_to_stderr
     with warnings_to_stderr(MismatchWarning):  # the model's own frame and error first, then the nominal robot's
         if fitted is not None:
-            api.check_diagnosis_data(fitted, fitted[0], m, theta=fitted[1])
+            api.check_diagnosis_data(fitted, fitted.model, m)
         d = api.diagnose(robot, m, effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,
                          sigma_deg=args.sigma_deg)
     print_table(d)

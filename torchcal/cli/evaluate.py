@@ -35,14 +35,14 @@ def add_parser(sub):
     p.set_defaults(func=run)
 
 
-def evaluate(model, theta, m):
-    """The `torchcal.evaluate` result ((model, theta) on measurements m); rows outside the
-    model's calibrated joint range: one warning line on stderr."""
+def evaluate(fitted, m):
+    """The `torchcal.evaluate` result (fitted model `FitResult` on measurements m); rows
+    outside the model's calibrated joint range: one warning line on stderr."""
     from torchcal.api import evaluate as run
     from torchcal.calibration.joint_range import CalibratedRangeWarning
 
     with warnings_to_stderr(CalibratedRangeWarning):
-        return run((model, theta), m)
+        return run(fitted, m)
 
 
 def residuals_csv(m, ev) -> str:
@@ -76,10 +76,11 @@ def run(args) -> int:
         from torchcal.cli._viz import check_outputs as check_visual_outputs
         check_visual_outputs(args, "evaluate")
     robot = load_robot(args.robot)  # unknown robot: its own clear message
-    model, theta = modelfile.load(args.model, robot=robot)
+    fitted = modelfile.load(args.model, robot=robot)
+    model = fitted.model
     check_data_joints(args.data, model.robot, args.model)
     m = read_data(args.data, model.robot, args)
-    ev = evaluate(model, theta, m)
+    ev = evaluate(fitted, m)
     rep = ev.to_dict()
     if args.json:
         write_json(args.json, rep, force=args.force, inputs=inputs)
@@ -90,7 +91,7 @@ def run(args) -> int:
           f"max {rep['max_mm']:.4f} mm; per axis rms x {x:.4f} y {y:.4f} z {z:.4f} mm"
           + (f"; orientation rms {rep['orientation_rms_deg'] * 1000:.4g} mdeg"
              if "orientation_rms_deg" in rep else ""))
-    if getattr(model, "residual_model", None) is not None:
+    if fitted.residual_model is not None:
         print("(errors of the physical model plus its non-physical residual stage, docs/residual-model.md)")
     if args.residuals:
         print(f"wrote {args.residuals}")

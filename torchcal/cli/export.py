@@ -85,7 +85,7 @@ def table_csv(r) -> str:
     return "\n".join(lines) + "\n"
 
 
-def refit_export(model, theta, args, identified=None):
+def refit_export(model, theta, args, identified=None, training_rms_mm=None):
     """(robot, []) of the geometry alone refitted on --data, after one line with the RMS of
     the exported robot alone, the full model and the model's geometry without its effects."""
     from torchcal.calibration.geometry_only import refit_geometry
@@ -93,7 +93,7 @@ def refit_export(model, theta, args, identified=None):
     from torchcal.cli._args import read_data
 
     m = read_data(args.data, model.robot, args)
-    enforce(check_measurements(model, theta.to(m.xyz), m, getattr(model, "training_rms_mm", None)))
+    enforce(check_measurements(model, theta.to(m.xyz), m, training_rms_mm))
     r = refit_geometry(model, theta, m, identified=identified)
     print(f"geometry alone refitted on {len(m)} rows of {args.data} (without {', '.join(r.dropped)}): exported robot "
           f"alone rms {r.refit_rms_mm:.4f} mm; full model {r.full_rms_mm:.4f} mm; the model's geometry without its "
@@ -114,12 +114,13 @@ def run(args) -> int:
         raise InputError("export: give at least one of --robot-file, --urdf, --table")
     check_outputs(outs, args.force, inputs=[args.model, args.data])
     im = load_model(args.model)
-    if getattr(im.model, "residual_model", None) is not None:
+    if im.residual_model is not None:
         print(f"{args.model}: its non-physical residual stage is dropped (a URDF, robot file or table holds only "
               f"the physical model)")
     cal, rest = calibrated_robot(im.model, im.theta[0])
     if rest and args.data:
-        cal, rest = refit_export(im.model, im.theta[0], args, identified=im.free[0])
+        cal, rest = refit_export(im.model, im.theta[0], args, identified=im.free[0],
+                                 training_rms_mm=im.zones[0]["rms_mm"] if im.n_zones == 1 else None)
     elif rest:
         sys.stderr.write("torchcal export: warning: effects not held by an MD-H table or a URDF (listed under "
                          f"\"effects\" in the robot file): {', '.join(e['spec'] for e in rest)}; the exported "

@@ -171,7 +171,7 @@ def run(args) -> int:
                 print(f"  {p['name']:<16} {p['value']:+.6g} +- {p['std']:.3g} {p['unit']}  "
                       f"[{p['ci95'][0]:+.6g}, {p['ci95'][1]:+.6g}]")
     if getattr(args, "residual_model", None):
-        stage = getattr(res.model, "residual_model", None)
+        stage = res.residual_model
         print(stage.describe() + "; evaluate and compensate apply it, export drops it" if stage is not None else
               "residual stage: not added, no joint angle predicts the residual on held-out poses")
     if res.outliers:

@@ -50,14 +50,14 @@ def run(args) -> int:
     check_outputs([("--out", args.out)], args.force, inputs=[args.data, args.model])
     robot = load_robot(args.robot)
     if args.model is not None:
-        model, theta = modelfile.load(args.model, robot=robot)
-        m = read_data(args.data, model.robot, args)
-        res = register(args.model, m, tool=args.tool)
+        fitted = modelfile.load(args.model, robot=robot)
+        m = read_data(args.data, fitted.model.robot, args)
+        res = register(fitted, m, tool=args.tool)
         obj = dict(read_json(args.model, "model file"))
         new = modelfile.to_dict(res)
         for key in ("effects", "parameters", "covariance", "base_frame"):
             obj[key] = new[key]
-        what = f"{args.model} ({len(model.specs())} effects; geometry, effects, covariance and calibrated range kept)"
+        what = f"{args.model} ({len(fitted.model.specs())} effects; geometry, effects, covariance and calibrated range kept)"
     else:
         m = read_data(args.data, robot, args)
         res = register(robot, m, tool=args.tool)

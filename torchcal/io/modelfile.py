@@ -33,8 +33,16 @@ nominal robot (the robot-file dict, docs/robots.md), so a model file needs no pr
 no robot file; files written before it existed name a preset under ``robot``.
 ``calibrated_range`` (deg, mm for a prismatic joint) lets evaluate and compensate warn
 when the model is used outside the joint range it was fitted on
-(`torchcal.calibration.joint_range`); `load` puts it on the model as
-``model.calibrated_range`` ((2, n) rad / mm, None in files written before it existed).
+(`torchcal.calibration.joint_range`).
+
+`load` returns the one fitted-model type, `torchcal.calibration.fit.FitResult`, with every
+field the file holds: theta, std, covariance, identifiability (``report``; identified and
+held parameters), the fit's settings (robust, sigma_mm, sigma_deg), status, iterations,
+outliers, registration, plausibility (``plausible_limits``, ``implausible``), orientation
+(``tool_rotation`` included), calibrated range (``q_range``), residual stage, training
+{n, rms_mm, max_mm} and provenance. What a file does not store is None: ``residuals``
+and ``weights`` (per row), and any block of a file written before it existed
+(``q_range``, ``covariance``, ...). ``to_dict(load(path))`` writes the same blocks back.
 """
 
 from __future__ import annotations
@@ -47,7 +55,8 @@ import torch
 
 import torchcal
 from torchcal.errors import InputError
-from torchcal.calibration.fit import FitResult
+from torchcal.calibration.covariance import ParameterCovariance
+from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult, Identifiability
 from torchcal.io.files import read_json
 from torchcal.calibration.model import CalibrationModel
 from torchcal.effects.joint_compliance import G_NM_PER_KG_MM
@@ -90,7 +99,10 @@ def to_dict(res: FitResult, source=None, seed: int = 0, pose_ids=None) -> dict:
     from torchcal.rotations import matrix_to_fixed_xyz
 
     model = res.model
-    dist = res.residuals.norm(dim=-1)
+    train = res.training
+    if train is None:  # a result built by hand: its own rows
+        from torchcal.calibration.fit import training_summary
+        train = training_summary(res.residuals)
     lo, hi = (res.theta, res.theta) if res.covariance is None else res.covariance.interval95(res.theta)
     outliers = res.outliers if pose_ids is None else sorted({int(pose_ids[i]) for i in res.outliers})
     extra = {}
@@ -111,9 +123,8 @@ def to_dict(res: FitResult, source=None, seed: int = 0, pose_ids=None) -> dict:
         extra["orientation"]["weight_mm_per_deg"] = math.radians(o["weight_mm_per_rad"])
         extra["orientation"]["tool_rotation_fixed_xyz_deg"] = torch.rad2deg(
             matrix_to_fixed_xyz(o["tool_rotation"].detach().cpu().double())).tolist()
-    stage = getattr(model, "residual_model", None)
-    if stage is not None:
-        extra["residual_model"] = stage.to_dict()
+    if res.residual_model is not None:
+        extra["residual_model"] = res.residual_model.to_dict()
     units, k = file_units(model)  # degrees and mm in the file, radians inside
     cov = None
     if res.covariance is not None:
@@ -136,19 +147,20 @@ def to_dict(res: FitResult, source=None, seed: int = 0, pose_ids=None) -> dict:
                                            hi.tolist())],
         "covariance": cov,
         "identifiability": res.report.to_dict(),
-        "fit": {"n": int(res.residuals.shape[0]), "rms_mm": res.rms_mm, "max_mm": float(dist.max()),
+        "fit": {"n": int(train["n"]), "rms_mm": float(train["rms_mm"]), "max_mm": float(train["max_mm"]),
                 "robust": res.robust, "sigma_mm": res.sigma_mm, "sigma_deg": res.sigma_deg,
                 "outlier_poses": outliers, "iterations": res.n_iter,
                 "status": res.status},
-        "provenance": {"input": None if source is None else str(source),
-                       "input_sha256": None if source is None else file_sha256(source),
-                       "torchcal_version": torchcal.__version__, "seed": seed},
+        "provenance": dict(res.provenance) if source is None and res.provenance is not None else
+        {"input": None if source is None else str(source),
+         "input_sha256": None if source is None else file_sha256(source),
+         "torchcal_version": torchcal.__version__, "seed": seed},
         **extra,
     }
 
 
-def load(path, robot: Robot | str | None = None):
-    """(CalibrationModel, theta (P,)) from MODEL.json.
+def load(path, robot: Robot | str | None = None) -> FitResult:
+    """The fitted model (`FitResult`) of MODEL.json (module doc: which fields a file holds).
 
     robot: a `Robot` or a preset name / robot-file path; when given, a model of another
     robot (joint count, types or nominal geometry) is refused with one line naming both."""
@@ -156,6 +168,8 @@ def load(path, robot: Robot | str | None = None):
     try:
         effects, params = obj["effects"], obj["parameters"]
         values = [float(p["value"]) for p in params]
+        stds = [float(p.get("std", 0.0)) for p in params]
+        identified = [bool(p.get("identified", True)) for p in params]
         names = [p["name"] for p in params]
         file_unit_names = [p.get("unit") for p in params]
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
@@ -169,37 +183,93 @@ def load(path, robot: Robot | str | None = None):
         model = CalibrationModel(nominal, effects, points=obj.get("points"))
     except InputError as exc:  # e.g. a user effect whose --effects-module is missing
         raise InputError(f"{path}: {exc}") from None
-    model.tool_rotation = None  # measured tool frame <- nominal tool frame, when fitted
-    orient = obj.get("orientation")
-    if isinstance(orient, dict) and "tool_rotation_fixed_xyz_deg" in orient:
-        from torchcal.rotations import fixed_xyz_to_matrix
-        try:
-            r = torch.deg2rad(torch.tensor([float(v) for v in orient["tool_rotation_fixed_xyz_deg"]],
-                                           dtype=torch.float64))
-        except (TypeError, ValueError) as exc:
-            raise InputError(f"{path}: bad orientation.tool_rotation_fixed_xyz_deg: {exc}") from None
-        model.tool_rotation = fixed_xyz_to_matrix(r)
     if names != model.param_names():
         raise InputError(f"{path}: parameters do not match robot {nominal.name!r} with effects {effects}")
     theta = torch.tensor(values, dtype=torch.float64)
+    std = torch.tensor(stds, dtype=torch.float64)
     if obj["format"] != FORMAT_RAD:  # version 2: degrees (file_unit) -> radians inside
         units, k = file_units(model)
         bad = [f"{n} ({u!r}, expected {e!r})" for n, u, e in zip(names, file_unit_names, units) if u != e]
         if bad:
             raise InputError(f"{path}: parameter unit(s) not those of {FORMAT}: {', '.join(bad[:3])}")
-        theta = theta / k
-    fit = obj.get("fit")  # the training rms, for the gross-mismatch check (torchcal.calibration.mismatch)
-    rms = fit.get("rms_mm") if isinstance(fit, dict) else None
-    model.training_rms_mm = float(rms) if isinstance(rms, (int, float)) else None
-    model.calibrated_range = None  # (2, n) rad / mm; absent from files written before it existed
-    if obj.get("calibrated_range") is not None:
-        from torchcal.calibration.joint_range import range_from_dict
-        model.calibrated_range = range_from_dict(obj["calibrated_range"], nominal, str(path))
-    model.residual_model = None  # the optional non-physical residual stage
+        theta, std = theta / k, std / k
+    where = str(path)
+    fit = _block(obj, "fit", where)
+    plaus = _block(obj, "plausibility", where)
+    try:
+        training = None
+        if isinstance(fit.get("rms_mm"), (int, float)):
+            training = {"n": int(fit.get("n", 0)), "rms_mm": float(fit["rms_mm"]),
+                        "max_mm": float(fit.get("max_mm", fit["rms_mm"]))}
+        settings = dict(robust=fit.get("robust"), sigma_mm=float(fit.get("sigma_mm", SIGMA_MM)),
+                        sigma_deg=float(fit.get("sigma_deg", SIGMA_DEG)), status=str(fit.get("status", "converged")),
+                        n_iter=int(fit.get("iterations", 0)), outliers=[int(i) for i in fit.get("outlier_poses", [])])
+        limits = None if not plaus else {k: plaus[k] for k in ("max_length_mm", "max_angle_deg", "prior_sigma_mm")}
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{path}: bad 'fit' or 'plausibility': {exc}") from None
+    stage = None  # the optional non-physical residual stage
     if obj.get("residual_model") is not None:
         from torchcal.calibration.residual_model import from_dict
-        model.residual_model = from_dict(obj["residual_model"], nominal, str(path))
-    return model, theta
+        stage = from_dict(obj["residual_model"], nominal, where)
+    q_range = None  # (2, n) rad / mm; absent from files written before it existed
+    if obj.get("calibrated_range") is not None:
+        from torchcal.calibration.joint_range import range_from_dict
+        q_range = range_from_dict(obj["calibrated_range"], nominal, where)
+    return FitResult(model, theta, std, None, None, _report(obj, model, identified, where), covariance=
+                     _covariance(obj, model, where), registration=obj.get("registration"),
+                     implausible=list(plaus.get("beyond", [])), orientation=_orientation(obj, where),
+                     plausible_limits=limits, q_range=q_range, residual_model=stage, training=training,
+                     provenance=obj.get("provenance"), **settings)
+
+
+def _block(obj: dict, key: str, where: str) -> dict:
+    """obj[key] as a dict ({} when absent)."""
+    b = obj.get(key)
+    if b is None:
+        return {}
+    if not isinstance(b, dict):
+        raise InputError(f"{where}: {key!r} is not an object")
+    return b
+
+
+def _report(obj: dict, model: CalibrationModel, identified: list, where: str) -> Identifiability:
+    """The identifiability block (rank, condition number, held parameters, observability)."""
+    ident = _block(obj, "identifiability", where)
+    free = torch.tensor(identified, dtype=torch.bool)
+    try:
+        return Identifiability(free, list(ident.get("held_at_nominal", [])), int(ident.get("rank", int(free.sum()))),
+                               float(ident.get("condition_number", float("nan"))),
+                               dict(ident.get("observability", {})), int(ident.get("poses", 0)))
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{where}: bad 'identifiability': {exc}") from None
+
+
+def _covariance(obj: dict, model: CalibrationModel, where: str) -> ParameterCovariance | None:
+    """The file's `ParameterCovariance` (radians inside), None when it has none."""
+    c = obj.get("covariance")
+    if c is None:
+        return None
+    cov = _covariance_matrix(obj, model, where)
+    try:
+        return ParameterCovariance(cov, int(c.get("dof", 1)), float(c.get("sigma_mm", 0.0)),
+                                   str(c.get("method", "rows")), c.get("noise_mm"), c.get("pose_mm"))
+    except (TypeError, ValueError, AttributeError) as exc:
+        raise InputError(f"{where}: bad 'covariance': {exc}") from None
+
+
+def _orientation(obj: dict, where: str) -> dict | None:
+    """The fit's orientation block as `FitResult.orientation` (tool rotation (3, 3))."""
+    o = obj.get("orientation")
+    if not isinstance(o, dict) or "tool_rotation_fixed_xyz_deg" not in o:
+        return None
+    from torchcal.rotations import fixed_xyz_to_matrix
+    try:
+        r = torch.deg2rad(torch.tensor([float(v) for v in o["tool_rotation_fixed_xyz_deg"]], dtype=torch.float64))
+        return {"sigma_mm": float(o["sigma_mm"]), "sigma_deg": float(o["sigma_deg"]),
+                "weight_mm_per_rad": math.degrees(float(o["weight_mm_per_deg"])),
+                "tool_rotation": fixed_xyz_to_matrix(r), "rms_deg": float(o["rms_deg"])}
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+        raise InputError(f"{where}: bad 'orientation': {exc}") from None
 
 
 def _read(path) -> dict:
@@ -215,17 +285,21 @@ def load_covariance(path, model: CalibrationModel) -> torch.Tensor:
     """(P, P) parameter covariance of MODEL.json (zeros for held parameters), in the
     order of `model.param_names()`; InputError when the file has none (written before
     torchcal recorded it)."""
-    obj = _read(path)
+    return _covariance_matrix(_read(path), model, str(path))
+
+
+def _covariance_matrix(obj: dict, model: CalibrationModel, where: str) -> torch.Tensor:
+    """(P, P) covariance of the file dict `obj` (radians inside, zeros where held)."""
     c = obj.get("covariance")
     names = model.param_names()
     try:
         idx = [names.index(n) for n in c["parameters"]]
         sub = torch.tensor(c["matrix"], dtype=torch.float64).reshape(len(idx), len(idx))
     except (KeyError, TypeError, ValueError, RuntimeError):
-        raise InputError(f"{path}: model file has no usable 'covariance' (refit it with this "
+        raise InputError(f"{where}: model file has no usable 'covariance' (refit it with this "
                          f"torchcal version)") from None
     if not torch.isfinite(sub).all():
-        raise InputError(f"{path}: 'covariance' holds non-finite values")
+        raise InputError(f"{where}: 'covariance' holds non-finite values")
     if obj["format"] != FORMAT_RAD:  # version 2: file units (degrees) -> radians inside
         k = file_units(model)[1][idx]
         sub = sub / (k[:, None] * k[None, :])

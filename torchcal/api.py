@@ -32,7 +32,8 @@ from torchcal.errors import InputError
 from torchcal.measurements import Measurements
 from torchcal.robots.robot import Robot, robot as make_robot
 
-__all__ = ["fit", "evaluate", "diagnose", "discover", "calibrate", "compensate", "register", "Evaluation"]
+__all__ = ["fit", "evaluate", "diagnose", "discover", "calibrate", "compensate", "register", "Evaluation",
+           "compensate_targets", "TargetCompensation"]
 
 
 def _robot(robot_or_model) -> Robot:
@@ -470,3 +471,133 @@ def _file_covariance(path, cm: CalibrationModel):
         return None, identified
     return ParameterCovariance(cov, int(c.get("dof", 1)), float(c.get("sigma_mm", 0.0)), str(c.get("method", "rows")),
                                c.get("noise_mm"), c.get("pose_mm")), identified
+
+
+@dataclass
+class TargetCompensation:
+    """What ``torchcal compensate`` computes and writes: the corrected commands of a
+    targets file, each with the zone it was compensated in.
+
+    Attributes:
+        targets: (M, 3) mm target positions.
+        compensation: the `Compensation` (q rad / mm, residuals, convergence, limits).
+        zone: (M,) 1-based zone of each target (1 for a single-set model).
+        q_user: (M, n) corrected commands in deg (mm for a prismatic joint).
+        n_zones, method: the model's parameter sets and how it was calibrated ("fit" for
+            a fitted model).
+        robot: the robot's name.
+        beyond_reach: 0-based rows of targets beyond the robot's reach (named, not refused).
+    """
+
+    targets: torch.Tensor
+    compensation: object
+    zone: torch.Tensor
+    q_user: torch.Tensor
+    n_zones: int
+    method: str
+    robot: str
+    beyond_reach: list = field(default_factory=list)
+
+    @property
+    def residual_mm(self) -> torch.Tensor:
+        """(M,) mm distance from the calibrated model's position to each target."""
+        return self.compensation.residual_mm.norm(dim=-1)
+
+    @property
+    def not_converged(self) -> list:
+        """0-based rows that did not meet the tolerance."""
+        return (~self.compensation.converged).nonzero().flatten().tolist()
+
+    @property
+    def outside_limits(self) -> list:
+        """0-based rows whose command lies outside the joint limits."""
+        return (~self.compensation.within_limits).nonzero().flatten().tolist()
+
+    @property
+    def failed(self) -> list:
+        """0-based rows that did not converge or lie outside the joint limits."""
+        return sorted(set(self.not_converged) | set(self.outside_limits))
+
+    def to_csv(self) -> str:
+        """Q.csv text (`torchcal.io.targets_csv.compensation_csv`)."""
+        from torchcal.io.targets_csv import compensation_csv
+
+        c = self.compensation
+        return compensation_csv(self.zone, self.q_user, self.residual_mm, c.converged, c.within_limits)
+
+    def to_dict(self) -> dict:
+        """Q.csv's rows and the failures (1-based rows), JSON types."""
+        c, res = self.compensation, self.residual_mm.tolist()
+        rows = [{"point": i + 1, "zone": int(self.zone[i]), "q": self.q_user[i].tolist(), "residual_mm": res[i],
+                 "converged": bool(c.converged[i]), "within_limits": bool(c.within_limits[i])}
+                for i in range(self.targets.shape[0])]
+        return {"robot": self.robot, "n_zones": self.n_zones, "method": self.method, "targets": rows,
+                "max_residual_mm": max(res), "outside_range": c.outside_range,
+                "not_converged": [i + 1 for i in self.not_converged],
+                "outside_limits": [i + 1 for i in self.outside_limits],
+                "beyond_reach": [i + 1 for i in self.beyond_reach]}
+
+
+def compensate_targets(model, targets, *, robot=None, length_unit: str = "mm", angle_unit: str = "deg",
+                       seeds=None, payload_kg=None, temp_c=None) -> TargetCompensation:
+    """``torchcal compensate``: corrected joint commands for a targets file or tensor.
+
+    model: a MODEL.json path of ``torchcal fit`` or ``torchcal calibrate`` (an interval
+    model: each target is compensated with its zone's parameters), an `IntervalModel`, or a
+    fitted model (FitResult, (CalibrationModel, theta)). targets: a TARGETS.csv path
+    (`torchcal.io.targets_csv.read_targets`; its seeds and conditions are used, units per
+    `length_unit` / `angle_unit`) or (M, 3) mm. robot: optional robot (preset, file, Robot)
+    the model must be for (InputError otherwise). seeds: (M, n) deg (mm for a slide)
+    starting commands for tensor targets, default the nominal inverse
+    (`torchcal.calibration.compensate.nominal_start`); payload_kg, temp_c: (M,) conditions
+    for tensor targets. Targets inside the robot's base are refused; those beyond its reach
+    are listed in ``beyond_reach``. A model effect that needs a condition the targets lack is
+    refused naming it. Converged commands outside the calibrated range: one
+    `CalibratedRangeWarning`.
+    """
+    import warnings
+
+    from torchcal.calibration.compensate import nominal_start
+    from torchcal.calibration.intervals import IntervalModel
+    from torchcal.calibration.mismatch import MismatchWarning, check_targets
+    from torchcal.effects import make_context
+    from torchcal.io.interval_model import load_interval_model
+    from torchcal.robots.robot_file import check_same_robot
+
+    where = str(targets) if isinstance(targets, (str, Path)) else "targets"
+    if isinstance(model, IntervalModel):
+        im = model
+    elif isinstance(model, (str, Path)):
+        im = load_interval_model(model)
+    else:
+        cm, theta = _fitted(model)
+        im = IntervalModel.single(cm, theta, q_range=_q_range(model, cm))
+    rob = im.model.robot
+    if robot is not None:
+        check_same_robot(rob, make_robot(robot), str(model) if isinstance(model, (str, Path)) else "model")
+    if isinstance(targets, (str, Path)):
+        from torchcal.io.targets_csv import read_targets
+
+        t, seeds, cond = read_targets(targets, rob.n, length_unit=length_unit, angle_unit=angle_unit,
+                                      prismatic=rob.prismatic)
+        payload_kg, temp_c = cond["payload_kg"], cond["temp_c"]
+    else:
+        t = torch.as_tensor(targets, dtype=torch.float64)
+        if t.ndim != 2 or t.shape[-1] != 3:
+            raise InputError(f"targets: expected (M, 3) mm, got shape {tuple(t.shape)}")
+    # the model's effects must find what they read (temp_c, payload_kg) in the targets
+    probe = make_context(rob, rob.limits.mean(-1).expand(t.shape[0], rob.n), payload_kg, temp_c)
+    for e in im.model.effects:
+        try:
+            e.check_context(probe)
+        except InputError as exc:
+            need = "column temp_c" if e.name == "thermal_expansion" else str(exc)
+            raise InputError(f"{where}: the model's effect {e.spec()} needs {need} "
+                             f"in the targets, which they lack") from None
+    with warnings.catch_warnings():  # metres read as mm: refused; beyond the reach: listed
+        warnings.simplefilter("ignore", MismatchWarning)
+        far = check_targets(im.model, im.theta[0], t, where=where)
+    q0 = nominal_start(rob, t, where=where) if seeds is None else rob.q_from_user(torch.as_tensor(seeds))
+    comp = compensate(im, t, q0, check=False, payload_kg=payload_kg, temp_c=temp_c)
+    return TargetCompensation(t, comp, im.assign(t), rob.q_to_user(comp.q), im.n_zones, im.method, rob.name,
+                              far)

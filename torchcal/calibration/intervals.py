@@ -398,6 +398,15 @@ class IntervalModel:
         return self.theta.shape[0]
 
     @classmethod
+    def single(cls, model, theta: torch.Tensor, free: torch.Tensor | None = None, q_range=None) -> "IntervalModel":
+        """One zone holding a fitted model's parameters theta (P,) (method "fit"); free (P,)
+        bool identified parameters (default all)."""
+        free = torch.ones(theta.shape[-1], dtype=torch.bool) if free is None else free
+        return cls(model, theta[None], theta[None], theta[None], free[None],
+                   [{"zone": 1, "level": None, "poses": None, "held": [], "rms_mm": None, "damping": 0.0}],
+                   None, "fit", q_range=q_range)
+
+    @classmethod
     def from_fits(cls, fits: list, partition=None, levels=None, poses=None, method: str = "global",
                   provenance=None) -> "IntervalModel":
         """From one `IntervalFit` per zone (zone order = partition zone 1..Z)."""

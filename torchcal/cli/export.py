@@ -103,7 +103,7 @@ def refit_export(model, theta, args, identified=None):
 
 
 def run(args) -> int:
-    from torchcal.cli.compensate import load_model
+    from torchcal.io.interval_model import load_interval_model as load_model
     from torchcal.errors import InputError
     from torchcal.io.files import atomic_write
     from torchcal.robots.robot_file import write_robot_file

@@ -24,7 +24,7 @@ from torchcal.errors import InputError
 from torchcal.io.partition_file import partition_from_dict, partition_to_dict
 from torchcal.robots.robot_file import model_robot, robot_to_dict
 
-__all__ = ["INTERVAL_MODEL_FORMAT", "interval_model_to_dict", "interval_model_from_dict"]
+__all__ = ["INTERVAL_MODEL_FORMAT", "interval_model_to_dict", "interval_model_from_dict", "load_interval_model"]
 
 INTERVAL_MODEL_FORMAT = "torchcal-interval-model/1"
 
@@ -83,3 +83,17 @@ def interval_model_from_dict(obj: dict, where: str = "interval model") -> Interv
         range_from_dict(obj["calibrated_range"], model.robot, where)
     return IntervalModel(model, theta, lower, upper, free, info, part, str(obj.get("method", "global")),
                          dict(obj.get("provenance") or {}), q_range=q_range)
+
+
+def load_interval_model(path) -> IntervalModel:
+    """An `IntervalModel` from a MODEL.json of ``torchcal calibrate`` or of ``torchcal fit``
+    (one zone with the fit's parameters; method "fit"): what compensate and export read."""
+    from torchcal.io import modelfile
+    from torchcal.io.files import read_json
+
+    obj = read_json(path, "model file")
+    if obj.get("format") == INTERVAL_MODEL_FORMAT:
+        return interval_model_from_dict(obj, str(path))
+    model, theta = modelfile.load(path)
+    free = torch.tensor([bool(p.get("identified", True)) for p in obj["parameters"]])
+    return IntervalModel.single(model, theta, free, q_range=model.calibrated_range)

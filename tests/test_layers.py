@@ -10,12 +10,15 @@ functions) and check the layer rules of docs/design.md.
   kinematics and calibration do not import torchcal.io.files (calibration may name the
   MODEL.json layout of torchcal.io.modelfile for `FitResult.to_dict`).
 - torchcal.rotations and torchcal.statistics import nothing of torchcal;
+- the library's messages name no command-line option (``--length-unit``): it names its
+  keyword (`InputError.fix`) and the command line writes the option;
 - the paper's experiment by concept: workflows.paper_config imports only torchcal.errors,
   workflows.paper_report never runs the experiment (no paper_experiment, simulation,
   diagnosis or reliability).
 """
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -95,3 +98,33 @@ def test_the_checker_sees_imports():
     assert any(i.startswith("torchcal.") for i in MODULES["torchcal.cli.fit"])
     assert hits({"torchcal.cli._args"}, ["torchcal.cli"]) and not hits({"torchcal.client"}, ["torchcal.cli"])
     assert "torchcal.reliability.sweep" in MODULES["torchcal.io.sweep_csv"]
+
+
+#: a command-line option inside a string: ``--name`` at the start or after a space, a quote or "("
+FLAG = re.compile(r"(?:^|[\s(`'\"])--[a-z]")
+#: strings that quote a whole command for the user to run (a command, not an option of this call)
+COMMANDS_QUOTED = {("torchcal.robots.robot_file", " --base BASE_LINK --tip TIP_LINK --out ROBOT.json")}
+
+
+def flag_strings(path: Path) -> list[str]:
+    """Non-docstring string constants of a file that name a ``--option``."""
+    tree = ast.parse(path.read_text())
+    docs = {id(n.body[0].value) for n in ast.walk(tree)
+            if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and n.body
+            and isinstance(n.body[0], ast.Expr) and isinstance(n.body[0].value, ast.Constant)}
+    return [n.value for n in ast.walk(tree) if isinstance(n, ast.Constant) and isinstance(n.value, str)
+            and id(n) not in docs and FLAG.search(n.value)]
+
+
+def test_library_messages_name_no_command_line_option():
+    bad = {}
+    for p in sorted(ROOT.rglob("*.py")):
+        mod = ".".join(("torchcal", *p.relative_to(ROOT).with_suffix("").parts))
+        if mod.startswith("torchcal.cli"):
+            continue
+        found = [s for s in flag_strings(p) if (mod, s) not in COMMANDS_QUOTED]
+        if found:
+            bad[mod] = found
+    assert not bad, bad
+    # the checker is not vacuous: the command line's own strings are found
+    assert any("--force" in s for s in flag_strings(ROOT / "cli" / "_args.py"))

@@ -601,3 +601,106 @@ def compensate_targets(model, targets, *, robot=None, length_unit: str = "mm", a
     comp = compensate(im, t, q0, check=False, payload_kg=payload_kg, temp_c=temp_c)
     return TargetCompensation(t, comp, im.assign(t), rob.q_to_user(comp.q), im.n_zones, im.method, rob.name,
                               far)
+
+
+@dataclass
+class Export:
+    """What ``torchcal export`` computed and wrote.
+
+    Attributes:
+        robot: the calibrated `Robot` (geometry folded in; its ``urdf`` names the written URDF).
+        effects_not_held: [{"spec", "parameters"}] of the model's effects that a robot file, a
+            URDF or an MD-H table cannot hold (listed in the robot file; empty after a refit).
+        residual_stage_dropped: the model had a non-physical residual stage, which is not exported.
+        refit: the `GeometryRefit` on `data` (the geometry alone refitted), else None.
+        data_rows: rows of `data` refitted on (None: no refit; data are read only when the
+            model has effects the exported robot cannot hold).
+        urdf_source: the nominal URDF whose links the calibrated URDF keeps, None for a minimal URDF.
+        written: {"robot_file", "urdf", "table"} paths written (None: not asked).
+    """
+
+    robot: Robot
+    effects_not_held: list
+    residual_stage_dropped: bool
+    refit: object
+    data_rows: int | None
+    urdf_source: str | None
+    written: dict
+
+    def to_dict(self) -> dict:
+        r = self.refit
+        return {"robot": self.robot.name, "joints": self.robot.n, "written": dict(self.written),
+                "effects_not_held": [e["spec"] for e in self.effects_not_held],
+                "residual_stage_dropped": self.residual_stage_dropped,
+                "urdf": None if self.robot.urdf is None else dict(self.robot.urdf, source=self.urdf_source),
+                "refit": None if r is None else {"rows": self.data_rows, "dropped": list(r.dropped),
+                                                 "refit_rms_mm": r.refit_rms_mm, "full_rms_mm": r.full_rms_mm,
+                                                 "naive_rms_mm": r.naive_rms_mm, "status": str(r.fit.status)}}
+
+
+def export(model, *, robot_file=None, urdf=None, table=None, data=None, length_unit: str = "mm",
+           angle_unit: str = "deg", force: bool = False) -> Export:
+    """``torchcal export``: the calibrated geometry of a model as a robot file, a URDF and/or
+    an MD-H table (CSV, `torchcal.io.mdh_table`).
+
+    model: a MODEL.json path (fit or calibrate; an interval model's zone 1), an
+    `IntervalModel` or a fitted model. The MD-H deviations go into the table, base_frame into
+    the base, tool_offset into the tool (`torchcal.calibration.geometry_only.calibrated_robot`).
+    Other effects: with `data` (Measurements or CSV path in `length_unit` / `angle_unit`) the
+    geometry alone is refitted on them (`refit_geometry`) and that geometry exported; without,
+    they are listed in the robot file. A robot imported from a URDF keeps that file's links
+    (`torchcal.robots.urdf.calibrated_urdf`), any other gets `minimal_urdf`. Every output is
+    checked before any work (OutputExistsError without `force`) and written atomically."""
+    import dataclasses
+
+    from torchcal.calibration.geometry_only import calibrated_robot, refit_geometry
+    from torchcal.calibration.intervals import IntervalModel
+    from torchcal.calibration.mismatch import check_measurements, enforce
+    from torchcal.calibration.plausibility import check_units
+    from torchcal.io.files import atomic_write, check_output
+    from torchcal.io.interval_model import load_interval_model
+    from torchcal.io.mdh_table import mdh_table_csv
+    from torchcal.robots.robot_file import write_robot_file
+    from torchcal.robots.urdf import calibrated_urdf, minimal_urdf
+
+    outs = {"robot_file": robot_file, "urdf": urdf, "table": table}
+    if not any(outs.values()):
+        raise InputError("export: give at least one output (robot file, URDF or MD-H table)")
+    inputs = [p for p in (model, data) if isinstance(p, (str, Path))]
+    for p in outs.values():
+        if p is not None:
+            check_output(p, force=force, inputs=inputs)
+    if isinstance(model, IntervalModel):
+        im = model
+    elif isinstance(model, (str, Path)):
+        im = load_interval_model(model)
+    else:
+        cm, theta = _fitted(model)
+        im = IntervalModel.single(cm, theta, q_range=_q_range(model, cm))
+    cm, theta = im.model, im.theta[0]
+    cal, rest = calibrated_robot(cm, theta)
+    refit, rows = None, None
+    if data is not None and rest:  # data only matter when the model has effects the robot cannot hold
+        m = _measurements(data, cm.robot, length_unit, angle_unit)
+        check_units(m, cm.robot, length_unit=length_unit, angle_unit=angle_unit, where=m.source or "data")
+        enforce(check_measurements(cm, theta.to(m.xyz), m, _training_rms(model, cm)))
+        rows, refit = len(m), refit_geometry(cm, theta, m, identified=im.free[0])
+        cal, rest = calibrated_robot(refit.fit.model, refit.fit.theta)[0], []
+    urdf_text, urdf_info, source = None, None, None
+    if urdf is not None:
+        if cal.urdf is not None:
+            urdf_text, tip = calibrated_urdf(cm.robot, cal)
+            source = cal.urdf["path"]
+            urdf_info = {"path": str(Path(urdf).resolve()), "base_link": cal.urdf["base_link"], "tip_link": tip}
+        else:
+            urdf_text = minimal_urdf(cal)
+            urdf_info = {"path": str(Path(urdf).resolve()), "base_link": "base_link", "tip_link": "tcp"}
+    cal = dataclasses.replace(cal, urdf=urdf_info)  # the calibrated robot file points at the calibrated URDF
+    if robot_file is not None:
+        write_robot_file(robot_file, cal, effects=rest, force=force, inputs=inputs)
+    if urdf is not None:
+        atomic_write(urdf, urdf_text, force=force, inputs=inputs)
+    if table is not None:
+        atomic_write(table, mdh_table_csv(cal), force=force, inputs=inputs)
+    return Export(cal, rest, getattr(cm, "residual_model", None) is not None, refit, rows, source,
+                  {k: (None if v is None else str(v)) for k, v in outs.items()})

@@ -704,3 +704,25 @@ def export(model, *, robot_file=None, urdf=None, table=None, data=None, length_u
         atomic_write(table, mdh_table_csv(cal), force=force, inputs=inputs)
     return Export(cal, rest, getattr(cm, "residual_model", None) is not None, refit, rows, source,
                   {k: (None if v is None else str(v)) for k, v in outs.items()})
+
+
+def accuracy(model, *, n: int = 2000, seed: int = 0, payload_kg: float | None = None, temp_c: float = 20.0):
+    """``torchcal accuracy``: the predicted TCP sigma of a fitted model at n workspace poses
+    (`torchcal.calibration.accuracy.workspace_accuracy`).
+
+    model: a MODEL.json path (its stored covariance; InputError when it has none) or a
+    `FitResult` (its covariance). payload_kg: default half the rated payload. Returns an
+    `Accuracy` whose ``to_dict()`` holds the figures the command prints."""
+    from torchcal.calibration.accuracy import workspace_accuracy
+
+    cm, theta = _fitted(model)
+    if isinstance(model, FitResult):
+        if model.covariance is None:
+            raise InputError("model: the fit holds no parameter covariance")
+        cov = model.covariance.cov
+    elif isinstance(model, (str, Path)):
+        from torchcal.io.modelfile import load_covariance
+        cov = load_covariance(model, cm)
+    else:
+        raise InputError(f"model: expected a MODEL.json path or a FitResult, got {type(model).__name__}")
+    return workspace_accuracy(cm, theta, cov, n=n, seed=seed, payload_kg=payload_kg, temp_c=temp_c)

@@ -9,6 +9,7 @@ through the module (``torchcal.calibration.fit.fit``) or, with forgiving inputs,
 from torchcal._lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
+    "torchcal.calibration.accuracy": ["Accuracy", "predicted_sigma", "region_names", "workspace_accuracy"],
     "torchcal.calibration.batched": ["batched_jacobian", "batched_predict"],
     "torchcal.calibration.compensate": ["Compensation", "nominal_inverse", "nominal_start", "predict_rows"],
     "torchcal.calibration.covariance": ["ParameterCovariance", "parameter_covariance", "tcp_covariance", "tcp_sigma"],

@@ -16,6 +16,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "torchcal.io.measurement_csv": ["ANGLE_UNITS", "LENGTH_UNITS", "JointLimitWarning", "format_measurements",
                                     "read_measurements", "write_measurements"],
     "torchcal.io.modelfile": ["file_sha256", "load_covariance"],
+    "torchcal.io.plan_csv": ["plan_csv"],
     "torchcal.io.partition_file": ["load_partition", "partition_from_dict", "partition_from_json",
                                    "partition_to_dict", "partition_to_json", "save_partition"],
     "torchcal.io.sweep_blocks": ["BlockFolder"],

@@ -226,3 +226,22 @@ def test_plan_refusals_name_the_keyword_in_the_library_and_the_option_in_the_cli
     assert capsys.readouterr().err == f"torchcal plan: error: {exc.value.message}; pass --n {need}\n"
     with pytest.raises(torchcal.InputError, match="criterion: unknown 'X'"):
         plan("puma560", n=20, candidates=300, criterion="X")
+
+
+def test_simulate_cli_and_api_write_the_same_session(tmp_path, capsys):
+    from torchcal.api import simulate
+    from torchcal.io.measurement_csv import format_measurements
+
+    out, truth = tmp_path / "m.csv", tmp_path / "truth.json"
+    capsys.readouterr()
+    assert main(["simulate", "--robot", "ur5e", "--effects", "joint_compliance:2", "thermal_expansion", "--n", "7",
+                 "--repeats", "2", "--noise", "0.05", "--seed", "4", "--pose-seed", "9", "--out", str(out),
+                 "--truth", str(truth)]) == 0
+    printed = capsys.readouterr().out
+    sim = simulate("ur5e", ["joint_compliance:2", "thermal_expansion"], n=7, repeats=2, noise_mm=0.05, seed=4,
+                   pose_seed=9)
+    assert out.read_text() == format_measurements(sim.measurements, robot=sim.robot)
+    assert json.loads(truth.read_text()) == json.loads(json.dumps(sim.truth()))
+    d = sim.to_dict()
+    assert (d["rows"], d["poses"], d["pose_seed"]) == (14, 7, 9) and "temp_c" in d["columns"]
+    assert f"7 poses x 2 repeats = 14 rows (+ {', '.join(d['columns'])}), noise 0.05 mm, seed 4, pose seed 9" in printed

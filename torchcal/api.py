@@ -33,7 +33,7 @@ from torchcal.measurements import Measurements
 from torchcal.robots.robot import Robot, robot as make_robot
 
 __all__ = ["fit", "evaluate", "diagnose", "discover", "calibrate", "compensate", "register", "Evaluation",
-           "compensate_targets", "TargetCompensation"]
+           "compensate_targets", "TargetCompensation", "export", "Export", "accuracy", "simulate", "Simulation"]
 
 
 def _robot(robot_or_model) -> Robot:
@@ -726,3 +726,59 @@ def accuracy(model, *, n: int = 2000, seed: int = 0, payload_kg: float | None = 
     else:
         raise InputError(f"model: expected a MODEL.json path or a FitResult, got {type(model).__name__}")
     return workspace_accuracy(cm, theta, cov, n=n, seed=seed, payload_kg=payload_kg, temp_c=temp_c)
+
+
+@dataclass
+class Simulation:
+    """A simulated measurement session (``torchcal simulate``).
+
+    measurements: the `Measurements` (rows in movement order); robot: the nominal `Robot`;
+    effects: the virtual robot's effect specs; theta: (P,) its true parameters (model units);
+    seed, pose_seed: the robot's seed and the seed of the poses and the session; repeats, noise_mm."""
+
+    measurements: Measurements
+    robot: Robot
+    effects: list
+    theta: torch.Tensor
+    parameter_names: list
+    seed: int
+    pose_seed: int
+    repeats: int
+    noise_mm: float
+
+    def truth(self) -> dict:
+        """The true parameters, as ``torchcal simulate --truth`` writes them (degrees and mm,
+        the units of MODEL.json)."""
+        from torchcal.calibration.model import CalibrationModel
+        from torchcal.io.modelfile import file_units
+
+        units, k = file_units(CalibrationModel(self.robot, self.effects))
+        values = (self.theta.detach().to("cpu", torch.float64) * k).tolist()
+        return {"robot": self.robot.name, "seed": self.seed, "effects": list(self.effects),
+                "parameters": {n: {"value": v, "unit": u} for n, v, u in zip(self.parameter_names, values, units)}}
+
+    def to_dict(self) -> dict:
+        m = self.measurements
+        return {"robot": self.robot.name, "effects": list(self.effects), "rows": len(m),
+                "poses": len(m) // self.repeats, "repeats": self.repeats, "noise_mm": self.noise_mm,
+                "seed": self.seed, "pose_seed": self.pose_seed,
+                "columns": [c for c, v in (("payload_kg", m.payload_kg), ("temp_c", m.temp_c)) if v is not None]}
+
+
+def simulate(robot, effects=(), *, n: int = 50, repeats: int = 1, noise_mm: float = 0.02, seed: int = 0,
+             pose_seed: int | None = None) -> Simulation:
+    """``torchcal simulate``: n random poses of a virtual robot (`robot` with `effects` whose
+    true parameters are drawn with `seed`), each measured `repeats` times with noise_mm
+    (1 sigma per axis). pose_seed: seed of the poses and the session (default `seed`; another
+    value gives fresh poses of the same virtual robot)."""
+    from torchcal.effects.spec import parse_specs
+    from torchcal.simulation.virtual_robot import VirtualRobot, random_poses
+
+    rob = _robot(robot)
+    specs = [str(s) for s in parse_specs(list(effects), rob.n)] if effects else []
+    ps = seed if pose_seed is None else pose_seed
+    q = random_poses(rob, n, torch.Generator().manual_seed(ps))
+    vr = VirtualRobot(rob, specs, seed=seed)
+    # the session's seed as VirtualRobot.measure derives it from its own seed (the same file without pose_seed)
+    m = vr.measure(q, repeats=repeats, noise_mm=noise_mm, seed=ps * 1_000_003 + 17)
+    return Simulation(m, rob, specs, vr.theta, vr.model.param_names(), seed, ps, repeats, noise_mm)

@@ -473,6 +473,20 @@ def _file_covariance(path, cm: CalibrationModel):
                                c.get("noise_mm"), c.get("pose_mm")), identified
 
 
+def _interval_model(model):
+    """An `IntervalModel` of a MODEL.json path (fit or calibrate), an `IntervalModel` or a
+    fitted model (one zone)."""
+    from torchcal.calibration.intervals import IntervalModel
+    from torchcal.io.interval_model import load_interval_model
+
+    if isinstance(model, IntervalModel):
+        return model
+    if isinstance(model, (str, Path)):
+        return load_interval_model(model)
+    cm, theta = _fitted(model)
+    return IntervalModel.single(cm, theta, q_range=_q_range(model, cm))
+
+
 @dataclass
 class TargetCompensation:
     """What ``torchcal compensate`` computes and writes: the corrected commands of a
@@ -558,20 +572,12 @@ def compensate_targets(model, targets, *, robot=None, length_unit: str = "mm", a
     import warnings
 
     from torchcal.calibration.compensate import nominal_start
-    from torchcal.calibration.intervals import IntervalModel
     from torchcal.calibration.mismatch import MismatchWarning, check_targets
     from torchcal.effects import make_context
-    from torchcal.io.interval_model import load_interval_model
     from torchcal.robots.robot_file import check_same_robot
 
     where = str(targets) if isinstance(targets, (str, Path)) else "targets"
-    if isinstance(model, IntervalModel):
-        im = model
-    elif isinstance(model, (str, Path)):
-        im = load_interval_model(model)
-    else:
-        cm, theta = _fitted(model)
-        im = IntervalModel.single(cm, theta, q_range=_q_range(model, cm))
+    im = _interval_model(model)
     rob = im.model.robot
     if robot is not None:
         check_same_robot(rob, make_robot(robot), str(model) if isinstance(model, (str, Path)) else "model")
@@ -654,11 +660,9 @@ def export(model, *, robot_file=None, urdf=None, table=None, data=None, length_u
     import dataclasses
 
     from torchcal.calibration.geometry_only import calibrated_robot, refit_geometry
-    from torchcal.calibration.intervals import IntervalModel
     from torchcal.calibration.mismatch import check_measurements, enforce
     from torchcal.calibration.plausibility import check_units
     from torchcal.io.files import atomic_write, check_output
-    from torchcal.io.interval_model import load_interval_model
     from torchcal.io.mdh_table import mdh_table_csv
     from torchcal.robots.robot_file import write_robot_file
     from torchcal.robots.urdf import calibrated_urdf, minimal_urdf
@@ -670,13 +674,7 @@ def export(model, *, robot_file=None, urdf=None, table=None, data=None, length_u
     for p in outs.values():
         if p is not None:
             check_output(p, force=force, inputs=inputs)
-    if isinstance(model, IntervalModel):
-        im = model
-    elif isinstance(model, (str, Path)):
-        im = load_interval_model(model)
-    else:
-        cm, theta = _fitted(model)
-        im = IntervalModel.single(cm, theta, q_range=_q_range(model, cm))
+    im = _interval_model(model)
     cm, theta = im.model, im.theta[0]
     cal, rest = calibrated_robot(cm, theta)
     refit, rows = None, None

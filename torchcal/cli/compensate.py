@@ -1,5 +1,5 @@
 """`torchcal compensate TARGETS.csv --model MODEL.json --out Q.csv`: corrected joint commands
-that make the calibrated model reach each target (torchcal.calibration.compensate).
+that make the calibrated model reach each target (torchcal.api.compensate_targets).
 
 TARGETS.csv: header ``x,y,z`` (mm, robot base frame; --length-unit m for metres) and
 optionally ``q1..qN`` (degrees, mm for a prismatic joint; --angle-unit rad, --length-unit m), ``payload_kg``

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import re
+from pathlib import Path
 
 import pytest
 import torch
@@ -203,7 +204,7 @@ def test_plan_cli_and_api_agree(tmp_path, capsys):
     res = plan("puma560", ["joint_compliance:2"], n=10, candidates=400, seed=2, criterion="O1", random_plans=6)
     from torchcal.io.plan_csv import plan_csv
 
-    assert out.read_text() == plan_csv(res.q)
+    assert out.read_text() == plan_csv(res.q, torchcal.robot("puma560"))
     d = res.to_dict()
     assert f"{d['n']} of {d['candidates']} candidate poses, {d['identifiable']} identifiable parameters" in lines[0]
     assert lines[1] == (f"criterion O1: plan {d['value']:.6g}; random plans of 10 (n=6) mean {d['random']['mean']:.6g}, "
@@ -245,3 +246,25 @@ def test_simulate_cli_and_api_write_the_same_session(tmp_path, capsys):
     d = sim.to_dict()
     assert (d["rows"], d["poses"], d["pose_seed"]) == (14, 7, 9) and "temp_c" in d["columns"]
     assert f"7 poses x 2 repeats = 14 rows (+ {', '.join(d['columns'])}), noise 0.05 mm, seed 4, pose seed 9" in printed
+
+
+def test_plan_of_a_prismatic_robot_writes_the_slide_in_mm(tmp_path, capsys):
+    scara = str(Path(__file__).resolve().parents[1] / "examples" / "scara.json")
+    out = tmp_path / "plan.csv"
+    assert main(["plan", "--robot", scara, "--n", "12", "--candidates", "300", "--floor=-1e9",
+                 "--column-radius", "0", "--out", str(out)]) == 0
+    rows = [r.split(",") for r in out.read_text().splitlines()[1:]]
+    robot = torchcal.robot(scara)
+    lo, hi = robot.limits[2].tolist()  # the slide's limits, mm
+    slide = [float(r[3]) for r in rows]
+    assert all(lo <= v <= hi for v in slide) and max(slide) - min(slide) > 0.2 * (hi - lo)
+    res = plan(scara, n=12, candidates=300, workspace=_workspace(floor=-1e9, column_radius=0.0))
+    assert_close(torch.tensor(slide, dtype=torch.float64), res.q[:, 2], rtol=0, atol=1e-9)
+
+
+def _workspace(**kw):
+    from torchcal.reliability.sweep import Workspace
+
+    w = Workspace()
+    return Workspace(kw.get("floor", w.floor_z_mm), kw.get("column_radius", w.column_radius_mm),
+                     w.column_height_mm, w.reach_fraction)

@@ -3,7 +3,7 @@ poses from M candidates (Latin hypercube inside the joint limits, filtered like 
 workspace) that best determine the identifiable parameters of the model to be fitted
 (criterion D, O1 or E on the parameter Jacobian), ordered so the joint moves stay short.
 
-The plan file has the measurement CSV's pose and joint columns, ``pose,q1,...,qN`` (degrees);
+The plan file has the measurement CSV's pose and joint columns, ``pose,q1,...,qN`` (degrees, mm for a prismatic joint);
 measure x, y, z (mm) at each row and add them as columns to get a measurement file for
 `torchcal fit`. Prints the criterion and the observability indices O1-O5 of the plan
 against random plans of the same size from the same candidates."""
@@ -46,6 +46,7 @@ def run(args) -> int:
     from torchcal.io.plan_csv import plan_csv
     from torchcal.planning.plan import OBSERVABILITY, plan
     from torchcal.reliability.sweep import Workspace
+    from torchcal.robots.robot import robot as make_robot
 
     check_outputs([("--out", args.out), *plot_outputs(args.plots, PNGS)], args.force)  # all before the work
     if args.n > args.candidates:
@@ -53,7 +54,8 @@ def run(args) -> int:
     res = plan(args.robot, args.effects, n=args.n, candidates=args.candidates, criterion=args.criterion,
                seed=args.seed, payload_kg=args.payload, temp_c=args.temp, random_plans=args.random_plans,
                workspace=Workspace(args.floor, args.column_radius, args.column_height, args.reach))
-    atomic_write(args.out, plan_csv(res.q).encode(), force=args.force)
+    robot = make_robot(args.robot)
+    atomic_write(args.out, plan_csv(res.q, robot).encode(), force=args.force)
     d = res.to_dict()
     print(f"plan {args.robot} + [{', '.join(d['effects']) or 'geometric only'}]: {d['n']} of {d['candidates']} "
           f"candidate poses, {d['identifiable']} identifiable parameters, criterion {d['criterion']}")
@@ -70,12 +72,11 @@ def run(args) -> int:
     t = d["travel_deg"]
     print(f"joint travel (sum of largest joint move, from home): {t['ordered']:.0f} deg "
           f"ordered vs {t['selection']:.0f} deg in selection order")
-    print(f"wrote {args.out} (pose,q1..q{res.q.shape[1]} in degrees; measure x,y,z in mm at each row)")
+    print(f"wrote {args.out} (pose,q1..q{res.q.shape[1]} in degrees, mm for a prismatic joint; measure x,y,z in mm "
+          f"at each row)")
     if args.plots:
         from viz import planning as vp
-        from torchcal.robots.robot import robot as make_robot
 
-        robot = make_robot(args.robot)
         vp.plan_poses(Path(args.plots) / PNGS[0], robot.fk(res.candidates), robot.fk(res.q), force=args.force)
         vp.criterion_vs_n(Path(args.plots) / PNGS[1], list(range(1, args.n + 1)), res.history, res.random_curve(),
                           args.criterion, force=args.force)

@@ -91,8 +91,7 @@ class MeasurementPlan:
                                       "random_min": float(rnd[:, i].min()), "random_max": float(rnd[:, i].max())}
                                   for i, k in enumerate(OBSERVABILITY)},
                 "held": list(self.held), "travel_deg": {"ordered": self.travel_deg(True),
-                                                        "selection": self.travel_deg(False)},
-                "q_deg": torch.rad2deg(self.q).tolist()}
+                                                        "selection": self.travel_deg(False)}}
 
 
 def _random_plans(M: int, n: int, count: int, seed: int):

@@ -268,3 +268,22 @@ def _workspace(**kw):
     w = Workspace()
     return Workspace(kw.get("floor", w.floor_z_mm), kw.get("column_radius", w.column_radius_mm),
                      w.column_height_mm, w.reach_fraction)
+
+
+def test_compensate_with_an_interval_model_cli_and_api_agree(tmp_path, capsys):
+    rob = torchcal.robot("ur5e")
+    vr = VirtualRobot(rob, ["base_frame"], seed=6)
+    write_measurements(tmp_path / "m.csv", vr.measure(random_poses(rob, 30, 6), repeats=3, seed=7))
+    model = tmp_path / "model.json"
+    assert main(["calibrate", str(tmp_path / "m.csv"), "--robot", "ur5e", "--effects", "base_frame",
+                 "--out", str(model)]) == 0
+    targets = _targets(tmp_path / "t.csv", rob.fk(random_poses(rob, 10, 8)))
+    out = tmp_path / "q.csv"
+    capsys.readouterr()
+    code = main(["compensate", str(targets), "--model", str(model), "--out", str(out)])
+    printed = capsys.readouterr().out
+    res = compensate_targets(model, targets)
+    assert out.read_text() == res.to_csv() and code == (1 if res.failed else 0)
+    d = res.to_dict()
+    assert d["method"] == "global" and d["n_zones"] == 1
+    assert f"with 1 parameter set(s) (global)" in printed

@@ -287,3 +287,17 @@ def test_compensate_with_an_interval_model_cli_and_api_agree(tmp_path, capsys):
     d = res.to_dict()
     assert d["method"] == "global" and d["n_zones"] == 1
     assert f"with 1 parameter set(s) (global)" in printed
+
+
+def test_unknown_effect_names_the_registry_in_the_library_and_the_option_in_the_cli(tmp_path, capsys):
+    from torchcal.effects.spec import UnknownEffectError
+
+    with pytest.raises(UnknownEffectError) as exc:
+        plan("puma560", ["joint_coupling:2"], n=20, candidates=300)
+    assert "torchcal.effects.register" in str(exc.value) and "--" not in str(exc.value)
+    capsys.readouterr()
+    assert main(["plan", "--robot", "puma560", "--effects", "joint_coupling:2", "--n", "20", "--candidates", "300",
+                 "--out", str(tmp_path / "p.csv")]) == 2
+    expected = str(exc.value).replace(UnknownEffectError.HINT, "(an effect of your own: load its file with "
+                                                               "--effects-module FILE.py)")
+    assert capsys.readouterr().err == f"torchcal plan: error: {expected}\n" and expected != str(exc.value)

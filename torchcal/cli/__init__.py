@@ -127,7 +127,8 @@ def command_line_message(exc: Exception) -> str:
     if isinstance(exc, OutputExistsError):
         text += f"; {FORCE_HINT}"
     elif spec is not None and _caused_by(exc, spec.UnknownEffectError):
-        text += "; an effect of your own: load its file with --effects-module FILE.py"
+        text = text.replace(spec.UnknownEffectError.HINT, "(an effect of your own: load its file with "
+                                                          "--effects-module FILE.py)")
     return text
 
 

@@ -81,7 +81,10 @@ class EffectSpec:
 
 
 class UnknownEffectError(InputError):
-    """An effect spec names no registered effect (the command line adds how to load one)."""
+    """An effect spec names no registered effect. Its message ends with `HINT` (how a
+    library caller registers an effect of its own); the command line names its option instead."""
+
+    HINT = "(an effect of your own: register it first, torchcal.effects.register or load_module)"
 
 
 def _unknown(name: str, text: str) -> str:
@@ -92,7 +95,7 @@ def _unknown(name: str, text: str) -> str:
         return (f"effect spec {text!r}: 'geometric' is always part of the model; leave it out "
                 f"(optional effects: {valid})")
     return (f"effect spec {text!r}: unknown effect {name!r}{did}; expected one of {valid} "
-            f"(an effect of your own: register it first, torchcal.effects.register or load_module)")
+            + UnknownEffectError.HINT)
 
 
 def _check_n(n_joints) -> int:

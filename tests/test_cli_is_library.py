@@ -301,3 +301,21 @@ def test_unknown_effect_names_the_registry_in_the_library_and_the_option_in_the_
     expected = str(exc.value).replace(UnknownEffectError.HINT, "(an effect of your own: load its file with "
                                                                "--effects-module FILE.py)")
     assert capsys.readouterr().err == f"torchcal plan: error: {expected}\n" and expected != str(exc.value)
+
+
+def test_calibrate_cli_writes_the_apis_interval_model(tmp_path):
+    from torchcal.io.interval_model import interval_model_to_dict
+
+    rob = torchcal.robot("ur5e")
+    vr = VirtualRobot(rob, ["base_frame"], seed=6)
+    data = tmp_path / "m.csv"
+    write_measurements(data, vr.measure(random_poses(rob, 30, 6), repeats=3, seed=7))
+    out = tmp_path / "model.json"
+    assert main(["calibrate", str(data), "--robot", "ur5e", "--effects", "base_frame", "--out", str(out)]) == 0
+    cli = json.loads(out.read_text())
+    api = json.loads(json.dumps(interval_model_to_dict(torchcal.calibrate("ur5e", data, ["base_frame"]),
+                                                       source=data)))
+    assert cli.keys() == api.keys()
+    for key in cli:
+        assert cli[key] == api[key], key
+    assert cli["provenance"]["input"] == str(data) and len(cli["provenance"]["input_sha256"]) == 64

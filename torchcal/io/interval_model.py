@@ -29,9 +29,20 @@ __all__ = ["INTERVAL_MODEL_FORMAT", "interval_model_to_dict", "interval_model_fr
 INTERVAL_MODEL_FORMAT = "torchcal-interval-model/1"
 
 
-def interval_model_to_dict(im: IntervalModel) -> dict:
-    """A JSON-ready dict of `im` (see `interval_model_from_dict`)."""
+def interval_model_to_dict(im: IntervalModel, *, source=None, partition_source=None) -> dict:
+    """A JSON-ready dict of `im` (see `interval_model_from_dict`): the MODEL.json of
+    ``torchcal calibrate``. source: the measurement CSV it was calibrated on, partition_source:
+    the PARTITION.json (paths): with `source` the provenance records them, the CSV's SHA-256
+    and the torchcal version; without, `im.provenance`."""
     m = im.model
+    provenance = im.provenance or {}
+    if source is not None:
+        import torchcal
+        from torchcal.io.modelfile import file_sha256
+
+        provenance = {"input": str(source), "input_sha256": file_sha256(source),
+                      "partition": None if partition_source is None else str(partition_source),
+                      "torchcal_version": torchcal.__version__}
     zones = []
     for z, info in enumerate(im.zones):
         zones.append({**info, "theta": im.theta[z].tolist(), "lower": im.lower[z].tolist(),
@@ -41,7 +52,7 @@ def interval_model_to_dict(im: IntervalModel) -> dict:
            "parameter_names": m.param_names(), "parameter_units": m.param_units(),
            "method": im.method, "zones": zones,
            "partition": None if im.partition is None else partition_to_dict(im.partition),
-           "provenance": im.provenance or {}}
+           "provenance": provenance}
     if im.q_range is not None:
         out["calibrated_range"] = range_to_dict(im.q_range, m.robot)
     return out

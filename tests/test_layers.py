@@ -13,12 +13,17 @@ functions) and check the layer rules of docs/design.md.
 - a `CalibrationModel` holds no fitted state: no module but its own sets an attribute
   on one (``model.x = ...``, ``cm.x = ...``, ``fit.model.x = ...``, ``setattr``); the
   fitted facts are fields of `FitResult`.
+
+
+- the library's messages name no command-line option (``--length-unit``): it names its
+  keyword (`InputError.fix`) and the command line writes the option;
 - the paper's experiment by concept: workflows.paper_config imports only torchcal.errors,
   workflows.paper_report never runs the experiment (no paper_experiment, simulation,
   diagnosis or reliability).
 """
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -192,3 +197,33 @@ def test_the_model_attribute_checker_sees_writes():
     assert model_attribute_writes("model.tool_rotation = r\nsetattr(new, a, 1)") == \
         ["model.tool_rotation", "setattr(new, a, 1)"]
     assert model_attribute_writes("x = model.theta\nres.theta = 1\nsetattr(sys.modules[p], n, v)") == []
+
+
+#: a command-line option inside a string: ``--name`` at the start or after a space, a quote or "("
+FLAG = re.compile(r"(?:^|[\s(`'\"])--[a-z]")
+#: strings that quote a whole command for the user to run (a command, not an option of this call)
+COMMANDS_QUOTED = {("torchcal.robots.robot_file", " --base BASE_LINK --tip TIP_LINK --out ROBOT.json")}
+
+
+def flag_strings(path: Path) -> list[str]:
+    """Non-docstring string constants of a file that name a ``--option``."""
+    tree = ast.parse(path.read_text())
+    docs = {id(n.body[0].value) for n in ast.walk(tree)
+            if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and n.body
+            and isinstance(n.body[0], ast.Expr) and isinstance(n.body[0].value, ast.Constant)}
+    return [n.value for n in ast.walk(tree) if isinstance(n, ast.Constant) and isinstance(n.value, str)
+            and id(n) not in docs and FLAG.search(n.value)]
+
+
+def test_library_messages_name_no_command_line_option():
+    bad = {}
+    for p in sorted(ROOT.rglob("*.py")):
+        mod = ".".join(("torchcal", *p.relative_to(ROOT).with_suffix("").parts))
+        if mod.startswith("torchcal.cli"):
+            continue
+        found = [s for s in flag_strings(p) if (mod, s) not in COMMANDS_QUOTED]
+        if found:
+            bad[mod] = found
+    assert not bad, bad
+    # the checker is not vacuous: the command line's own strings are found
+    assert any("--force" in s for s in flag_strings(ROOT / "cli" / "_args.py"))

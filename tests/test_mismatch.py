@@ -97,7 +97,7 @@ def test_bound_is_ratio_and_absolute():
 
 def test_targets_in_metres_are_refused(ur10):
     _, _, fitted, val = ur10
-    with pytest.raises(InputError, match="metres read as mm; pass --length-unit m"):
+    with pytest.raises(InputError, match="metres read as mm; pass length_unit=.m."):
         torchcal.compensate(fitted, val.xyz[:5] / 1000)
 
 

@@ -97,7 +97,7 @@ def test_plan_cli_writes_poses_inside_limits_and_prints_indices(tmp_path, capsys
 
 
 @pytest.mark.parametrize("argv, words", [
-    (["--n", "2"], "--n 2"),
+    (["--n", "2"], "; pass --n "),
     (["--n", "20", "--candidates", "10"], "--candidates"),
     (["--n", "10", "--effects", "nosuch"], "nosuch"),
 ])

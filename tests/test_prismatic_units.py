@@ -15,7 +15,7 @@ import pytest
 import torch
 
 from torchcal.cli import main
-from torchcal.cli.compensate import read_targets
+from torchcal.io.targets_csv import read_targets
 from torchcal.errors import InputError
 from torchcal.calibration.plausibility import check_units
 from torchcal.io.measurement_csv import read_measurements

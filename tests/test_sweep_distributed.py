@@ -34,7 +34,7 @@ import torch
 
 import torchcal
 from torchcal import cli
-from torchcal.errors import InputError
+from torchcal.errors import InputError, OutputExistsError
 from torchcal.io.sweep_csv import sweep_csv_text
 from torchcal.workflows.distributed import _hist_median, plan_sweep, run_sweep
 from torchcal.reliability.sweep import block_seed, sample_workspace, sweep, sweep_block, sweep_states
@@ -138,8 +138,8 @@ def test_other_arguments_over_a_partial_output_refuse(kr, tmp_path):
     out = tmp_path / "s.csv"
     with pytest.raises(Stop):
         run_sweep(_plan(kr), out, on_block=_stop_after(2, []))
-    refusal = r"partial sweep with other arguments \(clearance states differ; seed 5 there, 6 here\).*--force"
-    with pytest.raises(InputError, match=refusal):
+    refusal = r"partial sweep with other arguments \(clearance states differ; seed 5 there, 6 here\); rerun with the same arguments"
+    with pytest.raises(OutputExistsError, match=refusal):  # the command line adds its --force hint
         run_sweep(_plan(kr, seed=6), out)
     with pytest.raises(InputError, match=r"samples 40 there, 41 here"):
         run_sweep(_plan(kr, n_samples=41), out)

@@ -128,7 +128,7 @@ def test_minimal_export_reimports_to_calibrated_fk(tmp_path, key):
 
 def test_bad_links_one_line(tmp_path):
     path, base, tip = _write(tmp_path, "ur")
-    with pytest.raises(InputError, match="--tip: no link 'nosuch'"):
+    with pytest.raises(InputError, match="tip link: no link 'nosuch'"):
         robot_from_urdf(path, base, "nosuch")
 
 

@@ -32,7 +32,8 @@ from torchcal.errors import InputError
 from torchcal.measurements import Measurements
 from torchcal.robots.robot import Robot, robot as make_robot
 
-__all__ = ["fit", "load", "evaluate", "diagnose", "discover", "calibrate", "compensate", "register", "Evaluation"]
+__all__ = ["fit", "load", "evaluate", "diagnose", "discover", "calibrate", "compensate", "register", "Evaluation",
+           "compensate_targets", "TargetCompensation", "export", "Export", "accuracy", "simulate", "Simulation"]
 
 
 def _robot(robot_or_model) -> Robot:
@@ -433,3 +434,312 @@ def _is_model(obj) -> bool:
 
         return read_json(obj, "model or robot file").get("format") in (FORMAT, FORMAT_RAD)
     return False
+
+
+def _interval_model(model):
+    """An `IntervalModel` of a MODEL.json path (fit or calibrate), an `IntervalModel` or a
+    fitted model (one zone)."""
+    from torchcal.calibration.intervals import IntervalModel
+    from torchcal.io.interval_model import load_interval_model
+
+    if isinstance(model, IntervalModel):
+        return model
+    if isinstance(model, (str, Path)):
+        return load_interval_model(model)
+    return IntervalModel.of_fit(_fitted(model))
+
+
+@dataclass
+class TargetCompensation:
+    """What ``torchcal compensate`` computes and writes: the corrected commands of a
+    targets file, each with the zone it was compensated in.
+
+    Attributes:
+        targets: (M, 3) mm target positions.
+        compensation: the `Compensation` (q rad / mm, residuals, convergence, limits).
+        zone: (M,) 1-based zone of each target (1 for a single-set model).
+        q_user: (M, n) corrected commands in deg (mm for a prismatic joint).
+        n_zones, method: the model's parameter sets and how it was calibrated ("fit" for
+            a fitted model).
+        robot: the robot's name.
+        beyond_reach: 0-based rows of targets beyond the robot's reach (named, not refused).
+    """
+
+    targets: torch.Tensor
+    compensation: object
+    zone: torch.Tensor
+    q_user: torch.Tensor
+    n_zones: int
+    method: str
+    robot: str
+    beyond_reach: list = field(default_factory=list)
+
+    @property
+    def residual_mm(self) -> torch.Tensor:
+        """(M,) mm distance from the calibrated model's position to each target."""
+        return self.compensation.residual_mm.norm(dim=-1)
+
+    @property
+    def not_converged(self) -> list:
+        """0-based rows that did not meet the tolerance."""
+        return (~self.compensation.converged).nonzero().flatten().tolist()
+
+    @property
+    def outside_limits(self) -> list:
+        """0-based rows whose command lies outside the joint limits."""
+        return (~self.compensation.within_limits).nonzero().flatten().tolist()
+
+    @property
+    def failed(self) -> list:
+        """0-based rows that did not converge or lie outside the joint limits."""
+        return sorted(set(self.not_converged) | set(self.outside_limits))
+
+    def to_csv(self) -> str:
+        """Q.csv text (`torchcal.io.targets_csv.compensation_csv`)."""
+        from torchcal.io.targets_csv import compensation_csv
+
+        c = self.compensation
+        return compensation_csv(self.zone, self.q_user, self.residual_mm, c.converged, c.within_limits)
+
+    def to_dict(self) -> dict:
+        """Q.csv's rows and the failures (1-based rows), JSON types."""
+        c, res = self.compensation, self.residual_mm.tolist()
+        rows = [{"point": i + 1, "zone": int(self.zone[i]), "q": self.q_user[i].tolist(), "residual_mm": res[i],
+                 "converged": bool(c.converged[i]), "within_limits": bool(c.within_limits[i])}
+                for i in range(self.targets.shape[0])]
+        return {"robot": self.robot, "n_zones": self.n_zones, "method": self.method, "targets": rows,
+                "max_residual_mm": max(res), "outside_range": c.outside_range,
+                "not_converged": [i + 1 for i in self.not_converged],
+                "outside_limits": [i + 1 for i in self.outside_limits],
+                "beyond_reach": [i + 1 for i in self.beyond_reach]}
+
+
+def compensate_targets(model, targets, *, robot=None, length_unit: str = "mm", angle_unit: str = "deg",
+                       seeds=None, payload_kg=None, temp_c=None) -> TargetCompensation:
+    """``torchcal compensate``: corrected joint commands for a targets file or tensor.
+
+    model: a MODEL.json path of ``torchcal fit`` or ``torchcal calibrate`` (an interval
+    model: each target is compensated with its zone's parameters), an `IntervalModel`, or a
+    fitted model (FitResult). targets: a TARGETS.csv path
+    (`torchcal.io.targets_csv.read_targets`; its seeds and conditions are used, units per
+    `length_unit` / `angle_unit`) or (M, 3) mm. robot: optional robot (preset, file, Robot)
+    the model must be for (InputError otherwise). seeds: (M, n) deg (mm for a slide)
+    starting commands for tensor targets, default the nominal inverse
+    (`torchcal.calibration.compensate.nominal_start`); payload_kg, temp_c: (M,) conditions
+    for tensor targets. Targets inside the robot's base are refused; those beyond its reach
+    are listed in ``beyond_reach``. A model effect that needs a condition the targets lack is
+    refused naming it. Converged commands outside the calibrated range: one
+    `CalibratedRangeWarning`.
+    """
+    import warnings
+
+    from torchcal.calibration.compensate import nominal_start
+    from torchcal.calibration.mismatch import MismatchWarning, check_targets
+    from torchcal.effects import make_context
+    from torchcal.robots.robot_file import check_same_robot
+
+    where = str(targets) if isinstance(targets, (str, Path)) else "targets"
+    im = _interval_model(model)
+    rob = im.model.robot
+    if robot is not None:
+        check_same_robot(rob, make_robot(robot), str(model) if isinstance(model, (str, Path)) else "model")
+    if isinstance(targets, (str, Path)):
+        from torchcal.io.targets_csv import read_targets
+
+        t, seeds, cond = read_targets(targets, rob.n, length_unit=length_unit, angle_unit=angle_unit,
+                                      prismatic=rob.prismatic)
+        payload_kg, temp_c = cond["payload_kg"], cond["temp_c"]
+    else:
+        t = torch.as_tensor(targets, dtype=torch.float64)
+        if t.ndim != 2 or t.shape[-1] != 3:
+            raise InputError(f"targets: expected (M, 3) mm, got shape {tuple(t.shape)}")
+    # the model's effects must find what they read (temp_c, payload_kg) in the targets
+    probe = make_context(rob, rob.limits.mean(-1).expand(t.shape[0], rob.n), payload_kg, temp_c)
+    for e in im.model.effects:
+        try:
+            e.check_context(probe)
+        except InputError as exc:
+            need = "column temp_c" if e.name == "thermal_expansion" else str(exc)
+            raise InputError(f"{where}: the model's effect {e.spec()} needs {need} "
+                             f"in the targets, which they lack") from None
+    with warnings.catch_warnings():  # metres read as mm: refused; beyond the reach: listed
+        warnings.simplefilter("ignore", MismatchWarning)
+        far = check_targets(im.model, im.theta[0], t, where=where)
+    q0 = nominal_start(rob, t, where=where) if seeds is None else rob.q_from_user(torch.as_tensor(seeds))
+    comp = compensate(im, t, q0, check=False, payload_kg=payload_kg, temp_c=temp_c)
+    return TargetCompensation(t, comp, im.assign(t), rob.q_to_user(comp.q), im.n_zones, im.method, rob.name,
+                              far)
+
+
+@dataclass
+class Export:
+    """What ``torchcal export`` computed and wrote.
+
+    Attributes:
+        robot: the calibrated `Robot` (geometry folded in; its ``urdf`` names the written URDF).
+        effects_not_held: [{"spec", "parameters"}] of the model's effects that a robot file, a
+            URDF or an MD-H table cannot hold (listed in the robot file; empty after a refit).
+        residual_stage_dropped: the model had a non-physical residual stage, which is not exported.
+        refit: the `GeometryRefit` on `data` (the geometry alone refitted), else None.
+        data_rows: rows of `data` refitted on (None: no refit; data are read only when the
+            model has effects the exported robot cannot hold).
+        urdf_source: the nominal URDF whose links the calibrated URDF keeps, None for a minimal URDF.
+        written: {"robot_file", "urdf", "table"} paths written (None: not asked).
+    """
+
+    robot: Robot
+    effects_not_held: list
+    residual_stage_dropped: bool
+    refit: object
+    data_rows: int | None
+    urdf_source: str | None
+    written: dict
+
+    def to_dict(self) -> dict:
+        r = self.refit
+        return {"robot": self.robot.name, "joints": self.robot.n, "written": dict(self.written),
+                "effects_not_held": [e["spec"] for e in self.effects_not_held],
+                "residual_stage_dropped": self.residual_stage_dropped,
+                "urdf": None if self.robot.urdf is None else dict(self.robot.urdf, source=self.urdf_source),
+                "refit": None if r is None else {"rows": self.data_rows, "dropped": list(r.dropped),
+                                                 "refit_rms_mm": r.refit_rms_mm, "full_rms_mm": r.full_rms_mm,
+                                                 "naive_rms_mm": r.naive_rms_mm, "status": str(r.fit.status)}}
+
+
+def export(model, *, robot_file=None, urdf=None, table=None, data=None, length_unit: str = "mm",
+           angle_unit: str = "deg", force: bool = False) -> Export:
+    """``torchcal export``: the calibrated geometry of a model as a robot file, a URDF and/or
+    an MD-H table (CSV, `torchcal.io.mdh_table`).
+
+    model: a MODEL.json path (fit or calibrate; an interval model's zone 1), an
+    `IntervalModel` or a fitted model. The MD-H deviations go into the table, base_frame into
+    the base, tool_offset into the tool (`torchcal.calibration.geometry_only.calibrated_robot`).
+    Other effects: with `data` (Measurements or CSV path in `length_unit` / `angle_unit`) the
+    geometry alone is refitted on them (`refit_geometry`) and that geometry exported; without,
+    they are listed in the robot file. A robot imported from a URDF keeps that file's links
+    (`torchcal.robots.urdf.calibrated_urdf`), any other gets `minimal_urdf`. Every output is
+    checked before any work (OutputExistsError without `force`) and written atomically."""
+    import dataclasses
+
+    from torchcal.calibration.geometry_only import calibrated_robot, refit_geometry
+    from torchcal.calibration.mismatch import check_measurements, enforce
+    from torchcal.calibration.plausibility import check_units
+    from torchcal.io.files import atomic_write, check_output
+    from torchcal.io.mdh_table import mdh_table_csv
+    from torchcal.robots.robot_file import write_robot_file
+    from torchcal.robots.urdf import calibrated_urdf, minimal_urdf
+
+    outs = {"robot_file": robot_file, "urdf": urdf, "table": table}
+    if not any(outs.values()):
+        raise InputError("export: give at least one output (robot file, URDF or MD-H table)")
+    inputs = [p for p in (model, data) if isinstance(p, (str, Path))]
+    for p in outs.values():
+        if p is not None:
+            check_output(p, force=force, inputs=inputs)
+    im = _interval_model(model)
+    cm, theta = im.model, im.theta[0]
+    cal, rest = calibrated_robot(cm, theta)
+    refit, rows = None, None
+    if data is not None and rest:  # data only matter when the model has effects the robot cannot hold
+        m = _measurements(data, cm.robot, length_unit, angle_unit)
+        check_units(m, cm.robot, length_unit=length_unit, angle_unit=angle_unit, where=m.source or "data")
+        enforce(check_measurements(cm, theta.to(m.xyz), m, im.zones[0].get("rms_mm")))
+        rows, refit = len(m), refit_geometry(cm, theta, m, identified=im.free[0])
+        cal, rest = calibrated_robot(refit.fit.model, refit.fit.theta)[0], []
+    urdf_text, urdf_info, source = None, None, None
+    if urdf is not None:
+        if cal.urdf is not None:
+            urdf_text, tip = calibrated_urdf(cm.robot, cal)
+            source = cal.urdf["path"]
+            urdf_info = {"path": str(Path(urdf).resolve()), "base_link": cal.urdf["base_link"], "tip_link": tip}
+        else:
+            urdf_text = minimal_urdf(cal)
+            urdf_info = {"path": str(Path(urdf).resolve()), "base_link": "base_link", "tip_link": "tcp"}
+    cal = dataclasses.replace(cal, urdf=urdf_info)  # the calibrated robot file points at the calibrated URDF
+    if robot_file is not None:
+        write_robot_file(robot_file, cal, effects=rest, force=force, inputs=inputs)
+    if urdf is not None:
+        atomic_write(urdf, urdf_text, force=force, inputs=inputs)
+    if table is not None:
+        atomic_write(table, mdh_table_csv(cal), force=force, inputs=inputs)
+    return Export(cal, rest, im.residual_model is not None, refit, rows, source,
+                  {k: (None if v is None else str(v)) for k, v in outs.items()})
+
+
+def accuracy(model, *, n: int = 2000, seed: int = 0, payload_kg: float | None = None, temp_c: float = 20.0):
+    """``torchcal accuracy``: the predicted TCP sigma of a fitted model at n workspace poses
+    (`torchcal.calibration.accuracy.workspace_accuracy`).
+
+    model: a MODEL.json path (its stored covariance; InputError when it has none) or a
+    `FitResult` (its covariance). payload_kg: default half the rated payload. Returns an
+    `Accuracy` whose ``to_dict()`` holds the figures the command prints."""
+    from torchcal.calibration.accuracy import workspace_accuracy
+
+    fm = _fitted(model)
+    cm, theta = fm.model, fm.theta
+    if isinstance(model, FitResult):
+        if model.covariance is None:
+            raise InputError("model: the fit holds no parameter covariance")
+        cov = model.covariance.cov
+    elif isinstance(model, (str, Path)):
+        from torchcal.io.modelfile import load_covariance
+        cov = load_covariance(model, cm)
+    else:
+        raise InputError(f"model: expected a MODEL.json path or a FitResult, got {type(model).__name__}")
+    return workspace_accuracy(cm, theta, cov, n=n, seed=seed, payload_kg=payload_kg, temp_c=temp_c)
+
+
+@dataclass
+class Simulation:
+    """A simulated measurement session (``torchcal simulate``).
+
+    measurements: the `Measurements` (rows in movement order); robot: the nominal `Robot`;
+    effects: the virtual robot's effect specs; theta: (P,) its true parameters (model units);
+    seed, pose_seed: the robot's seed and the seed of the poses and the session; repeats, noise_mm."""
+
+    measurements: Measurements
+    robot: Robot
+    effects: list
+    theta: torch.Tensor
+    parameter_names: list
+    seed: int
+    pose_seed: int
+    repeats: int
+    noise_mm: float
+
+    def truth(self) -> dict:
+        """The true parameters, as ``torchcal simulate --truth`` writes them (degrees and mm,
+        the units of MODEL.json)."""
+        from torchcal.calibration.model import CalibrationModel
+        from torchcal.io.modelfile import file_units
+
+        units, k = file_units(CalibrationModel(self.robot, self.effects))
+        values = (self.theta.detach().to("cpu", torch.float64) * k).tolist()
+        return {"robot": self.robot.name, "seed": self.seed, "effects": list(self.effects),
+                "parameters": {n: {"value": v, "unit": u} for n, v, u in zip(self.parameter_names, values, units)}}
+
+    def to_dict(self) -> dict:
+        m = self.measurements
+        return {"robot": self.robot.name, "effects": list(self.effects), "rows": len(m),
+                "poses": len(m) // self.repeats, "repeats": self.repeats, "noise_mm": self.noise_mm,
+                "seed": self.seed, "pose_seed": self.pose_seed,
+                "columns": [c for c, v in (("payload_kg", m.payload_kg), ("temp_c", m.temp_c)) if v is not None]}
+
+
+def simulate(robot, effects=(), *, n: int = 50, repeats: int = 1, noise_mm: float = 0.02, seed: int = 0,
+             pose_seed: int | None = None) -> Simulation:
+    """``torchcal simulate``: n random poses of a virtual robot (`robot` with `effects` whose
+    true parameters are drawn with `seed`), each measured `repeats` times with noise_mm
+    (1 sigma per axis). pose_seed: seed of the poses and the session (default `seed`; another
+    value gives fresh poses of the same virtual robot)."""
+    from torchcal.effects.spec import parse_specs
+    from torchcal.simulation.virtual_robot import VirtualRobot, random_poses
+
+    rob = _robot(robot)
+    specs = [str(s) for s in parse_specs(list(effects), rob.n)] if effects else []
+    ps = seed if pose_seed is None else pose_seed
+    q = random_poses(rob, n, torch.Generator().manual_seed(ps))
+    vr = VirtualRobot(rob, specs, seed=seed)
+    # the session's seed as VirtualRobot.measure derives it from its own seed (the same file without pose_seed)
+    m = vr.measure(q, repeats=repeats, noise_mm=noise_mm, seed=ps * 1_000_003 + 17)
+    return Simulation(m, rob, specs, vr.theta, vr.model.param_names(), seed, ps, repeats, noise_mm)

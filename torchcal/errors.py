@@ -8,7 +8,21 @@ expected.
 
 
 class InputError(ValueError):
-    """Bad input from a user: a file, an option, an argument."""
+    """Bad input from a user: a file, an option, an argument.
+
+    fix: optional (keyword, value) that corrects the mistake, e.g. ``("length_unit", "m")``:
+    the message ends with ``; pass length_unit='m'`` for library callers, and the command
+    line writes its own option instead (``; pass --length-unit m``, `command_line`)."""
+
+    def __init__(self, message: str = "", *, fix: tuple[str, str] | None = None):
+        self.message, self.fix = message, fix
+        super().__init__(message if fix is None else f"{message}; pass {fix[0]}={fix[1]!r}")
+
+    def command_line(self) -> str:
+        """The message with the fix as a command-line option (``--length-unit m``)."""
+        if self.fix is None:
+            return str(self)
+        return f"{self.message}; pass --{self.fix[0].replace('_', '-')} {self.fix[1]}"
 
 
 class OutputExistsError(InputError):

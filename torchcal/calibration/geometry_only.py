@@ -71,3 +71,31 @@ def refit_geometry(model, theta: torch.Tensor, m, *, identified=None, max_iter: 
     res = fit(geo, ctx, m.xyz, theta0=theta0, free=free, pose=m.pose, register=False, max_iter=max_iter)
     return GeometryRefit(res, rms(model, theta.to(m.xyz)), rms(geo, theta0), res.rms_mm,
                          [e.spec() for e in model.effects if e.name not in FOLDED])
+
+
+def calibrated_robot(model, theta: torch.Tensor):
+    """(Robot, effects) of a model at theta (P,): the nominal robot (CPU, float64) with the
+    MD-H deviations added to its table, the base_frame effect folded into its base and
+    tool_offset into its tool; effects: [{"spec", "parameters": {name: {"value", "unit"}}}]
+    of the model's other effects, which a robot file, a URDF or an MD-H table cannot hold."""
+    import dataclasses
+
+    from torchcal.rotations import rotvec_to_matrix
+
+    r = model.robot.to("cpu", torch.float64)
+    theta = theta.to("cpu", torch.float64)
+    geo = theta[model.slices[0]].reshape(r.n, 5)
+    base, tool = r.base.clone(), r.tool.clone()
+    rest = []
+    for e, sl in zip(model.effects, model.slices[1:]):
+        p = theta[sl]
+        if e.name == "base_frame":
+            W = torch.eye(4, dtype=torch.float64)
+            W[:3, :3], W[:3, 3] = rotvec_to_matrix(p[3:6]), p[:3]
+            base = W @ base
+        elif e.name == "tool_offset":
+            tool[:3, 3] = tool[:3, 3] + p
+        else:
+            rest.append({"spec": e.spec(), "parameters": {n: {"value": float(v), "unit": u} for n, v, u in
+                                                          zip(e.param_names(), p.tolist(), e.param_units())}})
+    return dataclasses.replace(r, table=r.table + geo, base=base, tool=tool), rest

@@ -46,6 +46,7 @@ Units: parameters as in `CalibrationModel.param_units` (rad, mm); errors mm.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import torch
@@ -399,6 +400,23 @@ class IntervalModel:
     @property
     def n_zones(self) -> int:
         return self.theta.shape[0]
+
+    @classmethod
+    def single(cls, model, theta: torch.Tensor, free: torch.Tensor | None = None, q_range=None) -> "IntervalModel":
+        """One zone holding a fitted model's parameters theta (P,) (method "fit"); free (P,)
+        bool identified parameters (default all)."""
+        free = torch.ones(theta.shape[-1], dtype=torch.bool) if free is None else free
+        return cls(model, theta[None], theta[None], theta[None], free[None],
+                   [{"zone": 1, "level": None, "poses": None, "held": [], "rms_mm": None, "damping": 0.0}],
+                   None, "fit", q_range=q_range)
+
+    @classmethod
+    def of_fit(cls, fitted) -> "IntervalModel":
+        """One zone holding a fitted model (`FitResult`): its parameters, identified set,
+        calibrated range, residual stage, and its training rms as the zone's ``rms_mm``."""
+        im = cls.single(fitted.model, fitted.theta, fitted.report.free, q_range=fitted.q_range)
+        im.zones[0]["rms_mm"] = fitted.training_rms_mm
+        return dataclasses.replace(im, residual_model=fitted.residual_model)
 
     @classmethod
     def from_fits(cls, fits: list, partition=None, levels=None, poses=None, method: str = "global",

@@ -83,8 +83,8 @@ def bound_mm(training_rms_mm: float | None) -> float:
 
 
 def _units_hint(ratio: float) -> str:
-    for f, what in ((1000.0, "metres read as mm (--length-unit m)"), (1e-3, "mm read as metres"),
-                    (math.degrees(1.0), "radians read as degrees (--angle-unit rad)")):
+    for f, what in ((1000.0, "metres read as mm (length unit m)"), (1e-3, "mm read as metres"),
+                    (math.degrees(1.0), "radians read as degrees (angle unit rad)")):
         if abs(math.log(ratio / f)) < math.log(1.5):
             return f"; the spread ratio {ratio:.4g} points at {what}"
     return ""
@@ -121,7 +121,7 @@ def check_points(predicted: torch.Tensor, measured: torch.Tensor, training_rms_m
         verdict = "mismatch"
         msg = (f"{what}: cannot come from {model_name}: rms {rms:.4g} mm{train}, still {reg:.4g} mm after the best "
                f"rigid motion, point spread {s_x:.4g} mm measured vs {s_p:.4g} mm modelled; likely causes: data of "
-               f"another robot or units (--length-unit, --angle-unit){_units_hint(ratio)}; not a moved measuring "
+               f"another robot or units (length or angle unit){_units_hint(ratio)}; not a moved measuring "
                f"frame alone (for that, `torchcal register` would do)")
     return Mismatch(rms, reg, ratio, b, training_rms_mm, shift, angle, verdict, msg)
 
@@ -183,10 +183,11 @@ def check_targets(model, theta: torch.Tensor, targets: torch.Tensor, where: str 
     dist = (targets.detach().to("cpu", torch.float64) - origin).norm(dim=-1)
     med = float(dist.median())
     if med < reach / TARGET_RATIO:
-        hint = ("they look like metres read as mm; pass --length-unit m" if med * 1000 <= REACH_MARGIN * reach
-                else "wrong unit or wrong frame?")
+        metres = med * 1000 <= REACH_MARGIN * reach
         raise InputError(f"{where}: the targets lie a median {med:.4g} mm from the robot base, inside the base of "
-                         f"{model.robot.name} (reach {reach:.4g} mm): {hint}")
+                         f"{model.robot.name} (reach {reach:.4g} mm): "
+                         + ("they look like metres read as mm" if metres else "wrong unit or wrong frame?"),
+                         fix=("length_unit", "m") if metres else None)
     far = (dist > REACH_MARGIN * reach).nonzero().flatten().tolist()
     if far:
         rows = ", ".join(str(i + 1) for i in far[:10]) + (" ..." if len(far) > 10 else "")

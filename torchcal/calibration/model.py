@@ -54,7 +54,7 @@ class CalibrationModel:
         points = None if m.point is None else sorted(set(m.point.tolist()))
         if points is not None and len(points) > 1 and not any(s.split(":")[0] == "tool_offset" for s in specs):
             raise InputError(f"{m.source or 'measurements'}: {len(points)} measured points per pose (point column) "
-                             "need one tool offset each: add tool_offset to --effects")
+                             "need one tool offset each: add tool_offset to the effects")
         return cls(robot, specs, points=points)
 
     @property

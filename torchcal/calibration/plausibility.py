@@ -8,15 +8,15 @@ robot the ratio ``s_measured / s_nominal`` is 1 within a few percent (a differen
 point moves it by tens of percent at most); a unit mistake moves it by about 1000.
 
 - ratio < 1/20 with ``length_unit='mm'``: positions look like metres read as mm
-  (fix: ``--length-unit m``); ratio > 20 with ``length_unit='m'``: mm read as metres
-  (fix: ``--length-unit mm``). Any other ratio outside [1/20, 20] is refused too, naming
+  (fix: ``length_unit='m'``); ratio > 20 with ``length_unit='m'``: mm read as metres
+  (fix: ``length_unit='mm'``). Any other ratio outside [1/20, 20] is refused too, naming
   the spreads (wrong unit or wrong robot).
 - ``angle_unit='deg'`` and every joint angle within +-2 pi (6.283 "degrees") while the
   measured points spread more than 2x the nominal ones: joint angles look like radians
-  read as degrees (fix: ``--angle-unit rad``). A real data set in degrees that only
+  read as degrees (fix: ``angle_unit='rad'``). A real data set in degrees that only
   moves a few degrees keeps ratio ~1 and passes.
 - ``angle_unit='rad'`` and a joint angle beyond max(2 pi, the robot's widest limit) rad
-  (+ 0.01): degrees read as radians (fix: ``--angle-unit deg``).
+  (+ 0.01): degrees read as radians (fix: ``angle_unit='deg'``).
 
 The check needs at least 3 rows and a nominal spread of at least 1 mm; otherwise it
 says nothing.
@@ -71,8 +71,8 @@ def check_units(m, robot, length_unit: str = "mm", angle_unit: str = "deg", wher
         bound = max(2 * math.pi, lim) + 0.01
         if qmax_file > bound:
             raise InputError(f"{pre}joint angles reach {qmax_file:.4g} rad, beyond what a joint can "
-                             f"turn ({bound:.3g} rad): they look like degrees read as radians; "
-                             "drop --angle-unit rad (the default is deg)")
+                             f"turn ({bound:.3g} rad): they look like degrees read as radians",
+                             fix=("angle_unit", "deg"))
     out = {"measured_spread_mm": None, "nominal_spread_mm": None, "ratio": None}
     if len(m) < 3:
         return out
@@ -87,17 +87,17 @@ def check_units(m, robot, length_unit: str = "mm", angle_unit: str = "deg", wher
                f"the nominal {robot.name} at these joint angles {s_nom:.4g} mm")
     if angle_unit == "deg" and q.numel() and math.degrees(qmax_file) <= 2 * math.pi + 1e-9 and ratio > RAD_RATIO:
         raise InputError(f"{pre}every joint angle lies within +-{math.degrees(qmax_file):.4g} deg and "
-                         f"{spreads}: the joint angles look like radians read as degrees; "
-                         "pass --angle-unit rad")
+                         f"{spreads}: the joint angles look like radians read as degrees",
+                         fix=("angle_unit", "rad"))
     if ratio < 1 / RATIO_LIMIT:
         if length_unit == "mm":
             raise InputError(f"{pre}{spreads} ({1 / ratio:.4g} times less): the positions look like "
-                             "metres read as mm; pass --length-unit m")
+                             "metres read as mm", fix=("length_unit", "m"))
         raise InputError(f"{pre}{spreads} ({1 / ratio:.4g} times less): wrong unit or wrong robot?")
     if ratio > RATIO_LIMIT:
         if length_unit == "m":
             raise InputError(f"{pre}{spreads} ({ratio:.4g} times more): the positions look like "
-                             "mm read as metres; drop --length-unit m (the default is mm)")
+                             "mm read as metres", fix=("length_unit", "mm"))
         raise InputError(f"{pre}{spreads} ({ratio:.4g} times more): wrong unit or wrong robot?")
     return out
 

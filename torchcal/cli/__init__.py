@@ -110,6 +110,28 @@ def main(argv: list[str] | None = None) -> int:
         return _run(args)
 
 
+def _caused_by(exc: BaseException, kind) -> bool:
+    """exc or an exception it was raised while handling (``raise ... from None`` keeps it) is a `kind`."""
+    while exc is not None:
+        if isinstance(exc, kind):
+            return True
+        exc = exc.__context__
+    return False
+
+
+def command_line_message(exc: Exception) -> str:
+    """The one error line of a library exception: the library names no flag; its fix
+    (`InputError.fix`) becomes the option, and a missing output or effect gets the flag hint."""
+    spec = sys.modules.get("torchcal.effects.spec")  # not loaded: no effect spec was read (no torch import here)
+    text = exc.command_line() if isinstance(exc, InputError) else str(exc)
+    if isinstance(exc, OutputExistsError):
+        text += f"; {FORCE_HINT}"
+    elif spec is not None and _caused_by(exc, spec.UnknownEffectError):
+        text = text.replace(spec.UnknownEffectError.HINT, "(an effect of your own: load its file with "
+                                                          "--effects-module FILE.py)")
+    return text
+
+
 def _run(args) -> int:
     from torchcal.cli._args import load_effects_modules
 
@@ -119,8 +141,7 @@ def _run(args) -> int:
     except (InputError, ValueError, FileNotFoundError, FileExistsError, IsADirectoryError) as exc:
         if os.environ.get("TORCHCAL_DEBUG") and not isinstance(exc, InputError):
             raise  # developers: the traceback of a ValueError that is not a user mistake
-        hint = f"; {FORCE_HINT}" if isinstance(exc, OutputExistsError) else ""  # the library names no flag
-        sys.stderr.write(f"torchcal {args.command}: error: {exc}{hint}\n")
+        sys.stderr.write(f"torchcal {args.command}: error: {command_line_message(exc)}\n")
         return 2
     except OSError as exc:  # permission denied, disk full, ...: one line, not a traceback
         where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""

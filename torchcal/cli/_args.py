@@ -56,8 +56,13 @@ def load_effects_modules(args) -> None:
     """Register the effects of every ``--effects-module`` file (InputError on a bad one)."""
     from torchcal.effects.registry import load_module
 
+    from torchcal.errors import InputError
+
     for path in getattr(args, "effects_module", None) or []:
-        load_module(path)
+        try:
+            load_module(path)
+        except InputError as exc:  # the library names the file; the command line its option
+            raise InputError(f"--effects-module {exc}") from None
 
 
 def add_viz(p):

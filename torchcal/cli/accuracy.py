@@ -11,8 +11,6 @@ model leaves out (unmodelled effects add to it)."""
 
 from __future__ import annotations
 
-import torch
-
 from torchcal.cli._args import add_force, check_outputs, nonneg_float, plot_outputs, positive_int
 
 PNGS = ("accuracy_map.png", "accuracy_hist.png")  # in the --plots folder
@@ -32,71 +30,31 @@ def add_parser(sub):
     p.set_defaults(func=run)
 
 
-def region_names(robot, q: torch.Tensor, pos: torch.Tensor) -> list[str]:
-    """'<sector> / <near|mid|far> / <low|mid|high>' per pose: joint-1 angle in four
-    sectors (front -45..45 deg, left, back, right), reach from the joint-1 axis and height
-    by tertiles of the sample."""
-    a = torch.rad2deg(q[:, 0])
-    sector = ["front" if abs(v) <= 45 else "left" if 45 < v <= 135 else "right" if -135 <= v < -45
-              else "back" for v in a.tolist()]
-    def tert(x, names):
-        lo, hi = torch.quantile(x, torch.tensor([1 / 3, 2 / 3], dtype=x.dtype)).tolist()
-        return [names[0] if v < lo else names[1] if v < hi else names[2] for v in x.tolist()]
-    reach = tert(pos[:, :2].norm(dim=-1), ("near", "mid-reach", "far"))
-    height = tert(pos[:, 2], ("low", "mid-height", "high"))
-    return [f"{s} / {r} / {h}" for s, r, h in zip(sector, reach, height)]
-
-
-def predicted_sigma(model, theta, cov, q, payload_kg=None, temp_c=None) -> torch.Tensor:
-    """(N,) mm predicted TCP sigma at poses q (N, n) rad (Jacobian at theta)."""
-    from torchcal.calibration.covariance import tcp_sigma
-    from torchcal.effects import make_context
-
-    ctx = make_context(model.robot, q, payload_kg, temp_c)
-    return tcp_sigma(model.jacobian(theta, ctx), cov)
-
-
 def run(args) -> int:
     from pathlib import Path
 
-    from torchcal.io import modelfile
-    from torchcal.effects import make_context
-    from torchcal.reliability.sweep import sample_workspace
+    from torchcal.api import accuracy
 
     check_outputs([("--rrd", args.rrd), *plot_outputs(args.plots, PNGS)], args.force,
                   inputs=[args.model])  # all before the work
-    fitted = modelfile.load(args.model)
-    model, theta = fitted.model, fitted.theta
-    cov = modelfile.load_covariance(args.model, model)
-    robot = model.robot
-    q = sample_workspace(robot, args.n, seed=args.seed)
-    N = q.shape[0]
-    payload = torch.full((N,), robot.payload_kg / 2 if args.payload is None else args.payload, dtype=torch.float64)
-    temp = torch.full((N,), args.temp, dtype=torch.float64)
-    sigma = predicted_sigma(model, theta, cov, q, payload, temp)
-    pos = model.predict(theta, make_context(robot, q, payload, temp))
-    pct = torch.quantile(sigma, torch.tensor([0.5, 0.95], dtype=sigma.dtype)).tolist()
-    print(f"accuracy of {args.model} ({robot.name} + [{', '.join(model.specs()) or 'geometric only'}]) "
-          f"at {N} workspace poses: predicted TCP sigma (1-sigma, 3-D, mm) "
-          f"min {float(sigma.min()):.4f}, median {pct[0]:.4f}, 95th percentile {pct[1]:.4f}, "
-          f"max {float(sigma.max()):.4f}")
-    names = region_names(robot, q, pos)
-    groups = {}
-    for nm, s in zip(names, sigma.tolist()):
-        groups.setdefault(nm, []).append(s)
-    rows = sorted(((sum(v) / len(v), max(v), len(v), k) for k, v in groups.items() if len(v) >= 5), reverse=True)
+    acc = accuracy(args.model, n=args.n, seed=args.seed, payload_kg=args.payload, temp_c=args.temp)
+    d = acc.to_dict()
+    s = d["sigma_mm"]
+    print(f"accuracy of {args.model} ({d['robot']} + [{', '.join(d['effects']) or 'geometric only'}]) "
+          f"at {d['poses']} workspace poses: predicted TCP sigma (1-sigma, 3-D, mm) "
+          f"min {s['min']:.4f}, median {s['median']:.4f}, 95th percentile {s['p95']:.4f}, max {s['max']:.4f}")
     print("worst regions (joint-1 sector / reach / height; mean sigma mm, max, points):")
-    for mean, mx, n, k in rows[:3]:
-        print(f"  {k:<32} {mean:.4f}  {mx:.4f}  {n}")
+    for r in d["regions"][:3]:
+        print(f"  {r['region']:<32} {r['mean_mm']:.4f}  {r['max_mm']:.4f}  {r['points']}")
     if args.plots:
         from viz import planning as vp
 
-        vp.accuracy_map(Path(args.plots) / PNGS[0], pos, sigma, force=args.force)
-        vp.accuracy_histogram(Path(args.plots) / PNGS[1], sigma, force=args.force)
+        vp.accuracy_map(Path(args.plots) / PNGS[0], acc.pos, acc.sigma, force=args.force)
+        vp.accuracy_histogram(Path(args.plots) / PNGS[1], acc.sigma, force=args.force)
         print(f"wrote {args.plots}/accuracy_map.png, accuracy_hist.png")
     if args.rrd:
         from viz import planning as vp
 
-        vp.log_accuracy(args.rrd, pos, sigma, seed=args.seed, force=args.force)
+        vp.log_accuracy(args.rrd, acc.pos, acc.sigma, seed=args.seed, force=args.force)
         print(f"wrote {args.rrd}")
     return 0

@@ -58,7 +58,6 @@ def add_parser(sub):
 def run(args) -> int:
     import torchcal
     from torchcal.io.files import write_json
-    from torchcal.io.modelfile import file_sha256
     from torchcal.io.interval_model import interval_model_to_dict
     from torchcal.io.partition_file import load_partition
     from torchcal.robots.robot import robot as make_robot
@@ -71,10 +70,8 @@ def run(args) -> int:
     meas = read_data(args.data, robot, args)
     im = torchcal.calibrate(robot, meas, specs, partition=part, zone_method=args.zone_method, damping=args.damping)
     glob = im.global_fit
-    im.provenance = {"input": str(args.data), "input_sha256": file_sha256(args.data),
-                     "partition": None if part is None else str(args.partition),
-                     "torchcal_version": torchcal.__version__}
-    write_json(args.out, interval_model_to_dict(im), force=args.force, inputs=[args.data, args.partition])
+    write_json(args.out, interval_model_to_dict(im, source=args.data, partition_source=args.partition),
+               force=args.force, inputs=[args.data, args.partition])
     rep = glob.report
     print(f"calibrate {robot.name} + [{', '.join(im.model.specs()) or 'geometric only'}] on {len(meas)} rows "
           f"({sum(z['poses'] or 0 for z in im.zones)} poses): global fit rms {glob.rms_mm:.4f} mm, "

@@ -52,40 +52,21 @@ def add_parser(sub) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
-    import torch
-
-    import torchcal
-    from torchcal.io.measurement_csv import write_measurements
+    from torchcal.api import simulate
     from torchcal.io.files import write_json
-    from torchcal.simulation.virtual_robot import VirtualRobot, random_poses
-    from torchcal.effects.spec import parse_specs
+    from torchcal.io.measurement_csv import write_measurements
 
-    robot = torchcal.robot(args.robot)
-    specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
     check_outputs([("--out", args.out), ("--truth", args.truth)], args.force)
     out, truth = Path(args.out), Path(args.truth) if args.truth else None
-
-    pose_seed = args.seed if args.pose_seed is None else args.pose_seed
-    q = random_poses(robot, args.n, torch.Generator().manual_seed(pose_seed))
-    vr = VirtualRobot(robot, specs, seed=args.seed)
-    # the session's seed as VirtualRobot.measure derives it from its own seed (same file without --pose-seed)
-    m = vr.measure(q, repeats=args.repeats, noise_mm=args.noise, seed=pose_seed * 1_000_003 + 17)
-    write_measurements(out, m, force=args.force, robot=robot)
+    sim = simulate(args.robot, args.effects, n=args.n, repeats=args.repeats, noise_mm=args.noise, seed=args.seed,
+                   pose_seed=args.pose_seed)
+    write_measurements(out, sim.measurements, force=args.force, robot=sim.robot)
     if truth is not None:
-        from torchcal.io.modelfile import file_units
-
-        names = vr.model.param_names()
-        units, k = file_units(vr.model)  # degrees and mm, as MODEL.json
-        values = (vr.theta.detach().to("cpu", torch.float64) * k).tolist()
-        write_json(truth, {
-            "robot": robot.name,
-            "seed": args.seed,
-            "effects": specs,
-            "parameters": {n: {"value": v, "unit": u} for n, v, u in zip(names, values, units)},
-        }, force=args.force, inputs=(out,))
-    cols = [c for c, v in (("payload_kg", m.payload_kg), ("temp_c", m.temp_c)) if v is not None]
-    extra = f" (+ {', '.join(cols)})" if cols else ""
-    print(f"simulate: {robot.name}, effects [{' '.join(specs) or 'none'}], {args.n} poses x "
-          f"{args.repeats} repeats = {len(m)} rows{extra}, noise {args.noise:g} mm, "
-          f"seed {args.seed}" + (f", pose seed {pose_seed}" if args.pose_seed is not None else "") + f" -> {out}" + (f"; truth -> {truth}" if truth else ""))
+        write_json(truth, sim.truth(), force=args.force, inputs=(out,))
+    d = sim.to_dict()
+    extra = f" (+ {', '.join(d['columns'])})" if d["columns"] else ""
+    print(f"simulate: {d['robot']}, effects [{' '.join(d['effects']) or 'none'}], {args.n} poses x "
+          f"{d['repeats']} repeats = {d['rows']} rows{extra}, noise {d['noise_mm']:g} mm, seed {d['seed']}"
+          + (f", pose seed {d['pose_seed']}" if args.pose_seed is not None else "") + f" -> {out}"
+          + (f"; truth -> {truth}" if truth else ""))
     return 0

@@ -104,7 +104,7 @@ def load_module(path) -> list[str]:
     when the file is missing, fails to import, or defines no Effect subclass with a name.
     """
     p = Path(path)
-    where = f"--effects-module {path}"
+    where = str(path)
     if not p.is_file():
         raise InputError(f"{where}: no such file")
     mod_name = "torchcal_user_effects_" + re.sub(r"\W", "_", p.stem)

@@ -54,7 +54,7 @@ class EffectSpec:
 
     def __post_init__(self):
         if self.name not in EFFECTS:
-            raise InputError(_unknown(self.name, self.name))
+            raise UnknownEffectError(_unknown(self.name, self.name))
         try:
             joints = tuple(self.joints)
         except TypeError:
@@ -80,6 +80,13 @@ class EffectSpec:
         return f"{self.name}:{','.join(str(j) for j in self.joints)}"
 
 
+class UnknownEffectError(InputError):
+    """An effect spec names no registered effect. Its message ends with `HINT` (how a
+    library caller registers an effect of its own); the command line names its option instead."""
+
+    HINT = "(an effect of your own: register it first, torchcal.effects.register or load_module)"
+
+
 def _unknown(name: str, text: str) -> str:
     valid = ", ".join(sorted(EFFECTS))
     hint = difflib.get_close_matches(str(name).lower(), EFFECTS, n=1)
@@ -88,7 +95,7 @@ def _unknown(name: str, text: str) -> str:
         return (f"effect spec {text!r}: 'geometric' is always part of the model; leave it out "
                 f"(optional effects: {valid})")
     return (f"effect spec {text!r}: unknown effect {name!r}{did}; expected one of {valid} "
-            f"(an effect of your own: load its file with --effects-module FILE.py)")
+            + UnknownEffectError.HINT)
 
 
 def _check_n(n_joints) -> int:
@@ -115,7 +122,7 @@ def parse_spec(text, n_joints: int) -> EffectSpec:
     if not name:
         raise InputError(f"effect spec {text!r}: empty effect name; expected {_FORM}")
     if name not in EFFECTS:
-        raise InputError(_unknown(name, text))
+        raise UnknownEffectError(_unknown(name, text))
     if not sep:
         return EffectSpec(name, tuple(range(1, n + 1)) if EFFECTS[name] else ())
     if not EFFECTS[name]:

@@ -24,14 +24,25 @@ from torchcal.errors import InputError
 from torchcal.io.partition_file import partition_from_dict, partition_to_dict
 from torchcal.robots.robot_file import model_robot, robot_to_dict
 
-__all__ = ["INTERVAL_MODEL_FORMAT", "interval_model_to_dict", "interval_model_from_dict"]
+__all__ = ["INTERVAL_MODEL_FORMAT", "interval_model_to_dict", "interval_model_from_dict", "load_interval_model"]
 
 INTERVAL_MODEL_FORMAT = "torchcal-interval-model/1"
 
 
-def interval_model_to_dict(im: IntervalModel) -> dict:
-    """A JSON-ready dict of `im` (see `interval_model_from_dict`)."""
+def interval_model_to_dict(im: IntervalModel, *, source=None, partition_source=None) -> dict:
+    """A JSON-ready dict of `im` (see `interval_model_from_dict`): the MODEL.json of
+    ``torchcal calibrate``. source: the measurement CSV it was calibrated on, partition_source:
+    the PARTITION.json (paths): with `source` the provenance records them, the CSV's SHA-256
+    and the torchcal version; without, `im.provenance`."""
     m = im.model
+    provenance = im.provenance or {}
+    if source is not None:
+        import torchcal
+        from torchcal.io.modelfile import file_sha256
+
+        provenance = {"input": str(source), "input_sha256": file_sha256(source),
+                      "partition": None if partition_source is None else str(partition_source),
+                      "torchcal_version": torchcal.__version__}
     zones = []
     for z, info in enumerate(im.zones):
         zones.append({**info, "theta": im.theta[z].tolist(), "lower": im.lower[z].tolist(),
@@ -41,7 +52,7 @@ def interval_model_to_dict(im: IntervalModel) -> dict:
            "parameter_names": m.param_names(), "parameter_units": m.param_units(),
            "method": im.method, "zones": zones,
            "partition": None if im.partition is None else partition_to_dict(im.partition),
-           "provenance": im.provenance or {}}
+           "provenance": provenance}
     if im.q_range is not None:
         out["calibrated_range"] = range_to_dict(im.q_range, m.robot)
     return out
@@ -83,3 +94,15 @@ def interval_model_from_dict(obj: dict, where: str = "interval model") -> Interv
         range_from_dict(obj["calibrated_range"], model.robot, where)
     return IntervalModel(model, theta, lower, upper, free, info, part, str(obj.get("method", "global")),
                          dict(obj.get("provenance") or {}), q_range=q_range)
+
+
+def load_interval_model(path) -> IntervalModel:
+    """An `IntervalModel` from a MODEL.json of ``torchcal calibrate`` or of ``torchcal fit``
+    (one zone with the fit's parameters; method "fit"): what compensate and export read."""
+    from torchcal.io import modelfile
+    from torchcal.io.files import read_json
+
+    obj = read_json(path, "model file")
+    if obj.get("format") == INTERVAL_MODEL_FORMAT:
+        return interval_model_from_dict(obj, str(path))
+    return IntervalModel.of_fit(modelfile.load(path))

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from torchcal.errors import InputError
+from torchcal.errors import InputError, OutputExistsError
 from torchcal.io.files import atomic_open, atomic_write, dumps_json
 
 __all__ = ["BlockFolder"]
@@ -69,8 +69,8 @@ class BlockFolder:
                 if not force:
                     diff = "; ".join(_differs(k, old.get(k), manifest.get(k))
                                      for k in sorted(set(old) | set(manifest)) if old.get(k) != manifest.get(k))
-                    raise InputError(f"{self.path}: holds a partial sweep with other arguments ({diff}); "
-                                     "rerun with the same arguments to finish it, or pass --force to discard it")
+                    raise OutputExistsError(f"{self.path}: holds a partial sweep with other arguments ({diff}); "
+                                     "rerun with the same arguments to finish it")
                 shutil.rmtree(self.path)
         if not self.path.is_dir():
             self.path.mkdir()

@@ -57,7 +57,7 @@ def criterion(A: torch.Tensor, kind: str) -> float:
         return float(torch.exp(0.5 * ev.log().mean()) / N ** 0.5)
     if kind == "E":
         return float(ev[0])
-    raise InputError(f"--criterion: unknown {kind!r}; expected one of {', '.join(CRITERIA)}")
+    raise InputError(f"criterion: unknown {kind!r}; expected one of {', '.join(CRITERIA)}")
 
 
 def _gains_d(A, Minv):
@@ -91,10 +91,10 @@ def select(A: torch.Tensor, n: int, kind: str = "D", exchange_passes: int = 2) -
     """Greedy + exchange selection of n of the M candidates, A (M, 3, K) scaled blocks."""
     kind = kind.upper()
     if kind not in CRITERIA:
-        raise InputError(f"--criterion: unknown {kind!r}; expected one of {', '.join(CRITERIA)}")
+        raise InputError(f"criterion: unknown {kind!r}; expected one of {', '.join(CRITERIA)}")
     M, _, K = A.shape
     if n > M:
-        raise InputError(f"--n {n} is more than the {M} candidates")
+        raise InputError(f"n: {n} poses is more than the {M} candidates")
     G = A.transpose(1, 2) @ A  # (M, K, K)
     ridge = 1e-6 * float(G.sum(0).trace()) / M / K * torch.eye(K, dtype=A.dtype)
     info = ridge.clone()

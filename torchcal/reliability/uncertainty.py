@@ -163,12 +163,13 @@ class ClearanceModel:
             return clearance_from_dict(robot.clearance, f"robot {robot.name!r}: clearance", robot.n)
         if robot.name != "kr1000titan" or robot.n != 6 or bool(robot.prismatic.any()):
             raise InputError(f"no default clearance model for robot {robot.name!r} (only the kr1000titan preset has one): "
-                             f"add a \"clearance\" section to its robot file or pass --clearance FILE.json "
-                             f"(keys radii_mm, clearance_mm, bearing_length_mm; docs/robots.md)")
+                             f"add a \"clearance\" section to its robot file or give a clearance model "
+                             f"(keys radii_mm, clearance_mm, bearing_length_mm; docs/robots.md)",
+                             fix=("clearance", "FILE.json"))
         return cls(KR1000_RADII_MM, KR1000_CLEARANCE_MM, KR1000_BEARING_LENGTH_MM)
 
     def to_dict(self) -> dict:
-        """The "clearance" section / --clearance file of this model (mm; no tolerance box)."""
+        """The "clearance" section / clearance file of this model (mm; no tolerance box)."""
         return {"radii_mm": list(self.radii_mm), "clearance_mm": list(self.clearance_mm),
                 "bearing_length_mm": list(self.bearing_length_mm), "mode": self.mode}
 
@@ -200,7 +201,7 @@ CLEARANCE_KEYS = ("radii_mm", "clearance_mm", "bearing_length_mm", "mode")
 
 
 def clearance_from_dict(obj, where: str, n: int | None = None) -> ClearanceModel:
-    """The `ClearanceModel` of a robot file's "clearance" section or a --clearance file.
+    """The `ClearanceModel` of a robot file's "clearance" section or a clearance file.
 
     obj: {"radii_mm": [2n], "clearance_mm": [2n], "bearing_length_mm": [n], "mode":
     "contact" | "disc" (optional)}, mm; seats 2j-1 and 2j (1-based) belong to joint j.

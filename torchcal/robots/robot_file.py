@@ -219,7 +219,7 @@ def model_robot(obj: dict, where: str) -> Robot:
     return robot(obj["robot"])
 
 
-def check_same_robot(model_robot: Robot, robot: Robot | None, where: str, what: str = "--robot") -> None:
+def check_same_robot(model_robot: Robot, robot: Robot | None, where: str, what: str = "the given robot") -> None:
     """Refuse (one InputError line naming both) when `robot` is not the robot the model
     was fitted for: another joint count, joint types, nominal table, base or tool."""
     if robot is None or robot.same_geometry(model_robot):

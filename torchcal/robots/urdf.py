@@ -90,9 +90,9 @@ def read_chain(path, base_link: str, tip_link: str) -> list[dict]:
     except ET.ParseError as exc:
         raise InputError(f"{path}: not a valid URDF (XML): {exc}") from None
     links = {el.get("name") for el in root.findall("link")}
-    for opt, link in (("--base", base_link), ("--tip", tip_link)):
+    for what, link in (("base link", base_link), ("tip link", tip_link)):
         if link not in links:
-            raise InputError(f"{path}: {opt}: no link {link!r}; links: {', '.join(sorted(links))}")
+            raise InputError(f"{path}: {what}: no link {link!r}; links: {', '.join(sorted(links))}")
     by_name = {el.get("name"): el for el in root.findall("joint")}
     out = []
     for name in _chain_joint_names(path, base_link, tip_link):
@@ -283,7 +283,7 @@ def calibrated_urdf(nominal: Robot, cal: Robot) -> tuple[str, str]:
     info = nominal.urdf
     path = Path(info["path"])
     if not path.is_file():
-        raise InputError(f"{path}: the robot's URDF file no longer exists; export --urdf needs it "
+        raise InputError(f"{path}: the robot's URDF file no longer exists; a calibrated URDF needs it "
                          f"(or re-import the robot)")
     tree = ET.parse(path)
     root = tree.getroot()

@@ -181,7 +181,7 @@ def _dask():
     try:
         from dask import distributed
     except ImportError:
-        raise InputError(f"a sweep on a cluster (--scheduler, --workers) needs Dask: {EXTRA_HINT}") from None
+        raise InputError(f"a sweep on a cluster (a scheduler or workers) needs Dask: {EXTRA_HINT}") from None
     return distributed
 
 

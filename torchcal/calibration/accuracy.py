@@ -1,0 +1,88 @@
+"""Predicted TCP accuracy of a fitted model over the workspace (``torchcal accuracy``).
+
+At N workspace poses (Latin hypercube inside the joint limits, filtered like the sweep's
+workspace, `torchcal.reliability.sweep.sample_workspace`) the parameter covariance C is
+propagated through the position Jacobian J: sigma = sqrt(trace J C J^T), the 1-sigma (RMS)
+length of the 3-D TCP error that the parameter uncertainty leaves, in mm. It covers what
+the fit could not determine, not what the model leaves out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+__all__ = ["Accuracy", "predicted_sigma", "region_names", "workspace_accuracy"]
+
+
+def predicted_sigma(model, theta: torch.Tensor, cov: torch.Tensor, q: torch.Tensor, payload_kg=None,
+                    temp_c=None) -> torch.Tensor:
+    """(N,) mm predicted TCP sigma at poses q (N, n) rad of `model` at theta (P,) with the
+    parameter covariance cov (P, P); payload_kg, temp_c: (N,) conditions or None."""
+    from torchcal.calibration.covariance import tcp_sigma
+    from torchcal.effects import make_context
+
+    ctx = make_context(model.robot, q, payload_kg, temp_c)
+    return tcp_sigma(model.jacobian(theta, ctx), cov)
+
+
+def region_names(q: torch.Tensor, pos: torch.Tensor) -> list[str]:
+    """'<sector> / <near|mid-reach|far> / <low|mid-height|high>' per pose: the joint-1 angle
+    of q (N, n) rad in four sectors (front -45..45 deg, left, back, right), the reach of pos
+    (N, 3) mm from the joint-1 axis and its height, by tertiles of the sample."""
+    a = torch.rad2deg(q[:, 0])
+    sector = ["front" if abs(v) <= 45 else "left" if 45 < v <= 135 else "right" if -135 <= v < -45
+              else "back" for v in a.tolist()]
+
+    def tert(x, names):
+        lo, hi = torch.quantile(x, torch.tensor([1 / 3, 2 / 3], dtype=x.dtype)).tolist()
+        return [names[0] if v < lo else names[1] if v < hi else names[2] for v in x.tolist()]
+    reach = tert(pos[:, :2].norm(dim=-1), ("near", "mid-reach", "far"))
+    height = tert(pos[:, 2], ("low", "mid-height", "high"))
+    return [f"{s} / {r} / {h}" for s, r, h in zip(sector, reach, height)]
+
+
+@dataclass
+class Accuracy:
+    """Predicted accuracy at sampled workspace poses.
+
+    q: (N, n) rad poses; pos: (N, 3) mm model positions; sigma: (N,) mm predicted TCP sigma;
+    regions: (region, mean sigma mm, max sigma mm, points) of the regions with >= 5 points,
+    worst mean first; seed: the sample's seed; robot, effects: the model's robot name and effect specs."""
+
+    q: torch.Tensor
+    pos: torch.Tensor
+    sigma: torch.Tensor
+    regions: list
+    seed: int
+    robot: str = ""
+    effects: tuple = ()
+
+    def to_dict(self) -> dict:
+        med, p95 = torch.quantile(self.sigma, torch.tensor([0.5, 0.95], dtype=self.sigma.dtype)).tolist()
+        return {"robot": self.robot, "effects": list(self.effects), "poses": int(self.q.shape[0]), "seed": self.seed,
+                "sigma_mm": {"min": float(self.sigma.min()), "median": med, "p95": p95,
+                             "max": float(self.sigma.max())},
+                "regions": [{"region": k, "mean_mm": m, "max_mm": x, "points": c} for k, m, x, c in self.regions]}
+
+
+def workspace_accuracy(model, theta: torch.Tensor, cov: torch.Tensor, *, n: int = 2000, seed: int = 0,
+                       payload_kg: float | None = None, temp_c: float = 20.0) -> Accuracy:
+    """The `Accuracy` of `model` at theta (P,) with covariance cov (P, P) at n workspace poses
+    drawn with `seed`; payload_kg (default: half the rated payload) and temp_c at every pose."""
+    from torchcal.effects import make_context
+    from torchcal.reliability.sweep import sample_workspace
+
+    robot = model.robot
+    q = sample_workspace(robot, n, seed=seed)
+    N = q.shape[0]
+    payload = torch.full((N,), robot.payload_kg / 2 if payload_kg is None else payload_kg, dtype=torch.float64)
+    temp = torch.full((N,), temp_c, dtype=torch.float64)
+    sigma = predicted_sigma(model, theta, cov, q, payload, temp)
+    pos = model.predict(theta, make_context(robot, q, payload, temp))
+    groups = {}
+    for name, s in zip(region_names(q, pos), sigma.tolist()):
+        groups.setdefault(name, []).append(s)
+    rows = sorted(((sum(v) / len(v), max(v), len(v), k) for k, v in groups.items() if len(v) >= 5), reverse=True)
+    return Accuracy(q, pos, sigma, [(k, m, x, c) for m, x, c, k in rows], seed, robot.name, tuple(model.specs()))

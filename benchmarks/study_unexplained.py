@@ -36,7 +36,7 @@ from torchcal.calibration.model import CalibrationModel
 from torchcal.diagnosis.diagnose import discover
 from torchcal.diagnosis.unexplained import PROBE_ALPHA, unexplained
 from torchcal.effects import make_context
-from torchcal.effects.registry import load_module, unregister
+from torchcal.effects.registry import load_module, unregister_effect
 from torchcal.measurements import Measurements
 from torchcal.robots.poses import random_poses
 from torchcal.simulation.virtual_robot import VirtualRobot
@@ -85,7 +85,7 @@ def session(case, seed):
         load_module(str(COUPLING))
         vr = VirtualRobot(ur, ["joint_coupling:3"], seed=seed)
         m = vr.measure(random_poses(ur, int(case[8:]), torch.Generator().manual_seed(seed)), repeats=2, noise_mm=0.02)
-        unregister("joint_coupling")
+        unregister_effect("joint_coupling")
         d = discover(ur, m)
         return ur, m, torch.from_numpy(d.unexplained.residuals), f"discover found {d.final_effects}"
     raise SystemExit(f"unknown case {case!r}")

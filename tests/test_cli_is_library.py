@@ -294,7 +294,7 @@ def test_unknown_effect_names_the_registry_in_the_library_and_the_option_in_the_
 
     with pytest.raises(UnknownEffectError) as exc:
         plan("puma560", ["joint_coupling:2"], n=20, candidates=300)
-    assert "torchcal.effects.register" in str(exc.value) and "--" not in str(exc.value)
+    assert "torchcal.effects.register_effect" in str(exc.value) and "--" not in str(exc.value)
     capsys.readouterr()
     assert main(["plan", "--robot", "puma560", "--effects", "joint_coupling:2", "--n", "20", "--candidates", "300",
                  "--out", str(tmp_path / "p.csv")]) == 2

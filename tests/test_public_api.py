@@ -69,3 +69,13 @@ def test_one_word_for_a_random_seed():
     bad = [f"{where}({p})" for where, fn in _public_callables()
            for p in inspect.signature(fn).parameters if p in other]
     assert not bad, f"the word for a random seed is `seed`: {bad}"
+
+
+def test_register_has_one_meaning():
+    """`torchcal.register` re-registers a model's measuring frame; adding an effect to the
+    registry is `register_effect`, the Kabsch start `register_frame`: no second `register`."""
+    import torchcal.calibration.registration as registration
+    import torchcal.effects as effects
+
+    assert callable(torchcal.register) and callable(effects.register_effect)
+    assert not hasattr(effects, "register") and not hasattr(registration, "register")

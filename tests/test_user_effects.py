@@ -15,7 +15,7 @@ import torchcal
 from torchcal.calibration.fit import fit
 from torchcal.calibration.model import CalibrationModel
 from torchcal.cli import main
-from torchcal.effects import REGISTRY, build, load_entry_points, load_module, make_context, unregister
+from torchcal.effects import REGISTRY, build, load_entry_points, load_module, make_context, unregister_effect
 from torchcal.effects.context import approach_directions
 from torchcal.effects.spec import EFFECTS
 from torchcal.errors import InputError
@@ -31,7 +31,7 @@ def _clean_registry():
     yield
     for name in ("joint_coupling", "my_shift", "plugin_scale"):
         if name in REGISTRY:
-            unregister(name)
+            unregister_effect(name)
 
 
 def test_example_module_registers_and_matches_hand_computation():
@@ -92,7 +92,7 @@ def test_model_file_with_user_effect_needs_the_module_again(tmp_path, capsys):
     obj = json.loads(Path(model).read_text())
     # no noise; the hidden coupling moves the TCP by 0.3 mm rms (held geometry leaves ~1e-4 mm)
     assert obj["effects"] == ["joint_coupling:3"] and obj["fit"]["rms_mm"] < 1e-2
-    unregister("joint_coupling")
+    unregister_effect("joint_coupling")
     capsys.readouterr()
     assert main(["evaluate", data, "--model", model]) == 2
     err = capsys.readouterr().err
@@ -143,9 +143,9 @@ def test_backlash_fits_exactly_on_every_other_row():
 
 
 def test_register_rejects_non_effects():
-    from torchcal.effects import register
+    from torchcal.effects import register_effect
     with pytest.raises(InputError, match="not a subclass"):
-        register(int)
+        register_effect(int)
 
 
 def _coupled_session(poses=30):
@@ -178,7 +178,7 @@ def test_without_the_module_the_coupling_stays_unexplained(monkeypatch):
 
     monkeypatch.delitem(REGISTRY, "cross_coupling")  # its built-in twin (see above)
     robot, m = _coupled_session(60)
-    unregister("joint_coupling")
+    unregister_effect("joint_coupling")
     d = discover(robot, m)
     assert not any(e.startswith("joint_coupling") for e in d.final_effects)
     u = d.unexplained.to_dict()

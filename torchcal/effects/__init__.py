@@ -4,7 +4,7 @@
 into an `Effect`. Joints are 1-based everywhere a person sees them.
 
 One registry (`torchcal.effects.registry.REGISTRY`, name -> class) holds the built-in
-effects and those a user adds: `register(cls)`, `load_module("my_effects.py")` (the
+effects and those a user adds: `register_effect(cls)`, `load_module("my_effects.py")` (the
 command line's ``--effects-module``) or an installed package's ``torchcal.effects``
 entry point. docs/effects.md shows how to write one.
 """
@@ -22,14 +22,14 @@ from torchcal.effects.gear_transmission import GearTransmission
 from torchcal.effects.joint_clearance import JointClearance
 from torchcal.effects.joint_compliance import JointCompliance
 from torchcal.effects.link_bending import LinkBending
-from torchcal.effects.registry import REGISTRY, load_entry_points, load_module, lookup, register, unregister
+from torchcal.effects.registry import REGISTRY, load_entry_points, load_module, lookup, register_effect, unregister_effect
 from torchcal.effects.thermal_expansion import ThermalExpansion
 from torchcal.effects.tool_offset import ToolOffset
 
 for _cls in (BaseFrame, ToolOffset, JointCompliance, GearPeriodic, Backlash, EncoderScale,
              ThermalExpansion, JointClearance, CrossCoupling, AxisTilt, BaseCompliance, LinkBending,
              GearTransmission):
-    register(_cls, "torchcal.effects", builtin=True)
+    register_effect(_cls, "torchcal.effects", builtin=True)
 
 
 def build(spec, robot) -> Effect:
@@ -42,4 +42,4 @@ def build(spec, robot) -> Effect:
 
 
 __all__ = ["AxisTilt", "BaseCompliance", "Context", "CrossCoupling", "Effect", "approach_directions", "GearTransmission", "LinkBending", "REGISTRY", "build", "context_of", "load_entry_points", "load_module",
-           "lookup", "make_context", "register", "unregister"]
+           "lookup", "make_context", "register_effect", "unregister_effect"]

@@ -63,7 +63,7 @@ scale error of the listed joints::
             cols = ctx.q[:, [j - 1 for j in self.joints]] * p
             return scatter_joints(cols, self.joints, ctx.q.shape[1])
 
-Register it with ``torchcal.effects.register(Scale)``, ``--effects-module FILE.py`` on
+Register it with ``torchcal.effects.register_effect(Scale)``, ``--effects-module FILE.py`` on
 the command line, or an entry point of group ``torchcal.effects`` in an installed package.
 """
 

@@ -60,7 +60,7 @@ def _same_class(a, b) -> bool:
         return False
 
 
-def register(cls, where: str = "register", builtin: bool = False):
+def register_effect(cls, where: str = "register_effect", builtin: bool = False):
     """Add the Effect subclass `cls` under ``cls.name``; returns cls (usable as a decorator).
 
     Raises InputError for a class that is not an Effect subclass, a bad name, or a name
@@ -79,10 +79,10 @@ def register(cls, where: str = "register", builtin: bool = False):
     return cls
 
 
-def unregister(name: str) -> None:
+def unregister_effect(name: str) -> None:
     """Remove a user effect (tests, interactive sessions); built-in effects stay."""
     if name in _BUILTIN:
-        raise InputError(f"unregister: {name!r} is a built-in effect")
+        raise InputError(f"unregister_effect: {name!r} is a built-in effect")
     REGISTRY.pop(name, None)
 
 
@@ -128,7 +128,7 @@ def load_module(path) -> list[str]:
     if not classes:
         raise InputError(f"{where}: defines no subclass of torchcal.effects.Effect with a `name`")
     for c in classes:
-        register(c, where)
+        register_effect(c, where)
     return [c.name for c in classes]
 
 
@@ -151,7 +151,7 @@ def load_entry_points(force: bool = False) -> list[str]:
             if not classes:
                 raise InputError(f"{where}: module defines no Effect subclass with a `name`")
             for c in classes:
-                names.append(register(c, where).name)
+                names.append(register_effect(c, where).name)
         except Exception as exc:  # noqa: BLE001 - a broken plugin must not stop torchcal
             warnings.warn(f"torchcal: skipped {where}: {exc}", stacklevel=2)
     return names

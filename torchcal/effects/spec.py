@@ -84,7 +84,7 @@ class UnknownEffectError(InputError):
     """An effect spec names no registered effect. Its message ends with `HINT` (how a
     library caller registers an effect of its own); the command line names its option instead."""
 
-    HINT = "(an effect of your own: register it first, torchcal.effects.register or load_module)"
+    HINT = "(an effect of your own: register it first, torchcal.effects.register_effect or load_module)"
 
 
 def _unknown(name: str, text: str) -> str:

@@ -40,11 +40,14 @@ class GearPeriodic(Effect):
     def plausible_max(self):
         return [math.radians(MAX_AMPLITUDE_DEG)] * self.n_params
 
+    def _angles(self, ctx):
+        """(N, J) rad: the angle whose harmonics make the error (here the joint angle)."""
+        return ctx.q[:, [j - 1 for j in self.joints]]
+
     def _basis(self, ctx):
-        """(N, J, H, 2) sin and cos of each harmonic of each listed joint's angle."""
+        """(N, J, H, 2) sin and cos of each harmonic of each listed joint's `_angles`."""
         k = torch.tensor(self.harmonics, dtype=ctx.q.dtype, device=ctx.q.device)
-        q = ctx.q[:, [j - 1 for j in self.joints]]  # (N, J)
-        arg = q.unsqueeze(-1) * k  # (N, J, H)
+        arg = self._angles(ctx).unsqueeze(-1) * k  # (N, J, H)
         return torch.stack([torch.sin(arg), torch.cos(arg)], dim=-1)
 
     def joint_offset(self, p, ctx):

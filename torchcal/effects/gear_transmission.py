@@ -18,7 +18,7 @@ import math
 
 import torch
 
-from torchcal.effects.base import Effect, scatter_joints
+from torchcal.effects.gear_periodic import GearPeriodic
 from torchcal.errors import InputError
 
 HARMONICS = (1, 2)
@@ -27,12 +27,13 @@ HARMONICS = (1, 2)
 MAX_AMPLITUDE_DEG = 0.1
 
 
-class GearTransmission(Effect):
+class GearTransmission(GearPeriodic):
+    """`gear_periodic` at the motor-side angle r_J q_J (its basis, offset and Jacobian)."""
+
     name = "gear_transmission"
-    takes_joints = True
 
     def __init__(self, robot, joints=()):
-        super().__init__(robot, joints)
+        super().__init__(robot, joints, harmonics=HARMONICS)
         ratio = robot.gear_ratio
         missing = [j for j in self.joints if ratio is None or j > len(ratio) or ratio[j - 1] is None]
         if missing:
@@ -44,28 +45,9 @@ class GearTransmission(Effect):
     def param_names(self):
         return [f"gtrans_{j}_{f}{h}" for j in self.joints for h in HARMONICS for f in ("sin", "cos")]
 
-    def param_units(self):
-        return ["rad"] * self.n_params
-
     def plausible_max(self):
         return [math.radians(MAX_AMPLITUDE_DEG)] * self.n_params
 
-    def _basis(self, ctx):
-        """(N, J, H, 2): sin and cos of h r_J q_J."""
+    def _angles(self, ctx):  # (N, J) rad: the motor-side angle r_J q_J
         q = ctx.q[:, [j - 1 for j in self.joints]]
-        r = torch.tensor(self.ratios, dtype=q.dtype, device=q.device)
-        h = torch.tensor(HARMONICS, dtype=q.dtype, device=q.device)
-        arg = (q * r).unsqueeze(-1) * h  # (N, J, H)
-        return torch.stack([torch.sin(arg), torch.cos(arg)], dim=-1)
-
-    def joint_offset(self, p, ctx):  # (N, n) rad
-        coef = p.reshape(len(self.joints), len(HARMONICS), 2)
-        return scatter_joints((self._basis(ctx) * coef).sum((-1, -2)), self.joints, ctx.q.shape[1])
-
-    def joint_offset_jacobian(self, p, ctx):  # (N, n, k)
-        b = self._basis(ctx).reshape(ctx.q.shape[0], len(self.joints), -1)  # (N, J, 2H)
-        out = ctx.q.new_zeros(ctx.q.shape[0], ctx.q.shape[1], self.n_params)
-        w = b.shape[-1]
-        for i, j in enumerate(self.joints):
-            out[:, j - 1, i * w:(i + 1) * w] = b[:, i]
-        return out
+        return q * torch.tensor(self.ratios, dtype=q.dtype, device=q.device)

@@ -26,17 +26,47 @@ def _as_float(t, name: str) -> torch.Tensor:
     return t
 
 
-def previous_angles(q: torch.Tensor) -> torch.Tensor:
-    """(N, n) rad: per joint, the last angle before each row that differs from the row's
-    (0 before the first row, the robot's start), for rows q (N, n) in measurement order."""
+def previous_rows(q: torch.Tensor) -> torch.Tensor:
+    """(N, n) int64: per joint, the row each row's joint was reached from, for rows q (N, n)
+    in measurement order: the last earlier row whose angle differs from the row's, -1 where
+    there is none (the joint has not moved yet; it comes from the robot's start, 0)."""
     if q.shape[0] == 0:
-        return q.clone()
+        return torch.zeros(q.shape, dtype=torch.int64, device=q.device)
     ext = torch.cat([torch.zeros_like(q[:1]), q])  # (N + 1, n): the start, then the rows
     idx = torch.arange(q.shape[0] + 1, device=q.device).unsqueeze(-1).expand_as(ext)
     moved = torch.cat([torch.zeros_like(q[:1], dtype=torch.bool), ext[1:] != ext[:-1]])
-    # row of the last move into each row (0: no move yet, the start)
+    # row of ext of the last move into each row (0: no move yet, the start)
     last = torch.where(moved, idx, torch.zeros_like(idx)).cummax(0).values[1:]  # (N, n)
-    return ext.gather(0, (last - 1).clamp_min(0)) * (last > 0)
+    return (last - 2).clamp_min(-1)  # ext row last - 1 is data row last - 2
+
+
+def previous_angles(q: torch.Tensor) -> torch.Tensor:
+    """(N, n) rad: per joint, the last angle before each row that differs from the row's
+    (0 before the first row, the robot's start), for rows q (N, n) in measurement order
+    (the rows of `previous_rows`)."""
+    rows = previous_rows(q)
+    return torch.where(rows >= 0, q.gather(0, rows.clamp_min(0)), torch.zeros_like(q))
+
+
+def split_by_pose(pose: torch.Tensor, fraction: float, seed: int) -> torch.Tensor:
+    """(N,) bool: the training rows of a seeded split by pose id.
+
+    pose (N,) int64 pose ids; all rows of one pose fall on one side. The distinct ids
+    (sorted) are permuted by numpy's ``default_rng(seed)`` and the first
+    ``round(fraction * poses)`` train; ``fraction`` in (0, 1). InputError when either
+    side would be empty.
+    """
+    import numpy as np
+
+    if not 0.0 < float(fraction) < 1.0:
+        raise InputError(f"split: fraction must lie strictly between 0 and 1, got {fraction}")
+    ids = np.unique(pose.cpu().numpy())
+    k = int(round(float(fraction) * len(ids)))
+    if not 0 < k < len(ids):
+        raise InputError(f"split: fraction {fraction} of {len(ids)} poses leaves "
+                         f"{'no training' if k == 0 else 'no validation'} pose")
+    train = np.random.default_rng(seed).permutation(ids)[:k]
+    return torch.from_numpy(np.isin(pose.cpu().numpy(), train)).to(pose.device)
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,9 +91,9 @@ class Measurements:
             the rows that did not move it), all-zero joints before the first row. Its sign
             against q is the approach direction (`torchcal.effects.context.make_context`).
             Computed from `q` when not given, and carried by `subset`, so
-            direction-dependent effects (backlash) stay right on a subset. Not stored in
-            the file: writing a subset and reading it back recomputes it from the
-            subset's own order.
+            direction-dependent effects (backlash) stay right on a subset. In the file
+            as the columns ``prev_q1..prev_qN`` when present (`torchcal split` writes
+            them); without them it is recomputed from the file's own row order.
 
     The constructor checks shapes and finiteness and raises InputError naming the field.
     """

@@ -1,12 +1,15 @@
-"""The measurement CSV: ``pose,q1,...,qN,x,y,z[,point][,rx,ry,rz][,payload_kg][,temp_c]``
-(docs/formats.md).
+"""The measurement CSV: ``pose,q1,...,qN,x,y,z[,point][,rx,ry,rz][,payload_kg][,temp_c]
+[,prev_q1,...,prev_qN]`` (docs/formats-measurements.md).
 
 `read_measurements` / `write_measurements`: degrees and mm in the file (other units by
 ``length_unit='m'`` / ``angle_unit='rad'``), radians and mm in `Measurements`; the q
 column of a prismatic joint holds a length (mm, or m with ``length_unit='m'``; only
 when the robot is given: without it every q column is an angle). ``point``
 is an integer reflector id (several measured points per pose); ``rx, ry, rz`` are the
-measured orientation as fixed-axis XYZ angles, R = Rz(rz) Ry(ry) Rx(rx). The header is required, names are exact, columns may come in any order;
+measured orientation as fixed-axis XYZ angles, R = Rz(rz) Ry(ry) Rx(rx). ``prev_q1..prev_qN``
+(all or none, units as q) are the angles each row was approached from in the whole
+session (`Measurements.q_prev`; a split file written by `torchcal split` carries them).
+The header is required, names are exact, columns may come in any order;
 every bad file gives one InputError line naming the file, ``line L (data row R)`` and the
 column. Joint angles outside the robot's limits warn (`JointLimitWarning`) unless
 ``strict_limits=True``. Writes are atomic (`torchcal.io.files.atomic_write`).
@@ -39,7 +42,8 @@ class JointLimitWarning(UserWarning):
 _INT64_MIN, _INT64_MAX = -(2 ** 63), 2 ** 63 - 1
 _POSE_RE = re.compile(r"\s*([+-]?[0-9]+)(?:\.0*)?\s*", re.ASCII)
 _QCOL_RE = re.compile(r"q([1-9][0-9]*)", re.ASCII)
-_LAYOUT = "pose,q1,...,qN,x,y,z[,point][,rx,ry,rz][,payload_kg][,temp_c]"
+_PREV_RE = re.compile(r"prev_q([1-9][0-9]*)", re.ASCII)
+_LAYOUT = "pose,q1,...,qN,x,y,z[,point][,rx,ry,rz][,payload_kg][,temp_c][,prev_q1,...,prev_qN]"
 _ORIENT = ("rx", "ry", "rz")
 LENGTH_UNITS = {"mm": 1.0, "m": 1000.0}  # unit -> mm
 ANGLE_UNITS = ("deg", "rad")
@@ -111,6 +115,8 @@ def _parse_header(path, names: list[str], n_expected: int | None, robot_name: st
         m = _QCOL_RE.fullmatch(name)
         if m:
             qs.append(int(m.group(1)))
+        elif _PREV_RE.fullmatch(name):
+            pass
         elif name not in ("pose", "x", "y", "z", "point") + _ORIENT + _OPTIONAL:
             _fail(path, f"line 1, column {_show(name)} (header column {i + 1}): unknown column; "
                         f"expected {_LAYOUT} (exact lower-case names)")
@@ -139,6 +145,15 @@ def _parse_header(path, names: list[str], n_expected: int | None, robot_name: st
     if have and len(have) != 3:
         miss = ", ".join(c for c in _ORIENT if c not in cols)
         _fail(path, f"line 1: orientation columns come as rx, ry, rz together; missing {miss}")
+    prev = [c for c in cols if _PREV_RE.fullmatch(c)]
+    if prev:
+        for c in prev:
+            if int(_PREV_RE.fullmatch(c).group(1)) > n:
+                _fail(path, f"line 1, column {c}: unknown column; expected prev_q1..prev_q{n}")
+        for k in range(1, n + 1):
+            if f"prev_q{k}" not in cols:
+                _fail(path, f"line 1: missing column prev_q{k}; the approach columns come as "
+                            f"prev_q1..prev_q{n} together")
     return cols, n
 
 
@@ -154,7 +169,9 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
 
     Header: required, exact lower-case names, any column order, surrounding spaces ignored.
     The q-columns must be exactly q1..qN; N must equal `n_joints` and/or `robot.n` when
-    given, else it is taken from the header. Blank lines are skipped; a UTF-8 byte order
+    given, else it is taken from the header. ``prev_q1..prev_qN`` (all or none, units as
+    q): the angles each row was approached from (`Measurements.q_prev`); without them
+    q_prev comes from the file's own row order. Blank lines are skipped; a UTF-8 byte order
     mark is accepted. Cells: decimal numbers (finite; `pose` an integer, "7.0" accepted;
     `payload_kg` >= 0); optional columns, when present, need a value in every row.
 
@@ -218,12 +235,14 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
     qi = [cols[f"q{k}"] for k in range(1, n + 1)]
     xi = [cols[c] for c in "xyz"]
     opt = [c for c in _OPTIONAL if c in cols]
-    has_point, has_rot = "point" in cols, "rx" in cols
+    has_point, has_rot, has_prev = "point" in cols, "rx" in cols, "prev_q1" in cols
+    pi = [cols[f"prev_q{k}"] for k in range(1, n + 1)] if has_prev else []
     N = len(rows)
     pose = [0] * N
     point = [0] * N
     rxyz = [[0.0] * 3 for _ in range(N)]
     q_deg = [[0.0] * n for _ in range(N)]
+    prev_deg = [[0.0] * n for _ in range(N)]
     xyz = [[0.0] * 3 for _ in range(N)]
     extra = {c: [0.0] * N for c in opt}
     for r, (line, fields) in enumerate(rows):
@@ -235,6 +254,8 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
         qr = q_deg[r]
         for j, i in enumerate(qi):
             qr[j] = _cell_float(path, fields[i], line, row, f"q{j + 1}", au)
+        for j, i in enumerate(pi):
+            prev_deg[r][j] = _cell_float(path, fields[i], line, row, f"prev_q{j + 1}", au)
         pr = xyz[r]
         for j, i in enumerate(xi):
             pr[j] = _cell_float(path, fields[i], line, row, "xyz"[j], lu)
@@ -250,11 +271,13 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
             extra[c][r] = v
 
     to_rad = torch.deg2rad if angle_unit == "deg" else (lambda t: t)
-    q = torch.tensor(q_deg, dtype=torch.float64).reshape(N, n)
-    if robot is None:
-        q = to_rad(q)  # (N, n) rad
-    else:  # a prismatic joint's column is a length: mm inside
-        q = torch.where(robot.prismatic.cpu(), q * LENGTH_UNITS[length_unit], to_rad(q))
+
+    def joints(values):  # (N, n) rad; a prismatic joint's column is a length: mm inside
+        t = torch.tensor(values, dtype=torch.float64).reshape(N, n)
+        if robot is None:
+            return to_rad(t)
+        return torch.where(robot.prismatic.cpu(), t * LENGTH_UNITS[length_unit], to_rad(t))
+    q = joints(q_deg)
     m = Measurements(
         pose=torch.tensor(pose, dtype=torch.int64),
         q=q,
@@ -264,6 +287,7 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
         payload_kg=torch.tensor(extra["payload_kg"], dtype=torch.float64) if "payload_kg" in extra else None,
         temp_c=torch.tensor(extra["temp_c"], dtype=torch.float64) if "temp_c" in extra else None,
         source=str(path),
+        q_prev=joints(prev_deg) if has_prev else None,
     )
     if robot is not None:
         _check_limits(path, m, robot, [line for line, _ in rows], strict_limits)
@@ -308,10 +332,13 @@ def _fmt_deg(v: float) -> str:
     return text if ("." in text or "e" in text or "n" in text) else text + ".0"
 
 
-def format_measurements(m: Measurements, robot=None) -> str:
+def format_measurements(m: Measurements, robot=None, approach: bool = False) -> str:
     """The CSV text of `m`: joint angles in degrees, positions in mm.
 
-    Deterministic: header in the canonical order ``pose,q1..qN,x,y,z[,payload_kg][,temp_c]``,
+    approach: also write ``prev_q1..prev_qN`` (`m.q_prev`, units as q), so that the rows
+    read back with the approach directions they had in `m` (a subset of a session).
+    Deterministic: header in the canonical order
+    ``pose,q1..qN,x,y,z[,point][,rx,ry,rz][,payload_kg][,temp_c][,prev_q1..prev_qN]``,
     xyz / payload_kg / temp_c in Python's shortest exact repr (they round-trip bit for
     bit), joint angles in degrees to 15 significant digits (they round-trip to ~1e-15
     relative, and writing what was read reproduces the text).
@@ -320,12 +347,17 @@ def format_measurements(m: Measurements, robot=None) -> str:
     opt = [c for c in _OPTIONAL if getattr(m, c) is not None]
     pt = [] if m.point is None else ["point"]
     rot = [] if m.rxyz is None else list(_ORIENT)
-    header = ["pose", *(f"q{k}" for k in range(1, n + 1)), "x", "y", "z", *pt, *rot, *opt]
+    prev = [f"prev_q{k}" for k in range(1, n + 1)] if approach else []
+    header = ["pose", *(f"q{k}" for k in range(1, n + 1)), "x", "y", "z", *pt, *rot, *opt, *prev]
     points = None if m.point is None else m.point.cpu().tolist()
     rdeg = None if m.rxyz is None else torch.rad2deg(m.rxyz.detach().cpu().to(torch.float64)).T.tolist()
     pose = m.pose.cpu().tolist()
-    q = m.q.detach().cpu().to(torch.float64)
-    qd = (torch.rad2deg(q) if robot is None else robot.to("cpu", torch.float64).q_to_user(q)).T.tolist()  # deg / mm
+
+    def user(t):  # (N, n) rad -> n lists of N deg / mm
+        t = t.detach().cpu().to(torch.float64)
+        return (torch.rad2deg(t) if robot is None else robot.to("cpu", torch.float64).q_to_user(t)).T.tolist()
+    qd = user(m.q)
+    pd = user(m.q_prev) if approach else []
     xyz = m.xyz.detach().cpu().to(torch.float64).T.tolist()  # 3 lists of N mm
     extra = [getattr(m, c).detach().cpu().to(torch.float64).tolist() for c in opt]
     lines = [",".join(header)]
@@ -338,13 +370,15 @@ def format_measurements(m: Measurements, robot=None) -> str:
         if rdeg is not None:
             cells += [_fmt_deg(c[r]) for c in rdeg]
         cells += [_fmt(c[r]) for c in extra]
+        cells += [_fmt_deg(c[r]) for c in pd]
         lines.append(",".join(cells))
     return "\n".join(lines) + "\n"
 
 
-def write_measurements(path, m: Measurements, force: bool = False, inputs=(), robot=None) -> Path:
+def write_measurements(path, m: Measurements, force: bool = False, inputs=(), robot=None,
+                       approach: bool = False) -> Path:
     """Atomically write `m` as a measurement CSV (joint angles in degrees, mm; with
-    `robot`, a prismatic joint's column in mm).
+    `robot`, a prismatic joint's column in mm; with `approach`, the ``prev_q`` columns).
 
     Refuses to replace an existing file unless `force`, and never writes over `m.source`
     or any of `inputs` (docs/design.md: nothing written over an input file).
@@ -353,5 +387,5 @@ def write_measurements(path, m: Measurements, force: bool = False, inputs=(), ro
         raise InputError(f"write_measurements: expected Measurements, got {type(m).__name__}")
     if len(m) == 0:
         raise InputError(f"{path}: refusing to write a measurement file with no rows")
-    return atomic_write(path, format_measurements(m, robot), force=force, inputs=(m.source, *inputs))
+    return atomic_write(path, format_measurements(m, robot, approach), force=force, inputs=(m.source, *inputs))
 

@@ -19,6 +19,7 @@ Example::
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -268,7 +269,7 @@ def check_diagnosis_data(robot_or_model, model: CalibrationModel, m: Measurement
     if isinstance(robot_or_model, FitResult):
         res = check_measurements(model, robot_or_model.theta, m, robot_or_model.training_rms_mm)
         return enforce(res, refuse_frame=False, refuse_mismatch=True)
-    from torchcal.calibration.registration import reregister
+    from torchcal.calibration.registration import TransferWarning, far_from_training, reregister
     from torchcal.effects import context_of
 
     cm = CalibrationModel.for_measurements(model.robot, model.specs(), m)
@@ -282,17 +283,23 @@ def check_diagnosis_data(robot_or_model, model: CalibrationModel, m: Measurement
 
 def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: int = 0,
              max_rounds: int | None = None, alpha: float | None = None, sigma_mm: float = SIGMA_MM,
-             sigma_deg: float = SIGMA_DEG):
+             sigma_deg: float = SIGMA_DEG, transfer=None, transfer_poses: int = 30):
     """Add the accepted missing effect each round (`torchcal.diagnosis.diagnose.discover`),
     for at most max_rounds rounds; folds, seed, alpha, sigma_mm, sigma_deg as in `diagnose`
-    (None: the defaults of `torchcal.diagnosis`). Returns a `Discovery`."""
+    (None: the defaults of `torchcal.diagnosis`). transfer: measurements of another
+    session (Measurements or CSV path) as a check: a step is kept only when it does not
+    raise that session's error after registration on its first `transfer_poses` poses
+    (`torchcal.diagnosis.transfer`). Returns a `Discovery`."""
     from torchcal.diagnosis.diagnose import discover as run
+    from torchcal.diagnosis.transfer import TransferCheck
 
     model = _model(robot_or_model, effects)
     m = _measurements(measurements, model.robot)
+    other = None if transfer is None else _measurements(transfer, model.robot)
+    check = None if other is None else TransferCheck(other, transfer_poses, other.source or "the other session")
     with threads.for_work(_work(model, m)):
         return run(model.robot, m, model.specs(), folds=folds, seed=seed, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
-                   **_set(max_rounds=max_rounds, alpha=alpha))
+                   transfer=check, **_set(max_rounds=max_rounds, alpha=alpha))
 
 
 def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_method: str = "damped",
@@ -393,11 +400,13 @@ def register(model, measurements, *, tool: bool = False) -> FitResult:
     the best frame), calibrated on these rows. Data that no frame brings near the model
     (another robot, units) are refused (InputError, `torchcal.calibration.mismatch`).
     Returns a `FitResult` whose ``rms_mm`` and ``residuals`` are those on `measurements`
-    and whose ``registration`` records the frame and the rms before and after.
+    and whose ``registration`` records the frame and the rms before and after. An rms
+    above 3x the model's training rms is a `TransferWarning`
+    (`torchcal.calibration.registration.far_from_training`).
     """
     from torchcal.calibration.joint_range import joint_range
     from torchcal.calibration.mismatch import check_measurements, enforce
-    from torchcal.calibration.registration import reregister
+    from torchcal.calibration.registration import TransferWarning, far_from_training, reregister
     from torchcal.effects import context_of
 
     fm = _fitted(model) if _is_model(model) else None
@@ -418,6 +427,9 @@ def register(model, measurements, *, tool: bool = False) -> FitResult:
     res = reregister(cm, theta.to(m.xyz), ctx, m.xyz, tool=tool, pose=m.pose, covariance=cov,
                      identified=identified, q_range=q_range)
     enforce(check_measurements(res.model, res.theta, m, train))  # still off: another robot, units
+    far = far_from_training(res.rms_mm, train)
+    if far is not None:
+        warnings.warn(far, TransferWarning, stacklevel=2)
     if fm is None:
         return res
     return replace(res, orientation=fm.orientation, robust=fm.robust, sigma_mm=fm.sigma_mm, sigma_deg=fm.sigma_deg,

@@ -27,6 +27,25 @@ import torch
 from torchcal.rotations import kabsch, matrix_to_fixed_xyz, matrix_to_rotvec, rotvec_to_matrix
 
 
+#: `torchcal register` warns when the registered rms exceeds this many times the model's
+#: training rms (the model does not carry over to the new session)
+FAR_FACTOR = 3.0
+
+
+class TransferWarning(UserWarning):
+    """A registered model's error on the new session is far above its training error."""
+
+
+def far_from_training(rms_mm: float, training_rms_mm: float | None, factor: float = FAR_FACTOR) -> str | None:
+    """The warning line when `rms_mm` (after registration) exceeds `factor` times the
+    model's training rms (None when it does not, or the training rms is unknown)."""
+    if training_rms_mm is None or not training_rms_mm > 0 or rms_mm <= factor * training_rms_mm:
+        return None
+    return (f"registered rms {rms_mm:.4g} mm is {rms_mm / training_rms_mm:.1f}x the model's training rms "
+            f"{training_rms_mm:.4g} mm (warning above {factor:g}x): the model does not carry over to this "
+            f"session; terms of the session it was fitted in? (check with discover --transfer)")
+
+
 def _base_slice(model):
     for e, sl in zip(model.effects, model.slices[1:]):
         if e.name == "base_frame":

@@ -1,12 +1,23 @@
-"""`torchcal discover DATA --robot R [--json OUT] [--out MODEL.json] [--rrd FILE]`: add the
-best significant effect each round until none is left; the error falls at each round."""
+"""`torchcal discover DATA --robot R [--json OUT] [--out MODEL.json] [--rrd FILE]
+[--transfer OTHER.csv [--transfer-poses K]]`: add the best significant effect each round
+until none is left; the error falls at each round.
+
+``--transfer OTHER.csv``: measurements of the same robot from another session as a check.
+Each round's model is registered (frame only, as `torchcal register` does) on OTHER's
+first K poses (``--transfer-poses``, default 30) and its error on OTHER's other poses is
+printed; a step that raises it is refused ("helps within the session only"), the next
+candidate that met the acceptance rule is tried, and a round with none left ends the
+discovery (docs/diagnosis.md)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from torchcal import api
+from torchcal.errors import InputError
 from torchcal.io import modelfile
 from torchcal.cli._args import (add_cv, add_effects_module, add_force, add_units, add_viz, check_folder, check_outputs,
-                                read_data, add_robot)
+                                read_data, add_robot, positive_int)
 from torchcal.cli.diagnose import add_sigmas, print_step
 from torchcal.io.files import write_json
 from torchcal.robots.robot import robot as make_robot
@@ -21,6 +32,10 @@ def add_parser(sub):
     add_sigmas(p)
     p.add_argument("--json", help="write the history here")
     p.add_argument("--out", help="write the final MODEL.json here")
+    p.add_argument("--transfer", metavar="OTHER.csv", help="measurements of another session: keep a step only "
+                                                         "if it does not raise that session's error")
+    p.add_argument("--transfer-poses", type=positive_int, default=30, metavar="K",
+                   help="poses of OTHER.csv the frame is registered on (default 30)")
     add_viz(p)
     add_units(p)
     add_force(p)
@@ -30,18 +45,27 @@ def add_parser(sub):
 
 def run(args) -> int:
     check_outputs([("--json", args.json), ("--out", args.out), ("--rrd", args.rrd)], args.force,
-                  inputs=[args.data])
+                  inputs=[args.data, args.transfer])
     check_folder("--plots", args.plots)
     if args.rrd or args.plots:  # the PNG names too, before any work
         from torchcal.cli._viz import check_outputs as check_visual_outputs
         check_visual_outputs(args, "discover")
     robot = make_robot(args.robot)
+    if args.transfer is not None and Path(args.transfer).resolve() == Path(args.data).resolve():
+        raise InputError(f"{args.transfer}: --transfer names DATA itself; give another session's measurements")
     m = read_data(args.data, robot, args)
+    other = None if args.transfer is None else read_data(args.transfer, robot, args)
+    if other is not None:
+        from torchcal.diagnosis.transfer import TransferCheck
+        print(TransferCheck(other, args.transfer_poses, args.transfer).describe())
     res = api.discover(robot, m, args.effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,
-                       sigma_deg=args.sigma_deg)
+                       sigma_deg=args.sigma_deg, transfer=other, transfer_poses=args.transfer_poses)
     for i, (h, d) in enumerate(zip(res.history, res.diagnoses)):
         print(f"round {i}:")
         print_step(d.step)
+        if "transfer" in h:
+            from torchcal.diagnosis.transfer import describe_verdict
+            print("\n".join(describe_verdict(h["transfer"])))
     print(f"final effects: {', '.join(res.final_effects) or 'none'}")
     if res.unexplained is not None:
         print(res.unexplained.describe())

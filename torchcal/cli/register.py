@@ -13,13 +13,14 @@ block: {"input", "input_sha256", "model", "n", "rms_before_mm", "closed_form_rms
 `torchcal register DATA --robot R --out M.json [--tool]`: a registration-only model, the
 nominal robot in its best frame (a baseline before any calibration); its calibrated range
 is that of DATA. Data that no frame brings near the model are refused (another robot,
-units; docs/registration.md).
+units; docs/registration.md). A registered rms above 3x the model's training rms is one
+warning line on stderr (exit 0): the model does not carry over to this session.
 """
 
 from __future__ import annotations
 
 from torchcal.cli._args import (add_effects_module, add_force, add_robot, add_units, check_outputs, load_robot,
-                                read_data)
+                                read_data, warnings_to_stderr)
 
 
 def add_parser(sub):
@@ -52,7 +53,9 @@ def run(args) -> int:
     if args.model is not None:
         fitted = modelfile.load(args.model, robot=robot)
         m = read_data(args.data, fitted.model.robot, args)
-        res = register(fitted, m, tool=args.tool)
+        from torchcal.calibration.registration import TransferWarning
+        with warnings_to_stderr(TransferWarning):
+            res = register(fitted, m, tool=args.tool)
         obj = dict(read_json(args.model, "model file"))
         new = modelfile.to_dict(res)
         for key in ("effects", "parameters", "covariance", "base_frame"):

@@ -18,8 +18,11 @@
 
 `discover` repeats the step: the accepted candidate's full fit and its CV become the
 next round's current model, so a round prints exactly the figures `diagnose` prints for
-that step. Round i is `diagnose` with budget alpha / 2^i, whose pre-screen spends half of
-it, so all the pre-screen tests of all rounds keep the family-wise error below alpha; the
+that step. With a `TransferCheck` (`torchcal.diagnosis.transfer`) a round's accepted
+step is kept only when it does not raise the error on another session's held-out
+poses; the next candidate that met the rule is tried instead, and a round whose
+candidates are all refused ends the discovery. Round i is `diagnose` with budget
+alpha / 2^i, whose pre-screen spends half of it, so all the pre-screen tests of all rounds keep the family-wise error below alpha; the
 refit tests are a second condition.
 Everything is deterministic for a given seed (fold assignment).
 """
@@ -157,15 +160,17 @@ class Discovery:
 
 def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: int = 0, *,
              max_rounds: int = 6, alpha: float = ALPHA, sigma_mm: float = SIGMA_MM,
-             sigma_deg: float = SIGMA_DEG) -> Discovery:
+             sigma_deg: float = SIGMA_DEG, transfer=None) -> Discovery:
     """Add the accepted candidate of each step until none is (module doc); at most
-    `max_rounds` effects."""
+    `max_rounds` effects. transfer: a `TransferCheck` or None; with it, history[i]
+    ["transfer"] holds the round's `TransferCheck.choose` record."""
     specs = [str(s) for s in parse_specs(list(effects), robot.n)] if effects else []
     history, diagnoses = [], []
     ctx = context_of(robot, m)
     base = fit(CalibrationModel.for_measurements(robot, specs, m), ctx, m.xyz,
                **fit_options(m, sigma_mm=sigma_mm, sigma_deg=sigma_deg))
     current = None
+    t_now = None if transfer is None else transfer.rms_mm(base)
     for i in range(max_rounds + 1):
         d = diagnose(robot, m, folds=folds, seed=seed, base_fit=base, current=current, alpha=alpha / 2 ** i,
                      sigma_mm=sigma_mm, sigma_deg=sigma_deg, report_rest=False)  # the final model's, once, below
@@ -174,6 +179,10 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
         history.append({"effects": list(cur.effects), "rms_mm": cur.rms_mm, "cv_rms_mm": cur.cv_rms_mm,
                         "step": d.step.to_dict()})
         acc = d.step.accepted
+        if transfer is not None:  # a step must not make the other session worse
+            passed = [s for s in d.step.refits if s.accepted or s.passed] if i < max_rounds else []
+            acc, history[-1]["transfer"] = transfer.choose(t_now, passed)
+            t_now = t_now if acc is None else history[-1]["transfer"]["tried"][-1]["after_mm"]
         if acc is None or i == max_rounds:
             break
         base, current = acc.fit, Scored(acc.effects, "", acc.rms_mm, acc.cv_rms_mm, acc.fit, acc.cv)

@@ -43,7 +43,7 @@ def far_from_training(rms_mm: float, training_rms_mm: float | None, factor: floa
         return None
     return (f"registered rms {rms_mm:.4g} mm is {rms_mm / training_rms_mm:.1f}x the model's training rms "
             f"{training_rms_mm:.4g} mm (warning above {factor:g}x): the model does not carry over to this "
-            f"session; terms of the session it was fitted in? (check with discover --transfer)")
+            f"session: are its terms those of the session it was fitted in? (docs/registration.md)")
 
 
 def _base_slice(model):

@@ -48,9 +48,9 @@ def val_rms(model: Path, val: Path, work: Path) -> float:
 
 def one(series: str, seed: int, work: Path) -> dict:
     tr, va = work / "train.csv", work / "val.csv"
-    subprocess.run([sys.executable, UR10 / "split.py", UR10 / f"series_{series}.csv", tr, va,
-                    "--fraction", "0.6", "--seed", str(seed)], check=True, capture_output=True)
     robot = UR10 / "ur10.json"
+    torchcal("split", UR10 / f"series_{series}.csv", "--robot", robot, "--fraction", "0.6", "--seed", seed,
+             "--out", tr, va, "--force")
     row = {"series": series, "seed": seed}
     row["fit_s"] = torchcal("fit", tr, "--robot", robot, "--effects", *START, "--out", work / "fit.json", "--force")
     row["fit"] = val_rms(work / "fit.json", va, work)

@@ -52,7 +52,7 @@ def test_first_poses_and_bad_counts(sessions):
     pose = torch.tensor([5, 5, 2, 9, 2, 1])
     assert first_poses(pose, 2).tolist() == [True, True, True, False, True, False]
     for k in (2, 120, 500):
-        with pytest.raises(InputError, match="transfer_poses must be an integer from 3 to 119"):
+        with pytest.raises(InputError, match="first 3 to 119 poses .* pass transfer_poses='30'"):
             TransferCheck(b, k)
     check = TransferCheck(b, 30)
     assert int(check.registration_rows.sum()) == 30 and "first 30 poses" in check.describe()
@@ -94,3 +94,18 @@ def test_register_warns_when_far_above_training(sessions, tmp_path, capsys):
     assert capsys.readouterr().err == ""  # its own session: no warning
     with pytest.warns(TransferWarning):
         torchcal.register(model, b.subset(first_poses(b.pose, 30)))
+
+
+def test_cli_discover_refuses_bad_transfer_input(sessions, tmp_path, capsys):
+    robot, a, b = sessions
+    write_measurements(tmp_path / "a.csv", a)
+    write_measurements(tmp_path / "b.csv", b)
+    base = ["discover", str(tmp_path / "a.csv"), "--robot", "ur5e", "--out", str(tmp_path / "m.json")]
+    assert main(base + ["--transfer", str(tmp_path / "b.csv"), "--transfer-poses", "120"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "first 3 to 119 poses (of 120" in err[0] and err[0].endswith("pass --transfer-poses 30")
+    assert main(base + ["--transfer", str(tmp_path / "a.csv")]) == 2
+    assert "--transfer names DATA itself" in capsys.readouterr().err
+    assert main(base + ["--transfer", str(tmp_path / "none.csv")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.csv", "b.csv"]

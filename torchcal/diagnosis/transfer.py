@@ -46,9 +46,13 @@ class TransferCheck:
 
     def __post_init__(self):
         n_poses = int(self.m.pose.unique().numel())
+        if n_poses < 4:
+            raise InputError(f"{self.source}: {n_poses} poses are too few for a transfer check (3 to register "
+                             f"the frame on, and more to score)")
         if isinstance(self.poses, bool) or not isinstance(self.poses, int) or not 3 <= self.poses < n_poses:
-            raise InputError(f"{self.source}: transfer_poses must be an integer from 3 to {n_poses - 1} (the "
-                             f"session has {n_poses} poses, some must stay held out), got {self.poses!r}")
+            raise InputError(f"{self.source}: the transfer check registers on its first 3 to {n_poses - 1} "
+                             f"poses (of {n_poses}; the others are scored), got {self.poses!r}",
+                             fix=("transfer_poses", str(min(30, n_poses - 1))))
 
     @property
     def registration_rows(self) -> torch.Tensor:

@@ -50,26 +50,13 @@ TARGET_DISCOVER_S = 20.0
 
 
 def split(folder: Path, fraction: float = 0.6, seed: int = 0) -> tuple[Path, Path]:
-    """train.csv / val.csv in `folder`: the poses permuted by default_rng(seed), the first
-    round(fraction * poses) for training (examples/ur10/split.py, same rule)."""
-    import numpy as np
-
-    with open(DATA, newline="") as f:
-        rows = list(csv.reader(f))
-    header, body = rows[0], rows[1:]
-    pose = np.array([int(r[header.index("pose")]) for r in body])
-    poses = np.unique(pose)
-    train = np.random.default_rng(seed).permutation(poses)[: int(round(fraction * len(poses)))]
-    keep = np.isin(pose, train)
-    out = []
-    for name, mask in (("train.csv", keep), ("val.csv", ~keep)):
-        path = folder / name
-        with open(path, "w", newline="") as f:
-            w = csv.writer(f, lineterminator="\n")
-            w.writerow(header)
-            w.writerows(r for r, k in zip(body, mask) if k)
-        out.append(path)
-    return out[0], out[1]
+    """train.csv / val.csv in `folder`, by ``torchcal split`` (the poses permuted by
+    default_rng(seed), the first round(fraction * poses) for training; prev_q columns)."""
+    train, val = folder / "train.csv", folder / "val.csv"
+    subprocess.run([sys.executable, "-m", "torchcal", "split", str(DATA), "--robot", str(ROBOT), "--fraction",
+                    str(fraction), "--seed", str(seed), "--out", str(train), str(val), "--force"],
+                   check=True, capture_output=True)
+    return train, val
 
 
 def _timed(fn, repeats: int):

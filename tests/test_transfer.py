@@ -5,7 +5,6 @@ session is far above its training error."""
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest

@@ -1,10 +1,11 @@
 """Transfer to another session as a check (torchcal.diagnosis.transfer): a term that only
 session A carries is found by `discover` on A, refused when session B is the check
-("helps within the session only") while the robot's own term is kept, and `register` warns when a model's error on a new
-session is far above its training error."""
+("helps within the session only") while the robot's own term is kept, and `register`
+warns when a model's error on a new session is far above its training error."""
 
 from __future__ import annotations
 
+import json
 
 import numpy as np
 import pytest
@@ -13,7 +14,7 @@ import torch
 import torchcal
 from torchcal.calibration.registration import TransferWarning, far_from_training
 from torchcal.cli import main
-from torchcal.diagnosis.transfer import TransferCheck, describe_verdict, first_poses
+from torchcal.diagnosis.transfer import TransferCheck, first_poses
 from torchcal.errors import InputError
 from torchcal.io.measurement_csv import write_measurements
 from torchcal.io.modelfile import to_dict
@@ -57,22 +58,29 @@ def test_first_poses_and_bad_counts(sessions):
     assert int(check.registration_rows.sum()) == 30 and "first 30 poses" in check.describe()
 
 
-def test_session_term_is_refused_with_the_other_session_as_check(sessions):
+def test_session_term_is_refused_with_the_other_session_as_check(sessions, tmp_path, capsys):
     robot, a, b = sessions
     alone = torchcal.discover(robot, a, ["base_frame", "tool_offset"], max_rounds=3)
     assert "gear_periodic:2" in alone.final_effects  # found within session A
-    checked = torchcal.discover(robot, a, ["base_frame", "tool_offset"], max_rounds=3, transfer=b,
-                                transfer_poses=30)
-    tried = [t for h in checked.history if "transfer" in h for t in h["transfer"]["tried"]]
+    write_measurements(tmp_path / "a.csv", a)
+    write_measurements(tmp_path / "b.csv", b)
+    assert main(["discover", str(tmp_path / "a.csv"), "--robot", "ur5e", "--effects", "base_frame", "tool_offset",
+                 "--transfer", str(tmp_path / "b.csv"), "--json", str(tmp_path / "h.json")]) == 0
+    out = capsys.readouterr().out
+    history = json.loads((tmp_path / "h.json").read_text())["history"]
+    assert "frame registered on its first 30 poses" in out
+    assert out.count("transfer: current model") == len(history)  # every round prints its figure
+    tried = [t for h in history for t in h["transfer"]["tried"]]
     gear = [t for t in tried if t["effect"] == "gear_periodic:2"]
     assert gear and all(t["refused"] for t in gear)  # the session's term, every time it passed in A
-    rec = next(h["transfer"] for h in checked.history if gear[0] in h["transfer"]["tried"])
+    rec = next(h["transfer"] for h in history if gear[0] in h["transfer"]["tried"])
     assert gear[0]["after_mm"] > rec["current_mm"]
-    assert any("gear_periodic:2 refused: helps within the session only" in line for line in describe_verdict(rec))
-    assert "gear_periodic:2" not in checked.final_effects
-    assert "joint_compliance:2" in checked.final_effects  # the robot's term carries over and is kept
-    for h in checked.history:  # a kept step never raises the other session's error
-        if "transfer" in h and h["transfer"]["kept"]:
+    assert f"gear_periodic:2 refused: helps within the session only: transfer {rec['current_mm']:.3f} -> " in out
+    final = json.loads((tmp_path / "h.json").read_text())["final_effects"]
+    assert "gear_periodic:2" not in final
+    assert "joint_compliance:2" in final  # the robot's term carries over and is kept
+    for h in history:  # a kept step never raises the other session's error
+        if h["transfer"]["kept"]:
             assert h["transfer"]["tried"][-1]["after_mm"] <= h["transfer"]["current_mm"]
 
 

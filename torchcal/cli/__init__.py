@@ -34,6 +34,7 @@ SUMMARIES = {
     "plan": "choose optimal measurement poses (CSV)",
     "accuracy": "predicted TCP sigma of a fitted model over the workspace",
     "register": "re-estimate only the measuring frame of a model on new poses",
+    "report": "a self-contained HTML calibration report",
 }
 COMMANDS = tuple(SUMMARIES)
 

@@ -88,7 +88,7 @@ def run(args) -> int:
         atomic_write(args.residuals, residuals_csv(m, ev), force=args.force, inputs=inputs)
     x, y, z = rep["per_axis_rms_mm"]
     print(f"{rep['n']} rows: rms {rep['rms_mm']:.4f} mm, mean {rep['mean_mm']:.4f} mm, "
-          f"max {rep['max_mm']:.4f} mm; per axis rms x {x:.4f} y {y:.4f} z {z:.4f} mm"
+          f"p95 {rep['p95_mm']:.4f} mm, max {rep['max_mm']:.4f} mm; per axis rms x {x:.4f} y {y:.4f} z {z:.4f} mm"
           + (f"; orientation rms {rep['orientation_rms_deg'] * 1000:.4g} mdeg"
              if "orientation_rms_deg" in rep else ""))
     if fitted.residual_model is not None:

@@ -1,0 +1,165 @@
+"""The facts of a calibration report (``torchcal report``; the HTML is `viz.report`).
+
+`calibration_report` gathers, for a fitted or discovered MODEL.json and optionally
+held-out measurements and discover's ``--json`` history:
+
+- provenance: each input file's path, size, SHA-256 and modification time (UTC);
+- the model file as written (effects, parameters with std / ci95 and any label the file
+  carries, what is held, the base frame, the fit), each effect's physics in words (`effect_physics`);
+- on the held-out rows: the errors of the calibrated model (`torchcal.api.evaluate`) and,
+  as "before", of the nominal robot in the best measuring frame (`torchcal.api.register`
+  of the nominal robot on these rows: base frame, and tool offset when the model fits
+  one), each as `torchcal.metrics.error_summary`, `iso9283` and, with a tolerance,
+  `tolerance_verdict`; what the calibrated model leaves learnable on these rows
+  (`torchcal.diagnosis.unexplained`);
+- discover's rounds, refits, verdicts and reasons, its unexplained section and its
+  transfer check when the history holds one (read as written).
+"""
+
+from __future__ import annotations
+
+import datetime
+import hashlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+
+from torchcal.errors import InputError
+
+__all__ = ["CalibrationReport", "calibration_report", "effect_physics", "file_facts"]
+
+
+def file_facts(path) -> dict:
+    """{"path", "name", "bytes", "sha256", "modified_utc"} of a file."""
+    p = Path(path)
+    data = p.read_bytes()
+    mtime = datetime.datetime.fromtimestamp(p.stat().st_mtime, datetime.timezone.utc)
+    return {"path": str(p), "name": p.name, "bytes": len(data), "sha256": hashlib.sha256(data).hexdigest(),
+            "modified_utc": mtime.strftime("%Y-%m-%d %H:%M:%S UTC")}
+
+
+def effect_physics(spec: str) -> str:
+    """The physics of an effect spec in words: the first paragraph of its class's docstring,
+    or of its module's ("" for an unknown name), without the leading "`name`: "."""
+    import sys
+
+    import torchcal.effects  # noqa: F401  (registers the built-in effects)
+    from torchcal.effects.registry import REGISTRY
+
+    cls = REGISTRY.get(spec.split(":")[0])
+    if cls is None:
+        return ""
+    doc = (cls.__doc__ or getattr(sys.modules.get(cls.__module__), "__doc__", None) or "").strip()
+    text = " ".join(doc.split("\n\n")[0].split())
+    return text.split("`: ", 1)[1] if text.startswith("`") and "`: " in text else text
+
+
+@dataclass
+class CalibrationReport:
+    """What `calibration_report` found (module doc); `to_dict` is its JSON.
+
+    model: the MODEL.json object; files: {"model", "data", "history"} file facts (None
+    when not given); effects: [(spec, physics in words)]; held-out figures (None without
+    data): after / before (`error_summary`), iso_after / iso_before (`iso9283`),
+    verdict_after / verdict_before (`tolerance_verdict`, None without a tolerance);
+    history: discover's JSON (None when not given). Per row, for the figures (not in
+    `to_dict`): data (`Measurements`), robot (the model's nominal `Robot`), residuals_after / residuals_before (N, 3) mm
+    measured - model, unexplained (`Unexplained` of the calibrated model on the rows)."""
+
+    model: dict
+    files: dict
+    effects: list
+    created_utc: str
+    tolerance_mm: float | None = None
+    after: dict | None = None
+    before: dict | None = None
+    before_model: str = ""
+    iso_after: dict | None = None
+    iso_before: dict | None = None
+    verdict_after: dict | None = None
+    verdict_before: dict | None = None
+    outside_range: int | None = None
+    history: dict | None = None
+    data: object = field(default=None, repr=False)
+    robot: object = field(default=None, repr=False)
+    residuals_after: torch.Tensor | None = field(default=None, repr=False)
+    residuals_before: torch.Tensor | None = field(default=None, repr=False)
+    unexplained: object = field(default=None, repr=False)
+
+    def to_dict(self) -> dict:
+        out = {"created_utc": self.created_utc, "files": self.files, "robot": self.model.get("robot"),
+               "effects": [{"spec": s, "physics": p} for s, p in self.effects], "tolerance_mm": self.tolerance_mm}
+        if self.after is not None:
+            out["held_out"] = {"after": self.after, "before": self.before, "before_model": self.before_model,
+                               "iso9283_after": self.iso_after, "iso9283_before": self.iso_before,
+                               "verdict_after": self.verdict_after, "verdict_before": self.verdict_before,
+                               "outside_range": self.outside_range,
+                               "unexplained": self.unexplained.to_dict() if self.unexplained is not None else None}
+        return out
+
+
+def calibration_report(model_path, data=None, *, history_path=None, tolerance_mm: float | None = None,
+                       length_unit: str = "mm", angle_unit: str = "deg") -> CalibrationReport:
+    """The `CalibrationReport` of the MODEL.json at model_path (``torchcal fit`` /
+    ``discover --out``), on held-out measurements `data` (a CSV path or `Measurements`,
+    optional), with discover's history JSON at history_path (optional) and a distance
+    tolerance in mm (optional, > 0)."""
+    from torchcal import api
+    from torchcal.io.files import read_json
+
+    if tolerance_mm is not None and not tolerance_mm > 0:
+        raise InputError(f"tolerance_mm: expected a distance > 0 mm, got {tolerance_mm}")
+    model = read_json(model_path, "model file")
+    if not isinstance(model, dict) or not str(model.get("format", "")).startswith("torchcal-model/"):
+        raise InputError(f"{model_path}: not a MODEL.json of `torchcal fit` or `discover` "
+                         f"(format {model.get('format') if isinstance(model, dict) else None!r})")
+    history = None
+    if history_path is not None:
+        history = read_json(history_path, "discover history")
+        if not isinstance(history, dict) or "history" not in history:
+            raise InputError(f"{history_path}: not a history JSON of `torchcal discover --json` (no 'history')")
+    files = {"model": file_facts(model_path), "data": None,
+             "history": file_facts(history_path) if history_path is not None else None}
+    specs = [str(s) for s in model.get("effects", [])]
+    rep = CalibrationReport(model, files, [(s, effect_physics(s)) for s in specs],
+                            datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+                            tolerance_mm=tolerance_mm, history=history)
+    if data is None:
+        return rep
+    fitted = api.load(model_path)
+    robot = fitted.model.robot
+    m = api._measurements(data, robot, length_unit, angle_unit)
+    source = data if isinstance(data, (str, Path)) else m.source
+    if source is not None and Path(source).is_file():
+        files["data"] = file_facts(source)
+    _held_out(rep, fitted, m, "tool_offset" in {s.split(":")[0] for s in specs}, tolerance_mm)
+    return rep
+
+
+def _held_out(rep: CalibrationReport, fitted, m, tool: bool, tolerance_mm) -> None:
+    """The held-out figures of `rep` (module doc) on measurements m."""
+    import warnings
+
+    from torchcal import api
+    from torchcal.calibration.joint_range import CalibratedRangeWarning
+    from torchcal.diagnosis.unexplained import unexplained
+    from torchcal.metrics import error_summary, iso9283, pose_groups, tolerance_verdict
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CalibratedRangeWarning)  # counted in outside_range
+        ev = api.evaluate(fitted, m)
+    nominal = api.register(fitted.model.robot, m, tool=tool)
+    ev0 = api.evaluate(nominal, m)
+    group, keys = pose_groups(m.pose, m.point)
+    rep.data, rep.robot = m, fitted.model.robot
+    rep.residuals_after, rep.residuals_before = ev.residuals_mm, ev0.residuals_mm
+    rep.outside_range = ev.outside_range
+    rep.before_model = "nominal robot, base frame" + (" and tool offset" if tool else "") + " fitted on these rows"
+    rep.after, rep.before = error_summary(ev.residuals_mm), error_summary(ev0.residuals_mm)
+    rep.iso_after, rep.iso_before = iso9283(ev.residuals_mm, group, keys), iso9283(ev0.residuals_mm, group, keys)
+    if tolerance_mm is not None:
+        rep.verdict_after = tolerance_verdict(ev.residuals_mm.norm(dim=-1), group, tolerance_mm, keys)
+        rep.verdict_before = tolerance_verdict(ev0.residuals_mm.norm(dim=-1), group, tolerance_mm, keys)
+    if len(m) >= 10:
+        rep.unexplained = unexplained(fitted.model.robot, m, ev.residuals_mm, seed=0)

@@ -205,3 +205,36 @@ def test_chromium_renders_every_figure_offline(report, tmp_path):
                    capture_output=True, timeout=120)
     pages = pdf.read_bytes().count(b"/Type /Page") - pdf.read_bytes().count(b"/Type /Pages")
     assert pages >= 6  # the summary, then a page break before each section
+
+
+# --------------------------------------------------------------------------- the paper's pipeline
+def test_report_on_a_zone_calibration(tmp_path):
+    """`calibrate --partition` (interval model per zone) on a robot with compliance: the
+    report predicts each held-out row with its zone's parameters and shows the paper's
+    Table 5 with R_set before and after."""
+    d = tmp_path
+    assert main(["sweep", "--robot", "kr1000titan", "--n", "80", "--samples", "50", "--allowed", "1.0", "--seed", "3",
+                 "--no-progress", "--out", str(d / "sweep.csv")]) == 0
+    assert main(["partition", str(d / "sweep.csv"), "--levels", "2", "--zones", "2,1", "--out",
+                 str(d / "part.json")]) == 0
+    sim = ["simulate", "--robot", "kr1000titan", "--effects", "joint_compliance:2", "--n", "80", "--repeats", "3",
+           "--noise", "0.02", "--seed", "4"]
+    assert main(sim + ["--out", str(d / "train.csv")]) == 0
+    assert main(sim + ["--pose-seed", "5", "--n", "20", "--out", str(d / "val.csv")]) == 0
+    assert main(["calibrate", str(d / "train.csv"), "--robot", "kr1000titan", "--partition", str(d / "part.json"),
+                 "--out", str(d / "zones.json")]) == 0
+    assert main(["report", str(d / "zones.json"), "--data", str(d / "val.csv"), "--tolerance-mm", "0.5",
+                 "--out", str(d / "r.html"), "--json", str(d / "r.json")]) == 0
+    text = (d / "r.html").read_text()
+    js = json.loads((d / "r.json").read_text())["held_out"]
+    table = js["zone_table"]
+    assert len(table) == 20 and {r["zone"] for r in table} <= {1, 2, 3}
+    assert "Table 5" in text and "Interval parameters per zone" in text and not re.search(r"https?://", text)
+    for r in table:
+        for k in ("before", "after"):
+            assert all(lo <= hi for lo, hi in zip(r[k]["lower"], r[k]["upper"]))
+            assert all(0.0 <= v <= 1.0 for v in r[k]["r_set"])
+    # the calibrated zones beat the nominal robot on poses they never saw, and R_set rises
+    assert js["after"]["rms_mm"] < js["before"]["rms_mm"]
+    mean = lambda k: sum(r[k]["r_set"][3] for r in table) / len(table)  # noqa: E731
+    assert mean("after") >= mean("before")

@@ -11,7 +11,7 @@ apart by ``point``), with e_j = measured - commanded (commanded: the model's pos
     AP = |mean_j e_j|                        (AP_x, AP_y, AP_z: the components of the mean)
     l_j = |e_j - mean_j e_j|, RP = l_bar + 3 S_l,  S_l = sqrt(sum (l_j - l_bar)^2 / (n - 1))
 
-RP needs repeats: it is computed for poses with at least 3 rows. docs/real-data.md says
+RP needs repeats: it is computed for poses with at least 3 rows. docs/report.md says
 how this differs from the standard's test procedure.
 
 `tolerance_verdict`: pass or fail per pose (every row of the pose within the tolerance)

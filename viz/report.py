@@ -141,9 +141,10 @@ def _summary(rep) -> str:
            f"{_e(rep.created_utc)}; lengths in mm, angles in degrees</p>", _verdict_box(rep)]
     effects = ", ".join(s for s, _ in rep.effects) or "geometric only"
     fit = m.get("fit", {})
-    pairs = [("model", f"{_e(rep.files['model']['name'])}: MD-H geometry + {_e(effects)}"),
-             ("fitted on", f"{_e(m.get('provenance', {}).get('input', '?'))}: {fit.get('n', '?')} rows, "
-                           f"training RMS {_mm(fit.get('rms_mm'))}")]
+    pairs = [("model", f"{_e(rep.files['model']['name'])}: MD-H geometry + {_e(effects)}"
+                       + (f"; interval calibration, {len(m['zones'])} zone(s)" if "zones" in m else "")),
+             ("fitted on", f"{_e(m.get('provenance', {}).get('input', '?'))}"
+                           + (f": {fit['n']} rows, training RMS {_mm(fit.get('rms_mm'))}" if fit else ""))]
     if rep.after is not None:
         d = rep.files.get("data")
         pairs.append(("held-out data", f"{_e(d['name'] if d else 'measurements')}: {rep.after['n']} rows, "
@@ -210,12 +211,52 @@ def _provenance(rep) -> str:
 STANDARD_KEYS = ("name", "value", "unit", "std", "ci95", "identified")
 
 
-def _model(rep) -> str:
-    m = rep.model
-    out = ["<h2>2. The model</h2>", "<h3>Effects</h3>"]
+def _effects(rep) -> str:
     rows = [["geometric", "MD-H deviations of every joint [dtheta, dd, da, dalpha, dbeta] (always part of the "
                           "model)"]] + [[_e(s), _e(p) or "-"] for s, p in rep.effects]
-    out.append(_table(["effect", "physics"], rows))
+    return "<h3>Effects</h3>" + _table(["effect", "physics"], rows)
+
+
+def _zone_model(rep) -> str:
+    """The model section of an interval model (``torchcal calibrate``): zones, and each
+    identified parameter's interval per zone, in mm and degrees."""
+    from torchcal.io.modelfile import file_unit
+
+    m = rep.model
+    zones = m.get("zones", [])
+    out = ["<h2>2. The model</h2>", _effects(rep),
+           f'<p class="note">Interval calibration ({_e(m.get("method", "?"))}), {len(zones)} zone(s)'
+           + (" of a workspace partition by R_set and position (the paper's pipeline, docs/paper.md)"
+              if m.get("partition") else "") + ".</p>"]
+    rows = [[_e(z["zone"]), _e(z.get("level") if z.get("level") is not None else "-"),
+             _e(z.get("poses") if z.get("poses") is not None else "-"), _mm(z.get("rms_mm")), _e(len(z.get("held", []))),
+             _num(z.get("damping"), 3), _e(z.get("note", ""))] for z in zones]
+    out.append("<h3>Zones</h3>" + _table(["zone", "level", "poses", "fit RMS", "held", "damping mu", "note"], rows,
+                                         numeric=(2, 3, 4, 5)))
+    names, units = m.get("parameter_names", []), m.get("parameter_units", [])
+    head = ["parameter", "unit"] + [f"zone {z['zone']}" for z in zones]
+    rows = []
+    for k, name in enumerate(names):
+        if not any(z["free"][k] for z in zones):
+            continue
+        unit, f = file_unit(units[k])
+        cells = []
+        for z in zones:
+            c, lo, hi = (f * z[key][k] for key in ("theta", "lower", "upper"))
+            cells.append(f"{c:.4g} [{lo:.4g}, {hi:.4g}]" if z["free"][k] else "held")
+        rows.append([_e(name), _e(unit)] + cells)
+    out.append("<h3>Interval parameters per zone</h3>"
+               '<p class="note">center [lower, upper] of each identified parameter (deviation from nominal; '
+               "frames: the pose itself); held: not identifiable in that zone.</p>"
+               + _table(head, rows, numeric=tuple(range(2, 2 + len(zones)))))
+    return '<section class="page">' + "".join(out) + "</section>"
+
+
+def _model(rep) -> str:
+    m = rep.model
+    if "zones" in m:
+        return _zone_model(rep)
+    out = ["<h2>2. The model</h2>", _effects(rep)]
     fit = m.get("fit", {})
     ident = m.get("identifiability", {})
     cov = m.get("covariance") or {}
@@ -284,7 +325,7 @@ def _accuracy(rep) -> str:
                "position (the model's) to the barycentre of the attained ones. RP = l&#772; + 3 S<sub>l</sub> "
                "over a pose's rows, l<sub>j</sub> the distance of row j from the barycentre, for poses measured "
                f"3 times or more ({ia['poses_with_repeats']} here). Computed on the poses of the data, not on the "
-               "standard's five cube poses with 30 cycles each (docs/real-data.md).</p>")
+               "standard's five cube poses with 30 cycles each (docs/report.md).</p>")
     da, db = (rep.residuals_after.norm(dim=-1).numpy(), rep.residuals_before.norm(dim=-1).numpy())
     out.append(_figure(figures.error_histogram_figure(db, da, tolerance_mm=rep.tolerance_mm),
                        "Distance error on the held-out rows before (nominal robot) and after calibration.",
@@ -327,6 +368,43 @@ def _per_pose(rep) -> str:
         out.append(_table(["pose", "largest distance error", "over the tolerance by"],
                           [[_e(f["pose"]), _mm(f["max_mm"]), _mm(f["max_mm"] - v["tolerance_mm"])] for f in shown],
                           numeric=(1, 2)))
+    return '<section class="page">' + "".join(out) + "</section>"
+
+
+def _iv(lo, hi) -> str:
+    return "[" + ", ".join(f"{a:+.3f}..{b:+.3f}" for a, b in zip(lo, hi)) + "]"
+
+
+def _table5(rep) -> str:
+    """The paper's Table 5 on the held-out poses (an interval model with zones)."""
+    if not rep.zones:
+        return ""
+    tol = rep.tolerance_mm
+    out = ["<h2>4b. Per pose and zone: error intervals and R_set (the paper's Table 5)</h2>",
+           f'<p class="note">Per held-out pose: the interval [min..max] over its rows of measured - model, per '
+           "axis x, y, z (mm), before (" + _e(rep.before_model) + ") and after (the center parameters of the "
+           "pose's zone)"
+           + (f"; R_set of each axis interval against [-{tol:g}, {tol:g}] mm and of the distance against "
+              f"[0, {tol:g}] mm (1: surely within; docs/paper.md)" if tol else "; R_set needs --tolerance-mm")
+           + ".</p>"]
+    head = ["pose", "zone", "rows", "before x, y, z (mm)", "after x, y, z (mm)"]
+    if tol:
+        head += ["R_set before x y z dist", "R_set after x y z dist"]
+    rows = []
+    for r in rep.zones:
+        row = [_e(r["pose"]), _e(r["zone"]), _e(r["rows"]), _iv(r["before"]["lower"], r["before"]["upper"]),
+               _iv(r["after"]["lower"], r["after"]["upper"])]
+        if tol:
+            row += [" ".join(f"{v:.2f}" for v in r[k]["r_set"]) for k in ("before", "after")]
+        rows.append(row)
+    out.append(_table(head, rows, numeric=(2,)))
+    if tol:
+        import statistics
+
+        for k in ("before", "after"):
+            d = [r[k]["r_set"][3] for r in rep.zones]
+            out.append(f'<p class="note">R_set of the distance {k}: median {statistics.median(d):.3f}, '
+                       f"{sum(v >= 1.0 for v in d)} of {len(d)} poses at 1.</p>")
     return '<section class="page">' + "".join(out) + "</section>"
 
 
@@ -422,7 +500,7 @@ def _transfer(rep) -> str:
 def report_html(rep) -> str:
     """The report's HTML text (module doc) of a `CalibrationReport`."""
     title = f"Calibration report: {rep.model.get('robot', '')}"
-    body = "".join([_summary(rep), _provenance(rep), _model(rep), _accuracy(rep), _per_pose(rep), _rounds(rep),
+    body = "".join([_summary(rep), _provenance(rep), _model(rep), _accuracy(rep), _per_pose(rep), _table5(rep), _rounds(rep),
                     _learnable(rep), _transfer(rep)])
     return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
             f'<meta name="viewport" content="width=device-width, initial-scale=1">'

@@ -174,8 +174,9 @@ window.addEventListener('load', () => {
   const res = performance.getEntriesByType('resource').map(r => r.name);
   const out = document.createElement('pre');
   out.id = 'probe';
-  out.textContent = JSON.stringify({imgs: imgs.length, loaded: imgs.filter(i => i.complete && i.naturalWidth > 0).length,
-                                    requests: res, text: document.body.innerText.length});
+  const loaded = imgs.filter(i => i.complete && i.naturalWidth > 0).length;
+  out.textContent = JSON.stringify({imgs: imgs.length, loaded: loaded, requests: res,
+                                    text: document.body.innerText.length});
   document.body.appendChild(out);
 });
 </script>"""

@@ -4,9 +4,10 @@
 figures embedded as base64 PNG (`viz.figures`), no script, no font or any other request
 leaving the file, so it opens from a USB stick. The first page is the summary and the
 verdict; the evidence follows, one section per printed A4 page or more (``@page``, a
-page break before each section): provenance, the model, accuracy on the held-out poses
-(mean, RMS, p95, max; per axis; ISO 9283 AP and RP), the verdict per pose, discover's
-rounds, what stays learnable, the transfer check. Figures scale to the window
+page break before each section): provenance, the model (for an interval model of
+``calibrate``: its zones and parameter intervals), accuracy on the held-out poses (mean,
+RMS, p95, max; per axis; ISO 9283 AP and RP), the verdict per pose, the paper's Table 5
+(interval models), discover's rounds, what stays learnable, the transfer check. Figures scale to the window
 (``max-width: 100%``); wide tables scroll inside their box on a narrow screen.
 """
 
@@ -38,7 +39,7 @@ table { border-collapse: collapse; margin: 6px 0 10px 0; font-size: 9.5pt; }
 th, td { border: 1px solid #bbb; padding: 3px 7px; text-align: left; vertical-align: top; }
 th { background: #f0f0f0; }
 td.n { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
-td.h { word-break: break-all; font-family: "DejaVu Sans Mono", monospace; font-size: 8.5pt; }
+.h { word-break: break-all; font-family: "DejaVu Sans Mono", monospace; font-size: 8.5pt; }
 tr.rej td { color: #555; }
 figure { margin: 10px 0; }
 figure img { max-width: 100%; height: auto; display: block; border: 1px solid #ddd; }
@@ -229,7 +230,8 @@ def _zone_model(rep) -> str:
            + (" of a workspace partition by R_set and position (the paper's pipeline, docs/paper.md)"
               if m.get("partition") else "") + ".</p>"]
     rows = [[_e(z["zone"]), _e(z.get("level") if z.get("level") is not None else "-"),
-             _e(z.get("poses") if z.get("poses") is not None else "-"), _mm(z.get("rms_mm")), _e(len(z.get("held", []))),
+             _e(z.get("poses") if z.get("poses") is not None else "-"), _mm(z.get("rms_mm")),
+             _e(len(z.get("held", []))),
              _num(z.get("damping"), 3), _e(z.get("note", ""))] for z in zones]
     out.append("<h3>Zones</h3>" + _table(["zone", "level", "poses", "fit RMS", "held", "damping mu", "note"], rows,
                                          numeric=(2, 3, 4, 5)))
@@ -500,8 +502,8 @@ def _transfer(rep) -> str:
 def report_html(rep) -> str:
     """The report's HTML text (module doc) of a `CalibrationReport`."""
     title = f"Calibration report: {rep.model.get('robot', '')}"
-    body = "".join([_summary(rep), _provenance(rep), _model(rep), _accuracy(rep), _per_pose(rep), _table5(rep), _rounds(rep),
-                    _learnable(rep), _transfer(rep)])
+    body = "".join([_summary(rep), _provenance(rep), _model(rep), _accuracy(rep), _per_pose(rep), _table5(rep),
+                    _rounds(rep), _learnable(rep), _transfer(rep)])
     return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
             f'<meta name="viewport" content="width=device-width, initial-scale=1">'
             f"<title>{_e(title)}</title><style>{CSS}</style></head><body>{body}</body></html>\n")

@@ -69,8 +69,8 @@ class CalibrationReport:
     zones: the paper's Table 5 on the held-out poses for a model of ``calibrate``
     (`zone_table`, else None);
     history: discover's JSON (None when not given). Per row, for the figures (not in
-    `to_dict`): data (`Measurements`), robot (the model's nominal `Robot`), residuals_after / residuals_before (N, 3) mm
-    measured - model, unexplained (`Unexplained` of the calibrated model on the rows)."""
+    `to_dict`): data (`Measurements`), robot (the model's nominal `Robot`),
+    residuals_after / residuals_before (N, 3) mm measured - model, unexplained (`Unexplained` of the calibrated model on the rows)."""
 
     model: dict
     files: dict

@@ -134,6 +134,18 @@ def test_report_is_self_contained_and_complete(report, session):
             assert c["candidate"] in text and c["reason"].replace(">", "&gt;").replace("<", "&lt;") in text
 
 
+def test_evaluate_prints_the_reports_figures(report, session, capsys):
+    """evaluate and report compute mean, RMS, p95, max and ISO 9283 with one function."""
+    capsys.readouterr()
+    assert main(["evaluate", str(session / "val.csv"), "--model", str(session / "disc.json")]) == 0
+    out = capsys.readouterr().out
+    a = json.loads((session / "report.json").read_text())["held_out"]
+    for k in ("rms", "mean", "p95", "max"):
+        assert f"{k} {a['after'][k + '_mm']:.4f} mm" in out
+    iso = a["iso9283_after"]
+    assert f"AP max {iso['ap_mm']['max']:.4f} mm" in out and f"RP max {iso['rp_mm']['max']:.4f} mm" in out
+
+
 def test_report_without_data_says_so(session):
     out = session / "fit_only.html"
     assert main(["report", str(session / "fit.json"), "--out", str(out)]) == 0

@@ -66,6 +66,15 @@ def residuals_csv(m, ev) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _iso9283(m, ev) -> dict | None:
+    """`torchcal.metrics.iso9283` of the rows when some pose is measured 3 times or more, else None."""
+    from torchcal.metrics import iso9283, pose_groups
+
+    group, keys = pose_groups(m.pose, m.point)
+    iso = iso9283(ev.residuals_mm, group, keys)
+    return iso if iso["rp_mm"] is not None else None
+
+
 def run(args) -> int:
     from torchcal.io.files import atomic_write
 
@@ -91,6 +100,11 @@ def run(args) -> int:
           f"p95 {rep['p95_mm']:.4f} mm, max {rep['max_mm']:.4f} mm; per axis rms x {x:.4f} y {y:.4f} z {z:.4f} mm"
           + (f"; orientation rms {rep['orientation_rms_deg'] * 1000:.4g} mdeg"
              if "orientation_rms_deg" in rep else ""))
+    iso = _iso9283(m, ev)
+    if iso is not None:
+        print(f"ISO 9283 on these poses (docs/report.md): AP max {iso['ap_mm']['max']:.4f} mm, mean "
+              f"{iso['ap_mm']['mean']:.4f} mm; RP max {iso['rp_mm']['max']:.4f} mm, mean {iso['rp_mm']['mean']:.4f} mm "
+              f"({iso['poses_with_repeats']} of {iso['poses']} poses measured 3 times or more)")
     if fitted.residual_model is not None:
         print("(errors of the physical model plus its non-physical residual stage, docs/residual-model.md)")
     if args.residuals:

@@ -127,7 +127,7 @@ def calibration_report(model_path, data=None, *, history_path=None, tolerance_mm
     if history_path is not None:
         history = read_json(history_path, "discover history")
         if not isinstance(history, dict) or "history" not in history:
-            raise InputError(f"{history_path}: not a history JSON of `torchcal discover --json` (no 'history')")
+            raise InputError(f"{history_path}: not a history JSON of discover (no 'history' key)")
     files = {"model": file_facts(model_path), "data": None,
              "history": file_facts(history_path) if history_path is not None else None}
     specs = [str(s) for s in model.get("effects", [])]

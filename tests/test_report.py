@@ -153,6 +153,21 @@ def test_report_without_data_says_so(session):
     assert "No verdict: no held-out measurements given" in text and "No discover history was given" in text
 
 
+def test_report_shows_a_transfer_check_when_the_history_has_one(session):
+    hist = json.loads((session / "hist.json").read_text())
+    assert "transfer" not in hist
+    out = session / "no_transfer.html"
+    assert main(["report", str(session / "disc.json"), "--history", str(session / "hist.json"), "--out", str(out)]) == 0
+    assert "Transfer check" not in out.read_text()
+    hist["transfer"] = {"session": "second.csv", "rms_mm": 0.4321, "verdict": "transfers"}
+    (session / "hist_t.json").write_text(json.dumps(hist))
+    out = session / "transfer.html"
+    assert main(["report", str(session / "disc.json"), "--history", str(session / "hist_t.json"), "--out",
+                 str(out)]) == 0
+    text = out.read_text()
+    assert "Transfer check" in text and "second.csv" in text and "0.4321" in text and "transfers" in text
+
+
 @pytest.mark.parametrize("args,needle", [
     (["--tolerance-mm", "-1"], "--tolerance-mm"),
     (["--history", "{data}"], "history"),

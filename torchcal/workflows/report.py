@@ -70,7 +70,8 @@ class CalibrationReport:
     (`zone_table`, else None);
     history: discover's JSON (None when not given). Per row, for the figures (not in
     `to_dict`): data (`Measurements`), robot (the model's nominal `Robot`),
-    residuals_after / residuals_before (N, 3) mm measured - model, unexplained (`Unexplained` of the calibrated model on the rows)."""
+    residuals_after / residuals_before (N, 3) mm measured - model, unexplained
+    (`Unexplained` of the calibrated model on the rows)."""
 
     model: dict
     files: dict
@@ -111,8 +112,9 @@ def calibration_report(model_path, data=None, *, history_path=None, tolerance_mm
     ``discover --out``), on held-out measurements `data` (a CSV path or `Measurements`,
     optional), with discover's history JSON at history_path (optional) and a distance
     tolerance in mm (optional, > 0)."""
-    from torchcal import api
     from torchcal.io.files import read_json
+    from torchcal.io.measurement_csv import read_measurements
+    from torchcal.measurements import Measurements
 
     if tolerance_mm is not None and not tolerance_mm > 0:
         raise InputError(f"tolerance_mm: expected a distance > 0 mm, got {tolerance_mm}")
@@ -137,7 +139,8 @@ def calibration_report(model_path, data=None, *, history_path=None, tolerance_mm
     if data is None:
         return rep
     fitted = load_model(model_path)
-    m = api._measurements(data, fitted.model.robot, length_unit, angle_unit)
+    m = data if isinstance(data, Measurements) else read_measurements(
+        data, robot=fitted.model.robot, length_unit=length_unit, angle_unit=angle_unit)
     source = data if isinstance(data, (str, Path)) else m.source
     if source is not None and Path(source).is_file():
         files["data"] = file_facts(source)

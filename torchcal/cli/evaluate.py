@@ -2,6 +2,10 @@
 [--plots DIR] [--rrd FILE]`: distance errors measured - model, typically on held-out poses.
 The model file embeds its nominal robot; ``--robot`` only checks it.
 
+Prints the RMS, mean, 95th percentile and maximum of the distance error and the per-axis
+RMS (`torchcal.metrics.error_summary`, as ``torchcal report``), and ISO 9283 AP and RP
+when some pose is measured 3 times or more (docs/report.md).
+
 ``--residuals OUT.csv`` writes one row per measurement, in the data file's order:
 ``row,pose[,point],ex_mm,ey_mm,ez_mm,e_mm[,orientation_deg][,outside_range]`` (row: the
 data row, 1-based; e = measured - model, mm; orientation_deg: the orientation error angle

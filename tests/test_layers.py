@@ -9,7 +9,7 @@ functions) and check the layer rules of docs/design.md.
   and measurements import nothing of torchcal.io (io reads and writes their results);
   kinematics and calibration do not import torchcal.io.files (calibration may name the
   MODEL.json layout of torchcal.io.modelfile for `FitResult.to_dict`).
-- torchcal.rotations and torchcal.statistics import nothing of torchcal;
+- torchcal.rotations, torchcal.statistics and torchcal.metrics import nothing of torchcal;
 - a `CalibrationModel` holds no fitted state: no module but its own sets an attribute
   on one (``model.x = ...``, ``cm.x = ...``, ``fit.model.x = ...``, ``setattr``); the
   fitted facts are fields of `FitResult`.
@@ -71,6 +71,7 @@ RULES.append(("torchcal.calibration", ["torchcal.io.files"]))
 # the rotation convention and the generic statistics depend on nothing of torchcal
 RULES.append(("torchcal.rotations", ["torchcal"]))
 RULES.append(("torchcal.statistics", ["torchcal"]))
+RULES.append(("torchcal.metrics", ["torchcal"]))  # accuracy figures of errors: torch only
 # the paper's experiment by concept: its configuration is plain data (errors only); its
 # report reads results and runs nothing (no experiment, simulation or discovery)
 _PACKAGES = ["torchcal." + p.name for p in sorted(ROOT.iterdir()) if p.is_dir() and (p / "__init__.py").exists()]

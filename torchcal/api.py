@@ -177,12 +177,13 @@ class Evaluation:
     residuals_mm: torch.Tensor | None = field(default=None, compare=False, repr=False)
     orientation_deg: torch.Tensor | None = field(default=None, compare=False, repr=False)
     outside: torch.Tensor | None = field(default=None, compare=False, repr=False)
+    p95_mm: float | None = None
 
     def to_dict(self) -> dict:
-        """{"n", "rms_mm", "mean_mm", "max_mm", "per_axis_rms_mm"[, "orientation_rms_deg"]
-        [, "outside_range"]}: the JSON of ``torchcal evaluate --json``."""
-        out = {"n": self.n, "rms_mm": self.rms_mm, "mean_mm": self.mean_mm, "max_mm": self.max_mm,
-               "per_axis_rms_mm": list(self.per_axis_rms_mm)}
+        """{"n", "rms_mm", "mean_mm", "p95_mm", "max_mm", "per_axis_rms_mm"[, "orientation_rms_deg"]
+        [, "outside_range"]}: the JSON of ``torchcal evaluate --json`` (`torchcal.metrics.error_summary`)."""
+        out = {"n": self.n, "rms_mm": self.rms_mm, "mean_mm": self.mean_mm, "p95_mm": self.p95_mm,
+               "max_mm": self.max_mm, "per_axis_rms_mm": list(self.per_axis_rms_mm)}
         if self.orientation_rms_deg is not None:
             out["orientation_rms_deg"] = self.orientation_rms_deg
         if self.outside_range is not None:
@@ -200,6 +201,7 @@ def evaluate(model, measurements) -> Evaluation:
     named in one `CalibratedRangeWarning` (the model extrapolates there)."""
     import math
 
+    from torchcal.metrics import error_summary
     from torchcal.rotations import so3_error
     from torchcal.effects import context_of
 
@@ -216,7 +218,7 @@ def evaluate(model, measurements) -> Evaluation:
     err = m.xyz - cm.predict(theta, ctx)  # (N, 3) mm; minus the residual stage's correction
     if stage is not None:
         err = err - stage.predict(m.q).to(err)
-    d = err.norm(dim=-1)
+    fig = error_summary(err)
     orient = orient_rows = None
     tool_r = fm.tool_rotation
     if m.rxyz is not None and tool_r is not None:
@@ -229,8 +231,8 @@ def evaluate(model, measurements) -> Evaluation:
     if q_range is not None:
         from torchcal.calibration.joint_range import outside_range
         rows_out = outside_range(m.q, q_range, cm.robot.prismatic).any(dim=-1)
-    return Evaluation(len(m), float(d.pow(2).mean().sqrt()), float(d.mean()), float(d.max()),
-                      err.pow(2).mean(0).sqrt().tolist(), orient, outside, err.detach(), orient_rows, rows_out)
+    return Evaluation(len(m), fig["rms_mm"], fig["mean_mm"], fig["max_mm"], [fig["axes"][a]["rms_mm"] for a in "xyz"],
+                      orient, outside, err.detach(), orient_rows, rows_out, fig["p95_mm"])
 
 
 def _set(**options) -> dict:

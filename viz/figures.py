@@ -56,12 +56,17 @@ def _new_figure(width_in: float, height_in: float) -> Figure:
     return fig
 
 
+def png_bytes(fig: Figure, dpi: int = DPI) -> bytes:
+    """`fig` rendered as PNG bytes (no metadata: the same figure gives the same bytes)."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi, metadata={"Software": None})
+    return buf.getvalue()
+
+
 def save_figure(fig: Figure, path, force: bool = False) -> Path:
     """Render `fig` to PNG bytes and write them atomically to `path`; returns the path."""
     path = check_output(path, force)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI, metadata={"Software": None})
-    return atomic_write(path, buf.getvalue(), force=force)
+    return atomic_write(path, png_bytes(fig), force=force)
 
 
 # --------------------------------------------------------------------------- zone map
@@ -305,6 +310,32 @@ def error_map_figure(positions_mm, error_mm, *, title: str = "Distance error ove
                  shrink=0.9)
     fig.suptitle(f"{title}: {len(e)} rows, RMS {float(np.sqrt(np.mean(e ** 2))) if len(e) else 0.0:.4g} mm, "
                  f"max {float(e.max()) if len(e) else 0.0:.4g} mm")
+    return fig
+
+
+# --------------------------------------------------------------------------- error histogram
+def error_histogram_figure(before_mm, after_mm, *, tolerance_mm: float | None = None, bins: int = 40,
+                           title: str = "Distance error before and after calibration") -> Figure:
+    """Histograms of the distance error before_mm (N,) and after_mm (M,) mm on one axis
+    (shared bins from 0 to the largest error), their RMS and 95th percentiles marked, and
+    the tolerance as a vertical line when given."""
+    b = C.vector(before_mm, "before_mm")
+    a = C.vector(after_mm, "after_mm")
+    top = max(float(b.max(initial=0.0)), float(a.max(initial=0.0)), tolerance_mm or 0.0) * 1.02 or 1.0
+    edges = np.linspace(0.0, top, bins + 1)
+    fig = _new_figure(8.0, 3.6)
+    ax = fig.add_subplot(1, 1, 1)
+    for v, name, rgb in ((b, "before", C.BEFORE_RGB), (a, "after", C.AFTER_RGB)):
+        rms, p95 = float(np.sqrt(np.mean(v ** 2))), float(np.percentile(v, 95))
+        ax.hist(v, bins=edges, color=_rgb(rgb), alpha=0.55, label=f"{name}: RMS {rms:.3f} mm, p95 {p95:.3f} mm")
+        ax.axvline(p95, color=_rgb(rgb), linestyle=":", linewidth=1.2)
+    if tolerance_mm is not None:
+        ax.axvline(tolerance_mm, color="black", linewidth=1.5, label=f"tolerance {tolerance_mm:g} mm")
+    ax.set_xlabel("distance error |measured - model| (mm); dotted: 95th percentile")
+    ax.set_ylabel("rows")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8, loc="upper right")
+    fig.suptitle(title)
     return fig
 
 

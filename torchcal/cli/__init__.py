@@ -35,6 +35,7 @@ SUMMARIES = {
     "accuracy": "predicted TCP sigma of a fitted model over the workspace",
     "register": "re-estimate only the measuring frame of a model on new poses",
     "split": "train / validation split by pose, keeping the approach sequence",
+    "report": "a self-contained HTML calibration report",
 }
 COMMANDS = tuple(SUMMARIES)
 

@@ -2,6 +2,10 @@
 [--plots DIR] [--rrd FILE]`: distance errors measured - model, typically on held-out poses.
 The model file embeds its nominal robot; ``--robot`` only checks it.
 
+Prints the RMS, mean, 95th percentile and maximum of the distance error and the per-axis
+RMS (`torchcal.metrics.error_summary`, as ``torchcal report``), and ISO 9283 AP and RP
+when some pose is measured 3 times or more (docs/report.md).
+
 ``--residuals OUT.csv`` writes one row per measurement, in the data file's order:
 ``row,pose[,point],ex_mm,ey_mm,ez_mm,e_mm[,orientation_deg][,outside_range]`` (row: the
 data row, 1-based; e = measured - model, mm; orientation_deg: the orientation error angle
@@ -66,6 +70,15 @@ def residuals_csv(m, ev) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _iso9283(m, ev) -> dict | None:
+    """`torchcal.metrics.iso9283` of the rows when some pose is measured 3 times or more, else None."""
+    from torchcal.metrics import iso9283, pose_groups
+
+    group, keys = pose_groups(m.pose, m.point)
+    iso = iso9283(ev.residuals_mm, group, keys)
+    return iso if iso["rp_mm"] is not None else None
+
+
 def run(args) -> int:
     from torchcal.io.files import atomic_write
 
@@ -88,9 +101,14 @@ def run(args) -> int:
         atomic_write(args.residuals, residuals_csv(m, ev), force=args.force, inputs=inputs)
     x, y, z = rep["per_axis_rms_mm"]
     print(f"{rep['n']} rows: rms {rep['rms_mm']:.4f} mm, mean {rep['mean_mm']:.4f} mm, "
-          f"max {rep['max_mm']:.4f} mm; per axis rms x {x:.4f} y {y:.4f} z {z:.4f} mm"
+          f"p95 {rep['p95_mm']:.4f} mm, max {rep['max_mm']:.4f} mm; per axis rms x {x:.4f} y {y:.4f} z {z:.4f} mm"
           + (f"; orientation rms {rep['orientation_rms_deg'] * 1000:.4g} mdeg"
              if "orientation_rms_deg" in rep else ""))
+    iso = _iso9283(m, ev)
+    if iso is not None:
+        print(f"ISO 9283 on these poses (docs/report.md): AP max {iso['ap_mm']['max']:.4f} mm, mean "
+              f"{iso['ap_mm']['mean']:.4f} mm; RP max {iso['rp_mm']['max']:.4f} mm, mean {iso['rp_mm']['mean']:.4f} mm "
+              f"({iso['poses_with_repeats']} of {iso['poses']} poses measured 3 times or more)")
     if fitted.residual_model is not None:
         print("(errors of the physical model plus its non-physical residual stage, docs/residual-model.md)")
     if args.residuals:

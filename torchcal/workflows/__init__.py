@@ -1,5 +1,5 @@
-"""Workflows that chain the library: calibration per zone, and the paper's experiment
-(configuration, experiment, report).
+"""Workflows that chain the library: calibration per zone, the paper's experiment
+(configuration, experiment, report), and the facts of a calibration report.
 """
 
 from torchcal._lazy import attach
@@ -10,5 +10,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
                                             "make_partition", "measured_sweep", "r_set_table", "run_demo",
                                             "run_pipeline", "sample_in_zones"],
     "torchcal.workflows.paper_report": ["DemoRun", "fit_json", "reduction_percent"],
+    "torchcal.workflows.report": ["CalibrationReport", "calibration_report", "effect_physics", "file_facts",
+                                  "load_model", "zone_table"],
     "torchcal.workflows.zone_calibration": ["ZONE_METHODS", "calibrate", "fit_zones"],
 })

@@ -1,0 +1,268 @@
+"""`torchcal report` and `torchcal.metrics`: the figures against plain numpy, the HTML
+self-contained, rendered by headless Chromium (skipped, with the reason, without it)."""
+
+import json
+import re
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+import torch
+
+from torchcal.cli import main
+from torchcal.metrics import error_summary, iso9283, pose_groups, tolerance_verdict
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+# --------------------------------------------------------------------------- metrics
+def test_error_summary_matches_numpy():
+    rng = np.random.default_rng(3)
+    e = rng.normal(0.1, 0.3, size=(257, 3))
+    s = error_summary(torch.tensor(e))
+    d = np.linalg.norm(e, axis=1)
+    assert s["n"] == 257
+    assert s["mean_mm"] == pytest.approx(d.mean()) and s["rms_mm"] == pytest.approx(np.sqrt((d ** 2).mean()))
+    assert s["p95_mm"] == pytest.approx(np.percentile(d, 95)) and s["max_mm"] == pytest.approx(d.max())
+    for k, a in enumerate("xyz"):
+        c = e[:, k]
+        assert s["axes"][a]["bias_mm"] == pytest.approx(c.mean())
+        assert s["axes"][a]["rms_mm"] == pytest.approx(np.sqrt((c ** 2).mean()))
+        assert s["axes"][a]["p95_mm"] == pytest.approx(np.percentile(np.abs(c), 95))
+        assert s["axes"][a]["max_mm"] == pytest.approx(np.abs(c).max())
+
+
+def _iso_numpy(e, pose):
+    """ISO 9283 AP and RP per pose, written out from the standard's formulas."""
+    out = {}
+    for p in dict.fromkeys(pose.tolist()):
+        x = e[pose == p]
+        bary = x.mean(axis=0)
+        ap = float(np.sqrt(((bary) ** 2).sum()))
+        lj = np.sqrt(((x - bary) ** 2).sum(axis=1))
+        rp = float(lj.mean() + 3 * np.sqrt(((lj - lj.mean()) ** 2).sum() / (len(x) - 1))) if len(x) >= 3 else None
+        out[p] = (len(x), ap, rp)
+    return out
+
+
+def test_iso9283_matches_the_standards_formulas():
+    rng = np.random.default_rng(7)
+    counts = [1, 2, 3, 5, 30]  # a pose once, twice (no RP), and with repeats
+    pose = np.repeat(np.array([11, 4, 9, 2, 7]), counts)
+    offset = rng.normal(0, 0.2, size=(5, 3))
+    e = np.repeat(offset, counts, axis=0) + rng.normal(0, 0.02, size=(len(pose), 3))
+    group, keys = pose_groups(torch.tensor(pose))
+    assert keys == [11, 4, 9, 2, 7] and group.tolist() == np.repeat(np.arange(5), counts).tolist()
+    got = iso9283(torch.tensor(e), group, keys)
+    want = _iso_numpy(e, pose)
+    assert got["poses"] == 5 and got["poses_with_repeats"] == 3 and got["cycles"] == {"min": 1, "max": 30}
+    for row in got["per_pose"]:
+        n, ap, rp = want[row["pose"]]
+        assert row["n"] == n and row["ap_mm"] == pytest.approx(ap)
+        assert (row["rp_mm"] is None) == (rp is None) and (rp is None or row["rp_mm"] == pytest.approx(rp))
+    rps = [v[2] for v in want.values() if v[2] is not None]
+    assert got["rp_mm"]["max"] == pytest.approx(max(rps)) and got["ap_mm"]["max"] == pytest.approx(
+        max(v[1] for v in want.values()))
+
+
+def test_pose_groups_keep_reflectors_apart():
+    pose = torch.tensor([5, 5, 5, 5, 3, 3])
+    point = torch.tensor([1, 2, 1, 2, 1, 1])
+    group, keys = pose_groups(pose, point)
+    assert keys == [(5, 1), (5, 2), (3, 1)] and group.tolist() == [0, 1, 0, 1, 2, 2]
+
+
+def test_tolerance_verdict_per_pose():
+    d = torch.tensor([0.2, 0.9, 0.3, 1.4, 0.5, 0.5])  # pose 8 has one row beyond 1 mm
+    group, keys = pose_groups(torch.tensor([7, 7, 8, 8, 9, 9]))
+    v = tolerance_verdict(d, group, 1.0, keys)
+    assert not v["passed"] and v["poses_failed"] == 1 and v["rows_failed"] == 1
+    assert v["failed"] == [{"pose": 8, "max_mm": pytest.approx(1.4)}]
+    assert tolerance_verdict(d, group, 1.5, keys)["passed"]
+
+
+# --------------------------------------------------------------------------- the command
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    """A simulated robot with compliance the geometric model lacks; training poses and
+    held-out poses measured 3 times each; fit and discover on the training poses."""
+    d = tmp_path_factory.mktemp("report")
+    sim = ["simulate", "--robot", "ur5e", "--effects", "base_frame", "joint_compliance:2,3", "--n", "60",
+           "--repeats", "3", "--noise", "0.02", "--seed", "1"]
+    assert main(sim + ["--out", str(d / "train.csv")]) == 0
+    assert main(sim + ["--pose-seed", "2", "--out", str(d / "val.csv")]) == 0
+    assert main(["fit", str(d / "train.csv"), "--robot", "ur5e", "--effects", "base_frame",
+                 "--out", str(d / "fit.json")]) == 0
+    assert main(["discover", str(d / "train.csv"), "--robot", "ur5e", "--effects", "base_frame",
+                 "--out", str(d / "disc.json"), "--json", str(d / "hist.json")]) == 0
+    return d
+
+
+@pytest.fixture(scope="module")
+def report(session):
+    d = session
+    out = d / "report.html"
+    assert main(["report", str(d / "disc.json"), "--data", str(d / "val.csv"), "--history", str(d / "hist.json"),
+                 "--tolerance-mm", "0.1", "--out", str(out), "--json", str(d / "report.json")]) == 0
+    return out
+
+
+def test_report_is_self_contained_and_complete(report, session):
+    text = report.read_text()
+    assert not re.search(r"https?://", text), "a URL in the report"
+    assert "<script" not in text.lower() and "@import" not in text and "url(" not in text
+    imgs = re.findall(r'<img [^>]*src="([^"]+)"', text)
+    assert len(imgs) >= 4 and all(s.startswith("data:image/png;base64,") for s in imgs)
+    for h in ("1. Provenance", "2. The model", "3. Accuracy on the held-out poses", "4. Verdict per pose",
+              "5. Discovery rounds", "6. What stays learnable", "@page", "max-width: 100%"):
+        assert h in text, h
+    js = json.loads((session / "report.json").read_text())
+    held = js["held_out"]
+    # the calibrated model beats the nominal robot on poses it never saw
+    assert held["after"]["rms_mm"] < held["before"]["rms_mm"]
+    # 3 repeats per pose: repeatability is computed for every pose, from noise alone (0.02 mm per axis)
+    iso = held["iso9283_after"]
+    assert iso["poses_with_repeats"] == iso["poses"] == 60 and 0.02 < iso["rp_mm"]["mean"] < 0.2
+    # the printed verdict is the JSON's, and the HTML shows it
+    v = held["verdict_after"]
+    assert ("PASS:" if v["passed"] else "FAIL:") in text
+    assert f"{v['poses'] - v['poses_failed']} of {v['poses']} held-out poses within 0.1 mm" in text
+    hist = json.loads((session / "hist.json").read_text())
+    for r in hist["history"]:
+        for c in (r.get("step") or {}).get("refits", []):
+            assert c["candidate"] in text and c["reason"].replace(">", "&gt;").replace("<", "&lt;") in text
+
+
+def test_evaluate_prints_the_reports_figures(report, session, capsys):
+    """evaluate and report compute mean, RMS, p95, max and ISO 9283 with one function."""
+    capsys.readouterr()
+    assert main(["evaluate", str(session / "val.csv"), "--model", str(session / "disc.json")]) == 0
+    out = capsys.readouterr().out
+    a = json.loads((session / "report.json").read_text())["held_out"]
+    for k in ("rms", "mean", "p95", "max"):
+        assert f"{k} {a['after'][k + '_mm']:.4f} mm" in out
+    iso = a["iso9283_after"]
+    assert f"AP max {iso['ap_mm']['max']:.4f} mm" in out and f"RP max {iso['rp_mm']['max']:.4f} mm" in out
+
+
+def test_report_without_data_says_so(session):
+    out = session / "fit_only.html"
+    assert main(["report", str(session / "fit.json"), "--out", str(out)]) == 0
+    text = out.read_text()
+    assert "No verdict: no held-out measurements given" in text and "No discover history was given" in text
+
+
+def test_report_shows_a_transfer_check_when_the_history_has_one(session):
+    hist = json.loads((session / "hist.json").read_text())
+    assert "transfer" not in hist
+    out = session / "no_transfer.html"
+    assert main(["report", str(session / "disc.json"), "--history", str(session / "hist.json"), "--out", str(out)]) == 0
+    assert "Transfer check" not in out.read_text()
+    hist["transfer"] = {"session": "second.csv", "rms_mm": 0.4321, "verdict": "transfers"}
+    (session / "hist_t.json").write_text(json.dumps(hist))
+    out = session / "transfer.html"
+    assert main(["report", str(session / "disc.json"), "--history", str(session / "hist_t.json"), "--out",
+                 str(out)]) == 0
+    text = out.read_text()
+    assert "Transfer check" in text and "second.csv" in text and "0.4321" in text and "transfers" in text
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--tolerance-mm", "-1"], "--tolerance-mm"),
+    (["--history", "{data}"], "history"),
+    (["--model-is-data"], "MODEL.json"),
+])
+def test_bad_input_one_line_exit_2_nothing_written(session, capsys, args, needle):
+    d = session
+    out = d / "bad.html"
+    model = str(d / "disc.json")
+    if args == ["--model-is-data"]:
+        args, model = [], str(d / "fit.json.missing")
+        (d / "fit.json.missing").write_text('{"format": "torchcal-plan/1"}')
+    args = [a.replace("{data}", str(d / "val.csv")) for a in args]
+    try:
+        code = main(["report", model, "--out", str(out)] + args)
+    except SystemExit as ex:  # argparse
+        code = ex.code
+    assert code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and needle in err and "Traceback" not in err
+    assert not out.exists()
+
+
+# --------------------------------------------------------------------------- in a browser
+NO_NETWORK = ["--headless", "--no-sandbox", "--disable-gpu", "--proxy-server=127.0.0.1:9",
+              "--host-resolver-rules=MAP * ~NOTFOUND", "--disable-background-networking", "--no-first-run"]
+
+PROBE = """<script>
+window.addEventListener('load', () => {
+  const imgs = Array.from(document.images);
+  const res = performance.getEntriesByType('resource').map(r => r.name);
+  const out = document.createElement('pre');
+  out.id = 'probe';
+  const loaded = imgs.filter(i => i.complete && i.naturalWidth > 0).length;
+  out.textContent = JSON.stringify({imgs: imgs.length, loaded: loaded, requests: res,
+                                    text: document.body.innerText.length});
+  document.body.appendChild(out);
+});
+</script>"""
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (Debian: apt-get install -y chromium)")
+def test_chromium_renders_every_figure_offline(report, tmp_path):
+    probe = tmp_path / "probe.html"  # the report plus a probe script (the report itself has none)
+    probe.write_text(report.read_text().replace("</body>", PROBE + "</body>"))
+    dom = subprocess.run([CHROMIUM, *NO_NETWORK, "--virtual-time-budget=5000", "--dump-dom", probe.as_uri()],
+                         capture_output=True, text=True, timeout=120).stdout
+    found = re.search(r'<pre id="probe">(.*?)</pre>', dom, re.S)
+    assert found, "the probe did not run"
+    got = json.loads(found.group(1).replace("&quot;", '"').replace("&amp;", "&"))
+    assert got["imgs"] >= 4 and got["loaded"] == got["imgs"]
+    assert all(not r.startswith("http") for r in got["requests"]), got["requests"]
+    assert got["text"] > 2000
+    shot = tmp_path / "shot.png"
+    subprocess.run([CHROMIUM, *NO_NETWORK, f"--screenshot={shot}", "--window-size=1000,1400", "--hide-scrollbars",
+                    report.as_uri()], capture_output=True, timeout=120)
+    from matplotlib.image import imread
+
+    px = imread(shot)
+    assert px.shape[0] >= 1000 and px[..., :3].std() > 0.05, "a blank page"
+    pdf = tmp_path / "report.pdf"
+    subprocess.run([CHROMIUM, *NO_NETWORK, f"--print-to-pdf={pdf}", "--no-pdf-header-footer", report.as_uri()],
+                   capture_output=True, timeout=120)
+    pages = pdf.read_bytes().count(b"/Type /Page") - pdf.read_bytes().count(b"/Type /Pages")
+    assert pages >= 6  # the summary, then a page break before each section
+
+
+# --------------------------------------------------------------------------- the paper's pipeline
+def test_report_on_a_zone_calibration(tmp_path):
+    """`calibrate --partition` (interval model per zone) on a robot with compliance: the
+    report predicts each held-out row with its zone's parameters and shows the paper's
+    Table 5 with R_set before and after."""
+    d = tmp_path
+    assert main(["sweep", "--robot", "kr1000titan", "--n", "80", "--samples", "50", "--allowed", "1.0", "--seed", "3",
+                 "--no-progress", "--out", str(d / "sweep.csv")]) == 0
+    assert main(["partition", str(d / "sweep.csv"), "--levels", "2", "--zones", "2,1", "--out",
+                 str(d / "part.json")]) == 0
+    sim = ["simulate", "--robot", "kr1000titan", "--effects", "joint_compliance:2", "--n", "80", "--repeats", "3",
+           "--noise", "0.02", "--seed", "4"]
+    assert main(sim + ["--out", str(d / "train.csv")]) == 0
+    assert main(sim + ["--pose-seed", "5", "--n", "20", "--out", str(d / "val.csv")]) == 0
+    assert main(["calibrate", str(d / "train.csv"), "--robot", "kr1000titan", "--partition", str(d / "part.json"),
+                 "--out", str(d / "zones.json")]) == 0
+    assert main(["report", str(d / "zones.json"), "--data", str(d / "val.csv"), "--tolerance-mm", "0.5",
+                 "--out", str(d / "r.html"), "--json", str(d / "r.json")]) == 0
+    text = (d / "r.html").read_text()
+    js = json.loads((d / "r.json").read_text())["held_out"]
+    table = js["zone_table"]
+    assert len(table) == 20 and {r["zone"] for r in table} <= {1, 2, 3}
+    assert "Table 5" in text and "Interval parameters per zone" in text and not re.search(r"https?://", text)
+    for r in table:
+        for k in ("before", "after"):
+            assert all(lo <= hi for lo, hi in zip(r[k]["lower"], r[k]["upper"]))
+            assert all(0.0 <= v <= 1.0 for v in r[k]["r_set"])
+    # the calibrated zones beat the nominal robot on poses they never saw, and R_set rises
+    assert js["after"]["rms_mm"] < js["before"]["rms_mm"]
+    mean = lambda k: sum(r[k]["r_set"][3] for r in table) / len(table)  # noqa: E731
+    assert mean("after") >= mean("before")

@@ -61,8 +61,8 @@ class Mismatch:
     after the best rigid motion; spread_ratio: measured / model spread; bound_mm: the
     plausible bound B; training_rms_mm (None when unknown); frame_mm / frame_deg: the
     rigid motion's translation and rotation angle; verdict: None (consistent), 'frame'
-    (a rigid motion explains the data) or 'mismatch'; message: one line (None when
-    consistent)."""
+    (a rigid motion explains the data) or 'mismatch' (`check_robot_data` has more);
+    message: one line (None when consistent); fix: what corrects it, or None."""
 
     rms_mm: float
     registered_rms_mm: float
@@ -73,6 +73,7 @@ class Mismatch:
     frame_deg: float
     verdict: str | None
     message: str | None
+    fix: tuple | None = None  # (keyword, value) of `InputError.fix`
 
 
 def bound_mm(training_rms_mm: float | None) -> float:
@@ -148,7 +149,7 @@ def enforce(result: Mismatch, refuse_frame: bool = True, refuse_mismatch: bool =
         return result
     refuse = refuse_frame if result.verdict == "frame" else refuse_mismatch
     if refuse:
-        raise InputError(result.message)
+        raise InputError(result.message, fix=result.fix)
     warnings.warn(result.message, MismatchWarning, stacklevel=3)
     return result
 
@@ -217,3 +218,123 @@ def check_robot_lengths(table, prismatic, limits, where: str = "robot file") -> 
         raise InputError(f"{where}: the links reach only {reach:.4g} mm in all (sum of sqrt(d_mm^2 + a_mm^2)), less "
                          f"than any industrial arm's {MIN_REACH_MM:g} mm: the lengths look like metres; robot files "
                          "take millimetres (d_mm, a_mm, base, tool, prismatic limits)")
+
+
+OUTLIER_SHARE = 0.1  # at most this share of rows may be gross outliers (the rest must agree)
+
+
+def _rms(d: torch.Tensor) -> float:
+    return float(d.pow(2).mean().sqrt())
+
+
+def _registered(model, m):
+    """Predicted points (N, 3) mm of the nominal `model` (every parameter at zero) in its
+    best measuring frame and with its best tool offset (`reregister`, tool=True)."""
+    from torchcal.calibration.registration import reregister
+    from torchcal.effects import context_of
+
+    res = reregister(model, model.zeros(), context_of(model.robot, m), m.xyz, tool=True)
+    return (m.xyz - res.residuals).detach()
+
+
+def _fits(model, m) -> bool:
+    from torchcal.errors import InputError
+
+    try:
+        return _rms((_registered(model, m) - m.xyz).norm(dim=-1)) <= GROSS_MM
+    except InputError:
+        return False
+
+
+def check_robot_data(model, m, robust: bool = False) -> Mismatch | None:
+    """Can the measurements `m` (`Measurements`) come from `model`'s robot at all? Judged
+    before a fit (nominal geometry, every parameter at zero) against GROSS_MM, the
+    plausible error of an uncalibrated arm. Returns None (consistent, or too few rows to
+    judge) or a `Mismatch` whose verdict names the cause:
+
+    - 'frame': the robot in its best measuring frame with its best tool offset fits, as
+      it is it does not, and the model lacks base_frame or tool_offset (a tracker's
+      frame, a reflector on the flange);
+    - 'outliers' (only when not `robust`): at most OUTLIER_SHARE of the rows lie beyond
+      the bound and the frame refitted on the others fits them;
+    - 'mirrored': the data with one axis negated fit (a rigid motion with a reflection,
+      e.g. two of x, y, z swapped; a proper rigid motion does not);
+    - 'reversed': the data with the joint columns in reverse order fit;
+    - 'mismatch': none of these (another robot, or units: the spread ratio's hint).
+    """
+    import dataclasses
+
+    from torchcal.errors import InputError
+    from torchcal.effects import context_of
+
+    what = m.source or "data"
+    name = model.robot.name
+    try:
+        pred = _registered(model, m)
+    except InputError:
+        return None  # too few rows, missing columns: the fit says it in its own words
+    d = (pred - m.xyz).norm(dim=-1)
+    reg = _rms(d)
+    with torch.no_grad():
+        as_is = _rms((model.predict(model.zeros(), context_of(model.robot, m)) - m.xyz).norm(dim=-1))
+    have = [e.name for e in model.effects]
+    missing = [n for n in ("base_frame", "tool_offset") if n not in have]
+
+    def result(verdict, msg, fix=None):
+        return dataclasses.replace(check_points(pred, m.xyz, None, what), rms_mm=as_is, registered_rms_mm=reg,
+                                   verdict=verdict, message=msg, fix=fix)
+
+    if reg <= GROSS_MM:
+        if as_is <= GROSS_MM or not missing:
+            return None
+        return result("frame", f"{what}: the measurements are in another frame: the nominal {name} is off by rms "
+                      f"{as_is:.4g} mm as it stands and by {reg:.4g} mm with a fitted measuring frame and tool "
+                      f"offset, which the model lacks (tracker data need base_frame tool_offset; data in the "
+                      f"robot's base frame with its nominal tool need neither)",
+                      ("effects", [*model.specs(), *missing]))
+    n = d.shape[0]
+    keep = d <= max(GROSS_MM, 3 * float(d.median()))
+    n_far = n - int(keep.sum())
+    if n_far <= OUTLIER_SHARE * n and int(keep.sum()) >= 3:
+        sub = m.subset(keep.nonzero().flatten())
+        try:
+            inlier_rms = _rms((_registered(model, sub) - sub.xyz).norm(dim=-1))
+        except InputError:
+            inlier_rms = math.inf
+        if inlier_rms <= GROSS_MM:
+            if robust:
+                return None
+            far = (~keep).nonzero().flatten().tolist()
+            ids = ", ".join(str(int(m.pose[i])) for i in far[:10]) + (" ..." if len(far) > 10 else "")
+            return result("outliers", f"{what}: {n_far} of {n} rows (pose ids {ids}) lie {float(d[~keep].min()):.4g}"
+                          f" to {float(d.max()):.4g} mm off the nominal {name} in its best frame while the others "
+                          f"agree to rms {inlier_rms:.4g} mm: gross outliers (mis-typed or corrupted rows) would "
+                          "pull the fit; remove them, or fit with --robust huber (it names them)")
+    flipped_xyz = m.xyz * torch.tensor([-1.0, 1.0, 1.0], dtype=m.xyz.dtype, device=m.xyz.device)
+    if _fits(model, dataclasses.replace(m, xyz=flipped_xyz)):
+        return result("mirrored", f"{what}: a mirror image of {name}: rms {reg:.4g} mm after the best rigid motion, "
+                      f"but within {GROSS_MM:g} mm after one with a reflection; the x, y, z columns describe a "
+                      "left-handed frame (two of them swapped, or one negated)")
+    if model.robot.n > 1 and _fits(model, dataclasses.replace(m, q=m.q.flip(-1))):
+        return result("reversed", f"{what}: the joint columns are in reverse order: rms {reg:.4g} mm as given "
+                      f"but within {GROSS_MM:g} mm with q{model.robot.n} .. q1 read as q1 .. q{model.robot.n}")
+    from torchcal.calibration.plausibility import spread_mm
+
+    s_x, s_p = spread_mm(m.xyz), spread_mm(pred)
+    return result("mismatch", f"{what}: cannot come from {name}: rms {reg:.4g} mm with the best measuring frame "
+                  f"and tool offset, point spread {s_x:.4g} mm measured vs {s_p:.4g} mm modelled; likely causes: "
+                  f"data of another robot or units (length or angle unit){_units_hint(s_x / max(s_p, 1e-12))}")
+
+def check_fitted(residuals: torch.Tensor, outliers=(), what: str = "data", name: str = "the model") -> str | None:
+    """After a fit: None, or one line when its residuals (N, 3) mm, the rows in `outliers`
+    (0-based, the robust fit's) left out, have an RMS beyond GROSS_MM: no calibration of
+    this robot is that far off, so nothing sensible was fitted."""
+    keep = torch.ones(residuals.shape[0], dtype=torch.bool)
+    keep[list(outliers)] = False
+    rms = _rms(residuals.detach().cpu()[keep].norm(dim=-1))
+    if rms <= GROSS_MM:
+        return None
+    return (f"{what}: the fitted model of {name} is still off by rms {rms:.4g} mm (a calibrated arm is off by less "
+            f"than {GROSS_MM:g} mm): nothing sensible was fitted; likely causes: data of another robot, units, "
+            "joint columns in another order, a mirrored frame, gross outliers (--robust huber), or a measuring "
+            "frame the model lacks (--effects base_frame tool_offset)")

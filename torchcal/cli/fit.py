@@ -9,7 +9,14 @@ mm and degrees. A data file with a `point` column gets one tool offset per point
 `tool_offset`); rx, ry, rz columns add the measured orientation, weighed against position
 by --sigma-mm / --sigma-deg. Every parameter has a plausible scale (--max-deviation-mm /
 -deg for the MD-H deviations, each effect's range of docs/effects.md): a weak prior
-shrinks what the poses barely determine, and what ends beyond its scale is named."""
+shrinks what the poses barely determine, and what ends beyond its scale is named.
+
+Tracker data (positions in the instrument's frame, a reflector or probe on the flange)
+need `--effects base_frame tool_offset`; data in the robot's base frame with its nominal
+tool need neither. Data that the nominal robot in no frame can explain are refused
+with the likely cause and nothing is written: a frame the effects lack, another robot,
+units, a mirrored frame (two of x, y, z swapped), joint columns in reverse order, gross
+outlier rows (then --robust), or a fitted rms beyond 10 mm."""
 
 from __future__ import annotations
 
@@ -30,7 +37,7 @@ def add_parser(sub):
                        description=__doc__)
     p.add_argument("data", help="measurement CSV (docs/design.md)")
     add_robot(p)
-    p.add_argument("--effects", nargs="*", default=[], metavar="SPEC", help="effects, e.g. joint_compliance:2,3")
+    p.add_argument("--effects", nargs="*", default=[], metavar="SPEC", help="effects, e.g. joint_compliance:2,3; tracker data (in the instrument's frame, a reflector on the flange) need base_frame tool_offset")
     p.add_argument("--robust", choices=["huber", "cauchy"], help="robust loss by IRLS")
     p.add_argument("--seed", type=int, default=0, help="recorded in the provenance")
     p.add_argument("--sigma-mm", type=positive_float, default=SIGMA_MM,

@@ -227,14 +227,31 @@ def _rms(d: torch.Tensor) -> float:
     return float(d.pow(2).mean().sqrt())
 
 
-def _registered(model, m):
-    """Predicted points (N, 3) mm of the nominal `model` (every parameter at zero) in its
-    best measuring frame and with its best tool offset (`reregister`, tool=True)."""
-    from torchcal.calibration.registration import reregister
+def _in_frame(model, m, tool: bool = True):
+    """Predicted points (N, 3) mm of the nominal `model` (its parameters at zero but its
+    measuring frame: base_frame, and tool_offset when `tool`, those of them it has) fitted
+    to the measurements `m`, from the closed-form registration."""
+    from torchcal.calibration.fit import fit
+    from torchcal.calibration.registration import frame_slices, register_frame
     from torchcal.effects import context_of
 
-    res = reregister(model, model.zeros(), context_of(model.robot, m), m.xyz, tool=True)
+    ctx = context_of(model.robot, m)
+    free = torch.zeros(model.n_params, dtype=torch.bool)
+    for sl in frame_slices(model, tool):
+        free[sl] = True
+    if not bool(free.any()):
+        with torch.no_grad():
+            return model.predict(model.zeros().to(m.xyz), ctx).detach()
+    start, _ = register_frame(model, ctx, m.xyz)
+    res = fit(model, ctx, m.xyz, theta0=start, free=free, register=False, max_length_mm=None, max_angle_deg=None)
     return (m.xyz - res.residuals).detach()
+
+
+def _registered(model, m):
+    """`_in_frame` of `model` with base_frame and tool_offset (appended where missing)."""
+    from torchcal.calibration.registration import with_frame
+
+    return _in_frame(with_frame(model, model.zeros(), tool=True)[0], m)
 
 
 def _fits(model, m) -> bool:
@@ -252,9 +269,9 @@ def check_robot_data(model, m, robust: bool = False) -> Mismatch | None:
     plausible error of an uncalibrated arm. Returns None (consistent, or too few rows to
     judge) or a `Mismatch` whose verdict names the cause:
 
-    - 'frame': the robot in its best measuring frame with its best tool offset fits, as
-      it is it does not, and the model lacks base_frame or tool_offset (a tracker's
-      frame, a reflector on the flange);
+    - 'frame': the robot in its best measuring frame with its best tool offset fits, with
+      the frame effects the model has (base_frame, tool_offset, or none) it does not (a
+      tracker's frame, a reflector on the flange);
     - 'outliers' (only when not `robust`): at most OUTLIER_SHARE of the rows lie beyond
       the bound and the frame refitted on the others fits them;
     - 'mirrored': the data with one axis negated fit (a rigid motion with a reflection,
@@ -265,7 +282,6 @@ def check_robot_data(model, m, robust: bool = False) -> Mismatch | None:
     import dataclasses
 
     from torchcal.errors import InputError
-    from torchcal.effects import context_of
 
     what = m.source or "data"
     name = model.robot.name
@@ -275,23 +291,22 @@ def check_robot_data(model, m, robust: bool = False) -> Mismatch | None:
         return None  # too few rows, missing columns: the fit says it in its own words
     d = (pred - m.xyz).norm(dim=-1)
     reg = _rms(d)
-    with torch.no_grad():
-        as_is = _rms((model.predict(model.zeros(), context_of(model.robot, m)) - m.xyz).norm(dim=-1))
     have = [e.name for e in model.effects]
     missing = [n for n in ("base_frame", "tool_offset") if n not in have]
 
-    def result(verdict, msg, fix=None):
-        return dataclasses.replace(check_points(pred, m.xyz, None, what), rms_mm=as_is, registered_rms_mm=reg,
+    def result(verdict, msg, fix=None, rms=reg):
+        return dataclasses.replace(check_points(pred, m.xyz, None, what), rms_mm=rms, registered_rms_mm=reg,
                                    verdict=verdict, message=msg, fix=fix)
 
     if reg <= GROSS_MM:
-        if as_is <= GROSS_MM or not missing:
+        as_is = reg if not missing else _rms((_in_frame(model, m) - m.xyz).norm(dim=-1))
+        if as_is <= GROSS_MM:
             return None
         return result("frame", f"{what}: the measurements are in another frame: the nominal {name} is off by rms "
-                      f"{as_is:.4g} mm as it stands and by {reg:.4g} mm with a fitted measuring frame and tool "
-                      f"offset, which the model lacks (tracker data need base_frame tool_offset; data in the "
+                      f"{as_is:.4g} mm with the effects given and by {reg:.4g} mm with a fitted measuring frame and "
+                      f"tool offset, which the model lacks (tracker data need base_frame tool_offset; data in the "
                       f"robot's base frame with its nominal tool need neither)",
-                      ("effects", [*model.specs(), *missing]))
+                      ("effects", [*model.specs(), *missing]), as_is)
     n = d.shape[0]
     keep = d <= max(GROSS_MM, 3 * float(d.median()))
     n_far = n - int(keep.sum())

@@ -30,6 +30,12 @@ factor of `torchcal.calibration.plausibility`'s unit check) sit inside the robot
 base: metres read as mm (a refusal); targets beyond 1.05 R cannot be reached (a warning
 naming them; compensate reports them as not converged).
 
+Before and after a fit (`check_robot_data`, `check_fitted`): the nominal robot with its
+measuring frame and tool offset fitted must come within GROSS_MM of the data, else the
+cause is named (a frame the model lacks, gross outlier rows, a mirrored frame, reversed
+joint columns, another robot or units); a fitted RMS beyond GROSS_MM (the robust fit's
+outliers left out) is no calibration (docs/registration.md).
+
 Robot files (`check_robot_lengths`): an arm whose links (sum over joints of
 ``sqrt(d^2 + a^2)``, prismatic strokes included) reach less than MIN_REACH_MM = 50 mm is
 not an industrial arm; its lengths were written in metres.

@@ -149,6 +149,7 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     else:
         model = CalibrationModel.for_measurements(robot, effects, m)
     ctx = context_of(model.robot, m)
+    model.check_context(ctx)  # a missing column first, in the fit's own words
     with threads.for_work(_work(model, m)):
         check_robot_data_of(model, m, robust=robust is not None)  # another frame, robot, units, outliers
         res = fit_model(model, ctx, m.xyz, robust=robust, max_iter=max_iter, pose=m.pose, rotation=m.rotation,
@@ -281,10 +282,12 @@ def check_diagnosis_data(robot_or_model, model: CalibrationModel, m: Measurement
     return check_robot_data_of(CalibrationModel.for_measurements(model.robot, model.specs(), m), m)
 
 
-def check_robot_data_of(model: CalibrationModel, m: Measurements, robust: bool = False):
+def check_robot_data_of(model: CalibrationModel, m: Measurements, robust: bool | None = None):
     """Refuse (InputError, one line naming the cause) measurements that the nominal robot
     of `model` cannot explain, or that need a measuring frame the model lacks
-    (`torchcal.calibration.mismatch.check_robot_data`); fit, diagnose and discover call it."""
+    (`torchcal.calibration.mismatch.check_robot_data`; robust: True when a robust fit
+    follows, False for a fit without, None for a command without a robust loss); fit,
+    diagnose and discover call it."""
     from torchcal.calibration.mismatch import check_robot_data, enforce
 
     found = check_robot_data(model, m, robust=robust)

@@ -269,7 +269,7 @@ def _fits(model, m) -> bool:
         return False
 
 
-def check_robot_data(model, m, robust: bool = False) -> Mismatch | None:
+def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
     """Can the measurements `m` (`Measurements`) come from `model`'s robot at all? Judged
     before a fit (nominal geometry, every parameter at zero) against GROSS_MM, the
     plausible error of an uncalibrated arm. Returns None (consistent, or too few rows to
@@ -278,8 +278,10 @@ def check_robot_data(model, m, robust: bool = False) -> Mismatch | None:
     - 'frame': the robot in its best measuring frame with its best tool offset fits, with
       the frame effects the model has (base_frame, tool_offset, or none) it does not (a
       tracker's frame, a reflector on the flange);
-    - 'outliers' (only when not `robust`): at most OUTLIER_SHARE of the rows lie beyond
-      the bound and the frame refitted on the others fits them;
+    - 'outliers' (not when `robust` is True, a robust fit follows): at most OUTLIER_SHARE
+      of the rows lie beyond the bound and the frame refitted on the others fits them;
+      with robust False the fix is ``robust='huber'``, with None (a command without a
+      robust loss) none;
     - 'mirrored': the data with one axis negated fit (a rigid motion with a reflection,
       e.g. two of x, y, z swapped; a proper rigid motion does not);
     - 'reversed': the data with the joint columns in reverse order fit;
@@ -287,11 +289,13 @@ def check_robot_data(model, m, robust: bool = False) -> Mismatch | None:
     """
     import dataclasses
 
+    from torchcal.effects import context_of
     from torchcal.errors import InputError
 
     what = m.source or "data"
     name = model.robot.name
     try:
+        model.check_context(context_of(model.robot, m))
         pred = _registered(model, m)
     except InputError:
         return None  # too few rows, missing columns: the fit says it in its own words
@@ -330,7 +334,8 @@ def check_robot_data(model, m, robust: bool = False) -> Mismatch | None:
             return result("outliers", f"{what}: {n_far} of {n} rows (pose ids {ids}) lie {float(d[~keep].min()):.4g}"
                           f" to {float(d.max()):.4g} mm off the nominal {name} in its best frame while the others "
                           f"agree to rms {inlier_rms:.4g} mm: gross outliers (mis-typed or corrupted rows) would "
-                          "pull the fit; remove them, or fit with --robust huber (it names them)")
+                          "pull the fit; remove them, or fit with a robust loss (it names them)",
+                          None if robust is None else ("robust", "huber"))
     flipped_xyz = m.xyz * torch.tensor([-1.0, 1.0, 1.0], dtype=m.xyz.dtype, device=m.xyz.device)
     if _fits(model, dataclasses.replace(m, xyz=flipped_xyz)):
         return result("mirrored", f"{what}: a mirror image of {name}: rms {reg:.4g} mm after the best rigid motion, "
@@ -357,5 +362,5 @@ def check_fitted(residuals: torch.Tensor, outliers=(), what: str = "data", name:
         return None
     return (f"{what}: the fitted model of {name} is still off by rms {rms:.4g} mm (a calibrated arm is off by less "
             f"than {GROSS_MM:g} mm): nothing sensible was fitted; likely causes: data of another robot, units, "
-            "joint columns in another order, a mirrored frame, gross outliers (--robust huber), or a measuring "
-            "frame the model lacks (--effects base_frame tool_offset)")
+            "joint columns in another order, a mirrored frame, gross outliers (a robust loss), or a measuring "
+            "frame the model lacks (the effects base_frame tool_offset)")

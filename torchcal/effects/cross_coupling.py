@@ -32,7 +32,7 @@ class CrossCoupling(Effect):
     def __init__(self, robot, joints=()):
         super().__init__(robot, joints)
         if not self.pairs():
-            raise InputError(f"{self.spec()}: no joint of the same type (revolute or prismatic) before it to be "
+            raise InputError(f"{self.spec()}: no joint before it of the same type (revolute or prismatic) to be "
                              "coupled to; list driven joints 2..n")
 
     def pairs(self) -> list[tuple[int, int]]:

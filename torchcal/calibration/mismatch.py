@@ -260,6 +260,20 @@ def _registered(model, m):
     return _in_frame(with_frame(model, model.zeros(), tool=True)[0], m)
 
 
+def _quick_fit(model, ctx, xyz: torch.Tensor) -> bool:
+    """True when the nominal `model` already comes within GROSS_MM as it is or, when it has
+    base_frame, after the closed-form rigid motion (no solve): the common case, decided
+    cheaply; a frame and tool offset fitted could only come closer."""
+    from torchcal.calibration.registration import kabsch
+
+    with torch.no_grad():
+        p = model.predict(model.zeros().to(xyz), ctx)
+    if "base_frame" in [e.name for e in model.effects] and p.shape[0] >= 3:
+        R, t = kabsch(p, xyz)
+        p = p @ R.T + t
+    return _rms((p - xyz).norm(dim=-1)) <= GROSS_MM
+
+
 def _fits(model, m) -> bool:
     from torchcal.errors import InputError
 
@@ -295,7 +309,10 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
     what = m.source or "data"
     name = model.robot.name
     try:
-        model.check_context(context_of(model.robot, m))
+        ctx = context_of(model.robot, m)
+        model.check_context(ctx)
+        if _quick_fit(model, ctx, m.xyz):
+            return None
         pred = _registered(model, m)
     except InputError:
         return None  # too few rows, missing columns: the fit says it in its own words

@@ -168,3 +168,21 @@ def test_old_compliance_labels_still_load(fitted, tmp_path):
     (tmp_path / "old.json").write_text(json.dumps(obj))
     back = modelfile.load(tmp_path / "old.json")
     assert torch.allclose(back.theta, res.theta, rtol=1e-12, atol=0)
+
+
+def test_fit_prints_the_joint_stiffness(tmp_path, capsys):
+    """A simulated KR 1000 Titan with joint_compliance:2 (payload varied per pose): `fit`
+    prints the stiffness K_2 in N m/rad of its payload term, near the simulated one."""
+    from torchcal.effects.joint_compliance import JointCompliance
+    from torchcal.robots.poses import random_poses as poses
+
+    robot = torchcal.robot("kr1000titan")
+    vr = VirtualRobot(robot, ["joint_compliance:2"], seed=1)
+    write_measurements(tmp_path / "d.csv", vr.measure(poses(robot, 200, torch.Generator().manual_seed(2)),
+                                                      noise_mm=0.01))
+    truth = JointCompliance(robot, [2]).stiffness_nm_per_rad(vr.theta[vr.model.slices[1]])[2]
+    assert main(["fit", str(tmp_path / "d.csv"), "--robot", "kr1000titan", "--effects", "joint_compliance:2",
+                 "--out", str(tmp_path / "m.json")]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("joint stiffness"))
+    k = float(line.split("joint 2 ", 1)[1].split(" N m/rad")[0])
+    assert k == pytest.approx(truth, rel=0.05)

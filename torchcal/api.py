@@ -118,7 +118,7 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     robust: None, 'huber' or 'cauchy' (IRLS). sigma_mm / sigma_deg: measurement
     uncertainties (mm, deg) that weigh orientation against position. max_length_mm /
     max_angle_deg: the plausible scales of the MD-H deviations, the prior of the fit
-    (None: no prior on them; `torchcal.calibration.plausibility`).
+    (each None drops its own prior only; `torchcal.calibration.plausibility`).
     Measurements with several `point` ids need `tool_offset` (one offset per point).
     length_unit ('mm' or 'm') / angle_unit ('deg' or 'rad'): the units of the measurement
     file (a path is read in them; `Measurements` were read in them). Before fitting, the

@@ -319,7 +319,7 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
 
     Plausibility (the prior, module doc): MD-H deviations have the scales `max_length_mm`
     (dd, da) and `max_angle_deg` (dtheta, dalpha, dbeta), effect parameters their
-    effect's `plausible_max()`; None for the MD-H scales drops their prior. rho: the
+    effect's `plausible_max()`; each None scale drops its own prior only. rho: the
     per-axis RMS of the position residual of a first solve with rho = sigma_mm, or
     `prior_sigma_mm` when given (one solve; the fold refits of a cross-validation pass
     the full fit's). Free parameters ending beyond their scale are listed in

@@ -159,9 +159,11 @@ def test_a_few_corrupted_rows_hint_at_robust(tmp_path, capsys):
     capsys.readouterr()
     assert main(["fit", str(data), "--robot", "ur5e", "--out", str(tmp_path / "m1.json")]) == 0
     assert "--robust" not in capsys.readouterr().out
-    assert main(["fit", str(tmp_path / "bad.csv"), "--robot", "ur5e", "--out", str(tmp_path / "m2.json")]) == 0
-    hint = [ln for ln in capsys.readouterr().out.splitlines() if "--robust" in ln]
-    assert len(hint) == 1 and hint[0].startswith("2 row(s)")
+    # 500 mm off: gross rows (beyond 10 mm of the nominal robot) are refused, naming them
+    assert main(["fit", str(tmp_path / "bad.csv"), "--robot", "ur5e", "--out", str(tmp_path / "m2.json")]) == 2
+    err = capsys.readouterr().err
+    assert "2 of 60 rows (pose ids 6, 32)" in err and err.rstrip().endswith("pass --robust huber")
+    assert not (tmp_path / "m2.json").exists()
     assert main(["fit", str(tmp_path / "bad.csv"), "--robot", "ur5e", "--robust", "huber",
                  "--out", str(tmp_path / "m3.json")]) == 0
     assert "try --robust" not in capsys.readouterr().out

@@ -18,6 +18,8 @@ geometric deviations the fits are exact (< 1e-9 mm), checked below for two effec
 
 import pytest
 
+from npsim import numpy_fk
+
 from torchcal.effects import make_context
 from torchcal.calibration.fit import fit
 from torchcal.calibration.model import CalibrationModel
@@ -79,38 +81,6 @@ def test_exact_without_geometric_deviations(kr, spec):
     assert res.rms_mm < 1e-9, res.rms_mm
     err = effect_only(res.model, res.theta, ctx) - effect_only(vr.model, vr.theta, ctx)
     assert err.norm(dim=-1).max() < 1e-8
-
-
-def numpy_fk(robot, q, dev):
-    """Independent reference: plain-numpy MD-H chain (A_i = Rz Tz Tx Rx Ry), base and tool.
-    q (N, n) rad, dev (n, 5) deviations -> TCP positions (N, 3) mm."""
-    import numpy as np
-
-    def rz(t):
-        c, s = np.cos(t), np.sin(t)
-        return np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])
-
-    def rx(t):
-        c, s = np.cos(t), np.sin(t)
-        return np.array([[1.0, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1]])
-
-    def ry(t):
-        c, s = np.cos(t), np.sin(t)
-        return np.array([[c, 0, s, 0], [0, 1.0, 0, 0], [-s, 0, c, 0], [0, 0, 0, 1]])
-
-    def tr(x, z):
-        T = np.eye(4)
-        T[0, 3], T[2, 3] = x, z
-        return T
-
-    table = robot.table.numpy() + dev
-    out = []
-    for qq in np.asarray(q):
-        T = robot.base.numpy().copy()
-        for (th, d, a, al, be), qj in zip(table, qq):
-            T = T @ rz(qj + th) @ tr(0.0, d) @ tr(a, 0.0) @ rx(al) @ ry(be)
-        out.append((T @ robot.tool.numpy())[:3, 3])
-    return np.array(out)
 
 
 def test_recovery_against_an_independent_reference(kr):

@@ -162,7 +162,7 @@ def test_model_jacobian_kr1000_with_beta():
 
 
 def test_prismatic_robot(scara):
-    specs = ["base_frame", "tool_offset", "encoder_scale:1,3", "backlash:3", "joint_clearance:1"]
+    specs = ["base_frame", "tool_offset", "encoder_scale:1,3", "backlash:2", "joint_clearance:1"]
     model = CalibrationModel(scara, specs)
     ctx = _context(scara, 30)
     theta = _theta(model, 6)

@@ -114,3 +114,75 @@ def test_radians_under_a_degree_unit_are_caught(fitted, tmp_path):
     bad.write_text(json.dumps(obj))
     with pytest.raises(torchcal.InputError, match="unit"):
         modelfile.load(bad)
+
+
+def test_compliance_units_are_those_of_their_formula():
+    """A parameter's unit is the deflection (rad) over its regressor column's unit. Scaling
+    every length of the robot by 2 leaves the link-moment columns (mx, my, mz: unit vectors)
+    unchanged, so those parameters are angles ('rad', 'deg' in files), and doubles the
+    lever columns (m: mm -> 'rad/mm') and the payload column (kg mm -> 'rad/(kg mm)',
+    the compliance 'deg/(N m)' in files)."""
+    import dataclasses
+
+    from torchcal.effects import make_context
+    from torchcal.effects.joint_compliance import JointCompliance, gravity_regressor
+
+    robot = torchcal.robot("ur5e")
+    big = dataclasses.replace(robot, table=robot.table * torch.tensor([1.0, 2, 2, 1, 1], dtype=torch.float64),
+                              base=robot.base.clone(), tool=robot.tool.clone())
+    big.base[:3, 3] *= 2
+    big.tool[:3, 3] *= 2
+    q = random_poses(robot, 20, 1)
+    payload = torch.full((20,), 3.0, dtype=torch.float64)
+    a = gravity_regressor(make_context(robot, q, payload), 2)
+    b = gravity_regressor(make_context(big, q, payload), 2)
+    units = JointCompliance(robot, [2]).param_units()
+    for col, unit in enumerate(units):
+        ratio = float(b[:, col].abs().sum() / a[:, col].abs().sum().clamp_min(1e-300))
+        if float(a[:, col].abs().max()) < 1e-9:
+            continue  # a column that is zero for this robot says nothing
+        assert ratio == pytest.approx(1.0 if unit == "rad" else 2.0, rel=1e-9), (col, unit)
+    assert [modelfile.file_unit(u)[0] for u in units[:5]] == ["deg", "deg", "deg", "deg/mm", "deg"]
+    assert modelfile.file_unit(units[-1])[0] == "deg/(N m)"
+
+
+def test_joint_stiffness_from_the_payload_term():
+    from torchcal.effects.joint_compliance import JointCompliance
+
+    robot = torchcal.robot("ur5e")
+    n = robot.n
+    stiff = torch.tensor([1e5, 2.5e5, 1.2e5, 3e4, 3e4, 1e4], dtype=torch.float64)
+    p = JointCompliance.params_from_physics(robot, [2, 3], torch.ones(n), torch.zeros(n, 3), stiff)
+    got = JointCompliance(robot, [2, 3]).stiffness_nm_per_rad(p)
+    assert got == pytest.approx({2: 2.5e5, 3: 1.2e5}, rel=1e-12)
+
+
+def test_old_compliance_labels_still_load(fitted, tmp_path):
+    """Files that labelled the link-moment terms 'deg/mm' hold the same values in degrees."""
+    d, res = fitted
+    obj = modelfile.to_dict(res)
+    for p in obj["parameters"]:
+        if p["name"].endswith(("_mx", "_my", "_mz")):
+            assert p["unit"] == "deg"
+            p["unit"] = "deg/mm"
+    (tmp_path / "old.json").write_text(json.dumps(obj))
+    back = modelfile.load(tmp_path / "old.json")
+    assert torch.allclose(back.theta, res.theta, rtol=1e-12, atol=0)
+
+
+def test_fit_prints_the_joint_stiffness(tmp_path, capsys):
+    """A simulated KR 1000 Titan with joint_compliance:2 (payload varied per pose): `fit`
+    prints the stiffness K_2 in N m/rad of its payload term, near the simulated one."""
+    from torchcal.effects.joint_compliance import JointCompliance
+    from torchcal.robots.poses import random_poses as poses
+
+    robot = torchcal.robot("kr1000titan")
+    vr = VirtualRobot(robot, ["joint_compliance:2"], seed=1)
+    write_measurements(tmp_path / "d.csv", vr.measure(poses(robot, 200, torch.Generator().manual_seed(2)),
+                                                      noise_mm=0.01))
+    truth = JointCompliance(robot, [2]).stiffness_nm_per_rad(vr.theta[vr.model.slices[1]])[2]
+    assert main(["fit", str(tmp_path / "d.csv"), "--robot", "kr1000titan", "--effects", "joint_compliance:2",
+                 "--out", str(tmp_path / "m.json")]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("joint stiffness"))
+    k = float(line.split("joint 2 ", 1)[1].split(" N m/rad")[0])
+    assert k == pytest.approx(truth, rel=0.05)

@@ -95,3 +95,75 @@ def test_plausibility_ignores_slide_lengths(tmp_path):
         check_units(m, robot)
     # the same file read with --angle-unit rad passes (the slide's 180 mm is no angle)
     check_units(read_measurements(wrong, robot=robot, angle_unit="rad"), robot, angle_unit="rad")
+
+
+# --- joint effects on a slide, where_it_fails, the priors (issue 29, item 6) -----------------
+
+ANGLE_EFFECTS = ["backlash", "gear_periodic", "joint_compliance"]
+
+
+@pytest.mark.parametrize("name", ANGLE_EFFECTS)
+def test_angle_effects_refuse_a_slide(name):
+    """backlash, gear_periodic and joint_compliance are angles of a revolute joint: on the
+    SCARA's slide (joint 3, q in mm) they are refused with the joint named, on its revolute
+    joints they build."""
+    from torchcal.calibration.model import CalibrationModel
+
+    robot = robot_from_dict(SCARA)
+    with pytest.raises(InputError, match=f"{name}:3: joint\\(s\\) 3 .* prismatic"):
+        CalibrationModel(robot, [f"{name}:3"])
+    assert CalibrationModel(robot, [f"{name}:2"]).n_params > 5 * robot.n
+    CalibrationModel(robot, ["encoder_scale:3"])  # a scale error is one on a slide too
+
+
+def test_discover_does_not_offer_angle_effects_on_a_slide():
+    from torchcal.diagnosis.candidates import candidate_specs
+    from torchcal.effects import make_context
+
+    robot = robot_from_dict(SCARA)
+    q = robot.q_from_user(torch.tensor(Q_USER, dtype=torch.float64))
+    offered = candidate_specs(robot, {}, make_context(robot, q))
+    on_slide = {name for name, js in offered if js == (3,)}
+    assert not on_slide & set(ANGLE_EFFECTS), on_slide
+    assert "encoder_scale" in on_slide
+    assert {name for name, js in offered if js == (2,)} >= set(ANGLE_EFFECTS)
+    # a coupling of the slide's mm into a revolute joint's angle is not offered either
+    from torchcal.calibration.model import CalibrationModel
+    assert "coupling_3_4" not in CalibrationModel(robot, ["cross_coupling:4"]).param_names()
+
+
+def test_where_it_fails_bins_a_slide_in_mm():
+    """Data of the SCARA from the plain-numpy chain (tests/npsim.py); the slide's bins lie
+    inside its 0..200 mm stroke, the revolute joints' inside their limits in degrees."""
+    import numpy as np
+    from npsim import numpy_fk
+
+    from torchcal.diagnosis.diagnose import where_it_fails
+    from torchcal.measurements import Measurements
+    from torchcal.robots.poses import random_poses
+
+    robot = robot_from_dict(SCARA)
+    q = random_poses(robot, 80, torch.Generator().manual_seed(0))
+    xyz = torch.as_tensor(numpy_fk(robot, q.numpy(), np.zeros((robot.n, 5))))
+    m = Measurements(torch.arange(80), q, xyz)
+    out = where_it_fails(robot, m, torch.full((80, 3), 0.01, dtype=torch.float64))["per_joint"]
+    assert [j["unit"] for j in out] == ["deg", "deg", "mm", "deg"]
+    slide = [v for b in out[2]["bins"] for v in b["q"]]
+    assert 0.0 <= min(slide) and max(slide) <= 200.0 and max(slide) - min(slide) > 100.0
+    elbow = [v for b in out[1]["bins"] for v in b["q"]]
+    assert -150.0 <= min(elbow) and max(elbow) <= 150.0 and max(elbow) - min(elbow) > 100.0
+
+
+def test_each_none_scale_drops_only_its_own_prior():
+    import math
+
+    from torchcal.calibration.model import CalibrationModel
+    from torchcal.calibration.plausibility import plausible_scales
+
+    model = CalibrationModel(robot_from_dict(SCARA), [])
+    n = model.robot.n
+    no_angle = plausible_scales(model, 5.0, None).reshape(n, 5)  # [dtheta, dd, da, dalpha, dbeta]
+    assert torch.isinf(no_angle[:, [0, 3, 4]]).all() and (no_angle[:, [1, 2]] == 5.0).all()
+    no_length = plausible_scales(model, None, 1.0).reshape(n, 5)
+    assert torch.isinf(no_length[:, [1, 2]]).all()
+    assert torch.allclose(no_length[:, [0, 3, 4]], torch.full((n, 3), math.radians(1.0), dtype=torch.float64))

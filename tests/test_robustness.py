@@ -144,7 +144,10 @@ def _negative_payload(lines):
 
 
 def _joint_out_of_range(lines):
-    return _replace_cell(lines, 3, 1, "400"), ["line 4", "q1=400", "limits"]
+    """q1 of data row 3 one turn on (the same position, outside the limits; a row that
+    moved would be a gross outlier, refused by fit)."""
+    q1 = float(_cells(lines[3])[1]) + 360.0
+    return _replace_cell(lines, 3, 1, repr(q1)), ["line 4", f"q1={q1:g}", "limits"]
 
 
 def _header_only(lines):

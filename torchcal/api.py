@@ -119,13 +119,17 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     robust: None, 'huber' or 'cauchy' (IRLS). sigma_mm / sigma_deg: measurement
     uncertainties (mm, deg) that weigh orientation against position. max_length_mm /
     max_angle_deg: the plausible scales of the MD-H deviations, the prior of the fit
-    (None: no prior on them; `torchcal.calibration.plausibility`).
+    (each None drops its own prior only; `torchcal.calibration.plausibility`).
     Measurements with several `point` ids need `tool_offset` (one offset per point).
     length_unit ('mm' or 'm') / angle_unit ('deg' or 'rad'): the units of the measurement
     file (a path is read in them; `Measurements` were read in them). Before fitting, the
     unit check (`torchcal.calibration.plausibility.check_units`) refuses data that look like
     metres read as mm or radians read as degrees with one InputError line, the line the
-    command line prints.
+    command line prints; so does the gross-mismatch check of the nominal robot
+    (`check_robot_data_of`: another frame the model lacks, another robot, units, a
+    mirrored frame, reversed joint columns, gross outliers without `robust`) and, after
+    the fit, a fitted RMS beyond what any calibration leaves
+    (`torchcal.calibration.mismatch.check_fitted`).
     residual_model: 'kernel' adds the non-physical residual stage
     (`torchcal.calibration.residual_model`) as ``res.residual_model`` (None when no
     joint angle predicts the residual); evaluate and compensate apply it.
@@ -133,6 +137,7 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     MODEL.json of ``torchcal fit``).
     """
     from torchcal.calibration.fit import fit as fit_model
+    from torchcal.calibration.mismatch import check_fitted
     from torchcal.effects import context_of
 
     from torchcal.calibration.plausibility import check_units
@@ -145,10 +150,15 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     else:
         model = CalibrationModel.for_measurements(robot, effects, m)
     ctx = context_of(model.robot, m)
+    model.check_context(ctx)  # a missing column first, in the fit's own words
     with threads.for_work(_work(model, m)):
+        check_robot_data_of(model, m, robust=robust is not None)  # another frame, robot, units, outliers
         res = fit_model(model, ctx, m.xyz, robust=robust, max_iter=max_iter, pose=m.pose, rotation=m.rotation,
                          sigma_mm=sigma_mm, sigma_deg=sigma_deg, max_length_mm=max_length_mm,
                          max_angle_deg=max_angle_deg)
+    gross = check_fitted(res.residuals, res.outliers, m.source or "data", model.robot.name)
+    if gross:
+        raise InputError(gross)
     if residual_model is not None:
         from torchcal.calibration.residual_model import fit_residual_model
         res.residual_model = fit_residual_model(model.robot, m, res.residuals, kind=residual_model)
@@ -250,8 +260,10 @@ def diagnose(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     weigh orientation against position, as in `fit`. Returns a `Diagnosis`.
 
     Data that no registration of the model (a `FitResult`) or of the nominal robot brings
-    near the measurements are refused (InputError: another robot, units); a fitted model
-    whose measuring frame moved gives a `MismatchWarning` (the diagnosis refits the frame)."""
+    near the measurements are refused (InputError: another robot, units), and so are data
+    in a measuring frame the effects lack (`check_robot_data_of`: add base_frame
+    tool_offset); a fitted model whose measuring frame moved gives a `MismatchWarning`
+    (the diagnosis refits the frame)."""
     from torchcal.diagnosis.diagnose import diagnose as run
 
     model = _model(robot_or_model, effects)
@@ -264,23 +276,25 @@ def diagnose(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
 
 def check_diagnosis_data(robot_or_model, model: CalibrationModel, m: Measurements):
     """The gross-mismatch check of `diagnose`: a fitted model (`FitResult`) as it is, else
-    the nominal robot in its best frame (and with its best tool offsets when the model
-    fits them; `torchcal.calibration.mismatch`)."""
+    the nominal robot (`check_robot_data_of`)."""
     from torchcal.calibration.mismatch import check_measurements, enforce
 
     if isinstance(robot_or_model, FitResult):
         res = check_measurements(model, robot_or_model.theta, m, robot_or_model.training_rms_mm)
         return enforce(res, refuse_frame=False, refuse_mismatch=True)
-    from torchcal.calibration.registration import TransferWarning, far_from_training, reregister
-    from torchcal.effects import context_of
+    return check_robot_data_of(CalibrationModel.for_measurements(model.robot, model.specs(), m), m)
 
-    cm = CalibrationModel.for_measurements(model.robot, model.specs(), m)
-    try:
-        reg = reregister(cm, cm.zeros(), context_of(cm.robot, m), m.xyz, pose=m.pose,
-                         tool=any(e.name == "tool_offset" for e in cm.effects))
-    except InputError:
-        return None  # too few rows, missing columns: the diagnosis says it in its own words
-    return enforce(check_measurements(reg.model, reg.theta, m), refuse_frame=False, refuse_mismatch=True)
+
+def check_robot_data_of(model: CalibrationModel, m: Measurements, robust: bool | None = None):
+    """Refuse (InputError, one line naming the cause) measurements that the nominal robot
+    of `model` cannot explain, or that need a measuring frame the model lacks
+    (`torchcal.calibration.mismatch.check_robot_data`; robust: True when a robust fit
+    follows, False for a fit without, None for a command without a robust loss); fit,
+    diagnose and discover call it."""
+    from torchcal.calibration.mismatch import check_robot_data, enforce
+
+    found = check_robot_data(model, m, robust=robust)
+    return None if found is None else enforce(found)
 
 
 def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: int = 0,
@@ -288,15 +302,17 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
              sigma_deg: float = SIGMA_DEG, transfer=None, transfer_poses: int = 30):
     """Add the accepted missing effect each round (`torchcal.diagnosis.diagnose.discover`),
     for at most max_rounds rounds; folds, seed, alpha, sigma_mm, sigma_deg as in `diagnose`
-    (None: the defaults of `torchcal.diagnosis`). transfer: measurements of another
-    session (Measurements or CSV path) as a check: a step is kept only when it does not
-    raise that session's error after registration on its first `transfer_poses` poses
-    (`torchcal.diagnosis.transfer`). Returns a `Discovery`."""
+    (None: the defaults of `torchcal.diagnosis`). Data the nominal robot cannot explain,
+    or that need a measuring frame the effects lack, are refused as by `diagnose`.
+    transfer: measurements of another session (Measurements or CSV path) as a check: a
+    step is kept only when it does not raise that session's error after registration on
+    its first `transfer_poses` poses (`torchcal.diagnosis.transfer`). Returns a `Discovery`."""
     from torchcal.diagnosis.diagnose import discover as run
     from torchcal.diagnosis.transfer import TransferCheck
 
     model = _model(robot_or_model, effects)
     m = _measurements(measurements, model.robot)
+    check_robot_data_of(CalibrationModel.for_measurements(model.robot, model.specs(), m), m)
     other = None if transfer is None else _measurements(transfer, model.robot)
     check = None if other is None else TransferCheck(other, transfer_poses, other.source or "the other session")
     with threads.for_work(_work(model, m)):

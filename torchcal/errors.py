@@ -12,7 +12,9 @@ class InputError(ValueError):
 
     fix: optional (keyword, value) that corrects the mistake, e.g. ``("length_unit", "m")``:
     the message ends with ``; pass length_unit='m'`` for library callers, and the command
-    line writes its own option instead (``; pass --length-unit m``, `command_line`)."""
+    line writes its own option instead (``; pass --length-unit m``, `command_line`). A list
+    value is one option with several words (``("effects", ["base_frame", "tool_offset"])``
+    -> ``--effects base_frame tool_offset``)."""
 
     def __init__(self, message: str = "", *, fix: tuple[str, str] | None = None):
         self.message, self.fix = message, fix
@@ -22,7 +24,8 @@ class InputError(ValueError):
         """The message with the fix as a command-line option (``--length-unit m``)."""
         if self.fix is None:
             return str(self)
-        return f"{self.message}; pass --{self.fix[0].replace('_', '-')} {self.fix[1]}"
+        value = " ".join(self.fix[1]) if isinstance(self.fix[1], (list, tuple)) else self.fix[1]
+        return f"{self.message}; pass --{self.fix[0].replace('_', '-')} {value}"
 
 
 class OutputExistsError(InputError):

@@ -15,7 +15,8 @@ Identifiability (at the starting point, on the column-scaled Jacobian):
   physical scale (`torchcal.calibration.plausibility.plausible_scales`), one residual row
   ``rho * theta_i / s_i`` each, with rho the fit's own per-axis residual RMS (a first
   solve with rho = sigma_mm gives it, a second, warm-started, solve uses it, and up to
-  three more while rho moves by more than 10 %). From a
+  three more while rho moves by more than 10 %; a robust fit takes it over the rows
+  within the IRLS threshold only, so gross rows do not inflate the prior). From a
   cold start (nominal or registration) the identifiability is judged once more at the
   first solution, before the second solve.
   Parameters that end beyond their scale anyway are named (`FitResult.implausible`).
@@ -24,7 +25,7 @@ Identifiability (at the starting point, on the column-scaled Jacobian):
 
 The fit is Levenberg-Marquardt (`torchcal.calibration.lm`) on the identifiable parameters, with
 optional robust row weights by IRLS (Huber or Cauchy on the per-pose distance residual,
-scale = the median distance residual, thresholds at 2.5 times it). Standard errors from ``s^2 (J^T W J)^-1``, s^2 = weighted RSS / dof,
+scale = the median distance residual, thresholds at ROBUST_K = 2.5 times it). Standard errors from ``s^2 (J^T W J)^-1``, s^2 = weighted RSS / dof,
 pose-level when poses repeat (`torchcal.calibration.covariance`).
 """
 
@@ -243,12 +244,21 @@ def training_summary(residuals: torch.Tensor) -> dict:
     return {"n": int(d.shape[0]), "rms_mm": float(d.pow(2).mean().sqrt()), "max_mm": float(d.max())}
 
 
+ROBUST_K = 2.5  # IRLS threshold, in units of the median distance residual
+
+
+def _inliers(dist: torch.Tensor) -> torch.Tensor:
+    """(N,) bool: rows within ROBUST_K times the median distance residual dist (N,) mm,
+    the rows a robust loss treats as ordinary (their RMS is the prior's rho)."""
+    return dist <= ROBUST_K * dist.median().clamp_min(1e-9)
+
+
 def _robust_weights(dist: torch.Tensor, kind: str) -> torch.Tensor:
     u = dist / dist.median().clamp_min(1e-9)  # typical distance residual = 1
     if kind == "huber":
-        return torch.where(u <= 2.5, torch.ones_like(u), 2.5 / u)
+        return torch.where(u <= ROBUST_K, torch.ones_like(u), ROBUST_K / u)
     if kind == "cauchy":
-        return 1.0 / (1.0 + (u / 2.5) ** 2)
+        return 1.0 / (1.0 + (u / ROBUST_K) ** 2)
     raise InputError(f"robust: unknown loss {kind!r}; expected 'huber' or 'cauchy'")
 
 
@@ -309,7 +319,7 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
 
     Plausibility (the prior, module doc): MD-H deviations have the scales `max_length_mm`
     (dd, da) and `max_angle_deg` (dtheta, dalpha, dbeta), effect parameters their
-    effect's `plausible_max()`; None for the MD-H scales drops their prior. rho: the
+    effect's `plausible_max()`; each None scale drops its own prior only. rho: the
     per-axis RMS of the position residual of a first solve with rho = sigma_mm, or
     `prior_sigma_mm` when given (one solve; the fold refits of a cross-validation pass
     the full fit's). Free parameters ending beyond their scale are listed in
@@ -415,9 +425,12 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
             x = x.clone()
             x[0, newly] = theta0[newly]
             free_now, again = report.free.clone(), True
-    def residual_rms():
+    def residual_rms():  # per-axis RMS mm; robust: of the inlier rows only (gross rows would inflate the prior)
         with torch.no_grad():
-            return max(float((model.predict(x[0], ctx) - xyz).pow(2).mean().sqrt()), 1e-12)
+            r = model.predict(x[0], ctx) - xyz
+            if robust is not None:
+                r = r[_inliers(r.norm(dim=-1))]
+            return max(float(r.pow(2).mean().sqrt()), 1e-12)
 
     if has_prior and prior_sigma_mm is None:  # the prior's rho from this fit's own residual
         rho = residual_rms()

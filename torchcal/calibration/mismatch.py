@@ -30,6 +30,12 @@ factor of `torchcal.calibration.plausibility`'s unit check) sit inside the robot
 base: metres read as mm (a refusal); targets beyond 1.05 R cannot be reached (a warning
 naming them; compensate reports them as not converged).
 
+Before and after a fit (`check_robot_data`, `check_fitted`): the nominal robot with its
+measuring frame and tool offset fitted must come within GROSS_MM of the data, else the
+cause is named (a frame the model lacks, gross outlier rows, a mirrored frame, reversed
+joint columns, another robot or units); a fitted RMS beyond GROSS_MM (the robust fit's
+outliers left out) is no calibration (docs/registration.md).
+
 Robot files (`check_robot_lengths`): an arm whose links (sum over joints of
 ``sqrt(d^2 + a^2)``, prismatic strokes included) reach less than MIN_REACH_MM = 50 mm is
 not an industrial arm; its lengths were written in metres.
@@ -61,8 +67,8 @@ class Mismatch:
     after the best rigid motion; spread_ratio: measured / model spread; bound_mm: the
     plausible bound B; training_rms_mm (None when unknown); frame_mm / frame_deg: the
     rigid motion's translation and rotation angle; verdict: None (consistent), 'frame'
-    (a rigid motion explains the data) or 'mismatch'; message: one line (None when
-    consistent)."""
+    (a rigid motion explains the data) or 'mismatch' (`check_robot_data` has more);
+    message: one line (None when consistent); fix: what corrects it, or None."""
 
     rms_mm: float
     registered_rms_mm: float
@@ -73,6 +79,7 @@ class Mismatch:
     frame_deg: float
     verdict: str | None
     message: str | None
+    fix: tuple | None = None  # (keyword, value) of `InputError.fix`
 
 
 def bound_mm(training_rms_mm: float | None) -> float:
@@ -148,7 +155,7 @@ def enforce(result: Mismatch, refuse_frame: bool = True, refuse_mismatch: bool =
         return result
     refuse = refuse_frame if result.verdict == "frame" else refuse_mismatch
     if refuse:
-        raise InputError(result.message)
+        raise InputError(result.message, fix=result.fix)
     warnings.warn(result.message, MismatchWarning, stacklevel=3)
     return result
 
@@ -217,3 +224,160 @@ def check_robot_lengths(table, prismatic, limits, where: str = "robot file") -> 
         raise InputError(f"{where}: the links reach only {reach:.4g} mm in all (sum of sqrt(d_mm^2 + a_mm^2)), less "
                          f"than any industrial arm's {MIN_REACH_MM:g} mm: the lengths look like metres; robot files "
                          "take millimetres (d_mm, a_mm, base, tool, prismatic limits)")
+
+
+OUTLIER_SHARE = 0.1  # at most this share of rows may be gross outliers (the rest must agree)
+
+
+def _rms(d: torch.Tensor) -> float:
+    return float(d.pow(2).mean().sqrt())
+
+
+def _in_frame(model, m, tool: bool = True):
+    """Predicted points (N, 3) mm of the nominal `model` (its parameters at zero but its
+    measuring frame: base_frame, and tool_offset when `tool`, those of them it has) fitted
+    to the measurements `m`, from the closed-form registration."""
+    from torchcal.calibration.fit import fit
+    from torchcal.calibration.registration import frame_slices, register_frame
+    from torchcal.effects import context_of
+
+    ctx = context_of(model.robot, m)
+    free = torch.zeros(model.n_params, dtype=torch.bool)
+    for sl in frame_slices(model, tool):
+        free[sl] = True
+    if not bool(free.any()):
+        with torch.no_grad():
+            return model.predict(model.zeros().to(m.xyz), ctx).detach()
+    start, _ = register_frame(model, ctx, m.xyz)
+    res = fit(model, ctx, m.xyz, theta0=start, free=free, register=False, max_length_mm=None, max_angle_deg=None)
+    return (m.xyz - res.residuals).detach()
+
+
+def _registered(model, m):
+    """`_in_frame` of `model` with base_frame and tool_offset (appended where missing)."""
+    from torchcal.calibration.registration import with_frame
+
+    return _in_frame(with_frame(model, model.zeros(), tool=True)[0], m)
+
+
+def _quick_fit(model, ctx, xyz: torch.Tensor) -> bool:
+    """True when the nominal `model` already comes within GROSS_MM as it is or, when it has
+    base_frame, after the closed-form rigid motion (no solve): the common case, decided
+    cheaply; a frame and tool offset fitted could only come closer."""
+    from torchcal.calibration.registration import kabsch
+
+    with torch.no_grad():
+        p = model.predict(model.zeros().to(xyz), ctx)
+    if "base_frame" in [e.name for e in model.effects] and p.shape[0] >= 3:
+        R, t = kabsch(p, xyz)
+        p = p @ R.T + t
+    return _rms((p - xyz).norm(dim=-1)) <= GROSS_MM
+
+
+def _fits(model, m) -> bool:
+    from torchcal.errors import InputError
+
+    try:
+        return _rms((_registered(model, m) - m.xyz).norm(dim=-1)) <= GROSS_MM
+    except InputError:
+        return False
+
+
+def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
+    """Can the measurements `m` (`Measurements`) come from `model`'s robot at all? Judged
+    before a fit (nominal geometry, every parameter at zero) against GROSS_MM, the
+    plausible error of an uncalibrated arm. Returns None (consistent, or too few rows to
+    judge) or a `Mismatch` whose verdict names the cause:
+
+    - 'frame': the robot in its best measuring frame with its best tool offset fits, with
+      the frame effects the model has (base_frame, tool_offset, or none) it does not (a
+      tracker's frame, a reflector on the flange);
+    - 'outliers' (not when `robust` is True, a robust fit follows): at most OUTLIER_SHARE
+      of the rows lie beyond the bound and the frame refitted on the others fits them;
+      with robust False the fix is ``robust='huber'``, with None (a command without a
+      robust loss) none;
+    - 'mirrored': the data with one axis negated fit (a rigid motion with a reflection,
+      e.g. two of x, y, z swapped; a proper rigid motion does not);
+    - 'reversed': the data with the joint columns in reverse order fit;
+    - 'mismatch': none of these (another robot, or units: the spread ratio's hint).
+    """
+    import dataclasses
+
+    from torchcal.effects import context_of
+    from torchcal.errors import InputError
+
+    what = m.source or "data"
+    name = model.robot.name
+    try:
+        ctx = context_of(model.robot, m)
+        model.check_context(ctx)
+        if _quick_fit(model, ctx, m.xyz):
+            return None
+        pred = _registered(model, m)
+    except InputError:
+        return None  # too few rows, missing columns: the fit says it in its own words
+    d = (pred - m.xyz).norm(dim=-1)
+    reg = _rms(d)
+    have = [e.name for e in model.effects]
+    missing = [n for n in ("base_frame", "tool_offset") if n not in have]
+
+    def result(verdict, msg, fix=None, rms=reg):
+        return dataclasses.replace(check_points(pred, m.xyz, None, what), rms_mm=rms, registered_rms_mm=reg,
+                                   verdict=verdict, message=msg, fix=fix)
+
+    if reg <= GROSS_MM:
+        as_is = reg if not missing else _rms((_in_frame(model, m) - m.xyz).norm(dim=-1))
+        if as_is <= GROSS_MM:
+            return None
+        return result("frame", f"{what}: the measurements are in another frame: the nominal {name} is off by rms "
+                      f"{as_is:.4g} mm with the effects given and by {reg:.4g} mm with a fitted measuring frame and "
+                      f"tool offset, which the model lacks (tracker data need base_frame tool_offset; data in the "
+                      f"robot's base frame with its nominal tool need neither)",
+                      ("effects", [*model.specs(), *missing]), as_is)
+    n = d.shape[0]
+    keep = d <= max(GROSS_MM, 3 * float(d.median()))
+    n_far = n - int(keep.sum())
+    if n_far <= OUTLIER_SHARE * n and int(keep.sum()) >= 3:
+        sub = m.subset(keep.nonzero().flatten())
+        try:
+            inlier_rms = _rms((_registered(model, sub) - sub.xyz).norm(dim=-1))
+        except InputError:
+            inlier_rms = math.inf
+        if inlier_rms <= GROSS_MM:
+            if robust:
+                return None
+            far = (~keep).nonzero().flatten().tolist()
+            ids = ", ".join(str(int(m.pose[i])) for i in far[:10]) + (" ..." if len(far) > 10 else "")
+            return result("outliers", f"{what}: {n_far} of {n} rows (pose ids {ids}) lie {float(d[~keep].min()):.4g}"
+                          f" to {float(d.max()):.4g} mm off the nominal {name} in its best frame while the others "
+                          f"agree to rms {inlier_rms:.4g} mm: gross outliers (mis-typed or corrupted rows) would "
+                          "pull the fit; remove them, or fit with a robust loss (it names them)",
+                          None if robust is None else ("robust", "huber"))
+    flipped_xyz = m.xyz * torch.tensor([-1.0, 1.0, 1.0], dtype=m.xyz.dtype, device=m.xyz.device)
+    if _fits(model, dataclasses.replace(m, xyz=flipped_xyz)):
+        return result("mirrored", f"{what}: a mirror image of {name}: rms {reg:.4g} mm after the best rigid motion, "
+                      f"but within {GROSS_MM:g} mm after one with a reflection; the x, y, z columns describe a "
+                      "left-handed frame (two of them swapped, or one negated)")
+    if model.robot.n > 1 and _fits(model, dataclasses.replace(m, q=m.q.flip(-1))):
+        return result("reversed", f"{what}: the joint columns are in reverse order: rms {reg:.4g} mm as given "
+                      f"but within {GROSS_MM:g} mm with q{model.robot.n} .. q1 read as q1 .. q{model.robot.n}")
+    from torchcal.calibration.plausibility import spread_mm
+
+    s_x, s_p = spread_mm(m.xyz), spread_mm(pred)
+    return result("mismatch", f"{what}: cannot come from {name}: rms {reg:.4g} mm with the best measuring frame "
+                  f"and tool offset, point spread {s_x:.4g} mm measured vs {s_p:.4g} mm modelled; likely causes: "
+                  f"data of another robot or units (length or angle unit){_units_hint(s_x / max(s_p, 1e-12))}")
+
+def check_fitted(residuals: torch.Tensor, outliers=(), what: str = "data", name: str = "the model") -> str | None:
+    """After a fit: None, or one line when its residuals (N, 3) mm, the rows in `outliers`
+    (0-based, the robust fit's) left out, have an RMS beyond GROSS_MM: no calibration of
+    this robot is that far off, so nothing sensible was fitted."""
+    keep = torch.ones(residuals.shape[0], dtype=torch.bool)
+    keep[list(outliers)] = False
+    rms = _rms(residuals.detach().cpu()[keep].norm(dim=-1))
+    if rms <= GROSS_MM:
+        return None
+    return (f"{what}: the fitted model of {name} is still off by rms {rms:.4g} mm (a calibrated arm is off by less "
+            f"than {GROSS_MM:g} mm): nothing sensible was fitted; likely causes: data of another robot, units, "
+            "joint columns in another order, a mirrored frame, gross outliers (a robust loss), or a measuring "
+            "frame the model lacks (the effects base_frame tool_offset)")

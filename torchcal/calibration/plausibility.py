@@ -107,15 +107,14 @@ def plausible_scales(model, max_length_mm: float | None = MAX_LENGTH_MM,
     """(P,) float64 plausible size s_i of every parameter, in its unit (inf: no prior).
 
     The 5n MD-H deviations: `max_length_mm` for dd, da and `max_angle_deg` (as rad) for
-    dtheta, dalpha, dbeta (None: no prior on them); an effect's parameters: its
+    dtheta, dalpha, dbeta (each None drops its own prior only); an effect's parameters: its
     `Effect.plausible_max()` (None or inf entries: none, e.g. base frame and tool offset,
     which are frames, not deviations of the robot)."""
     n5 = 5 * model.robot.n
     s = torch.full((model.n_params,), math.inf, dtype=torch.float64)
-    if max_length_mm is not None and max_angle_deg is not None:
-        s[:n5] = torch.tensor([math.radians(max_angle_deg), max_length_mm, max_length_mm,
-                               math.radians(max_angle_deg), math.radians(max_angle_deg)],
-                              dtype=torch.float64).repeat(model.robot.n)
+    ang = math.inf if max_angle_deg is None else math.radians(max_angle_deg)
+    length = math.inf if max_length_mm is None else max_length_mm
+    s[:n5] = torch.tensor([ang, length, length, ang, ang], dtype=torch.float64).repeat(model.robot.n)
     for e, sl in zip(model.effects, model.slices[1:]):
         limits = e.plausible_max()
         if limits is not None:

@@ -1,5 +1,8 @@
 """`torchcal diagnose DATA --robot R [--model MODEL.json] [--json OUT] [--rrd FILE]`: where
-the model fails and which physical effect it is missing (see torchcal.diagnosis.diagnose)."""
+the model fails and which physical effect it is missing (see torchcal.diagnosis.diagnose).
+Tracker data (in the instrument's frame, a reflector on the flange) need `--effects
+base_frame tool_offset` (or a --model that has them); without them such data are
+refused with that cause."""
 
 from __future__ import annotations
 
@@ -17,7 +20,7 @@ def add_parser(sub):
     p.add_argument("data", help="measurement CSV")
     add_robot(p)
     p.add_argument("--model", help="MODEL.json: its effects are the baseline (default geometric only)")
-    p.add_argument("--effects", nargs="*", default=None, metavar="SPEC", help="baseline effects (instead of --model)")
+    p.add_argument("--effects", nargs="*", default=None, metavar="SPEC", help="baseline effects (instead of --model); tracker data (in the instrument's frame, a reflector on the flange) need base_frame tool_offset")
     add_cv(p)
     add_sigmas(p)
     p.add_argument("--json", help="write the report here")

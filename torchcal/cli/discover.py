@@ -1,6 +1,9 @@
 """`torchcal discover DATA --robot R [--json OUT] [--out MODEL.json] [--rrd FILE]
 [--transfer OTHER.csv [--transfer-poses K]]`: add the best significant effect each round
 until none is left; the error falls at each round.
+Tracker data (in the instrument's frame, a reflector on the flange) need `--effects
+base_frame tool_offset`; without them such data are refused before any work, since the
+robot's links would otherwise absorb the frame and the reflector.
 
 ``--transfer OTHER.csv``: measurements of the same robot from another session as a check.
 Each round's model is registered (frame only, as `torchcal register` does) on OTHER's
@@ -27,7 +30,7 @@ def add_parser(sub):
     p = sub.add_parser("discover", help="add missing effects round by round", description=__doc__)
     p.add_argument("data", help="measurement CSV")
     add_robot(p)
-    p.add_argument("--effects", nargs="*", default=[], metavar="SPEC", help="effects to start from")
+    p.add_argument("--effects", nargs="*", default=[], metavar="SPEC", help="effects to start from; tracker data (in the instrument's frame, a reflector on the flange) need base_frame tool_offset")
     add_cv(p)
     add_sigmas(p)
     p.add_argument("--json", help="write the history here")

@@ -9,7 +9,14 @@ mm and degrees. A data file with a `point` column gets one tool offset per point
 `tool_offset`); rx, ry, rz columns add the measured orientation, weighed against position
 by --sigma-mm / --sigma-deg. Every parameter has a plausible scale (--max-deviation-mm /
 -deg for the MD-H deviations, each effect's range of docs/effects.md): a weak prior
-shrinks what the poses barely determine, and what ends beyond its scale is named."""
+shrinks what the poses barely determine, and what ends beyond its scale is named.
+
+Tracker data (positions in the instrument's frame, a reflector or probe on the flange)
+need `--effects base_frame tool_offset`; data in the robot's base frame with its nominal
+tool need neither. Data that the nominal robot in no frame can explain are refused
+with the likely cause and nothing is written: a frame the effects lack, another robot,
+units, a mirrored frame (two of x, y, z swapped), joint columns in reverse order, gross
+outlier rows (then --robust), or a fitted rms beyond 10 mm."""
 
 from __future__ import annotations
 
@@ -30,7 +37,7 @@ def add_parser(sub):
                        description=__doc__)
     p.add_argument("data", help="measurement CSV (docs/design.md)")
     add_robot(p)
-    p.add_argument("--effects", nargs="*", default=[], metavar="SPEC", help="effects, e.g. joint_compliance:2,3")
+    p.add_argument("--effects", nargs="*", default=[], metavar="SPEC", help="effects, e.g. joint_compliance:2,3; tracker data (in the instrument's frame, a reflector on the flange) need base_frame tool_offset")
     p.add_argument("--robust", choices=["huber", "cauchy"], help="robust loss by IRLS")
     p.add_argument("--seed", type=int, default=0, help="recorded in the provenance")
     p.add_argument("--sigma-mm", type=positive_float, default=SIGMA_MM,
@@ -38,10 +45,10 @@ def add_parser(sub):
     p.add_argument("--sigma-deg", type=positive_float, default=SIGMA_DEG,
                    help=f"orientation uncertainty (rx, ry, rz columns), deg (default {SIGMA_DEG})")
     p.add_argument("--max-deviation-mm", type=nonneg_float, default=MAX_LENGTH_MM,
-                   help=f"plausible scale of |dd|, |da| (the prior; default {MAX_LENGTH_MM}; 0 = no prior on MD-H)")
+                   help=f"plausible scale of |dd|, |da| (the prior; default {MAX_LENGTH_MM}; 0 = no prior on dd, da)")
     p.add_argument("--max-deviation-deg", type=nonneg_float, default=MAX_ANGLE_DEG,
                    help=f"plausible scale of |dtheta|, |dalpha|, |dbeta| "
-                        f"(default {MAX_ANGLE_DEG}; 0 = no prior on MD-H)")
+                        f"(default {MAX_ANGLE_DEG}; 0 = no prior on dtheta, dalpha, dbeta)")
     p.add_argument("--residual-model", choices=["kernel"],
                    help="add a non-physical residual stage: kernel ridge of the residual on the joint angles, "
                         "applied by evaluate and compensate, dropped by export (docs/residual-model.md)")
@@ -60,10 +67,9 @@ def fit_file(args):
     robot = make_robot(args.robot)
     specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
     m = read_data(args.data, robot, args)  # the unit check that torchcal.fit repeats, before any warning line
-    check = args.max_deviation_mm and args.max_deviation_deg  # 0 turns the check off
     return m, fit(robot, m, specs, robust=args.robust, sigma_mm=args.sigma_mm, sigma_deg=args.sigma_deg,
-                  max_length_mm=args.max_deviation_mm if check else None,
-                  max_angle_deg=args.max_deviation_deg if check else None,
+                  max_length_mm=args.max_deviation_mm or None,  # 0 drops that prior only
+                  max_angle_deg=args.max_deviation_deg or None,
                   residual_model=getattr(args, "residual_model", None), **units(args))
 
 
@@ -73,8 +79,9 @@ def plausibility_line(res) -> str | None:
     if not res.implausible:
         return None
     lim = res.plausible_limits or {}
-    geo = (f"{lim['max_length_mm']:g} mm / {lim['max_angle_deg']:g} deg for MD-H deviations, "
-           if lim.get("max_length_mm") is not None else "")
+    scales = [f"{lim[k]:g} {u}" for k, u in (("max_length_mm", "mm"), ("max_angle_deg", "deg"))
+              if lim.get(k) is not None]
+    geo = f"{' / '.join(scales)} for MD-H deviations, " if scales else ""
     return (f"beyond plausible size (shrunk by the prior: {geo}the effects' ranges in docs/effects.md): "
             f"{', '.join(res.implausible)}")
 
@@ -101,6 +108,20 @@ def _largest(res, k: int = 4) -> str:
         else:
             vals.append((abs(v) / MAX_LENGTH_MM, f"{names[i]} {v:+.4f} mm"))
     return ", ".join(t for _, t in sorted(vals, reverse=True)[:k])
+
+
+def _stiffness_line(res) -> str | None:
+    """The joint stiffness K_J N m/rad that each identified joint_compliance payload term
+    (the compliance 1/K_J) gives, or None."""
+    names = res.model.param_names()
+    out = []
+    for e, sl in zip(res.model.effects, res.model.slices[1:]):
+        if e.name != "joint_compliance":
+            continue
+        for j, k in e.stiffness_nm_per_rad(res.theta[sl]).items():
+            if bool(res.report.free[names.index(f"compl_{j}_payload")]):
+                out.append(f"joint {j} {k:.4g} N m/rad")
+    return f"joint stiffness (1 / compliance of the payload term): {', '.join(out)}" if out else None
 
 
 def _robust_hint(res, robust) -> str | None:
@@ -170,6 +191,9 @@ def run(args) -> int:
             if p["identified"]:
                 print(f"  {p['name']:<16} {p['value']:+.6g} +- {p['std']:.3g} {p['unit']}  "
                       f"[{p['ci95'][0]:+.6g}, {p['ci95'][1]:+.6g}]")
+    stiff = _stiffness_line(res)
+    if stiff:
+        print(stiff)
     if getattr(args, "residual_model", None):
         stage = res.residual_model
         print(stage.describe() + "; evaluate and compensate apply it, export drops it" if stage is not None else

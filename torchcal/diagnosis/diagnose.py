@@ -80,15 +80,17 @@ class Diagnosis:
 
 
 def where_it_fails(robot: Robot, m: Measurements, residuals: torch.Tensor, bins: int = 4) -> dict:
-    """Residual distance RMS per joint-angle quantile bin and per workspace region."""
+    """Residual distance RMS per joint-value quantile bin and per workspace region. A
+    joint's bins are {"q": [lo, hi], "n", "rms_mm"} in its "unit": 'deg' (revolute) or
+    'mm' (prismatic)."""
     d = residuals.norm(dim=-1).numpy()
-    q = torch.rad2deg(m.q).numpy()
+    q = robot.q_to_user(m.q).numpy()
     out = {"per_joint": [], "per_region": []}
-    for j in range(robot.n):
+    for j, unit in enumerate(robot.joint_units()):
         edges = np.quantile(q[:, j], np.linspace(0, 1, bins + 1))
         idx = np.clip(np.searchsorted(edges, q[:, j], side="right") - 1, 0, bins - 1)
-        out["per_joint"].append({"joint": j + 1, "bins": [
-            {"q_deg": [float(edges[b]), float(edges[b + 1])], "n": int((idx == b).sum()),
+        out["per_joint"].append({"joint": j + 1, "unit": unit, "bins": [
+            {"q": [float(edges[b]), float(edges[b + 1])], "n": int((idx == b).sum()),
              "rms_mm": float(np.sqrt((d[idx == b] ** 2).mean())) if (idx == b).any() else None}
             for b in range(bins)]})
     xyz = m.xyz.numpy()

@@ -8,7 +8,7 @@ The approach direction comes from the measurement order (`Context.approach`).
 
 import math
 
-from torchcal.effects.base import Effect, joint_columns, scatter_joints
+from torchcal.effects.base import Effect, joint_columns, revolute_only, scatter_joints
 
 #: plausible full lost motion (deg): reducers of industrial arms lose arc minutes
 MAX_BACKLASH_DEG = 0.2
@@ -17,6 +17,10 @@ MAX_BACKLASH_DEG = 0.2
 class Backlash(Effect):
     name = "backlash"
     takes_joints = True
+
+    def __init__(self, robot, joints=()):
+        super().__init__(robot, joints)
+        revolute_only(self)
 
     def param_names(self):
         return [f"backlash_{j}" for j in self.joints]

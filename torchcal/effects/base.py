@@ -203,3 +203,19 @@ def scatter_joints(values: torch.Tensor, joints, n: int) -> torch.Tensor:
     place = values.new_zeros(len(joints), n)  # one-hot rows: vmap/autograd friendly
     place[range(len(joints)), [j - 1 for j in joints]] = 1.0
     return values @ place
+
+
+def revolute_only(effect: Effect) -> None:
+    """Refuse (InputError) an effect on a prismatic joint (a slide, q in mm) when its
+    parameters are angles of the joint (rad: lost motion, transmission error, gravity
+    deflection): on a slide they would be lengths and forces with other ranges, which
+    these effects do not model. `discover` then does not offer it there
+    (`torchcal.diagnosis.candidates.candidate_specs` skips what refuses)."""
+    from torchcal.errors import InputError
+
+    slides = [j for j in effect.joints if bool(effect.robot.prismatic[j - 1])]
+    if slides:
+        raise InputError(f"{effect.spec()}: joint(s) {', '.join(map(str, slides))} of {effect.robot.name!r} "
+                         f"are prismatic (slides, q in mm); {effect.name} models an angle error of a revolute "
+                         "joint and is not defined on a slide")
+

@@ -32,12 +32,14 @@ class CrossCoupling(Effect):
     def __init__(self, robot, joints=()):
         super().__init__(robot, joints)
         if not self.pairs():
-            raise InputError("cross_coupling:1: joint 1 has no joint before it to be coupled to; "
-                             "list driven joints 2..n")
+            raise InputError(f"{self.spec()}: no joint before it of the same type (revolute or prismatic) to be "
+                             "coupled to; list driven joints 2..n")
 
     def pairs(self) -> list[tuple[int, int]]:
-        """(driving I, driven J), 1-based, one per parameter."""
-        return [(i, j) for j in self.joints for i in range(1, j)]
+        """(driving I, driven J), 1-based, one per parameter; joints of one type only (a
+        slide's q in mm does not drive a revolute joint's angle, nor the reverse)."""
+        pris = self.robot.prismatic.tolist()
+        return [(i, j) for j in self.joints for i in range(1, j) if pris[i - 1] == pris[j - 1]]
 
     def param_names(self):
         return [f"coupling_{i}_{j}" for i, j in self.pairs()]

@@ -11,7 +11,7 @@ import math
 
 import torch
 
-from torchcal.effects.base import Effect, joint_columns, scatter_joints
+from torchcal.effects.base import Effect, joint_columns, revolute_only, scatter_joints
 
 HARMONICS = (1, 2, 3, 4)
 #: plausible sine or cosine amplitude of one harmonic (deg), the scale of the fit's prior.
@@ -29,6 +29,7 @@ class GearPeriodic(Effect):
 
     def __init__(self, robot, joints=(), harmonics=HARMONICS):
         super().__init__(robot, joints)
+        revolute_only(self)
         self.harmonics = tuple(harmonics)
 
     def param_names(self):

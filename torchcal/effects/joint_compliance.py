@@ -11,9 +11,15 @@ parameters are the products (compliance x gravity x first moments), which enter
 linearly; the payload mass is known per row (`payload_kg`), so its coefficient is the
 compliance itself. Parameters per joint J, for each link k = J..n:
 
-    compl_J_k_mx, compl_J_k_my, compl_J_k_mz   rad/mm   (G m_k c_k / K_J)
+    compl_J_k_mx, compl_J_k_my, compl_J_k_mz   rad      (G m_k c_k / K_J; unit-vector columns)
     compl_J_k_m                                rad/mm   (G m_k / K_J, lever in mm)
     compl_J_payload                            rad/(kg mm)  (G / K_J)
+
+with G = 9.80665e-3 N m per kg mm. Files and printed tables give the angles in degrees
+and the payload term as the joint's compliance 1/K_J in deg/(N m)
+(`torchcal.io.modelfile.file_unit`); `torchcal fit` also prints the stiffness K_J in
+N m/rad that the payload term gives (`stiffness_nm_per_rad`). The effect is defined on
+revolute joints only (a slide's deflection would be a length under a force).
 
 Many of these columns are collinear for a given robot (e.g. a link's moment along its own
 axis): the identification keeps the identifiable combinations and holds the rest.
@@ -23,7 +29,7 @@ import math
 
 import torch
 
-from torchcal.effects.base import Effect, scatter_joints
+from torchcal.effects.base import Effect, revolute_only, scatter_joints
 
 G_NM_PER_KG_MM = 9.80665e-3  # N m of torque per (kg x mm of lever)
 #: plausible gravity deflection of a joint (deg): a loaded industrial arm deflects by
@@ -60,6 +66,7 @@ class JointCompliance(Effect):
 
     def __init__(self, robot, joints=()):
         super().__init__(robot, joints)
+        revolute_only(self)
         self._cache = None  # (ctx id, regressors): the regressors depend on the data only
 
     def _n_links(self, j):
@@ -76,7 +83,7 @@ class JointCompliance(Effect):
     def param_units(self):
         units = []
         for j in self.joints:
-            units += ["rad/mm"] * (4 * self._n_links(j)) + ["rad/(kg mm)"]
+            units += ["rad", "rad", "rad", "rad/mm"] * self._n_links(j) + ["rad/(kg mm)"]
         return units
 
     def plausible_max(self):
@@ -91,6 +98,18 @@ class JointCompliance(Effect):
         for j in self.joints:
             out += [d, d, d, d / reach] * self._n_links(j)
             out.append(d / (reach * max(self.robot.payload_kg, 1.0)))
+        return out
+
+    def stiffness_nm_per_rad(self, p) -> dict:
+        """{joint J: stiffness K_J N m/rad} from the payload terms of p (k,) (G / K_J
+        rad/(kg mm)); only joints whose payload term is positive (the data must vary the
+        payload for it to be identified)."""
+        out, start = {}, 0
+        for j in self.joints:
+            start += 4 * self._n_links(j) + 1
+            c = float(p[start - 1])
+            if c > 0:
+                out[j] = G_NM_PER_KG_MM / c
         return out
 
     def regressors(self, ctx):

@@ -83,6 +83,14 @@ def file_unit(unit: str) -> tuple[str, float]:
     return unit, 1.0
 
 
+def _old_label(name: str, unit: str, expected: str) -> bool:
+    """True for the joint_compliance link-moment terms (compl_J_K_mx/my/mz) labelled
+    'deg/mm' by earlier versions: the same values in degrees, only the label was wrong."""
+    import re
+
+    return (unit, expected) == ("deg/mm", "deg") and re.fullmatch(r"compl_\d+_\d+_m[xyz]", name) is not None
+
+
 def file_units(model: CalibrationModel) -> tuple[list[str], torch.Tensor]:
     """([unit in files per parameter], (P,) float64 factors) of `model` (`file_unit`)."""
     pairs = [file_unit(u) for u in model.param_units()]
@@ -189,7 +197,8 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
     std = torch.tensor(stds, dtype=torch.float64)
     if obj["format"] != FORMAT_RAD:  # version 2: degrees (file_unit) -> radians inside
         units, k = file_units(model)
-        bad = [f"{n} ({u!r}, expected {e!r})" for n, u, e in zip(names, file_unit_names, units) if u != e]
+        bad = [f"{n} ({u!r}, expected {e!r})" for n, u, e in zip(names, file_unit_names, units)
+               if u != e and not _old_label(n, u, e)]
         if bad:
             raise InputError(f"{path}: parameter unit(s) not those of {FORMAT}: {', '.join(bad[:3])}")
         theta, std = theta / k, std / k

@@ -13,19 +13,21 @@ physical error applied as joint-angle deflections before the forward kinematics:
   dq2 = 0.2 mrad * t + 0.12 mrad * t^3, t = tau / max |tau| over the workspace;
 - hose: a hose pulls the TCP with 30 N towards a fixed point (1.5 m over the base, 1 m
   to the side): dq = C J^T F, C = 3e-6 rad / N m * (1, 1, 1, 2, 2, 2) (J by central
-  differences of the numpy FK);
+  differences of the numpy FK); hose60: the same with 60 N (added after hose left
+  0.040-0.045 mm, just under the 0.05-0.13 mm band the target is stated for);
 - periodic: a TCP error of 0.06 mm sin(3 q1 + 0.4) along x and 0.06 mm sin(17 q1 + 1.1)
   along y (base frame).
 
 Each session runs `torchcal.discover(robot, m, ["base_frame", "tool_offset"])` and reads
-its final `unexplained` report. Printed per session: the effects discover added, whether
+its final `unexplained` report (--fit-only: the report on the fit of those two effects,
+cheaper, for null sessions of many poses). Printed per session: the effects discover added, whether
 the report is significant (flagged), the probe's p-value, what it says is learnable and
 from which variables, the noise floor it prints (and from what) against the true 0.0346 mm,
 and the oracle "structured error left": the distance RMS that the final model leaves on
 the same poses measured without noise. Per case: sessions flagged, and the floor's median
 ratio to the truth.
 
-    python benchmarks/study_outside.py [--poses 500] [--seeds 10] [case ...]
+    python benchmarks/study_outside.py [--poses 500] [--seeds 10] [--fit-only] [case ...]
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ import numpy as np
 
 NOISE_MM = 0.02
 ROBOT = Path(__file__).resolve().parents[1] / "examples" / "ur10" / "ur10.json"
-CASES = ("null", "stiffness", "hose", "periodic")
+CASES = ("null", "stiffness", "hose", "hose60", "periodic")
 TRUE_FLOOR = NOISE_MM * np.sqrt(3)
 
 
@@ -105,10 +107,10 @@ def hidden(case, q, dh, tool):
                                 g.uniform(-2.6, 2.6, 4000), np.zeros((4000, 3))])
         t = gravity_torque_j2(q, dh) / np.abs(gravity_torque_j2(grid, dh)).max()
         dq[:, 1] = 2e-4 * t + 1.2e-4 * t ** 3
-    elif case == "hose":
+    elif case in ("hose", "hose60"):
         p = tcp(q, dh, tool)
         pull = np.array([1000.0, 0.0, 1500.0]) - p
-        force = 30.0 * pull / np.linalg.norm(pull, axis=-1, keepdims=True)  # N, base frame
+        force = (60.0 if case == "hose60" else 30.0) * pull / np.linalg.norm(pull, axis=-1, keepdims=True)  # N, base frame
         J = jacobian(q, dh, tool) / 1000.0  # m / rad
         dq = 3e-6 * np.array([1, 1, 1, 2, 2, 2.0]) * np.einsum("nij,ni->nj", J, force)
     elif case == "periodic":
@@ -138,7 +140,7 @@ def simulate(case, poses, seed):
     return q, clean + NOISE_MM * g.normal(size=clean.shape), clean
 
 
-def run_session(case, poses, seed):
+def run_session(case, poses, seed, fit_only=False):
     import torch
 
     import torchcal
@@ -154,11 +156,17 @@ def run_session(case, poses, seed):
 
     m = meas(xyz)
     t0 = time.perf_counter()
-    d = torchcal.discover(robot, m, ["base_frame", "tool_offset"])
+    if fit_only:  # the report on the fitted model, no discovery
+        from torchcal.diagnosis.unexplained import unexplained
+
+        final = ["base_frame", "tool_offset"]
+        u = unexplained(robot, m, torchcal.fit(robot, m, final).residuals)
+    else:
+        d = torchcal.discover(robot, m, ["base_frame", "tool_offset"])
+        final, u = d.final_effects, d.unexplained
     wall = time.perf_counter() - t0
-    left = torchcal.fit(robot, meas(clean), d.final_effects).rms_mm  # the oracle: no noise
-    u = d.unexplained
-    return {"case": case, "seed": seed, "added": [e for e in d.final_effects if e not in ("base_frame", "tool_offset")],
+    left = torchcal.fit(robot, meas(clean), final).rms_mm  # the oracle: no noise
+    return {"case": case, "seed": seed, "added": [e for e in final if e not in ("base_frame", "tool_offset")],
             "flagged": bool(u.significant), "probe_p": u.probe.p_value, "learnable_mm": u.probe.learnable_mm,
             "carried_by": [v for v, _ in u.carried_by], "rms_mm": u.rms_mm, "floor_mm": u.noise_floor_mm,
             "floor_from": u.floor_from, "structured_left_mm": left, "wall_s": wall}
@@ -169,18 +177,21 @@ def main(argv=None):
     ap.add_argument("cases", nargs="*", default=list(CASES))
     ap.add_argument("--poses", type=int, default=500)
     ap.add_argument("--seeds", type=int, default=10, help="sessions per case (seeds 700, 701, ...)")
+    ap.add_argument("--fit-only", action="store_true",
+                    help="report on the fit of base_frame + tool_offset instead of running discover")
     args = ap.parse_args(argv)
     for case in args.cases:
         rows = []
         for seed in range(700, 700 + args.seeds):
-            r = run_session(case, args.poses, seed)
+            r = run_session(case, args.poses, seed, args.fit_only)
             rows.append(r)
             print(f"{case:9s} seed {seed}: added {r['added']} flagged {r['flagged']!s:5s} probe p {r['probe_p']:.1e} "
                   f"learnable {r['learnable_mm']:.4f} from {r['carried_by']} of rms {r['rms_mm']:.4f}; floor "
                   f"{r['floor_mm']:.4f} ({r['floor_from']}) = {r['floor_mm'] / TRUE_FLOOR:.2f} x truth; structured "
                   f"left {r['structured_left_mm']:.4f} mm; {r['wall_s']:.1f} s", flush=True)
         inband = [r for r in rows if 0.05 <= r["structured_left_mm"] <= 0.13]
-        print(f"{case}: flagged {sum(r['flagged'] for r in rows)} of {len(rows)}; with 0.05-0.13 mm structured left: "
+        print(f"{case}: flagged {sum(r['flagged'] for r in rows)} of {len(rows)} (probe p < 0.01 in "
+              f"{sum(r['probe_p'] < 0.01 for r in rows)}); with 0.05-0.13 mm structured left: "
               f"flagged {sum(r['flagged'] for r in inband)} of {len(inband)}; noise floor / truth median "
               f"{statistics.median(r['floor_mm'] / TRUE_FLOOR for r in rows):.2f}; discover median "
               f"{statistics.median(r['wall_s'] for r in rows):.1f} s\n", flush=True)

@@ -52,8 +52,9 @@ def test_repeats_with_a_shared_pose_error_give_no_verdict(repeated_null):
 def test_noise_floor_from_repeats_is_the_simulated_noise(repeated_null):
     m, d = repeated_null
     u = d.to_dict()["unexplained"]
-    assert set(u) == {"significant", "rms_mm", "noise_floor_mm", "correlates_with", "learnable_rms_mm", "carried_by",
-                      "probe"}
+    assert set(u) == {"significant", "rms_mm", "noise_floor_mm", "noise_floor_from", "correlates_with",
+                      "learnable_rms_mm", "carried_by", "probe"}
+    assert u["noise_floor_from"] == "repeats"
     truth = NOISE * math.sqrt(3)  # distance RMS of the per-axis noise
     assert abs(u["noise_floor_mm"] - truth) < 0.15 * truth, (u, truth)
     assert u["rms_mm"] > 1.5 * u["noise_floor_mm"]  # the shared pose error is above the floor

@@ -11,19 +11,25 @@ inputs, and the three components of r as three outputs that share the kernel:
 
 The inputs (an ARD that switches variables on or off) and the hyper-parameters (l in
 `LENGTH_SCALES`, lam in `RIDGES`) are chosen by pose-grouped cross-validation (`choose`:
-forward selection, on at most about MAX_ROWS rows), nested so that the held-out figure is
-honest: poses are split into `FOLDS` folds; fold f is predicted by the model trained on
-the other folds with the inputs and hyper-parameters that predicted best *within* those
-folds (each inner fold from the other inner folds). All ridges of one (inputs, l, training set) come from one
-eigendecomposition K = V diag(w) V^T: the held-out residual of a block B of rows is exactly
-``[(A^-1)_BB]^-1 (A^-1 R)_B`` with A = K + lam I (the block leave-out identity of
-Gaussian-process regression), A^-1 = V diag(1 / (w + lam)) V^T.
+forward selection, on at most about MAX_ROWS rows), so that the held-out figure is
+honest: poses are split into `FOLDS` folds and fold f is predicted by the model trained
+on the other folds. With fewer than 2 MAX_ROWS rows the choice is nested: fold f's inputs
+and hyper-parameters are those that predicted best *within* the other folds (each inner
+fold from the other inner folds). With more, they are chosen once, on a subsample of about
+MAX_ROWS rows (whole poses), and the test and the figures use only the rows of the other
+poses (`Probe.tested`), which the choice never saw. All ridges of one (inputs, l,
+training set) come from one eigendecomposition K = V diag(w) V^T: the held-out residual
+of a block B of rows is exactly ``[(A^-1)_BB]^-1 (A^-1 R)_B`` with A = K + lam I (the
+block leave-out identity of Gaussian-process regression), A^-1 = V diag(1 / (w + lam)) V^T.
+The kernel of one variable is low-rank, and `kernel_factor` gives its nonzero eigenpairs
+without an N x N eigendecomposition.
 
 Figures:
-- learnable_rms_mm: distance RMS of r - r_hat with r_hat the nested held-out prediction:
-  what the residual comes down to once the part that is learnable from the recorded
-  variables is taken off. ``sqrt(rms^2 - learnable_rms^2)`` is the learnable part.
-- p_value: one-sided paired t-test over poses of the held-out gain
+- learnable_rms_mm: ``sqrt(rms^2 - mean_i g_i)``, g_i = |r_i|^2 - |r_i - r_hat_i|^2 the
+  held-out gain of tested row i (every row tested: the distance RMS of r - r_hat): what
+  the residual comes down to once the part that is learnable from the recorded variables
+  is taken off. ``sqrt(rms^2 - learnable_rms^2)`` is the learnable part.
+- p_value: one-sided paired t-test over the tested poses of the held-out gain
   ``g_p = sum_i |r_pi|^2 - |r_pi - r_hat_pi|^2`` (the rows i of pose p), mean(g) > 0. A
   pose's prediction never sees that pose, so with nothing learnable E[g_p] <= 0; repeats
   of a pose are one piece of evidence.
@@ -292,7 +298,7 @@ def probe(values: dict, residuals: np.ndarray, pose: np.ndarray, *, seed: int = 
     gain_row = (r ** 2).sum(-1) - ((r - pred) ** 2).sum(-1)
     learn = float(np.sqrt(max(rms ** 2 - gain_row[tested].mean(), 0.0)))
     gain = np.bincount(pose_idx[tested], weights=gain_row[tested], minlength=P)[np.unique(pose_idx[tested])]
-    sd = gain.std(ddof=1)
+    sd = gain.std(ddof=1) if len(gain) > 1 else 0.0
     p = 1.0 if sd == 0 else float(scipy.stats.t.sf(gain.mean() / (sd / np.sqrt(len(gain))), len(gain) - 1))
     # inputs and hyper-parameters on all rows, and what each input carries at them
     inputs, ell, lam, mse = chosen if split else choose(feats, names, Y, fold, rows)

@@ -52,8 +52,9 @@ def test_repeats_with_a_shared_pose_error_give_no_verdict(repeated_null):
 def test_noise_floor_from_repeats_is_the_simulated_noise(repeated_null):
     m, d = repeated_null
     u = d.to_dict()["unexplained"]
-    assert set(u) == {"significant", "rms_mm", "noise_floor_mm", "correlates_with", "learnable_rms_mm", "carried_by",
-                      "probe"}
+    assert set(u) == {"significant", "rms_mm", "noise_floor_mm", "noise_floor_from", "correlates_with",
+                      "learnable_rms_mm", "carried_by", "probe"}
+    assert u["noise_floor_from"] == "repeats"
     truth = NOISE * math.sqrt(3)  # distance RMS of the per-axis noise
     assert abs(u["noise_floor_mm"] - truth) < 0.15 * truth, (u, truth)
     assert u["rms_mm"] > 1.5 * u["noise_floor_mm"]  # the shared pose error is above the floor
@@ -85,6 +86,14 @@ def test_a_bent_link_outside_the_vocabulary_is_significant_and_names_its_joint()
     assert u.significant
     assert [v for v, _ in u.correlates_with] == ["q3"], u.correlates_with  # not its mirror approach_q3
     assert u.rms_mm > 2 * u.noise_floor_mm  # no repeats: the floor is the estimate
+    # the floor is the smaller of the two held-out errors, and the words say which
+    best = max(st for st, _ in u.strengths.values())
+    by_variable = u.rms_mm * math.sqrt(1 - best)
+    assert u.noise_floor_mm == pytest.approx(min(by_variable, u.learnable_rms_mm), rel=1e-12)
+    source = "probe" if u.learnable_rms_mm <= by_variable else "variables"
+    assert u.floor_from == source and u.to_dict()["noise_floor_from"] == source
+    assert {"probe": "the probe's held-out error", "variables": "the strongest variable's held-out error"}[source] \
+        in u.describe()
 
 
 def test_the_right_model_leaves_nothing_significant():

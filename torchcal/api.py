@@ -341,9 +341,11 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
     """Corrected joint commands (M, n) rad for target positions (M, 3) mm.
 
     model: a fitted model (`FitResult`, or a MODEL.json path) or an
-    `IntervalModel` (targets assigned to its zones). q0: (M, n) rad starting commands,
-    default `torchcal.calibration.compensate.nominal_start` (the nominal inverse, as the
-    command line seeds it; InputError naming the targets it does not reach). tol_mm,
+    `IntervalModel` (targets assigned to its zones). targets: in the model's measuring
+    frame. q0: (M, n) rad starting commands, default
+    `torchcal.calibration.compensate.nominal_start` (the nominal inverse in the measuring
+    frame from the nearest calibration pose, as the command line seeds it; a target it
+    does not reach is still tried and ends not converged). tol_mm,
     max_iter, max_step_rad: the Newton solve (`torchcal.calibration.compensate.compensate`);
     payload_kg, temp_c: (M,) conditions of the moves, for load and temperature effects. Returns a
     `Compensation`; converged solutions outside the model's calibrated joint range are
@@ -368,7 +370,7 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
         from torchcal.calibration.mismatch import check_targets
         check_targets(cm, theta if theta.ndim == 1 else theta[0], t)
     if q0 is None:
-        q0 = nominal_start(robot, t)
+        q0 = nominal_start(cm, theta if theta.ndim == 1 else theta[0], t, poses=model.seed_poses).q
     zone = model.assign(t) - 1 if isinstance(model, IntervalModel) else None  # row of theta
     comp = run(cm, theta.to(t), t, q0, zone=zone, tol_mm=tol_mm, max_iter=max_iter, max_step_rad=max_step_rad,
                payload_kg=payload_kg, temp_c=temp_c)
@@ -421,6 +423,7 @@ def register(model, measurements, *, tool: bool = False) -> FitResult:
     if fm is None:
         return res
     return replace(res, orientation=fm.orientation, robust=fm.robust, sigma_mm=fm.sigma_mm, sigma_deg=fm.sigma_deg,
+                   seed_poses=fm.seed_poses,
                    residual_model=fm.residual_model, training=fm.training, provenance=fm.provenance)
 
 
@@ -455,7 +458,7 @@ class TargetCompensation:
     targets file, each with the zone it was compensated in.
 
     Attributes:
-        targets: (M, 3) mm target positions.
+        targets: (M, 3) mm target positions in `frame`.
         compensation: the `Compensation` (q rad / mm, residuals, convergence, limits).
         zone: (M,) 1-based zone of each target (1 for a single-set model).
         q_user: (M, n) corrected commands in deg (mm for a prismatic joint).
@@ -463,6 +466,7 @@ class TargetCompensation:
             a fitted model).
         robot: the robot's name.
         beyond_reach: 0-based rows of targets beyond the robot's reach (named, not refused).
+        frame: the frame the targets were given in, "measuring" or "base".
     """
 
     targets: torch.Tensor
@@ -473,6 +477,7 @@ class TargetCompensation:
     method: str
     robot: str
     beyond_reach: list = field(default_factory=list)
+    frame: str = "measuring"
 
     @property
     def residual_mm(self) -> torch.Tensor:
@@ -507,38 +512,47 @@ class TargetCompensation:
         rows = [{"point": i + 1, "zone": int(self.zone[i]), "q": self.q_user[i].tolist(), "residual_mm": res[i],
                  "converged": bool(c.converged[i]), "within_limits": bool(c.within_limits[i])}
                 for i in range(self.targets.shape[0])]
-        return {"robot": self.robot, "n_zones": self.n_zones, "method": self.method, "targets": rows,
+        return {"robot": self.robot, "frame": self.frame, "n_zones": self.n_zones, "method": self.method,
+                "targets": rows,
                 "max_residual_mm": max(res), "outside_range": c.outside_range,
                 "not_converged": [i + 1 for i in self.not_converged],
                 "outside_limits": [i + 1 for i in self.outside_limits],
                 "beyond_reach": [i + 1 for i in self.beyond_reach]}
 
 
-def compensate_targets(model, targets, *, robot=None, length_unit: str = "mm", angle_unit: str = "deg",
-                       seeds=None, payload_kg=None, temp_c=None) -> TargetCompensation:
+def compensate_targets(model, targets, *, frame: str = "measuring", robot=None, length_unit: str = "mm",
+                       angle_unit: str = "deg", seeds=None, payload_kg=None, temp_c=None) -> TargetCompensation:
     """``torchcal compensate``: corrected joint commands for a targets file or tensor.
 
     model: a MODEL.json path of ``torchcal fit`` or ``torchcal calibrate`` (an interval
     model: each target is compensated with its zone's parameters), an `IntervalModel`, or a
     fitted model (FitResult). targets: a TARGETS.csv path
     (`torchcal.io.targets_csv.read_targets`; its seeds and conditions are used, units per
-    `length_unit` / `angle_unit`) or (M, 3) mm. robot: optional robot (preset, file, Robot)
-    the model must be for (InputError otherwise). seeds: (M, n) deg (mm for a slide)
-    starting commands for tensor targets, default the nominal inverse
-    (`torchcal.calibration.compensate.nominal_start`); payload_kg, temp_c: (M,) conditions
-    for tensor targets. Targets inside the robot's base are refused; those beyond its reach
-    are listed in ``beyond_reach``. A model effect that needs a condition the targets lack is
+    `length_unit` / `angle_unit`) or (M, 3) mm. frame: the frame the targets are in,
+    "measuring" (the model's measuring frame: the tracker's when it has a base_frame
+    effect) or "base" (the robot base frame, mapped to the measuring frame with the
+    fitted base frame of the first parameter set,
+    `torchcal.calibration.compensate.measuring_from_base`). robot: optional robot (preset,
+    file, Robot) the model must be for (InputError otherwise). seeds: (M, n) deg (mm for a
+    slide) starting commands for tensor targets, default the nominal inverse in the
+    measuring frame from the nearest calibration pose
+    (`torchcal.calibration.compensate.nominal_start`; a target it does not reach is still
+    tried, and reported per row); payload_kg, temp_c: (M,) conditions for tensor targets.
+    Targets inside the robot's base or around the origin of their frame (metres read as
+    mm) are refused; those beyond its reach are listed in ``beyond_reach``. A model effect that needs a condition the targets lack is
     refused naming it. Converged commands outside the calibrated range: one
     `CalibratedRangeWarning`.
     """
     import warnings
 
-    from torchcal.calibration.compensate import nominal_start
+    from torchcal.calibration.compensate import FRAMES, measuring_from_base, nominal_start
     from torchcal.calibration.mismatch import MismatchWarning, check_targets
     from torchcal.effects import make_context
     from torchcal.robots.robot_file import check_same_robot
 
     where = str(targets) if isinstance(targets, (str, Path)) else "targets"
+    if frame not in FRAMES:
+        raise InputError(f"frame: expected one of {', '.join(FRAMES)}, got {frame!r}")
     im = _interval_model(model)
     rob = im.model.robot
     if robot is not None:
@@ -562,13 +576,18 @@ def compensate_targets(model, targets, *, robot=None, length_unit: str = "mm", a
             need = "column temp_c" if e.name == "thermal_expansion" else str(exc)
             raise InputError(f"{where}: the model's effect {e.spec()} needs {need} "
                              f"in the targets, which they lack") from None
+    given = t
+    if frame == "base":  # the solve is in the measuring frame, where the model predicts
+        R, o = measuring_from_base(im.model, im.theta[0].to(t))
+        t = t @ R.T + o
     with warnings.catch_warnings():  # metres read as mm: refused; beyond the reach: listed
         warnings.simplefilter("ignore", MismatchWarning)
         far = check_targets(im.model, im.theta[0], t, where=where)
-    q0 = nominal_start(rob, t, where=where) if seeds is None else rob.q_from_user(torch.as_tensor(seeds))
+    q0 = nominal_start(im.model, im.theta[0], t, poses=im.seed_poses).q if seeds is None else \
+        rob.q_from_user(torch.as_tensor(seeds))
     comp = compensate(im, t, q0, check=False, payload_kg=payload_kg, temp_c=temp_c)
-    return TargetCompensation(t, comp, im.assign(t), rob.q_to_user(comp.q), im.n_zones, im.method, rob.name,
-                              far)
+    return TargetCompensation(given, comp, im.assign(t), rob.q_to_user(comp.q), im.n_zones, im.method, rob.name,
+                              far, frame)
 
 
 @dataclass

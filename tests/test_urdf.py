@@ -120,7 +120,7 @@ def test_minimal_export_reimports_to_calibrated_fk(tmp_path, key):
     dev = _deviations(robot, 1)
     out = tmp_path / "cal.urdf"
     out.write_text(minimal_urdf(robot, dev))
-    back = robot_from_urdf(out, "base_link", "tcp")
+    back = robot_from_urdf(out, "base_link", "tool0")
     q = _random_q(robot, 1000, 2)
     err = (back.fk_pose(q)[:, :3, 3] - robot.fk_pose(q, dev)[:, :3, 3]).norm(dim=-1).max()
     assert err < 1e-3

@@ -439,6 +439,14 @@ def _is_model(obj) -> bool:
     return False
 
 
+def _sources(model) -> list:
+    """Paths the model came from, as it records them: its data (provenance ``input``,
+    ``partition``) and the URDF its robot was imported from."""
+    out = [(model.provenance or {}).get(k) for k in ("input", "partition")]
+    urdf = model.model.robot.urdf
+    return [p for p in out + [urdf and urdf.get("path")] if p]
+
+
 def _interval_model(model):
     """An `IntervalModel` of a MODEL.json path (fit or calibrate), an `IntervalModel` or a
     fitted model (one zone)."""
@@ -595,7 +603,8 @@ class Export:
     """What ``torchcal export`` computed and wrote.
 
     Attributes:
-        robot: the calibrated `Robot` (geometry folded in; its ``urdf`` names the written URDF).
+        robot: the calibrated `Robot` of the robot file (geometry, base frame and tool offset
+            folded in; its ``urdf`` names the written URDF when that URDF has the same chain).
         effects_not_held: [{"spec", "parameters"}] of the model's effects that a robot file, a
             URDF or an MD-H table cannot hold (listed in the robot file; empty after a refit).
         residual_stage_dropped: the model had a non-physical residual stage, which is not exported.
@@ -604,6 +613,8 @@ class Export:
             model has effects the exported robot cannot hold).
         urdf_source: the nominal URDF whose links the calibrated URDF keeps, None for a minimal URDF.
         written: {"robot_file", "urdf", "table"} paths written (None: not asked).
+        urdf_links: {"base_link", "tip_link", "frames"} of the written URDF (its base and
+            tool links, the names of its separate measuring frames), None without a URDF.
     """
 
     robot: Robot
@@ -613,13 +624,14 @@ class Export:
     data_rows: int | None
     urdf_source: str | None
     written: dict
+    urdf_links: dict | None = None
 
     def to_dict(self) -> dict:
         r = self.refit
         return {"robot": self.robot.name, "joints": self.robot.n, "written": dict(self.written),
                 "effects_not_held": [e["spec"] for e in self.effects_not_held],
                 "residual_stage_dropped": self.residual_stage_dropped,
-                "urdf": None if self.robot.urdf is None else dict(self.robot.urdf, source=self.urdf_source),
+                "urdf": None if self.urdf_links is None else dict(self.urdf_links, source=self.urdf_source),
                 "refit": None if r is None else {"rows": self.data_rows, "dropped": list(r.dropped),
                                                  "refit_rms_mm": r.refit_rms_mm, "full_rms_mm": r.full_rms_mm,
                                                  "naive_rms_mm": r.naive_rms_mm, "status": str(r.fit.status)}}
@@ -636,26 +648,31 @@ def export(model, *, robot_file=None, urdf=None, table=None, data=None, length_u
     Other effects: with `data` (Measurements or CSV path in `length_unit` / `angle_unit`) the
     geometry alone is refitted on them (`refit_geometry`) and that geometry exported; without,
     they are listed in the robot file. A robot imported from a URDF keeps that file's links
-    (`torchcal.robots.urdf.calibrated_urdf`), any other gets `minimal_urdf`. Every output is
-    checked before any work (OutputExistsError without `force`) and written atomically."""
+    (`torchcal.robots.urdf.calibrated_urdf`), any other gets `minimal_urdf`; the URDF keeps
+    the robot's own base and tool (``tool0``) and carries the measuring frame and the
+    reflector(s) as separate fixed frames ``tracker`` and ``reflector``
+    (`torchcal.robots.urdf.add_frames`). Every output is checked before any work
+    (OutputExistsError without `force`; never one of the inputs or the files the model
+    came from, `force` included; its folder must take a new file) and written atomically."""
     import dataclasses
 
-    from torchcal.calibration.geometry_only import calibrated_robot, refit_geometry
+    from torchcal.calibration.geometry_only import calibrated_robot, measuring_frames, refit_geometry
     from torchcal.calibration.mismatch import check_measurements, enforce
     from torchcal.calibration.plausibility import check_units
     from torchcal.io.files import atomic_write, check_output
     from torchcal.io.mdh_table import mdh_table_csv
     from torchcal.robots.robot_file import write_robot_file
-    from torchcal.robots.urdf import calibrated_urdf, minimal_urdf
+    from torchcal.robots.urdf import add_frames, calibrated_urdf, minimal_urdf
 
     outs = {"robot_file": robot_file, "urdf": urdf, "table": table}
     if not any(outs.values()):
         raise InputError("export: give at least one output (robot file, URDF or MD-H table)")
     inputs = [p for p in (model, data) if isinstance(p, (str, Path))]
+    im = _interval_model(model)
+    inputs += _sources(im)  # never over the files the model came from, force or not
     for p in outs.values():
         if p is not None:
             check_output(p, force=force, inputs=inputs)
-    im = _interval_model(model)
     cm, theta = im.model, im.theta[0]
     cal, rest = calibrated_robot(cm, theta)
     refit, rows = None, None
@@ -664,16 +681,22 @@ def export(model, *, robot_file=None, urdf=None, table=None, data=None, length_u
         check_units(m, cm.robot, length_unit=length_unit, angle_unit=angle_unit, where=m.source or "data")
         enforce(check_measurements(cm, theta.to(m.xyz), m, im.zones[0].get("rms_mm")))
         rows, refit = len(m), refit_geometry(cm, theta, m, identified=im.free[0])
-        cal, rest = calibrated_robot(refit.fit.model, refit.fit.theta)[0], []
-    urdf_text, urdf_info, source = None, None, None
-    if urdf is not None:
-        if cal.urdf is not None:
-            urdf_text, tip = calibrated_urdf(cm.robot, cal)
-            source = cal.urdf["path"]
-            urdf_info = {"path": str(Path(urdf).resolve()), "base_link": cal.urdf["base_link"], "tip_link": tip}
+        cm, theta = refit.fit.model, refit.fit.theta
+        cal, rest = calibrated_robot(cm, theta)[0], []
+    urdf_text, urdf_info, source, links = None, None, None, None
+    if urdf is not None:  # the robot's own base and tool; the measuring set-up as separate frames
+        own = calibrated_robot(cm, theta, fold=False)[0]
+        W, reflectors = measuring_frames(cm, theta)
+        if own.urdf is not None:
+            urdf_text, tip = calibrated_urdf(im.model.robot, own)
+            source, base_link = own.urdf["path"], own.urdf["base_link"]
         else:
-            urdf_text = minimal_urdf(cal)
-            urdf_info = {"path": str(Path(urdf).resolve()), "base_link": "base_link", "tip_link": "tcp"}
+            urdf_text, tip, base_link = minimal_urdf(own), "tool0", "base_link"
+        urdf_text = add_frames(urdf_text, base_link, tip, W, reflectors)
+        urdf_info = {"path": str(Path(urdf).resolve()), "base_link": base_link, "tip_link": tip}
+        links = dict(urdf_info, frames=(["tracker"] if W is not None else []) + [n for n, _ in reflectors])
+        if W is not None or reflectors:  # the robot file folds the frames in: its URDF chain is another
+            urdf_info = None
     cal = dataclasses.replace(cal, urdf=urdf_info)  # the calibrated robot file points at the calibrated URDF
     if robot_file is not None:
         write_robot_file(robot_file, cal, effects=rest, force=force, inputs=inputs)
@@ -682,7 +705,7 @@ def export(model, *, robot_file=None, urdf=None, table=None, data=None, length_u
     if table is not None:
         atomic_write(table, mdh_table_csv(cal), force=force, inputs=inputs)
     return Export(cal, rest, im.residual_model is not None, refit, rows, source,
-                  {k: (None if v is None else str(v)) for k, v in outs.items()})
+                  {k: (None if v is None else str(v)) for k, v in outs.items()}, links if urdf else None)
 
 
 def accuracy(model, *, n: int = 2000, seed: int = 0, payload_kg: float | None = None, temp_c: float = 20.0):

@@ -418,7 +418,7 @@ class IntervalModel:
         calibrated range, residual stage, and its training rms as the zone's ``rms_mm``."""
         im = cls.single(fitted.model, fitted.theta, fitted.report.free, q_range=fitted.q_range)
         im.zones[0]["rms_mm"] = fitted.training_rms_mm
-        return dataclasses.replace(im, residual_model=fitted.residual_model,
+        return dataclasses.replace(im, residual_model=fitted.residual_model, provenance=fitted.provenance,
                                    seed_poses=getattr(fitted, "seed_poses", None))
 
     @classmethod

@@ -24,7 +24,10 @@ A continuous joint is revolute with limits -180..180 deg; a prismatic joint's q 
 adds to d.
 
 Export (`minimal_urdf`): one link per MD-H frame, joint i's origin the link transform
-A_i at q = 0 and axis z, the tool as a fixed joint to link ``tcp``.
+A_i at q = 0 and axis z, the tool as a fixed joint to link ``tool0``; `calibrated_urdf`
+rewrites the joints of the URDF a robot was imported from. The measuring set-up (the
+tracker's frame, the reflector) stays apart from the robot: `add_frames` hangs it on the
+base and tip links as fixed frames ``tracker`` and ``reflector``.
 """
 
 from __future__ import annotations
@@ -247,8 +250,8 @@ def _origin_xml(T: torch.Tensor) -> str:
 
 def minimal_urdf(robot: Robot, params=None) -> str:
     """URDF text of `robot` with MD-H deviations `params` (n, 5) folded in: links
-    ``base_link``, ``link1..linkN``, ``tcp``; joint i's origin is A_i at q = 0 (metres,
-    radians), its axis z; limits in rad / m."""
+    ``base_link``, ``link1..linkN``, ``tool0``; joint i's origin is A_i at q = 0 (metres,
+    radians), its axis z; the tool a fixed joint to ``tool0``; limits in rad / m."""
     r = robot.to("cpu", _F)
     table = r.table if params is None else r.table + torch.as_tensor(params, dtype=_F)
     lines = ['<?xml version="1.0"?>', f'<robot name="{r.name}">', '  <link name="base_link"/>']
@@ -264,9 +267,36 @@ def minimal_urdf(robot: Robot, params=None) -> str:
                   f'    {_origin_xml(T)}', '    <axis xyz="0 0 1"/>',
                   f'    <limit lower="{lo!r}" upper="{hi!r}" effort="0" velocity="0"/>', '  </joint>']
         prev, T = f"link{i + 1}", _row_transform(table[i].tolist())
-    lines += ['  <link name="tcp"/>', '  <joint name="tool" type="fixed">', f'    <parent link="{prev}"/>',
-              '    <child link="tcp"/>', f'    {_origin_xml(T @ r.tool)}', '  </joint>', '</robot>']
+    lines += ['  <link name="tool0"/>', '  <joint name="tool" type="fixed">', f'    <parent link="{prev}"/>',
+              '    <child link="tool0"/>', f'    {_origin_xml(T @ r.tool)}', '  </joint>', '</robot>']
     return "\n".join(lines) + "\n"
+
+
+def add_frames(text: str, base_link: str, tip_link: str, tracker=None, reflectors=()) -> str:
+    """URDF text with the measuring set-up as separate fixed frames, the robot's own links
+    untouched: link ``tracker`` (the measuring frame; `tracker` (4, 4) mm, measuring frame
+    <- robot base frame, so its origin in `base_link` is the inverse) on `base_link`, and
+    one link per reflector ((name, (3,) mm in `tip_link`'s frame)) on `tip_link`. A name
+    the URDF already has gets the prefix ``torchcal_``."""
+    root = ET.fromstring(text)
+    names = {el.get("name") for el in root.findall("link")}
+    frames = ([] if tracker is None else [("tracker", base_link, torch.linalg.inv(tracker.to(_F)))]) + \
+        [(n, tip_link, _translation(xyz)) for n, xyz in reflectors]
+    for name, parent, T in frames:
+        name = f"torchcal_{name}" if name in names else name
+        ET.SubElement(root, "link", name=name)
+        jt = ET.SubElement(root, "joint", name=f"{name}_joint", type="fixed")
+        ET.SubElement(jt, "parent", link=parent)
+        ET.SubElement(jt, "child", link=name)
+        _set_origin(jt, T)
+    ET.indent(root)
+    return ET.tostring(root, encoding="unicode", xml_declaration=True) + "\n"
+
+
+def _translation(xyz) -> torch.Tensor:
+    T = torch.eye(4, dtype=_F)
+    T[:3, 3] = torch.as_tensor(xyz, dtype=_F)
+    return T
 
 
 def calibrated_urdf(nominal: Robot, cal: Robot) -> tuple[str, str]:

@@ -37,8 +37,11 @@ def run(args) -> int:
         check_visual_outputs(args, "discover")
     robot = make_robot(args.robot)
     m = read_data(args.data, robot, args)
-    res = api.discover(robot, m, args.effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,
-                       sigma_deg=args.sigma_deg)
+    from torchcal.cli._progress import progress
+
+    with progress("discover", f"searching effects on {len(m)} rows"):
+        res = api.discover(robot, m, args.effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,
+                           sigma_deg=args.sigma_deg)
     for i, (h, d) in enumerate(zip(res.history, res.diagnoses)):
         print(f"round {i}:")
         print_step(d.step)
@@ -47,11 +50,14 @@ def run(args) -> int:
         print(res.unexplained.describe())
     if args.json:
         write_json(args.json, res.to_dict(), force=args.force, inputs=[args.data])
+        print(f"wrote {args.json}")
     if args.out:
         write_json(args.out, modelfile.to_dict(res.fit, source=args.data, seed=args.seed,
                                                pose_ids=m.pose.tolist()),
                    force=args.force, inputs=[args.data])
+        print(f"wrote {args.out}")
     if args.rrd or args.plots:
         from torchcal.cli._viz import discovery_outputs
-        discovery_outputs(args, robot, m, res)
+        with progress("discover", "drawing figures"):
+            discovery_outputs(args, robot, m, res)
     return 0

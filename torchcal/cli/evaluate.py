@@ -84,6 +84,7 @@ def run(args) -> int:
     rep = ev.to_dict()
     if args.json:
         write_json(args.json, rep, force=args.force, inputs=inputs)
+        print(f"wrote {args.json}")
     if args.residuals:
         atomic_write(args.residuals, residuals_csv(m, ev), force=args.force, inputs=inputs)
     x, y, z = rep["per_axis_rms_mm"]
@@ -96,6 +97,8 @@ def run(args) -> int:
     if args.residuals:
         print(f"wrote {args.residuals}")
     if args.rrd or args.plots:
+        from torchcal.cli._progress import progress
         from torchcal.cli._viz import evaluation_outputs
-        evaluation_outputs(args, model, m, ev)
+        with progress("evaluate", "drawing figures"):
+            evaluation_outputs(args, model, m, ev)
     return 0

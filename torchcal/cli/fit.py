@@ -28,7 +28,7 @@ from torchcal.effects.spec import parse_specs
 def add_parser(sub):
     p = sub.add_parser("fit", help="fit geometric model + effects to a measurement CSV",
                        description=__doc__)
-    p.add_argument("data", help="measurement CSV (docs/design.md)")
+    p.add_argument("data", help="measurement CSV (format: docs/formats.md)")
     add_robot(p)
     p.add_argument("--effects", nargs="*", default=[], metavar="SPEC", help="effects, e.g. joint_compliance:2,3")
     p.add_argument("--robust", choices=["huber", "cauchy"], help="robust loss by IRLS")

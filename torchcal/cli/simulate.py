@@ -1,4 +1,4 @@
-"""`torchcal simulate`: a measurement session of a virtual robot (CSV of docs/design.md).
+"""`torchcal simulate`: a measurement session of a virtual robot (the measurement CSV of docs/formats.md).
 
     torchcal simulate --robot kr1000titan --effects joint_compliance:2,3 thermal_expansion \\
         --n 60 --repeats 3 --noise 0.02 --seed 0 --out data.csv [--truth truth.json]

@@ -64,6 +64,27 @@ def _origin(el, where) -> torch.Tensor:
     return T
 
 
+XACRO_NS = "{http://www.ros.org/wiki/xacro}"
+
+
+def _root(path):
+    """The URDF's XML root; InputError for a missing file, bad XML or a xacro file."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: URDF file does not exist")
+    xacro = f"{path}: a xacro file (macros, not a URDF): expand the xacro first (xacro {path.name} > robot.urdf)"
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as exc:
+        if path.suffix == ".xacro" or "xacro" in path.read_text(errors="replace"):
+            raise InputError(xacro) from None
+        raise InputError(f"{path}: not a valid URDF (XML): {exc}") from None
+    if path.suffix == ".xacro" or any(el.tag.startswith(XACRO_NS) for el in root.iter()) \
+            or any(v.startswith(XACRO_NS) for v in root.attrib):
+        raise InputError(xacro)
+    return root
+
+
 def _chain_joint_names(path: Path, base_link: str, tip_link: str) -> list[str]:
     """Joint names from base to tip (fixed ones included), by pytorch-kinematics."""
     import io
@@ -85,18 +106,30 @@ def _chain_joint_names(path: Path, base_link: str, tip_link: str) -> list[str]:
 def read_chain(path, base_link: str, tip_link: str) -> list[dict]:
     """The joints from `base_link` to `tip_link`: [{"name", "type", "origin" (4, 4) mm,
     "axis" (3,), "lower", "upper" (rad / mm or None)}], values read in float64."""
+    root = _root(path)
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: URDF file does not exist")
-    try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as exc:
-        raise InputError(f"{path}: not a valid URDF (XML): {exc}") from None
     links = {el.get("name") for el in root.findall("link")}
     for what, link in (("base link", base_link), ("tip link", tip_link)):
         if link not in links:
             raise InputError(f"{path}: {what}: no link {link!r}; links: {', '.join(sorted(links))}")
     by_name = {el.get("name"): el for el in root.findall("joint")}
+    parent = {}  # child link -> parent link
+    for el in by_name.values():
+        c, p = el.find("child"), el.find("parent")
+        if c is not None and p is not None:
+            parent[c.get("link")] = p.get("link")
+
+    def above(link):  # the links from `link` up to the root
+        out = [link]
+        while out[-1] in parent and len(out) <= len(parent):
+            out.append(parent[out[-1]])
+        return out
+    if base_link not in above(tip_link):
+        swapped = tip_link in above(base_link)
+        raise InputError(f"{path}: no serial chain from base link {base_link!r} to tip link {tip_link!r}: "
+                         + (f"{tip_link!r} lies above {base_link!r}; swap them (--base {tip_link} --tip {base_link})"
+                            if swapped else f"{base_link!r} is not on the way from the root to {tip_link!r} "
+                            f"({' <- '.join(above(tip_link))})"))
     out = []
     for name in _chain_joint_names(path, base_link, tip_link):
         el = by_name[name]
@@ -181,7 +214,8 @@ def _solve_row(o, u, use_beta: bool, x_hint=None) -> list[float]:
 
 
 def robot_from_urdf(path, base_link: str, tip_link: str, name: str | None = None) -> Robot:
-    """The MD-H `Robot` of the chain `base_link` -> `tip_link` of a URDF (module doc)."""
+    """The MD-H `Robot` of the chain `base_link` -> `tip_link` of a URDF (module doc), named
+    `name`, else the URDF's ``<robot name>``, else after the file."""
     joints = read_chain(path, base_link, tip_link)
     moving = [j for j in joints if j["type"] != "fixed"]
     if not moving:
@@ -236,7 +270,7 @@ def robot_from_urdf(path, base_link: str, tip_link: str, name: str | None = None
     pris = [j["type"] == "prismatic" for j in moving]
     # q = 0 of a prismatic joint: the URDF's zero; theta/d offsets come from the rows
     limits = [[j["lower"], j["upper"]] for j in moving]
-    return Robot(name or Path(path).stem, torch.tensor(rows, dtype=_F), torch.tensor(has_beta),
+    return Robot(name or _root(path).get("name") or Path(path).stem, torch.tensor(rows, dtype=_F), torch.tensor(has_beta),
                  torch.tensor(limits, dtype=_F), base, tool, 0.0,
                  torch.tensor([0.0, 0.0, -1.0], dtype=_F), torch.tensor(pris),
                  {"path": str(Path(path).resolve()), "base_link": base_link, "tip_link": tip_link})

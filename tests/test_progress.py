@@ -19,7 +19,7 @@ class _Terminal(io.StringIO):
 
 def test_off_a_terminal_two_plain_lines():
     out = io.StringIO()
-    with progress("discover", "searching effects", stream=out):
+    with progress("discover", "searching effects", stream=out, delay=0):
         pass
     lines = out.getvalue().splitlines()
     assert lines[0] == "torchcal discover: searching effects ..."
@@ -28,7 +28,7 @@ def test_off_a_terminal_two_plain_lines():
 
 def test_on_a_terminal_the_status_line_is_redrawn_then_cleared():
     out = _Terminal()
-    with progress("plan", "choosing poses", stream=out, interval=0.02):
+    with progress("plan", "choosing poses", stream=out, delay=0, interval=0.02):
         time.sleep(0.3)  # the block's work; the redraws come from the other thread
     text = out.getvalue()
     assert text.count("\rtorchcal plan: choosing poses ... ") >= 2 and text.endswith("\r\033[K")
@@ -45,7 +45,20 @@ def session(tmp_path_factory):
     return d
 
 
-def test_every_file_written_has_a_wrote_line(session, capsys):
+def test_a_short_step_or_a_refusal_shows_nothing():
+    out = _Terminal()
+    with progress("plan", "choosing poses", stream=out):  # shorter than a second
+        pass
+    assert out.getvalue() == ""
+    out = io.StringIO()
+    with pytest.raises(ValueError):
+        with progress("plan", "choosing poses", stream=out, delay=0):
+            raise ValueError("bad input")
+    assert out.getvalue() == "torchcal plan: choosing poses ...\n"  # no done line after a failure
+
+
+def test_every_file_written_has_a_wrote_line(session, capsys, monkeypatch):
+    monkeypatch.setattr("torchcal.cli._progress.DELAY_S", 0.0)  # the lines at once, however fast the step
     d = session
     runs = [(["evaluate", str(d / "s.csv"), "--model", str(d / "m.json"), "--json", str(d / "e.json")],
              [d / "e.json"], None),

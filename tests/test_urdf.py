@@ -168,7 +168,7 @@ def test_robot_import_messages_name_the_cause(tmp_path, capsys):
         '<xacro:macro name="arm" params="prefix"><link name="${prefix}base_link"/></xacro:macro>'
         '<xacro:arm prefix=""/></robot>')
     for urdf, b, t, expect in ((tmp_path / "arm.urdf.xacro", "base_link", "tool0", "expand the xacro first"),
-                               (tmp_path / "arm.urdf", tip, base, f"swap them (--base {base} --tip {tip})")):
+                               (tmp_path / "arm.urdf", tip, base, f"swap them (base link {base!r}, tip link {tip!r})")):
         capsys.readouterr()
         assert main(["robot", "import", str(urdf), "--base", b, "--tip", t,
                      "--out", str(tmp_path / "x.json")]) == 2

@@ -1,12 +1,12 @@
 """Progress of a long command on stderr, so that nothing is silent for more than a second.
 
 `progress(command, what)` wraps a step of a command (discover, diagnose, evaluate
---plots, plan). On a terminal, one status line ``torchcal COMMAND: WHAT ... 12 s`` is
-redrawn in place every half second by a background thread and cleared when the step
-ends. Off a terminal (a pipe, a log file, a test) there is no redrawing: one plain line
-when the step starts and one with its time when it ends, so that a log says what ran
-and for how long without a line per second. stdout (the command's results) is never
-touched.
+--plots, plan). A step that ends within DELAY_S = 1 s shows nothing (a refusal stays one
+line). On a terminal, one status line ``torchcal COMMAND: WHAT ... 12 s`` is then redrawn
+in place every half second by a background thread and cleared when the step ends. Off a
+terminal (a pipe, a log file, a test) there is no redrawing: one plain line when the step
+has run for a second and one with its time when it ends, so that a log says what ran and
+for how long without a line per second. stdout (the command's results) is never touched.
 """
 
 from __future__ import annotations
@@ -16,39 +16,50 @@ import threading
 import time
 from contextlib import contextmanager
 
-INTERVAL_S = 0.5
+DELAY_S = 1.0  # a step shorter than this shows nothing
+INTERVAL_S = 0.5  # redraw period on a terminal
 
 
 @contextmanager
-def progress(command: str, what: str, stream=None, interval: float = INTERVAL_S):
+def progress(command: str, what: str, stream=None, delay: float | None = None, interval: float = INTERVAL_S):
     """Report the step `what` of ``torchcal COMMAND`` on `stream` (default stderr) while
-    the block runs (module doc); yields nothing."""
+    the block runs (module doc); delay: seconds before anything shows (default DELAY_S,
+    0: at once); yields nothing."""
     out = sys.stderr if stream is None else stream
     tty = bool(getattr(out, "isatty", lambda: False)())
     label = f"torchcal {command}: {what}"
+    wait = DELAY_S if delay is None else delay
     start = time.monotonic()
-    if not tty:
-        out.write(f"{label} ...\n")
-        out.flush()
-        yield
-        out.write(f"{label}: done in {time.monotonic() - start:.1f} s\n")
-        out.flush()
-        return
-    stop = threading.Event()
+    stop, shown, lock = threading.Event(), threading.Event(), threading.Lock()
 
-    def redraw():
-        while not stop.wait(interval):
-            out.write(f"\r{label} ... {time.monotonic() - start:.0f} s\033[K")
+    def show():
+        with lock:
+            if stop.is_set():
+                return
+            out.write(f"\r{label} ... {time.monotonic() - start:.0f} s\033[K" if tty else f"{label} ...\n")
             out.flush()
+            shown.set()
 
-    out.write(f"{label} ...")
-    out.flush()
-    thread = threading.Thread(target=redraw, daemon=True)
+    def run():
+        if wait > 0:
+            if stop.wait(wait):
+                return
+            show()
+        while tty and not stop.wait(interval):
+            show()
+
+    if wait <= 0:
+        show()
+    thread = threading.Thread(target=run, daemon=True)
     thread.start()
+    ok = False
     try:
         yield
+        ok = True
     finally:
-        stop.set()
+        with lock:
+            stop.set()
         thread.join()
-        out.write("\r\033[K")  # the status line goes; the results stay on stdout
-        out.flush()
+        if shown.is_set():
+            out.write("\r\033[K" if tty else (f"{label}: done in {time.monotonic() - start:.1f} s\n" if ok else ""))
+            out.flush()

@@ -127,7 +127,7 @@ def read_chain(path, base_link: str, tip_link: str) -> list[dict]:
     if base_link not in above(tip_link):
         swapped = tip_link in above(base_link)
         raise InputError(f"{path}: no serial chain from base link {base_link!r} to tip link {tip_link!r}: "
-                         + (f"{tip_link!r} lies above {base_link!r}; swap them (--base {tip_link} --tip {base_link})"
+                         + (f"{tip_link!r} lies above {base_link!r}; swap them (base link {tip_link!r}, tip link {base_link!r})"
                             if swapped else f"{base_link!r} is not on the way from the root to {tip_link!r} "
                             f"({' <- '.join(above(tip_link))})"))
     out = []

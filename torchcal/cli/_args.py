@@ -106,6 +106,21 @@ def check_outputs(outputs, force: bool, inputs=()) -> None:
             raise InputError(f"{path}: {opt}: folder {p.parent} does not exist") from None
 
 
+def robot_inputs(robot) -> list:
+    """Files a --robot value reads, never to be written over: the robot file, and the URDF
+    it records it was imported from; [] for a preset or None."""
+    import json
+    from pathlib import Path
+
+    if robot is None or not Path(robot).is_file():
+        return []
+    try:
+        urdf = (json.loads(Path(robot).read_text()).get("urdf") or {}).get("path")
+    except (ValueError, OSError, AttributeError):  # not a robot file: loading it says so
+        urdf = None
+    return [robot] + ([urdf] if isinstance(urdf, str) else [])
+
+
 def check_folder(opt: str, path) -> None:
     """Fail before any work when an output folder option names an existing file."""
     from pathlib import Path

@@ -6,7 +6,7 @@ from __future__ import annotations
 from torchcal import api
 from torchcal.io import modelfile
 from torchcal.cli._args import (add_cv, add_effects_module, add_force, add_units, add_viz, check_folder, check_outputs,
-                                read_data, add_robot)
+                                read_data, add_robot, robot_inputs)
 from torchcal.cli.diagnose import add_sigmas, print_step
 from torchcal.io.files import write_json
 from torchcal.robots.robot import robot as make_robot
@@ -30,7 +30,7 @@ def add_parser(sub):
 
 def run(args) -> int:
     check_outputs([("--json", args.json), ("--out", args.out), ("--rrd", args.rrd)], args.force,
-                  inputs=[args.data])
+                  inputs=[args.data, *robot_inputs(args.robot)])
     check_folder("--plots", args.plots)
     if args.rrd or args.plots:  # the PNG names too, before any work
         from torchcal.cli._viz import check_outputs as check_visual_outputs

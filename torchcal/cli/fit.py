@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 
 from torchcal.io import modelfile
-from torchcal.cli._args import add_effects_module, add_force, add_units, check_outputs, read_data, add_robot
+from torchcal.cli._args import add_effects_module, add_force, add_units, check_outputs, read_data, add_robot, robot_inputs
 from torchcal.cli._args import nonneg_float, positive_float
 from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
@@ -118,18 +118,11 @@ def _robust_hint(res, robust) -> str | None:
             f"gross outliers pull this fit; try --robust huber (it down-weights them and lists their pose ids)")
 
 
-def _robot_file(text) -> list[str]:
-    """[the --robot value] when it names a file (an input never written over), else []."""
-    from pathlib import Path
-
-    return [text] if text is not None and Path(text).is_file() else []
-
-
 def run(args) -> int:
-    check_outputs([("--out", args.out)], args.force, inputs=[args.data, *_robot_file(args.robot)])
+    check_outputs([("--out", args.out)], args.force, inputs=[args.data, *robot_inputs(args.robot)])
     m, res = fit_file(args)
     obj = modelfile.to_dict(res, source=args.data, seed=args.seed, pose_ids=m.pose.tolist())
-    write_json(args.out, obj, force=args.force, inputs=[args.data, *_robot_file(args.robot)])
+    write_json(args.out, obj, force=args.force, inputs=[args.data, *robot_inputs(args.robot)])
     rep = res.report
     print(f"fit {res.model.robot.name} + [{', '.join(res.model.specs()) or 'geometric only'}] on {len(m)} rows: "
           f"rms {res.rms_mm:.4f} mm, max {float(res.residuals.norm(dim=-1).max()):.4f} mm, "

@@ -10,7 +10,7 @@ against random plans of the same size from the same candidates."""
 
 from __future__ import annotations
 
-from torchcal.cli._args import add_force, add_robot, check_outputs, nonneg_float, plot_outputs, positive_int
+from torchcal.cli._args import add_force, add_robot, check_outputs, nonneg_float, plot_outputs, positive_int, robot_inputs
 
 PNGS = ("plan_poses.png", "plan_criterion.png")  # in the --plots folder
 
@@ -48,7 +48,8 @@ def run(args) -> int:
     from torchcal.reliability.sweep import Workspace
     from torchcal.robots.robot import robot as make_robot
 
-    check_outputs([("--out", args.out), *plot_outputs(args.plots, PNGS)], args.force)  # all before the work
+    check_outputs([("--out", args.out), *plot_outputs(args.plots, PNGS)], args.force,
+                  inputs=robot_inputs(args.robot))  # all before the work
     if args.n > args.candidates:
         raise InputError(f"--n {args.n} is more than --candidates {args.candidates}")
     from torchcal.cli._progress import progress

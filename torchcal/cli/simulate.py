@@ -24,7 +24,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from torchcal.cli._args import (add_effects_module, add_force, check_outputs, positive_int, nonneg_float, add_robot)
+from torchcal.cli._args import (add_effects_module, add_force, check_outputs, positive_int, nonneg_float, add_robot,
+                                robot_inputs)
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -56,7 +57,7 @@ def run(args) -> int:
     from torchcal.io.files import write_json
     from torchcal.io.measurement_csv import write_measurements
 
-    check_outputs([("--out", args.out), ("--truth", args.truth)], args.force)
+    check_outputs([("--out", args.out), ("--truth", args.truth)], args.force, inputs=robot_inputs(args.robot))
     out, truth = Path(args.out), Path(args.truth) if args.truth else None
     sim = simulate(args.robot, args.effects, n=args.n, repeats=args.repeats, noise_mm=args.noise, seed=args.seed,
                    pose_seed=args.pose_seed)

@@ -110,7 +110,9 @@ def test_base_frame_targets_read_as_measuring_are_not_reached(cell, capsys):
     t = _write_targets(d / "targets_b2.csv", real_robot(table, q_goal, "base"))
     capsys.readouterr()
     code = main(["compensate", str(t), "--model", str(d / "model.json"), "--out", str(d / "q_wrong.csv")])
-    assert code == 1 and "in the measuring frame" in capsys.readouterr().out
+    cap = capsys.readouterr()
+    assert code == 1 and "in the measuring frame" in cap.out
+    assert "x,y,z read in the measuring frame (--frame base for the other)" in cap.err
 
 
 def test_unreachable_rows_are_listed_and_the_others_solved(cell, capsys):

@@ -74,7 +74,9 @@ def run(args) -> int:
             return ", ".join(map(str, ix[:20])) + (" ..." if len(ix) > 20 else "")
         parts = ([f"not converged: target(s) {rows(d['not_converged'])}"] if d["not_converged"] else []) + \
                 ([f"outside the joint limits: target(s) {rows(d['outside_limits'])}"] if d["outside_limits"] else []) + \
-                ([f"beyond the reach of {d['robot']}: target(s) {rows(d['beyond_reach'])}"] if d["beyond_reach"] else [])
+                ([f"beyond the reach of {d['robot']}: target(s) {rows(d['beyond_reach'])}, x,y,z read in the "
+                  f"{args.frame} frame (--frame {'base' if args.frame == 'measuring' else 'measuring'} for the other)"]
+                 if d["beyond_reach"] else [])
         sys.stderr.write(f"torchcal compensate: error: {len(res.failed)} target(s) failed "
                          f"({'; '.join(parts)}); see {args.out}\n")
         return 1

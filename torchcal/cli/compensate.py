@@ -1,4 +1,4 @@
-"""`torchcal compensate TARGETS.csv --model MODEL.json --out Q.csv`: corrected joint commands
+"""`torchcal compensate TARGETS.csv --model MODEL.json [--frame measuring|base] --out Q.csv`: corrected joint commands
 that make the calibrated model reach each target (torchcal.api.compensate_targets).
 
 TARGETS.csv: header ``x,y,z`` (mm; --length-unit m for metres) and optionally ``q1..qN``

@@ -84,7 +84,6 @@ def run(args) -> int:
     rep = ev.to_dict()
     if args.json:
         write_json(args.json, rep, force=args.force, inputs=inputs)
-        print(f"wrote {args.json}")
     if args.residuals:
         atomic_write(args.residuals, residuals_csv(m, ev), force=args.force, inputs=inputs)
     x, y, z = rep["per_axis_rms_mm"]
@@ -94,8 +93,9 @@ def run(args) -> int:
              if "orientation_rms_deg" in rep else ""))
     if fitted.residual_model is not None:
         print("(errors of the physical model plus its non-physical residual stage, docs/residual-model.md)")
-    if args.residuals:
-        print(f"wrote {args.residuals}")
+    for path in (args.json, args.residuals):
+        if path:
+            print(f"wrote {path}")
     if args.rrd or args.plots:
         from torchcal.cli._progress import progress
         from torchcal.cli._viz import evaluation_outputs

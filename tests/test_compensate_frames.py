@@ -148,3 +148,12 @@ def test_model_keeps_calibration_poses_to_seed_compensate(cell):
     assert fm.seed_poses is not None and fm.seed_poses.shape == (32, 6)
     data = torch.deg2rad(torch.as_tensor(np.loadtxt(d / "data.csv", delimiter=",", skiprows=1)[:, 1:7]))
     assert torch.cdist(fm.seed_poses, data).min(dim=1).values.max() < 1e-6  # each one is a calibration pose
+
+
+def test_start_stays_inside_the_calibrated_joint_range(cell):
+    d, table, _ = cell
+    fm = torchcal.load(d / "model.json")
+    q_cal = torch.deg2rad(torch.as_tensor(np.loadtxt(d / "data.csv", delimiter=",", skiprows=1)[:40, 1:7]))
+    goal = torch.as_tensor(real_robot(table, q_cal.numpy(), "measuring"))  # places the robot was calibrated at
+    comp = torchcal.compensate(fm, goal)
+    assert bool(comp.converged.all()) and comp.outside_range == 0

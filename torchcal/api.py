@@ -370,7 +370,8 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
         from torchcal.calibration.mismatch import check_targets
         check_targets(cm, theta if theta.ndim == 1 else theta[0], t)
     if q0 is None:
-        q0 = nominal_start(cm, theta if theta.ndim == 1 else theta[0], t, poses=model.seed_poses).q
+        q0 = nominal_start(cm, theta if theta.ndim == 1 else theta[0], t, poses=model.seed_poses,
+                           q_range=q_range).q
     zone = model.assign(t) - 1 if isinstance(model, IntervalModel) else None  # row of theta
     comp = run(cm, theta.to(t), t, q0, zone=zone, tol_mm=tol_mm, max_iter=max_iter, max_step_rad=max_step_rad,
                payload_kg=payload_kg, temp_c=temp_c)
@@ -591,7 +592,7 @@ def compensate_targets(model, targets, *, frame: str = "measuring", robot=None, 
     with warnings.catch_warnings():  # metres read as mm: refused; beyond the reach: listed
         warnings.simplefilter("ignore", MismatchWarning)
         far = check_targets(im.model, im.theta[0], t, where=where)
-    q0 = nominal_start(im.model, im.theta[0], t, poses=im.seed_poses).q if seeds is None else \
+    q0 = nominal_start(im.model, im.theta[0], t, poses=im.seed_poses, q_range=im.q_range).q if seeds is None else \
         rob.q_from_user(torch.as_tensor(seeds))
     comp = compensate(im, t, q0, check=False, payload_kg=payload_kg, temp_c=temp_c)
     return TargetCompensation(given, comp, im.assign(t), rob.q_to_user(comp.q), im.n_zones, im.method, rob.name,

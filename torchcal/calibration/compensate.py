@@ -44,7 +44,7 @@ __all__ = ["Compensation", "compensate", "predict_rows", "nominal_inverse", "nom
            "frame_model", "FRAMES"]
 
 FRAMES = ("measuring", "base")  # the frames compensate reads targets in
-TRIES = 4  # nearest calibration poses a nominal start tries per target
+TRIES = 8  # nearest calibration poses a nominal start tries per target
 
 
 @dataclass(frozen=True, eq=False)
@@ -256,21 +256,24 @@ def frame_model(model: CalibrationModel, theta: torch.Tensor):
     return CalibrationModel(model.robot, names), torch.cat([theta.new_zeros(5 * model.robot.n), *parts])
 
 
-def nominal_start(model: CalibrationModel, theta: torch.Tensor, targets, poses=None, seed: int = 0,
+def nominal_start(model: CalibrationModel, theta: torch.Tensor, targets, poses=None, q_range=None, seed: int = 0,
                   tol_mm: float = 1e-6) -> Compensation:
     """Starting commands for compensating targets (M, 3) mm given in the model's measuring
     frame, the one default of `torchcal.compensate` and ``torchcal compensate``: the
     nominal inverse (nominal MD-H geometry with the model's base frame and tool offset at
     theta (P,), `frame_model`), each target started from the pose of `poses` (K, n) rad /
     mm whose position in that frame is nearest (the model's calibration poses,
-    ``seed_poses``: the arm configuration it was calibrated in); a target not reached
-    inside the joint limits from there is tried from the next nearest, TRIES poses in
-    all. Without poses: 256 seeded random poses inside the joint limits
-    (`torchcal.robots.poses.random_poses`, seed).
+    ``seed_poses``: the arm configuration it was calibrated in). A target is tried from
+    its TRIES nearest poses in turn until a solution lies inside the joint limits and the
+    calibrated joint range q_range (2, n) (`torchcal.calibration.joint_range`; where the
+    model does not extrapolate); failing that, the first inside the limits. Without poses:
+    256 seeded random poses inside the joint limits (`torchcal.robots.poses.random_poses`,
+    seed).
 
     Returns the `Compensation` of the nominal inverse: q (M, n) rad / mm; ``converged``
     (M,) says which targets it reached (the others keep the nearest q it found, and the
     calibrated solve still tries them)."""
+    from torchcal.calibration.joint_range import outside_range
     from torchcal.robots.poses import random_poses
 
     robot = model.robot
@@ -283,16 +286,24 @@ def nominal_start(model: CalibrationModel, theta: torch.Tensor, targets, poses=N
     with torch.no_grad():
         pos = predict_rows(cm, th.expand(cand.shape[0], -1), cand)  # (K, 3)
     order = torch.cdist(t, pos).argsort(dim=1)[:, :TRIES]  # (M, <= TRIES) nearest first
+
+    def level(c):  # 2: inside the limits and the calibrated range, 1: inside the limits, 0: neither
+        ok = c.converged & c.within_limits
+        inside = ok if q_range is None else ok & ~outside_range(c.q, q_range.to(c.q), robot.prismatic).any(-1)
+        return ok.long() + inside.long()
+
     best = compensate(cm, th, t, cand[order[:, 0]], tol_mm=tol_mm, max_iter=100)
+    score = level(best)
     for k in range(1, order.shape[1]):
-        left = (~(best.converged & best.within_limits)).nonzero().flatten()
+        left = (score < 2).nonzero().flatten()
         if not left.numel():
             break
         alt = compensate(cm, th, t[left], cand[order[left, k]], tol_mm=tol_mm, max_iter=100)
-        take = left[alt.converged & alt.within_limits]
+        better = level(alt) > score[left]
+        take = left[better]
         if take.numel():
-            pick = alt.converged & alt.within_limits
-            best = Compensation(*(torch.index_put(getattr(best, f), (take,), getattr(alt, f)[pick])
+            best = Compensation(*(torch.index_put(getattr(best, f), (take,), getattr(alt, f)[better])
                                   for f in ("q", "q0", "predicted_mm", "residual_mm", "iterations", "converged",
                                             "within_limits")))
+            score[take] = level(alt)[better]
     return best

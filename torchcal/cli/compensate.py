@@ -7,7 +7,8 @@ TARGETS.csv: header ``x,y,z`` (mm; --length-unit m for metres) and optionally ``
 effects): the seed of each target, normally the command that nominally reaches it.
 Without seeds the nominal inverse (nominal geometry in the model's fitted frame) is
 solved first, each target starting from the nearest of the calibration poses the model
-keeps (the arm configuration it was calibrated in).
+keeps (the arm configuration it was calibrated in; the next nearest when the solution
+leaves the joint limits or the calibrated joint range).
 
 Frames (--frame): ``measuring`` (the default, printed) reads x,y,z in the frame the
 model was fitted in: the laser tracker's when the model has ``base_frame``;

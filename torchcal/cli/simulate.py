@@ -68,6 +68,6 @@ def run(args) -> int:
     extra = f" (+ {', '.join(d['columns'])})" if d["columns"] else ""
     print(f"simulate: {d['robot']}, effects [{' '.join(d['effects']) or 'none'}], {args.n} poses x "
           f"{d['repeats']} repeats = {d['rows']} rows{extra}, noise {d['noise_mm']:g} mm, seed {d['seed']}"
-          + (f", pose seed {d['pose_seed']}" if args.pose_seed is not None else "") + f" -> {out}"
-          + (f"; truth -> {truth}" if truth else ""))
+          + (f", pose seed {d['pose_seed']}" if args.pose_seed is not None else "") + f"; wrote {out}"
+          + (f", {truth} (truth)" if truth else ""))
     return 0

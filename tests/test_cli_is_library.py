@@ -62,7 +62,8 @@ def test_compensate_cli_and_api_agree_field_by_field(fitted, tmp_path, capsys):
     assert out.read_text() == res.to_csv()  # every command, zone, residual and flag
     d = res.to_dict()
     assert code == (1 if res.failed else 0)
-    assert f"compensated {len(d['targets'])} targets with {d['n_zones']} parameter set(s) ({d['method']})" in printed.out
+    assert f"compensated {len(d['targets'])} targets (x,y,z in the {d['frame']} frame) with {d['n_zones']} " \
+           f"parameter set(s) ({d['method']})" in printed.out
     assert f"{len(d['targets']) - len(res.failed)} converged within the joint limits" in printed.out
     assert f"max predicted residual {d['max_residual_mm']:.3g} mm" in printed.out
     # the one library answer: the same commands as torchcal.compensate from the same nominal seeds

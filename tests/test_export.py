@@ -2,8 +2,10 @@
 models are self-contained and refuse another robot's data."""
 
 import json
+import xml.etree.ElementTree as ET
 
 import pytest
+import torch
 
 import torchcal
 from torchcal.cli import main
@@ -11,7 +13,8 @@ from torchcal.effects import make_context
 from torchcal.io import modelfile
 from torchcal.io.measurement_csv import read_measurements
 from torchcal.robots.robot_file import load_robot_file
-from torchcal.robots.urdf import robot_from_urdf
+from torchcal.calibration.geometry_only import calibrated_robot
+from torchcal.robots.urdf import _origin, robot_from_urdf
 
 
 @pytest.fixture(scope="module")
@@ -34,9 +37,17 @@ def test_exported_robot_file_reproduces_model_predictions(fitted, capsys):
     pred = model.predict(theta, make_context(model.robot, m.q, m.payload_kg, m.temp_c))
     cal = load_robot_file(d / "cal.json")
     assert (cal.fk(m.q) - pred).norm(dim=-1).max() < 1e-6
-    # the URDF re-imported gives the same calibrated FK
-    back = robot_from_urdf(d / "cal.urdf", "base_link", "tcp")
-    assert (back.fk(m.q) - pred).norm(dim=-1).max() < 1e-3
+    # the URDF keeps the robot's base and tool0; re-imported it gives the calibrated geometry, and
+    # with its separate frames (tracker on base_link, reflector on tool0) the model's predictions
+    own = calibrated_robot(model, theta, fold=False)[0]
+    back = robot_from_urdf(d / "cal.urdf", "base_link", "tool0")
+    assert (back.fk_pose(m.q) - own.fk_pose(m.q))[:, :3, 3].norm(dim=-1).max() < 1e-6
+    assert (back.fk_pose(m.q) - own.fk_pose(m.q))[:, :3, :3].abs().max() < 1e-9
+    assert (back.fk(m.q) - pred).norm(dim=-1).max() > 0.1  # the measuring frame is not folded in
+    refl = robot_from_urdf(d / "cal.urdf", "base_link", "reflector")
+    tracker = [j for j in ET.parse(d / "cal.urdf").getroot().findall("joint") if j.get("name") == "tracker_joint"]
+    T = torch.linalg.inv(_origin(tracker[0].find("origin"), "tracker"))  # measuring <- base
+    assert (refl.fk(m.q) @ T[:3, :3].T + T[:3, 3] - pred).norm(dim=-1).max() < 1e-6
     # the table holds the calibrated rows in degrees and mm
     rows = (d / "cal.csv").read_text().splitlines()
     assert rows[0] == "joint,type,theta_offset_deg,d_mm,a_mm,alpha_deg,beta_deg,lower,upper"
@@ -98,3 +109,49 @@ def test_old_model_file_with_preset_name_loads(fitted):
     fitted = modelfile.load(old)
     model, theta = fitted.model, fitted.theta
     assert model.robot == torchcal.robot("ur5e")
+
+
+def test_export_never_replaces_what_the_model_came_from(tmp_path, capsys):
+    from torchcal.robots.urdf import minimal_urdf
+
+    src = tmp_path / "arm.urdf"
+    src.write_text(minimal_urdf(torchcal.robot("ur5e")))
+    assert main(["robot", "import", str(src), "--base", "base_link", "--tip", "tool0",
+                 "--out", str(tmp_path / "arm.json")]) == 0
+    assert main(["simulate", "--robot", str(tmp_path / "arm.json"), "--effects", "base_frame", "--n", "40",
+                 "--seed", "4", "--out", str(tmp_path / "s.csv")]) == 0
+    assert main(["fit", str(tmp_path / "s.csv"), "--robot", str(tmp_path / "arm.json"), "--effects", "base_frame",
+                 "--out", str(tmp_path / "m.json")]) == 0
+    before = {p: p.read_bytes() for p in (src, tmp_path / "s.csv")}
+    for opt, path in (("--urdf", src), ("--table", tmp_path / "s.csv")):  # the source URDF, the model's data
+        capsys.readouterr()
+        assert main(["export", str(tmp_path / "m.json"), opt, str(path), "--force"]) == 2
+        err = capsys.readouterr().err
+        assert f"{path}: refusing to write over the input file" in err and len(err.splitlines()) == 1
+    assert all(p.read_bytes() == b for p, b in before.items())
+
+
+def test_unwritable_output_is_found_before_the_work_with_the_users_path(fitted, capsys):
+    capsys.readouterr()
+    out = "/proc/torchcal_cal.urdf"  # no file can be created there, whoever runs the test
+    assert main(["export", str(fitted / "m.json"), "--urdf", out, "--data", str(fitted / "s.csv")]) == 2
+    cap = capsys.readouterr()
+    assert cap.out == "" and len(cap.err.splitlines()) == 1  # nothing ran: no refit line
+    assert f"{out}: cannot write in folder /proc" in cap.err and ".tmp" not in cap.err and "Errno" not in cap.err
+
+
+def test_no_command_writes_over_the_robot_file_or_its_urdf(tmp_path, capsys):
+    from torchcal.robots.urdf import minimal_urdf
+
+    src = tmp_path / "arm.urdf"
+    src.write_text(minimal_urdf(torchcal.robot("ur5e")))
+    robot = tmp_path / "arm.json"
+    assert main(["robot", "import", str(src), "--base", "base_link", "--tip", "tool0", "--out", str(robot)]) == 0
+    before = {p: p.read_bytes() for p in (src, robot)}
+    for argv in (["simulate", "--robot", str(robot), "--n", "10", "--seed", "1", "--out", str(robot)],
+                 ["simulate", "--robot", str(robot), "--n", "10", "--seed", "1", "--out", str(src)],
+                 ["plan", "--robot", str(robot), "--n", "10", "--candidates", "50", "--out", str(src)]):
+        capsys.readouterr()
+        assert main([*argv, "--force"]) == 2
+        assert "refusing to write over it" in capsys.readouterr().err
+    assert all(p.read_bytes() == b for p, b in before.items())

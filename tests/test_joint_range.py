@@ -107,7 +107,7 @@ def test_cli_writes_range_and_warns_old_file_does_not(session, tmp_path, capsys)
     rep = tmp_path / "rep.json"
     assert main(["evaluate", str(val), "--model", str(model), "--json", str(rep)]) == 0
     cap = capsys.readouterr()
-    assert cap.out.startswith("40 rows: rms ") and len(cap.out.strip().splitlines()) == 1
+    assert cap.out.startswith("40 rows: rms ") and cap.out.strip().splitlines()[1:] == [f"wrote {rep}"]
     lines = [ln for ln in cap.err.splitlines() if "calibrated joint range" in ln]
     assert lines == [lines[0]] and lines[0].startswith("torchcal: warning: 1 of 40 rows lie outside")
     assert "joint 1: 100.0 deg" in lines[0]

@@ -107,8 +107,8 @@ def test_targets_beyond_reach_are_named(ur10):
     far = t.clone()
     far[1] = far[1] * 4  # about 4 times the distance of a reachable point
     with pytest.warns(MismatchWarning, match=r"1 target\(s\) lie beyond the reach.*row\(s\) 2"):
-        with pytest.raises(InputError, match=r"no nominal inverse found for target row\(s\) \[2\]"):
-            torchcal.compensate(fitted, far, max_iter=2)
+        comp = torchcal.compensate(fitted, far)
+    assert comp.converged.tolist() == [True, False, True]  # listed, and the others still solved
 
 
 def test_robot_file_in_metres_is_refused():

@@ -120,7 +120,7 @@ def test_minimal_export_reimports_to_calibrated_fk(tmp_path, key):
     dev = _deviations(robot, 1)
     out = tmp_path / "cal.urdf"
     out.write_text(minimal_urdf(robot, dev))
-    back = robot_from_urdf(out, "base_link", "tcp")
+    back = robot_from_urdf(out, "base_link", "tool0")
     q = _random_q(robot, 1000, 2)
     err = (back.fk_pose(q)[:, :3, 3] - robot.fk_pose(q, dev)[:, :3, 3]).norm(dim=-1).max()
     assert err < 1e-3
@@ -151,3 +151,32 @@ def test_calibrated_urdf_keeps_links_and_carries_calibration(tmp_path, key):
     back = robot_from_urdf(out, base, new_tip)
     q = _random_q(robot, 1000, 5)
     assert (back.fk(q) - cal.fk(q)).norm(dim=-1).max() < 1e-3
+
+
+def test_robot_import_messages_name_the_cause(tmp_path, capsys):
+    from torchcal.cli import main
+
+    path, base, tip = _write(tmp_path, "ur")
+    text = path.read_text()
+    (tmp_path / "arm.urdf").write_text(text.replace('<robot name="ur">', '<robot name="ur10e_cell">'))
+    assert main(["robot", "import", str(tmp_path / "arm.urdf"), "--base", base, "--tip", tip,
+                 "--out", str(tmp_path / "arm.json")]) == 0
+    assert "robot ur10e_cell:" in capsys.readouterr().out  # the URDF's own name, not the file's
+    # a xacro file: its links sit in macros
+    (tmp_path / "arm.urdf.xacro").write_text(
+        '<?xml version="1.0"?><robot xmlns:xacro="http://www.ros.org/wiki/xacro" name="arm">'
+        '<xacro:macro name="arm" params="prefix"><link name="${prefix}base_link"/></xacro:macro>'
+        '<xacro:arm prefix=""/></robot>')
+    for urdf, b, t, expect in ((tmp_path / "arm.urdf.xacro", "base_link", "tool0", "expand the xacro first"),
+                               (tmp_path / "arm.urdf", tip, base, f"swap them (base link {base!r}, tip link {tip!r})")):
+        capsys.readouterr()
+        assert main(["robot", "import", str(urdf), "--base", b, "--tip", t,
+                     "--out", str(tmp_path / "x.json")]) == 2
+        err = capsys.readouterr().err
+        assert expect in err and len(err.splitlines()) == 1 and "KeyError" not in err
+        assert not (tmp_path / "x.json").exists()
+    side = tmp_path / "side.urdf"  # a camera on the shoulder: a branch off the chain
+    side.write_text(text.replace("</robot>", '<link name="camera"/>' + _joint(
+        "cam", "fixed", "shoulder", "camera", "0 0 0.1", "0 0 0") + "</robot>"))
+    with pytest.raises(InputError, match="base link 'camera' to tip link 'tool0': 'camera' is not on the way"):
+        read_chain(side, "camera", "tool0")

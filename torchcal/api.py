@@ -366,9 +366,11 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
     """Corrected joint commands (M, n) rad for target positions (M, 3) mm.
 
     model: a fitted model (`FitResult`, or a MODEL.json path) or an
-    `IntervalModel` (targets assigned to its zones). q0: (M, n) rad starting commands,
-    default `torchcal.calibration.compensate.nominal_start` (the nominal inverse, as the
-    command line seeds it; InputError naming the targets it does not reach). tol_mm,
+    `IntervalModel` (targets assigned to its zones). targets: in the model's measuring
+    frame. q0: (M, n) rad starting commands, default
+    `torchcal.calibration.compensate.nominal_start` (the nominal inverse in the measuring
+    frame from the nearest calibration pose, as the command line seeds it; a target it
+    does not reach is still tried and ends not converged). tol_mm,
     max_iter, max_step_rad: the Newton solve (`torchcal.calibration.compensate.compensate`);
     payload_kg, temp_c: (M,) conditions of the moves, for load and temperature effects. Returns a
     `Compensation`; converged solutions outside the model's calibrated joint range are
@@ -393,7 +395,8 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
         from torchcal.calibration.mismatch import check_targets
         check_targets(cm, theta if theta.ndim == 1 else theta[0], t)
     if q0 is None:
-        q0 = nominal_start(robot, t)
+        q0 = nominal_start(cm, theta if theta.ndim == 1 else theta[0], t, poses=model.seed_poses,
+                           q_range=q_range).q
     zone = model.assign(t) - 1 if isinstance(model, IntervalModel) else None  # row of theta
     comp = run(cm, theta.to(t), t, q0, zone=zone, tol_mm=tol_mm, max_iter=max_iter, max_step_rad=max_step_rad,
                payload_kg=payload_kg, temp_c=temp_c)
@@ -451,6 +454,7 @@ def register(model, measurements, *, tool: bool = False) -> FitResult:
     if fm is None:
         return res
     return replace(res, orientation=fm.orientation, robust=fm.robust, sigma_mm=fm.sigma_mm, sigma_deg=fm.sigma_deg,
+                   seed_poses=fm.seed_poses,
                    residual_model=fm.residual_model, training=fm.training, provenance=fm.provenance)
 
 
@@ -464,6 +468,14 @@ def _is_model(obj) -> bool:
 
         return read_json(obj, "model or robot file").get("format") in (FORMAT, FORMAT_RAD)
     return False
+
+
+def _sources(model) -> list:
+    """Paths the model came from, as it records them: its data (provenance ``input``,
+    ``partition``) and the URDF its robot was imported from."""
+    out = [(model.provenance or {}).get(k) for k in ("input", "partition")]
+    urdf = model.model.robot.urdf
+    return [p for p in out + [urdf and urdf.get("path")] if p]
 
 
 def _interval_model(model):
@@ -485,7 +497,7 @@ class TargetCompensation:
     targets file, each with the zone it was compensated in.
 
     Attributes:
-        targets: (M, 3) mm target positions.
+        targets: (M, 3) mm target positions in `frame`.
         compensation: the `Compensation` (q rad / mm, residuals, convergence, limits).
         zone: (M,) 1-based zone of each target (1 for a single-set model).
         q_user: (M, n) corrected commands in deg (mm for a prismatic joint).
@@ -493,6 +505,7 @@ class TargetCompensation:
             a fitted model).
         robot: the robot's name.
         beyond_reach: 0-based rows of targets beyond the robot's reach (named, not refused).
+        frame: the frame the targets were given in, "measuring" or "base".
     """
 
     targets: torch.Tensor
@@ -503,6 +516,7 @@ class TargetCompensation:
     method: str
     robot: str
     beyond_reach: list = field(default_factory=list)
+    frame: str = "measuring"
 
     @property
     def residual_mm(self) -> torch.Tensor:
@@ -537,38 +551,47 @@ class TargetCompensation:
         rows = [{"point": i + 1, "zone": int(self.zone[i]), "q": self.q_user[i].tolist(), "residual_mm": res[i],
                  "converged": bool(c.converged[i]), "within_limits": bool(c.within_limits[i])}
                 for i in range(self.targets.shape[0])]
-        return {"robot": self.robot, "n_zones": self.n_zones, "method": self.method, "targets": rows,
+        return {"robot": self.robot, "frame": self.frame, "n_zones": self.n_zones, "method": self.method,
+                "targets": rows,
                 "max_residual_mm": max(res), "outside_range": c.outside_range,
                 "not_converged": [i + 1 for i in self.not_converged],
                 "outside_limits": [i + 1 for i in self.outside_limits],
                 "beyond_reach": [i + 1 for i in self.beyond_reach]}
 
 
-def compensate_targets(model, targets, *, robot=None, length_unit: str = "mm", angle_unit: str = "deg",
-                       seeds=None, payload_kg=None, temp_c=None) -> TargetCompensation:
+def compensate_targets(model, targets, *, frame: str = "measuring", robot=None, length_unit: str = "mm",
+                       angle_unit: str = "deg", seeds=None, payload_kg=None, temp_c=None) -> TargetCompensation:
     """``torchcal compensate``: corrected joint commands for a targets file or tensor.
 
     model: a MODEL.json path of ``torchcal fit`` or ``torchcal calibrate`` (an interval
     model: each target is compensated with its zone's parameters), an `IntervalModel`, or a
     fitted model (FitResult). targets: a TARGETS.csv path
     (`torchcal.io.targets_csv.read_targets`; its seeds and conditions are used, units per
-    `length_unit` / `angle_unit`) or (M, 3) mm. robot: optional robot (preset, file, Robot)
-    the model must be for (InputError otherwise). seeds: (M, n) deg (mm for a slide)
-    starting commands for tensor targets, default the nominal inverse
-    (`torchcal.calibration.compensate.nominal_start`); payload_kg, temp_c: (M,) conditions
-    for tensor targets. Targets inside the robot's base are refused; those beyond its reach
-    are listed in ``beyond_reach``. A model effect that needs a condition the targets lack is
+    `length_unit` / `angle_unit`) or (M, 3) mm. frame: the frame the targets are in,
+    "measuring" (the model's measuring frame: the tracker's when it has a base_frame
+    effect) or "base" (the robot base frame, mapped to the measuring frame with the
+    fitted base frame of the first parameter set,
+    `torchcal.calibration.compensate.measuring_from_base`). robot: optional robot (preset,
+    file, Robot) the model must be for (InputError otherwise). seeds: (M, n) deg (mm for a
+    slide) starting commands for tensor targets, default the nominal inverse in the
+    measuring frame from the nearest calibration pose
+    (`torchcal.calibration.compensate.nominal_start`; a target it does not reach is still
+    tried, and reported per row); payload_kg, temp_c: (M,) conditions for tensor targets.
+    Targets inside the robot's base or around the origin of their frame (metres read as
+    mm) are refused; those beyond its reach are listed in ``beyond_reach``. A model effect that needs a condition the targets lack is
     refused naming it. Converged commands outside the calibrated range: one
     `CalibratedRangeWarning`.
     """
     import warnings
 
-    from torchcal.calibration.compensate import nominal_start
+    from torchcal.calibration.compensate import FRAMES, measuring_from_base, nominal_start
     from torchcal.calibration.mismatch import MismatchWarning, check_targets
     from torchcal.effects import make_context
     from torchcal.robots.robot_file import check_same_robot
 
     where = str(targets) if isinstance(targets, (str, Path)) else "targets"
+    if frame not in FRAMES:
+        raise InputError(f"frame: expected one of {', '.join(FRAMES)}, got {frame!r}")
     im = _interval_model(model)
     rob = im.model.robot
     if robot is not None:
@@ -592,13 +615,18 @@ def compensate_targets(model, targets, *, robot=None, length_unit: str = "mm", a
             need = "column temp_c" if e.name == "thermal_expansion" else str(exc)
             raise InputError(f"{where}: the model's effect {e.spec()} needs {need} "
                              f"in the targets, which they lack") from None
+    given = t
+    if frame == "base":  # the solve is in the measuring frame, where the model predicts
+        R, o = measuring_from_base(im.model, im.theta[0].to(t))
+        t = t @ R.T + o
     with warnings.catch_warnings():  # metres read as mm: refused; beyond the reach: listed
         warnings.simplefilter("ignore", MismatchWarning)
         far = check_targets(im.model, im.theta[0], t, where=where)
-    q0 = nominal_start(rob, t, where=where) if seeds is None else rob.q_from_user(torch.as_tensor(seeds))
+    q0 = nominal_start(im.model, im.theta[0], t, poses=im.seed_poses, q_range=im.q_range).q if seeds is None else \
+        rob.q_from_user(torch.as_tensor(seeds))
     comp = compensate(im, t, q0, check=False, payload_kg=payload_kg, temp_c=temp_c)
-    return TargetCompensation(t, comp, im.assign(t), rob.q_to_user(comp.q), im.n_zones, im.method, rob.name,
-                              far)
+    return TargetCompensation(given, comp, im.assign(t), rob.q_to_user(comp.q), im.n_zones, im.method, rob.name,
+                              far, frame)
 
 
 @dataclass
@@ -606,7 +634,8 @@ class Export:
     """What ``torchcal export`` computed and wrote.
 
     Attributes:
-        robot: the calibrated `Robot` (geometry folded in; its ``urdf`` names the written URDF).
+        robot: the calibrated `Robot` of the robot file (geometry, base frame and tool offset
+            folded in; its ``urdf`` names the written URDF when that URDF has the same chain).
         effects_not_held: [{"spec", "parameters"}] of the model's effects that a robot file, a
             URDF or an MD-H table cannot hold (listed in the robot file; empty after a refit).
         residual_stage_dropped: the model had a non-physical residual stage, which is not exported.
@@ -615,6 +644,8 @@ class Export:
             model has effects the exported robot cannot hold).
         urdf_source: the nominal URDF whose links the calibrated URDF keeps, None for a minimal URDF.
         written: {"robot_file", "urdf", "table"} paths written (None: not asked).
+        urdf_links: {"base_link", "tip_link", "frames"} of the written URDF (its base and
+            tool links, the names of its separate measuring frames), None without a URDF.
     """
 
     robot: Robot
@@ -624,13 +655,14 @@ class Export:
     data_rows: int | None
     urdf_source: str | None
     written: dict
+    urdf_links: dict | None = None
 
     def to_dict(self) -> dict:
         r = self.refit
         return {"robot": self.robot.name, "joints": self.robot.n, "written": dict(self.written),
                 "effects_not_held": [e["spec"] for e in self.effects_not_held],
                 "residual_stage_dropped": self.residual_stage_dropped,
-                "urdf": None if self.robot.urdf is None else dict(self.robot.urdf, source=self.urdf_source),
+                "urdf": None if self.urdf_links is None else dict(self.urdf_links, source=self.urdf_source),
                 "refit": None if r is None else {"rows": self.data_rows, "dropped": list(r.dropped),
                                                  "refit_rms_mm": r.refit_rms_mm, "full_rms_mm": r.full_rms_mm,
                                                  "naive_rms_mm": r.naive_rms_mm, "status": str(r.fit.status)}}
@@ -647,26 +679,31 @@ def export(model, *, robot_file=None, urdf=None, table=None, data=None, length_u
     Other effects: with `data` (Measurements or CSV path in `length_unit` / `angle_unit`) the
     geometry alone is refitted on them (`refit_geometry`) and that geometry exported; without,
     they are listed in the robot file. A robot imported from a URDF keeps that file's links
-    (`torchcal.robots.urdf.calibrated_urdf`), any other gets `minimal_urdf`. Every output is
-    checked before any work (OutputExistsError without `force`) and written atomically."""
+    (`torchcal.robots.urdf.calibrated_urdf`), any other gets `minimal_urdf`; the URDF keeps
+    the robot's own base and tool (``tool0``) and carries the measuring frame and the
+    reflector(s) as separate fixed frames ``tracker`` and ``reflector``
+    (`torchcal.robots.urdf.add_frames`). Every output is checked before any work
+    (OutputExistsError without `force`; never one of the inputs or the files the model
+    came from, `force` included; its folder must take a new file) and written atomically."""
     import dataclasses
 
-    from torchcal.calibration.geometry_only import calibrated_robot, refit_geometry
+    from torchcal.calibration.geometry_only import calibrated_robot, measuring_frames, refit_geometry
     from torchcal.calibration.mismatch import check_measurements, enforce
     from torchcal.calibration.plausibility import check_units
     from torchcal.io.files import atomic_write, check_output
     from torchcal.io.mdh_table import mdh_table_csv
     from torchcal.robots.robot_file import write_robot_file
-    from torchcal.robots.urdf import calibrated_urdf, minimal_urdf
+    from torchcal.robots.urdf import add_frames, calibrated_urdf, minimal_urdf
 
     outs = {"robot_file": robot_file, "urdf": urdf, "table": table}
     if not any(outs.values()):
         raise InputError("export: give at least one output (robot file, URDF or MD-H table)")
     inputs = [p for p in (model, data) if isinstance(p, (str, Path))]
+    im = _interval_model(model)
+    inputs += _sources(im)  # never over the files the model came from, force or not
     for p in outs.values():
         if p is not None:
             check_output(p, force=force, inputs=inputs)
-    im = _interval_model(model)
     cm, theta = im.model, im.theta[0]
     cal, rest = calibrated_robot(cm, theta)
     refit, rows = None, None
@@ -675,16 +712,22 @@ def export(model, *, robot_file=None, urdf=None, table=None, data=None, length_u
         check_units(m, cm.robot, length_unit=length_unit, angle_unit=angle_unit, where=m.source or "data")
         enforce(check_measurements(cm, theta.to(m.xyz), m, im.zones[0].get("rms_mm")))
         rows, refit = len(m), refit_geometry(cm, theta, m, identified=im.free[0])
-        cal, rest = calibrated_robot(refit.fit.model, refit.fit.theta)[0], []
-    urdf_text, urdf_info, source = None, None, None
-    if urdf is not None:
-        if cal.urdf is not None:
-            urdf_text, tip = calibrated_urdf(cm.robot, cal)
-            source = cal.urdf["path"]
-            urdf_info = {"path": str(Path(urdf).resolve()), "base_link": cal.urdf["base_link"], "tip_link": tip}
+        cm, theta = refit.fit.model, refit.fit.theta
+        cal, rest = calibrated_robot(cm, theta)[0], []
+    urdf_text, urdf_info, source, links = None, None, None, None
+    if urdf is not None:  # the robot's own base and tool; the measuring set-up as separate frames
+        own = calibrated_robot(cm, theta, fold=False)[0]
+        W, reflectors = measuring_frames(cm, theta)
+        if own.urdf is not None:
+            urdf_text, tip = calibrated_urdf(im.model.robot, own)
+            source, base_link = own.urdf["path"], own.urdf["base_link"]
         else:
-            urdf_text = minimal_urdf(cal)
-            urdf_info = {"path": str(Path(urdf).resolve()), "base_link": "base_link", "tip_link": "tcp"}
+            urdf_text, tip, base_link = minimal_urdf(own), "tool0", "base_link"
+        urdf_text = add_frames(urdf_text, base_link, tip, W, reflectors)
+        urdf_info = {"path": str(Path(urdf).resolve()), "base_link": base_link, "tip_link": tip}
+        links = dict(urdf_info, frames=(["tracker"] if W is not None else []) + [n for n, _ in reflectors])
+        if W is not None or reflectors:  # the robot file folds the frames in: its URDF chain is another
+            urdf_info = None
     cal = dataclasses.replace(cal, urdf=urdf_info)  # the calibrated robot file points at the calibrated URDF
     if robot_file is not None:
         write_robot_file(robot_file, cal, effects=rest, force=force, inputs=inputs)
@@ -693,7 +736,7 @@ def export(model, *, robot_file=None, urdf=None, table=None, data=None, length_u
     if table is not None:
         atomic_write(table, mdh_table_csv(cal), force=force, inputs=inputs)
     return Export(cal, rest, im.residual_model is not None, refit, rows, source,
-                  {k: (None if v is None else str(v)) for k, v in outs.items()})
+                  {k: (None if v is None else str(v)) for k, v in outs.items()}, links if urdf else None)
 
 
 def accuracy(model, *, n: int = 2000, seed: int = 0, payload_kg: float | None = None, temp_c: float = 20.0):

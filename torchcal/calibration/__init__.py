@@ -11,7 +11,8 @@ from torchcal._lazy import attach
 __getattr__, __dir__, __all__ = attach(__name__, {
     "torchcal.calibration.accuracy": ["Accuracy", "predicted_sigma", "region_names", "workspace_accuracy"],
     "torchcal.calibration.batched": ["batched_jacobian", "batched_predict"],
-    "torchcal.calibration.compensate": ["Compensation", "nominal_inverse", "nominal_start", "predict_rows"],
+    "torchcal.calibration.compensate": ["Compensation", "nominal_inverse", "nominal_start", "predict_rows",
+                                        "measuring_from_base", "frame_model", "FRAMES"],
     "torchcal.calibration.covariance": ["ParameterCovariance", "parameter_covariance", "tcp_covariance", "tcp_sigma"],
     "torchcal.calibration.fit": ["SIGMA_DEG", "SIGMA_MM", "FitResult", "Identifiability", "identifiability"],
     "torchcal.calibration.geometry_only": ["FOLDED", "GeometryRefit", "calibrated_robot", "geometry_model",

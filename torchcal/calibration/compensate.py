@@ -6,7 +6,14 @@ parameters, docs/paper.md section 6), find joint commands q with
     model.predict(theta_zone, q) = t
 
 starting from a seed ``q0`` (the nominal inverse: the command that nominally reaches the
-target; in a simulation it is known, otherwise `nominal_inverse` computes it). Position
+target; in a simulation it is known, otherwise `nominal_start` computes it in the
+model's measuring frame, from the nearest of the model's calibration poses).
+
+Frames: the model predicts in its measuring frame (the tracker's, when it has a
+base_frame effect); targets in the robot base frame are mapped there first with the
+fitted base frame (`measuring_from_base`). Joint 1's dtheta and dd trade against the base
+frame's rotation about z and its z translation: the base frame is the fit's choice
+among them (the identification holds the redundant ones). Position
 needs 3 of the n joint values, so the step is the minimum-norm damped Newton step in
 joint space (Levenberg-Marquardt on the joints)
 
@@ -33,7 +40,11 @@ from torchcal.effects.context import Context, approach_directions
 from torchcal.errors import InputError
 from torchcal.calibration.model import CalibrationModel
 
-__all__ = ["Compensation", "compensate", "predict_rows", "nominal_inverse", "nominal_start"]
+__all__ = ["Compensation", "compensate", "predict_rows", "nominal_inverse", "nominal_start", "measuring_from_base",
+           "frame_model", "FRAMES"]
+
+FRAMES = ("measuring", "base")  # the frames compensate reads targets in
+TRIES = 8  # nearest calibration poses a nominal start tries per target
 
 
 @dataclass(frozen=True, eq=False)
@@ -207,9 +218,9 @@ def compensate(model: CalibrationModel, theta, targets, q0, zone=None, tol_mm: f
 
 def nominal_inverse(robot, targets, q0=None, tol_mm: float = 1e-6, max_iter: int = 100) -> Compensation:
     """Nominal inverse kinematics (position only) from starting commands: the commands that the
-    *nominal* robot needs to reach the targets. targets (M, 3) mm; q0 (M, n) or (n,)
-    rad starting commands, as in `torchcal.api.compensate` (default: the middle of the joint limits). Returns a `Compensation` whose q is the
-    nominal inverse."""
+    *nominal* robot needs to reach the targets (M, 3) mm in its base frame. q0 (M, n) or (n,)
+    rad starting commands (default: the middle of the joint limits). Returns a
+    `Compensation` whose q is the nominal inverse."""
     t = torch.as_tensor(targets, dtype=robot.dtype, device=robot.device)
     if t.ndim != 2 or t.shape[1] != 3:
         raise InputError(f"targets: expected (M, 3) mm, got shape {tuple(t.shape)}")
@@ -221,21 +232,78 @@ def nominal_inverse(robot, targets, q0=None, tol_mm: float = 1e-6, max_iter: int
                       tol_mm=tol_mm, max_iter=max_iter)
 
 
-def nominal_start(robot, targets, where: str = "targets") -> torch.Tensor:
-    """(M, n) rad / mm starting commands for compensating targets (M, 3) mm, the one default
-    of `torchcal.compensate` and ``torchcal compensate``: the nominal inverse
-    (`nominal_inverse`) from joint 1 turned towards each target (atan2(y, x), inside its
-    limits) and the other joints at the middle of their limits. InputError (one line
-    starting with `where`) naming the target rows (1-based) it does not reach."""
+def measuring_from_base(model: CalibrationModel, theta: torch.Tensor):
+    """(R (3, 3), t (3,)): the model's measuring frame <- robot base frame, its base_frame
+    effect at theta (P,) (a point v in the base frame is ``R v + t`` mm in the measuring
+    frame); the identity without a base_frame effect."""
+    R = torch.eye(3, dtype=theta.dtype, device=theta.device)
+    t = theta.new_zeros(3)
+    for e, sl in zip(model.effects, model.slices[1:]):
+        if e.name == "base_frame":
+            R, t = e.world_rotation(theta[sl], None), theta[sl][:3]
+    return R, t
+
+
+def frame_model(model: CalibrationModel, theta: torch.Tensor):
+    """(CalibrationModel, theta' (P',)): the nominal geometry in the model's measuring frame,
+    its base_frame and (a single) tool_offset at their values in theta (P,), MD-H
+    deviations zero. With one tool offset per measured point, the nominal tool."""
+    names, parts = [], []
+    for e, sl in zip(model.effects, model.slices[1:]):
+        if e.name == "base_frame" or (e.name == "tool_offset" and not model.points):
+            names.append(e.name)
+            parts.append(theta[sl])
+    return CalibrationModel(model.robot, names), torch.cat([theta.new_zeros(5 * model.robot.n), *parts])
+
+
+def nominal_start(model: CalibrationModel, theta: torch.Tensor, targets, poses=None, q_range=None, seed: int = 0,
+                  tol_mm: float = 1e-6) -> Compensation:
+    """Starting commands for compensating targets (M, 3) mm given in the model's measuring
+    frame, the one default of `torchcal.compensate` and ``torchcal compensate``: the
+    nominal inverse (nominal MD-H geometry with the model's base frame and tool offset at
+    theta (P,), `frame_model`), each target started from the pose of `poses` (K, n) rad /
+    mm whose position in that frame is nearest (the model's calibration poses,
+    ``seed_poses``: the arm configuration it was calibrated in). A target is tried from
+    its TRIES nearest poses in turn until a solution lies inside the joint limits and the
+    calibrated joint range q_range (2, n) (`torchcal.calibration.joint_range`; where the
+    model does not extrapolate); failing that, the first inside the limits. Without poses:
+    256 seeded random poses inside the joint limits (`torchcal.robots.poses.random_poses`,
+    seed).
+
+    Returns the `Compensation` of the nominal inverse: q (M, n) rad / mm; ``converged``
+    (M,) says which targets it reached (the others keep the nearest q it found, and the
+    calibrated solve still tries them)."""
+    from torchcal.calibration.joint_range import outside_range
+    from torchcal.robots.poses import random_poses
+
+    robot = model.robot
     t = torch.as_tensor(targets, dtype=robot.dtype, device=robot.device)
     if t.ndim != 2 or t.shape[1] != 3:
-        raise InputError(f"{where}: expected (M, 3) mm, got shape {tuple(t.shape)}")
-    q = robot.limits.mean(-1).expand(t.shape[0], robot.n).clone()
-    q[:, 0] = torch.atan2(t[:, 1], t[:, 0]).clamp(robot.limits[0, 0], robot.limits[0, 1])
-    ni = nominal_inverse(robot, t, q)
-    if not ni.converged.all():
-        bad = (~ni.converged).nonzero().flatten().tolist()
-        raise InputError(f"{where}: no nominal inverse found for target row(s) {[b + 1 for b in bad][:10]} "
-                         f"(out of reach?); give starting commands (q1..q{robot.n} in the targets file, "
-                         "q0 in torchcal.compensate)")
-    return ni.q
+        raise InputError(f"targets: expected (M, 3) mm, got shape {tuple(t.shape)}")
+    cm, th = frame_model(model, theta.to(t))
+    cand = random_poses(robot, 256, seed) if poses is None else robot.check_q(poses, "poses")
+    cand = cand.to(t)
+    with torch.no_grad():
+        pos = predict_rows(cm, th.expand(cand.shape[0], -1), cand)  # (K, 3)
+    order = torch.cdist(t, pos).argsort(dim=1)[:, :TRIES]  # (M, <= TRIES) nearest first
+
+    def level(c):  # 2: inside the limits and the calibrated range, 1: inside the limits, 0: neither
+        ok = c.converged & c.within_limits
+        inside = ok if q_range is None else ok & ~outside_range(c.q, q_range.to(c.q), robot.prismatic).any(-1)
+        return ok.long() + inside.long()
+
+    best = compensate(cm, th, t, cand[order[:, 0]], tol_mm=tol_mm, max_iter=100)
+    score = level(best)
+    for k in range(1, order.shape[1]):
+        left = (score < 2).nonzero().flatten()
+        if not left.numel():
+            break
+        alt = compensate(cm, th, t[left], cand[order[left, k]], tol_mm=tol_mm, max_iter=100)
+        better = level(alt) > score[left]
+        take = left[better]
+        if take.numel():
+            best = Compensation(*(torch.index_put(getattr(best, f), (take,), getattr(alt, f)[better])
+                                  for f in ("q", "q0", "predicted_mm", "residual_mm", "iterations", "converged",
+                                            "within_limits")))
+            score[take] = level(alt)[better]
+    return best

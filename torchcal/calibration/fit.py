@@ -41,7 +41,7 @@ import torch
 from torchcal.effects.context import Context
 from torchcal.errors import InputError
 from torchcal.calibration.lm import levenberg_marquardt
-from torchcal.calibration.joint_range import joint_range
+from torchcal.calibration.joint_range import joint_range, seed_poses
 from torchcal.calibration.model import CalibrationModel
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.calibration.covariance import ParameterCovariance, parameter_covariance
@@ -172,7 +172,8 @@ class FitResult:
     prior rows) or None (no prior); orientation: {"sigma_mm", "sigma_deg",
     "weight_mm_per_rad", "tool_rotation" (3, 3), "rms_deg"} when orientations were fitted,
     else None. q_range: (2, n) calibrated joint range, the min and max of the data's
-    commanded q, rad / mm (`torchcal.calibration.joint_range`; None when unknown).
+    commanded q, rad / mm (`torchcal.calibration.joint_range`; None when unknown);
+    seed_poses: (K, n) a few calibration poses that seed compensate (`joint_range.seed_poses`).
     robust, sigma_mm, sigma_deg: the settings of the fit that made it. residual_model: the
     optional non-physical residual stage (`torchcal.calibration.residual_model`), applied
     by evaluate and compensate. training: {"n", "rms_mm", "max_mm"} of the data the model
@@ -196,6 +197,7 @@ class FitResult:
     orientation: dict | None = None
     plausible_limits: dict | None = None
     q_range: torch.Tensor | None = None  # (2, n) [min; max] commanded q of the data, rad / mm
+    seed_poses: torch.Tensor | None = None  # (K, n) calibration poses that seed compensate, rad / mm
     robust: str | None = None
     sigma_mm: float = SIGMA_MM
     sigma_deg: float = SIGMA_DEG
@@ -475,5 +477,6 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
                      registration=reg_info, implausible=implausible, orientation=orient,
                      plausible_limits=None if not has_prior else
                      {"max_length_mm": max_length_mm, "max_angle_deg": max_angle_deg, "prior_sigma_mm": rho},
-                     q_range=joint_range(ctx.q), robust=robust, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
+                     q_range=joint_range(ctx.q), seed_poses=seed_poses(ctx.q), robust=robust, sigma_mm=sigma_mm,
+                     sigma_deg=sigma_deg,
                      training=training_summary(resid_pos))

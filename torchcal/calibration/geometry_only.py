@@ -73,14 +73,37 @@ def refit_geometry(model, theta: torch.Tensor, m, *, identified=None, max_iter: 
                          [e.spec() for e in model.effects if e.name not in FOLDED])
 
 
-def calibrated_robot(model, theta: torch.Tensor):
-    """(Robot, effects) of a model at theta (P,): the nominal robot (CPU, float64) with the
-    MD-H deviations added to its table, the base_frame effect folded into its base and
-    tool_offset into its tool; effects: [{"spec", "parameters": {name: {"value", "unit"}}}]
-    of the model's other effects, which a robot file, a URDF or an MD-H table cannot hold."""
-    import dataclasses
-
+def measuring_frames(model, theta: torch.Tensor):
+    """(W (4, 4) or None, reflectors [(name, (3,) mm)]): the model's measuring frame at
+    theta (P,) apart from the robot, float64 CPU. W: measuring frame <- robot base frame
+    (base_frame), None without it. reflectors: each measured point in the robot's TCP frame
+    (its nominal tool, ``tool0``): the tool offset rotated into that frame, named
+    ``reflector`` (or ``reflector_ID`` per point id); empty without tool_offset."""
     from torchcal.rotations import rotvec_to_matrix
+
+    theta = theta.to("cpu", torch.float64)
+    R_tool = model.robot.tool[:3, :3].to("cpu", torch.float64)
+    W, refl = None, []
+    for e, sl in zip(model.effects, model.slices[1:]):
+        p = theta[sl]
+        if e.name == "base_frame":
+            W = torch.eye(4, dtype=torch.float64)
+            W[:3, :3], W[:3, 3] = rotvec_to_matrix(p[3:6]), p[:3]
+        elif e.name == "tool_offset":
+            pts = e.points or (None,)
+            for k, pid in enumerate(pts):
+                refl.append(("reflector" if pid is None else f"reflector_{pid}", R_tool.T @ p[3 * k: 3 * k + 3]))
+    return W, refl
+
+
+def calibrated_robot(model, theta: torch.Tensor, fold: bool = True):
+    """(Robot, effects) of a model at theta (P,): the nominal robot (CPU, float64) with the
+    MD-H deviations added to its table and, with `fold`, the base_frame effect folded into
+    its base and tool_offset into its tool (without: the robot's own base and tool, the
+    measuring frame apart, `measuring_frames`); effects: [{"spec", "parameters": {name:
+    {"value", "unit"}}}] of the model's other effects, which a robot file, a URDF or an
+    MD-H table cannot hold."""
+    import dataclasses
 
     r = model.robot.to("cpu", torch.float64)
     theta = theta.to("cpu", torch.float64)
@@ -89,10 +112,10 @@ def calibrated_robot(model, theta: torch.Tensor):
     rest = []
     for e, sl in zip(model.effects, model.slices[1:]):
         p = theta[sl]
+        if e.name in FOLDED and not fold:
+            continue
         if e.name == "base_frame":
-            W = torch.eye(4, dtype=torch.float64)
-            W[:3, :3], W[:3, 3] = rotvec_to_matrix(p[3:6]), p[:3]
-            base = W @ base
+            base = measuring_frames(model, theta)[0] @ base
         elif e.name == "tool_offset":
             tool[:3, 3] = tool[:3, 3] + p
         else:

@@ -380,6 +380,7 @@ class IntervalModel:
             from `torchcal.calibrate`, else None; not stored in the file.
         q_range: (2, n) [min; max] commanded q of the calibration data, rad / mm
             (`torchcal.calibration.joint_range`), None when unknown.
+        seed_poses: (K, n) a few calibration poses that seed compensate, rad / mm, or None.
         residual_model: the non-physical residual stage of a fitted model read as one
             zone (`torchcal.calibration.residual_model`), else None.
     """
@@ -396,6 +397,7 @@ class IntervalModel:
     global_fit: object = None
     q_range: torch.Tensor | None = None
     residual_model: object = None
+    seed_poses: torch.Tensor | None = None
 
     @property
     def n_zones(self) -> int:
@@ -416,7 +418,8 @@ class IntervalModel:
         calibrated range, residual stage, and its training rms as the zone's ``rms_mm``."""
         im = cls.single(fitted.model, fitted.theta, fitted.report.free, q_range=fitted.q_range)
         im.zones[0]["rms_mm"] = fitted.training_rms_mm
-        return dataclasses.replace(im, residual_model=fitted.residual_model)
+        return dataclasses.replace(im, residual_model=fitted.residual_model, provenance=fitted.provenance,
+                                   seed_poses=getattr(fitted, "seed_poses", None))
 
     @classmethod
     def from_fits(cls, fits: list, partition=None, levels=None, poses=None, method: str = "global",

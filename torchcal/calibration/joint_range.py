@@ -23,6 +23,7 @@ from torchcal.errors import InputError
 RANGE_TOL_FRACTION = 0.01  # of the calibrated span
 RANGE_TOL_DEG = 0.5  # revolute joints, at least
 RANGE_TOL_MM = 0.5  # prismatic joints, at least
+SEED_POSES = 32  # calibration poses a model keeps to seed compensate
 
 
 class CalibratedRangeWarning(UserWarning):
@@ -34,10 +35,44 @@ def joint_range(q: torch.Tensor) -> torch.Tensor:
     return torch.stack([q.amin(0), q.amax(0)]).detach()
 
 
-def range_to_dict(q_range: torch.Tensor, robot) -> dict:
-    """{"q_min", "q_max", "unit"}: q_range (2, n) rad / mm in deg (mm for a prismatic joint)."""
+def seed_poses(q: torch.Tensor, k: int = SEED_POSES) -> torch.Tensor:
+    """(min(k, N), n) rows of q (N, n) rad / mm spread over the joint space: farthest-point
+    sampling (Euclidean in joint values) from row 0, deterministic."""
+    q = q.detach()
+    if q.shape[0] <= k:
+        return q.clone()
+    pick = [0]
+    d = (q - q[0]).norm(dim=-1)
+    for _ in range(k - 1):
+        i = int(d.argmax())
+        pick.append(i)
+        d = torch.minimum(d, (q - q[i]).norm(dim=-1))
+    return q[pick].clone()
+
+
+def range_to_dict(q_range: torch.Tensor, robot, poses: torch.Tensor | None = None) -> dict:
+    """{"q_min", "q_max", "unit"[, "poses"]}: q_range (2, n) and the seed poses (K, n)
+    rad / mm in deg (mm for a prismatic joint)."""
     user = robot.q_to_user(q_range.detach().to("cpu", torch.float64)).cpu()
-    return {"q_min": user[0].tolist(), "q_max": user[1].tolist(), "unit": robot.joint_units()}
+    out = {"q_min": user[0].tolist(), "q_max": user[1].tolist(), "unit": robot.joint_units()}
+    if poses is not None:
+        out["poses"] = robot.q_to_user(poses.detach().to("cpu", torch.float64)).cpu().tolist()
+    return out
+
+
+def poses_from_dict(obj, robot, where: str = "model file") -> torch.Tensor | None:
+    """(K, n) rad / mm seed poses of a "calibrated_range" block (deg, mm for a prismatic
+    joint), None when the block has none; InputError naming `where` when malformed."""
+    rows = (obj or {}).get("poses")
+    if rows is None:
+        return None
+    try:
+        q = torch.tensor(rows, dtype=torch.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{where}: bad 'calibrated_range.poses': {exc}") from None
+    if q.ndim != 2 or q.shape[1] != robot.n or not torch.isfinite(q).all():
+        raise InputError(f"{where}: 'calibrated_range.poses' must be rows of {robot.n} finite joint values")
+    return robot.q_from_user(q).detach()
 
 
 def range_from_dict(obj, robot, where: str = "model file") -> torch.Tensor:

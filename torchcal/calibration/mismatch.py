@@ -27,7 +27,8 @@ workspace of the model: the nominal TCP at `WORKSPACE_POSES` seeded random poses
 the joint limits. The reach R is their largest distance from the robot base origin (as
 the model's base frame maps it). Targets whose median distance from the base origin is below R / 20 (the
 factor of `torchcal.calibration.plausibility`'s unit check) sit inside the robot's
-base: metres read as mm (a refusal); targets beyond 1.05 R cannot be reached (a warning
+base, or whose median distance from the origin of the measuring frame (the instrument) is
+below R / 20: metres read as mm (a refusal); targets beyond 1.05 R cannot be reached (a warning
 naming them; compensate reports them as not converged).
 
 Before and after a fit (`check_robot_data`, `check_fitted`): the nominal robot with its
@@ -187,8 +188,16 @@ def check_targets(model, theta: torch.Tensor, targets: torch.Tensor, where: str 
 
     pts, origin = workspace(model, theta)
     reach = float((pts - origin).norm(dim=-1).max())
-    dist = (targets.detach().to("cpu", torch.float64) - origin).norm(dim=-1)
+    t = targets.detach().to("cpu", torch.float64)
+    dist = (t - origin).norm(dim=-1)
     med = float(dist.median())
+    med0 = float(t.norm(dim=-1).median())  # around the origin of the model's (measuring) frame
+    if med0 < reach / TARGET_RATIO and med >= reach / TARGET_RATIO:
+        metres = med0 * 1000 <= float(origin.norm()) + REACH_MARGIN * reach
+        raise InputError(f"{where}: the targets lie a median {med0:.4g} mm from the origin of the measuring frame, "
+                         f"where no target of {model.robot.name} can be (its base is {float(origin.norm()):.4g} mm "
+                         "away): " + ("they look like metres read as mm" if metres else "wrong unit or wrong frame?"),
+                         fix=("length_unit", "m") if metres else None)
     if med < reach / TARGET_RATIO:
         metres = med * 1000 <= REACH_MARGIN * reach
         raise InputError(f"{where}: the targets lie a median {med:.4g} mm from the robot base, inside the base of "

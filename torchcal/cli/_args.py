@@ -72,22 +72,25 @@ def add_viz(p):
 
 def check_outputs(outputs, force: bool, inputs=()) -> None:
     """Fail before any work (and before any file is written) when an output cannot be
-    written: it exists without --force, it is an input file, two outputs share a path, or
-    its folder does not exist. `outputs`: (option, path or None) pairs."""
+    written: it exists without --force, it is an input file (--force included), two
+    outputs share a path, or its folder does not exist or takes no new file. `outputs`:
+    (option, path or None) pairs."""
     from pathlib import Path
 
     from torchcal.errors import InputError, OutputExistsError
     from torchcal.io.files import check_output
 
     seen = {}
-    ins = {Path(p).resolve(): p for p in inputs if p is not None}
+    from torchcal.io.files import same_file
+
     for opt, path in outputs:
         if path is None:
             continue
         p = Path(path)
         r = p.resolve()
-        if r in ins:
-            raise InputError(f"{path}: {opt} names the input file {ins[r]}; refusing to write over it")
+        for src in inputs:
+            if src is not None and same_file(p, src):
+                raise InputError(f"{path}: {opt} names the input file {src}; refusing to write over it")
         if r in seen:
             raise InputError(f"{path}: {opt} and {seen[r]} name the same file")
         seen[r] = opt
@@ -97,8 +100,25 @@ def check_outputs(outputs, force: bool, inputs=()) -> None:
             check_output(p, force)  # the one overwrite rule (torchcal.io.files)
         except OutputExistsError as exc:
             raise InputError(f"{exc}; {FORCE_HINT}") from None
-        except InputError:
+        except InputError as exc:
+            if p.parent.exists():  # a folder that takes no new file
+                raise InputError(f"{exc} ({opt})") from None
             raise InputError(f"{path}: {opt}: folder {p.parent} does not exist") from None
+
+
+def robot_inputs(robot) -> list:
+    """Files a --robot value reads, never to be written over: the robot file, and the URDF
+    it records it was imported from; [] for a preset or None."""
+    import json
+    from pathlib import Path
+
+    if robot is None or not Path(robot).is_file():
+        return []
+    try:
+        urdf = (json.loads(Path(robot).read_text()).get("urdf") or {}).get("path")
+    except (ValueError, OSError, AttributeError):  # not a robot file: loading it says so
+        urdf = None
+    return [robot] + ([urdf] if isinstance(urdf, str) else [])
 
 
 def check_folder(opt: str, path) -> None:

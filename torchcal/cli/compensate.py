@@ -1,12 +1,21 @@
-"""`torchcal compensate TARGETS.csv --model MODEL.json --out Q.csv`: corrected joint commands
+"""`torchcal compensate TARGETS.csv --model MODEL.json [--frame measuring|base] --out Q.csv`: corrected joint commands
 that make the calibrated model reach each target (torchcal.api.compensate_targets).
 
-TARGETS.csv: header ``x,y,z`` (mm, robot base frame; --length-unit m for metres) and
-optionally ``q1..qN`` (degrees, mm for a prismatic joint; --angle-unit rad, --length-unit m), ``payload_kg``
-and ``temp_c`` (the conditions of each move, needed by load- and temperature-dependent effects):
-the seed of each target, normally the command that nominally reaches it. Without seeds
-the nominal inverse is solved first from a default seed (joint 1 turned towards the
-target, the others at the middle of their limits).
+TARGETS.csv: header ``x,y,z`` (mm; --length-unit m for metres) and optionally ``q1..qN``
+(degrees, mm for a prismatic joint; --angle-unit rad, --length-unit m), ``payload_kg`` and
+``temp_c`` (the conditions of each move, needed by load- and temperature-dependent
+effects): the seed of each target, normally the command that nominally reaches it.
+Without seeds the nominal inverse (nominal geometry in the model's fitted frame) is
+solved first, each target starting from the nearest of the calibration poses the model
+keeps (the arm configuration it was calibrated in; the next nearest when the solution
+leaves the joint limits or the calibrated joint range).
+
+Frames (--frame): ``measuring`` (the default, printed) reads x,y,z in the frame the
+model was fitted in: the laser tracker's when the model has ``base_frame``;
+``base`` reads them in the robot base frame (the robot file's base link), mapped to the
+measuring frame with the model's fitted base frame. For a model without ``base_frame``
+the two are the same. Targets around the origin of the frame or inside the robot's base
+(metres read as mm) are refused.
 
 MODEL.json: an interval model of ``torchcal calibrate`` (each target is assigned to a zone
 by the partition's `assign` before anything is measured, and compensated with that
@@ -15,9 +24,10 @@ zone's center parameters) or a ``torchcal fit`` model (one parameter set).
 Q.csv: ``point,zone,q1..qN,residual_mm,converged,within_limits`` with the corrected
 commands in degrees, the calibrated model's remaining distance to the target (mm),
 whether it met the tolerance and whether the command lies inside the joint limits; zones
-are 1-based (1 for a single-set model). The file is written in full; when any target
-did not converge or needs a command outside the limits, one stderr line names those
-targets (1-based rows) and the command exits 1.
+are 1-based (1 for a single-set model). The file is written in full (a target that
+could not be solved has converged=false: do not send its command); when any target did
+not converge or needs a command outside the limits, one stderr line names those targets
+(1-based rows) and the command exits 1. Exit 2: bad input, nothing written.
 """
 
 from __future__ import annotations
@@ -30,7 +40,10 @@ from torchcal.cli._args import add_effects_module, add_force, add_robot, add_uni
 def add_parser(sub):
     p = sub.add_parser("compensate", help="corrected joint commands for target positions",
                        description=__doc__.splitlines()[0])
-    p.add_argument("targets", help="CSV with columns x,y,z (mm) [, q1..qN seeds in degrees]")
+    p.add_argument("targets", help="CSV with columns x,y,z (mm, in --frame) [, q1..qN seeds in degrees]")
+    p.add_argument("--frame", choices=("measuring", "base"), default="measuring",
+                   help="frame of the targets' x,y,z: measuring (default: the frame the model was fitted in, the "
+                        "tracker's) or base (the robot base frame)")
     p.add_argument("--model", required=True, help="MODEL.json (torchcal calibrate or torchcal fit)")
     p.add_argument("--out", required=True, help="output CSV of corrected joint commands (degrees)")
     add_robot(p, required=False, what="check that the model is for this robot (the model file embeds its robot)")
@@ -49,10 +62,12 @@ def run(args) -> int:
 
     check_outputs([("--out", args.out)], args.force, inputs=[args.targets, args.model])
     with warnings_to_stderr(CalibratedRangeWarning):  # converged outside the calibrated range: one line
-        res = compensate_targets(args.model, args.targets, robot=load_robot(args.robot), **units(args))
+        res = compensate_targets(args.model, args.targets, frame=args.frame, robot=load_robot(args.robot),
+                                 **units(args))
     atomic_write(args.out, res.to_csv(), force=args.force, inputs=[args.targets, args.model])
     d = res.to_dict()
-    print(f"compensated {len(d['targets'])} targets with {d['n_zones']} parameter set(s) ({d['method']}): "
+    print(f"compensated {len(d['targets'])} targets (x,y,z in the {args.frame} frame) with {d['n_zones']} "
+          f"parameter set(s) ({d['method']}): "
           f"{len(d['targets']) - len(res.failed)} converged within the joint limits; max predicted residual "
           f"{d['max_residual_mm']:.3g} mm; wrote {args.out}")
     if res.failed:
@@ -60,7 +75,9 @@ def run(args) -> int:
             return ", ".join(map(str, ix[:20])) + (" ..." if len(ix) > 20 else "")
         parts = ([f"not converged: target(s) {rows(d['not_converged'])}"] if d["not_converged"] else []) + \
                 ([f"outside the joint limits: target(s) {rows(d['outside_limits'])}"] if d["outside_limits"] else []) + \
-                ([f"beyond the reach of {d['robot']}: target(s) {rows(d['beyond_reach'])}"] if d["beyond_reach"] else [])
+                ([f"beyond the reach of {d['robot']}: target(s) {rows(d['beyond_reach'])}, x,y,z read in the "
+                  f"{args.frame} frame (--frame {'base' if args.frame == 'measuring' else 'measuring'} for the other)"]
+                 if d["beyond_reach"] else [])
         sys.stderr.write(f"torchcal compensate: error: {len(res.failed)} target(s) failed "
                          f"({'; '.join(parts)}); see {args.out}\n")
         return 1

@@ -9,7 +9,7 @@ from __future__ import annotations
 from torchcal import api
 from torchcal.io import modelfile
 from torchcal.cli._args import (add_cv, add_effects_module, add_force, add_units, add_viz, check_folder, check_outputs,
-                                read_data, add_robot)
+                                read_data, add_robot, robot_inputs)
 from torchcal.errors import InputError
 from torchcal.io.files import write_json
 from torchcal.robots.robot import robot as make_robot
@@ -75,7 +75,7 @@ def print_step(step) -> None:
 
 def run(args) -> int:
     check_outputs([("--json", args.json), ("--rrd", args.rrd)], args.force,
-                  inputs=[args.data, args.model])
+                  inputs=[args.data, args.model, *robot_inputs(args.robot)])
     check_folder("--plots", args.plots)
     if args.rrd or args.plots:  # the PNG names too, before any work
         from torchcal.cli._viz import check_outputs as check_visual_outputs
@@ -89,15 +89,19 @@ def run(args) -> int:
     m = read_data(args.data, robot, args)
     from torchcal.calibration.mismatch import MismatchWarning
     from torchcal.cli._args import warnings_to_stderr
+    from torchcal.cli._progress import progress
     with warnings_to_stderr(MismatchWarning):  # the model's own frame and error first, then the nominal robot's
         if fitted is not None:
             api.check_diagnosis_data(fitted, fitted.model, m)
-        d = api.diagnose(robot, m, effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,
-                         sigma_deg=args.sigma_deg)
+        with progress("diagnose", f"screening candidate effects on {len(m)} rows"):
+            d = api.diagnose(robot, m, effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,
+                             sigma_deg=args.sigma_deg)
     print_table(d)
     if args.json:
         write_json(args.json, d.to_dict(), force=args.force, inputs=[args.data, args.model])
+        print(f"wrote {args.json}")
     if args.rrd or args.plots:
         from torchcal.cli._viz import diagnosis_outputs
-        diagnosis_outputs(args, robot, m, d)
+        with progress("diagnose", "drawing figures"):
+            diagnosis_outputs(args, robot, m, d)
     return 0

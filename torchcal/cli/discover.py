@@ -20,7 +20,7 @@ from torchcal import api
 from torchcal.errors import InputError
 from torchcal.io import modelfile
 from torchcal.cli._args import (add_cv, add_effects_module, add_force, add_units, add_viz, check_folder, check_outputs,
-                                read_data, add_robot, positive_int)
+                                read_data, add_robot, positive_int, robot_inputs)
 from torchcal.cli.diagnose import add_sigmas, print_step
 from torchcal.io.files import write_json
 from torchcal.robots.robot import robot as make_robot
@@ -48,7 +48,7 @@ def add_parser(sub):
 
 def run(args) -> int:
     check_outputs([("--json", args.json), ("--out", args.out), ("--rrd", args.rrd)], args.force,
-                  inputs=[args.data, args.transfer])
+                  inputs=[args.data, args.transfer, *robot_inputs(args.robot)])
     check_folder("--plots", args.plots)
     if args.rrd or args.plots:  # the PNG names too, before any work
         from torchcal.cli._viz import check_outputs as check_visual_outputs
@@ -61,8 +61,11 @@ def run(args) -> int:
     if other is not None:
         from torchcal.diagnosis.transfer import TransferCheck
         print(TransferCheck(other, args.transfer_poses, args.transfer).describe())
-    res = api.discover(robot, m, args.effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,
-                       sigma_deg=args.sigma_deg, transfer=other, transfer_poses=args.transfer_poses)
+    from torchcal.cli._progress import progress
+
+    with progress("discover", f"searching effects on {len(m)} rows"):
+        res = api.discover(robot, m, args.effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,
+                           sigma_deg=args.sigma_deg, transfer=other, transfer_poses=args.transfer_poses)
     for i, (h, d) in enumerate(zip(res.history, res.diagnoses)):
         print(f"round {i}:")
         print_step(d.step)
@@ -74,11 +77,14 @@ def run(args) -> int:
         print(res.unexplained.describe())
     if args.json:
         write_json(args.json, res.to_dict(), force=args.force, inputs=[args.data])
+        print(f"wrote {args.json}")
     if args.out:
         write_json(args.out, modelfile.to_dict(res.fit, source=args.data, seed=args.seed,
                                                pose_ids=m.pose.tolist()),
                    force=args.force, inputs=[args.data])
+        print(f"wrote {args.out}")
     if args.rrd or args.plots:
         from torchcal.cli._viz import discovery_outputs
-        discovery_outputs(args, robot, m, res)
+        with progress("discover", "drawing figures"):
+            discovery_outputs(args, robot, m, res)
     return 0

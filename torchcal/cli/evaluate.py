@@ -111,9 +111,12 @@ def run(args) -> int:
               f"({iso['poses_with_repeats']} of {iso['poses']} poses measured 3 times or more)")
     if fitted.residual_model is not None:
         print("(errors of the physical model plus its non-physical residual stage, docs/residual-model.md)")
-    if args.residuals:
-        print(f"wrote {args.residuals}")
+    for path in (args.json, args.residuals):
+        if path:
+            print(f"wrote {path}")
     if args.rrd or args.plots:
+        from torchcal.cli._progress import progress
         from torchcal.cli._viz import evaluation_outputs
-        evaluation_outputs(args, model, m, ev)
+        with progress("evaluate", "drawing figures"):
+            evaluation_outputs(args, model, m, ev)
     return 0

@@ -2,11 +2,16 @@
 the calibrated geometry for a controller or a simulator.
 
 - ``--robot-file``: a robot file (docs/robots.md): nominal MD-H table + identified
-  deviations, the ``base_frame`` effect folded into ``base``, ``tool_offset`` into ``tool``.
-- ``--urdf``: a URDF whose joint origins carry the calibration. A robot imported from a
-  URDF (``torchcal robot import``) keeps that file's links, inertias and visuals: its joint
+  deviations, the ``base_frame`` effect folded into ``base``, ``tool_offset`` into ``tool``
+  (torchcal's own file: it predicts in the measuring frame, as the model does).
+- ``--urdf``: a URDF for a controller or MoveIt: its joint origins carry the calibrated
+  geometry, the robot's own base link and tool link (``tool0``) stay where the robot has
+  them, and the measuring set-up hangs on them as separate fixed frames: link
+  ``tracker`` (the measuring frame, on the base link) and ``reflector`` (the measured
+  point, ``reflector_ID`` per point id, on the tool link). A robot imported from a URDF
+  (``torchcal robot import``) keeps that file's links, inertias and visuals: its joint
   origins and axes are rewritten (torchcal.robots.urdf.calibrated_urdf); otherwise a
-  minimal URDF (links base_link, link1..linkN, tcp; `minimal_urdf`).
+  minimal URDF (links base_link, link1..linkN, tool0; `minimal_urdf`).
 - ``--table``: CSV ``joint,type,theta_offset_deg,d_mm,a_mm,alpha_deg,beta_deg,lower,upper``.
 
 Effects a URDF or an MD-H table cannot hold (compliance, backlash, gear, thermal...): the
@@ -19,6 +24,10 @@ without its effects. Without ``--data`` the effects are listed in the robot file
 ``"effects"`` with their values and one line says that the exported geometry alone is
 worse and that by how much cannot be told without data.
 The model's first parameter set is exported (zone 1 of an interval model).
+
+No output replaces an input, ``--force`` included: the model, ``--data``, and what the
+model records it came from (its data, the URDF its robot was imported from). Every
+output's folder is tried before the work; one "wrote PATH" line per file written.
 """
 
 from __future__ import annotations
@@ -73,9 +82,13 @@ def run(args) -> int:
                          "refit the geometry alone and see both figures\n")
     elif args.data:
         print(f"{args.model}: every effect is held by the exported robot; --data not needed")
-    if d["urdf"] is not None and d["urdf"]["source"] is not None:
-        print(f"{args.urdf}: the links of {d['urdf']['source']} with calibrated joint origins; "
-              f"TCP link {d['urdf']['tip_link']}")
-    print(f"exported {d['robot']} ({d['joints']} joints) from {args.model}: "
-          + ", ".join(f"{o} {p}" for o, p in outs if p))
+    u = d["urdf"]
+    if u is not None:
+        kept = f"the links of {u['source']} with calibrated joint origins" if u["source"] else "a minimal URDF"
+        frames = (f"; measuring set-up as separate fixed frames: {', '.join(u['frames'])}" if u["frames"] else "")
+        print(f"{args.urdf}: {kept}; the robot's own base {u['base_link']} and tool link {u['tip_link']}{frames}")
+    print(f"exported {d['robot']} ({d['joints']} joints) from {args.model}")
+    for _, p in outs:
+        if p:
+            print(f"wrote {p}")
     return 0

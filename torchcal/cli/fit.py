@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 
 from torchcal.io import modelfile
-from torchcal.cli._args import add_effects_module, add_force, add_units, check_outputs, read_data, add_robot
+from torchcal.cli._args import add_effects_module, add_force, add_units, check_outputs, read_data, add_robot, robot_inputs
 from torchcal.cli._args import nonneg_float, positive_float
 from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
@@ -35,7 +35,7 @@ from torchcal.effects.spec import parse_specs
 def add_parser(sub):
     p = sub.add_parser("fit", help="fit geometric model + effects to a measurement CSV",
                        description=__doc__)
-    p.add_argument("data", help="measurement CSV (docs/design.md)")
+    p.add_argument("data", help="measurement CSV (format: docs/formats.md)")
     add_robot(p)
     p.add_argument("--effects", nargs="*", default=[], metavar="SPEC", help="effects, e.g. joint_compliance:2,3; tracker data (in the instrument's frame, a reflector on the flange) need base_frame tool_offset")
     p.add_argument("--robust", choices=["huber", "cauchy"], help="robust loss by IRLS")
@@ -139,18 +139,11 @@ def _robust_hint(res, robust) -> str | None:
             f"gross outliers pull this fit; try --robust huber (it down-weights them and lists their pose ids)")
 
 
-def _robot_file(text) -> list[str]:
-    """[the --robot value] when it names a file (an input never written over), else []."""
-    from pathlib import Path
-
-    return [text] if text is not None and Path(text).is_file() else []
-
-
 def run(args) -> int:
-    check_outputs([("--out", args.out)], args.force, inputs=[args.data, *_robot_file(args.robot)])
+    check_outputs([("--out", args.out)], args.force, inputs=[args.data, *robot_inputs(args.robot)])
     m, res = fit_file(args)
     obj = modelfile.to_dict(res, source=args.data, seed=args.seed, pose_ids=m.pose.tolist())
-    write_json(args.out, obj, force=args.force, inputs=[args.data, *_robot_file(args.robot)])
+    write_json(args.out, obj, force=args.force, inputs=[args.data, *robot_inputs(args.robot)])
     rep = res.report
     print(f"fit {res.model.robot.name} + [{', '.join(res.model.specs()) or 'geometric only'}] on {len(m)} rows: "
           f"rms {res.rms_mm:.4f} mm, max {float(res.residuals.norm(dim=-1).max()):.4f} mm, "

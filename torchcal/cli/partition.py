@@ -95,4 +95,5 @@ def run(args) -> int:
     for s in part.summary():
         print(f"{s['zone']:>4} {s['level']:>5} {s['points']:>6} {s['r_set_min']:>9.4f} {s['r_set_mean']:>7.4f} "
               f"{s['r_set_max']:>7.4f} {s['center_x_mm']:>12.2f} {s['center_y_mm']:>10.2f} {s['center_z_mm']:>10.2f}")
+    print(f"wrote {out}")
     return 0

@@ -10,7 +10,7 @@ against random plans of the same size from the same candidates."""
 
 from __future__ import annotations
 
-from torchcal.cli._args import add_force, add_robot, check_outputs, nonneg_float, plot_outputs, positive_int
+from torchcal.cli._args import add_force, add_robot, check_outputs, nonneg_float, plot_outputs, positive_int, robot_inputs
 
 PNGS = ("plan_poses.png", "plan_criterion.png")  # in the --plots folder
 
@@ -48,12 +48,16 @@ def run(args) -> int:
     from torchcal.reliability.sweep import Workspace
     from torchcal.robots.robot import robot as make_robot
 
-    check_outputs([("--out", args.out), *plot_outputs(args.plots, PNGS)], args.force)  # all before the work
+    check_outputs([("--out", args.out), *plot_outputs(args.plots, PNGS)], args.force,
+                  inputs=robot_inputs(args.robot))  # all before the work
     if args.n > args.candidates:
         raise InputError(f"--n {args.n} is more than --candidates {args.candidates}")
-    res = plan(args.robot, args.effects, n=args.n, candidates=args.candidates, criterion=args.criterion,
-               seed=args.seed, payload_kg=args.payload, temp_c=args.temp, random_plans=args.random_plans,
-               workspace=Workspace(args.floor, args.column_radius, args.column_height, args.reach))
+    from torchcal.cli._progress import progress
+
+    with progress("plan", f"choosing {args.n} of {args.candidates} candidate poses"):
+        res = plan(args.robot, args.effects, n=args.n, candidates=args.candidates, criterion=args.criterion,
+                   seed=args.seed, payload_kg=args.payload, temp_c=args.temp, random_plans=args.random_plans,
+                   workspace=Workspace(args.floor, args.column_radius, args.column_height, args.reach))
     robot = make_robot(args.robot)
     atomic_write(args.out, plan_csv(res.q, robot).encode(), force=args.force)
     d = res.to_dict()
@@ -77,8 +81,10 @@ def run(args) -> int:
     if args.plots:
         from viz import planning as vp
 
-        vp.plan_poses(Path(args.plots) / PNGS[0], robot.fk(res.candidates), robot.fk(res.q), force=args.force)
-        vp.criterion_vs_n(Path(args.plots) / PNGS[1], list(range(1, args.n + 1)), res.history, res.random_curve(),
-                          args.criterion, force=args.force)
-        print(f"wrote {args.plots}/plan_poses.png, plan_criterion.png")
+        with progress("plan", "drawing figures"):
+            vp.plan_poses(Path(args.plots) / PNGS[0], robot.fk(res.candidates), robot.fk(res.q), force=args.force)
+            vp.criterion_vs_n(Path(args.plots) / PNGS[1], list(range(1, args.n + 1)), res.history,
+                              res.random_curve(), args.criterion, force=args.force)
+        for name in PNGS:
+            print(f"wrote {Path(args.plots) / name}")
     return 0

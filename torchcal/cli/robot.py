@@ -23,7 +23,7 @@ def add_parser(sub):
     i.add_argument("urdf", metavar="FILE.urdf", help="URDF file")
     i.add_argument("--base", required=True, metavar="LINK", help="base link of the chain")
     i.add_argument("--tip", required=True, metavar="LINK", help="tip link (the TCP) of the chain")
-    i.add_argument("--name", help="robot name (default: the file name)")
+    i.add_argument("--name", help="robot name (default: the URDF's <robot name>, else the file name)")
     i.add_argument("--out", required=True, help="robot file (.json) to write")
     add_force(i)
     i.set_defaults(func=run_import)

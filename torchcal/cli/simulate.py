@@ -1,4 +1,4 @@
-"""`torchcal simulate`: a measurement session of a virtual robot (CSV of docs/design.md).
+"""`torchcal simulate`: a measurement session of a virtual robot (the measurement CSV of docs/formats.md).
 
     torchcal simulate --robot kr1000titan --effects joint_compliance:2,3 thermal_expansion \\
         --n 60 --repeats 3 --noise 0.02 --seed 0 --out data.csv [--truth truth.json]
@@ -24,7 +24,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from torchcal.cli._args import (add_effects_module, add_force, check_outputs, positive_int, nonneg_float, add_robot)
+from torchcal.cli._args import (add_effects_module, add_force, check_outputs, positive_int, nonneg_float, add_robot,
+                                robot_inputs)
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -56,7 +57,7 @@ def run(args) -> int:
     from torchcal.io.files import write_json
     from torchcal.io.measurement_csv import write_measurements
 
-    check_outputs([("--out", args.out), ("--truth", args.truth)], args.force)
+    check_outputs([("--out", args.out), ("--truth", args.truth)], args.force, inputs=robot_inputs(args.robot))
     out, truth = Path(args.out), Path(args.truth) if args.truth else None
     sim = simulate(args.robot, args.effects, n=args.n, repeats=args.repeats, noise_mm=args.noise, seed=args.seed,
                    pose_seed=args.pose_seed)
@@ -67,6 +68,6 @@ def run(args) -> int:
     extra = f" (+ {', '.join(d['columns'])})" if d["columns"] else ""
     print(f"simulate: {d['robot']}, effects [{' '.join(d['effects']) or 'none'}], {args.n} poses x "
           f"{d['repeats']} repeats = {d['rows']} rows{extra}, noise {d['noise_mm']:g} mm, seed {d['seed']}"
-          + (f", pose seed {d['pose_seed']}" if args.pose_seed is not None else "") + f" -> {out}"
-          + (f"; truth -> {truth}" if truth else ""))
+          + (f", pose seed {d['pose_seed']}" if args.pose_seed is not None else "") + f"; wrote {out}"
+          + (f", {truth} (truth)" if truth else ""))
     return 0

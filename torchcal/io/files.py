@@ -2,7 +2,9 @@
 
 Every write goes through `atomic_write`: a temporary file in the target's folder, then
 `os.replace`, so a failure never leaves a half-written output. An existing output is
-only replaced with ``force=True``; an input file is never written over.
+only replaced with ``force=True``; an input file is never written over (``force``
+included; `same_file`). A folder that takes no new file is found before the work, and
+every message names the user's path, never the temporary one or a bare errno.
 """
 
 from __future__ import annotations
@@ -16,21 +18,40 @@ from pathlib import Path
 from torchcal.errors import InputError, OutputExistsError
 
 
+def same_file(a, b) -> bool:
+    """Whether paths a and b name one file: the same resolved path, or (both existing) the
+    same file on disk (a hard link, another mount of it)."""
+    a, b = Path(a), Path(b)
+    if a.resolve() == b.resolve():
+        return True
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
 def check_output(path, force: bool = False, inputs=()) -> Path:
     """The overwrite rule (library and command line alike): `path` must not be one of
-    `inputs`, must not exist unless `force` (OutputExistsError), must not be a folder, and its
-    folder must exist.
+    `inputs` (`same_file`; `force` does not change that), must not exist unless `force`
+    (OutputExistsError), must not be a folder, its folder must exist and take a new file
+    (tried: a temporary file is created and removed there), all before any work.
     Returns `path` as a Path."""
     path = Path(path)
     for src in inputs:
-        if src is not None and Path(src).exists() and path.exists() and path.resolve() == Path(src).resolve():
-            raise InputError(f"{path}: refusing to write over the input file")
+        if src is not None and same_file(path, src):
+            raise InputError(f"{path}: refusing to write over the input file {src}")
     if path.exists() and not force:
         raise OutputExistsError(f"{path}: output exists")
     if path.is_dir():
         raise InputError(f"{path}: is a folder, expected a file name")
     if not path.parent.exists():
         raise InputError(f"{path}: folder {path.parent} does not exist")
+    try:
+        with tempfile.TemporaryFile(dir=path.parent):
+            pass
+    except OSError as exc:
+        raise InputError(f"{path}: cannot write in folder {path.parent}: {(exc.strerror or str(exc)).lower()}") \
+            from None
     return path
 
 
@@ -50,7 +71,10 @@ def atomic_open(path, mode: str = "w", force: bool = False, inputs=()):
     """A file object for writing `path` piece by piece: a temporary file in its folder that
     replaces `path` when the block ends (removed, `path` untouched, on an error)."""
     path = check_output(path, force, inputs)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as exc:  # the user's path in the message, not the temporary name
+        raise InputError(f"{path}: cannot write: {(exc.strerror or str(exc)).lower()}") from None
     try:
         umask = os.umask(0o022)  # read the umask (there is no getter), then put it back
         os.umask(umask)
@@ -58,9 +82,11 @@ def atomic_open(path, mode: str = "w", force: bool = False, inputs=()):
         with os.fdopen(fd, mode) as fh:
             yield fh
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(exc, OSError) and not isinstance(exc, InputError):
+            raise InputError(f"{path}: cannot write: {(exc.strerror or str(exc)).lower()}") from None
         raise
 
 

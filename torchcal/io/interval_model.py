@@ -18,7 +18,7 @@ from __future__ import annotations
 import torch
 
 from torchcal.calibration.intervals import IntervalModel
-from torchcal.calibration.joint_range import range_from_dict, range_to_dict
+from torchcal.calibration.joint_range import poses_from_dict, range_from_dict, range_to_dict
 from torchcal.calibration.model import CalibrationModel
 from torchcal.errors import InputError
 from torchcal.io.partition_file import partition_from_dict, partition_to_dict
@@ -54,7 +54,7 @@ def interval_model_to_dict(im: IntervalModel, *, source=None, partition_source=N
            "partition": None if im.partition is None else partition_to_dict(im.partition),
            "provenance": provenance}
     if im.q_range is not None:
-        out["calibrated_range"] = range_to_dict(im.q_range, m.robot)
+        out["calibrated_range"] = range_to_dict(im.q_range, m.robot, im.seed_poses)
     return out
 
 
@@ -90,10 +90,11 @@ def interval_model_from_dict(obj: dict, where: str = "interval model") -> Interv
         raise InputError(f"{where}: missing or malformed field: {exc}") from None
     if part is not None and part.n_zones != len(zs):
         raise InputError(f"{where}: the partition has {part.n_zones} zones but the model {len(zs)}")
-    q_range = None if obj.get("calibrated_range") is None else \
-        range_from_dict(obj["calibrated_range"], model.robot, where)
+    block = obj.get("calibrated_range")
+    q_range = None if block is None else range_from_dict(block, model.robot, where)
+    poses = None if block is None else poses_from_dict(block, model.robot, where)
     return IntervalModel(model, theta, lower, upper, free, info, part, str(obj.get("method", "global")),
-                         dict(obj.get("provenance") or {}), q_range=q_range)
+                         dict(obj.get("provenance") or {}), q_range=q_range, seed_poses=poses)
 
 
 def load_interval_model(path) -> IntervalModel:

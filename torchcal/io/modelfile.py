@@ -7,8 +7,9 @@
      "identifiability": {...}, "fit": {"n", "rms_mm", "max_mm", "robust", "sigma_mm", "sigma_deg", "outlier_poses",
              "iterations", "status"},
      "provenance": {"input", "input_sha256", "torchcal_version", "seed"},
-     "calibrated_range": {"q_min": [...], "q_max": [...], "unit": ["deg" | "mm", ...]}
-                     (per joint min and max of the calibration data's commanded q),
+     "calibrated_range": {"q_min": [...], "q_max": [...], "unit": ["deg" | "mm", ...], "poses": [[...]]}
+                     (per joint min and max of the calibration data's commanded q; up to 32 of
+                     its poses, which seed compensate),
      optional: "points": [ID...] (one tool offset per measured point),
      "base_frame": {"translation_mm", "rotation_fixed_xyz_deg"} (measurement <- robot base),
      "registration": {"rms_before_mm", "rms_after_mm", "translation_mm", "rotation_fixed_xyz_deg",
@@ -124,7 +125,7 @@ def to_dict(res: FitResult, source=None, seed: int = 0, pose_ids=None) -> dict:
     if res.plausible_limits is not None:
         extra["plausibility"] = {**res.plausible_limits, "beyond": list(res.implausible)}
     if res.q_range is not None:
-        extra["calibrated_range"] = range_to_dict(res.q_range, model.robot)
+        extra["calibrated_range"] = range_to_dict(res.q_range, model.robot, res.seed_poses)
     if res.orientation is not None:
         o = res.orientation
         extra["orientation"] = {k: o[k] for k in ("sigma_mm", "sigma_deg", "rms_deg")}
@@ -220,14 +221,15 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
     if obj.get("residual_model") is not None:
         from torchcal.calibration.residual_model import from_dict
         stage = from_dict(obj["residual_model"], nominal, where)
-    q_range = None  # (2, n) rad / mm; absent from files written before it existed
+    q_range = poses = None  # (2, n), (K, n) rad / mm; absent from files written before they existed
     if obj.get("calibrated_range") is not None:
-        from torchcal.calibration.joint_range import range_from_dict
+        from torchcal.calibration.joint_range import poses_from_dict, range_from_dict
         q_range = range_from_dict(obj["calibrated_range"], nominal, where)
+        poses = poses_from_dict(obj["calibrated_range"], nominal, where)
     return FitResult(model, theta, std, None, None, _report(obj, model, identified, where), covariance=
                      _covariance(obj, model, where), registration=obj.get("registration"),
                      implausible=list(plaus.get("beyond", [])), orientation=_orientation(obj, where),
-                     plausible_limits=limits, q_range=q_range, residual_model=stage, training=training,
+                     plausible_limits=limits, q_range=q_range, seed_poses=poses, residual_model=stage, training=training,
                      provenance=obj.get("provenance"), **settings)
 
 

@@ -1,7 +1,8 @@
 """TARGETS.csv of ``torchcal compensate`` (docs/formats.md): the positions to reach and,
 optionally, the seed of each target and the conditions of each move.
 
-Header ``x,y,z`` (mm, robot base frame; metres with ``length_unit="m"``), optionally
+Header ``x,y,z`` (mm, in the frame the caller names: the model's measuring frame or the
+robot base frame, `torchcal.api.compensate_targets`; metres with ``length_unit="m"``), optionally
 ``q1..qN`` (degrees, mm for a prismatic joint; ``angle_unit="rad"``, ``length_unit="m"``),
 ``payload_kg`` and ``temp_c``; an optional ``point`` column is ignored.
 Q.csv of ``torchcal compensate``: `compensation_csv`.

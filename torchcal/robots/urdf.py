@@ -24,7 +24,10 @@ A continuous joint is revolute with limits -180..180 deg; a prismatic joint's q 
 adds to d.
 
 Export (`minimal_urdf`): one link per MD-H frame, joint i's origin the link transform
-A_i at q = 0 and axis z, the tool as a fixed joint to link ``tcp``.
+A_i at q = 0 and axis z, the tool as a fixed joint to link ``tool0``; `calibrated_urdf`
+rewrites the joints of the URDF a robot was imported from. The measuring set-up (the
+tracker's frame, the reflector) stays apart from the robot: `add_frames` hangs it on the
+base and tip links as fixed frames ``tracker`` and ``reflector``.
 """
 
 from __future__ import annotations
@@ -61,6 +64,27 @@ def _origin(el, where) -> torch.Tensor:
     return T
 
 
+XACRO_NS = "{http://www.ros.org/wiki/xacro}"
+
+
+def _root(path):
+    """The URDF's XML root; InputError for a missing file, bad XML or a xacro file."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: URDF file does not exist")
+    xacro = f"{path}: a xacro file (macros, not a URDF): expand the xacro first (xacro {path.name} > robot.urdf)"
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as exc:
+        if path.suffix == ".xacro" or "xacro" in path.read_text(errors="replace"):
+            raise InputError(xacro) from None
+        raise InputError(f"{path}: not a valid URDF (XML): {exc}") from None
+    if path.suffix == ".xacro" or any(el.tag.startswith(XACRO_NS) for el in root.iter()) \
+            or any(v.startswith(XACRO_NS) for v in root.attrib):
+        raise InputError(xacro)
+    return root
+
+
 def _chain_joint_names(path: Path, base_link: str, tip_link: str) -> list[str]:
     """Joint names from base to tip (fixed ones included), by pytorch-kinematics."""
     import io
@@ -82,18 +106,30 @@ def _chain_joint_names(path: Path, base_link: str, tip_link: str) -> list[str]:
 def read_chain(path, base_link: str, tip_link: str) -> list[dict]:
     """The joints from `base_link` to `tip_link`: [{"name", "type", "origin" (4, 4) mm,
     "axis" (3,), "lower", "upper" (rad / mm or None)}], values read in float64."""
+    root = _root(path)
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: URDF file does not exist")
-    try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as exc:
-        raise InputError(f"{path}: not a valid URDF (XML): {exc}") from None
     links = {el.get("name") for el in root.findall("link")}
     for what, link in (("base link", base_link), ("tip link", tip_link)):
         if link not in links:
             raise InputError(f"{path}: {what}: no link {link!r}; links: {', '.join(sorted(links))}")
     by_name = {el.get("name"): el for el in root.findall("joint")}
+    parent = {}  # child link -> parent link
+    for el in by_name.values():
+        c, p = el.find("child"), el.find("parent")
+        if c is not None and p is not None:
+            parent[c.get("link")] = p.get("link")
+
+    def above(link):  # the links from `link` up to the root
+        out = [link]
+        while out[-1] in parent and len(out) <= len(parent):
+            out.append(parent[out[-1]])
+        return out
+    if base_link not in above(tip_link):
+        swapped = tip_link in above(base_link)
+        raise InputError(f"{path}: no serial chain from base link {base_link!r} to tip link {tip_link!r}: "
+                         + (f"{tip_link!r} lies above {base_link!r}; swap them (base link {tip_link!r}, tip link {base_link!r})"
+                            if swapped else f"{base_link!r} is not on the way from the root to {tip_link!r} "
+                            f"({' <- '.join(above(tip_link))})"))
     out = []
     for name in _chain_joint_names(path, base_link, tip_link):
         el = by_name[name]
@@ -178,7 +214,8 @@ def _solve_row(o, u, use_beta: bool, x_hint=None) -> list[float]:
 
 
 def robot_from_urdf(path, base_link: str, tip_link: str, name: str | None = None) -> Robot:
-    """The MD-H `Robot` of the chain `base_link` -> `tip_link` of a URDF (module doc)."""
+    """The MD-H `Robot` of the chain `base_link` -> `tip_link` of a URDF (module doc), named
+    `name`, else the URDF's ``<robot name>``, else after the file."""
     joints = read_chain(path, base_link, tip_link)
     moving = [j for j in joints if j["type"] != "fixed"]
     if not moving:
@@ -233,7 +270,7 @@ def robot_from_urdf(path, base_link: str, tip_link: str, name: str | None = None
     pris = [j["type"] == "prismatic" for j in moving]
     # q = 0 of a prismatic joint: the URDF's zero; theta/d offsets come from the rows
     limits = [[j["lower"], j["upper"]] for j in moving]
-    return Robot(name or Path(path).stem, torch.tensor(rows, dtype=_F), torch.tensor(has_beta),
+    return Robot(name or _root(path).get("name") or Path(path).stem, torch.tensor(rows, dtype=_F), torch.tensor(has_beta),
                  torch.tensor(limits, dtype=_F), base, tool, 0.0,
                  torch.tensor([0.0, 0.0, -1.0], dtype=_F), torch.tensor(pris),
                  {"path": str(Path(path).resolve()), "base_link": base_link, "tip_link": tip_link})
@@ -247,8 +284,8 @@ def _origin_xml(T: torch.Tensor) -> str:
 
 def minimal_urdf(robot: Robot, params=None) -> str:
     """URDF text of `robot` with MD-H deviations `params` (n, 5) folded in: links
-    ``base_link``, ``link1..linkN``, ``tcp``; joint i's origin is A_i at q = 0 (metres,
-    radians), its axis z; limits in rad / m."""
+    ``base_link``, ``link1..linkN``, ``tool0``; joint i's origin is A_i at q = 0 (metres,
+    radians), its axis z; the tool a fixed joint to ``tool0``; limits in rad / m."""
     r = robot.to("cpu", _F)
     table = r.table if params is None else r.table + torch.as_tensor(params, dtype=_F)
     lines = ['<?xml version="1.0"?>', f'<robot name="{r.name}">', '  <link name="base_link"/>']
@@ -264,9 +301,36 @@ def minimal_urdf(robot: Robot, params=None) -> str:
                   f'    {_origin_xml(T)}', '    <axis xyz="0 0 1"/>',
                   f'    <limit lower="{lo!r}" upper="{hi!r}" effort="0" velocity="0"/>', '  </joint>']
         prev, T = f"link{i + 1}", _row_transform(table[i].tolist())
-    lines += ['  <link name="tcp"/>', '  <joint name="tool" type="fixed">', f'    <parent link="{prev}"/>',
-              '    <child link="tcp"/>', f'    {_origin_xml(T @ r.tool)}', '  </joint>', '</robot>']
+    lines += ['  <link name="tool0"/>', '  <joint name="tool" type="fixed">', f'    <parent link="{prev}"/>',
+              '    <child link="tool0"/>', f'    {_origin_xml(T @ r.tool)}', '  </joint>', '</robot>']
     return "\n".join(lines) + "\n"
+
+
+def add_frames(text: str, base_link: str, tip_link: str, tracker=None, reflectors=()) -> str:
+    """URDF text with the measuring set-up as separate fixed frames, the robot's own links
+    untouched: link ``tracker`` (the measuring frame; `tracker` (4, 4) mm, measuring frame
+    <- robot base frame, so its origin in `base_link` is the inverse) on `base_link`, and
+    one link per reflector ((name, (3,) mm in `tip_link`'s frame)) on `tip_link`. A name
+    the URDF already has gets the prefix ``torchcal_``."""
+    root = ET.fromstring(text)
+    names = {el.get("name") for el in root.findall("link")}
+    frames = ([] if tracker is None else [("tracker", base_link, torch.linalg.inv(tracker.to(_F)))]) + \
+        [(n, tip_link, _translation(xyz)) for n, xyz in reflectors]
+    for name, parent, T in frames:
+        name = f"torchcal_{name}" if name in names else name
+        ET.SubElement(root, "link", name=name)
+        jt = ET.SubElement(root, "joint", name=f"{name}_joint", type="fixed")
+        ET.SubElement(jt, "parent", link=parent)
+        ET.SubElement(jt, "child", link=name)
+        _set_origin(jt, T)
+    ET.indent(root)
+    return ET.tostring(root, encoding="unicode", xml_declaration=True) + "\n"
+
+
+def _translation(xyz) -> torch.Tensor:
+    T = torch.eye(4, dtype=_F)
+    T[:3, 3] = torch.as_tensor(xyz, dtype=_F)
+    return T
 
 
 def calibrated_urdf(nominal: Robot, cal: Robot) -> tuple[str, str]:

@@ -60,20 +60,20 @@ def calibrate(model: CalibrationModel, meas, partition=None, zone_method: str = 
         raise InputError(f"{meas.source or 'measurements'}: interval calibration groups the rows of a pose into "
                          "one interval per axis, which several measured points per pose (point column) would "
                          "mix; use fit / discover (one tool offset per point), or one point id per file")
-    from torchcal.calibration.joint_range import joint_range
+    from torchcal.calibration.joint_range import joint_range, seed_poses
 
     data = pose_intervals(meas, min_repeats=2)
     glob = identify_zones(model, [data])[0]
     if partition is None:
         out = IntervalModel.from_fits([glob], poses=[len(data)], method="global")
-        out.q_range = joint_range(meas.q)
+        out.q_range, out.seed_poses = joint_range(meas.q), seed_poses(meas.q)
         return out, glob
     zone = partition.assign(model.robot.fk(data.q)) - 1  # (m,) 0-based
     members = [(zone == z).nonzero().flatten() for z in range(partition.n_zones)]
     fits = fit_zones(model, [data.subset(m) for m in members], glob, zone_method, damping)
     levels = [int(v) for v in partition.zone_level]
     out = IntervalModel.from_fits(fits, partition, levels, [len(m) for m in members], zone_method)
-    out.q_range = joint_range(meas.q)
+    out.q_range, out.seed_poses = joint_range(meas.q), seed_poses(meas.q)
     for z, m in enumerate(members):
         if not len(m):
             out.zones[z]["note"] = "no poses in this zone: global parameters"

@@ -159,13 +159,16 @@ def test_report_shows_a_transfer_check_when_the_history_has_one(session):
     out = session / "no_transfer.html"
     assert main(["report", str(session / "disc.json"), "--history", str(session / "hist.json"), "--out", str(out)]) == 0
     assert "Transfer check" not in out.read_text()
-    hist["transfer"] = {"session": "second.csv", "rms_mm": 0.4321, "verdict": "transfers"}
+    # the record discover writes per round (torchcal.diagnosis.transfer.TransferCheck.choose)
+    hist["history"][0]["transfer"] = {"current_mm": 0.4321, "kept": None,
+                                      "tried": [{"effect": "gear_periodic:2", "after_mm": 0.9876, "refused": True}]}
     (session / "hist_t.json").write_text(json.dumps(hist))
     out = session / "transfer.html"
     assert main(["report", str(session / "disc.json"), "--history", str(session / "hist_t.json"), "--out",
                  str(out)]) == 0
     text = out.read_text()
-    assert "Transfer check" in text and "second.csv" in text and "0.4321" in text and "transfers" in text
+    assert "Transfer check" in text and "gear_periodic:2" in text and "0.4321" in text and "0.9876" in text
+    assert "refused: helps within the session only" in text
 
 
 @pytest.mark.parametrize("args,needle", [

@@ -484,18 +484,26 @@ def _learnable(rep) -> str:
 
 
 def _transfer(rep) -> str:
-    t = (rep.history or {}).get("transfer")
-    if not t:
+    """The transfer check as discover recorded it: each round's `transfer` record
+    (`torchcal.diagnosis.transfer.TransferCheck.choose`: current_mm, tried, kept)."""
+    rounds = [(k, r["transfer"]) for k, r in enumerate((rep.history or {}).get("history", [])) if r.get("transfer")]
+    if not rounds:
         return ""
     out = ["<h2>7. Transfer check (second session)</h2>",
-           '<p class="note">As discover recorded it in its history.</p>']
-    if isinstance(t, dict):
-        out.append(_kv([(k, _json_cell(v)) for k, v in t.items()]))
-    elif isinstance(t, list) and t and isinstance(t[0], dict):
-        keys = list(dict.fromkeys(k for r in t for k in r))
-        out.append(_table([_e(k) for k in keys], [[_json_cell(r.get(k, "")) for k in keys] for r in t]))
-    else:
-        out.append(f"<p>{_json_cell(t)}</p>")
+           '<p class="note">Each round\'s model registered (frame only) on the other session\'s first poses, '
+           "its distance RMS on that session's other poses; a step that raised it was refused as helping within "
+           "the training session only (docs/diagnosis.md).</p>"]
+    rows, cls = [], []
+    for k, t in rounds:
+        if not t.get("tried"):
+            rows.append([str(k), "none", _mm(t.get("current_mm")), "", "no step to check"])
+            cls.append("")
+        for c in t.get("tried", []):
+            rows.append([str(k), _e(c.get("effect")), _mm(t.get("current_mm")), _mm(c.get("after_mm")),
+                         "refused: helps within the session only" if c.get("refused") else "kept"])
+            cls.append("rej" if c.get("refused") else "")
+    out.append(_table(["round", "step", "other session before", "other session after", "verdict"], rows,
+                      numeric=(2, 3), cls_rows=cls))
     return '<section class="page">' + "".join(out) + "</section>"
 
 

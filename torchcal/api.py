@@ -126,8 +126,9 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     metres read as mm or radians read as degrees with one InputError line, the line the
     command line prints.
     residual_model: 'kernel' adds the non-physical residual stage
-    (`torchcal.calibration.residual_model`) as ``res.residual_model`` (None when no
-    joint angle predicts the residual); evaluate and compensate apply it.
+    (`torchcal.calibration.residual_model`) as ``res.residual_model`` only when its held-out
+    gain is significant (`torchcal.diagnosis.residual_stage`, the figures in
+    ``res.residual_test``; None otherwise); evaluate and compensate apply it.
     Returns a `FitResult` (``.theta``, ``.status``, ``.rms_mm``, ``.to_dict()`` = the
     MODEL.json of ``torchcal fit``).
     """
@@ -149,9 +150,16 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
                          sigma_mm=sigma_mm, sigma_deg=sigma_deg, max_length_mm=max_length_mm,
                          max_angle_deg=max_angle_deg)
     if residual_model is not None:
-        from torchcal.calibration.residual_model import fit_residual_model
-        res.residual_model = fit_residual_model(model.robot, m, res.residuals, kind=residual_model)
+        _add_stage(res, m, ctx, residual_model)
     return res
+
+
+def _add_stage(res: FitResult, m: Measurements, ctx, kind: str, folds: int = 5, seed: int = 0) -> None:
+    """The residual stage on `res` when its held-out test passes (`residual_test` holds the figures)."""
+    from torchcal.diagnosis.residual_stage import stage_test
+
+    t = stage_test(res, m, ctx, kind=kind, folds=folds, seed=seed, sigma_mm=res.sigma_mm, sigma_deg=res.sigma_deg)
+    res.residual_model, res.residual_test = t.stage, t.to_dict()
 
 
 @dataclass(frozen=True)
@@ -282,17 +290,23 @@ def check_diagnosis_data(robot_or_model, model: CalibrationModel, m: Measurement
 
 def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: int = 0,
              max_rounds: int | None = None, alpha: float | None = None, sigma_mm: float = SIGMA_MM,
-             sigma_deg: float = SIGMA_DEG):
+             sigma_deg: float = SIGMA_DEG, residual_model: str | None = None):
     """Add the accepted missing effect each round (`torchcal.diagnosis.diagnose.discover`),
     for at most max_rounds rounds; folds, seed, alpha, sigma_mm, sigma_deg as in `diagnose`
-    (None: the defaults of `torchcal.diagnosis`). Returns a `Discovery`."""
+    (None: the defaults of `torchcal.diagnosis`). residual_model: 'kernel' adds the residual
+    stage to the final model when its held-out test passes, as `fit` does
+    (``.fit.residual_test`` holds the figures). Returns a `Discovery`."""
     from torchcal.diagnosis.diagnose import discover as run
+    from torchcal.effects import context_of
 
     model = _model(robot_or_model, effects)
     m = _measurements(measurements, model.robot)
     with threads.for_work(_work(model, m)):
-        return run(model.robot, m, model.specs(), folds=folds, seed=seed, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
-                   **_set(max_rounds=max_rounds, alpha=alpha))
+        res = run(model.robot, m, model.specs(), folds=folds, seed=seed, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
+                  **_set(max_rounds=max_rounds, alpha=alpha))
+        if residual_model is not None:
+            _add_stage(res.fit, m, context_of(model.robot, m), residual_model, folds, seed)
+    return res
 
 
 def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_method: str = "damped",

@@ -8,6 +8,7 @@ from torchcal.io import modelfile
 from torchcal.cli._args import (add_cv, add_effects_module, add_force, add_units, add_viz, check_folder, check_outputs,
                                 read_data, add_robot)
 from torchcal.cli.diagnose import add_sigmas, print_step
+from torchcal.cli.fit import residual_stage_line
 from torchcal.io.files import write_json
 from torchcal.robots.robot import robot as make_robot
 
@@ -21,6 +22,9 @@ def add_parser(sub):
     add_sigmas(p)
     p.add_argument("--json", help="write the history here")
     p.add_argument("--out", help="write the final MODEL.json here")
+    p.add_argument("--residual-model", choices=["kernel"],
+                   help="add the non-physical residual stage to the final model when its held-out gain is "
+                        "significant (as fit --residual-model; docs/residual-model.md)")
     add_viz(p)
     add_units(p)
     add_force(p)
@@ -38,13 +42,15 @@ def run(args) -> int:
     robot = make_robot(args.robot)
     m = read_data(args.data, robot, args)
     res = api.discover(robot, m, args.effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,
-                       sigma_deg=args.sigma_deg)
+                       sigma_deg=args.sigma_deg, residual_model=args.residual_model)
     for i, (h, d) in enumerate(zip(res.history, res.diagnoses)):
         print(f"round {i}:")
         print_step(d.step)
     print(f"final effects: {', '.join(res.final_effects) or 'none'}")
     if res.unexplained is not None:
         print(res.unexplained.describe())
+    if args.residual_model:
+        print(residual_stage_line(res.fit))
     if args.json:
         write_json(args.json, res.to_dict(), force=args.force, inputs=[args.data])
     if args.out:

@@ -152,7 +152,9 @@ class Discovery:
     def to_dict(self) -> dict:
         return {"history": self.history, "final_effects": self.final_effects,
                 "held": list(self.fit.report.held), "beyond_plausible": list(self.fit.implausible),
-                "unexplained": None if self.unexplained is None else self.unexplained.to_dict()}
+                "set_by_prior": list(self.fit.set_by_prior),
+                "unexplained": None if self.unexplained is None else self.unexplained.to_dict(),
+                "residual_stage": self.fit.residual_test}
 
 
 def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: int = 0, *,
@@ -170,6 +172,9 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
         d = diagnose(robot, m, folds=folds, seed=seed, base_fit=base, current=current, alpha=alpha / 2 ** i,
                      sigma_mm=sigma_mm, sigma_deg=sigma_deg, report_rest=False)  # the final model's, once, below
         diagnoses.append(d)
+        if i == max_rounds and d.step.accepted is not None:  # printed as it is: not in the final model
+            d.step.decline(f"not taken: the round limit ({max_rounds} effects) is reached")
+            d.verdict = None
         cur = d.step.current
         history.append({"effects": list(cur.effects), "rms_mm": cur.rms_mm, "cv_rms_mm": cur.cv_rms_mm,
                         "step": d.step.to_dict()})

@@ -13,6 +13,14 @@ candidate, reports
 - held: parameters the identifiability analysis held (unidentifiable), beyond: those that
   ended beyond their plausible size (`torchcal.calibration.plausibility`).
 
+A candidate passes only when the data determine it: each of its new parameters (with a
+plausible scale) is identifiable, has a posterior sd (the prior included) below half its
+plausible size and a value within it (`torchcal.calibration.plausibility.determination`);
+otherwise it is rejected with the figures and the parameter it is collinear with. Of the
+candidates that pass, the one with the largest refit gain (lowest refit CV RMS) is
+accepted; a candidate significant by its random part only is taken only when no
+deterministic one passes.
+
 `Step.lines()` is the text both commands print; `Step.to_dict()` their JSON.
 """
 
@@ -23,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult, fit
 from torchcal.calibration.model import CalibrationModel
+from torchcal.calibration.plausibility import determination, determination_words
 from torchcal.diagnosis.crossval import RefitCV, refit_cv
 from torchcal.diagnosis.selection import ALPHA, MIN_GAIN, refit_decision
 from torchcal.effects.spec import parse_specs
@@ -44,7 +53,8 @@ class Scored:
     p_value: float = 1.0
     accepted: bool = False
     reason: str = ""
-    passed: bool = False  # met the acceptance rule (accepted unless one ranked before it was)
+    passed: bool = False  # met the acceptance rule (accepted unless another had a larger refit gain)
+    random_only: bool = False  # significant in the pre-screen by its random part only
 
     @property
     def held(self) -> list:
@@ -74,6 +84,12 @@ class Step:
     @property
     def accepted(self) -> Scored | None:
         return next((s for s in self.refits if s.accepted), None)
+
+    def decline(self, why: str) -> None:
+        """Take back the accepted candidate (it stays 'passed, not taken', with `why`)."""
+        for s in self.refits:
+            if s.accepted:
+                s.accepted, s.reason = False, f"{s.reason}; {why}"
 
     def lines(self) -> list[str]:
         """The printed figures of the step (`diagnose` and `discover` print these)."""
@@ -110,14 +126,16 @@ def fit_options(m, *, sigma_mm: float = SIGMA_MM, sigma_deg: float = SIGMA_DEG) 
     return {"pose": m.pose, "rotation": m.rotation, "sigma_mm": sigma_mm, "sigma_deg": sigma_deg}
 
 
-def candidate_fit(base: FitResult, spec: str, m, ctx, *, sigma_mm: float, sigma_deg: float) -> FitResult:
+def candidate_fit(base: FitResult, spec: str, m, ctx, *, sigma_mm: float, sigma_deg: float,
+                  hold=()) -> FitResult:
     """The full fit of the current model plus `spec` on all of m, from the current fit
     (parameters matched by name; the new ones start at zero), with the parameters the
-    current fit held still held (the identifiability analysis may hold more)."""
+    current fit held still held, and those named in `hold` (the identifiability analysis
+    may hold more)."""
     robot = base.model.robot
     specs = [str(s) for s in parse_specs(base.model.specs() + [spec], robot.n)]
     model = CalibrationModel.for_measurements(robot, specs, m)
-    names, held = base.model.param_names(), set(base.report.held)
+    names, held = base.model.param_names(), set(base.report.held) | set(hold)
     theta0, free = model.zeros(), model.default_free()
     for i, n in enumerate(model.param_names()):
         if n in names:
@@ -141,25 +159,46 @@ def score_step(current: Scored, candidates: list, m, ctx, folds: np.ndarray, *, 
     cross-validate it on the folds (N,) and decide (module doc; level alpha over the
     candidates refitted)."""
     refits, oks = [], []
+    random_only = False
+
+    def decide(hold=()):
+        f = candidate_fit(current.fit, c.spec, m, ctx, sigma_mm=sigma_mm, sigma_deg=sigma_deg, hold=hold)
+        cv = refit_cv(f, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
+        ok, p, why = refit_decision(current.cv_rms_mm, current.cv.sq, cv.cv_rms_mm, cv.sq,
+                                    n_refits=len(candidates), alpha=alpha, min_gain=min_gain,
+                                    random_only=random_only)
+        if cv.error:
+            ok, why = False, f"fold refit impossible: {cv.error}"
+        new = [n for n in f.model.param_names() if n not in current.fit.model.param_names()]
+        bad = determination(f, new, ctx) if ok else []
+        return f, cv, ok, p, why, new, bad
+
     for c in candidates:
+        random_only = c.significant and not c.deterministic
         try:
-            f = candidate_fit(current.fit, c.spec, m, ctx, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
+            f, cv, ok, p, why, new, bad = decide()
+            prior_set = [d["name"] for d in bad if d["why"] == "prior"]
+            if bad and len(prior_set) == len(bad) and len(prior_set) < len([n for n in new if n not in f.report.held]):
+                # some of its parameters only the prior sets (e.g. low harmonics collinear with
+                # a joint offset): held at nominal, the rest refitted and judged once more
+                f, cv, ok, p, why, new, bad = decide(prior_set)
+                why += f"; held at nominal, the prior alone set them: {', '.join(prior_set)}"
         except InputError as e:
             refits.append(Scored(current.effects + [c.spec], c.spec, float("inf"), float("inf"),
                                  reason=f"refit impossible: {e}"))
             oks.append(False)
             continue
-        cv = refit_cv(f, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
-        ok, p, why = refit_decision(current.cv_rms_mm, current.cv.sq, cv.cv_rms_mm, cv.sq,
-                                    n_refits=len(candidates), alpha=alpha, min_gain=min_gain,
-                                    random_only=c.significant and not c.deterministic)
-        if cv.error:
-            ok, why = False, f"fold refit impossible: {cv.error}"
-        refits.append(Scored(f.model.specs(), c.spec, f.rms_mm, cv.cv_rms_mm, f, cv, p, False, why, ok))
+        if ok and bad:  # the data must determine what it adds (module doc)
+            ok, why = False, f"{determination_words(bad)} ({why})"
+        if ok and new and all(n in f.report.held for n in new):
+            ok, why = False, f"not determined: none of its parameters is identifiable from these poses ({why})"
+        refits.append(Scored(f.model.specs(), c.spec, f.rms_mm, cv.cv_rms_mm, f, cv, p, False, why, ok, random_only))
         oks.append(ok)
-    if any(oks):  # the first accepted one in shortlist order
-        refits[oks.index(True)].accepted = True
-    for s in refits:
-        if s.passed and not s.accepted:
-            s.reason += "; a candidate ranked before it was accepted"
+    passed = [s for s in refits if s.passed]
+    if passed:  # the largest refit gain wins; a random-only term only when nothing deterministic passed
+        best = min(passed, key=lambda s: (s.random_only, s.cv_rms_mm))
+        best.accepted = True
+        for s in passed:
+            if s is not best:
+                s.reason += f"; {best.spec} gains more (refit cv {best.cv_rms_mm:.4f} mm)"
     return Step(current, refits, alpha / max(len(candidates), 1))

@@ -153,34 +153,33 @@ def set_by_prior(model, std: torch.Tensor, free: torch.Tensor, scales: torch.Ten
     return [names[i] for i in bad.nonzero().flatten().tolist()]
 
 
-def collinear_with(A: torch.Tensor, i: int, names: list, free: torch.Tensor) -> tuple[str, float]:
-    """The free parameter that column i of A (R, P) is most nearly a multiple of, once
-    the other free columns are accounted for, and R^2 of column i on all the other free
-    columns (1: exactly collinear). Least squares on unit-norm columns; the partner is
-    the column with the largest coefficient. ('', 0.0) when i has no other free column."""
-    others = [j for j in free.nonzero().flatten().tolist() if j != i]
-    a = A[:, i].to(torch.float64)
-    if not others or float(a.norm()) == 0:
+def collinear_with(cov: torch.Tensor, i: int, names: list, free: torch.Tensor, skip=()) -> tuple[str, float]:
+    """The free parameter (not named in `skip`, unless only those are left) whose estimate
+    goes most closely with parameter i's: the largest |correlation| in the fit's covariance
+    cov (P, P), and that correlation (-1..1). ('', 0.0) when i has no other free parameter
+    or no variance."""
+    c = cov.detach().cpu().to(torch.float64)
+    sd = torch.diagonal(c).clamp_min(0).sqrt()
+    others = [j for j in free.nonzero().flatten().tolist() if j != i and float(sd[j]) > 0]
+    others = [j for j in others if names[j] not in skip] or others
+    if not others or float(sd[i]) == 0:
         return "", 0.0
-    B = A[:, others].to(torch.float64)
-    Bn = B / B.norm(dim=0).clamp_min(1e-300)
-    an = a / a.norm()
-    beta = torch.linalg.lstsq(Bn, an.unsqueeze(-1), driver="gelsd").solution.squeeze(-1)
-    r2 = 1.0 - float((an - Bn @ beta).pow(2).sum())
-    return names[others[int(beta.abs().argmax())]], max(min(r2, 1.0), 0.0)
+    corr = c[i, others] / (sd[i] * sd[others])
+    k = int(corr.abs().argmax())
+    return names[others[k]], float(corr[k])
 
 
-def determination(fit, new: list, ctx, ratio: float = DETERMINED_RATIO) -> list[dict]:
+def determination(fit, new: list, ratio: float = DETERMINED_RATIO) -> list[dict]:
     """Why the parameters `new` (names) of a fitted model (`FitResult`) are not determined
     by its data: one dict per offending parameter, {"name", "value", "sd", "scale" (its
     unit, `unit`), "why": 'prior' (posterior sd >= ratio x scale, module doc) or 'beyond'
-    (|value| > scale), "partner", "r2" (`collinear_with`, on the position Jacobian at the
-    solution)}. Parameters held at nominal (not identifiable) or without a plausible scale
+    (|value| > scale), "partner", "corr" (`collinear_with`, on the fit's covariance, a
+    parameter outside `new` where one correlates)}. Parameters held at nominal (not identifiable) or without a plausible scale
     are not judged. Empty: every one judged is determined and within its plausible size."""
     model = fit.model
     names, units = model.param_names(), model.param_units()
     scales = plausible_scales(model)
-    out, A = [], None
+    out = []
     for n in new:
         i = names.index(n)
         s = float(scales[i])
@@ -190,17 +189,16 @@ def determination(fit, new: list, ctx, ratio: float = DETERMINED_RATIO) -> list[
         why = "prior" if sd >= ratio * s else "beyond" if abs(v) > s else None
         if why is None:
             continue
-        if A is None:
-            A = model.jacobian(fit.theta, ctx).detach().reshape(-1, len(names))
-        partner, r2 = collinear_with(A, i, names, fit.report.free)
+        partner, corr = ("", 0.0) if fit.covariance is None else \
+            collinear_with(fit.covariance.cov, i, names, fit.report.free, skip=new)
         out.append({"name": n, "value": v, "sd": sd, "scale": s, "unit": units[i], "why": why,
-                    "partner": partner, "r2": r2})
+                    "partner": partner, "corr": corr})
     return out
 
 
 def determination_words(items: list[dict]) -> str:
     """One phrase for `determination`'s findings, in degrees and mm: 'not determined:
-    gear_2_sin1 +- 0.097 deg against a plausible 0.1 deg; collinear with dtheta2 (R^2 0.998)'."""
+    gear_2_sin1 +- 0.097 deg against a plausible 0.1 deg; collinear with dtheta2 (correlation -0.98)'."""
     def q(x, unit):
         return (f"{math.degrees(x):.3g} deg" if unit == "rad" else f"{x:.3g} {unit}" if unit != "1" else f"{x:.3g}")
 
@@ -210,6 +208,6 @@ def determination_words(items: list[dict]) -> str:
                 if d["why"] == "prior" else
                 f"beyond plausible: {d['name']} {q(d['value'], d['unit'])} against a plausible {q(d['scale'], d['unit'])}")
         if d["partner"]:
-            head += f"; collinear with {d['partner']} (R^2 {d['r2']:.3f})"
+            head += f"; collinear with {d['partner']} (correlation {d['corr']:+.2f})"
         parts.append(head)
     return "; ".join(parts)

@@ -20,8 +20,10 @@ variance term, which no deterministic refit can show) is accepted when its refit
 not worse than the current model's by more than `MIN_GAIN` (its deterministic part may
 cost a little). A candidate that passes must also be determined by the data
 (torchcal.diagnosis.step). Of those that pass, the one with the largest refit gain
-(lowest refit CV RMS) is the step's verdict, whatever its place in the shortlist; a
-random-only term only when no deterministic candidate passes.
+(lowest refit CV RMS) is the step's verdict, whatever its place in the shortlist, unless
+a simpler one that passed is not beaten by it significantly per pose (`not_better` on
+the refits' held-out squared errors); a random-only term only when no deterministic
+candidate passes (then in shortlist order).
 """
 
 from __future__ import annotations

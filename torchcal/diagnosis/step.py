@@ -18,8 +18,9 @@ plausible scale) is identifiable, has a posterior sd (the prior included) below 
 plausible size and a value within it (`torchcal.calibration.plausibility.determination`);
 otherwise it is rejected with the figures and the parameter it is collinear with. Of the
 candidates that pass, the one with the largest refit gain (lowest refit CV RMS) is
-accepted; a candidate significant by its random part only is taken only when no
-deterministic one passes.
+accepted, unless a simpler one that passed (fewer new parameters) is not significantly
+worse per pose (`choose`); a candidate significant by its random part only is taken only
+when no deterministic one passes.
 
 `Step.lines()` is the text both commands print; `Step.to_dict()` their JSON.
 """
@@ -33,7 +34,7 @@ from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult, fit
 from torchcal.calibration.model import CalibrationModel
 from torchcal.calibration.plausibility import determination, determination_words
 from torchcal.diagnosis.crossval import RefitCV, refit_cv
-from torchcal.diagnosis.selection import ALPHA, MIN_GAIN, refit_decision
+from torchcal.diagnosis.selection import ALPHA, MIN_GAIN, not_better, refit_decision
 from torchcal.effects.spec import parse_specs
 from torchcal.errors import InputError
 
@@ -55,6 +56,7 @@ class Scored:
     reason: str = ""
     passed: bool = False  # met the acceptance rule (accepted unless another had a larger refit gain)
     random_only: bool = False  # significant in the pre-screen by its random part only
+    k: int = 0  # new identified parameters (beyond the current model's)
 
     @property
     def held(self) -> list:
@@ -170,7 +172,7 @@ def score_step(current: Scored, candidates: list, m, ctx, folds: np.ndarray, *, 
         if cv.error:
             ok, why = False, f"fold refit impossible: {cv.error}"
         new = [n for n in f.model.param_names() if n not in current.fit.model.param_names()]
-        bad = determination(f, new, ctx) if ok else []
+        bad = determination(f, new) if ok else []
         return f, cv, ok, p, why, new, bad
 
     for c in candidates:
@@ -192,13 +194,30 @@ def score_step(current: Scored, candidates: list, m, ctx, folds: np.ndarray, *, 
             ok, why = False, f"{determination_words(bad)} ({why})"
         if ok and new and all(n in f.report.held for n in new):
             ok, why = False, f"not determined: none of its parameters is identifiable from these poses ({why})"
-        refits.append(Scored(f.model.specs(), c.spec, f.rms_mm, cv.cv_rms_mm, f, cv, p, False, why, ok, random_only))
+        k = sum(1 for n in new if n not in f.report.held)
+        refits.append(Scored(f.model.specs(), c.spec, f.rms_mm, cv.cv_rms_mm, f, cv, p, False, why, ok, random_only, k))
         oks.append(ok)
-    passed = [s for s in refits if s.passed]
-    if passed:  # the largest refit gain wins; a random-only term only when nothing deterministic passed
-        best = min(passed, key=lambda s: (s.random_only, s.cv_rms_mm))
+    best = choose(refits)
+    if best is not None:
         best.accepted = True
-        for s in passed:
-            if s is not best:
-                s.reason += f"; {best.spec} gains more (refit cv {best.cv_rms_mm:.4f} mm)"
+        for s in refits:
+            if s.passed and s is not best:
+                s.reason += (f"; {best.spec} gains more (refit cv {best.cv_rms_mm:.4f} mm)" if s.cv_rms_mm > best.cv_rms_mm
+                             else f"; {best.spec} is simpler and not worse per pose" if not s.random_only
+                             else f"; {best.spec} ranked before it")
     return Step(current, refits, alpha / max(len(candidates), 1))
+
+
+def choose(refits: list) -> Scored | None:
+    """The step's verdict among the refits that passed: of the deterministic ones the
+    largest refit gain (lowest refit CV RMS), or a simpler one (fewer new identified
+    parameters) that it does not beat significantly per pose (paired held-out squared
+    errors, `not_better`), the simplest such; a random-only term (whose variance no refit
+    CV shows) only when no deterministic one passed, the first in shortlist order."""
+    passed = [s for s in refits if s.passed]
+    det = [s for s in passed if not s.random_only]
+    if not det:
+        return passed[0] if passed else None
+    best = min(det, key=lambda s: s.cv_rms_mm)
+    simpler = [s for s in det if s.k < best.k and not_better(best.cv, s.cv, "sq", -1.0)]
+    return min(simpler, key=lambda s: (s.k, s.cv_rms_mm), default=best)

@@ -49,6 +49,13 @@ def seed141(tmp_path_factory):
     return path, read_measurements(path, robot=ROBOT)
 
 
+def _csv(path, m):
+    from torchcal.io.measurement_csv import write_measurements
+
+    write_measurements(path, m)
+    return path
+
+
 # -- the posterior covariance ------------------------------------------------------------
 
 def test_posterior_covariance_matches_the_numpy_formula():
@@ -89,25 +96,23 @@ def test_posterior_covariance_matches_the_numpy_formula():
 
 
 def _narrow_q1_session(seed=5, n=80):
-    """Random kr1000titan poses with joint 1 held within +-2 deg: harmonics of q1 are
-    then (nearly) a constant and a slope, collinear with the joint offset and the frames."""
+    """Random kr1000titan poses with joint 1 held within +-2 deg: every harmonic of q1 is
+    then (nearly) a constant plus a slope, so any two are collinear."""
     g = torch.Generator().manual_seed(seed)
     q = random_poses(ROBOT, n, g)
     q[:, 0] = torch.deg2rad(torch.rand(n, generator=g, dtype=q.dtype) * 4 - 2)
     return VirtualRobot(ROBOT, [], seed=seed).measure(q, noise_mm=0.02)
 
 
-def test_a_harmonic_collinear_with_the_joint_offset_is_not_determined_and_says_why():
+def test_a_harmonic_collinear_with_another_parameter_is_not_determined_and_says_why():
     m = _narrow_q1_session()
     ctx = context_of(ROBOT, m)
     model = CalibrationModel(ROBOT, ["gear_periodic:1"])
     res = fit(model, ctx, m.xyz, pose=m.pose)
     names = model.param_names()
     gear = [n for n in names if n.startswith("gear_1_")]
-    bad = determination(res, gear)
+    bad = determination(res, gear, ctx)
     scales = plausible_scales(model)
-    # the constant part of the harmonics is collinear with the joint offset (their slope
-    # over +-2 deg acts as an encoder scale, which the data do determine)
     assert bad and all(d["why"] == "prior" for d in bad), bad
     for d in bad:  # the posterior sd is at most about the prior's and at least half of it
         i = names.index(d["name"])
@@ -115,17 +120,14 @@ def test_a_harmonic_collinear_with_the_joint_offset_is_not_determined_and_says_w
         assert d["name"] in res.set_by_prior
     words = determination_words(bad[:1])
     assert words.startswith(f"not determined: {bad[0]['name']} +- ") and "deg against a plausible 0.1 deg" in words
-    assert f"collinear with {bad[0]['partner']} (correlation " in words and abs(bad[0]["corr"]) > 0.9, bad[0]
+    assert f"collinear with {bad[0]['partner']} (R^2 " in words and bad[0]["r2"] > 0.999, bad[0]
+    assert bad[0]["partner"].startswith("gear_1_")  # sin1 and sin4 are both nearly the slope q1
 
 
 def test_values_set_by_the_prior_are_labelled_and_not_listed_as_measured(tmp_path, capsys):
     """fit on the narrow-q1 session with gear_periodic:1: the printed uncertainty lines
     and MODEL.json mark the prior-set values; "largest deviations" never names one."""
-    m = _narrow_q1_session()
-    path = tmp_path / "narrow.csv"
-    from torchcal.io.measurement_csv import write_measurements
-
-    write_measurements(path, m)
+    path = _csv(tmp_path / "narrow.csv", _narrow_q1_session())
     out = tmp_path / "model.json"
     assert main(["fit", str(path), "--robot", "kr1000titan", "--effects", "gear_periodic:1",
                  "--out", str(out)]) == 0
@@ -216,7 +218,7 @@ def test_the_step_takes_the_largest_refit_gain_not_the_shortlist_order(seed141):
     assert "gear_periodic:2 gains more" in step.refits[0].reason
     # the accepted effect is determined: what the prior alone set is held, the rest determined
     new = [n for n in best.fit.model.param_names() if n not in base.model.param_names()]
-    assert determination(best.fit, new) == []
+    assert determination(best.fit, new, ctx) == []
     held = [n for n in new if n in best.fit.report.held]
     if held:
         assert "the prior alone set them" in best.reason and all(n in best.reason for n in held)
@@ -268,11 +270,8 @@ def test_residual_stage_applied_where_it_earns_its_place():
 
 def test_discover_residual_model_applies_the_same_test(tmp_path, capsys):
     vr = VirtualRobot(ROBOT, [], seed=23)
-    m = vr.measure(random_poses(ROBOT, 60, torch.Generator().manual_seed(23)), noise_mm=0.02)
-    from torchcal.io.measurement_csv import write_measurements
-
-    path = tmp_path / "null.csv"
-    write_measurements(path, m)
+    path = _csv(tmp_path / "null.csv", vr.measure(random_poses(ROBOT, 60, torch.Generator().manual_seed(23)),
+                                                  noise_mm=0.02))
     js = tmp_path / "d.json"
     assert main(["discover", str(path), "--robot", "kr1000titan", "--residual-model", "kernel",
                  "--json", str(js)]) == 0

@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 
 from torchcal.errors import InputError
@@ -153,33 +154,41 @@ def set_by_prior(model, std: torch.Tensor, free: torch.Tensor, scales: torch.Ten
     return [names[i] for i in bad.nonzero().flatten().tolist()]
 
 
-def collinear_with(cov: torch.Tensor, i: int, names: list, free: torch.Tensor, skip=()) -> tuple[str, float]:
-    """The free parameter (not named in `skip`, unless only those are left) whose estimate
-    goes most closely with parameter i's: the largest |correlation| in the fit's covariance
-    cov (P, P), and that correlation (-1..1). ('', 0.0) when i has no other free parameter
-    or no variance."""
-    c = cov.detach().cpu().to(torch.float64)
-    sd = torch.diagonal(c).clamp_min(0).sqrt()
-    others = [j for j in free.nonzero().flatten().tolist() if j != i and float(sd[j]) > 0]
-    others = [j for j in others if names[j] not in skip] or others
-    if not others or float(sd[i]) == 0:
+def collinear_with(A: torch.Tensor, i: int, names: list, free: torch.Tensor) -> tuple[str, float]:
+    """Which parameter column i of the Jacobian A (R, P) is collinear with: R^2 of column
+    i regressed on the other free columns (1: exactly collinear), and the partner, the
+    column whose removal lowers that R^2 most (what explains column i that nothing else
+    does). Unit-norm columns, least squares. ('', 0.0) when there is no other column."""
+    M = A.detach().cpu().to(torch.float64).numpy()
+    others = [j for j in free.nonzero().flatten().tolist() if j != i]
+    if not others or not np.linalg.norm(M[:, i]) > 0:
         return "", 0.0
-    corr = c[i, others] / (sd[i] * sd[others])
-    k = int(corr.abs().argmax())
-    return names[others[k]], float(corr[k])
+    a = M[:, i] / np.linalg.norm(M[:, i])
+    B = M[:, others] / np.linalg.norm(M[:, others], axis=0).clip(1e-300)
+
+    def r2(cols):
+        if not cols:
+            return 0.0
+        x = np.linalg.lstsq(B[:, cols], a, rcond=None)[0]
+        return 1.0 - float(((a - B[:, cols] @ x) ** 2).sum())
+
+    idx = list(range(len(others)))
+    full = r2(idx)
+    drop = [full - r2([k for k in idx if k != j]) for j in idx]
+    return names[others[int(np.argmax(drop))]], min(max(full, 0.0), 1.0)
 
 
-def determination(fit, new: list, ratio: float = DETERMINED_RATIO) -> list[dict]:
+def determination(fit, new: list, ctx, ratio: float = DETERMINED_RATIO) -> list[dict]:
     """Why the parameters `new` (names) of a fitted model (`FitResult`) are not determined
     by its data: one dict per offending parameter, {"name", "value", "sd", "scale" (its
     unit, `unit`), "why": 'prior' (posterior sd >= ratio x scale, module doc) or 'beyond'
-    (|value| > scale), "partner", "corr" (`collinear_with`, on the fit's covariance, a
-    parameter outside `new` where one correlates)}. Parameters held at nominal (not identifiable) or without a plausible scale
+    (|value| > scale), "partner", "r2" (`collinear_with` on the position Jacobian at the
+    solution, context ctx)}. Parameters held at nominal (not identifiable) or without a plausible scale
     are not judged. Empty: every one judged is determined and within its plausible size."""
     model = fit.model
     names, units = model.param_names(), model.param_units()
     scales = plausible_scales(model)
-    out = []
+    out, A = [], None
     for n in new:
         i = names.index(n)
         s = float(scales[i])
@@ -189,16 +198,17 @@ def determination(fit, new: list, ratio: float = DETERMINED_RATIO) -> list[dict]
         why = "prior" if sd >= ratio * s else "beyond" if abs(v) > s else None
         if why is None:
             continue
-        partner, corr = ("", 0.0) if fit.covariance is None else \
-            collinear_with(fit.covariance.cov, i, names, fit.report.free, skip=new)
+        if A is None:
+            A = model.jacobian(fit.theta, ctx).detach().reshape(-1, len(names))
+        partner, r2 = collinear_with(A, i, names, fit.report.free)
         out.append({"name": n, "value": v, "sd": sd, "scale": s, "unit": units[i], "why": why,
-                    "partner": partner, "corr": corr})
+                    "partner": partner, "r2": r2})
     return out
 
 
 def determination_words(items: list[dict]) -> str:
     """One phrase for `determination`'s findings, in degrees and mm: 'not determined:
-    gear_2_sin1 +- 0.097 deg against a plausible 0.1 deg; collinear with dtheta2 (correlation -0.98)'."""
+    gear_2_sin1 +- 0.097 deg against a plausible 0.1 deg; collinear with dtheta2 (R^2 0.9998)'."""
     def q(x, unit):
         return (f"{math.degrees(x):.3g} deg" if unit == "rad" else f"{x:.3g} {unit}" if unit != "1" else f"{x:.3g}")
 
@@ -208,6 +218,6 @@ def determination_words(items: list[dict]) -> str:
                 if d["why"] == "prior" else
                 f"beyond plausible: {d['name']} {q(d['value'], d['unit'])} against a plausible {q(d['scale'], d['unit'])}")
         if d["partner"]:
-            head += f"; collinear with {d['partner']} (correlation {d['corr']:+.2f})"
+            head += f"; collinear with {d['partner']} (R^2 {d['r2']:.4f} on the other parameters)"
         parts.append(head)
     return "; ".join(parts)

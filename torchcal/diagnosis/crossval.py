@@ -66,6 +66,13 @@ def fold_fit(full, m, ctx, train: torch.Tensor, *, sigma_mm: float, sigma_deg: f
                prior_sigma_mm=lim.get("prior_sigma_mm"))
 
 
+def fold_refits(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: float):
+    """Per fold of folds (N,): (test (N,) bool, `fold_fit` on the other folds' rows)."""
+    for f in np.unique(folds):
+        test = torch.from_numpy(folds == f)
+        yield test, fold_fit(full, m, ctx, ~test, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
+
+
 def refit_cv(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: float) -> RefitCV:
     """Pose-grouped K-fold CV of the fitted model `full` (`FitResult`) on measurements m
     (`Measurements`, context ctx), folds (N,) from `fold_ids`.
@@ -77,16 +84,13 @@ def refit_cv(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: flo
     """
     model = full.model
     err = np.zeros(len(m))
-    for f in np.unique(folds):
-        test = torch.from_numpy(folds == f)
-        train = ~test
-        try:
-            res = fold_fit(full, m, ctx, train, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
-        except InputError as e:
-            return RefitCV(float("inf"), np.full(len(np.unique(m.pose.cpu().numpy())), np.inf), str(e))
-        with torch.no_grad():
-            d = (model.predict(res.theta, ctx.subset(test)) - m.xyz[test]).pow(2).sum(-1)
-        err[test.numpy()] = d.cpu().numpy()
+    try:
+        for test, res in fold_refits(full, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg):
+            with torch.no_grad():
+                d = (model.predict(res.theta, ctx.subset(test)) - m.xyz[test]).pow(2).sum(-1)
+            err[test.numpy()] = d.cpu().numpy()
+    except InputError as e:
+        return RefitCV(float("inf"), np.full(len(np.unique(m.pose.cpu().numpy())), np.inf), str(e))
     _, pose_of_row = np.unique(m.pose.cpu().numpy(), return_inverse=True)
     sq = np.bincount(pose_of_row, weights=err)
     return RefitCV(float(np.sqrt(err.mean())), sq)

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from torchcal.diagnosis.crossval import fold_fit, fold_ids
+from torchcal.diagnosis.crossval import fold_ids, fold_refits
 from torchcal.diagnosis.selection import MIN_GAIN, REFIT_ALPHA, refit_decision
 from torchcal.errors import InputError
 
@@ -58,19 +58,18 @@ def stage_test(full, m, ctx, *, kind: str = "kernel", folds: int = 5, seed: int 
     robot = full.model.robot
     fold = fold_ids(m.pose, folds, seed)
     e0, e1 = np.zeros(len(m)), np.zeros(len(m))
-    for f in np.unique(fold):
-        test = torch.from_numpy(fold == f)
-        train = ~test
-        try:
-            res = fold_fit(full, m, ctx, train, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
-        except InputError as e:
-            return StageTest(False, float("inf"), float("inf"), 1.0, alpha, f"fold refit impossible: {e}")
-        with torch.no_grad():
-            r = (m.xyz[test] - full.model.predict(res.theta, ctx.subset(test))).cpu().to(torch.float64)
-        stage = fit_residual_model(robot, m.subset(train), res.residuals, kind=kind, seed=seed)
-        corr = torch.zeros_like(r) if stage is None else stage.predict(m.q[test]).cpu().to(torch.float64)
-        e0[test.numpy()] = r.pow(2).sum(-1).numpy()
-        e1[test.numpy()] = (r - corr).pow(2).sum(-1).numpy()
+    try:
+        for test, res in fold_refits(full, m, ctx, fold, sigma_mm=sigma_mm, sigma_deg=sigma_deg):
+            with torch.no_grad():
+                r = (m.xyz[test] - full.model.predict(res.theta, ctx.subset(test))).cpu().to(torch.float64)
+            stage = fit_residual_model(robot, m.subset(~test), res.residuals, kind=kind, seed=seed)
+            corr = torch.zeros_like(r) if stage is None else stage.predict(m.q[test]).cpu().to(torch.float64)
+            e0[test.numpy()] = r.pow(2).sum(-1).numpy()
+            e1[test.numpy()] = (r - corr).pow(2).sum(-1).numpy()
+    except InputError as e:
+        if "residual model" in str(e):  # a wrong kind: the caller's mistake, not a fold's
+            raise
+        return StageTest(False, float("inf"), float("inf"), 1.0, alpha, f"fold refit impossible: {e}")
     _, pose_of_row = np.unique(m.pose.cpu().numpy(), return_inverse=True)
     sq0, sq1 = np.bincount(pose_of_row, weights=e0), np.bincount(pose_of_row, weights=e1)
     cv0, cv1 = float(np.sqrt(e0.mean())), float(np.sqrt(e1.mean()))

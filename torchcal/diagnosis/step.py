@@ -160,10 +160,9 @@ def score_step(current: Scored, candidates: list, m, ctx, folds: np.ndarray, *, 
     """Refit each candidate (`Candidate`s of the pre-screen, in shortlist order) in full,
     cross-validate it on the folds (N,) and decide (module doc; level alpha over the
     candidates refitted)."""
-    refits, oks = [], []
-    random_only = False
+    refits = []
 
-    def decide(hold=()):
+    def decide(c, random_only, hold=()):
         f = candidate_fit(current.fit, c.spec, m, ctx, sigma_mm=sigma_mm, sigma_deg=sigma_deg, hold=hold)
         cv = refit_cv(f, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
         ok, p, why = refit_decision(current.cv_rms_mm, current.cv.sq, cv.cv_rms_mm, cv.sq,
@@ -172,23 +171,22 @@ def score_step(current: Scored, candidates: list, m, ctx, folds: np.ndarray, *, 
         if cv.error:
             ok, why = False, f"fold refit impossible: {cv.error}"
         new = [n for n in f.model.param_names() if n not in current.fit.model.param_names()]
-        bad = determination(f, new) if ok else []
+        bad = determination(f, new, ctx) if ok else []
         return f, cv, ok, p, why, new, bad
 
     for c in candidates:
         random_only = c.significant and not c.deterministic
         try:
-            f, cv, ok, p, why, new, bad = decide()
+            f, cv, ok, p, why, new, bad = decide(c, random_only)
             prior_set = [d["name"] for d in bad if d["why"] == "prior"]
             if bad and len(prior_set) == len(bad) and len(prior_set) < len([n for n in new if n not in f.report.held]):
                 # some of its parameters only the prior sets (e.g. low harmonics collinear with
                 # a joint offset): held at nominal, the rest refitted and judged once more
-                f, cv, ok, p, why, new, bad = decide(prior_set)
+                f, cv, ok, p, why, new, bad = decide(c, random_only, prior_set)
                 why += f"; held at nominal, the prior alone set them: {', '.join(prior_set)}"
         except InputError as e:
             refits.append(Scored(current.effects + [c.spec], c.spec, float("inf"), float("inf"),
                                  reason=f"refit impossible: {e}"))
-            oks.append(False)
             continue
         if ok and bad:  # the data must determine what it adds (module doc)
             ok, why = False, f"{determination_words(bad)} ({why})"
@@ -196,7 +194,6 @@ def score_step(current: Scored, candidates: list, m, ctx, folds: np.ndarray, *, 
             ok, why = False, f"not determined: none of its parameters is identifiable from these poses ({why})"
         k = sum(1 for n in new if n not in f.report.held)
         refits.append(Scored(f.model.specs(), c.spec, f.rms_mm, cv.cv_rms_mm, f, cv, p, False, why, ok, random_only, k))
-        oks.append(ok)
     best = choose(refits)
     if best is not None:
         best.accepted = True

@@ -18,7 +18,9 @@
      "orientation": {"sigma_mm", "sigma_deg", "weight_mm_per_deg", "rms_deg",
                      "tool_rotation_fixed_xyz_deg"},
      "residual_model": {...} (the optional non-physical residual stage,
-                       `torchcal.calibration.residual_model`)}
+                       `torchcal.calibration.residual_model`),
+     "residual_test": {"applied", "cv_without_mm", "cv_with_mm", "p_value", "level", "reason"}
+                      (its held-out test, `torchcal.diagnosis.residual_stage`)}
 
 Values are in the units named beside them: mm and degrees (radians inside; `file_unit`:
 'rad' -> 'deg', 'rad/mm' -> 'deg/mm', the joint_compliance payload term -> the joint's
@@ -128,6 +130,8 @@ def to_dict(res: FitResult, source=None, seed: int = 0, pose_ids=None) -> dict:
             matrix_to_fixed_xyz(o["tool_rotation"].detach().cpu().double())).tolist()
     if res.residual_model is not None:
         extra["residual_model"] = res.residual_model.to_dict()
+    if res.residual_test is not None:
+        extra["residual_test"] = dict(res.residual_test)
     units, k = file_units(model)  # degrees and mm in the file, radians inside
     cov = None
     if res.covariance is not None:
@@ -223,6 +227,7 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
                      implausible=list(plaus.get("beyond", [])), orientation=_orientation(obj, where),
                      plausible_limits=limits, q_range=q_range, residual_model=stage, training=training,
                      provenance=obj.get("provenance"), set_by_prior=list(plaus.get("set_by_prior", [])),
+                     residual_test=obj.get("residual_test"),
                      **settings)
 
 

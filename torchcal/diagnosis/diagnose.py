@@ -181,6 +181,7 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
         acc = d.step.accepted
         if acc is None or i == max_rounds:
             break
-        base, current = acc.fit, Scored(acc.effects, "", acc.rms_mm, acc.cv_rms_mm, acc.fit, acc.cv)
+        base, current = acc.fit, Scored(acc.effects, "", acc.rms_mm, acc.cv_rms_mm, acc.fit, acc.cv,
+                                        prior_held=d.step.current.prior_held + acc.prior_held)
     return Discovery(history, base.model.specs(), base, diagnoses,
                      unexplained(robot, m, base.residuals, seed=seed))

@@ -57,10 +57,11 @@ class Scored:
     passed: bool = False  # met the acceptance rule (accepted unless another had a larger refit gain)
     random_only: bool = False  # significant in the pre-screen by its random part only
     k: int = 0  # new identified parameters (beyond the current model's)
+    prior_held: list = field(default_factory=list)  # held at nominal: the prior alone set them
 
     @property
     def held(self) -> list:
-        return [] if self.fit is None else list(self.fit.report.held)
+        return [] if self.fit is None else [n for n in self.fit.report.held if n not in self.prior_held]
 
     @property
     def beyond(self) -> list:
@@ -68,7 +69,7 @@ class Scored:
 
     def to_dict(self) -> dict:
         out = {"effects": list(self.effects), "rms_mm": self.rms_mm, "cv_rms_mm": self.cv_rms_mm,
-               "held": self.held, "beyond_plausible": self.beyond}
+               "held": self.held, "held_set_by_prior": list(self.prior_held), "beyond_plausible": self.beyond}
         if self.spec:
             out.update(candidate=self.spec, p_value=self.p_value, passed=self.passed, accepted=self.accepted,
                        reason=self.reason)
@@ -103,7 +104,7 @@ class Step:
             verdict = "accepted" if s.accepted else "passed, not taken" if s.passed else "rejected"
             out.append(f"  + {s.spec:<24} rms {s.rms_mm:.4f} mm, refit cv rms {s.cv_rms_mm:.4f} mm: "
                        f"{verdict} ({s.reason})")
-            out += ["  " + ln for ln in _plausibility_lines(s, c.held)]
+            out += ["  " + ln for ln in _plausibility_lines(s, [] if c.fit is None else list(c.fit.report.held))]
         return out
 
     def to_dict(self) -> dict:
@@ -118,6 +119,8 @@ def _plausibility_lines(s: Scored, current_held: list) -> list[str]:
     if held:
         also = ", besides the current model's" if current_held else ""
         out.append(f"  held at nominal (not identifiable{also}): {', '.join(held)}")
+    if s.prior_held:
+        out.append(f"  held at nominal (not determined by the data, the prior alone set them): {', '.join(s.prior_held)}")
     if s.beyond:
         out.append(f"  beyond plausible size (shrunk by the prior): {', '.join(s.beyond)}")
     return out
@@ -178,12 +181,12 @@ def score_step(current: Scored, candidates: list, m, ctx, folds: np.ndarray, *, 
         random_only = c.significant and not c.deterministic
         try:
             f, cv, ok, p, why, new, bad = decide(c, random_only)
-            prior_set = [d["name"] for d in bad if d["why"] == "prior"]
+            prior_set, held_now = [d["name"] for d in bad if d["why"] == "prior"], []
             if bad and len(prior_set) == len(bad) and len(prior_set) < len([n for n in new if n not in f.report.held]):
                 # some of its parameters only the prior sets (e.g. low harmonics collinear with
                 # a joint offset): held at nominal, the rest refitted and judged once more
                 f, cv, ok, p, why, new, bad = decide(c, random_only, prior_set)
-                why += f"; held at nominal, the prior alone set them: {', '.join(prior_set)}"
+                why, held_now = why + f"; held at nominal, the prior alone set them: {', '.join(prior_set)}", prior_set
         except InputError as e:
             refits.append(Scored(current.effects + [c.spec], c.spec, float("inf"), float("inf"),
                                  reason=f"refit impossible: {e}"))
@@ -193,7 +196,8 @@ def score_step(current: Scored, candidates: list, m, ctx, folds: np.ndarray, *, 
         if ok and new and all(n in f.report.held for n in new):
             ok, why = False, f"not determined: none of its parameters is identifiable from these poses ({why})"
         k = sum(1 for n in new if n not in f.report.held)
-        refits.append(Scored(f.model.specs(), c.spec, f.rms_mm, cv.cv_rms_mm, f, cv, p, False, why, ok, random_only, k))
+        refits.append(Scored(f.model.specs(), c.spec, f.rms_mm, cv.cv_rms_mm, f, cv, p, False, why, ok, random_only, k,
+                             held_now))
     best = choose(refits)
     if best is not None:
         best.accepted = True

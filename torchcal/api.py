@@ -435,7 +435,8 @@ def register(model, measurements, *, tool: bool = False) -> FitResult:
     if fm is None:
         return res
     return replace(res, orientation=fm.orientation, robust=fm.robust, sigma_mm=fm.sigma_mm, sigma_deg=fm.sigma_deg,
-                   residual_model=fm.residual_model, training=fm.training, provenance=fm.provenance)
+                   residual_model=fm.residual_model, training=fm.training, provenance=fm.provenance,
+                   set_by_prior=fm.set_by_prior, residual_test=fm.residual_test)
 
 
 def _is_model(obj) -> bool:

@@ -6,7 +6,7 @@ For each series (B, C, D of examples/ur10) and split seed (60/40 by pose, seeds 
    validation poses;
 2. ``discover`` (same start), ``evaluate`` of its final model;
 3. ``fit`` of the discovered effects with the residual stage, ``evaluate``;
-4. the probe's learnable RMS (``unexplained.learnable_rms_mm`` of discover's report).
+4. what the probe leaves on held-out poses (``unexplained.probe_left_rms_mm`` of discover's report).
 
 Prints one line per run and a table of means and standard deviations (mm, validation
 RMS of the distance error), and writes every figure to ``--json``. Wall times are of
@@ -60,7 +60,7 @@ def one(series: str, seed: int, work: Path) -> dict:
     hist = json.loads((work / "hist.json").read_text())
     found = json.loads((work / "disc.json").read_text())["effects"]
     row["effects"] = [e if isinstance(e, str) else e.get("spec", str(e)) for e in found]
-    row["learnable"] = (hist.get("unexplained") or {}).get("learnable_rms_mm")
+    row["learnable"] = (hist.get("unexplained") or {}).get("probe_left_rms_mm")
     torchcal("fit", tr, "--robot", robot, "--effects", *row["effects"], "--residual-model", "kernel",
              "--out", work / "resid.json", "--force")
     row["residual"] = val_rms(work / "resid.json", va, work)

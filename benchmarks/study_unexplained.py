@@ -103,7 +103,7 @@ def main(cases):
             listed = ", ".join(f"{v} {s:.2f}" for v, s in u.correlates_with)
             carried = ", ".join(f"{v} {s:.2f}" for v, s in u.carried_by)
             print(f"{case:13s} seed {seed}: significant {u.significant!s:5s} probe p {u.probe.p_value:.1e} "
-                  f"learnable rms {u.learnable_rms_mm:.4f} of {u.rms_mm:.4f} mm [{carried}]; "
+                  f"probe leaves {u.probe_left_rms_mm:.4f} of {u.rms_mm:.4f} mm [{carried}]; "
                   f"variables min p {pmin:.1e} listed [{listed}] {label}", flush=True)
         print(f"{case}: probe significant in {probe_hits} of {len(SEEDS)} sessions, report significant in "
               f"{hits} of {len(SEEDS)} ({time.perf_counter() - t0:.0f} s)\n", flush=True)

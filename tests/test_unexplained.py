@@ -53,7 +53,7 @@ def test_noise_floor_from_repeats_is_the_simulated_noise(repeated_null):
     m, d = repeated_null
     u = d.to_dict()["unexplained"]
     assert set(u) == {"significant", "rms_mm", "noise_floor_mm", "noise_floor_from", "correlates_with",
-                      "learnable_rms_mm", "carried_by", "probe"}
+                      "learnable_rms_mm", "carried_by", "probe", "probe_left_rms_mm"}
     assert u["noise_floor_from"] == "repeats"
     truth = NOISE * math.sqrt(3)  # distance RMS of the per-axis noise
     assert abs(u["noise_floor_mm"] - truth) < 0.15 * truth, (u, truth)
@@ -89,8 +89,8 @@ def test_a_bent_link_outside_the_vocabulary_is_significant_and_names_its_joint()
     # the floor is the smaller of the two held-out errors, and the words say which
     best = max(st for st, _ in u.strengths.values())
     by_variable = u.rms_mm * math.sqrt(1 - best)
-    assert u.noise_floor_mm == pytest.approx(min(by_variable, u.learnable_rms_mm), rel=1e-12)
-    source = "probe" if u.learnable_rms_mm <= by_variable else "variables"
+    assert u.noise_floor_mm == pytest.approx(min(by_variable, u.probe_left_rms_mm), rel=1e-12)
+    source = "probe" if u.probe_left_rms_mm <= by_variable else "variables"
     assert u.floor_from == source and u.to_dict()["noise_floor_from"] == source
     assert {"probe": "the probe's held-out error", "variables": "the strongest variable's held-out error"}[source] \
         in u.describe()
@@ -169,7 +169,11 @@ def test_probe_reports_a_smooth_error_as_learnable_from_its_joint():
     u = unexplained(ROBOT, m, geometric_residuals(m))
     d = u.to_dict()
     assert d["significant"] and d["probe"]["p_value"] < 1e-6
-    assert d["learnable_rms_mm"] < 0.6 * d["rms_mm"], d
+    assert d["probe_left_rms_mm"] < 0.6 * d["rms_mm"], d
+    # learnable_rms_mm holds the learnable part (not what the probe leaves), and the printed line agrees
+    assert d["learnable_rms_mm"] > 0.8 * d["rms_mm"], d
+    assert math.isclose(d["learnable_rms_mm"] ** 2 + d["probe_left_rms_mm"] ** 2, d["rms_mm"] ** 2, rel_tol=1e-9)
+    assert f"leaves {d['learnable_rms_mm']:.4f} mm learnable" in u.describe()
     assert [c["variable"] for c in d["carried_by"]] == ["q3"], d["carried_by"]
     assert "mm learnable from q3" in u.describe()
 

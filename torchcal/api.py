@@ -131,8 +131,9 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     the fit, a fitted RMS beyond what any calibration leaves
     (`torchcal.calibration.mismatch.check_fitted`).
     residual_model: 'kernel' adds the non-physical residual stage
-    (`torchcal.calibration.residual_model`) as ``res.residual_model`` (None when no
-    joint angle predicts the residual); evaluate and compensate apply it.
+    (`torchcal.calibration.residual_model`) as ``res.residual_model`` only when its held-out
+    gain is significant (`torchcal.diagnosis.residual_stage`, the figures in
+    ``res.residual_test``; None otherwise); evaluate and compensate apply it.
     Returns a `FitResult` (``.theta``, ``.status``, ``.rms_mm``, ``.to_dict()`` = the
     MODEL.json of ``torchcal fit``).
     """
@@ -160,9 +161,16 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     if gross:
         raise InputError(gross)
     if residual_model is not None:
-        from torchcal.calibration.residual_model import fit_residual_model
-        res.residual_model = fit_residual_model(model.robot, m, res.residuals, kind=residual_model)
+        _add_stage(res, m, ctx, residual_model)
     return res
+
+
+def _add_stage(res: FitResult, m: Measurements, ctx, kind: str, folds: int = 5, seed: int = 0) -> None:
+    """The residual stage on `res` when its held-out test passes (`residual_test` holds the figures)."""
+    from torchcal.diagnosis.residual_stage import stage_test
+
+    t = stage_test(res, m, ctx, kind=kind, folds=folds, seed=seed, sigma_mm=res.sigma_mm, sigma_deg=res.sigma_deg)
+    res.residual_model, res.residual_test = t.stage, t.to_dict()
 
 
 @dataclass(frozen=True)
@@ -299,16 +307,20 @@ def check_robot_data_of(model: CalibrationModel, m: Measurements, robust: bool |
 
 def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: int = 0,
              max_rounds: int | None = None, alpha: float | None = None, sigma_mm: float = SIGMA_MM,
-             sigma_deg: float = SIGMA_DEG, transfer=None, transfer_poses: int = 30):
+             sigma_deg: float = SIGMA_DEG, transfer=None, transfer_poses: int = 30,
+             residual_model: str | None = None):
     """Add the accepted missing effect each round (`torchcal.diagnosis.diagnose.discover`),
     for at most max_rounds rounds; folds, seed, alpha, sigma_mm, sigma_deg as in `diagnose`
     (None: the defaults of `torchcal.diagnosis`). Data the nominal robot cannot explain,
     or that need a measuring frame the effects lack, are refused as by `diagnose`.
     transfer: measurements of another session (Measurements or CSV path) as a check: a
     step is kept only when it does not raise that session's error after registration on
-    its first `transfer_poses` poses (`torchcal.diagnosis.transfer`). Returns a `Discovery`."""
+    its first `transfer_poses` poses (`torchcal.diagnosis.transfer`). residual_model:
+    'kernel' adds the residual stage to the final model when its held-out test passes, as
+    `fit` does (``.fit.residual_test`` holds the figures). Returns a `Discovery`."""
     from torchcal.diagnosis.diagnose import discover as run
     from torchcal.diagnosis.transfer import TransferCheck
+    from torchcal.effects import context_of
 
     model = _model(robot_or_model, effects)
     m = _measurements(measurements, model.robot)
@@ -316,8 +328,11 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     other = None if transfer is None else _measurements(transfer, model.robot)
     check = None if other is None else TransferCheck(other, transfer_poses, other.source or "the other session")
     with threads.for_work(_work(model, m)):
-        return run(model.robot, m, model.specs(), folds=folds, seed=seed, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
-                   transfer=check, **_set(max_rounds=max_rounds, alpha=alpha))
+        res = run(model.robot, m, model.specs(), folds=folds, seed=seed, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
+                  transfer=check, **_set(max_rounds=max_rounds, alpha=alpha))
+        if residual_model is not None:
+            _add_stage(res.fit, m, context_of(model.robot, m), residual_model, folds, seed)
+    return res
 
 
 def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_method: str = "damped",
@@ -455,7 +470,8 @@ def register(model, measurements, *, tool: bool = False) -> FitResult:
         return res
     return replace(res, orientation=fm.orientation, robust=fm.robust, sigma_mm=fm.sigma_mm, sigma_deg=fm.sigma_deg,
                    seed_poses=fm.seed_poses,
-                   residual_model=fm.residual_model, training=fm.training, provenance=fm.provenance)
+                   residual_model=fm.residual_model, training=fm.training, provenance=fm.provenance,
+                   set_by_prior=fm.set_by_prior, residual_test=fm.residual_test)
 
 
 def _is_model(obj) -> bool:

@@ -442,7 +442,8 @@ def _rounds(rep) -> str:
 
 def _unexplained_text(u: dict) -> str:
     pairs = [("RMS left", _mm(u.get("rms_mm"))), ("noise floor (estimated)", _mm(u.get("noise_floor_mm"))),
-             ("reachable by a kernel probe on held-out poses", _mm(u.get("learnable_rms_mm"))),
+             ("learnable part (a kernel probe on held-out poses)", _mm(u.get("learnable_rms_mm"))),
+             ("what the probe leaves", _mm(u.get("probe_left_rms_mm"))),
              ("learnable beyond chance", "yes" if u.get("significant") else "no")]
     probe = u.get("probe") or {}
     if probe:

@@ -17,6 +17,21 @@ Covariance of the fitted parameters (linearised at the solution, identified colu
   no repeats it reduces to the line above. Intervals use Student's t with 3G - K
   (pose-level) or 3N - K degrees of freedom.
 
+With the plausibility prior (the fit's rows ``rho theta_i / s_i``,
+`torchcal.calibration.plausibility`) the covariance is the posterior one: with
+``Pp = diag(rho^2 / s_i^2)`` (the prior's information in the fit's row units) and
+``B = (J^T W J + Pp)^-1``,
+
+    C = B (meat + s^2 Pp) B
+
+where meat is ``s^2 J^T W J`` (rows) or the pose-level meat above and s^2 the fit's
+per-axis residual variance (pose-level: sb2 + se2). The first term is the scatter of the
+estimate over the noise, the second the part the prior leaves undetermined (the
+estimate's bias towards zero, averaged over the prior). In the rows case this is exactly
+``s^2 (J^T W J + Pp)^-1``, the Gaussian posterior covariance scaled as the fit's sigma:
+a parameter the data determine keeps its data-only standard error, one only the prior
+pins gets about its plausible size s_i instead of a huge data-only figure or zero.
+
 `tcp_covariance` propagates C to positions: ``Sigma_i = J_i C J_i^T`` (3, 3) per pose;
 ``tcp_sigma`` is ``sqrt(trace Sigma_i)``, the 1-sigma (RMS) length of the 3-D position
 error due to the parameter uncertainty, mm.
@@ -65,12 +80,14 @@ class ParameterCovariance:
 
 
 def parameter_covariance(J: torch.Tensor, resid: torch.Tensor, free: torch.Tensor, pose=None,
-                         weights=None) -> ParameterCovariance:
+                         weights=None, prior=None) -> ParameterCovariance:
     """Covariance of the fitted parameters.
 
     J: (N, 3, P) position Jacobian at the solution (mm per unit); resid: (N, 3) mm;
     free: (P,) bool identified parameters; pose: (N,) int pose ids (None: all distinct);
-    weights: (N,) robust row weights (None: ones).
+    weights: (N,) robust row weights (None: ones); prior: (P,) the prior rows' factors
+    ``rho / s_i`` (0 where no prior; None: no prior), giving the posterior covariance
+    (module doc).
     """
     N, _, P = J.shape
     K = int(free.sum())
@@ -82,7 +99,9 @@ def parameter_covariance(J: torch.Tensor, resid: torch.Tensor, free: torch.Tenso
     A = Jf.reshape(-1, K)
     if K == 0:
         return ParameterCovariance(cov, max(3 * N, 1), 0.0, "rows")
-    Binv = torch.linalg.pinv(A.T @ A)
+    Pp = torch.zeros(K, K, dtype=J.dtype, device=J.device) if prior is None else \
+        torch.diag(torch.as_tensor(prior, dtype=J.dtype, device=J.device)[free] ** 2)
+    Binv = torch.linalg.pinv(A.T @ A + Pp)
     groups = None
     if pose is not None:
         _, groups = torch.unique(torch.as_tensor(pose, device=J.device), return_inverse=True)
@@ -90,7 +109,7 @@ def parameter_covariance(J: torch.Tensor, resid: torch.Tensor, free: torch.Tenso
     if G == N:
         dof = max(3 * N - K, 1)
         s2 = float((r ** 2).sum()) / dof
-        cov_f = s2 * Binv
+        cov_f = s2 * Binv  # = B (s^2 A^T A + s^2 Pp) B
         out = dict(dof=dof, sigma_mm=s2 ** 0.5, method="rows")
     else:
         n_g = torch.zeros(G, dtype=J.dtype, device=J.device).index_add_(0, groups, torch.ones_like(w))
@@ -102,7 +121,7 @@ def parameter_covariance(J: torch.Tensor, resid: torch.Tensor, free: torch.Tenso
         sb2 = max(0.0, (between - se2) / (N / G))
         S = torch.zeros(G, 3, K, dtype=J.dtype, device=J.device).index_add_(0, groups, Jf).reshape(-1, K)
         meat = sb2 * (S.T @ S) + se2 * (A.T @ A)
-        cov_f = Binv @ meat @ Binv
+        cov_f = Binv @ (meat + (sb2 + se2) * Pp) @ Binv
         out = dict(dof=dof, sigma_mm=(sb2 + se2) ** 0.5, method="pose-level",
                    noise_mm=se2 ** 0.5, pose_mm=sb2 ** 0.5)
     idx = torch.nonzero(free).flatten()

@@ -25,8 +25,9 @@ Identifiability (at the starting point, on the column-scaled Jacobian):
 
 The fit is Levenberg-Marquardt (`torchcal.calibration.lm`) on the identifiable parameters, with
 optional robust row weights by IRLS (Huber or Cauchy on the per-pose distance residual,
-scale = the median distance residual, thresholds at ROBUST_K = 2.5 times it). Standard errors from ``s^2 (J^T W J)^-1``, s^2 = weighted RSS / dof,
-pose-level when poses repeat (`torchcal.calibration.covariance`).
+scale = the median distance residual, thresholds at ROBUST_K = 2.5 times it). Standard errors are
+posterior ones, the prior included: ``s^2 (J^T W J + Pp)^-1`` with ``Pp = diag(rho^2 / s_i^2)``,
+s^2 = weighted RSS / dof, pose-level when poses repeat (`torchcal.calibration.covariance`).
 """
 
 from __future__ import annotations
@@ -180,6 +181,9 @@ class FitResult:
     was fitted on (kept by `register`, whose residuals are those of the new data).
     provenance: MODEL.json's {"input", "input_sha256", "torchcal_version", "seed"} after
     `load`; None for a fit in memory (`to_dict` writes it from its arguments).
+    set_by_prior: names of free parameters the data do not determine (posterior sd at least
+    half their plausible scale, `torchcal.calibration.plausibility.set_by_prior`): their
+    value is the prior's, not a measurement.
     """
 
     model: CalibrationModel
@@ -204,6 +208,8 @@ class FitResult:
     residual_model: object = None
     training: dict | None = None
     provenance: dict | None = None
+    set_by_prior: list = field(default_factory=list)
+    residual_test: dict | None = None  # the residual stage's held-out test (torchcal.diagnosis.residual_stage)
 
     @property
     def converged(self) -> bool:
@@ -328,7 +334,7 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     `FitResult.implausible`.
     """
     from torchcal.calibration import registration as reg
-    from torchcal.calibration.plausibility import beyond_plausible, plausible_scales
+    from torchcal.calibration.plausibility import beyond_plausible, plausible_scales, set_by_prior
 
     model.check_context(ctx)
     reg_info = None
@@ -379,6 +385,8 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     if n_cand and report.rank == 0:
         raise InputError("no parameter is identifiable from these poses")
 
+    lower = model.lower_bounds().to(theta0)  # a physical sign (backlash >= 0): projected steps
+    lower = None if bool(torch.isinf(lower).all()) else lower
     has_prior = bool(torch.isfinite(scales).any())
     inv_scale = torch.where(torch.isfinite(scales), 1.0 / scales, torch.zeros_like(scales))  # (P,)
 
@@ -397,7 +405,7 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
         for _ in range(rounds):
             w = torch.cat([weights.repeat_interleave(k), torch.ones_like(prior)]).unsqueeze(0)
             res = levenberg_marquardt(res_fn, x, free=free_now, weights=w, jacobian_fn=jac_fn,
-                                      max_iter=max_iter)
+                                      max_iter=max_iter, lower=lower)
             x = res.x
             if robust is None:
                 break
@@ -452,9 +460,10 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     r = resid(theta).detach()
     resid_pos = -r[:, :3]
     rot_res = None if rotation is None else r[:, 3:] / w_rot  # (N, 3) rad, model vs measured
+    prior_rows = rho * inv_scale if has_prior and math.isfinite(rho) else None  # posterior (covariance.py)
     if rotation is None:
         covariance = parameter_covariance(model.jacobian(theta, ctx), resid_pos, free_now, pose=pose,
-                                          weights=weights if robust else None)
+                                          weights=weights if robust else None, prior=prior_rows)
     else:  # rows of 6 residuals: row-wise estimate s^2 (J^T W J)^-1
         J = jac(theta).reshape(-1, theta.shape[0])[:, free_now]
         wk = weights.repeat_interleave(k)
@@ -463,9 +472,11 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
         cov = torch.zeros(theta.shape[0], theta.shape[0], dtype=theta.dtype, device=theta.device)
         if int(free_now.sum()):
             idx = free_now.nonzero().flatten()
-            cov[idx[:, None], idx[None, :]] = s2 * torch.linalg.pinv((J.T * wk) @ J)
+            Pp = 0.0 if prior_rows is None else torch.diag(prior_rows[free_now] ** 2)
+            cov[idx[:, None], idx[None, :]] = s2 * torch.linalg.pinv((J.T * wk) @ J + Pp)
         covariance = ParameterCovariance(cov, dof, math.sqrt(s2), "rows")
     std = covariance.std
+    prior_set = set_by_prior(model, std, free_now, scales.cpu()) if has_prior else []
     outliers = torch.nonzero(weights < 0.1).flatten().tolist() if robust else []
     orient = None
     if rotation is not None:
@@ -479,4 +490,4 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
                      {"max_length_mm": max_length_mm, "max_angle_deg": max_angle_deg, "prior_sigma_mm": rho},
                      q_range=joint_range(ctx.q), seed_poses=seed_poses(ctx.q), robust=robust, sigma_mm=sigma_mm,
                      sigma_deg=sigma_deg,
-                     training=training_summary(resid_pos))
+                     training=training_summary(resid_pos), set_by_prior=prior_set)

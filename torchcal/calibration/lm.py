@@ -22,6 +22,12 @@ columns are dropped from the normal equations, not damped). Stops per element:
 - STALLED: mu exceeded `MU_MAX` (1e10) without a step that lowers the cost (a wrong
   Jacobian, a non-finite cost). Never reported as converged.
 - MAX_ITERATIONS: `max_iter` iterations first.
+
+Lower bounds (`lower`, a parameter that cannot be negative): a projected step with an
+active set. A free parameter at its bound whose gradient pushes it below is held for
+that iteration (its column dropped, its cosine not counted in the stationarity test,
+the KKT condition of a bounded minimum); the trial point is clipped to the bounds.
+The Jacobian is the model's own: the bound changes the step, not the derivatives.
 """
 
 from __future__ import annotations
@@ -92,14 +98,15 @@ def batched_jacobian(residual_fn, x: torch.Tensor) -> torch.Tensor:
 
 def levenberg_marquardt(residual_fn, x0, free=None, weights=None, jacobian_fn=None,
                         mu0: float = 1e-3, max_iter: int = 100, ftol: float = 1e-12,
-                        xtol: float = 1e-12, gtol: float = 1e-3) -> LMResult:
+                        xtol: float = 1e-12, gtol: float = 1e-3, lower=None) -> LMResult:
     """Batched damped least squares.
 
     residual_fn: x (B, P) -> r (B, R). x0 (B, P), any float dtype and device (the result
     stays on them). free: (P,) or (B, P) bool, default all.
     weights: (B, R) non-negative row weights (IRLS), default ones.
     jacobian_fn: x (B, P) -> (B, R, P); default forward-mode autodiff of residual_fn.
-    mu0, max_iter, ftol, xtol, gtol: as in the module docstring.
+    mu0, max_iter, ftol, xtol, gtol: as in the module docstring. lower: (P,) or (B, P)
+    lower bounds (-inf: none; default none); x0 is clipped to them.
     Returns an `LMResult` with a per-element `LMStatus`.
     """
     x = x0.clone()
@@ -107,6 +114,9 @@ def levenberg_marquardt(residual_fn, x0, free=None, weights=None, jacobian_fn=No
     free = torch.ones(B, P, dtype=torch.bool, device=x.device) if free is None \
         else torch.as_tensor(free, device=x.device).expand(B, P)
     jac = jacobian_fn or (lambda z: batched_jacobian(residual_fn, z))
+    lo = None if lower is None else torch.as_tensor(lower, dtype=x.dtype, device=x.device).expand(B, P)
+    if lo is not None:
+        x = torch.where(free, torch.maximum(x, lo), x)
     r = residual_fn(x)
     w = torch.ones_like(r) if weights is None else weights
     cost = 0.5 * (w * r * r).sum(-1)
@@ -115,16 +125,20 @@ def levenberg_marquardt(residual_fn, x0, free=None, weights=None, jacobian_fn=No
     status = torch.full((B,), int(LMStatus.MAX_ITERATIONS), dtype=torch.long, device=x.device)
     n_iter = torch.zeros(B, dtype=torch.long, device=x.device)
     eye = torch.eye(P, dtype=x.dtype, device=x.device)
-    fmask = free.to(x.dtype)
+    fmask0 = free.to(x.dtype)
     tiny = torch.finfo(x.dtype).tiny
     root_eps = torch.finfo(x.dtype).eps ** 0.5
     for _ in range(max_iter):
         if done.all():
             break
-        J = jac(x) * fmask[:, None, :]  # held columns dropped
+        J = jac(x) * fmask0[:, None, :]  # held columns dropped
         JtW = J.transpose(1, 2) * w[:, None, :]
-        A = JtW @ J  # (B, P, P)
         g = (JtW @ r.unsqueeze(-1)).squeeze(-1)  # (B, P)
+        fmask = fmask0
+        if lo is not None:  # at the bound and pushed below it: held this iteration
+            fmask = fmask0 * ~((x <= lo) & (g > 0))
+            J, JtW, g = J * fmask[:, None, :], JtW * fmask[:, :, None], g * fmask
+        A = JtW @ J  # (B, P, P)
         diag = torch.diagonal(A, dim1=1, dim2=2).clamp_min(1e-30)
         # a held parameter gets a unit row so the system stays regular and its step is 0
         A_held = eye * (1 - fmask)[:, None, :]
@@ -136,6 +150,8 @@ def levenberg_marquardt(residual_fn, x0, free=None, weights=None, jacobian_fn=No
             M = A + mu[:, None, None] * torch.diag_embed(diag * fmask) + A_held
             step = -torch.linalg.solve(M, g.unsqueeze(-1)).squeeze(-1) * fmask
             step = torch.where(done[:, None], torch.zeros_like(step), step)
+            if lo is not None:  # projected onto the bounds
+                step = torch.maximum(x + step, torch.where(fmask > 0, lo, -torch.inf)) - x
             x_new = x + step
             r_new = residual_fn(x_new)
             cost_new = 0.5 * (w * r_new * r_new).sum(-1)

@@ -19,6 +19,8 @@ offset per point id.
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from torchcal.kinematics import mdh as K
@@ -78,6 +80,16 @@ class CalibrationModel:
         geo = free[: 5 * self.robot.n].view(self.robot.n, 5)
         geo[:, 4] = self.robot.has_beta
         return free
+
+    def lower_bounds(self) -> torch.Tensor:
+        """(P,) lowest physical value of each parameter (-inf: none; an effect's
+        `Effect.lower_bounds`, e.g. 0 for backlash), the dtype and device of `zeros`."""
+        lo = torch.full((self.n_params,), -math.inf, dtype=self.robot.dtype, device=self.robot.device)
+        for e, sl in zip(self.effects, self.slices[1:]):
+            b = getattr(e, "lower_bounds", lambda: None)()
+            if b is not None:
+                lo[sl] = torch.as_tensor(b, dtype=lo.dtype, device=lo.device)
+        return lo
 
     def zeros(self) -> torch.Tensor:
         return torch.zeros(self.n_params, dtype=self.robot.dtype, device=self.robot.device)

@@ -34,12 +34,24 @@ that cancels on the calibration poses) is shrunk towards nominal instead of grow
 metres. Nothing is held or refitted for being large; a parameter that still ends beyond
 its scale is named (`beyond_plausible`, `FitResult.implausible`) in the output and in
 MODEL.json ("plausibility"), as a sign that it absorbed something else.
+
+Determined by the data or set by the prior (`set_by_prior`, `determined`). The fit's
+standard errors are posterior ones (`torchcal.calibration.covariance`): for one
+parameter, posterior variance = 1 / (data information + prior information), the prior's
+information being 1 / s_i^2. A posterior sd below ``DETERMINED_RATIO`` (0.5) times s_i
+means the posterior variance is below a quarter of the prior's, i.e. the data carry at
+least three times the prior's information about it: its value is at least three
+quarters data. A free parameter whose posterior sd is at or above that is "set by the
+prior": its value is the prior's shrinkage of a direction the data barely see (typically
+a combination collinear with other parameters), not a measurement; the output labels it
+so and never lists it as a measured deviation.
 """
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 
 from torchcal.errors import InputError
@@ -48,6 +60,8 @@ RATIO_LIMIT = 20.0
 RAD_RATIO = 2.0
 MAX_LENGTH_MM = 5.0
 MAX_ANGLE_DEG = 1.0
+#: posterior sd below this share of the plausible scale: determined by the data (module doc)
+DETERMINED_RATIO = 0.5
 
 
 def spread_mm(p: torch.Tensor) -> float:
@@ -127,3 +141,82 @@ def beyond_plausible(model, theta: torch.Tensor, free: torch.Tensor, scales: tor
     bad = (theta.detach().cpu().to(torch.float64).abs() > scales) & free.cpu()
     names = model.param_names()
     return [names[i] for i in bad.nonzero().flatten().tolist()]
+
+
+def set_by_prior(model, std: torch.Tensor, free: torch.Tensor, scales: torch.Tensor,
+                 ratio: float = DETERMINED_RATIO) -> list[str]:
+    """Names of free parameters with a plausible scale whose posterior sd (P,) (the fit's
+    `std`, the prior included) is at least `ratio` times that scale (module doc)."""
+    sd = std.detach().cpu().to(torch.float64)
+    bad = torch.isfinite(scales) & free.cpu() & (sd >= ratio * scales)
+    names = model.param_names()
+    return [names[i] for i in bad.nonzero().flatten().tolist()]
+
+
+def collinear_with(A: torch.Tensor, i: int, names: list, free: torch.Tensor) -> tuple[str, float]:
+    """Which parameter column i of the Jacobian A (R, P) is collinear with: R^2 of column
+    i regressed on the other free columns (1: exactly collinear), and the partner, the
+    column whose removal lowers that R^2 most (what explains column i that nothing else
+    does). Unit-norm columns, least squares. ('', 0.0) when there is no other column."""
+    M = A.detach().cpu().to(torch.float64).numpy()
+    others = [j for j in free.nonzero().flatten().tolist() if j != i]
+    if not others or not np.linalg.norm(M[:, i]) > 0:
+        return "", 0.0
+    a = M[:, i] / np.linalg.norm(M[:, i])
+    B = M[:, others] / np.linalg.norm(M[:, others], axis=0).clip(1e-300)
+
+    def r2(cols):
+        if not cols:
+            return 0.0
+        x = np.linalg.lstsq(B[:, cols], a, rcond=None)[0]
+        return 1.0 - float(((a - B[:, cols] @ x) ** 2).sum())
+
+    idx = list(range(len(others)))
+    full = r2(idx)
+    drop = [full - r2([k for k in idx if k != j]) for j in idx]
+    return names[others[int(np.argmax(drop))]], min(max(full, 0.0), 1.0)
+
+
+def determination(fit, new: list, ctx, ratio: float = DETERMINED_RATIO) -> list[dict]:
+    """Why the parameters `new` (names) of a fitted model (`FitResult`) are not determined
+    by its data: one dict per offending parameter, {"name", "value", "sd", "scale" (its
+    unit, `unit`), "why": 'prior' (posterior sd >= ratio x scale, module doc) or 'beyond'
+    (|value| > scale), "partner", "r2" (`collinear_with` on the position Jacobian at the
+    solution, context ctx)}. Parameters held at nominal (not identifiable) or without a plausible scale
+    are not judged. Empty: every one judged is determined and within its plausible size."""
+    model = fit.model
+    names, units = model.param_names(), model.param_units()
+    scales = plausible_scales(model)
+    out, A = [], None
+    for n in new:
+        i = names.index(n)
+        s = float(scales[i])
+        if not math.isfinite(s) or not bool(fit.report.free[i]):
+            continue
+        v, sd = float(fit.theta[i]), float(fit.std[i])
+        why = "prior" if sd >= ratio * s else "beyond" if abs(v) > s else None
+        if why is None:
+            continue
+        if A is None:
+            A = model.jacobian(fit.theta, ctx).detach().reshape(-1, len(names))
+        partner, r2 = collinear_with(A, i, names, fit.report.free)
+        out.append({"name": n, "value": v, "sd": sd, "scale": s, "unit": units[i], "why": why,
+                    "partner": partner, "r2": r2})
+    return out
+
+
+def determination_words(items: list[dict]) -> str:
+    """One phrase for `determination`'s findings, in degrees and mm: 'not determined:
+    gear_2_sin1 +- 0.097 deg against a plausible 0.1 deg; collinear with dtheta2 (R^2 0.9998)'."""
+    def q(x, unit):
+        return (f"{math.degrees(x):.3g} deg" if unit == "rad" else f"{x:.3g} {unit}" if unit != "1" else f"{x:.3g}")
+
+    parts = []
+    for d in items:
+        head = (f"not determined: {d['name']} +- {q(d['sd'], d['unit'])} against a plausible {q(d['scale'], d['unit'])}"
+                if d["why"] == "prior" else
+                f"beyond plausible: {d['name']} {q(d['value'], d['unit'])} against a plausible {q(d['scale'], d['unit'])}")
+        if d["partner"]:
+            head += f"; collinear with {d['partner']} (R^2 {d['r2']:.4f} on the other parameters)"
+        parts.append(head)
+    return "; ".join(parts)

@@ -22,6 +22,7 @@ from torchcal.io import modelfile
 from torchcal.cli._args import (add_cv, add_effects_module, add_force, add_units, add_viz, check_folder, check_outputs,
                                 read_data, add_robot, positive_int, robot_inputs)
 from torchcal.cli.diagnose import add_sigmas, print_step
+from torchcal.cli.fit import residual_stage_line
 from torchcal.io.files import write_json
 from torchcal.robots.robot import robot as make_robot
 
@@ -39,6 +40,9 @@ def add_parser(sub):
                                                          "if it does not raise that session's error")
     p.add_argument("--transfer-poses", type=positive_int, default=30, metavar="K",
                    help="poses of OTHER.csv the frame is registered on (default 30)")
+    p.add_argument("--residual-model", choices=["kernel"],
+                   help="add the non-physical residual stage to the final model when its held-out gain is "
+                        "significant (as fit --residual-model; docs/residual-model.md)")
     add_viz(p)
     add_units(p)
     add_force(p)
@@ -65,7 +69,8 @@ def run(args) -> int:
 
     with progress("discover", f"searching effects on {len(m)} rows"):
         res = api.discover(robot, m, args.effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,
-                           sigma_deg=args.sigma_deg, transfer=other, transfer_poses=args.transfer_poses)
+                           sigma_deg=args.sigma_deg, transfer=other, transfer_poses=args.transfer_poses,
+                           residual_model=args.residual_model)
     for i, (h, d) in enumerate(zip(res.history, res.diagnoses)):
         print(f"round {i}:")
         print_step(d.step)
@@ -75,6 +80,8 @@ def run(args) -> int:
     print(f"final effects: {', '.join(res.final_effects) or 'none'}")
     if res.unexplained is not None:
         print(res.unexplained.describe())
+    if args.residual_model:
+        print(residual_stage_line(res.fit))
     if args.json:
         write_json(args.json, res.to_dict(), force=args.force, inputs=[args.data])
         print(f"wrote {args.json}")

@@ -51,7 +51,8 @@ def add_parser(sub):
                         f"(default {MAX_ANGLE_DEG}; 0 = no prior on dtheta, dalpha, dbeta)")
     p.add_argument("--residual-model", choices=["kernel"],
                    help="add a non-physical residual stage: kernel ridge of the residual on the joint angles, "
-                        "applied by evaluate and compensate, dropped by export (docs/residual-model.md)")
+                        "only when its held-out gain is significant; applied by evaluate and compensate, "
+                        "dropped by export (docs/residual-model.md)")
     p.add_argument("--out", required=True, help="MODEL.json to write")
     add_units(p)
     add_force(p)
@@ -86,6 +87,16 @@ def plausibility_line(res) -> str | None:
             f"{', '.join(res.implausible)}")
 
 
+def residual_stage_line(res) -> str:
+    """What `--residual-model` did: the stage applied (its held-out test passed) or refused,
+    with the figures. fit and discover print it."""
+    t, stage = res.residual_test or {}, res.residual_model
+    if stage is not None:
+        return (f"{stage.describe()}; evaluate and compensate apply it, export drops it\n"
+                f"  applied: held-out {t.get('reason', '')}")
+    return f"residual stage refused: held-out {t.get('reason', 'test not run')}"
+
+
 def _still_joints(m) -> list[str]:
     """'qJ (constant X deg)' for each joint that never moves in these rows."""
     qd = m.q_deg
@@ -94,13 +105,14 @@ def _still_joints(m) -> list[str]:
 
 
 def _largest(res, k: int = 4) -> str:
-    """The k largest fitted MD-H deviations, readable (mm, deg)."""
+    """The k largest fitted MD-H deviations the data determine, readable (mm, deg); those
+    the prior sets are no measured deviation and are left out."""
 
     n5 = 5 * res.model.robot.n
     names, units = res.model.param_names()[:n5], res.model.param_units()[:n5]
     vals = []
     for i in range(n5):
-        if not res.report.free[i]:
+        if not res.report.free[i] or names[i] in res.set_by_prior:
             continue
         v = float(res.theta[i])
         if units[i] == "rad":
@@ -171,6 +183,9 @@ def run(args) -> int:
     line = plausibility_line(res)
     if line:
         print(line)
+    if res.set_by_prior:
+        print(f"set by the prior (not determined by these poses: posterior sd at least half the plausible size; "
+              f"no measured deviation): {', '.join(res.set_by_prior)}")
     big = _largest(res)
     if big:
         print(f"largest deviations: {big}")
@@ -179,18 +194,16 @@ def run(args) -> int:
         how = (f"pose-level over {len(set(m.pose.tolist()))} poses: noise {c.noise_mm:.4f} mm, "
                f"pose-level error {c.pose_mm:.4f} mm" if c.method == "pose-level" else "rows")
         print(f"parameter uncertainty ({how}; residual sigma {c.sigma_mm:.4f} mm per axis, "
-              f"{c.dof} dof); 95% interval by Student's t:")
+              f"{c.dof} dof; the plausibility prior included); 95% interval by Student's t:")
         for p in obj["parameters"]:
             if p["identified"]:
                 print(f"  {p['name']:<16} {p['value']:+.6g} +- {p['std']:.3g} {p['unit']}  "
-                      f"[{p['ci95'][0]:+.6g}, {p['ci95'][1]:+.6g}]")
+                      f"[{p['ci95'][0]:+.6g}, {p['ci95'][1]:+.6g}]" + ("  set by the prior" if p["set_by_prior"] else ""))
     stiff = _stiffness_line(res)
     if stiff:
         print(stiff)
     if getattr(args, "residual_model", None):
-        stage = res.residual_model
-        print(stage.describe() + "; evaluate and compensate apply it, export drops it" if stage is not None else
-              "residual stage: not added, no joint angle predicts the residual on held-out poses")
+        print(residual_stage_line(res))
     if res.outliers:
         print(f"outliers (pose ids): {', '.join(map(str, obj['fit']['outlier_poses']))}")
     hint = _robust_hint(res, args.robust)

@@ -52,6 +52,27 @@ class RefitCV:
     error: str | None = None
 
 
+def fold_fit(full, m, ctx, train: torch.Tensor, *, sigma_mm: float, sigma_deg: float):
+    """The fitted model `full` (`FitResult`) refitted on the rows `train` (N,) bool of m:
+    from full.theta, with full's identifiable set, plausible scales and prior rho, the
+    measured orientations when m has them. InputError when the rows cannot carry it."""
+    from torchcal.calibration.fit import fit
+
+    lim = full.plausible_limits or {}
+    return fit(full.model, ctx.subset(train), m.xyz[train], theta0=full.theta, free=full.report.free,
+               pose=m.pose[train], rotation=None if m.rotation is None else m.rotation[train],
+               sigma_mm=sigma_mm, sigma_deg=sigma_deg, register=False, max_iter=REFIT_MAX_ITER,
+               max_length_mm=lim.get("max_length_mm"), max_angle_deg=lim.get("max_angle_deg"),
+               prior_sigma_mm=lim.get("prior_sigma_mm"))
+
+
+def fold_refits(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: float):
+    """Per fold of folds (N,): (test (N,) bool, `fold_fit` on the other folds' rows)."""
+    for f in np.unique(folds):
+        test = torch.from_numpy(folds == f)
+        yield test, fold_fit(full, m, ctx, ~test, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
+
+
 def refit_cv(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: float) -> RefitCV:
     """Pose-grouped K-fold CV of the fitted model `full` (`FitResult`) on measurements m
     (`Measurements`, context ctx), folds (N,) from `fold_ids`.
@@ -61,25 +82,15 @@ def refit_cv(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: flo
     orientations when m has them (weighed by sigma_mm / sigma_deg as in the full fit);
     predicted positions of the held-out rows.
     """
-    from torchcal.calibration.fit import fit
-
     model = full.model
-    lim = full.plausible_limits or {}
     err = np.zeros(len(m))
-    for f in np.unique(folds):
-        test = torch.from_numpy(folds == f)
-        train = ~test
-        try:
-            res = fit(model, ctx.subset(train), m.xyz[train], theta0=full.theta, free=full.report.free,
-                      pose=m.pose[train], rotation=None if m.rotation is None else m.rotation[train],
-                      sigma_mm=sigma_mm, sigma_deg=sigma_deg, register=False, max_iter=REFIT_MAX_ITER,
-                      max_length_mm=lim.get("max_length_mm"), max_angle_deg=lim.get("max_angle_deg"),
-                      prior_sigma_mm=lim.get("prior_sigma_mm"))
-        except InputError as e:
-            return RefitCV(float("inf"), np.full(len(np.unique(m.pose.cpu().numpy())), np.inf), str(e))
-        with torch.no_grad():
-            d = (model.predict(res.theta, ctx.subset(test)) - m.xyz[test]).pow(2).sum(-1)
-        err[test.numpy()] = d.cpu().numpy()
+    try:
+        for test, res in fold_refits(full, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg):
+            with torch.no_grad():
+                d = (model.predict(res.theta, ctx.subset(test)) - m.xyz[test]).pow(2).sum(-1)
+            err[test.numpy()] = d.cpu().numpy()
+    except InputError as e:
+        return RefitCV(float("inf"), np.full(len(np.unique(m.pose.cpu().numpy())), np.inf), str(e))
     _, pose_of_row = np.unique(m.pose.cpu().numpy(), return_inverse=True)
     sq = np.bincount(pose_of_row, weights=err)
     return RefitCV(float(np.sqrt(err.mean())), sq)

@@ -157,7 +157,9 @@ class Discovery:
     def to_dict(self) -> dict:
         return {"history": self.history, "final_effects": self.final_effects,
                 "held": list(self.fit.report.held), "beyond_plausible": list(self.fit.implausible),
-                "unexplained": None if self.unexplained is None else self.unexplained.to_dict()}
+                "set_by_prior": list(self.fit.set_by_prior),
+                "unexplained": None if self.unexplained is None else self.unexplained.to_dict(),
+                "residual_stage": self.fit.residual_test}
 
 
 def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: int = 0, *,
@@ -177,6 +179,9 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
         d = diagnose(robot, m, folds=folds, seed=seed, base_fit=base, current=current, alpha=alpha / 2 ** i,
                      sigma_mm=sigma_mm, sigma_deg=sigma_deg, report_rest=False)  # the final model's, once, below
         diagnoses.append(d)
+        if i == max_rounds and d.step.accepted is not None:  # printed as it is: not in the final model
+            d.step.decline(f"not taken: the round limit ({max_rounds} effects) is reached")
+            d.verdict = None
         cur = d.step.current
         history.append({"effects": list(cur.effects), "rms_mm": cur.rms_mm, "cv_rms_mm": cur.cv_rms_mm,
                         "step": d.step.to_dict()})
@@ -187,6 +192,7 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
             t_now = t_now if acc is None else history[-1]["transfer"]["tried"][-1]["after_mm"]
         if acc is None or i == max_rounds:
             break
-        base, current = acc.fit, Scored(acc.effects, "", acc.rms_mm, acc.cv_rms_mm, acc.fit, acc.cv)
+        base, current = acc.fit, Scored(acc.effects, "", acc.rms_mm, acc.cv_rms_mm, acc.fit, acc.cv,
+                                        prior_held=d.step.current.prior_held + acc.prior_held)
     return Discovery(history, base.model.specs(), base, diagnoses,
                      unexplained(robot, m, base.residuals, seed=seed))

@@ -18,8 +18,12 @@ mean(d) > 0 over the poses, at level ``REFIT_ALPHA / R`` for R candidates refitt
 `MIN_GAIN`. A candidate significant in the pre-screen by its random part only (a
 variance term, which no deterministic refit can show) is accepted when its refit CV is
 not worse than the current model's by more than `MIN_GAIN` (its deterministic part may
-cost a little). The first accepted candidate in shortlist order (the pre-screen's
-order, so its preference for simpler models holds) is the step's verdict.
+cost a little). A candidate that passes must also be determined by the data
+(torchcal.diagnosis.step). Of those that pass, the one with the largest refit gain
+(lowest refit CV RMS) is the step's verdict, whatever its place in the shortlist, unless
+a simpler one that passed is not beaten by it significantly per pose (`not_better` on
+the refits' held-out squared errors); a random-only term only when no deterministic
+candidate passes (then in shortlist order).
 """
 
 from __future__ import annotations

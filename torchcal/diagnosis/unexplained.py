@@ -11,7 +11,7 @@
     fixture) is *not* in it, and shows as rms_mm above the floor with no correlate.
   * Without repeats: the smaller of two held-out errors, each an upper bound of the
     noise (it keeps whatever structure that model does not learn): the probe's
-    ``learnable_rms_mm`` (floor_from 'probe') and ``rms_mm * sqrt(1 - strength)`` of the
+    ``probe_left_rms_mm`` (floor_from 'probe') and ``rms_mm * sqrt(1 - strength)`` of the
     strongest variable below (floor_from 'variables'). Where the probe learns the
     structure it is close to the noise (1.03-1.06x on simulated sessions; 1.4-1.5x where
     it learns a fifth of a force spread over all joints: benchmarks/study_outside.py).
@@ -47,12 +47,12 @@
   listed one (in random poses the approach direction of a joint goes with its angle) is
   not listed, and a variable that explains nothing on its own is never listed.
   The strength reported is the variable's own (first-step) R^2.
-- learnable_rms_mm: what a flexible smooth model of the residual on the recorded
+- probe_left_rms_mm: what a flexible smooth model of the residual on the recorded
   variables leaves on held-out poses (`torchcal.diagnosis.probe`: kernel ridge on the
   joint angles, temp_c, payload_kg and the approach directions, hyper-parameters and
-  inputs by nested pose-grouped CV). ``sqrt(rms^2 - learnable_rms^2)`` is the part of the
-  error that is learnable from the recorded variables; carried_by names the variables
-  the probe needs for it (share of it lost without each).
+  inputs by nested pose-grouped CV); learnable_rms_mm ``sqrt(rms^2 - probe_left_rms^2)``
+  is the part of the error that is learnable from the recorded variables; carried_by
+  names the variables the probe needs for it (share of it lost without each).
 - significant: structured error remains: the probe beats the model on held-out poses
   beyond chance (one-sided paired t-test over poses at PROBE_ALPHA), or a variable is
   listed in correlates_with. Calibrated on simulated null sessions
@@ -87,8 +87,9 @@ FLOOR_WORDS = {"repeats": "from repeats",
 class Unexplained:
     """What remains. rms_mm, noise_floor_mm: distance RMS in mm; floor_from: 'repeats',
     'probe' or 'variables' (module doc); correlates_with: [(variable, strength)] strongest first (significant only);
-    strengths: every variable tested -> (strength, p-value); learnable_rms_mm: what the
-    kernel probe leaves on held-out poses (mm), carried_by: [(variable, relevance)] of the
+    strengths: every variable tested -> (strength, p-value); learnable_rms_mm: the distance
+    RMS of the part the kernel probe learns on held-out poses (mm), probe_left_rms_mm: what
+    it leaves (mm), carried_by: [(variable, relevance)] of the
     probe, probe: the full `torchcal.diagnosis.probe.Probe`."""
 
     significant: bool
@@ -101,6 +102,7 @@ class Unexplained:
     learnable_rms_mm: float | None = None
     carried_by: list = field(default_factory=list)
     probe: Probe | None = field(default=None, repr=False)
+    probe_left_rms_mm: float | None = None
 
     def to_dict(self) -> dict:
         out = {"significant": self.significant, "rms_mm": self.rms_mm, "noise_floor_mm": self.noise_floor_mm,
@@ -109,6 +111,7 @@ class Unexplained:
         if self.probe is not None:
             pr = self.probe
             out["learnable_rms_mm"] = self.learnable_rms_mm
+            out["probe_left_rms_mm"] = self.probe_left_rms_mm
             out["carried_by"] = [{"variable": v, "relevance": float(s)} for v, s in self.carried_by]
             chosen = bool(pr.inputs)  # no input chosen: no kernel, so no length scale or ridge (null)
             out["probe"] = {"p_value": pr.p_value, "inputs": list(pr.inputs),
@@ -123,10 +126,10 @@ class Unexplained:
             return ""
         if pr.p_value >= PROBE_ALPHA:
             return (f"\n  learnable: nothing beyond chance: a kernel probe on the recorded variables does not beat "
-                    f"the model on held-out poses (p {pr.p_value:.2g}; it leaves {self.learnable_rms_mm:.4f} mm)")
+                    f"the model on held-out poses (p {pr.p_value:.2g}; it leaves {self.probe_left_rms_mm:.4f} mm)")
         by = ", ".join(v for v, _ in self.carried_by) or ", ".join(pr.inputs)
-        return (f"\n  learnable: of {self.rms_mm:.4f} mm RMS, the model leaves {pr.learnable_mm:.4f} mm learnable "
-                f"from {by}: a kernel probe on held-out poses brings it to {self.learnable_rms_mm:.4f} mm "
+        return (f"\n  learnable: of {self.rms_mm:.4f} mm RMS, the model leaves {self.learnable_rms_mm:.4f} mm learnable "
+                f"from {by}: a kernel probe on held-out poses brings it to {self.probe_left_rms_mm:.4f} mm "
                 f"(p {pr.p_value:.2g}); the rest is not predictable from the recorded variables")
 
     def describe(self) -> str:
@@ -293,4 +296,4 @@ def unexplained(robot: Robot, m: Measurements, residuals: torch.Tensor, seed: in
         floor, source = (pr.learnable_rms_mm, "probe") if pr.learnable_rms_mm <= by_variable else (by_variable, "variables")
     found = pr.p_value < PROBE_ALPHA
     return Unexplained(bool(corr) or found, rms, floor, [(k, float(s)) for k, s in corr], source, strengths, r,
-                       pr.learnable_rms_mm, pr.carried_by() if found else [], pr)
+                       pr.learnable_mm, pr.carried_by() if found else [], pr, pr.learnable_rms_mm)

@@ -4,6 +4,7 @@ Parameters (1 per joint): ``backlash_J`` rad, the full lost motion. A joint that
 moved in the + direction stops ``backlash_J / 2`` past the mean position, one that came
 from the - direction ``backlash_J / 2`` before it: offset ``approach * backlash_J / 2``.
 The approach direction comes from the measurement order (`Context.approach`).
+Lost motion cannot be negative: the fit keeps ``backlash_J >= 0`` (`lower_bounds`).
 """
 
 import math
@@ -30,6 +31,9 @@ class Backlash(Effect):
 
     def plausible_max(self):
         return [math.radians(MAX_BACKLASH_DEG)] * len(self.joints)
+
+    def lower_bounds(self):
+        return [0.0] * len(self.joints)  # lost motion is never negative
 
     def joint_offset(self, p, ctx):
         cols = ctx.approach[:, [j - 1 for j in self.joints]] * (0.5 * p)  # (N, J)

@@ -110,6 +110,13 @@ class Effect:
         explodes outside them. docs/effects.md lists the built-in effects' scales."""
         return None
 
+    def lower_bounds(self) -> list[float] | None:
+        """Lowest physical value per parameter, in its unit (None: no bound, the default;
+        -inf entries: none for that parameter). A magnitude that cannot be negative
+        (lost motion, a clearance pushed by the load) has 0: the fit keeps it at or above
+        it (a projected step, `torchcal.calibration.lm`)."""
+        return None
+
     @property
     def n_params(self) -> int:
         return len(self.param_names())

@@ -9,6 +9,8 @@ stop at different places inside the clearance (the paper's repetitions).
 Fit role (deterministic, load driven), 2 parameters per joint:
     clear_tilt_J  rad   tilt towards the perpendicular gravity moment of a load at the TCP
     clear_shift_J mm    shift along the perpendicular gravity force
+Both are magnitudes (the load pushes the shaft towards its moment and force, never
+against them): the fit keeps them >= 0 (`lower_bounds`).
 Random role (simulation, and the variance model of `diagnose`): `random_basis` gives the
 TCP displacement per unit tilt of the axis about the two directions perpendicular to it.
 """
@@ -71,6 +73,9 @@ class JointClearance(Effect):
 
     def plausible_max(self):
         return [math.radians(MAX_TILT_DEG), MAX_SHIFT_MM] * len(self.joints)
+
+    def lower_bounds(self):
+        return [0.0, 0.0] * len(self.joints)  # the load pushes towards its moment and force
 
     def displacement(self, p, ctx, v):
         out = torch.zeros_like(v)

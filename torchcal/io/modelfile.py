@@ -2,7 +2,7 @@
 
     {"format": "torchcal-model/2", "robot": NAME, "nominal_robot": {ROBOT FILE},
      "effects": [SPEC...],
-     "parameters": [{"name", "value", "unit", "std", "identified", "ci95"}...],
+     "parameters": [{"name", "value", "unit", "std", "identified", "ci95", "set_by_prior"}...],
      "covariance": {"method", "dof", "sigma_mm", "noise_mm", "pose_mm", "parameters", "units", "matrix"},
      "identifiability": {...}, "fit": {"n", "rms_mm", "max_mm", "robust", "sigma_mm", "sigma_deg", "outlier_poses",
              "iterations", "status"},
@@ -14,19 +14,23 @@
      "base_frame": {"translation_mm", "rotation_fixed_xyz_deg"} (measurement <- robot base),
      "registration": {"rms_before_mm", "rms_after_mm", "translation_mm", "rotation_fixed_xyz_deg",
                       "rotation_angle_deg"} (the closed-form start),
-     "plausibility": {"max_length_mm", "max_angle_deg", "prior_sigma_mm", "beyond": [NAME...]},
+     "plausibility": {"max_length_mm", "max_angle_deg", "prior_sigma_mm", "beyond": [NAME...],
+                      "set_by_prior": [NAME...]},
      "orientation": {"sigma_mm", "sigma_deg", "weight_mm_per_deg", "rms_deg",
                      "tool_rotation_fixed_xyz_deg"},
      "residual_model": {...} (the optional non-physical residual stage,
-                       `torchcal.calibration.residual_model`)}
+                       `torchcal.calibration.residual_model`),
+     "residual_test": {"applied", "cv_without_mm", "cv_with_mm", "p_value", "level", "reason"}
+                      (its held-out test, `torchcal.diagnosis.residual_stage`)}
 
 Values are in the units named beside them: mm and degrees (radians inside; `file_unit`:
 'rad' -> 'deg', 'rad/mm' -> 'deg/mm', the joint_compliance payload term -> the joint's
 compliance in 'deg/(N m)'; '1', '1/K' as they are); ``covariance.matrix`` is in the same
 units (``covariance.units``). Files of format "torchcal-model/1" (values in radians) load
 as before. ``std`` is the standard
-error (0 for parameters held at nominal), ``ci95`` its 95 % interval [lower, upper]
-(Student's t), ``covariance`` the full covariance of the identified parameters (row
+error, the prior included (posterior; 0 for parameters held at nominal), ``ci95`` its 95 % interval [lower, upper]
+(Student's t), ``set_by_prior`` true where the data do not determine the value (posterior
+sd at least half the plausible scale, `torchcal.calibration.plausibility`), ``covariance`` the full covariance of the identified parameters (row
 'rows' or 'pose-level' when poses repeat; `torchcal.calibration.covariance`); ``fit.status`` is how the
 solver stopped ('converged', 'stalled' or 'max_iterations'). Loading rebuilds the `CalibrationModel` and
 theta exactly (floats are written with full precision). ``nominal_robot`` embeds the
@@ -123,7 +127,8 @@ def to_dict(res: FitResult, source=None, seed: int = 0, pose_ids=None) -> dict:
     if res.registration is not None:
         extra["registration"] = dict(res.registration)
     if res.plausible_limits is not None:
-        extra["plausibility"] = {**res.plausible_limits, "beyond": list(res.implausible)}
+        extra["plausibility"] = {**res.plausible_limits, "beyond": list(res.implausible),
+                                 "set_by_prior": list(res.set_by_prior)}
     if res.q_range is not None:
         extra["calibrated_range"] = range_to_dict(res.q_range, model.robot, res.seed_poses)
     if res.orientation is not None:
@@ -134,6 +139,8 @@ def to_dict(res: FitResult, source=None, seed: int = 0, pose_ids=None) -> dict:
             matrix_to_fixed_xyz(o["tool_rotation"].detach().cpu().double())).tolist()
     if res.residual_model is not None:
         extra["residual_model"] = res.residual_model.to_dict()
+    if res.residual_test is not None:
+        extra["residual_test"] = dict(res.residual_test)
     units, k = file_units(model)  # degrees and mm in the file, radians inside
     cov = None
     if res.covariance is not None:
@@ -150,7 +157,7 @@ def to_dict(res: FitResult, source=None, seed: int = 0, pose_ids=None) -> dict:
         "effects": model.specs(),
         "parameters": [
             {"name": n, "unit": u, "value": float(v), "std": float(s), "identified": bool(f),
-             "ci95": [float(a), float(b)]}
+             "ci95": [float(a), float(b)], "set_by_prior": n in res.set_by_prior}
             for n, u, v, s, f, a, b in zip(model.param_names(), units, theta.tolist(),
                                            std.tolist(), res.report.free.tolist(), lo.tolist(),
                                            hi.tolist())],
@@ -230,7 +237,9 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
                      _covariance(obj, model, where), registration=obj.get("registration"),
                      implausible=list(plaus.get("beyond", [])), orientation=_orientation(obj, where),
                      plausible_limits=limits, q_range=q_range, seed_poses=poses, residual_model=stage, training=training,
-                     provenance=obj.get("provenance"), **settings)
+                     provenance=obj.get("provenance"), set_by_prior=list(plaus.get("set_by_prior", [])),
+                     residual_test=obj.get("residual_test"),
+                     **settings)
 
 
 def _block(obj: dict, key: str, where: str) -> dict:

@@ -153,6 +153,9 @@ class VirtualRobot:
                     continue
             else:
                 p = torch.randn(e.n_params, generator=gen, dtype=torch.float64)
+                lo = e.lower_bounds()  # a physical sign (lost motion >= 0): the real robot has it too
+                if lo is not None:
+                    p = torch.where(torch.as_tensor(lo, dtype=torch.float64) >= 0, p.abs(), p)
             p = p * (1e-9 / p.abs().max().clamp_min(1e-300))  # probe in the linear range
             trial = theta.clone()
             trial[sl] = p

@@ -3,10 +3,11 @@
 `progress(command, what)` wraps a step of a command (discover, diagnose, evaluate
 --plots, plan). A step that ends within DELAY_S = 1 s shows nothing (a refusal stays one
 line). On a terminal, one status line ``torchcal COMMAND: WHAT ... 12 s`` is then redrawn
-in place every half second by a background thread and cleared when the step ends. Off a
-terminal (a pipe, a log file, a test) there is no redrawing: one plain line when the step
-has run for a second and one with its time when it ends, so that a log says what ran and
-for how long without a line per second. stdout (the command's results) is never touched.
+in place every half second by a background thread and cleared when the step ends, so a
+refusal that comes late still stays one line. Off a terminal (a pipe, a log file, a test)
+there is no redrawing: one plain line with the step's time when it ends well, so that a
+log says what ran and for how long, and a refusal is still its one error line. stdout
+(the command's results) is never touched.
 """
 
 from __future__ import annotations
@@ -32,26 +33,24 @@ def progress(command: str, what: str, stream=None, delay: float | None = None, i
     start = time.monotonic()
     stop, shown, lock = threading.Event(), threading.Event(), threading.Lock()
 
-    def show():
+    def show():  # on a terminal only
         with lock:
             if stop.is_set():
                 return
-            out.write(f"\r{label} ... {time.monotonic() - start:.0f} s\033[K" if tty else f"{label} ...\n")
+            out.write(f"\r{label} ... {time.monotonic() - start:.0f} s\033[K")
             out.flush()
             shown.set()
 
     def run():
-        if wait > 0:
-            if stop.wait(wait):
-                return
-            show()
-        while tty and not stop.wait(interval):
+        if wait > 0 and stop.wait(wait):
+            return
+        show()
+        while not stop.wait(interval):
             show()
 
-    if wait <= 0:
-        show()
     thread = threading.Thread(target=run, daemon=True)
-    thread.start()
+    if tty:
+        thread.start()
     ok = False
     try:
         yield
@@ -59,7 +58,11 @@ def progress(command: str, what: str, stream=None, delay: float | None = None, i
     finally:
         with lock:
             stop.set()
-        thread.join()
-        if shown.is_set():
-            out.write("\r\033[K" if tty else (f"{label}: done in {time.monotonic() - start:.1f} s\n" if ok else ""))
+        if tty:
+            thread.join()
+            if shown.is_set():
+                out.write("\r\033[K")
+                out.flush()
+        elif ok and time.monotonic() - start >= wait:
+            out.write(f"{label}: done in {time.monotonic() - start:.1f} s\n")
             out.flush()

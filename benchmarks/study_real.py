@@ -99,6 +99,8 @@ def main():
                       f"[{', '.join(r['effects'])}]  + residual {r['residual']:.4f}  learnable "
                       f"{r['learnable'] if r['learnable'] is None else round(r['learnable'], 4)}  "
                       f"(fit {r['fit_s']:.1f} s, discover {r['discover_s']:.1f} s)", flush=True)
+                if args.json:  # after every run: a study cut short keeps what it measured
+                    Path(args.json).write_text(json.dumps(rows, indent=1))
     print("\n| series | fit | discover | discover + residual | probe learnable | discover worse than fit | discover wall s |")
     print("| --- | --- | --- | --- | --- | --- | --- |")
     for s in args.series:

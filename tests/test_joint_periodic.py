@@ -177,3 +177,22 @@ def test_discover_names_the_hidden_periodic_error_and_none_without(tmp_path):
     assert [s for s in d.final_effects if s.startswith("joint_periodic")] == ["joint_periodic:2@17+31"], d.history
     d0 = discover(UR10, _session(400, 2))
     assert not [s for s in d0.final_effects if s.startswith("joint_periodic")], d0.history
+
+
+def test_a_narrow_joint_is_not_searched_and_warned_about_once(capsys):
+    import warnings
+
+    from torchcal.cli._args import warnings_to_stderr
+    from torchcal.diagnosis.spectral import NarrowRangeWarning
+
+    q = torch.zeros(50, 6, dtype=torch.float64)
+    q[:, 2] = torch.linspace(0.0, 0.05, 50)  # 2.9 deg
+    ctx = make_context(UR10, q)
+    with pytest.warns(NarrowRangeWarning, match=r"joint 3: its measured range \(2.9 deg\) resolves no periodic order"):
+        assert propose_orders(UR10, None, None, ctx, None, None, None, 3).orders == ()
+    with warnings_to_stderr(NarrowRangeWarning):
+        for _ in range(2):  # discover searches again every round
+            propose_orders(UR10, None, None, ctx, None, None, None, 3)
+            warnings.warn("joint_periodic: joint 3: ...", NarrowRangeWarning)
+    err = capsys.readouterr().err
+    assert err.count("\n") == 2 and err.startswith("torchcal: warning: joint_periodic: joint 3: its measured range")

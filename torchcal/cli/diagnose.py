@@ -86,7 +86,8 @@ def run(args) -> int:
     m = read_data(args.data, robot, args)
     from torchcal.calibration.mismatch import MismatchWarning
     from torchcal.cli._args import warnings_to_stderr
-    with warnings_to_stderr(MismatchWarning):  # the model's own frame and error first, then the nominal robot's
+    from torchcal.diagnosis.spectral import NarrowRangeWarning
+    with warnings_to_stderr(MismatchWarning, NarrowRangeWarning):  # the model's own frame and error first, then the nominal robot's
         if fitted is not None:
             api.check_diagnosis_data(fitted, fitted.model, m)
         d = api.diagnose(robot, m, effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,

@@ -37,8 +37,11 @@ def run(args) -> int:
         check_visual_outputs(args, "discover")
     robot = make_robot(args.robot)
     m = read_data(args.data, robot, args)
-    res = api.discover(robot, m, args.effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,
-                       sigma_deg=args.sigma_deg)
+    from torchcal.cli._args import warnings_to_stderr
+    from torchcal.diagnosis.spectral import NarrowRangeWarning
+    with warnings_to_stderr(NarrowRangeWarning):  # a joint too narrow for joint_periodic: one line
+        res = api.discover(robot, m, args.effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,
+                           sigma_deg=args.sigma_deg)
     for i, (h, d) in enumerate(zip(res.history, res.diagnoses)):
         print(f"round {i}:")
         print_step(d.step)

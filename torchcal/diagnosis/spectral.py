@@ -52,6 +52,10 @@ ALPHA = 0.01  # family level of one joint's search (split over the grid)
 ARCSEC = math.pi / 180 / 3600
 
 
+class NarrowRangeWarning(UserWarning):
+    """A joint's measured range resolves no periodic order (the command line prints one line)."""
+
+
 @dataclass
 class OrderLimits:
     """What joint angles q resolve: orders k_min..k_max (cycles per turn), resolution
@@ -179,7 +183,7 @@ def propose_orders(robot, model, theta, ctx, r: np.ndarray, A: np.ndarray, folds
     q = ctx.q[:, joint - 1].detach().cpu().numpy()
     lim = order_limits(q)
     if lim.empty:
-        warnings.warn(f"joint_periodic: {lim.text(joint)}", stacklevel=2)
+        warnings.warn(f"joint_periodic: {lim.text(joint)}", NarrowRangeWarning, stacklevel=2)
         return Search(joint, (), (), [], [], lim)
     grid = tuple(range(lim.k_min, lim.k_max + 1))
     key = ("joint_periodic", (joint,))

@@ -136,9 +136,10 @@ def test_random_clearance_from_another_generator_is_named(joint):
 
 
 def test_structure_a_deterministic_effect_predicts_is_not_called_random():
-    """A fifth-harmonic gear error of joint 1 (outside gear_periodic's harmonics 1..4) is
-    only partly predicted by gear_periodic:1, while a random-clearance variance term could
-    absorb more of the residual: the predictable explanation is named."""
+    """A fifth-harmonic gear error of joint 1 (outside gear_periodic's harmonics 1..4, only
+    partly predicted by gear_periodic:1), while a random-clearance variance term could
+    absorb much of the residual: the predictable explanation is named, the periodic error
+    at the order the spectral search finds (joint_periodic:1@5)."""
     from torchcal.measurements import Measurements
 
     geo = VirtualRobot(ROBOT, [], seed=3).theta[: 5 * ROBOT.n].reshape(ROBOT.n, 5)
@@ -148,7 +149,7 @@ def test_structure_a_deterministic_effect_predicts_is_not_called_random():
     g = torch.Generator().manual_seed(9)
     xyz = ROBOT.fk(q + dq, geo) + NOISE * torch.randn(240, 3, generator=g, dtype=torch.float64)
     d = diagnose(ROBOT, Measurements(torch.arange(240), q, xyz))
-    assert d.verdict.spec == "gear_periodic:1"
+    assert d.verdict.spec == "joint_periodic:1@5" and d.verdict.deterministic
     assert any(c.effect == "joint_clearance" and c.significant and not c.deterministic for c in d.candidates)
 
 

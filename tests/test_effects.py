@@ -279,7 +279,10 @@ def test_names_units_match_n_params(name, robot_name):
     r = robot(robot_name)
     if name == "gear_transmission":  # needs the robot file's reducer ratios
         r = dataclasses.replace(r, gear_ratio=(100.0,) * r.n)
-    for spec in ([name] if not REGISTRY[name].takes_joints else [name, f"{name}:2", f"{name}:1,4,6"]):
+    specs = [name] if not REGISTRY[name].takes_joints else [name, f"{name}:2", f"{name}:1,4,6"]
+    if name == "joint_periodic":  # orders per joint
+        specs = [f"{name}:2@20", f"{name}:1@4+12,4@7,6@3+5+9"]
+    for spec in specs:
         e = build(spec, r)
         names, units = e.param_names(), e.param_units()
         assert len(names) == len(units) == e.n_params > 0

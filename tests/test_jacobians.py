@@ -23,7 +23,7 @@ from torchcal.robots.robot_file import load_robot_file
 ROOT = Path(__file__).resolve().parents[1]
 RTOL = 1e-9
 
-BUILT_IN = ("backlash:1,3", "base_frame", "encoder_scale:2,5", "gear_periodic:1,2", "joint_clearance:2,3",
+BUILT_IN = ("backlash:1,3", "base_frame", "encoder_scale:2,5", "gear_periodic:1,2", "joint_clearance:2,3", "joint_periodic:2@5+17,4@3",
             "joint_compliance:2,3", "thermal_expansion", "tool_offset")
 
 
@@ -133,7 +133,7 @@ def test_base_frame_at_large_and_zero_rotation(ur10):
 
 
 def _all_effects_model(robot, points=None):
-    specs = ["backlash:1,3", "encoder_scale:2,5", "gear_periodic:1,2", "joint_clearance:2,3",
+    specs = ["backlash:1,3", "encoder_scale:2,5", "gear_periodic:1,2", "joint_clearance:2,3", "joint_periodic:2@5+17,4@3",
              "joint_compliance:2,3", "thermal_expansion", "tool_offset", "base_frame"]
     return CalibrationModel(robot, specs, points=points)
 

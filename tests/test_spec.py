@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from torchcal.errors import InputError
-from torchcal.effects.spec import EFFECTS, EffectSpec, parse_spec, parse_specs
+from torchcal.effects.spec import EFFECTS, EffectSpec, parse_spec, parse_specs, takes_orders
 
 JOINT_EFFECTS = sorted(k for k, v in EFFECTS.items() if v)
 PLAIN_EFFECTS = sorted(k for k, v in EFFECTS.items() if not v)
@@ -18,7 +18,7 @@ def test_vocabulary_matches_design():
                        "gear_periodic": True, "backlash": True, "encoder_scale": True,
                        "thermal_expansion": False, "joint_clearance": True, "cross_coupling": True,
                        "axis_tilt": True, "base_compliance": False, "link_bending": True,
-                       "gear_transmission": True}
+                       "gear_transmission": True, "joint_periodic": True}
 
 
 @pytest.mark.parametrize("text,name,joints,as_str", [
@@ -55,7 +55,7 @@ def test_parse_spec(text, name, joints, as_str):
     ("thermal_expansion:", r"effect 'thermal_expansion' takes no joints"),
     ("foo", r"effect spec 'foo': unknown effect 'foo'; expected one of axis_tilt, backlash, base_compliance, "
             r"base_frame, cross_coupling, encoder_scale, gear_periodic, gear_transmission, joint_clearance, "
-            r"joint_compliance, link_bending, thermal_expansion, tool_offset"),
+            r"joint_compliance, joint_periodic, link_bending, thermal_expansion, tool_offset"),
     ("backlsh:1", r"unknown effect 'backlsh' \(did you mean 'backlash'\?\); expected one of"),
     ("Backlash", r"unknown effect 'Backlash' \(did you mean 'backlash'\?\)"),
     ("geometric", r"'geometric' is always part of the model; leave it out"),
@@ -111,8 +111,9 @@ def test_parse_specs_merges_same_name():
 def specs(draw):
     n = draw(st.integers(1, 12))
     name = draw(st.sampled_from(sorted(EFFECTS)))
-    joints = draw(st.sets(st.integers(1, n), min_size=1)) if EFFECTS[name] else set()
-    return EffectSpec(name, tuple(joints)), n
+    joints = tuple(draw(st.sets(st.integers(1, n), min_size=1))) if EFFECTS[name] else ()
+    orders = tuple(tuple(draw(st.sets(st.integers(1, 200), min_size=1))) for _ in joints) if takes_orders(name) else ()
+    return EffectSpec(name, joints, orders), n
 
 
 @settings(max_examples=100, deadline=None)
@@ -128,7 +129,7 @@ def test_property_str_round_trip(spec_n):
 @given(st.text(max_size=40)
        | st.text(alphabet=st.sampled_from(list("backlash_joint:gear,0123456789 -.")), max_size=40)
        | st.builds(lambda name, rest: name + rest, st.sampled_from(sorted(EFFECTS)),
-                   st.text(alphabet=st.sampled_from(list(":,0123456789 a")), max_size=12)),
+                   st.text(alphabet=st.sampled_from(list(":,0123456789 a@+")), max_size=12)),
        st.integers(1, 8))
 def test_property_random_text_parses_or_inputerror(text, n):
     try:

@@ -42,7 +42,8 @@ COMMANDS = tuple(SUMMARIES)
 #: names of the built-in effects (torchcal.effects registers these classes; the top-level
 #: --help lists them without importing torch, tests/test_startup.py checks the list)
 BUILTIN_EFFECTS = ("axis_tilt", "backlash", "base_compliance", "base_frame", "cross_coupling", "encoder_scale",
-                   "gear_periodic", "gear_transmission", "joint_clearance", "joint_compliance", "link_bending",
+                   "gear_periodic", "gear_transmission", "joint_clearance", "joint_compliance", "joint_periodic",
+                   "link_bending",
                    "thermal_expansion", "tool_offset")
 
 

@@ -161,15 +161,18 @@ def units(args) -> dict:
 @contextmanager
 def warnings_to_stderr(*categories):
     """Warnings of `categories` raised in the block become one ``torchcal: warning: ...``
-    line each on stderr once the block ends (none when it raises: the error line is
-    what the user reads); other warnings pass on unchanged."""
+    line each (repeats once) on stderr once the block ends (none when it raises: the error
+    line is what the user reads); other warnings pass on unchanged."""
     with warnings.catch_warnings(record=True) as caught:
         for c in categories:
             warnings.simplefilter("always", c)
         yield
+    seen = set()
     for w in caught:
         if issubclass(w.category, categories):
-            sys.stderr.write(f"torchcal: warning: {w.message}\n")
+            if str(w.message) not in seen:
+                sys.stderr.write(f"torchcal: warning: {w.message}\n")
+            seen.add(str(w.message))
         else:
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
 

@@ -90,7 +90,8 @@ def run(args) -> int:
     from torchcal.calibration.mismatch import MismatchWarning
     from torchcal.cli._args import warnings_to_stderr
     from torchcal.cli._progress import progress
-    with warnings_to_stderr(MismatchWarning):  # the model's own frame and error first, then the nominal robot's
+    from torchcal.diagnosis.spectral import NarrowRangeWarning
+    with warnings_to_stderr(MismatchWarning, NarrowRangeWarning):  # the model's own frame and error first, then the nominal robot's
         if fitted is not None:
             api.check_diagnosis_data(fitted, fitted.model, m)
         with progress("diagnose", f"screening candidate effects on {len(m)} rows"):

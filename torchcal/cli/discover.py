@@ -65,9 +65,11 @@ def run(args) -> int:
     if other is not None:
         from torchcal.diagnosis.transfer import TransferCheck
         print(TransferCheck(other, args.transfer_poses, args.transfer).describe())
+    from torchcal.cli._args import warnings_to_stderr
     from torchcal.cli._progress import progress
+    from torchcal.diagnosis.spectral import NarrowRangeWarning
 
-    with progress("discover", f"searching effects on {len(m)} rows"):
+    with warnings_to_stderr(NarrowRangeWarning), progress("discover", f"searching effects on {len(m)} rows"):
         res = api.discover(robot, m, args.effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,
                            sigma_deg=args.sigma_deg, transfer=other, transfer_poses=args.transfer_poses,
                            residual_model=args.residual_model)

@@ -18,7 +18,7 @@ import torch
 
 from torchcal.calibration.model import CalibrationModel
 from torchcal.effects import build
-from torchcal.effects.spec import EFFECTS
+from torchcal.effects.spec import EFFECTS, format_spec
 from torchcal.robots.robot import Robot
 
 MRAD = 1e-3  # random-clearance tilts are fitted in mrad
@@ -49,15 +49,17 @@ class Candidate:
     held_out_ll: np.ndarray | None = field(default=None, repr=False)  # (poses,) nats
     held_out_sq: np.ndarray | None = field(default=None, repr=False)  # (poses,) mm^2
     deterministic: bool = False  # significant by its deterministic part (F-test + gain)
+    orders: tuple = ()  # per joint, for an effect with orders (joint_periodic)
 
     @property
     def spec(self) -> str:
-        return self.effect if not self.joints else f"{self.effect}:{','.join(map(str, self.joints))}"
+        return format_spec(self.effect, self.joints, self.orders)
 
     def to_dict(self) -> dict:
         return {"effect": self.effect, "joints": list(self.joints), "rms_mm": self.rms_mm,
                 "cv_rms_mm": self.cv_rms_mm, "score": self.score, "significant": self.significant,
-                "p_value": self.p_value, "new_parameters": self.k, "cv_gain": self.cv_gain}
+                "p_value": self.p_value, "new_parameters": self.k, "cv_gain": self.cv_gain,
+                **({"orders": [list(ks) for ks in self.orders]} if self.orders else {})}
 
 
 
@@ -83,8 +85,8 @@ def candidate_specs(robot: Robot, present: dict, ctx) -> list[tuple[str, tuple]]
     return out
 
 
-def spec_text(name, joints):
-    return name if not joints else f"{name}:{','.join(map(str, joints))}"
+def spec_text(name, joints, orders=()):
+    return format_spec(name, joints, orders)
 
 
 def candidate_columns(robot, base_model: CalibrationModel, theta, ctx, spec: str) -> np.ndarray:
@@ -98,14 +100,15 @@ def candidate_columns(robot, base_model: CalibrationModel, theta, ctx, spec: str
     return C.reshape(-1, k).detach().numpy()
 
 
-def all_candidate_columns(robot, base_model: CalibrationModel, theta, ctx, specs) -> dict:
+def all_candidate_columns(robot, base_model: CalibrationModel, theta, ctx, specs, orders=None) -> dict:
     """`candidate_columns` of every (name, joints) in specs, from one forward-mode pass: the
     candidates are added side by side as separate effects at zero, where each is the
-    identity, so each one's columns are those of the model with it alone."""
+    identity, so each one's columns are those of the model with it alone. `orders`:
+    (name, joints) -> orders per joint, for effects with orders."""
     specs = list(specs)
     if not specs:
         return {}
-    extra = [build(spec_text(n, j), robot) for n, j in specs]
+    extra = [build(spec_text(n, j, (orders or {}).get((n, j), ())), robot) for n, j in specs]
     aug = CalibrationModel(robot, list(base_model.effects) + extra)
     k = aug.n_params - base_model.n_params
 

@@ -27,6 +27,9 @@ the full refit of torchcal.diagnosis.step decides, with orientation when measure
   chosen so far, it is the best significant candidate of all (forward selection, at
   alpha / 2^(s+1) for step s), so a hidden ``joint_compliance:2,3`` is proposed with both
   joints but a second, different effect is left to the next round of `discover`.
+- `joint_periodic` (orders per joint) is a candidate on joint J with the orders that
+  `torchcal.diagnosis.spectral.propose_orders` finds in the residual on the same folds;
+  a joint where it finds none is no candidate.
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ import scipy.stats
 from torchcal.diagnosis.candidates import Candidate, all_candidate_columns, candidate_specs, random_clearance_basis
 from torchcal.diagnosis.crossval import LinearRefit
 from torchcal.diagnosis.selection import MIN_LL_GAIN, rank, select
+from torchcal.diagnosis.spectral import propose_orders
 from torchcal.diagnosis.variance import fit_variance, variance_loglik
 from torchcal.effects.spec import parse_specs
 
@@ -66,6 +70,10 @@ def prescreen(robot, model, specs: list, base_fit, m, ctx, folds_: np.ndarray, *
     n_eq = len(r)
     present = {s.name: s.joints for s in parse_specs(specs, robot.n)} if specs else {}
     cands_specs = candidate_specs(robot, present, ctx)
+    orders = {(n, j): (propose_orders(robot, model, theta, ctx, r, A, folds_, j[0]).orders,)
+              for n, j in cands_specs if n == "joint_periodic"}
+    orders = {key: ks for key, ks in orders.items() if ks[0]}
+    cands_specs = [(n, j) for n, j in cands_specs if n != "joint_periodic" or (n, j) in orders]
     # alpha spending: this call's first family gets alpha / 2, forward-selection step s
     # alpha / 2^(s+1), each split evenly (Bonferroni) over the candidates it tests
     level = alpha / 2 / max(len(cands_specs), 1)
@@ -112,13 +120,15 @@ def prescreen(robot, model, specs: list, base_fit, m, ctx, folds_: np.ndarray, *
         out = lin.pose_mean(Bs.reshape(N * 3, K)).reshape(-1, 3, K)
         return out / np.sqrt(lin.counts)[:, None, None]
 
-    columns, variance = all_candidate_columns(robot, model, theta, ctx, cands_specs), {}
+    columns, variance = all_candidate_columns(robot, model, theta, ctx, cands_specs, orders), {}
     for name, joints in cands_specs:
         if name == "joint_clearance":
             variance[(name, joints)] = random_clearance_basis(robot, ctx, m.xyz, joints[0])
     base_cv, base_ll = lin.cross_validate(np.zeros((n_eq, 0)), None)
     cands = [judge(n, j, lin, None, C, variance.get((n, j)), base_cv, base_ll, level)
              for (n, j), C in columns.items()]
+    for c in cands:
+        c.orders = orders.get((c.effect, c.joints), ())
     cands = rank(cands)
     verdict = select(cands)
     if verdict is not None and verdict.joints:
@@ -150,6 +160,8 @@ def prescreen(robot, model, specs: list, base_fit, m, ctx, folds_: np.ndarray, *
             e = lin.residual(B)
             verdict = Candidate(verdict.effect, tuple(sorted(chosen)), float(np.sqrt(e @ e / (n_eq / 3))),
                                 cv, ll - base_ll, verdict.p_value, B.shape[1], True,
-                                (base_cv - cv) / max(base_cv, 1e-300), deterministic=verdict.deterministic)
+                                (base_cv - cv) / max(base_cv, 1e-300), deterministic=verdict.deterministic,
+                                orders=tuple(orders[(verdict.effect, (j,))][0] for j in sorted(chosen))
+                                if verdict.orders else ())
             cands.insert(0, verdict)
     return Screen(cands, verdict, base_cv)

@@ -21,6 +21,7 @@ from torchcal.effects.gear_periodic import GearPeriodic
 from torchcal.effects.gear_transmission import GearTransmission
 from torchcal.effects.joint_clearance import JointClearance
 from torchcal.effects.joint_compliance import JointCompliance
+from torchcal.effects.joint_periodic import JointPeriodic
 from torchcal.effects.link_bending import LinkBending
 from torchcal.effects.registry import REGISTRY, load_entry_points, load_module, lookup, register_effect, unregister_effect
 from torchcal.effects.thermal_expansion import ThermalExpansion
@@ -28,7 +29,7 @@ from torchcal.effects.tool_offset import ToolOffset
 
 for _cls in (BaseFrame, ToolOffset, JointCompliance, GearPeriodic, Backlash, EncoderScale,
              ThermalExpansion, JointClearance, CrossCoupling, AxisTilt, BaseCompliance, LinkBending,
-             GearTransmission):
+             GearTransmission, JointPeriodic):
     register_effect(_cls, "torchcal.effects", builtin=True)
 
 
@@ -38,8 +39,10 @@ def build(spec, robot) -> Effect:
 
     if isinstance(spec, str):
         spec = parse_spec(spec, robot.n)
+    if spec.orders:
+        return lookup(spec.name)(robot, spec.joints, spec.orders)
     return lookup(spec.name)(robot, spec.joints)
 
 
-__all__ = ["AxisTilt", "BaseCompliance", "Context", "CrossCoupling", "Effect", "approach_directions", "GearTransmission", "LinkBending", "REGISTRY", "build", "context_of", "load_entry_points", "load_module",
+__all__ = ["AxisTilt", "BaseCompliance", "Context", "CrossCoupling", "Effect", "approach_directions", "GearTransmission", "JointPeriodic", "LinkBending", "REGISTRY", "build", "context_of", "load_entry_points", "load_module",
            "lookup", "make_context", "register_effect", "unregister_effect"]

@@ -1,0 +1,200 @@
+"""Held-out spectral search: the orders of a periodic joint error that the residual shows.
+
+A periodic error of joint J at order k (cycles per joint turn) moves the TCP by
+``(s sin(k q_J) + c cos(k q_J)) t_J`` with t_J (N, 3) mm/rad joint J's column of the
+position Jacobian (its dtheta column). The search scans the orders the joint's measured
+range resolves and keeps those that predict held-out poses (`search_orders`):
+
+1. Columns: C (3N, 2K) = sin(k q_J) t_J, cos(k q_J) t_J for each order k of the grid,
+   the derivative of `joint_periodic:J@k...` at zero (one forward pass for the grid).
+2. One step, vectorised over the grid: for each fold (by pose; the folds of `discover`),
+   the base columns X = [A, chosen orders] and the order's pair of columns are fitted to
+   the residual r on the other folds and predicted on the held-out one. With X's training
+   pseudo-inverse applied to r and to all of C at once, each order's fit is a batched 2x2
+   solve; the held-out sums of squares of all K orders come from a few matrix products.
+3. The order with the smallest held-out sum of squares is added when it cuts the held-out
+   RMS by at least `MIN_ORDER_GAIN` and its F-test on all training rows (2 new columns
+   beyond X) passes ``alpha / K`` (Bonferroni over the grid); repeat from 2 with it in X,
+   at most `MAX_ORDERS` times.
+
+What a joint's measured range R (rad) resolves (`order_limits`):
+
+- a term with fewer than two periods inside the range is, there, a smooth curve that a
+  joint offset, a linear trend or another low-order effect (`gear_periodic`, compliance)
+  reproduces: the lowest order searched is ``k_min = ceil(2 * 2 pi / R)``;
+- two orders k and k' are nearly orthogonal over the range when their phases drift
+  apart by a full turn across it, ``|k - k'| R >= 2 pi``: the resolution is
+  ``2 pi / R`` orders. Below a full joint turn neighbouring orders are not separated:
+  an order found is the centre of a band that wide (the search keeps the best one);
+- the samples must see each period: with g90 the 90th percentile of the gaps between
+  the sorted measured angles, at least two samples per period over most of the range
+  gives ``k_max = floor(pi / g90)``, at most `MAX_GRID_ORDER`.
+
+A joint whose range resolves no order (k_min > k_max) is not searched and warned about.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.stats
+
+from torchcal.diagnosis.crossval import RANK_TOL
+
+MAX_GRID_ORDER = 120  # highest order searched (cycles per joint turn)
+MIN_PERIODS = 2  # periods of the lowest order inside the measured range
+MAX_ORDERS = 8  # orders kept per joint at most
+MIN_ORDER_GAIN = 0.005  # relative held-out RMS gain an order must bring
+ALPHA = 0.01  # family level of one joint's search (split over the grid)
+ARCSEC = math.pi / 180 / 3600
+
+
+class NarrowRangeWarning(UserWarning):
+    """A joint's measured range resolves no periodic order (the command line prints one line)."""
+
+
+@dataclass
+class OrderLimits:
+    """What joint angles q resolve: orders k_min..k_max (cycles per turn), resolution
+    (orders closer than this are not separated), range_deg (the measured range)."""
+
+    k_min: int
+    k_max: int
+    resolution: float
+    range_deg: float
+
+    @property
+    def empty(self) -> bool:
+        return self.k_min > self.k_max
+
+    def text(self, joint: int) -> str:
+        if self.empty:
+            return (f"joint {joint}: its measured range ({self.range_deg:.1f} deg) resolves no periodic order "
+                    f"<= {MAX_GRID_ORDER} (two periods inside it need order >= {self.k_min}; the angle "
+                    f"spacing allows <= {self.k_max}); not searched")
+        return (f"joint {joint}: orders {self.k_min}-{self.k_max} searched (range {self.range_deg:.1f} deg; "
+                f"orders closer than {self.resolution:.1f} are not separated)")
+
+
+def order_limits(q: np.ndarray, max_order: int = MAX_GRID_ORDER) -> OrderLimits:
+    """The orders that joint angles q (N,) rad resolve (module doc)."""
+    q = np.unique(np.asarray(q, dtype=float))
+    span = float(q[-1] - q[0]) if len(q) > 1 else 0.0
+    if span <= 0:
+        return OrderLimits(max_order + 1, 0, math.inf, 0.0)
+    k_min = math.ceil(MIN_PERIODS * 2 * math.pi / span - 1e-9)
+    g90 = float(np.quantile(np.diff(q), 0.9))
+    k_max = min(max_order, math.floor(math.pi / g90)) if g90 > 0 else max_order
+    return OrderLimits(k_min, k_max, 2 * math.pi / span, math.degrees(span))
+
+
+@dataclass
+class Search:
+    """The result for one joint: orders chosen (in the order found), amplitudes_arcsec
+    (sqrt(s^2 + c^2) of each, fitted with the base columns on all rows), cv_rms_mm
+    (held-out RMS before and after each order), p_values (each order's F-test), limits."""
+
+    joint: int
+    orders: tuple
+    amplitudes_arcsec: tuple
+    cv_rms_mm: list
+    p_values: list
+    limits: OrderLimits = field(repr=False)
+
+
+def _pinv_parts(X: np.ndarray):
+    """Orthonormal basis U of span(X) and the map M with X M = U U^T (rank cut RANK_TOL)."""
+    Q, R = np.linalg.qr(X)  # tall X: the SVD of the small R gives X's
+    u, s, vt = np.linalg.svd(R)
+    keep = s > RANK_TOL * (s[0] if len(s) else 1.0)
+    return Q @ u[:, keep], vt[keep].T / s[keep]
+
+
+def held_out_sums(r: np.ndarray, X: np.ndarray, C: np.ndarray, rows: np.ndarray):
+    """Held-out sums of squares of r on X alone (float) and on [X, pair k] for every pair
+    of columns of C (K,), over the folds `rows` (3N,) (fold of each stacked row)."""
+    K = C.shape[1] // 2
+    base, per = 0.0, np.zeros(K)
+    for f in np.unique(rows):
+        t, v = rows != f, rows == f
+        U, M = _pinv_parts(X[t])
+        a, P = M @ (U.T @ r[t]), M @ (U.T @ C[t])  # X coefficients of r and of each column
+        eT, DT = r[t] - X[t] @ a, (C[t] - X[t] @ P).reshape(-1, K, 2)
+        G = np.einsum("tka,tkb->kab", DT, DT) + 1e-12 * np.eye(2)
+        beta = np.linalg.solve(G, np.einsum("tka,t->ka", DT, eT)[..., None])[..., 0]  # (K, 2)
+        eV, DV = r[v] - X[v] @ a, (C[v] - X[v] @ P).reshape(-1, K, 2)
+        pred = np.einsum("vka,ka->vk", DV, beta)
+        base += float(eV @ eV)
+        per += (eV @ eV) - 2 * (eV @ pred) + (pred * pred).sum(0)
+    return base, per
+
+
+def search_orders(r: np.ndarray, A: np.ndarray, C: np.ndarray, grid, folds: np.ndarray, *,
+                  alpha: float = ALPHA, max_orders: int = MAX_ORDERS, min_gain: float = MIN_ORDER_GAIN):
+    """Greedy held-out search (module doc) of residual r (3N,) mm on base columns A (3N, p)
+    over the orders `grid` (K,) with columns C (3N, 2K) (sin, cos per order), folds (N,).
+
+    Returns (indices into grid, in the order chosen; held-out RMS mm before and after each;
+    F-test p-values).
+    """
+    n_rows = len(r) // 3
+    X = A / np.linalg.norm(A, axis=0).clip(1e-300)
+    Cn = C / np.linalg.norm(C, axis=0).clip(1e-300)
+    rows = np.repeat(np.asarray(folds), 3)
+    level = alpha / max(len(grid), 1)
+    chosen, path, ps = [], [], []
+    while len(chosen) < max_orders:
+        base, per = held_out_sums(r, X, Cn, rows)
+        if not path:
+            path.append(math.sqrt(base / n_rows))
+        per[chosen] = np.inf
+        best = int(np.argmin(per))
+        cv = math.sqrt(max(per[best], 0.0) / n_rows)
+        U, _ = _pinv_parts(X)
+        e0 = r - U @ (U.T @ r)
+        pair = Cn[:, 2 * best:2 * best + 2]
+        U1, _ = _pinv_parts(np.hstack([X, pair]))
+        e1 = r - U1 @ (U1.T @ r)
+        k_new = U1.shape[1] - U.shape[1]
+        dof = len(r) - U1.shape[1]
+        if k_new < 1 or dof < 1:
+            break
+        F = ((e0 @ e0 - e1 @ e1) / k_new) / max(e1 @ e1 / dof, 1e-300)
+        p = float(scipy.stats.f.sf(F, k_new, dof))
+        if p >= level or cv > path[-1] * (1 - min_gain):
+            break
+        chosen.append(best)
+        path.append(cv)
+        ps.append(p)
+        X = np.hstack([X, pair])
+    return chosen, path, ps
+
+
+def propose_orders(robot, model, theta, ctx, r: np.ndarray, A: np.ndarray, folds: np.ndarray, joint: int,
+                   **kw) -> Search:
+    """The orders of `joint_periodic:joint` that the residual r (3N,) of `model` at theta
+    (base columns A (3N, p), folds (N,) by pose) shows; module doc. Warns when the joint's
+    measured range resolves no order."""
+    from torchcal.diagnosis.candidates import all_candidate_columns
+
+    q = ctx.q[:, joint - 1].detach().cpu().numpy()
+    lim = order_limits(q)
+    if lim.empty:
+        warnings.warn(f"joint_periodic: {lim.text(joint)}", NarrowRangeWarning, stacklevel=2)
+        return Search(joint, (), (), [], [], lim)
+    grid = tuple(range(lim.k_min, lim.k_max + 1))
+    key = ("joint_periodic", (joint,))
+    C = all_candidate_columns(robot, model, theta, ctx, [key], {key: (grid,)})[key]
+    idx, path, ps = search_orders(r, A, C, grid, folds, **kw)
+    amps = ()
+    if idx:
+        cols = np.hstack([C[:, 2 * i:2 * i + 2] for i in idx])
+        X = np.hstack([A, cols])
+        norms = np.linalg.norm(X, axis=0).clip(1e-300)
+        U, M = _pinv_parts(X / norms)
+        coef = (M @ (U.T @ r) / norms)[A.shape[1]:]  # rad
+        amps = tuple(float(np.hypot(*coef[2 * i:2 * i + 2]) / ARCSEC) for i in range(len(idx)))
+    return Search(joint, tuple(grid[i] for i in idx), amps, path, ps, lim)

@@ -35,6 +35,10 @@ def nonneg_float(text: str) -> float:
 
 FORCE_HINT = "pass --force to replace it"
 
+#: the preset robots' names, for option help built without importing torch
+#: (tests/test_startup.py checks them against torchcal.robots.robot.PRESETS)
+PRESET_NAMES = ("kr1000titan", "puma560", "ur5e")
+
 
 def add_force(p):
     p.add_argument("--force", action="store_true", help="replace existing output files")
@@ -177,11 +181,9 @@ def read_data(path, robot, args=None, check: bool = True):
 
 def add_robot(p, required: bool = True, default=None, what: str = "the robot") -> None:
     """``--robot ROBOT``: a preset name or the path of a robot file (the one shared option)."""
-    from torchcal.robots.robot import PRESETS
-
     extra = f" (default {default})" if default is not None else ""
     p.add_argument("--robot", required=required, default=default, metavar="ROBOT",
-                   help=f"{what}: a preset ({', '.join(sorted(PRESETS))}) or the path of a robot "
+                   help=f"{what}: a preset ({', '.join(PRESET_NAMES)}) or the path of a robot "
                         f"file (.json, docs/robots.md){extra}")
 
 

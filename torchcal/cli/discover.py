@@ -3,13 +3,9 @@ best significant effect each round until none is left; the error falls at each r
 
 from __future__ import annotations
 
-from torchcal import api
-from torchcal.io import modelfile
 from torchcal.cli._args import (add_cv, add_effects_module, add_force, add_units, add_viz, check_folder, check_outputs,
                                 read_data, add_robot)
 from torchcal.cli.diagnose import add_sigmas, print_step
-from torchcal.io.files import write_json
-from torchcal.robots.robot import robot as make_robot
 
 
 def add_parser(sub):
@@ -29,6 +25,11 @@ def add_parser(sub):
 
 
 def run(args) -> int:
+    from torchcal import api
+    from torchcal.io import modelfile
+    from torchcal.io.files import write_json
+    from torchcal.robots.robot import robot as make_robot
+
     check_outputs([("--json", args.json), ("--out", args.out), ("--rrd", args.rrd)], args.force,
                   inputs=[args.data])
     check_folder("--plots", args.plots)

@@ -15,14 +15,9 @@ from __future__ import annotations
 
 import math
 
-from torchcal.io import modelfile
 from torchcal.cli._args import add_effects_module, add_force, add_units, check_outputs, read_data, add_robot
 from torchcal.cli._args import nonneg_float, positive_float
-from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM
-from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
-from torchcal.io.files import write_json
-from torchcal.robots.robot import robot as make_robot
-from torchcal.effects.spec import parse_specs
+from torchcal.defaults import MAX_ANGLE_DEG, MAX_LENGTH_MM, SIGMA_DEG, SIGMA_MM
 
 
 def add_parser(sub):
@@ -56,6 +51,8 @@ def fit_file(args):
     """Read, fit (`torchcal.fit`); returns (measurements, FitResult)."""
     from torchcal.api import fit
     from torchcal.cli._args import units
+    from torchcal.effects.spec import parse_specs
+    from torchcal.robots.robot import robot as make_robot
 
     robot = make_robot(args.robot)
     specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
@@ -126,6 +123,9 @@ def _robot_file(text) -> list[str]:
 
 
 def run(args) -> int:
+    from torchcal.io import modelfile
+    from torchcal.io.files import write_json
+
     check_outputs([("--out", args.out)], args.force, inputs=[args.data, *_robot_file(args.robot)])
     m, res = fit_file(args)
     obj = modelfile.to_dict(res, source=args.data, seed=args.seed, pose_ids=m.pose.tolist())

@@ -28,6 +28,8 @@ import math
 from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
+import numpy as np
+
 import torch
 
 from torchcal.kinematics.chain import Chain
@@ -221,7 +223,7 @@ def fk_positions(q, chain: Chain, params=None, *, chunk: int = DEFAULT_CHUNK) ->
     table = chain.table
     qb = q.shape[:-1]
     pb = () if params is None else params.shape[:-2]
-    batch = torch.broadcast_shapes(qb, pb)
+    batch = np.broadcast_shapes(qb, pb)  # torch.broadcast_shapes would import sympy
     total = math.prod(batch)
     if total <= chunk or len(batch) == 0:
         return positions(q, chain, params)

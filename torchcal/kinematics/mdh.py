@@ -32,6 +32,7 @@ import numpy as np
 
 import torch
 
+from torchcal import threads
 from torchcal.kinematics.chain import Chain
 
 PARAM_NAMES = ("dtheta", "dd", "da", "dalpha", "dbeta")
@@ -244,7 +245,7 @@ def fk_positions(q, chain: Chain, params=None, *, chunk: int = DEFAULT_CHUNK) ->
         positions(qc, chain, pc, out=out.narrow(dim, start, size))
 
     starts = range(0, batch[dim], step)
-    workers = min(torch.get_num_threads(), len(starts)) if out.device.type == "cpu" else 1
+    workers = min(threads.workers(), len(starts)) if out.device.type == "cpu" else 1
     if workers <= 1:
         for start in starts:
             run(start)

@@ -57,6 +57,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from torchcal import threads as policy
 from torchcal.kinematics import mdh as K
 from torchcal.reliability import rset as reliability
 from torchcal.errors import InputError
@@ -388,8 +389,8 @@ def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_m
         chunk: (point, set) evaluations per kernel call; the working memory is 7 buffers
             of `chunk` floats per thread. Default DEFAULT_CHUNK (16384) on a CPU,
             DEFAULT_CHUNK_GPU on a GPU. Results do not depend on it.
-        threads: worker threads over point chunks (default: torch.get_num_threads() on a
-            CPU, 1 on a GPU). On a CPU torch's own intra-op threads are set to 1 while the
+        threads: worker threads over point chunks (default: `torchcal.threads.workers()`
+            on a CPU, 1 on a GPU). On a CPU torch's own intra-op threads are set to 1 while the
             sweep runs (and restored after): the workers use the cores instead. Results do
             not depend on it.
         block: points per block (default DEFAULT_BLOCK): the points of block b are drawn
@@ -421,7 +422,7 @@ def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_m
     deviations = deviations.to(device=device, dtype=dtype)
     gpu = rb.table.device.type != "cpu"
     chunk = chunk or (DEFAULT_CHUNK_GPU if gpu else DEFAULT_CHUNK)
-    threads = threads or (1 if gpu else torch.get_num_threads())
+    threads = threads or (1 if gpu else policy.workers())
     parts = []
     with _serial_ops(not gpu):
         with tqdm(total=n_points, unit="pt", desc="sweep", file=sys.stderr, disable=None if progress else True,

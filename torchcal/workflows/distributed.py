@@ -32,6 +32,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from torchcal import threads as policy
 from torchcal.errors import InputError
 from torchcal.io.files import check_output
 from torchcal.io.sweep_blocks import BlockFolder
@@ -231,7 +232,7 @@ def run_sweep(plan: SweepPlan, out, *, client=None, force: bool = False, progres
 
     client: a dask.distributed Client (`connect`): blocks are its tasks, at most two per
         worker thread at a time, written here as they come back; None: computed in this
-        process (torch.get_num_threads() threads within a block).
+        process (`torchcal.threads.workers()` threads within a block).
     force: discard a partial output of a sweep with other arguments (same arguments:
         its blocks are kept and the run goes on from them).
     on_block: called with the index of each block once it is written.
@@ -263,7 +264,7 @@ def run_sweep(plan: SweepPlan, out, *, client=None, force: bool = False, progres
 
         if client is None:
             for b in missing:
-                write(b, *plan.compute(b, threads=torch.get_num_threads()))
+                write(b, *plan.compute(b, threads=policy.workers()))
         else:
             _run_on(client, plan, missing, write)
     summary = summary_of(acc)

@@ -20,8 +20,8 @@ summary (R_set min / median / max, share of points with R_set = 1) on stdout.
 The points are computed in blocks of --block points (each drawn from its own seed), written
 block by block into OUT.blocks/ and copied into OUT when all are done: an interrupted run
 started again with the same arguments computes only the missing blocks (and says so); with
-other arguments it refuses unless --force. ``--workers N`` runs the blocks on a local Dask
-cluster of N processes, ``--scheduler ADDRESS`` on an existing Dask cluster (the extra
+other arguments it refuses unless --force. ``--workers N`` runs the blocks on N processes of
+this machine (no cluster), ``--scheduler ADDRESS`` on an existing Dask cluster (the extra
 ``pip install 'torchcal[distributed]'``, docs/scale.md); the CSV is the same in every case.
 """
 
@@ -53,7 +53,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
     where.add_argument("--scheduler", metavar="ADDRESS",
                        help="run the blocks on the Dask cluster of this scheduler (tcp://host:8786)")
     where.add_argument("--workers", type=positive_int, metavar="N",
-                       help="run the blocks on a local Dask cluster of N worker processes")
+                       help="run the blocks on N worker processes of this machine (no cluster, no Dask)")
     p.add_argument("--out", required=True, help="output CSV")
     add_force(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -75,8 +75,9 @@ def run(args) -> int:
              if args.clearance else ClearanceModel.defaults(robot))
     plan = plan_sweep(robot, n_points=args.n, n_samples=args.samples, allowed_mm=args.allowed, seed=args.seed,
                       model=model, block=args.block or DEFAULT_BLOCK)
-    with connect(scheduler=args.scheduler, workers=args.workers) as client:
-        s = run_sweep(plan, out, client=client, force=args.force, progress=not args.no_progress, log=print)
+    with connect(scheduler=args.scheduler) as client:
+        s = run_sweep(plan, out, client=client, processes=args.workers, force=args.force,
+                      progress=not args.no_progress, log=print)
     n1 = round(s["share_r_set_1"] * s["points"])
     print(f"sweep: {s['points']} points x {args.samples} clearance states, allowed distance error "
           f"[0, {args.allowed:g}] mm -> {out}")

@@ -69,6 +69,34 @@ def load_effects_modules(args) -> None:
             raise InputError(f"--effects-module {exc}") from None
 
 
+def add_device(p, what: str = "the computation"):
+    """``--device cpu|cuda|cuda:N`` (default cpu)."""
+    p.add_argument("--device", default="cpu", metavar="DEVICE",
+                   help=f"where {what} runs: cpu (default), cuda or cuda:N (a GPU; refused when torch sees none)")
+
+
+def device_of(args):
+    """The torch.device of ``--device``: one InputError line when it is not cpu / cuda[:N]
+    or when CUDA is not available (before any work)."""
+    import re
+
+    import torch
+
+    from torchcal.errors import InputError
+
+    text = (getattr(args, "device", None) or "cpu").strip().lower()
+    if not re.fullmatch(r"cpu|cuda(:\d+)?", text):
+        raise InputError(f"--device: expected cpu, cuda or cuda:N, got {text!r}")
+    if text.startswith("cuda"):
+        if not torch.cuda.is_available():
+            why = "torch was built without CUDA" if torch.version.cuda is None else "no GPU is visible"
+            raise InputError(f"--device {text}: CUDA is not available here ({why}); use --device cpu")
+        index = int(text.split(":")[1]) if ":" in text else 0
+        if index >= torch.cuda.device_count():
+            raise InputError(f"--device {text}: only {torch.cuda.device_count()} CUDA device(s) visible")
+    return torch.device(text)
+
+
 def add_viz(p):
     p.add_argument("--rrd", help="write a rerun recording (.rrd) here")
     p.add_argument("--plots", help="write PNG figures into this folder")

@@ -3,8 +3,8 @@ best significant effect each round until none is left; the error falls at each r
 
 from __future__ import annotations
 
-from torchcal.cli._args import (add_cv, add_effects_module, add_force, add_units, add_viz, check_folder, check_outputs,
-                                read_data, add_robot)
+from torchcal.cli._args import (add_cv, add_device, add_effects_module, add_force, add_units, add_viz, check_folder,
+                                check_outputs, device_of, read_data, add_robot)
 from torchcal.cli.diagnose import add_sigmas, print_step
 
 
@@ -21,6 +21,7 @@ def add_parser(sub):
     add_units(p)
     add_force(p)
     add_effects_module(p)
+    add_device(p, "the fits")
     p.set_defaults(func=run)
 
 
@@ -30,14 +31,15 @@ def run(args) -> int:
     from torchcal.io.files import write_json
     from torchcal.robots.robot import robot as make_robot
 
+    device = device_of(args)  # a refused --device before any work
     check_outputs([("--json", args.json), ("--out", args.out), ("--rrd", args.rrd)], args.force,
                   inputs=[args.data])
     check_folder("--plots", args.plots)
     if args.rrd or args.plots:  # the PNG names too, before any work
         from torchcal.cli._viz import check_outputs as check_visual_outputs
         check_visual_outputs(args, "discover")
-    robot = make_robot(args.robot)
-    m = read_data(args.data, robot, args)
+    robot = make_robot(args.robot).to(device)
+    m = read_data(args.data, robot, args).to(device)
     res = api.discover(robot, m, args.effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,
                        sigma_deg=args.sigma_deg)
     for i, (h, d) in enumerate(zip(res.history, res.diagnoses)):

@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 
 from torchcal.cli._args import add_effects_module, add_force, add_units, check_outputs, read_data, add_robot
-from torchcal.cli._args import nonneg_float, positive_float
+from torchcal.cli._args import add_device, device_of, nonneg_float, positive_float
 from torchcal.defaults import MAX_ANGLE_DEG, MAX_LENGTH_MM, SIGMA_DEG, SIGMA_MM
 
 
@@ -44,6 +44,7 @@ def add_parser(sub):
     add_units(p)
     add_force(p)
     add_effects_module(p)
+    add_device(p, "the fit")
     p.set_defaults(func=run)
 
 
@@ -54,9 +55,10 @@ def fit_file(args):
     from torchcal.effects.spec import parse_specs
     from torchcal.robots.robot import robot as make_robot
 
-    robot = make_robot(args.robot)
+    device = device_of(args)
+    robot = make_robot(args.robot).to(device)
     specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
-    m = read_data(args.data, robot, args)  # the unit check that torchcal.fit repeats, before any warning line
+    m = read_data(args.data, robot, args).to(device)  # the unit check that torchcal.fit repeats, before any warning line
     check = args.max_deviation_mm and args.max_deviation_deg  # 0 turns the check off
     return m, fit(robot, m, specs, robust=args.robust, sigma_mm=args.sigma_mm, sigma_deg=args.sigma_deg,
                   max_length_mm=args.max_deviation_mm if check else None,
@@ -126,6 +128,7 @@ def run(args) -> int:
     from torchcal.io import modelfile
     from torchcal.io.files import write_json
 
+    device_of(args)  # a refused --device before any work
     check_outputs([("--out", args.out)], args.force, inputs=[args.data, *_robot_file(args.robot)])
     m, res = fit_file(args)
     obj = modelfile.to_dict(res, source=args.data, seed=args.seed, pose_ids=m.pose.tolist())

@@ -30,7 +30,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from torchcal.cli._args import add_force, check_outputs, positive_int, positive_float, add_robot
+from torchcal.cli._args import add_device, add_force, check_outputs, device_of, positive_int, positive_float, add_robot
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -55,6 +55,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
     where.add_argument("--workers", type=positive_int, metavar="N",
                        help="run the blocks on N worker processes of this machine (no cluster, no Dask)")
     p.add_argument("--out", required=True, help="output CSV")
+    add_device(p, "the blocks run (in this process)")
     add_force(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -68,6 +69,12 @@ def run(args) -> int:
     from torchcal.reliability.sweep import DEFAULT_BLOCK
     from torchcal.reliability.uncertainty import ClearanceModel, clearance_from_dict
 
+    from torchcal.errors import InputError
+
+    device = device_of(args)
+    if device.type != "cpu" and (args.workers or args.scheduler):
+        raise InputError(f"--device {args.device} computes the blocks in this process; "
+                         f"drop --workers / --scheduler (or use --device cpu)")
     check_outputs([("--out", args.out)], args.force)  # fail before the work, not after it
     out = Path(args.out)
     robot = torchcal.robot(args.robot)
@@ -76,7 +83,7 @@ def run(args) -> int:
     plan = plan_sweep(robot, n_points=args.n, n_samples=args.samples, allowed_mm=args.allowed, seed=args.seed,
                       model=model, block=args.block or DEFAULT_BLOCK)
     with connect(scheduler=args.scheduler) as client:
-        s = run_sweep(plan, out, client=client, processes=args.workers, force=args.force,
+        s = run_sweep(plan, out, client=client, processes=args.workers, device=device, force=args.force,
                       progress=not args.no_progress, log=print)
     n1 = round(s["share_r_set_1"] * s["points"])
     print(f"sweep: {s['points']} points x {args.samples} clearance states, allowed distance error "

@@ -495,25 +495,31 @@ def sweep_block(robot, index: int, *, n_points: int, deviations: torch.Tensor, d
                 allowed_mm: float = 2.5, seed: int = 0, block: int = DEFAULT_BLOCK,
                 workspace: Workspace | None = None, include_nominal: bool = True,
                 allowed_axis_mm: float | None = None, chunk: int | None = None, threads: int = 1,
-                dtype=torch.float64) -> SweepResult:
-    """Block `index` of `sweep(robot, n_points=n_points, seed=seed, block=block, ...)` on the CPU.
+                dtype=torch.float64, device=None) -> SweepResult:
+    """Block `index` of `sweep(robot, n_points=n_points, seed=seed, block=block, ...)` on
+    `device` (default the CPU; chunk default per device, as in `sweep`).
 
     deviations, dev_box: `sweep_states(robot, n_samples=M, seed=seed, model=...)` (the
     same for every block); the linearised hull is computed when dev_box is given. The
     result's `point` holds the global point ids; it equals the block's rows of the
     in-process sweep bit for bit (same points, same kernel on the same block), whatever
-    `threads` and `chunk` (CPU default).
+    `threads` and `chunk` (on the same device).
     """
     _check_allowed(allowed_mm, allowed_axis_mm)
-    rb = robot.to("cpu", dtype)
+    device = torch.device(device or "cpu")
+    gpu = device.type != "cpu"
+    rb = robot.to(device, dtype)
     a0, a1 = block_range(index, n_points=n_points, block=block)
-    with _serial_ops(True):
+    with _serial_ops(not gpu):
         q = rb.check_q(block_points(robot, index, n_points=n_points, block=block, seed=seed, workspace=workspace))
-        q = q.to(dtype=dtype)
-        r = _sweep_points(rb, q, deviations.to(dtype=dtype), dev_box, include_nominal=include_nominal,
+        q = q.to(device=device, dtype=dtype)
+        box = None if dev_box is None else dev_box.to(device, dtype)
+        r = _sweep_points(rb, q, deviations.to(device=device, dtype=dtype), box, include_nominal=include_nominal,
                           linear=dev_box is not None, allowed_mm=allowed_mm, allowed_axis_mm=allowed_axis_mm,
-                          chunk=chunk or DEFAULT_CHUNK, threads=threads, bar=None)
-    return SweepResult(**{**{f.name: getattr(r, f.name) for f in fields(r)}, "point": torch.arange(a0, a1)})
+                          chunk=chunk or (DEFAULT_CHUNK_GPU if gpu else DEFAULT_CHUNK), threads=1 if gpu else threads,
+                          bar=None)
+    return SweepResult(**{**{f.name: getattr(r, f.name) for f in fields(r)},
+                          "point": torch.arange(a0, a1, device=device)})
 
 
 def _sweep_points(rb, q, deviations, dev_box, *, include_nominal, linear, allowed_mm, allowed_axis_mm,

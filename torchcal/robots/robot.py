@@ -178,7 +178,7 @@ class Robot:
         return q.to(dtype), None if params is None else params.to(dtype), self.chain.to(dtype)
 
     # -- kinematics -----------------------------------------------------------------
-    def fk(self, q, params=None, chunk: int = K.DEFAULT_CHUNK) -> torch.Tensor:
+    def fk(self, q, params=None, chunk: int | None = None) -> torch.Tensor:
         """TCP positions (..., 3) mm for q (..., n) rad and deviations params (..., n, 5)."""
         q, params, chain = self._prep(q, params)
         return K.fk_positions(q, chain, params, chunk=chunk)

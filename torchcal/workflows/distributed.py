@@ -89,11 +89,12 @@ class SweepPlan:
                 "allowed_mm": self.allowed_mm, "seed": self.seed, "block": self.block,
                 "workspace": asdict(self.workspace or Workspace())}
 
-    def compute(self, index: int, threads: int = 1) -> tuple[str, dict]:
-        """Block `index`: its CSV rows (torchcal.io.sweep_csv) and statistics (`block_stats`)."""
+    def compute(self, index: int, threads: int = 1, device=None) -> tuple[str, dict]:
+        """Block `index` (on `device`, default the CPU): its CSV rows (torchcal.io.sweep_csv)
+        and statistics (`block_stats`)."""
         r = sweep_block(self.robot, index, n_points=self.n_points, deviations=self.deviations,
                         dev_box=self.dev_box, allowed_mm=self.allowed_mm, seed=self.seed, block=self.block,
-                        workspace=self.workspace, threads=threads)
+                        workspace=self.workspace, threads=threads, device=device)
         return sweep_csv_rows(r), block_stats(r)
 
 
@@ -227,8 +228,8 @@ def _run_block(plan: SweepPlan, index: int):
     return plan.compute(index, threads=1)
 
 
-def run_sweep(plan: SweepPlan, out, *, client=None, processes: int | None = None, force: bool = False,
-              progress: bool = False, on_block=None, log=None) -> dict:
+def run_sweep(plan: SweepPlan, out, *, client=None, processes: int | None = None, device=None,
+              force: bool = False, progress: bool = False, on_block=None, log=None) -> dict:
     """Compute the missing blocks of `plan` and write the sweep CSV `out` block by block.
 
     client: a dask.distributed Client (`connect`): blocks are its tasks, at most two per
@@ -237,6 +238,9 @@ def run_sweep(plan: SweepPlan, out, *, client=None, processes: int | None = None
     processes: without a client, the number of child processes of this machine that
         compute whole blocks, one thread each (`run_in_processes`); None: in this process
         (`torchcal.threads.workers()` threads within a block).
+    device: without a client or processes, the device of this process that computes the
+        blocks (default the CPU; a GPU's vectorised sin / cos may differ from the CPU's in
+        the last bit, docs/scale.md).
     force: discard a partial output of a sweep with other arguments (same arguments:
         its blocks are kept and the run goes on from them).
     on_block: called with the index of each block once it is written.
@@ -270,7 +274,7 @@ def run_sweep(plan: SweepPlan, out, *, client=None, processes: int | None = None
             run_in_processes(plan, missing, write, processes)
         elif client is None:
             for b in missing:
-                write(b, *plan.compute(b, threads=policy.workers()))
+                write(b, *plan.compute(b, threads=policy.workers(), device=device))
         else:
             _run_on(client, plan, missing, write)
     summary = summary_of(acc)

@@ -335,8 +335,11 @@ def step_shares(cfg: DemoConfig) -> dict:
     return {k: v / total for k, v in w.items()}
 
 
-def run_pipeline(cfg: DemoConfig | None = None, progress=None) -> PipelineResult:
+def run_pipeline(cfg: DemoConfig | None = None, progress=None, device=None) -> PipelineResult:
     """One seed (``cfg.seed``) of the experiment (module doc); returns its `PipelineResult`.
+
+    device: where the workspace sweep (the batched kernel, N x M perturbed FK) runs
+    (default the CPU); the fits of 100-pose sessions stay on the CPU, where they are small.
 
     progress: optional callable(step_name: str, done: float), called as each step starts
     with the share of this seed's work done before it (`step_shares`), and once more as
@@ -369,7 +372,8 @@ def run_pipeline(cfg: DemoConfig | None = None, progress=None) -> PipelineResult
     say("sweep")
     q_sweep = sample_workspace(r, cfg.n_sweep, seed=seed)
     if cfg.sweep_source == "model":
-        sw = sweep(r, q_sweep, n_samples=cfg.sweep_samples, allowed_mm=cfg.allowed_distance_mm, seed=seed)
+        sw = sweep(r, q_sweep, n_samples=cfg.sweep_samples, allowed_mm=cfg.allowed_distance_mm, seed=seed,
+                   device=device).to("cpu")
     else:
         sw = measured_sweep(vr, q_sweep, cfg.repeats, cfg.allowed_distance_mm, cfg.noise_mm, seed=s_sweep)
     lap("sweep")
@@ -426,8 +430,8 @@ def run_pipeline(cfg: DemoConfig | None = None, progress=None) -> PipelineResult
                           [str(s) for s in vr.specs], timings)
 
 
-def run_demo(cfg: DemoConfig | None = None, seeds: int = 1, progress=None) -> DemoRun:
-    """`run_pipeline` for seeds ``cfg.seed .. cfg.seed + seeds - 1``.
+def run_demo(cfg: DemoConfig | None = None, seeds: int = 1, progress=None, device=None) -> DemoRun:
+    """`run_pipeline` for seeds ``cfg.seed .. cfg.seed + seeds - 1`` (sweeps on `device`).
 
     progress: optional callable(message: str, done: float): "seed k/K: STEP" as each step
     starts, with the share of the whole run's work done before it (0 .. 1; 1 once the last
@@ -440,5 +444,5 @@ def run_demo(cfg: DemoConfig | None = None, seeds: int = 1, progress=None) -> De
     for k in range(seeds):
         say = (lambda step, done, k=k: progress(f"seed {k + 1}/{seeds}: {step}", (k + done) / seeds)) \
             if progress else None
-        runs.append(run_pipeline(replace(cfg, seed=cfg.seed + k), progress=say))
+        runs.append(run_pipeline(replace(cfg, seed=cfg.seed + k), progress=say, device=device))
     return DemoRun(cfg, runs, time.perf_counter() - t0)

@@ -259,3 +259,16 @@ def test_command_errors(session, capsys):
     assert cli.main(["calibrate", str(d / "data.csv"), "--robot", "kr1000titan", "--out",
                      str(d / "data.csv"), "--force"]) == 2
     assert "refusing to write over it" in capsys.readouterr().err
+
+
+def test_seeds_in_processes_equal_seeds_in_turn(run):
+    """Seeds side by side in 2 processes (`processes=2`, what `torchcal demo` does on 2
+    cores) give the report of the seeds one after another, figure for figure."""
+    par = run_demo(SMALL, seeds=2, processes=2)
+
+    def figures(r):
+        d = r.to_json()
+        for k in ("seconds", "timings_s"):
+            d.pop(k, None)
+        return json.dumps(d, sort_keys=True)
+    assert figures(par) == figures(run)

@@ -7,7 +7,8 @@ geometric, global with the effects `discover` finds, and that plus per-zone corr
 Without ``--seeds`` one seed runs; ``--seeds`` alone runs 10, ``--seeds K`` K seeds
 (S .. S + K - 1): figures as mean and 95 % CI over seeds and a paired test of partitioned
 vs global. Prints the report on stdout (torchcal.cli._report; progress on stderr).
-``--json OUT`` writes `DemoRun.to_json`. The same seeds give the same numbers.
+``--json OUT`` writes `DemoRun.to_json`. The same seeds give the same numbers. Several seeds
+run side by side on the cores (one process each, TORCHCAL_THREADS of them at most).
 """
 
 from __future__ import annotations
@@ -58,6 +59,7 @@ def run(args) -> int:
     from tqdm import tqdm
 
     from torchcal.cli._report import format_report
+    from torchcal import threads
     from torchcal.errors import InputError
     from torchcal.io.files import write_json
     from torchcal.workflows.paper_config import DemoConfig
@@ -79,7 +81,7 @@ def run(args) -> int:
             bar.set_postfix_str(step, refresh=False)
             bar.update(round(100 * done, 1) - bar.n)
         result = run_demo(DemoConfig(seed=args.seed, discover_rounds=args.discover_rounds), seeds=args.seeds,
-                          progress=progress, device=device)
+                          progress=progress, device=device, processes=threads.workers())
     print(format_report(result))
     if args.json:
         write_json(args.json, result.to_json(), force=args.force)

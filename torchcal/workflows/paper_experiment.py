@@ -60,6 +60,7 @@ from dataclasses import dataclass, field, replace
 
 import torch
 
+from torchcal import threads
 from torchcal.reliability import rset as reliability
 from torchcal.calibration.compensate import compensate
 from torchcal.errors import InputError
@@ -430,8 +431,14 @@ def run_pipeline(cfg: DemoConfig | None = None, progress=None, device=None) -> P
                           [str(s) for s in vr.specs], timings)
 
 
-def run_demo(cfg: DemoConfig | None = None, seeds: int = 1, progress=None, device=None) -> DemoRun:
+def run_demo(cfg: DemoConfig | None = None, seeds: int = 1, progress=None, device=None,
+             processes: int = 1) -> DemoRun:
     """`run_pipeline` for seeds ``cfg.seed .. cfg.seed + seeds - 1`` (sweeps on `device`).
+
+    processes: seeds are independent; with processes > 1 (and more than one seed) they run
+    on that many fresh processes of this machine, one thread each, the results the same
+    as one after another (each seed's draws come from its own seeds). Progress is then
+    reported per finished seed ("seed k/K: done").
 
     progress: optional callable(message: str, done: float): "seed k/K: STEP" as each step
     starts, with the share of the whole run's work done before it (0 .. 1; 1 once the last
@@ -440,9 +447,35 @@ def run_demo(cfg: DemoConfig | None = None, seeds: int = 1, progress=None, devic
     if isinstance(seeds, bool) or not isinstance(seeds, int) or seeds < 1:
         raise InputError(f"seeds: expected a positive integer, got {seeds!r}")
     t0 = time.perf_counter()
+    if processes > 1 and seeds > 1:
+        runs = _seeds_in_processes([replace(cfg, seed=cfg.seed + k) for k in range(seeds)],
+                                   min(processes, seeds), progress, device)
+        return DemoRun(cfg, runs, time.perf_counter() - t0)
     runs = []
     for k in range(seeds):
         say = (lambda step, done, k=k: progress(f"seed {k + 1}/{seeds}: {step}", (k + done) / seeds)) \
             if progress else None
         runs.append(run_pipeline(replace(cfg, seed=cfg.seed + k), progress=say, device=device))
     return DemoRun(cfg, runs, time.perf_counter() - t0)
+
+
+def _one_seed(cfg: DemoConfig, device) -> PipelineResult:
+    """One seed in a worker process (torch and BLAS on one thread)."""
+    threads.apply()
+    return run_pipeline(cfg, device=device)
+
+
+def _seeds_in_processes(cfgs: list, processes: int, progress, device) -> list:
+    """`run_pipeline` of each config on `processes` spawned processes, in config order."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    with ProcessPoolExecutor(processes, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = {pool.submit(_one_seed, c, device): k for k, c in enumerate(cfgs)}
+        runs, done = [None] * len(cfgs), 0
+        for f in as_completed(futures):
+            runs[futures[f]] = f.result()
+            done += 1
+            if progress is not None:
+                progress(f"seed {futures[f] + 1}/{len(cfgs)}: done", done / len(cfgs))
+    return runs

@@ -14,8 +14,9 @@ What is checked, and against what:
   output refuse (one InputError naming what differs) unless force;
 - a worker process killed mid-run (SIGKILL): its tasks run again elsewhere, every block
   reaches the output exactly once, the same bytes;
-- without Dask, --scheduler gives one line naming the extra; --workers N needs no Dask: the
-  blocks run on N child processes of this machine, the same bytes as in this process.
+- without Dask, --scheduler gives one line naming the extra; --workers N needs no Dask (N
+  threads of this process), the same bytes; blocks on spawned processes
+  (`run_in_processes`) give the rows of this process.
 
 The cluster tests share one LocalCluster (2 processes, 1 thread each); a watchdog
 (faulthandler) ends the test process if a cluster start, run or shutdown hangs.
@@ -186,13 +187,13 @@ def test_cli_without_dask_names_the_extra(tmp_path, monkeypatch, capsys):
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "pip install 'torchcal[distributed]'" in err
     assert not out.exists() and not (tmp_path / "s.csv.blocks").exists()
-    # --workers: processes of this machine, no Dask needed
+    # --workers: threads of this process, no Dask needed
     assert cli.main(["sweep", "--n", "10", "--out", str(out), "--no-progress", "--workers", "2"]) == 0
 
 
-def test_cli_workers_are_processes_and_equal_in_process(tmp_path, capsys):
-    """--workers N: the blocks on N child processes of this machine (no cluster), the CSV
-    byte for byte the in-process one; the blocks ran in other processes."""
+def test_cli_workers_equal_in_process(tmp_path, capsys):
+    """--workers N: N threads of this process (no cluster), the CSV byte for byte that of
+    the default run."""
     argv = ["sweep", "--n", "250", "--samples", "30", "--block", "100", "--no-progress"]
     assert cli.main(argv + ["--out", str(tmp_path / "a.csv")]) == 0
     assert cli.main(argv + ["--out", str(tmp_path / "b.csv"), "--workers", "2"]) == 0
@@ -202,6 +203,8 @@ def test_cli_workers_are_processes_and_equal_in_process(tmp_path, capsys):
 
 
 def test_run_in_processes_writes_each_block_once(kr):
+    """`run_sweep(processes=N)`'s engine: blocks on spawned processes, each written once,
+    the rows those of this process."""
     from torchcal.workflows import distributed as D
 
     plan = D.plan_sweep(kr, n_points=250, n_samples=20, block=100)

@@ -228,16 +228,17 @@ def _run_block(plan: SweepPlan, index: int):
     return plan.compute(index, threads=1)
 
 
-def run_sweep(plan: SweepPlan, out, *, client=None, processes: int | None = None, device=None,
-              force: bool = False, progress: bool = False, on_block=None, log=None) -> dict:
+def run_sweep(plan: SweepPlan, out, *, client=None, threads: int | None = None, processes: int | None = None,
+              device=None, force: bool = False, progress: bool = False, on_block=None, log=None) -> dict:
     """Compute the missing blocks of `plan` and write the sweep CSV `out` block by block.
 
     client: a dask.distributed Client (`connect`): blocks are its tasks, at most two per
         worker thread at a time, written here as they come back; None: computed on this
         machine, without Dask.
+    threads: in this process, the worker threads within a block (default
+        `torchcal.threads.workers()`).
     processes: without a client, the number of child processes of this machine that
-        compute whole blocks, one thread each (`run_in_processes`); None: in this process
-        (`torchcal.threads.workers()` threads within a block).
+        compute whole blocks, one thread each (`run_in_processes`); None: in this process.
     device: without a client or processes, the device of this process that computes the
         blocks (default the CPU; a GPU's vectorised sin / cos may differ from the CPU's in
         the last bit, docs/scale.md).
@@ -274,7 +275,7 @@ def run_sweep(plan: SweepPlan, out, *, client=None, processes: int | None = None
             run_in_processes(plan, missing, write, processes)
         elif client is None:
             for b in missing:
-                write(b, *plan.compute(b, threads=policy.workers(), device=device))
+                write(b, *plan.compute(b, threads=threads or policy.workers(), device=device))
         else:
             _run_on(client, plan, missing, write)
     summary = summary_of(acc)

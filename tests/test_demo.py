@@ -178,7 +178,7 @@ def test_demo_command(tmp_path, monkeypatch, run, capsys):
 
     seen = {}
 
-    def fake(cfg, seeds=1, progress=None):
+    def fake(cfg, seeds=1, progress=None, **_):
         seen["seeds"] = seeds
         return run
     monkeypatch.setattr(P, "run_demo", fake)

@@ -459,22 +459,27 @@ def run_demo(cfg: DemoConfig | None = None, seeds: int = 1, progress=None, devic
     return DemoRun(cfg, runs, time.perf_counter() - t0)
 
 
-def _one_seed(cfg: DemoConfig, device) -> PipelineResult:
-    """One seed in a worker process (torch and BLAS on one thread)."""
+def _one_seed(cfg: DemoConfig, device) -> bytes:
+    """One seed in a worker process (torch and BLAS on one thread), pickled here: the plain
+    pickle keeps tensors that carry autograd history (a fitted effect's), which the
+    process pool's own pickler refuses."""
+    import pickle
+
     threads.apply()
-    return run_pipeline(cfg, device=device)
+    return pickle.dumps(run_pipeline(cfg, device=device))
 
 
 def _seeds_in_processes(cfgs: list, processes: int, progress, device) -> list:
     """`run_pipeline` of each config on `processes` spawned processes, in config order."""
     import multiprocessing
+    import pickle
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     with ProcessPoolExecutor(processes, mp_context=multiprocessing.get_context("spawn")) as pool:
         futures = {pool.submit(_one_seed, c, device): k for k, c in enumerate(cfgs)}
         runs, done = [None] * len(cfgs), 0
         for f in as_completed(futures):
-            runs[futures[f]] = f.result()
+            runs[futures[f]] = pickle.loads(f.result())
             done += 1
             if progress is not None:
                 progress(f"seed {futures[f] + 1}/{len(cfgs)}: done", done / len(cfgs))

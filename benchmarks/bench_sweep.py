@@ -7,7 +7,10 @@
 Headline: N = 1e5 workspace points x M = 1e3 clearance states of the default KR 1000
 Titan model, on 2 CPU threads (torch.set_num_threads(2) and 2 sweep workers). Then a
 scaling table N = 1e3 .. 1e6 at M = 1e3 (at N = 1e6 M = 1e3 is run if the N = 1e5 time
-predicts less than 3 minutes, else M = 1e2, and the table says so).
+predicts less than 3 minutes, else M = 1e2, and the table says so). Where a CUDA device
+is visible, the headline sweep also runs on it (`sweep(..., device="cuda")`, after a
+warm-up) and its time, ns per pair and largest difference to the CPU run are printed
+next to the CPU figure.
 
 Each size runs in its own subprocess, so that its memory is its own (tracemalloc does
 not see torch's allocations). The peak is the kernel's high-water mark of resident memory
@@ -148,6 +151,27 @@ def _timed_run(plan, out, client=None):
     return t, c, w, s  # wall, this process's cpu (client and LocalCluster scheduler), workers' cpu
 
 
+def gpu_case(n: int, m: int) -> dict:
+    """The sweep of n points x m states on the GPU (after a warm-up) and on the CPU, in this process."""
+    import torch
+
+    import torchcal
+    from torchcal.reliability.sweep import sample_workspace, sweep
+
+    robot = torchcal.robot("kr1000titan")
+    q = sample_workspace(robot, n, seed=0)
+    sweep(robot, q[:64], n_samples=16, seed=1, device="cuda")  # warm-up (kernels, allocator)
+    torch.cuda.synchronize()
+    t0 = time.perf_counter()
+    r = sweep(robot, q, n_samples=m, seed=0, device="cuda")
+    torch.cuda.synchronize()
+    t = time.perf_counter() - t0
+    cpu = sweep(robot, q, n_samples=m, seed=0)
+    diff = float((r.dist_upper.cpu() - cpu.dist_upper).abs().max())
+    return {"device": torch.cuda.get_device_name(), "t_sweep_s": t, "ns_per_eval": t / (n * m) * 1e9,
+            "r_set_min": float(r.r_set.min()), "max_diff_mm": diff}
+
+
 def distributed_case(n: int, m: int, workers: int = 2) -> int:
     import filecmp
     import tempfile
@@ -251,6 +275,13 @@ def main(argv=None) -> int:
           f"adds {head['peak_mb'] - head['rss0_mb']:.0f} MB at its peak (results {head['results_mb']:.0f} MB); "
           f"an N x M x 3 float64 error tensor alone would be {head['dense_mb']:,.0f} MB")
     print(f"  R_set min {head['r_set_min']:.3f}, share of points with R_set = 1: {head['share_r_set_1']:.2f}")
+    if torch.cuda.is_available():  # the same sweep on the GPU, next to the CPU figure
+        g = gpu_case(100_000, 1000)
+        print(f"  GPU ({g['device']}): {g['t_sweep_s']:.2f} s, {g['ns_per_eval']:.2f} ns per (point, state), "
+              f"{head['t_sweep_s'] / g['t_sweep_s']:.1f}x the CPU; R_set min {g['r_set_min']:.3f}, "
+              f"largest |dist_upper| difference to the CPU run {g['max_diff_mm']:.2e} mm")
+    else:
+        print("  GPU: no CUDA device visible, GPU figures skipped")
 
     print("\nscaling (time linear in N, memory per point flat):")
     print(HEADER)

@@ -46,6 +46,7 @@ def _fk_part(poses: int, sets: int, repeats: int, serial: bool) -> dict:
     q = torch.rand(poses, robot.n, generator=g, dtype=torch.float64) * 2 - 1
     params = (torch.rand(sets, 1, robot.n, 5, generator=g, dtype=torch.float64) - 0.5) * 1e-3
     if serial:  # the old way: every chunk on the calling thread, ops split over all threads
+        torch.set_num_threads(os.cpu_count())  # (the policy itself keeps one intra-op thread)
         fk = lambda: [K.positions(q, robot.chain, params[i:i + 64])  # noqa: E731
                       for i in range(0, sets, 64)]
     else:

@@ -1,11 +1,10 @@
-"""Fixtures shared by the test modules; the thread policy of torchcal.threads, with one
-torch thread for the session."""
+"""Fixtures shared by the test modules; the thread policy of torchcal.threads (one intra-op
+torch and BLAS thread for the session)."""
 
 import torchcal  # first: sets OMP_WAIT_POLICY=PASSIVE before torch loads (torchcal.threads)
 
 import pytest
 import torch
-from threadpoolctl import threadpool_limits
 
 from torchcal import threads
 
@@ -14,9 +13,7 @@ from torchcal import threads
 # a second one stalls at its barriers (measured on the 2-core development machine under
 # load: `diagnose` of an 80-row 7-joint session 0.9-1.0 s on one thread, 6.9-23.7 s on
 # two). Tests that exercise threads set them themselves.
-threads.apply()
-torch.set_num_threads(threads.threads_for(0, torch.get_num_threads()))
-threadpool_limits(limits=torch.get_num_threads())  # numpy's / scipy's BLAS too, for the session
+threads.apply()  # torch and numpy's / scipy's BLAS on one intra-op thread
 
 
 @pytest.fixture(scope="module")

@@ -178,7 +178,7 @@ def test_progress_bars_stay_off_when_stderr_is_not_a_terminal(tmp_path, capfd, m
 
     import torchcal.workflows.paper_experiment as P
 
-    def fake(cfg, seeds=1, progress=None):
+    def fake(cfg, seeds=1, progress=None, **_):
         for step, done in (("seed 1/1: sweep", 0.0), ("seed 1/1: test", 0.9), ("seed 1/1: done", 1.0)):
             progress(step, done)
         raise KeyboardInterrupt  # stop here: only the bar is under test

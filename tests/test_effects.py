@@ -14,6 +14,7 @@
 import dataclasses
 import math
 
+import numpy as np
 import pytest
 import torch
 from torch.testing import assert_close
@@ -147,7 +148,32 @@ def test_backlash_flips_with_approach_direction(kr):
     assert (v[1] - v[3]).norm() > 1.0  # ~ 2e-3 rad x 1.4..2.6 m of lever
 
 
+def _approach_loop(q, q_prev=None):
+    """Plain-numpy reference: row by row, the sign of the move, the last one carried."""
+    q = np.asarray(q)
+    prev = np.vstack([np.zeros_like(q[:1]), q[:-1]]) if q_prev is None else np.asarray(q_prev)
+    out, last = np.empty_like(q), np.ones(q.shape[1])
+    for i in range(q.shape[0]):
+        s = np.sign(q[i] - prev[i])
+        last = np.where(s != 0, s, last)
+        out[i] = last
+    return out
+
+
+@pytest.mark.parametrize("with_prev", [False, True])
+def test_approach_directions_match_a_row_by_row_loop(with_prev):
+    """The vectorised carry (running max of the last moving row) is the row loop's answer,
+    on steps that often repeat an angle (no move) so the carry matters."""
+    g = np.random.default_rng(3)
+    q = g.integers(-2, 3, size=(300, 6)) * 0.1
+    q_prev = g.integers(-2, 3, size=(300, 6)) * 0.1 if with_prev else None
+    got = approach_directions(torch.as_tensor(q), None if q_prev is None else torch.as_tensor(q_prev))
+    assert np.array_equal(got.numpy(), _approach_loop(q, q_prev))
+    assert approach_directions(torch.zeros(0, 6, dtype=torch.float64)).shape == (0, 6)
+
+
 # -- thermal_expansion --------------------------------------------------------------------
+
 
 def test_thermal_expansion_linear_in_temperature(kr):
     q = random_poses(kr, 3, 2).repeat_interleave(4, dim=0)

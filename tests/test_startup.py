@@ -54,6 +54,36 @@ def test_a_sub_command_imports_only_its_own_module():
     assert not cmds & {"partition", "demo", "sweep", "plan"}
 
 
+@pytest.mark.parametrize("command", cli.COMMANDS)
+def test_sub_command_help_does_not_import_torch(command):
+    """The parser definitions import no torch (nor numpy): `torchcal COMMAND --help` starts at once."""
+    code = f"import torchcal.cli\ntry:\n    torchcal.cli.main([{command!r}, '--help'])\nexcept SystemExit:\n    pass"
+    loaded = _modules_after(code)
+    assert f"torchcal.cli.{command}" in loaded
+    assert not {m for m in loaded if m.split(".")[0] in ("torch", "numpy")}
+
+
+def test_a_fit_imports_no_sympy_scipy_stats_or_plotting(tmp_path):
+    """The way to a fit (read, fit, covariance, MODEL.json) leaves out sympy (pulled in by
+    torch.broadcast_shapes), scipy.stats, scipy.spatial and the plotting packages."""
+    data, robot = ROOT / "examples/ur10/series_d.csv", ROOT / "examples/ur10/ur10.json"
+    out = tmp_path / "m.json"
+    code = (f"import torchcal.cli\nrc = torchcal.cli.main(['fit', {str(data)!r}, '--robot', {str(robot)!r}, "
+            f"'--effects', 'base_frame', 'tool_offset', '--out', {str(out)!r}])\nassert rc == 0")
+    loaded = _modules_after(code)
+    assert out.is_file() and "torch" in loaded
+    tops = {m.split(".")[0] for m in loaded}
+    assert not tops & {"sympy", "matplotlib", "rerun", "sklearn"}
+    assert not {m for m in loaded if m.startswith(("scipy.stats", "scipy.spatial"))}
+
+
+def test_preset_names_match_the_presets():
+    from torchcal.cli._args import PRESET_NAMES
+    from torchcal.robots.robot import PRESETS
+
+    assert list(PRESET_NAMES) == sorted(PRESETS)
+
+
 def test_import_torchcal_is_lazy_and_sets_the_wait_policy():
     loaded = _modules_after("import os\nos.environ.pop('OMP_WAIT_POLICY', None)\nimport torchcal\n"
                             "assert os.environ['OMP_WAIT_POLICY'] == 'PASSIVE'")

@@ -14,7 +14,9 @@ What is checked, and against what:
   output refuse (one InputError naming what differs) unless force;
 - a worker process killed mid-run (SIGKILL): its tasks run again elsewhere, every block
   reaches the output exactly once, the same bytes;
-- without Dask, --workers gives one line naming the extra.
+- without Dask, --scheduler gives one line naming the extra; --workers N needs no Dask (N
+  threads of this process), the same bytes; blocks on spawned processes
+  (`run_in_processes`) give the rows of this process.
 
 The cluster tests share one LocalCluster (2 processes, 1 thread each); a watchdog
 (faulthandler) ends the test process if a cluster start, run or shutdown hangs.
@@ -181,11 +183,35 @@ def test_cli_without_dask_names_the_extra(tmp_path, monkeypatch, capsys):
 
     monkeypatch.setattr(builtins, "__import__", no_dask)
     out = tmp_path / "s.csv"
-    for opt in (["--workers", "2"], ["--scheduler", "tcp://127.0.0.1:1"]):
-        assert cli.main(["sweep", "--n", "10", "--out", str(out), "--no-progress"] + opt) == 2
-        err = capsys.readouterr().err
-        assert len(err.strip().splitlines()) == 1 and "pip install 'torchcal[distributed]'" in err
+    assert cli.main(["sweep", "--n", "10", "--out", str(out), "--no-progress", "--scheduler", "tcp://127.0.0.1:1"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "pip install 'torchcal[distributed]'" in err
     assert not out.exists() and not (tmp_path / "s.csv.blocks").exists()
+    # --workers: threads of this process, no Dask needed
+    assert cli.main(["sweep", "--n", "10", "--out", str(out), "--no-progress", "--workers", "2"]) == 0
+
+
+def test_cli_workers_equal_in_process(tmp_path, capsys):
+    """--workers N: N threads of this process (no cluster), the CSV byte for byte that of
+    the default run."""
+    argv = ["sweep", "--n", "250", "--samples", "30", "--block", "100", "--no-progress"]
+    assert cli.main(argv + ["--out", str(tmp_path / "a.csv")]) == 0
+    assert cli.main(argv + ["--out", str(tmp_path / "b.csv"), "--workers", "2"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[1] == out[4]  # the same summary
+    assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
+
+
+def test_run_in_processes_writes_each_block_once(kr):
+    """`run_sweep(processes=N)`'s engine: blocks on spawned processes, each written once,
+    the rows those of this process."""
+    from torchcal.workflows import distributed as D
+
+    plan = D.plan_sweep(kr, n_points=250, n_samples=20, block=100)
+    got = []
+    D.run_in_processes(plan, [0, 1, 2], lambda b, rows, stats: got.append((b, rows)), 2)
+    assert sorted(b for b, _ in got) == [0, 1, 2]
+    assert dict(got)[1] == plan.compute(1)[0]  # block 1's rows, as computed in this process
 
 
 # -- on a LocalCluster of 2 worker processes -----------------------------------------------------
@@ -259,16 +285,6 @@ def test_cluster_worker_lost_mid_run(kr, client, tmp_path, watchdog):
     assert out.read_text() == ref
     client.wait_for_workers(2, timeout=60)  # the nanny restarted it
     assert set(client.run(os.getpid).values()) != set(pids.values())
-
-
-def test_cli_workers_equals_in_process(tmp_path, capsys, watchdog):
-    pytest.importorskip("dask.distributed")
-    argv = ["sweep", "--n", "250", "--samples", "30", "--block", "100", "--no-progress"]
-    assert cli.main(argv + ["--out", str(tmp_path / "a.csv")]) == 0
-    assert cli.main(argv + ["--out", str(tmp_path / "b.csv"), "--workers", "2"]) == 0
-    out = capsys.readouterr().out.splitlines()
-    assert out[1] == out[4]  # the same summary
-    assert (tmp_path / "a.csv").read_text() == (tmp_path / "b.csv").read_text()
 
 
 def test_cli_scheduler_address(kr, client, tmp_path, watchdog):

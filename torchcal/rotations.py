@@ -8,7 +8,7 @@ the same as URDF's roll-pitch-yaw. A rotation vector ``r`` (3,) rad is the axis 
 the angle (Rodrigues). Matrices are (..., 3, 3), float, on the device of their input.
 
 - `fixed_xyz_to_matrix` / `matrix_to_fixed_xyz`: angles <-> matrix (ry in [-pi/2, pi/2]);
-- `rotvec_to_matrix` (differentiable, smooth at 0) / `matrix_to_rotvec` (scipy, off the graph);
+- `rotvec_to_matrix` (differentiable, smooth at 0) / `matrix_to_rotvec` (off the graph);
 - `nearest_rotation`: the proper rotation closest to a 3x3 matrix (SVD with the det
   correction), behind `kabsch` (rigid motion between point sets) and
   `procrustes_rotation` (constant rotation between two sets of rotations);
@@ -65,11 +65,29 @@ def rotvec_to_matrix(r: torch.Tensor) -> torch.Tensor:
 
 
 def matrix_to_rotvec(R: torch.Tensor) -> torch.Tensor:
-    """(3, 3) rotation -> (3,) rotation vector in rad (scipy, off the autograd graph)."""
-    from scipy.spatial.transform import Rotation
-
-    rv = Rotation.from_matrix(R.detach().cpu().numpy()).as_rotvec()
-    return torch.as_tensor(np.asarray(rv), dtype=R.dtype, device=R.device)
+    """(3, 3) rotation -> (3,) rotation vector in rad, angle in [0, pi] (off the autograd
+    graph). Through the unit quaternion of Shepperd's method (the largest of 1 + trace and
+    1 + 2 R_ii - trace picks the stable formula), as scipy's ``Rotation`` does."""
+    dtype, R = R.dtype, R.detach().to(torch.float64)
+    d = torch.cat([torch.diagonal(R), torch.diagonal(R).sum().reshape(1)])
+    i = int(torch.argmax(d))
+    q = torch.empty(4, dtype=R.dtype, device=R.device)  # x, y, z, w
+    if i == 3:
+        q[0], q[1], q[2] = R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]
+        q[3] = 1 + d[3]
+    else:
+        j, k = (i + 1) % 3, (i + 2) % 3
+        q[i] = 1 - d[3] + 2 * R[i, i]
+        q[j], q[k] = R[j, i] + R[i, j], R[k, i] + R[i, k]
+        q[3] = R[k, j] - R[j, k]
+    q = q / q.norm()
+    if q[3] < 0:
+        q = -q
+    v = q[:3]
+    angle = 2 * torch.atan2(v.norm(), q[3])
+    a2 = angle * angle
+    scale = 2 + a2 / 12 + 7 * a2 * a2 / 2880 if angle <= 1e-3 else angle / torch.sin(angle / 2)
+    return (scale * v).to(dtype)
 
 
 def nearest_rotation(M: torch.Tensor) -> torch.Tensor:

@@ -1,21 +1,27 @@
 """The thread policy: how many CPU threads torch uses, and how idle ones wait.
 
-Measured on the 2-core development machine (docs/performance.md): torch's OpenMP threads
-spin at every barrier by default, so with other processes on the cores a 2-thread op
-waits for a descheduled partner, and small problems (a fit, `discover`) ran 10-20x
-slower than on a quiet machine. The policy:
+Measured on the 2-core development machine (docs/performance.md): torch's intra-op
+threads and numpy's / scipy's BLAS threads meet at a barrier at the end of every
+parallel op. With other processes on the cores a 2-thread op waits for a descheduled
+partner, and torchcal's ops are small (a fit of a few thousand rows, the demo's zone
+fits and candidate screens): there a second intra-op thread costs more at its barriers
+than it saves: one seed of `torchcal demo` took 37.1 s wall with torch's default 2
+threads and 21.5 s on one (quiet machine, issue 31). The policy:
 
 - ``OMP_WAIT_POLICY=PASSIVE``: idle OpenMP threads sleep instead of spinning. OpenMP
   reads it once, when torch loads, so `torchcal/__init__.py` sets it (``setdefault``:
   the environment wins) before anything imports torch; a program that imports torch
   before torchcal should set it itself.
-- Threads by problem size: `for_work(elements)` runs a block with one thread per
-  `ELEMENTS_PER_THREAD` elements of its largest tensors, at most the current count, for
-  torch and for numpy's / scipy's BLAS (threadpoolctl).
-  The fit, `diagnose` and `discover` of a few thousand poses get one thread (their
-  tensors are too small for a second to pay for its barrier); large FK sweeps keep all.
-- ``TORCHCAL_THREADS=N`` sets torch's thread count when torchcal's public API is first
-  used (`apply`); without it torch's default (the cores, or ``OMP_NUM_THREADS``) stays.
+- One intra-op thread: `apply` (the command line, the public API) sets torch's thread
+  count and numpy's / scipy's BLAS (threadpoolctl) to 1. The cores are used by
+  *workers* instead: the large kernels (perturbed FK `Robot.fk`, the sweeps) cut their
+  batch into chunks and hand them one at a time to `workers()` Python threads, each
+  with one torch thread; they meet once, at the end, not at every op.
+- Threads by problem size: `for_work(elements)` runs a block with one intra-op thread
+  per `ELEMENTS_PER_THREAD` elements of its largest tensors, at most `workers()` (a fit
+  of a hundred thousand rows gets them all; one of a few thousand keeps one).
+- ``TORCHCAL_THREADS=N``: the number of cores torchcal uses (`workers`); without it,
+  the cores this process may run on.
 
 The command line, the public API (`torchcal.api`) and the test suite use this module.
 """
@@ -29,7 +35,7 @@ from contextlib import contextmanager
 #: costs more at its barriers than it saves (measured, docs/performance.md)
 ELEMENTS_PER_THREAD = 1 << 20
 
-_applied = False
+_limits = None  # threadpoolctl's process-wide BLAS limit, once `apply` has run
 
 
 def env_threads() -> int | None:
@@ -38,17 +44,29 @@ def env_threads() -> int | None:
     return int(text) if text.isdigit() and int(text) > 0 else None
 
 
-def apply() -> None:
-    """Once per process: TORCHCAL_THREADS (when set) becomes torch's thread count."""
-    global _applied
-    if _applied:
-        return
-    _applied = True
+def workers() -> int:
+    """Cores torchcal uses for chunked kernels: TORCHCAL_THREADS, else the CPUs this
+    process may run on (its affinity mask, not the machine's count)."""
     n = env_threads()
     if n is not None:
-        import torch
+        return n
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # no affinity call on this platform
+        return max(1, os.cpu_count() or 1)
 
-        torch.set_num_threads(n)
+
+def apply() -> None:
+    """Once per process: torch and numpy's / scipy's BLAS on one intra-op thread (the
+    cores go to `workers`; `for_work` raises the count for large blocks)."""
+    global _limits
+    if _limits is not None:
+        return
+    import torch
+    from threadpoolctl import threadpool_limits
+
+    torch.set_num_threads(1)
+    _limits = threadpool_limits(limits=1)
 
 
 def threads_for(elements: int, available: int) -> int:
@@ -59,15 +77,15 @@ def threads_for(elements: int, available: int) -> int:
 
 @contextmanager
 def for_work(elements: int):
-    """Run the block with `threads_for(elements)` threads (never more than torch has
-    now): torch's, and those of numpy's and scipy's BLAS / LAPACK (threadpoolctl), whose
-    threads busy-wait too (measured: a 1 664-row fit took 1.0 s with torch on one thread
-    and scipy's QR on two, 0.07 s with both on one). Restores the counts after."""
+    """Run the block with `threads_for(elements, workers())` intra-op threads: torch's,
+    and those of numpy's and scipy's BLAS / LAPACK (threadpoolctl), whose threads
+    busy-wait too (measured: a 1 664-row fit took 1.0 s with torch on one thread and
+    scipy's QR on two, 0.07 s with both on one). Restores the counts after."""
     import torch
     from threadpoolctl import threadpool_limits
 
     before = torch.get_num_threads()
-    n = threads_for(elements, before)
+    n = threads_for(elements, workers())
     with threadpool_limits(limits=n):
         if n != before:
             torch.set_num_threads(n)

@@ -44,15 +44,13 @@ from torchcal.errors import InputError
 from torchcal.calibration.lm import levenberg_marquardt
 from torchcal.calibration.joint_range import joint_range, seed_poses
 from torchcal.calibration.model import CalibrationModel
-from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
+from torchcal.defaults import MAX_ANGLE_DEG, MAX_LENGTH_MM, SIGMA_DEG, SIGMA_MM
 from torchcal.calibration.covariance import ParameterCovariance, parameter_covariance
 from torchcal.rotations import procrustes_rotation, so3_error
 
 RANK_TOL = 1e-6
 RHO_EXACT = 1e-9  # mm: a residual RMS below it is a fit to rounding (the prior is left out)
 RECHECK_TOL = 1e-2  # pivot a parameter held at a cold start needs at the first solution
-SIGMA_MM = 0.01   # default position uncertainty of one measurement (laser tracker), mm
-SIGMA_DEG = 0.01  # default orientation uncertainty (36 arcsec, tracker 6-D probe), deg
 
 
 @dataclass

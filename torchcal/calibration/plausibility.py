@@ -54,12 +54,11 @@ import math
 import numpy as np
 import torch
 
+from torchcal.defaults import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.errors import InputError
 
 RATIO_LIMIT = 20.0
 RAD_RATIO = 2.0
-MAX_LENGTH_MM = 5.0
-MAX_ANGLE_DEG = 1.0
 #: posterior sd below this share of the plausible scale: determined by the data (module doc)
 DETERMINED_RATIO = 0.5
 

@@ -35,6 +35,10 @@ def nonneg_float(text: str) -> float:
 
 FORCE_HINT = "pass --force to replace it"
 
+#: the preset robots' names, for option help built without importing torch
+#: (tests/test_startup.py checks them against torchcal.robots.robot.PRESETS)
+PRESET_NAMES = ("kr1000titan", "puma560", "ur5e")
+
 
 def add_force(p):
     p.add_argument("--force", action="store_true", help="replace existing output files")
@@ -63,6 +67,34 @@ def load_effects_modules(args) -> None:
             load_module(path)
         except InputError as exc:  # the library names the file; the command line its option
             raise InputError(f"--effects-module {exc}") from None
+
+
+def add_device(p, what: str = "the computation"):
+    """``--device cpu|cuda|cuda:N`` (default cpu)."""
+    p.add_argument("--device", default="cpu", metavar="DEVICE",
+                   help=f"where {what} runs: cpu (default), cuda or cuda:N (a GPU; refused when torch sees none)")
+
+
+def device_of(args):
+    """The torch.device of ``--device``: one InputError line when it is not cpu / cuda[:N]
+    or when CUDA is not available (before any work)."""
+    import re
+
+    import torch
+
+    from torchcal.errors import InputError
+
+    text = (getattr(args, "device", None) or "cpu").strip().lower()
+    if not re.fullmatch(r"cpu|cuda(:\d+)?", text):
+        raise InputError(f"--device: expected cpu, cuda or cuda:N, got {text!r}")
+    if text.startswith("cuda"):
+        if not torch.cuda.is_available():
+            why = "torch was built without CUDA" if torch.version.cuda is None else "no GPU is visible"
+            raise InputError(f"--device {text}: CUDA is not available here ({why}); use --device cpu")
+        index = int(text.split(":")[1]) if ":" in text else 0
+        if index >= torch.cuda.device_count():
+            raise InputError(f"--device {text}: only {torch.cuda.device_count()} CUDA device(s) visible")
+    return torch.device(text)
 
 
 def add_viz(p):
@@ -200,11 +232,9 @@ def read_data(path, robot, args=None, check: bool = True):
 
 def add_robot(p, required: bool = True, default=None, what: str = "the robot") -> None:
     """``--robot ROBOT``: a preset name or the path of a robot file (the one shared option)."""
-    from torchcal.robots.robot import PRESETS
-
     extra = f" (default {default})" if default is not None else ""
     p.add_argument("--robot", required=required, default=default, metavar="ROBOT",
-                   help=f"{what}: a preset ({', '.join(sorted(PRESETS))}) or the path of a robot "
+                   help=f"{what}: a preset ({', '.join(PRESET_NAMES)}) or the path of a robot "
                         f"file (.json, docs/robots.md){extra}")
 
 

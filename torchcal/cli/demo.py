@@ -7,14 +7,15 @@ geometric, global with the effects `discover` finds, and that plus per-zone corr
 Without ``--seeds`` one seed runs; ``--seeds`` alone runs 10, ``--seeds K`` K seeds
 (S .. S + K - 1): figures as mean and 95 % CI over seeds and a paired test of partitioned
 vs global. Prints the report on stdout (torchcal.cli._report; progress on stderr).
-``--json OUT`` writes `DemoRun.to_json`. The same seeds give the same numbers.
+``--json OUT`` writes `DemoRun.to_json`. The same seeds give the same numbers. Several seeds
+run side by side on the cores (one process each, TORCHCAL_THREADS of them at most).
 """
 
 from __future__ import annotations
 
 import sys
 
-from torchcal.cli._args import add_force, add_viz, check_outputs
+from torchcal.cli._args import add_device, add_force, add_viz, check_outputs, device_of
 
 
 def add_parser(sub):
@@ -28,6 +29,7 @@ def add_parser(sub):
                    help="effects `discover` may add for methods 3 and 4 (default 2; 0 skips discovery, "
                         "then methods 3 and 4 fit geometry + frame only)")
     add_force(p)
+    add_device(p, "the workspace sweep")
     add_viz_options(p)
     p.set_defaults(func=run)
     return p
@@ -57,11 +59,13 @@ def run(args) -> int:
     from tqdm import tqdm
 
     from torchcal.cli._report import format_report
+    from torchcal import threads
     from torchcal.errors import InputError
     from torchcal.io.files import write_json
     from torchcal.workflows.paper_config import DemoConfig
     from torchcal.workflows.paper_experiment import run_demo
 
+    device = device_of(args)  # a refused --device before any work
     if args.seeds < 1:
         raise InputError(f"--seeds: expected a positive number of seeds, got {args.seeds}")
     if args.discover_rounds < 0:
@@ -77,7 +81,7 @@ def run(args) -> int:
             bar.set_postfix_str(step, refresh=False)
             bar.update(round(100 * done, 1) - bar.n)
         result = run_demo(DemoConfig(seed=args.seed, discover_rounds=args.discover_rounds), seeds=args.seeds,
-                          progress=progress)
+                          progress=progress, device=device, processes=threads.workers())
     print(format_report(result))
     if args.json:
         write_json(args.json, result.to_json(), force=args.force)

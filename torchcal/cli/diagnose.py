@@ -6,13 +6,9 @@ refused with that cause."""
 
 from __future__ import annotations
 
-from torchcal import api
-from torchcal.io import modelfile
 from torchcal.cli._args import (add_cv, add_effects_module, add_force, add_units, add_viz, check_folder, check_outputs,
                                 read_data, add_robot, robot_inputs)
 from torchcal.errors import InputError
-from torchcal.io.files import write_json
-from torchcal.robots.robot import robot as make_robot
 
 
 def add_parser(sub):
@@ -34,7 +30,7 @@ def add_parser(sub):
 def add_sigmas(p) -> None:
     """--sigma-mm / --sigma-deg: the orientation weighting of `torchcal fit`, so that diagnose
     and discover fit the rx, ry, rz columns exactly as fit does."""
-    from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM
+    from torchcal.defaults import SIGMA_DEG, SIGMA_MM
     from torchcal.cli._args import positive_float
 
     p.add_argument("--sigma-mm", type=positive_float, default=SIGMA_MM,
@@ -74,6 +70,11 @@ def print_step(step) -> None:
 
 
 def run(args) -> int:
+    from torchcal import api
+    from torchcal.io import modelfile
+    from torchcal.io.files import write_json
+    from torchcal.robots.robot import robot as make_robot
+
     check_outputs([("--json", args.json), ("--rrd", args.rrd)], args.force,
                   inputs=[args.data, args.model, *robot_inputs(args.robot)])
     check_folder("--plots", args.plots)

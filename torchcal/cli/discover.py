@@ -16,15 +16,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from torchcal import api
-from torchcal.errors import InputError
-from torchcal.io import modelfile
-from torchcal.cli._args import (add_cv, add_effects_module, add_force, add_units, add_viz, check_folder, check_outputs,
-                                read_data, add_robot, positive_int, robot_inputs)
+from torchcal.cli._args import (add_cv, add_device, add_effects_module, add_force, add_units, add_viz, check_folder,
+                                check_outputs, device_of, read_data, add_robot, positive_int, robot_inputs)
 from torchcal.cli.diagnose import add_sigmas, print_step
 from torchcal.cli.fit import residual_stage_line
-from torchcal.io.files import write_json
-from torchcal.robots.robot import robot as make_robot
+from torchcal.errors import InputError
 
 
 def add_parser(sub):
@@ -47,21 +43,28 @@ def add_parser(sub):
     add_units(p)
     add_force(p)
     add_effects_module(p)
+    add_device(p, "the fits")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    from torchcal import api
+    from torchcal.io import modelfile
+    from torchcal.io.files import write_json
+    from torchcal.robots.robot import robot as make_robot
+
+    device = device_of(args)  # a refused --device before any work
     check_outputs([("--json", args.json), ("--out", args.out), ("--rrd", args.rrd)], args.force,
                   inputs=[args.data, args.transfer, *robot_inputs(args.robot)])
     check_folder("--plots", args.plots)
     if args.rrd or args.plots:  # the PNG names too, before any work
         from torchcal.cli._viz import check_outputs as check_visual_outputs
         check_visual_outputs(args, "discover")
-    robot = make_robot(args.robot)
+    robot = make_robot(args.robot).to(device)
     if args.transfer is not None and Path(args.transfer).resolve() == Path(args.data).resolve():
         raise InputError(f"{args.transfer}: --transfer names DATA itself; give another session's measurements")
-    m = read_data(args.data, robot, args)
-    other = None if args.transfer is None else read_data(args.transfer, robot, args)
+    m = read_data(args.data, robot, args).to(device)
+    other = None if args.transfer is None else read_data(args.transfer, robot, args).to(device)
     if other is not None:
         from torchcal.diagnosis.transfer import TransferCheck
         print(TransferCheck(other, args.transfer_poses, args.transfer).describe())

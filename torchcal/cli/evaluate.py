@@ -19,10 +19,8 @@ against each joint angle and against every variable (docs/diagnosis.md)."""
 
 from __future__ import annotations
 
-from torchcal.io import modelfile
 from torchcal.cli._args import (add_effects_module, add_force, add_units, add_viz, check_outputs, read_data,
                                 add_robot, load_robot, check_data_joints, warnings_to_stderr)
-from torchcal.io.files import write_json
 
 
 def add_parser(sub):
@@ -80,6 +78,9 @@ def _iso9283(m, ev) -> dict | None:
 
 
 def run(args) -> int:
+    from torchcal.io import modelfile
+    from torchcal.io.files import write_json
+
     from torchcal.io.files import atomic_write
 
     inputs = [args.data, args.model]

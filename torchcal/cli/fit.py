@@ -22,14 +22,9 @@ from __future__ import annotations
 
 import math
 
-from torchcal.io import modelfile
 from torchcal.cli._args import add_effects_module, add_force, add_units, check_outputs, read_data, add_robot, robot_inputs
-from torchcal.cli._args import nonneg_float, positive_float
-from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM
-from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
-from torchcal.io.files import write_json
-from torchcal.robots.robot import robot as make_robot
-from torchcal.effects.spec import parse_specs
+from torchcal.cli._args import add_device, device_of, nonneg_float, positive_float
+from torchcal.defaults import MAX_ANGLE_DEG, MAX_LENGTH_MM, SIGMA_DEG, SIGMA_MM
 
 
 def add_parser(sub):
@@ -57,6 +52,7 @@ def add_parser(sub):
     add_units(p)
     add_force(p)
     add_effects_module(p)
+    add_device(p, "the fit")
     p.set_defaults(func=run)
 
 
@@ -64,10 +60,13 @@ def fit_file(args):
     """Read, fit (`torchcal.fit`); returns (measurements, FitResult)."""
     from torchcal.api import fit
     from torchcal.cli._args import units
+    from torchcal.effects.spec import parse_specs
+    from torchcal.robots.robot import robot as make_robot
 
-    robot = make_robot(args.robot)
+    device = device_of(args)
+    robot = make_robot(args.robot).to(device)
     specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
-    m = read_data(args.data, robot, args)  # the unit check that torchcal.fit repeats, before any warning line
+    m = read_data(args.data, robot, args).to(device)  # the unit check that torchcal.fit repeats, before any warning line
     return m, fit(robot, m, specs, robust=args.robust, sigma_mm=args.sigma_mm, sigma_deg=args.sigma_deg,
                   max_length_mm=args.max_deviation_mm or None,  # 0 drops that prior only
                   max_angle_deg=args.max_deviation_deg or None,
@@ -152,6 +151,10 @@ def _robust_hint(res, robust) -> str | None:
 
 
 def run(args) -> int:
+    from torchcal.io import modelfile
+    from torchcal.io.files import write_json
+
+    device_of(args)  # a refused --device before any work
     check_outputs([("--out", args.out)], args.force, inputs=[args.data, *robot_inputs(args.robot)])
     m, res = fit_file(args)
     obj = modelfile.to_dict(res, source=args.data, seed=args.seed, pose_ids=m.pose.tolist())

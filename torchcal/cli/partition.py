@@ -15,9 +15,6 @@ from pathlib import Path
 
 from torchcal.cli._args import add_force, check_outputs
 from torchcal.errors import InputError
-from torchcal.io.partition_file import save_partition
-from torchcal.io.sweep_csv import read_sweep
-from torchcal.partition.zones import partition_workspace
 
 NEEDED = ("point", "x", "y", "z", "r_set")
 
@@ -79,6 +76,10 @@ def _range(text):
 
 
 def run(args) -> int:
+    from torchcal.io.partition_file import save_partition
+    from torchcal.io.sweep_csv import read_sweep
+    from torchcal.partition.zones import partition_workspace
+
     levels = _levels(args.levels)
     zones = _zones(args.zones, levels)
     zone_range = _range(args.zone_range)

@@ -6,18 +6,16 @@ from __future__ import annotations
 
 import math
 
-from torchcal.cli._args import add_force, check_outputs, load_robot
+from torchcal.cli._args import PRESET_NAMES, add_force, check_outputs, load_robot
 
 
 def add_parser(sub):
-    from torchcal.robots.robot import PRESETS
-
     p = sub.add_parser("robot", help="show a robot's MD-H table; import a URDF as a robot file",
                        description=__doc__.splitlines()[0])
     rsub = p.add_subparsers(dest="action", required=True, parser_class=type(p))
     s = rsub.add_parser("show", help="print the MD-H table (deg, mm), types, limits, base and tool")
     s.add_argument("robot", metavar="ROBOT",
-                   help=f"a preset ({', '.join(sorted(PRESETS))}) or the path of a robot file (.json)")
+                   help=f"a preset ({', '.join(PRESET_NAMES)}) or the path of a robot file (.json)")
     s.set_defaults(func=run_show)
     i = rsub.add_parser("import", help="convert a URDF chain to a robot file (JSON)")
     i.add_argument("urdf", metavar="FILE.urdf", help="URDF file")

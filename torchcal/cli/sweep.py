@@ -20,8 +20,8 @@ summary (R_set min / median / max, share of points with R_set = 1) on stdout.
 The points are computed in blocks of --block points (each drawn from its own seed), written
 block by block into OUT.blocks/ and copied into OUT when all are done: an interrupted run
 started again with the same arguments computes only the missing blocks (and says so); with
-other arguments it refuses unless --force. ``--workers N`` runs the blocks on a local Dask
-cluster of N processes, ``--scheduler ADDRESS`` on an existing Dask cluster (the extra
+other arguments it refuses unless --force. ``--workers N`` computes the blocks on N threads
+of this process (no cluster), ``--scheduler ADDRESS`` on an existing Dask cluster (the extra
 ``pip install 'torchcal[distributed]'``, docs/scale.md); the CSV is the same in every case.
 """
 
@@ -30,7 +30,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from torchcal.cli._args import add_force, check_outputs, positive_int, positive_float, add_robot
+from torchcal.cli._args import add_device, add_force, check_outputs, device_of, positive_int, positive_float, add_robot
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -53,8 +53,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
     where.add_argument("--scheduler", metavar="ADDRESS",
                        help="run the blocks on the Dask cluster of this scheduler (tcp://host:8786)")
     where.add_argument("--workers", type=positive_int, metavar="N",
-                       help="run the blocks on a local Dask cluster of N worker processes")
+                       help="N worker threads in this process (default: TORCHCAL_THREADS or the cores; no cluster)")
     p.add_argument("--out", required=True, help="output CSV")
+    add_device(p, "the blocks run (in this process)")
     add_force(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -68,6 +69,12 @@ def run(args) -> int:
     from torchcal.reliability.sweep import DEFAULT_BLOCK
     from torchcal.reliability.uncertainty import ClearanceModel, clearance_from_dict
 
+    from torchcal.errors import InputError
+
+    device = device_of(args)
+    if device.type != "cpu" and (args.workers or args.scheduler):
+        raise InputError(f"--device {args.device} computes the blocks on the GPU of this process; "
+                         f"drop --workers / --scheduler (or use --device cpu)")
     check_outputs([("--out", args.out)], args.force)  # fail before the work, not after it
     out = Path(args.out)
     robot = torchcal.robot(args.robot)
@@ -75,8 +82,9 @@ def run(args) -> int:
              if args.clearance else ClearanceModel.defaults(robot))
     plan = plan_sweep(robot, n_points=args.n, n_samples=args.samples, allowed_mm=args.allowed, seed=args.seed,
                       model=model, block=args.block or DEFAULT_BLOCK)
-    with connect(scheduler=args.scheduler, workers=args.workers) as client:
-        s = run_sweep(plan, out, client=client, force=args.force, progress=not args.no_progress, log=print)
+    with connect(scheduler=args.scheduler) as client:
+        s = run_sweep(plan, out, client=client, threads=args.workers, device=device, force=args.force,
+                      progress=not args.no_progress, log=print)
     n1 = round(s["share_r_set_1"] * s["points"])
     print(f"sweep: {s['points']} points x {args.samples} clearance states, allowed distance error "
           f"[0, {args.allowed:g}] mm -> {out}")

@@ -65,12 +65,11 @@ def approach_directions(q: torch.Tensor, q_prev: torch.Tensor | None = None) -> 
     """
     prev = torch.cat([torch.zeros_like(q[:1]), q[:-1]], dim=0) if q_prev is None else q_prev.to(q)
     step = torch.sign(q - prev)  # (N, n) in {-1, 0, 1}
-    out = torch.empty_like(q)
-    last = torch.ones_like(q[0])
-    for i in range(q.shape[0]):  # carry the last direction through rows with no move
-        last = torch.where(step[i] != 0, step[i], last)
-        out[i] = last
-    return out
+    # carry the last direction through rows with no move: per joint, the index of the
+    # last row at or before each row with a move (a running max; -1 before the first)
+    rows = torch.arange(q.shape[0], device=q.device).unsqueeze(1).expand_as(step)
+    last = torch.where(step != 0, rows, torch.full_like(rows, -1)).cummax(dim=0).values
+    return torch.where(last >= 0, step.gather(0, last.clamp_min(0)), torch.ones_like(step))
 
 
 def make_context(robot: Robot, q, payload_kg=None, temp_c=None, *, point=None, q_prev=None) -> Context:

@@ -28,8 +28,11 @@ import math
 from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
+import numpy as np
+
 import torch
 
+from torchcal import threads
 from torchcal.kinematics.chain import Chain
 
 PARAM_NAMES = ("dtheta", "dd", "da", "dalpha", "dbeta")
@@ -38,6 +41,14 @@ PARAM_UNITS = ("rad", "mm", "mm", "rad", "rad")
 # elements per chunk of the position kernel: small enough for the temporaries to stay
 # in the CPU caches, large enough to amortise the per-op overhead of torch.
 DEFAULT_CHUNK = 1 << 16
+# on a GPU: large enough to fill the device and amortise each kernel launch (4M pairs hold
+# about 1 GB of float64 temporaries)
+DEFAULT_CHUNK_GPU = 1 << 22
+
+
+def chunk_for(device) -> int:
+    """Elements per chunk of the position kernel on `device` (a torch.device or str)."""
+    return DEFAULT_CHUNK if torch.device(device).type == "cpu" else DEFAULT_CHUNK_GPU
 
 
 def _effective(table: torch.Tensor, params: torch.Tensor | None):
@@ -211,17 +222,19 @@ def positions(q, chain: Chain, params=None, *, tool_point=None, out=None) -> tor
     return out
 
 
-def fk_positions(q, chain: Chain, params=None, *, chunk: int = DEFAULT_CHUNK) -> torch.Tensor:
+def fk_positions(q, chain: Chain, params=None, *, chunk: int | None = None) -> torch.Tensor:
     """TCP positions for every (pose, parameter set) of the broadcast batch.
 
     q (..., n) rad / mm, params (..., n, 5) or None -> (..., 3) mm (`positions`).
     Work is cut along the largest broadcast batch dim into pieces of about `chunk`
-    evaluations, so temporaries stay bounded; the output is the full (..., 3).
+    evaluations (default `chunk_for` the device), so temporaries stay bounded; the output
+    is the full (..., 3).
     """
     table = chain.table
+    chunk = chunk or chunk_for(table.device)
     qb = q.shape[:-1]
     pb = () if params is None else params.shape[:-2]
-    batch = torch.broadcast_shapes(qb, pb)
+    batch = np.broadcast_shapes(qb, pb)  # torch.broadcast_shapes would import sympy
     total = math.prod(batch)
     if total <= chunk or len(batch) == 0:
         return positions(q, chain, params)
@@ -242,7 +255,7 @@ def fk_positions(q, chain: Chain, params=None, *, chunk: int = DEFAULT_CHUNK) ->
         positions(qc, chain, pc, out=out.narrow(dim, start, size))
 
     starts = range(0, batch[dim], step)
-    workers = min(torch.get_num_threads(), len(starts)) if out.device.type == "cpu" else 1
+    workers = min(threads.workers(), len(starts)) if out.device.type == "cpu" else 1
     if workers <= 1:
         for start in starts:
             run(start)

@@ -57,6 +57,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from torchcal import threads as policy
 from torchcal.kinematics import mdh as K
 from torchcal.reliability import rset as reliability
 from torchcal.errors import InputError
@@ -388,8 +389,8 @@ def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_m
         chunk: (point, set) evaluations per kernel call; the working memory is 7 buffers
             of `chunk` floats per thread. Default DEFAULT_CHUNK (16384) on a CPU,
             DEFAULT_CHUNK_GPU on a GPU. Results do not depend on it.
-        threads: worker threads over point chunks (default: torch.get_num_threads() on a
-            CPU, 1 on a GPU). On a CPU torch's own intra-op threads are set to 1 while the
+        threads: worker threads over point chunks (default: `torchcal.threads.workers()`
+            on a CPU, 1 on a GPU). On a CPU torch's own intra-op threads are set to 1 while the
             sweep runs (and restored after): the workers use the cores instead. Results do
             not depend on it.
         block: points per block (default DEFAULT_BLOCK): the points of block b are drawn
@@ -421,7 +422,7 @@ def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_m
     deviations = deviations.to(device=device, dtype=dtype)
     gpu = rb.table.device.type != "cpu"
     chunk = chunk or (DEFAULT_CHUNK_GPU if gpu else DEFAULT_CHUNK)
-    threads = threads or (1 if gpu else torch.get_num_threads())
+    threads = threads or (1 if gpu else policy.workers())
     parts = []
     with _serial_ops(not gpu):
         with tqdm(total=n_points, unit="pt", desc="sweep", file=sys.stderr, disable=None if progress else True,
@@ -494,25 +495,31 @@ def sweep_block(robot, index: int, *, n_points: int, deviations: torch.Tensor, d
                 allowed_mm: float = 2.5, seed: int = 0, block: int = DEFAULT_BLOCK,
                 workspace: Workspace | None = None, include_nominal: bool = True,
                 allowed_axis_mm: float | None = None, chunk: int | None = None, threads: int = 1,
-                dtype=torch.float64) -> SweepResult:
-    """Block `index` of `sweep(robot, n_points=n_points, seed=seed, block=block, ...)` on the CPU.
+                dtype=torch.float64, device=None) -> SweepResult:
+    """Block `index` of `sweep(robot, n_points=n_points, seed=seed, block=block, ...)` on
+    `device` (default the CPU; chunk default per device, as in `sweep`).
 
     deviations, dev_box: `sweep_states(robot, n_samples=M, seed=seed, model=...)` (the
     same for every block); the linearised hull is computed when dev_box is given. The
     result's `point` holds the global point ids; it equals the block's rows of the
     in-process sweep bit for bit (same points, same kernel on the same block), whatever
-    `threads` and `chunk` (CPU default).
+    `threads` and `chunk` (on the same device).
     """
     _check_allowed(allowed_mm, allowed_axis_mm)
-    rb = robot.to("cpu", dtype)
+    device = torch.device(device or "cpu")
+    gpu = device.type != "cpu"
+    rb = robot.to(device, dtype)
     a0, a1 = block_range(index, n_points=n_points, block=block)
-    with _serial_ops(True):
+    with _serial_ops(not gpu):
         q = rb.check_q(block_points(robot, index, n_points=n_points, block=block, seed=seed, workspace=workspace))
-        q = q.to(dtype=dtype)
-        r = _sweep_points(rb, q, deviations.to(dtype=dtype), dev_box, include_nominal=include_nominal,
+        q = q.to(device=device, dtype=dtype)
+        box = None if dev_box is None else dev_box.to(device, dtype)
+        r = _sweep_points(rb, q, deviations.to(device=device, dtype=dtype), box, include_nominal=include_nominal,
                           linear=dev_box is not None, allowed_mm=allowed_mm, allowed_axis_mm=allowed_axis_mm,
-                          chunk=chunk or DEFAULT_CHUNK, threads=threads, bar=None)
-    return SweepResult(**{**{f.name: getattr(r, f.name) for f in fields(r)}, "point": torch.arange(a0, a1)})
+                          chunk=chunk or (DEFAULT_CHUNK_GPU if gpu else DEFAULT_CHUNK), threads=1 if gpu else threads,
+                          bar=None)
+    return SweepResult(**{**{f.name: getattr(r, f.name) for f in fields(r)},
+                          "point": torch.arange(a0, a1, device=device)})
 
 
 def _sweep_points(rb, q, deviations, dev_box, *, include_nominal, linear, allowed_mm, allowed_axis_mm,

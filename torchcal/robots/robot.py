@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 
 from torchcal.kinematics import mdh as K
@@ -169,15 +170,15 @@ class Robot:
         params = self.check_params(params)
         if params is not None:
             try:
-                torch.broadcast_shapes(q.shape[:-1], params.shape[:-2])
-            except RuntimeError:
+                np.broadcast_shapes(q.shape[:-1], params.shape[:-2])  # torch's would import sympy
+            except ValueError:
                 raise InputError(f"q batch {tuple(q.shape[:-1])} and params batch "
                                  f"{tuple(params.shape[:-2])} do not broadcast") from None
         dtype = q.dtype if params is None else torch.promote_types(q.dtype, params.dtype)
         return q.to(dtype), None if params is None else params.to(dtype), self.chain.to(dtype)
 
     # -- kinematics -----------------------------------------------------------------
-    def fk(self, q, params=None, chunk: int = K.DEFAULT_CHUNK) -> torch.Tensor:
+    def fk(self, q, params=None, chunk: int | None = None) -> torch.Tensor:
         """TCP positions (..., 3) mm for q (..., n) rad and deviations params (..., n, 5)."""
         q, params, chain = self._prep(q, params)
         return K.fk_positions(q, chain, params, chunk=chunk)

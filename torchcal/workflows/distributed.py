@@ -32,6 +32,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from torchcal import threads as policy
 from torchcal.errors import InputError
 from torchcal.io.files import check_output
 from torchcal.io.sweep_blocks import BlockFolder
@@ -88,11 +89,12 @@ class SweepPlan:
                 "allowed_mm": self.allowed_mm, "seed": self.seed, "block": self.block,
                 "workspace": asdict(self.workspace or Workspace())}
 
-    def compute(self, index: int, threads: int = 1) -> tuple[str, dict]:
-        """Block `index`: its CSV rows (torchcal.io.sweep_csv) and statistics (`block_stats`)."""
+    def compute(self, index: int, threads: int = 1, device=None) -> tuple[str, dict]:
+        """Block `index` (on `device`, default the CPU): its CSV rows (torchcal.io.sweep_csv)
+        and statistics (`block_stats`)."""
         r = sweep_block(self.robot, index, n_points=self.n_points, deviations=self.deviations,
                         dev_box=self.dev_box, allowed_mm=self.allowed_mm, seed=self.seed, block=self.block,
-                        workspace=self.workspace, threads=threads)
+                        workspace=self.workspace, threads=threads, device=device)
         return sweep_csv_rows(r), block_stats(r)
 
 
@@ -222,16 +224,24 @@ def connect(*, scheduler: str | None = None, workers: int | None = None, timeout
 
 def _run_block(plan: SweepPlan, index: int):
     """One task on a worker: block `index` on one thread."""
+    policy.apply()  # a fresh worker process: torch and BLAS on one thread
     return plan.compute(index, threads=1)
 
 
-def run_sweep(plan: SweepPlan, out, *, client=None, force: bool = False, progress: bool = False,
-              on_block=None, log=None) -> dict:
+def run_sweep(plan: SweepPlan, out, *, client=None, threads: int | None = None, processes: int | None = None,
+              device=None, force: bool = False, progress: bool = False, on_block=None, log=None) -> dict:
     """Compute the missing blocks of `plan` and write the sweep CSV `out` block by block.
 
     client: a dask.distributed Client (`connect`): blocks are its tasks, at most two per
-        worker thread at a time, written here as they come back; None: computed in this
-        process (torch.get_num_threads() threads within a block).
+        worker thread at a time, written here as they come back; None: computed on this
+        machine, without Dask.
+    threads: in this process, the worker threads within a block (default
+        `torchcal.threads.workers()`).
+    processes: without a client, the number of child processes of this machine that
+        compute whole blocks, one thread each (`run_in_processes`); None: in this process.
+    device: without a client or processes, the device of this process that computes the
+        blocks (default the CPU; a GPU's vectorised sin / cos may differ from the CPU's in
+        the last bit, docs/scale.md).
     force: discard a partial output of a sweep with other arguments (same arguments:
         its blocks are kept and the run goes on from them).
     on_block: called with the index of each block once it is written.
@@ -261,14 +271,43 @@ def run_sweep(plan: SweepPlan, out, *, client=None, force: bool = False, progres
             if on_block is not None:
                 on_block(index)
 
-        if client is None:
+        if client is None and processes is not None and min(processes, len(missing)) > 1:
+            run_in_processes(plan, missing, write, processes)
+        elif client is None:
             for b in missing:
-                write(b, *plan.compute(b, threads=torch.get_num_threads()))
+                write(b, *plan.compute(b, threads=threads or policy.workers(), device=device))
         else:
             _run_on(client, plan, missing, write)
     summary = summary_of(acc)
     folder.assemble(",".join(sweep_columns(plan.robot.n)) + "\n", plan.n_blocks)
     return summary
+
+
+def run_in_processes(plan: SweepPlan, missing: list[int], write, processes: int) -> None:
+    """The blocks `missing` on `processes` child processes of this machine (no cluster,
+    no Dask): each computes whole blocks on one thread, two blocks per process in flight;
+    `write(block, rows, stats)` here as each comes back. Fresh interpreters ("spawn"),
+    so no OpenMP state of this process is forked."""
+    import multiprocessing
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+    _check_count(processes, "number of worker processes")
+    todo = iter(missing)
+    running = {}  # future -> block
+    with ProcessPoolExecutor(min(processes, len(missing)), mp_context=multiprocessing.get_context("spawn")) as pool:
+        def top_up():
+            while len(running) < 2 * processes:
+                b = next(todo, None)
+                if b is None:
+                    return
+                running[pool.submit(_run_block, plan, b)] = b
+
+        top_up()
+        while running:
+            finished, _ = wait(running, return_when=FIRST_COMPLETED)
+            for f in finished:
+                write(running.pop(f), *f.result())
+            top_up()
 
 
 def _run_on(client, plan: SweepPlan, missing: list[int], write) -> None:

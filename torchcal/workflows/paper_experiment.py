@@ -60,6 +60,7 @@ from dataclasses import dataclass, field, replace
 
 import torch
 
+from torchcal import threads
 from torchcal.reliability import rset as reliability
 from torchcal.calibration.compensate import compensate
 from torchcal.errors import InputError
@@ -335,8 +336,11 @@ def step_shares(cfg: DemoConfig) -> dict:
     return {k: v / total for k, v in w.items()}
 
 
-def run_pipeline(cfg: DemoConfig | None = None, progress=None) -> PipelineResult:
+def run_pipeline(cfg: DemoConfig | None = None, progress=None, device=None) -> PipelineResult:
     """One seed (``cfg.seed``) of the experiment (module doc); returns its `PipelineResult`.
+
+    device: where the workspace sweep (the batched kernel, N x M perturbed FK) runs
+    (default the CPU); the fits of 100-pose sessions stay on the CPU, where they are small.
 
     progress: optional callable(step_name: str, done: float), called as each step starts
     with the share of this seed's work done before it (`step_shares`), and once more as
@@ -369,7 +373,8 @@ def run_pipeline(cfg: DemoConfig | None = None, progress=None) -> PipelineResult
     say("sweep")
     q_sweep = sample_workspace(r, cfg.n_sweep, seed=seed)
     if cfg.sweep_source == "model":
-        sw = sweep(r, q_sweep, n_samples=cfg.sweep_samples, allowed_mm=cfg.allowed_distance_mm, seed=seed)
+        sw = sweep(r, q_sweep, n_samples=cfg.sweep_samples, allowed_mm=cfg.allowed_distance_mm, seed=seed,
+                   device=device).to("cpu")
     else:
         sw = measured_sweep(vr, q_sweep, cfg.repeats, cfg.allowed_distance_mm, cfg.noise_mm, seed=s_sweep)
     lap("sweep")
@@ -426,8 +431,14 @@ def run_pipeline(cfg: DemoConfig | None = None, progress=None) -> PipelineResult
                           [str(s) for s in vr.specs], timings)
 
 
-def run_demo(cfg: DemoConfig | None = None, seeds: int = 1, progress=None) -> DemoRun:
-    """`run_pipeline` for seeds ``cfg.seed .. cfg.seed + seeds - 1``.
+def run_demo(cfg: DemoConfig | None = None, seeds: int = 1, progress=None, device=None,
+             processes: int = 1) -> DemoRun:
+    """`run_pipeline` for seeds ``cfg.seed .. cfg.seed + seeds - 1`` (sweeps on `device`).
+
+    processes: seeds are independent; with processes > 1 (and more than one seed) they run
+    on that many fresh processes of this machine, one thread each, the results the same
+    as one after another (each seed's draws come from its own seeds). Progress is then
+    reported per finished seed ("seed k/K: done").
 
     progress: optional callable(message: str, done: float): "seed k/K: STEP" as each step
     starts, with the share of the whole run's work done before it (0 .. 1; 1 once the last
@@ -436,9 +447,40 @@ def run_demo(cfg: DemoConfig | None = None, seeds: int = 1, progress=None) -> De
     if isinstance(seeds, bool) or not isinstance(seeds, int) or seeds < 1:
         raise InputError(f"seeds: expected a positive integer, got {seeds!r}")
     t0 = time.perf_counter()
+    if processes > 1 and seeds > 1:
+        runs = _seeds_in_processes([replace(cfg, seed=cfg.seed + k) for k in range(seeds)],
+                                   min(processes, seeds), progress, device)
+        return DemoRun(cfg, runs, time.perf_counter() - t0)
     runs = []
     for k in range(seeds):
         say = (lambda step, done, k=k: progress(f"seed {k + 1}/{seeds}: {step}", (k + done) / seeds)) \
             if progress else None
-        runs.append(run_pipeline(replace(cfg, seed=cfg.seed + k), progress=say))
+        runs.append(run_pipeline(replace(cfg, seed=cfg.seed + k), progress=say, device=device))
     return DemoRun(cfg, runs, time.perf_counter() - t0)
+
+
+def _one_seed(cfg: DemoConfig, device) -> bytes:
+    """One seed in a worker process (torch and BLAS on one thread), pickled here: the plain
+    pickle keeps tensors that carry autograd history (a fitted effect's), which the
+    process pool's own pickler refuses."""
+    import pickle
+
+    threads.apply()
+    return pickle.dumps(run_pipeline(cfg, device=device))
+
+
+def _seeds_in_processes(cfgs: list, processes: int, progress, device) -> list:
+    """`run_pipeline` of each config on `processes` spawned processes, in config order."""
+    import multiprocessing
+    import pickle
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    with ProcessPoolExecutor(processes, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = {pool.submit(_one_seed, c, device): k for k, c in enumerate(cfgs)}
+        runs, done = [None] * len(cfgs), 0
+        for f in as_completed(futures):
+            runs[futures[f]] = pickle.loads(f.result())
+            done += 1
+            if progress is not None:
+                progress(f"seed {futures[f] + 1}/{len(cfgs)}: done", done / len(cfgs))
+    return runs

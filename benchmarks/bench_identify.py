@@ -36,7 +36,7 @@ from torchcal.calibration.lm import levenberg_marquardt
 from torchcal.calibration.model import CalibrationModel
 from torchcal.robots.robot import robot
 from torchcal.simulation.virtual_robot import VirtualRobot
-from torchcal.reliability.sweep import sample_workspace
+from torchcal.robots.workspace import sample_workspace
 
 
 def problem(effects=(), n_zones=10, per_zone=10, repeats=10, seed=0):

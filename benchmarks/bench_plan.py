@@ -32,7 +32,7 @@ from torchcal.calibration.fit import fit
 from torchcal.calibration.model import CalibrationModel
 from torchcal.effects import make_context
 from torchcal.planning import design
-from torchcal.reliability.sweep import sample_workspace
+from torchcal.robots.workspace import sample_workspace
 from torchcal.simulation.virtual_robot import VirtualRobot
 
 CASES = [

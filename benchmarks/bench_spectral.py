@@ -20,7 +20,7 @@ import torch
 
 from torchcal.calibration.fit import fit
 from torchcal.calibration.model import CalibrationModel
-from torchcal.diagnosis.crossval import fold_ids
+from torchcal.folds import fold_of_pose
 from torchcal.diagnosis.spectral import propose_orders
 from torchcal.effects import context_of
 from torchcal.io.measurement_csv import read_measurements
@@ -44,7 +44,7 @@ def main():
     res = fit(model, ctx, m.xyz, pose=m.pose, rotation=m.rotation)
     r = res.residuals.reshape(-1).numpy()
     A = model.jacobian(res.theta, ctx).reshape(-1, model.n_params)[:, res.report.free].detach().numpy()
-    folds = fold_ids(m.pose, 5, 0)
+    folds = fold_of_pose(m.pose, 0, 5)
     print(f"series {args.series}, {len(m)} training rows, load average {os.getloadavg()[0]:.1f}")
     for j in range(1, robot.n + 1):
         t, c = time.perf_counter(), time.process_time()

@@ -94,7 +94,8 @@ def child(n: int, m: int, threads: int) -> dict:
 
     torch.set_num_threads(threads)
     import torchcal
-    from torchcal.reliability.sweep import sample_workspace, sweep
+    from torchcal.reliability.sweep import sweep
+    from torchcal.robots.workspace import sample_workspace
 
     robot = torchcal.robot("kr1000titan")
     sweep(robot, n_points=8, n_samples=16, seed=1, threads=threads)  # warm-up
@@ -156,7 +157,8 @@ def gpu_case(n: int, m: int) -> dict:
     import torch
 
     import torchcal
-    from torchcal.reliability.sweep import sample_workspace, sweep
+    from torchcal.reliability.sweep import sweep
+    from torchcal.robots.workspace import sample_workspace
 
     robot = torchcal.robot("kr1000titan")
     q = sample_workspace(robot, n, seed=0)

@@ -264,7 +264,7 @@ def test_plan_of_a_prismatic_robot_writes_the_slide_in_mm(tmp_path, capsys):
 
 
 def _workspace(**kw):
-    from torchcal.reliability.sweep import Workspace
+    from torchcal.robots.workspace import Workspace
 
     w = Workspace()
     return Workspace(kw.get("floor", w.floor_z_mm), kw.get("column_radius", w.column_radius_mm),

@@ -206,7 +206,8 @@ def session(tmp_path_factory):
     from torchcal.partition.zones import partition_workspace
     from torchcal.robots.robot import robot
     from torchcal.simulation.virtual_robot import VirtualRobot
-    from torchcal.reliability.sweep import sample_workspace, sweep
+    from torchcal.reliability.sweep import sweep
+    from torchcal.robots.workspace import sample_workspace
 
     d = tmp_path_factory.mktemp("session")
     r = robot("kr1000titan")

@@ -160,13 +160,14 @@ def test_linear_base_with_a_column_in_the_span_of_the_others_cross_validates_lik
     alone (numpy lstsq, an independent reference), and the basis keeps the rank."""
     import numpy as np
 
-    from torchcal.diagnosis.crossval import LinearRefit, fold_ids
+    from torchcal.diagnosis.crossval import LinearRefit
+    from torchcal.folds import fold_of_pose
 
     rng = np.random.default_rng(0)
     N, p = 60, 5
     A = rng.normal(size=(3 * N, p))
     r = A @ rng.normal(size=p) + 0.1 * rng.normal(size=3 * N)
-    folds = fold_ids(torch.arange(N), 5, 0)
+    folds = fold_of_pose(torch.arange(N), 0, 5)
     dependent = np.hstack([A, A[:, :2] @ np.array([[0.3], [-1.2]])])  # a sixth column in span(A)
     lin = LinearRefit(r, dependent, folds)
     assert lin.Q.shape[1] == p and lin.Qb.shape[1] == p

@@ -18,7 +18,8 @@ import torchcal
 from torchcal.calibration.fit import fit
 from torchcal.calibration.model import CalibrationModel
 from torchcal.cli import main
-from torchcal.diagnosis import diagnose, discover, fold_ids, refit_cv
+from torchcal.diagnosis import diagnose, discover, refit_cv
+from torchcal.folds import fold_of_pose
 from torchcal.diagnosis.selection import paired_p_value, refit_decision
 from torchcal.diagnosis.step import Scored, score_current, score_step
 from torchcal.diagnosis.candidates import Candidate
@@ -72,7 +73,7 @@ def test_refit_cv_equals_an_independent_per_fold_refit():
     ctx = context_of(ROBOT, m)
     model = CalibrationModel(ROBOT, [])
     full = fit(model, ctx, m.xyz, max_length_mm=None, max_angle_deg=None)
-    folds = fold_ids(m.pose, 5, 0)
+    folds = fold_of_pose(m.pose, 0, 5)
     cv = refit_cv(full, m, ctx, folds, sigma_mm=0.01, sigma_deg=0.01)
     ref = np.zeros(len(m))
     for f in range(5):
@@ -92,7 +93,7 @@ def test_a_candidate_whose_refit_raises_the_held_out_error_is_rejected_with_its_
     vr = VirtualRobot(ROBOT, [], seed=4)
     m = vr.measure(random_poses(ROBOT, 30, torch.Generator().manual_seed(4)), noise_mm=0.02)
     ctx = context_of(ROBOT, m)
-    folds = fold_ids(m.pose, 5, 0)
+    folds = fold_of_pose(m.pose, 0, 5)
     base = fit(CalibrationModel(ROBOT, []), ctx, m.xyz, pose=m.pose)
     current = score_current(base, m, ctx, folds)
     cand = Candidate("joint_compliance", (2,), 0.0, 0.0, 0.0, 1.0, 21, cv_gain=0.1)

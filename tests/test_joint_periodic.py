@@ -19,7 +19,7 @@ from scipy.spatial.transform import Rotation
 
 from torchcal.calibration.fit import fit
 from torchcal.calibration.model import CalibrationModel
-from torchcal.diagnosis.crossval import fold_ids
+from torchcal.folds import fold_of_pose
 from torchcal.diagnosis.spectral import order_limits, propose_orders, search_orders
 from torchcal.effects import build, context_of, make_context
 from torchcal.effects.spec import EffectSpec, parse_spec, parse_specs
@@ -83,7 +83,7 @@ def _searches(m, joints=range(1, 7)):
     res = fit(model, ctx, m.xyz, pose=m.pose)
     r = res.residuals.reshape(-1).numpy()
     A = model.jacobian(res.theta, ctx).reshape(-1, model.n_params)[:, res.report.free].detach().numpy()
-    folds = fold_ids(m.pose, 5, 0)
+    folds = fold_of_pose(m.pose, 0, 5)
     return {j: propose_orders(UR10, model, res.theta, ctx, r, A, folds, j) for j in joints}
 
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from torchcal import kernel_ridge as KR
 from torchcal.diagnosis import probe as P
 
 
@@ -20,17 +21,17 @@ def test_kernel_factor_gives_the_held_out_predictions_of_the_full_kernel(name):
     g = np.random.default_rng(11)
     n = 240
     values = {"q1": g.uniform(-np.pi, np.pi, n), "approach_q1": np.sign(g.normal(size=n))}
-    x = torch.from_numpy(P.variable_features(values)[name])
+    x = torch.from_numpy(KR.variable_features(values)[name])
     Y = torch.from_numpy(g.normal(size=(n, 3)))
     blocks = blocks_of(n)
-    for ell in P.LENGTH_SCALES:
-        w, V = P.kernel_factor(x, ell, angle=name == "q1")
+    for ell in KR.LENGTH_SCALES:
+        w, V = KR.kernel_factor(x, ell, angle=name == "q1")
         assert V.shape[1] < n  # low rank: no N x N eigendecomposition
-        K = P.rbf(x, x, ell).numpy()
+        K = KR.rbf(x, x, ell).numpy()
         np.testing.assert_allclose((V * w) @ V.T, K, atol=1e-9)
-        thin, alpha = P.block_cv_eig(w, V, Y, blocks)
+        thin, alpha = KR.block_cv_eig(w, V, Y, blocks)
         # by hand: each block from a kernel ridge solve on the other rows
-        for i, lam in enumerate(P.RIDGES[:4]):
+        for i, lam in enumerate(KR.RIDGES[:4]):
             np.testing.assert_allclose(alpha[i].numpy(), np.linalg.solve(K + lam * np.eye(n), Y.numpy()),
                                        atol=1e-6 * max(1.0, 1 / lam))
             for B in blocks:
@@ -42,7 +43,7 @@ def test_kernel_factor_gives_the_held_out_predictions_of_the_full_kernel(name):
 
 def test_kernel_factor_declines_a_continuous_non_angle_variable():
     x = torch.from_numpy(np.random.default_rng(3).normal(size=(200, 1)))
-    assert P.kernel_factor(x, 0.4, angle=False) is None
+    assert KR.kernel_factor(x, 0.4, angle=False) is None
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +51,7 @@ def large():
     """2 MAX_ROWS + 100 poses, one row each: q1, q2 uniform; a 0.1 sin(2 q1) error along x
     and 0.05 noise per axis."""
     g = np.random.default_rng(12)
-    n = 2 * P.MAX_ROWS + 100
+    n = 2 * KR.MAX_ROWS + 100
     q = g.uniform(-np.pi, np.pi, size=(n, 2))
     noise = 0.05 * g.normal(size=(n, 3))
     signal = np.zeros((n, 3))

@@ -16,7 +16,9 @@ import torch
 import torchcal
 from torchcal.calibration.joint_range import CalibratedRangeWarning
 from torchcal.cli import main
+from torchcal import kernel_ridge as KR
 from torchcal.diagnosis import probe as P
+from torchcal.folds import fold_of_pose
 from torchcal.io import modelfile
 from torchcal.io.measurement_csv import write_measurements
 from torchcal.measurements import Measurements
@@ -130,9 +132,9 @@ def test_fit_cli_stores_the_stage_and_evaluate_applies_it(sessions, tmp_path, ca
 def test_block_cv_matches_explicit_kernel_ridge_solves():
     g = np.random.default_rng(5)
     X, Y = torch.from_numpy(g.normal(size=(30, 2))), torch.from_numpy(g.normal(size=(30, 3)))
-    K = P.rbf(X, X, 0.8)
+    K = KR.rbf(X, X, 0.8)
     blocks = [torch.arange(0, 10), torch.arange(10, 30)]
-    pred, alpha = P.block_cv(K, Y, blocks, (0.01, 1.0))
+    pred, alpha = KR.block_cv(K, Y, blocks, (0.01, 1.0))
     Kn, Yn = K.numpy(), Y.numpy()
     for i, lam in enumerate((0.01, 1.0)):
         np.testing.assert_allclose(alpha[i].numpy(), np.linalg.solve(Kn + lam * np.eye(30), Yn), atol=1e-9)
@@ -148,7 +150,7 @@ def test_probe_prediction_of_a_fold_never_sees_that_fold():
     q = g.uniform(-3, 3, size=(120, 2))
     r = np.stack([np.sin(2 * q[:, 0]), np.zeros(120), 0.1 * g.normal(size=120)], -1)
     pose = np.arange(120)
-    fold = P.fold_of_pose(pose, 0)
+    fold = fold_of_pose(pose, 0)
     a = P.probe({"q1": q[:, 0], "q2": q[:, 1]}, r, pose)
     moved = r.copy()
     moved[fold == 1] += 5.0

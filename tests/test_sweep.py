@@ -29,7 +29,8 @@ from torchcal.kinematics.chain import Chain
 from torchcal.errors import InputError
 from torchcal.reliability.interval import Interval
 from torchcal.io.sweep_csv import read_sweep, write_sweep
-from torchcal.reliability.sweep import Workspace, linear_bounds, sample_workspace, sweep
+from torchcal.reliability.sweep import linear_bounds, sweep
+from torchcal.robots.workspace import Workspace, sample_workspace
 from torchcal.reliability.uncertainty import (KR1000_BEARING_LENGTH_MM, KR1000_CLEARANCE_MM, KR1000_LIMITS_MM,
                                   KR1000_RADII_MM, KR1000_TOLERANCE_MM, ClearanceModel, box,
                                   deviation_map, sample_states, states_to_deviations)

@@ -39,7 +39,8 @@ from torchcal import cli
 from torchcal.errors import InputError, OutputExistsError
 from torchcal.io.sweep_csv import sweep_csv_text
 from torchcal.workflows.distributed import _hist_median, plan_sweep, run_sweep
-from torchcal.reliability.sweep import block_seed, sample_workspace, sweep, sweep_block, sweep_states
+from torchcal.reliability.sweep import block_seed, sweep, sweep_block, sweep_states
+from torchcal.robots.workspace import sample_workspace
 
 N, M, BLOCK = 700, 40, 100  # 7 blocks
 WATCHDOG_S = 120

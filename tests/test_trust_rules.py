@@ -27,7 +27,8 @@ from torchcal.calibration.lm import levenberg_marquardt
 from torchcal.calibration.model import CalibrationModel
 from torchcal.calibration.plausibility import determination, determination_words, plausible_scales
 from torchcal.cli import main
-from torchcal.diagnosis import discover, fold_ids
+from torchcal.diagnosis import discover
+from torchcal.folds import fold_of_pose
 from torchcal.diagnosis.candidates import Candidate
 from torchcal.diagnosis.selection import REFIT_ALPHA, refit_decision
 from torchcal.diagnosis.step import score_current, score_step
@@ -205,7 +206,7 @@ def test_the_step_takes_the_largest_refit_gain_not_the_shortlist_order(seed141):
     """axis_tilt:4 shortlisted before gear_periodic:2, both pass: the larger refit gain wins."""
     _, m = seed141
     ctx = context_of(ROBOT, m)
-    folds = fold_ids(m.pose, 5, 0)
+    folds = fold_of_pose(m.pose, 0, 5)
     base = fit(CalibrationModel.for_measurements(ROBOT, [], m), ctx, m.xyz, pose=m.pose)
     current = score_current(base, m, ctx, folds)
     cands = [Candidate("axis_tilt", (4,), 0.0, 0.0, 0.0, 1e-9, 2, True, 0.1, deterministic=True),

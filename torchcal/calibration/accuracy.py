@@ -1,7 +1,7 @@
 """Predicted TCP accuracy of a fitted model over the workspace (``torchcal accuracy``).
 
 At N workspace poses (Latin hypercube inside the joint limits, filtered like the sweep's
-workspace, `torchcal.reliability.sweep.sample_workspace`) the parameter covariance C is
+workspace, `torchcal.robots.workspace.sample_workspace`) the parameter covariance C is
 propagated through the position Jacobian J: sigma = sqrt(trace J C J^T), the 1-sigma (RMS)
 length of the 3-D TCP error that the parameter uncertainty leaves, in mm. It covers what
 the fit could not determine, not what the model leaves out.
@@ -72,7 +72,7 @@ def workspace_accuracy(model, theta: torch.Tensor, cov: torch.Tensor, *, n: int 
     """The `Accuracy` of `model` at theta (P,) with covariance cov (P, P) at n workspace poses
     drawn with `seed`; payload_kg (default: half the rated payload) and temp_c at every pose."""
     from torchcal.effects import make_context
-    from torchcal.reliability.sweep import sample_workspace
+    from torchcal.robots.workspace import sample_workspace
 
     robot = model.robot
     q = sample_workspace(robot, n, seed=seed)

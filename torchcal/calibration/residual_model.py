@@ -59,7 +59,7 @@ class KernelResidual:
 
     def predict(self, q: torch.Tensor) -> torch.Tensor:
         """(M, 3) mm correction at joint values q (M, n) rad (float64, the device of alpha)."""
-        from torchcal.diagnosis.probe import rbf
+        from torchcal.kernel_ridge import rbf
 
         qs = q.detach().to(self.alpha)[:, self.joints]
         return rbf(self._x(qs), self._x(self.q_train), self.length_scale) @ self.alpha
@@ -70,7 +70,7 @@ class KernelResidual:
                 "q_train_deg": torch.rad2deg(self.q_train).tolist(), "dual_weights_mm": self.alpha.tolist()}
 
     def describe(self) -> str:
-        from torchcal.diagnosis.probe import MAX_ROWS
+        from torchcal.kernel_ridge import MAX_ROWS
 
         return (f"residual stage (non-physical kernel correction on {', '.join(self.inputs)}, length scale "
                 f"{math.degrees(self.length_scale):.3g} deg, {self.alpha.shape[0]} training rows): cross-validated rms "
@@ -103,7 +103,8 @@ def fit_residual_model(robot, m, residuals: torch.Tensor, *, kind: str = "kernel
                        seed: int = 0) -> KernelResidual | None:
     """The residual stage for a physical model's residuals (N, 3) mm (measured - model) on
     measurements m; None when no joint angle predicts them (nothing learnable)."""
-    from torchcal.diagnosis import probe as P
+    from torchcal import kernel_ridge as P
+    from torchcal.folds import fold_of_pose
 
     if kind not in KINDS:
         raise InputError(f"residual model: unknown kind {kind!r} (known: {', '.join(KINDS)})")
@@ -115,7 +116,7 @@ def fit_residual_model(robot, m, residuals: torch.Tensor, *, kind: str = "kernel
         return None
     feats = P.variable_features(values)
     Y = residuals.detach().cpu().to(torch.float64).reshape(-1, 3)
-    fold = P.fold_of_pose(pose, seed)
+    fold = fold_of_pose(pose, seed)
     rows = P.subsample(fold, np.ones(len(Y), dtype=bool), pose, seed)
     inputs, ell, lam, mse = P.choose(feats, list(feats), Y, fold, rows)
     if not inputs:

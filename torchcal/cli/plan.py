@@ -45,7 +45,7 @@ def run(args) -> int:
     from torchcal.io.files import atomic_write
     from torchcal.io.plan_csv import plan_csv
     from torchcal.planning.plan import OBSERVABILITY, plan
-    from torchcal.reliability.sweep import Workspace
+    from torchcal.robots.workspace import Workspace
     from torchcal.robots.robot import robot as make_robot
 
     check_outputs([("--out", args.out), *plot_outputs(args.plots, PNGS)], args.force,

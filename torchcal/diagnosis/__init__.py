@@ -6,7 +6,7 @@ from torchcal._lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
     "torchcal.diagnosis.candidates": ["Candidate"],
-    "torchcal.diagnosis.crossval": ["RefitCV", "fold_ids", "refit_cv"],
+    "torchcal.diagnosis.crossval": ["RefitCV", "refit_cv"],
     "torchcal.diagnosis.diagnose": ["Diagnosis", "Discovery", "diagnose", "discover", "where_it_fails"],
     "torchcal.diagnosis.selection": ["ALPHA", "MIN_GAIN", "REFITS"],
     "torchcal.diagnosis.step": ["Scored", "Step", "score_step"],

@@ -1,7 +1,6 @@
 """Cross-validation by pose: the folds, the linearised refit of the pre-screen, and the
 full nonlinear refit that decides.
 
-- `fold_ids`: K folds by pose id (repeats of a pose stay together), seeded.
 - `LinearRefit`: the residual r of a fit and the base columns A; a candidate's columns C
   are added linearly, the problem solved on the other folds and predicted on the held-out
   one (cheap: a few small solves). The pre-screen ranks candidates with it.
@@ -18,19 +17,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from torchcal.folds import fold_of_pose
 from torchcal.diagnosis.variance import fit_variances, variance_loglik
 from torchcal.errors import InputError
 
 RANK_TOL = 1e-6
 REFIT_MAX_ITER = 30
-
-
-def fold_ids(pose: torch.Tensor, folds: int, seed: int) -> np.ndarray:
-    """(N,) fold of each row; all rows of one pose id share a fold."""
-    ids, inverse = np.unique(pose.cpu().numpy(), return_inverse=True)
-    rng = np.random.default_rng(seed)
-    per_pose = rng.permutation(len(ids)) % folds
-    return per_pose[inverse]
 
 
 def distance_rms(r: np.ndarray) -> float:
@@ -75,7 +67,7 @@ def fold_refits(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: 
 
 def refit_cv(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: float) -> RefitCV:
     """Pose-grouped K-fold CV of the fitted model `full` (`FitResult`) on measurements m
-    (`Measurements`, context ctx), folds (N,) from `fold_ids`.
+    (`Measurements`, context ctx), folds (N,) from `torchcal.folds.fold_of_pose`.
 
     Each fold: `torchcal.calibration.fit.fit` on the other folds' rows, from full.theta,
     with full's identifiable set, plausible scales and prior rho, the measured

@@ -37,7 +37,7 @@ import torch
 from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult, fit
 from torchcal.calibration.model import CalibrationModel
 from torchcal.diagnosis.candidates import Candidate
-from torchcal.diagnosis.crossval import fold_ids
+from torchcal.folds import fold_of_pose
 from torchcal.diagnosis.screen import prescreen
 from torchcal.diagnosis.selection import ALPHA, MIN_GAIN, REFIT_ALPHA, REFITS, shortlist
 from torchcal.diagnosis.step import Scored, Step, fit_options, score_current, score_step
@@ -129,7 +129,7 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
         model = CalibrationModel.for_measurements(robot, specs, m)  # one tool offset per point id
         base_fit = fit(model, ctx, m.xyz, **fit_options(m, sigma_mm=sigma_mm, sigma_deg=sigma_deg))
     specs = base_fit.model.specs()
-    folds_ = fold_ids(m.pose, folds, seed)
+    folds_ = fold_of_pose(m.pose, seed, folds)
     screen = prescreen(robot, base_fit.model, specs, base_fit, m, ctx, folds_, alpha=alpha / 2, min_gain=min_gain)
     if current is None:
         current = score_current(base_fit, m, ctx, folds_, sigma_mm=sigma_mm, sigma_deg=sigma_deg)

@@ -2,7 +2,7 @@
 --residual-model` and `discover --residual-model` apply before adding it.
 
 The stage (`torchcal.calibration.residual_model`) is judged as `discover` judges an
-effect: on pose-grouped folds (`torchcal.diagnosis.crossval.fold_ids`), the physical
+effect: on pose-grouped folds (`torchcal.folds.fold_of_pose`), the physical
 model is refitted on the other folds (`fold_fit`), the stage is fitted to that refit's
 training residuals, and both are predicted on the held-out poses. Per pose p,
 ``d_p = e0_p - e1_p`` (held-out squared distance error without the stage minus with it);
@@ -19,7 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from torchcal.diagnosis.crossval import fold_ids, fold_refits
+from torchcal.folds import fold_of_pose
+from torchcal.diagnosis.crossval import fold_refits
 from torchcal.diagnosis.selection import MIN_GAIN, REFIT_ALPHA, refit_decision
 from torchcal.errors import InputError
 
@@ -56,7 +57,7 @@ def stage_test(full, m, ctx, *, kind: str = "kernel", folds: int = 5, seed: int 
     from torchcal.calibration.residual_model import fit_residual_model
 
     robot = full.model.robot
-    fold = fold_ids(m.pose, folds, seed)
+    fold = fold_of_pose(m.pose, seed, folds)
     e0, e1 = np.zeros(len(m)), np.zeros(len(m))
     try:
         for test, res in fold_refits(full, m, ctx, fold, sigma_mm=sigma_mm, sigma_deg=sigma_deg):

@@ -67,7 +67,8 @@ import numpy as np
 import scipy.stats
 import torch
 
-from torchcal.diagnosis.probe import Probe, fold_of_pose, probe
+from torchcal.diagnosis.probe import Probe, probe
+from torchcal.folds import fold_of_pose
 from torchcal.measurements import Measurements
 from torchcal.robots.robot import Robot
 

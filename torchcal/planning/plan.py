@@ -3,7 +3,7 @@ determine the identifiable parameters of the model to be fitted, ordered so that
 moves stay short, and compare the plan with random plans of the same size.
 
 The candidates are a Latin hypercube inside the joint limits filtered like the sweep's
-workspace (`torchcal.reliability.sweep.sample_workspace`); the criterion (D, O1 or E) is that
+workspace (`torchcal.robots.workspace.sample_workspace`); the criterion (D, O1 or E) is that
 of `torchcal.planning.design` on the scaled parameter Jacobian.
 """
 
@@ -107,14 +107,14 @@ def plan(robot, effects=(), *, n: int, candidates: int = 10_000, criterion: str 
     `Robot`) with `effects` (specs). criterion: "D", "O1" or "E"; seed: the candidates' and
     the random plans' seed (the random plans draw on seed + 1); payload_kg (default the rated
     payload) and temp_c: the conditions at which load and thermal effects are evaluated;
-    workspace: a `torchcal.reliability.sweep.Workspace` (default `Workspace()`). InputError
+    workspace: a `torchcal.robots.workspace.Workspace` (default `Workspace()`). InputError
     when n exceeds the candidates or 3 n equations cannot determine the identifiable
     parameters."""
     from torchcal.calibration.model import CalibrationModel
     from torchcal.effects.spec import parse_specs
     from torchcal.planning import design
     from torchcal.planning.order import order_poses
-    from torchcal.reliability.sweep import sample_workspace
+    from torchcal.robots.workspace import sample_workspace
     from torchcal.robots.robot import robot as make_robot
 
     rob = make_robot(robot)

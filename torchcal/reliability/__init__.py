@@ -9,7 +9,7 @@ from torchcal._lazy import attach
 __getattr__, __dir__, __all__ = attach(__name__, {
     "torchcal.reliability.interval": ["Interval", "linear_hull", "sample_hull"],
     "torchcal.reliability.rset": ["eta", "interference", "r_set"],
-    "torchcal.reliability.sweep": ["SweepResult", "Workspace", "linear_bounds", "sample_workspace"],
+    "torchcal.reliability.sweep": ["SweepResult", "linear_bounds"],
     "torchcal.reliability.uncertainty": ["ClearanceModel", "clearance_from_dict", "deviation_map",
                                          "sample_deviations", "sample_states", "states_to_deviations"],
 })

@@ -38,7 +38,8 @@ from torchcal.io.files import check_output
 from torchcal.io.sweep_blocks import BlockFolder
 from torchcal.io.sweep_csv import sweep_columns, sweep_csv_rows
 from torchcal.reliability.interval import Interval
-from torchcal.reliability.sweep import (DEFAULT_BLOCK, SweepResult, Workspace, _check_allowed, _check_count,
+from torchcal.robots.workspace import Workspace
+from torchcal.reliability.sweep import (DEFAULT_BLOCK, SweepResult, _check_allowed, _check_count,
                                         block_range, sweep_block, sweep_states)
 
 EXTRA_HINT = "pip install 'torchcal[distributed]'"

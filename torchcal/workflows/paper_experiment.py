@@ -70,7 +70,8 @@ from torchcal.diagnosis.diagnose import discover
 from torchcal.partition.zones import partition_workspace
 from torchcal.robots.robot import robot as make_robot
 from torchcal.simulation.virtual_robot import VirtualRobot
-from torchcal.reliability.sweep import SweepResult, sample_workspace, sweep
+from torchcal.reliability.sweep import SweepResult, sweep
+from torchcal.robots.workspace import sample_workspace
 from torchcal.workflows.paper_config import AXES, METHODS, DemoConfig
 from torchcal.workflows.paper_report import DemoRun, reduction_percent
 

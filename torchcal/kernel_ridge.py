@@ -1,0 +1,200 @@
+"""Kernel ridge regression held out by pose: the machinery that the probe of what is left
+(`torchcal.diagnosis.probe`) and the residual stage (`torchcal.calibration.residual_model`)
+share.
+
+RBF kernel ``k(x, x') = exp(-|x - x'|^2 / (2 l^2))`` on variable features (`variable_features`),
+dual weights ``alpha = (K + lam I)^-1 Y`` (`fit_dual`), inputs and hyper-parameters chosen
+by forward selection with pose-grouped block cross-validation (`choose`); all ridges of one
+kernel from one eigendecomposition, held-out block residuals by the block leave-out
+identity ``[(A^-1)_BB]^-1 (A^-1 R)_B`` (`block_cv`, `block_cv_eig`); the kernel of one
+variable is low-rank and `kernel_factor` gives its eigenpairs without an N x N
+eigendecomposition (the method is described in full in `torchcal.diagnosis.probe`).
+Shapes: rows first, float64; Y (N, k) targets (mm for residuals).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from torchcal.folds import FOLDS
+
+#: RBF length scales tried, in rad of joint angle (standard deviations for other variables).
+LENGTH_SCALES = (0.1, 0.2, 0.4, 0.8, 1.6, 3.2)
+#: ridge weights tried, relative to the kernel's diagonal (1): noise / signal variance.
+RIDGES = (1e-3, 1e-2, 1e-1, 1.0, 10.0, 1e2, 1e4)
+#: fewest poses the probe runs on (fewer: nothing is reported as learnable).
+MIN_POSES = 10
+#: hyper-parameters and inputs are chosen on at most about this many rows (whole poses).
+MAX_ROWS = 400
+#: an input is added while it lowers the cross-validated error by this share; at most MAX_INPUTS.
+MIN_GAIN = 0.01
+MAX_INPUTS = 4
+#: the variables that did best alone, tried in later steps.
+SHORTLIST = 5
+
+
+def variable_features(values: dict, prismatic=()) -> dict:
+    """name -> (N, d) float64 kernel inputs of each variable: (sin, cos) of a revolute joint
+    angle ``qJ`` (rad), +-1 for ``approach_qJ``, value / std for the others (``temp_c``,
+    ``payload_kg``, a prismatic joint); `values` as `unexplained.variables` gives them."""
+    out = {}
+    for k, v in values.items():
+        v = np.asarray(v, dtype=np.float64)
+        if k.startswith("approach_"):
+            out[k] = v[:, None]
+        elif k.startswith("q") and k[1:].isdigit() and int(k[1:]) - 1 not in set(prismatic):
+            out[k] = np.stack([np.sin(v), np.cos(v)], -1)
+        else:
+            out[k] = ((v - v.mean()) / max(v.std(), 1e-300))[:, None]
+    return out
+
+
+def _sqdist(A: torch.Tensor, B: torch.Tensor) -> torch.Tensor:
+    """(M, N) squared distances of rows A (M, d), B (N, d)."""
+    return torch.cdist(A, B, compute_mode="donot_use_mm_for_euclid_dist").pow(2)
+
+
+def rbf(A: torch.Tensor, B: torch.Tensor, length_scale: float) -> torch.Tensor:
+    """(M, N) RBF kernel exp(-|a - b|^2 / (2 l^2)) of rows A (M, d), B (N, d)."""
+    return torch.exp(-_sqdist(A, B) / (2.0 * length_scale ** 2))
+
+
+def block_cv(K: torch.Tensor, Y: torch.Tensor, blocks: list, ridges=RIDGES):
+    """Exact block leave-out predictions of kernel ridge regression, all ridges at once.
+
+    K (N, N) kernel, Y (N, k) targets, blocks: index tensors partitioning 0..N-1.
+    Returns (pred (R, N, k): each block predicted from the other rows, alpha (R, N, k):
+    the dual weights on all N rows), R = len(ridges)."""
+    w, V = torch.linalg.eigh(K)
+    return block_cv_eig(w, V, Y, blocks, ridges)
+
+
+def block_cv_eig(w: torch.Tensor, V: torch.Tensor, Y: torch.Tensor, blocks: list, ridges=RIDGES):
+    """`block_cv` of the kernel ``K = V diag(w) V^T``: V (N, p) orthonormal columns, w (p,);
+    p < N: the other N - p eigenvalues are zero (a low-rank kernel, `kernel_factor`), so
+    ``A^-1 = V diag(1 / (w + lam) - 1 / lam) V^T + I / lam``."""
+    lam = torch.as_tensor(ridges, dtype=V.dtype)
+    w = w.clamp_min(0.0)[None, :]
+    thin = V.shape[1] < V.shape[0]
+    d = -w / (lam[:, None] * (w + lam[:, None])) if thin else 1.0 / (w + lam[:, None])  # (R, p)
+    alpha = (V[None] * d[:, None, :]) @ (V.T @ Y)  # (R, N, k) = A^-1 Y
+    if thin:
+        alpha = alpha + Y[None] / lam[:, None, None]
+    pred = torch.empty_like(alpha)
+    for B in blocks:
+        VB = V[B]  # (b, p)
+        QBB = (VB[None] * d[:, None, :]) @ VB.T  # (R, b, b) = (A^-1)_BB
+        if thin:
+            QBB = QBB + torch.diag_embed((1.0 / lam)[:, None].expand(-1, len(B)))
+        pred[:, B] = Y[B][None] - torch.linalg.solve(QBB, alpha[:, B])
+    return pred, alpha
+
+
+#: a kernel factor keeps the terms down to this share of the kernel's diagonal.
+FACTOR_TOL = 1e-12
+#: a variable with at most this many distinct values gets the exact factor on its values.
+FACTOR_VALUES = 64
+
+
+def kernel_factor(x: torch.Tensor, length_scale: float, angle: bool):
+    """(w (p,), V (N, p)): the nonzero eigenpairs of the RBF kernel of one variable's
+    inputs x (N, d), found without an N x N eigendecomposition, or None (no such way).
+
+    - at most FACTOR_VALUES distinct rows u: ``K = E C E^T`` with E (N, u) the rows'
+      indicators and C (u, u) the kernel of the distinct rows (exact);
+    - an angle (angle=True, x = (sin q, cos q)): ``k = exp((cos(q - q') - 1) / l^2) =
+      sum_n c_n cos(n (q - q'))`` with ``c_0 = I_0(1/l^2) e^(-1/l^2)``, ``c_n = 2 I_n(1/l^2)
+      e^(-1/l^2)`` (the von Mises series), features ``sqrt(c_n) (cos n q, sin n q)``,
+      truncated where c_n < FACTOR_TOL c_0 (the dropped terms sum to about that share of
+      the diagonal, 1).
+    The eigenpairs come from a thin SVD of the (N, p) factor, p << N."""
+    import scipy.special
+
+    uniq, inv = torch.unique(x, dim=0, return_inverse=True)
+    if len(uniq) <= FACTOR_VALUES:
+        c, U = torch.linalg.eigh(rbf(uniq, uniq, length_scale))
+        F = U[inv] * c.clamp_min(0.0).sqrt()
+    elif angle:
+        kappa = 1.0 / length_scale ** 2
+        n = np.arange(0, 4 * int(np.sqrt(kappa) * 8 + 8))
+        c = scipy.special.ive(n, kappa) * np.where(n > 0, 2.0, 1.0)
+        n = n[c >= FACTOR_TOL * c[0]]
+        if 2 * len(n) - 1 >= x.shape[0]:
+            return None
+        q = torch.atan2(x[:, 0], x[:, 1])[:, None] * torch.from_numpy(n[1:].astype(np.float64))
+        sq = torch.from_numpy(np.sqrt(c[n]))
+        F = torch.cat([sq[:1].expand(len(x), 1), torch.cos(q) * sq[1:], torch.sin(q) * sq[1:]], -1)
+    else:
+        return None
+    U, S, _ = torch.linalg.svd(F, full_matrices=False)
+    keep = S > S.amax() * 1e-10 if len(S) else S > 0
+    return S[keep] ** 2, U[:, keep]
+
+
+def stack_inputs(feats: dict, names) -> torch.Tensor:
+    return torch.from_numpy(np.hstack([feats[k] for k in names]))
+
+
+def subsample(fold: np.ndarray, rows: np.ndarray, pose: np.ndarray, seed: int) -> np.ndarray:
+    """Bool (N,): the rows of `rows` if there are at most MAX_ROWS, else whole poses drawn
+    at random (`seed`) up to about MAX_ROWS rows: what hyper-parameters are chosen on."""
+    if rows.sum() <= MAX_ROWS:
+        return rows
+    ids = np.unique(pose[rows])
+    keep = np.random.default_rng(seed).permutation(ids)[: max(int(len(ids) * MAX_ROWS / rows.sum()), FOLDS)]
+    return rows & np.isin(pose, keep)
+
+
+def choose(feats: dict, candidates: list, Y: torch.Tensor, fold: np.ndarray, rows: np.ndarray):
+    """Forward selection of the inputs and the (length scale, ridge) by block CV of the rows
+    `rows` (bool (N,)), blocks their `fold` values. Start from no input (r_hat = 0); step
+    1 tries every candidate alone at every length scale; each later step tries the
+    SHORTLIST candidates that did best alone, at the current length scale and its grid
+    neighbours. The best addition is taken while it lowers the CV mean squared error by at
+    least MIN_GAIN of the current error, up to MAX_INPUTS inputs. Returns (names, length
+    scale, ridge, mse)."""
+    R = torch.from_numpy(rows)
+    Yr = Y[R]
+    fr = fold[rows]
+    blocks = [torch.from_numpy(np.flatnonzero(fr == g)) for g in np.unique(fr)]
+    x = {k: torch.from_numpy(feats[k])[R] for k in candidates}
+    d2 = {k: _sqdist(v, v) for k, v in x.items()}
+
+    def score(names, scales):
+        D = sum(d2[k] for k in names)
+        out = None
+        for ell in scales:
+            factor = kernel_factor(x[names[0]], ell, feats[names[0]].shape[1] == 2) if len(names) == 1 else None
+            pred, _ = (block_cv_eig(*factor, Yr, blocks) if factor is not None else
+                       block_cv(torch.exp(-D / (2.0 * ell ** 2)), Yr, blocks))
+            mse = (pred - Yr[None]).pow(2).sum(-1).mean(-1)
+            i = int(mse.argmin())
+            if out is None or float(mse[i]) < out[0]:
+                out = (float(mse[i]), list(names), ell, RIDGES[i])
+        return out
+
+    cur = (float(Yr.pow(2).sum(-1).mean()), [], float("nan"), float("nan"))  # mse, names, l, lam
+    alone = sorted((score([k], LENGTH_SCALES) for k in candidates), key=lambda t: t[0])
+    shortlist = [t[1][0] for t in alone[:SHORTLIST]]
+    while alone and len(cur[1]) < MAX_INPUTS:
+        if not cur[1]:
+            best = alone[0]
+        else:
+            i = LENGTH_SCALES.index(cur[2])
+            near = LENGTH_SCALES[max(i - 1, 0): i + 2]
+            tries = [score(cur[1] + [k], near) for k in shortlist if k not in cur[1]]
+            if not tries:
+                break
+            best = min(tries, key=lambda t: t[0])
+        if best[0] > (1.0 - MIN_GAIN) * cur[0]:
+            break
+        cur = best
+    return cur[1], cur[2], cur[3], cur[0]
+
+
+def fit_dual(X: torch.Tensor, Y: torch.Tensor, length_scale: float, ridge: float) -> torch.Tensor:
+    """(N, k) dual weights alpha = (K + ridge I)^-1 Y of inputs X (N, d), targets Y (N, k)."""
+    K = rbf(X, X, length_scale)
+    K.diagonal().add_(ridge)
+    return torch.cholesky_solve(Y, torch.linalg.cholesky(K))

@@ -175,7 +175,7 @@ def _torchcal_part(train: Path, val: Path, repeats: int, orientation: bool) -> d
 
     import torchcal
     from torchcal.io.measurement_csv import read_measurements
-    from torchcal.robots.robot_file import load_robot_file
+    from torchcal.io.robot_file import load_robot_file
 
     robot = load_robot_file(ROBOT)
     m = read_measurements(train, robot=robot)
@@ -192,7 +192,7 @@ def _torchcal_part(train: Path, val: Path, repeats: int, orientation: bool) -> d
 def _discover_part(train: Path, repeats: int) -> dict:
     import torchcal
     from torchcal.io.measurement_csv import read_measurements
-    from torchcal.robots.robot_file import load_robot_file
+    from torchcal.io.robot_file import load_robot_file
 
     import torchcal.diagnosis.diagnose  # noqa: F401  (imports are not discover's work)
 

@@ -34,7 +34,7 @@ from torchcal.kinematics import mdh as K
 from torchcal.calibration.intervals import batched_jacobian, batched_predict, identify_zones, pose_intervals
 from torchcal.calibration.lm import levenberg_marquardt
 from torchcal.calibration.model import CalibrationModel
-from torchcal.robots.robot import robot
+from torchcal.io.robot_file import robot
 from torchcal.simulation.virtual_robot import VirtualRobot
 from torchcal.robots.workspace import sample_workspace
 

@@ -24,7 +24,7 @@ from torchcal.folds import fold_of_pose
 from torchcal.diagnosis.spectral import propose_orders
 from torchcal.effects import context_of
 from torchcal.io.measurement_csv import read_measurements
-from torchcal.robots.robot_file import load_robot_file
+from torchcal.io.robot_file import load_robot_file
 
 UR10 = Path(__file__).resolve().parents[1] / "examples" / "ur10"
 

@@ -66,7 +66,7 @@ def _discover_part(folder: Path) -> dict:
 
     import torchcal
     from torchcal.io.measurement_csv import read_measurements
-    from torchcal.robots.robot_file import load_robot_file
+    from torchcal.io.robot_file import load_robot_file
 
     robot = load_robot_file(ROOT / "examples" / "ur10" / "ur10.json")
     m = read_measurements(folder / "train.csv", robot=robot)

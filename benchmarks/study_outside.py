@@ -145,7 +145,7 @@ def run_session(case, poses, seed, fit_only=False):
 
     import torchcal
     from torchcal.measurements import Measurements
-    from torchcal.robots.robot_file import load_robot_file
+    from torchcal.io.robot_file import load_robot_file
 
     robot = load_robot_file(ROBOT)
     q, xyz, clean = simulate(case, poses, seed)

@@ -15,6 +15,7 @@ from torchcal.effects import make_context
 from torchcal.io.measurement_csv import write_measurements
 from torchcal.measurements import Measurements
 from torchcal.robots.poses import random_poses
+from torchcal.io import modelfile
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +38,7 @@ def test_fit_from_name_robot_model_and_csv(kr, data, tmp_path):
     for first, meas in ((kr, m), (CalibrationModel(kr), m), ("kr1000titan", tmp_path / "m.csv")):
         other = torchcal.fit(first, meas)
         assert_close(other.theta, res.theta, atol=1e-9, rtol=0)
-    d = res.to_dict()
+    d = modelfile.to_dict(res)
     assert d["fit"]["status"] == "converged" and d["robot"] == "kr1000titan"
 
 

@@ -20,7 +20,7 @@ import torchcal
 from torchcal.calibration.model import CalibrationModel
 from torchcal.effects import make_context
 from torchcal.kinematics import Chain, mdh as K
-from torchcal.robots.robot_file import robot_from_dict
+from torchcal.io.robot_file import robot_from_dict
 
 SCARA = robot_from_dict(json.loads((Path(__file__).resolve().parents[1] / "examples" / "scara.json").read_text()))
 KERNELS = ("link_transforms", "fk_frames", "fk_pose", "positions", "fk_positions", "chain_jacobians",

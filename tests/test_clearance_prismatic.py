@@ -28,7 +28,7 @@ from torchcal.errors import InputError
 from torchcal.io.sweep_csv import read_sweep
 from torchcal.reliability.sweep import sweep
 from torchcal.reliability.uncertainty import ClearanceModel, sample_states, states_to_deviations
-from torchcal.robots.robot_file import robot_from_dict, robot_to_dict
+from torchcal.io.robot_file import robot_from_dict, robot_to_dict
 
 
 def _j(typ, th, d, a, al, lo, hi, **kw):

@@ -14,7 +14,7 @@ import torch
 import torchcal
 from torchcal.cli import main
 from torchcal.errors import InputError
-from torchcal.robots.robot_file import load_robot_file, robot_to_dict
+from torchcal.io.robot_file import load_robot_file, robot_to_dict
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -90,7 +90,7 @@ def test_closed_stdout_ends_quietly(tmp_path):
 
 
 def test_urdf_import_prints_nothing_of_the_parser(tmp_path, capfd):
-    from torchcal.robots.urdf import robot_from_urdf
+    from torchcal.io.urdf import robot_from_urdf
 
     links = "".join(f'<link name="l{k}"><visual><geometry><box size="1 1 1"/></geometry></visual>'
                     f'<gazebo_thing foo="1"/></link>' for k in range(3))

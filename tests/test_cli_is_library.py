@@ -259,7 +259,7 @@ def test_plan_of_a_prismatic_robot_writes_the_slide_in_mm(tmp_path, capsys):
     lo, hi = robot.limits[2].tolist()  # the slide's limits, mm
     slide = [float(r[3]) for r in rows]
     assert all(lo <= v <= hi for v in slide) and max(slide) - min(slide) > 0.2 * (hi - lo)
-    res = plan(scara, n=12, candidates=300, workspace=_workspace(floor=-1e9, column_radius=0.0))
+    res = plan(robot, n=12, candidates=300, workspace=_workspace(floor=-1e9, column_radius=0.0))
     assert_close(torch.tensor(slide, dtype=torch.float64), res.q[:, 2], rtol=0, atol=1e-9)
 
 

@@ -204,7 +204,7 @@ def session(tmp_path_factory):
     from torchcal.io.measurement_csv import write_measurements
     from torchcal.io.partition_file import save_partition
     from torchcal.partition.zones import partition_workspace
-    from torchcal.robots.robot import robot
+    from torchcal.io.robot_file import robot
     from torchcal.simulation.virtual_robot import VirtualRobot
     from torchcal.reliability.sweep import sweep
     from torchcal.robots.workspace import sample_workspace

@@ -25,7 +25,7 @@ from torchcal.effects.joint_clearance import load_directions
 from torchcal.effects.joint_compliance import G_NM_PER_KG_MM, JointCompliance
 from torchcal.errors import InputError
 from torchcal.calibration.model import CalibrationModel
-from torchcal.robots.robot import robot
+from torchcal.io.robot_file import robot
 from torchcal.simulation.virtual_robot import VirtualRobot, default_masses, random_poses
 
 DEG = math.pi / 180

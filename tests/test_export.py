@@ -12,9 +12,9 @@ from torchcal.cli import main
 from torchcal.effects import make_context
 from torchcal.io import modelfile
 from torchcal.io.measurement_csv import read_measurements
-from torchcal.robots.robot_file import load_robot_file
+from torchcal.io.robot_file import load_robot_file
 from torchcal.calibration.geometry_only import calibrated_robot
-from torchcal.robots.urdf import _origin, robot_from_urdf
+from torchcal.io.urdf import _origin, robot_from_urdf
 
 
 @pytest.fixture(scope="module")
@@ -82,7 +82,7 @@ def test_export_lists_effects_it_cannot_hold(tmp_path, capsys):
 
 def test_model_is_self_contained_and_refuses_another_robot(tmp_path, capsys):
     rf = tmp_path / "arm.json"
-    from torchcal.robots.robot_file import write_robot_file
+    from torchcal.io.robot_file import write_robot_file
     write_robot_file(rf, torchcal.robot("puma560"))
     assert main(["simulate", "--robot", str(rf), "--n", "30", "--out", str(tmp_path / "s.csv")]) == 0
     assert main(["fit", str(tmp_path / "s.csv"), "--robot", str(rf), "--out", str(tmp_path / "m.json")]) == 0
@@ -112,7 +112,7 @@ def test_old_model_file_with_preset_name_loads(fitted):
 
 
 def test_export_never_replaces_what_the_model_came_from(tmp_path, capsys):
-    from torchcal.robots.urdf import minimal_urdf
+    from torchcal.io.urdf import minimal_urdf
 
     src = tmp_path / "arm.urdf"
     src.write_text(minimal_urdf(torchcal.robot("ur5e")))
@@ -141,7 +141,7 @@ def test_unwritable_output_is_found_before_the_work_with_the_users_path(fitted, 
 
 
 def test_no_command_writes_over_the_robot_file_or_its_urdf(tmp_path, capsys):
-    from torchcal.robots.urdf import minimal_urdf
+    from torchcal.io.urdf import minimal_urdf
 
     src = tmp_path / "arm.urdf"
     src.write_text(minimal_urdf(torchcal.robot("ur5e")))

@@ -13,7 +13,7 @@ from torchcal.io.files import write_json
 from torchcal.io.measurement_csv import write_measurements
 from torchcal.io.modelfile import to_dict
 from torchcal.robots.poses import random_poses
-from torchcal.robots.robot_file import load_robot_file
+from torchcal.io.robot_file import load_robot_file
 from torchcal.simulation.virtual_robot import VirtualRobot
 
 EFFECTS = ["base_frame", "tool_offset", "joint_compliance:2,3"]

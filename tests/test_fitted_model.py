@@ -12,6 +12,7 @@ import pytest
 import torch
 
 import torchcal
+from torchcal.io import modelfile
 from torchcal.calibration.fit import FitResult, Identifiability
 from torchcal.calibration.model import CalibrationModel
 from torchcal.io.measurement_csv import read_measurements
@@ -28,7 +29,7 @@ def session(tmp_path_factory):
     res = torchcal.fit(robot, train, ["base_frame", "tool_offset"], robust="huber", sigma_mm=0.02, sigma_deg=0.05,
                        residual_model="kernel")
     path = tmp_path_factory.mktemp("fitted") / "m.json"
-    path.write_text(json.dumps(res.to_dict(seed=7)))
+    torchcal.save(res, path, seed=7)
     return res, torchcal.load(path), path, test
 
 
@@ -88,7 +89,7 @@ def test_in_memory_and_loaded_agree_field_by_field(session):
 
 def test_loaded_model_writes_the_same_file(session):
     _, back, path, _ = session
-    same(json.loads(path.read_text()), back.to_dict(), "MODEL.json")
+    same(json.loads(path.read_text()), modelfile.to_dict(back), "MODEL.json")
 
 
 def test_evaluate_and_compensate_agree_from_memory_and_from_the_file(session):

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from torchcal.errors import InputError
 from torchcal.measurements import Measurements
 from torchcal.io.measurement_csv import JointLimitWarning, format_measurements, read_measurements, write_measurements
-from torchcal.robots.robot import robot
+from torchcal.io.robot_file import robot
 
 HEADER6 = "pose,q1,q2,q3,q4,q5,q6,x,y,z"
 ROW6 = "0,10,-20,30,0,45,90,1500.5,-2.25,1800"

@@ -18,7 +18,7 @@ from torchcal.effects.base import Effect
 from torchcal.effects.registry import lookup
 from torchcal.kinematics import mdh as K
 from torchcal.robots.poses import random_poses
-from torchcal.robots.robot_file import load_robot_file
+from torchcal.io.robot_file import load_robot_file
 
 ROOT = Path(__file__).resolve().parents[1]
 RTOL = 1e-9

@@ -25,7 +25,7 @@ from torchcal.effects import build, context_of, make_context
 from torchcal.effects.spec import EffectSpec, parse_spec, parse_specs
 from torchcal.errors import InputError
 from torchcal.measurements import Measurements
-from torchcal.robots.robot_file import load_robot_file
+from torchcal.io.robot_file import load_robot_file
 
 ROOT = Path(__file__).resolve().parents[1]
 UR10 = load_robot_file(ROOT / "examples" / "ur10" / "ur10.json")

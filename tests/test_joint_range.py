@@ -27,8 +27,9 @@ from torchcal.io.measurement_csv import write_measurements
 from torchcal.io.modelfile import load
 from torchcal.measurements import Measurements
 from torchcal.robots.poses import random_poses
-from torchcal.robots.robot_file import robot_from_dict
+from torchcal.io.robot_file import robot_from_dict
 from torchcal.simulation.virtual_robot import VirtualRobot
+from torchcal.io import modelfile
 
 LO, HI = -60.0, 30.0  # deg: joint 1 of the calibration session
 
@@ -140,13 +141,13 @@ def test_prismatic_range_in_mm_round_trip_and_compensate(tmp_path, capsys):
     q = robot.q_from_user(user)
     m = Measurements(torch.arange(30), q, robot.fk(q))
     res = torchcal.fit(robot, m)
-    rng = res.to_dict()["calibrated_range"]
+    rng = modelfile.to_dict(res)["calibrated_range"]
     assert rng["unit"] == ["deg", "deg", "mm", "deg"]
     assert rng["q_min"][2] == pytest.approx(float(user[:, 2].min()), abs=1e-12)  # mm, not rad->deg
     assert rng["q_max"][2] == pytest.approx(float(user[:, 2].max()), abs=1e-12)
     assert rng["q_max"][0] == pytest.approx(float(user[:, 0].max()), abs=1e-12)  # deg
     path = tmp_path / "scara_model.json"
-    path.write_text(json.dumps(res.to_dict()))
+    torchcal.save(res, path)
     fitted = load(path)
     model, theta = fitted.model, fitted.theta
     assert_close(fitted.q_range, joint_range(q), rtol=0, atol=1e-12)

@@ -7,8 +7,10 @@ functions) and check the layer rules of docs/design.md.
   import workflows or cli; calibration does not import simulation; io does not import cli.
 - compute modules do not write files: effects, reliability, partition, diagnosis, simulation
   and measurements import nothing of torchcal.io (io reads and writes their results);
-  kinematics and calibration do not import torchcal.io.files (calibration may name the
-  MODEL.json layout of torchcal.io.modelfile for `FitResult.to_dict`).
+  kinematics and calibration import nothing of torchcal.io either (`torchcal.save` writes
+  a fitted model).
+- the layers of docs/design.md: every import points down or to a sibling of its layer,
+  and the package import graph has no cycle (so siblings never import each other both ways).
 - torchcal.rotations, torchcal.statistics and torchcal.metrics import nothing of torchcal;
 - a `CalibrationModel` holds no fitted state: no module but its own sets an attribute
   on one (``model.x = ...``, ``cm.x = ...``, ``fit.model.x = ...``, ``setattr``); the
@@ -67,7 +69,7 @@ for pkg in ("robots", "effects", "reliability", "partition", "diagnosis", "simul
 RULES.append(("torchcal.workflows", ["torchcal.cli", "viz"]))
 for pkg in ("effects", "reliability", "partition", "diagnosis", "simulation", "measurements"):
     RULES.append((f"torchcal.{pkg}", ["torchcal.io"]))
-RULES.append(("torchcal.calibration", ["torchcal.io.files"]))
+RULES.append(("torchcal.calibration", ["torchcal.io"]))
 # the rotation convention and the generic statistics depend on nothing of torchcal
 RULES.append(("torchcal.rotations", ["torchcal"]))
 RULES.append(("torchcal.statistics", ["torchcal"]))
@@ -203,7 +205,7 @@ def test_the_model_attribute_checker_sees_writes():
 #: a command-line option inside a string: ``--name`` at the start or after a space, a quote or "("
 FLAG = re.compile(r"(?:^|[\s(`'\"])--[a-z]")
 #: strings that quote a whole command for the user to run (a command, not an option of this call)
-COMMANDS_QUOTED = {("torchcal.robots.robot_file", " --base BASE_LINK --tip TIP_LINK --out ROBOT.json")}
+COMMANDS_QUOTED = {("torchcal.io.robot_file", " --base BASE_LINK --tip TIP_LINK --out ROBOT.json")}
 
 
 def flag_strings(path: Path) -> list[str]:
@@ -228,3 +230,82 @@ def test_library_messages_name_no_command_line_option():
     assert not bad, bad
     # the checker is not vacuous: the command line's own strings are found
     assert any("--force" in s for s in flag_strings(ROOT / "cli" / "_args.py"))
+
+
+# the layers of docs/design.md ("Layers"): a unit is a subpackage or a top-level module
+LAYERS = {
+    1: ["errors", "rotations", "statistics", "metrics", "threads", "defaults", "_lazy", "folds", "kernel_ridge",
+        "kinematics"],
+    2: ["robots", "measurements"],
+    3: ["effects", "reliability", "partition"],
+    4: ["calibration"],
+    5: ["diagnosis", "planning", "simulation"],
+    6: ["io"],
+    7: ["api", "workflows"],
+    8: ["cli", "__init__", "__main__"],
+}
+LAYER_OF = {u: k for k, units in LAYERS.items() for u in units}
+
+
+def _unit(module: str) -> str:
+    parts = module.split(".")
+    return "__init__" if len(parts) == 1 else parts[1]
+
+
+def _unit_edges() -> dict:
+    """{(importer unit, imported unit): [(module, import)]} over every torchcal import."""
+    edges = {}
+    for mod, imps in MODULES.items():
+        for imp in imps:
+            if imp.startswith("torchcal.") and _unit(imp) != _unit(mod) and not mod.endswith(".__init__"):
+                edges.setdefault((_unit(mod), _unit(imp)), []).append((mod, imp))
+    return edges
+
+
+def test_every_unit_has_a_layer():
+    units = {_unit(m) for m in MODULES}
+    assert units <= set(LAYER_OF), f"place these in docs/design.md's layers and LAYERS: {sorted(units - set(LAYER_OF))}"
+
+
+def test_imports_point_down_the_layers():
+    bad = [f"{a} (layer {LAYER_OF[a]}) -> {b} (layer {LAYER_OF[b]}): {v[0][0]} imports {v[0][1]}"
+           for (a, b), v in _unit_edges().items()
+           if LAYER_OF[b] > LAYER_OF[a]]
+    assert not bad, "\n".join(bad)
+
+
+def _cycle(edges) -> list | None:
+    graph = {}
+    for a, b in edges:
+        graph.setdefault(a, set()).add(b)
+    state, stack = {}, []
+
+    def visit(u):
+        state[u] = 1
+        stack.append(u)
+        for v in sorted(graph.get(u, ())):
+            if state.get(v) == 1:
+                return stack[stack.index(v):] + [v]
+            if v not in state:
+                found = visit(v)
+                if found:
+                    return found
+        state[u] = 2
+        stack.pop()
+        return None
+
+    for u in sorted(graph):
+        if u not in state:
+            found = visit(u)
+            if found:
+                return found
+    return None
+
+
+def test_the_package_import_graph_is_acyclic():
+    assert _cycle(_unit_edges()) is None, " -> ".join(_cycle(_unit_edges()))
+
+
+def test_the_cycle_finder_finds_a_cycle():
+    assert _cycle({("a", "b"): [], ("b", "c"): [], ("c", "a"): []}) == ["a", "b", "c", "a"]
+    assert _cycle({("a", "b"): [], ("b", "c"): []}) is None

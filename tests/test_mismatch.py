@@ -19,7 +19,7 @@ from torchcal.errors import InputError
 from torchcal.io.measurement_csv import write_measurements
 from torchcal.measurements import fixed_xyz_to_matrix
 from torchcal.robots.poses import random_poses
-from torchcal.robots.robot_file import robot_from_dict
+from torchcal.io.robot_file import robot_from_dict
 from torchcal.simulation.virtual_robot import VirtualRobot
 
 UR10 = Path(__file__).resolve().parents[1] / "examples" / "ur10" / "ur10.json"

@@ -24,7 +24,8 @@ from torchcal.io.measurement_csv import write_measurements
 from torchcal.measurements import Measurements
 from torchcal.rotations import matrix_to_fixed_xyz
 from torchcal.robots.poses import random_poses
-from torchcal.robots.robot_file import robot_from_dict
+from torchcal.io.robot_file import robot_from_dict
+from torchcal.io import modelfile
 
 SCARA = robot_from_dict(json.loads((Path(__file__).resolve().parents[1] / "examples" / "scara.json").read_text()))
 
@@ -74,7 +75,7 @@ def test_evaluate_reports_orientation_for_a_fit_and_its_file(kr, tmp_path):
     res = torchcal.fit(kr, m)
     assert res.orientation is not None
     path = tmp_path / "model.json"
-    path.write_text(json.dumps(res.to_dict()))
+    torchcal.save(res, path)
     in_memory, from_file = torchcal.evaluate(res, test), torchcal.evaluate(str(path), test)
     assert in_memory.orientation_rms_deg is not None
     assert in_memory.to_dict().keys() == from_file.to_dict().keys()
@@ -101,7 +102,7 @@ def test_fit_records_its_settings_and_the_cli_writes_the_api_model(kr, tmp_path)
     data = _csv(tmp_path, kr, 40, 11)
     res = torchcal.fit("kr1000titan", data, robust="huber", sigma_mm=0.02, sigma_deg=0.03)
     assert (res.robust, res.sigma_mm, res.sigma_deg) == ("huber", 0.02, 0.03)
-    api = json.loads(json.dumps(res.to_dict(source=data)))
+    api = json.loads(json.dumps(modelfile.to_dict(res, source=data)))
     assert api["fit"]["robust"] == "huber" and api["fit"]["sigma_mm"] == 0.02
     out = tmp_path / "model.json"
     assert main(["fit", str(data), "--robot", "kr1000titan", "--robust", "huber", "--sigma-mm", "0.02",

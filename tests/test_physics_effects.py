@@ -29,7 +29,7 @@ from torchcal.effects.axis_tilt import reference_moment_mm
 from torchcal.errors import InputError
 from torchcal.robots.poses import random_poses
 from torchcal.robots.robot import Robot
-from torchcal.robots.robot_file import robot_from_dict, robot_to_dict
+from torchcal.io.robot_file import robot_from_dict, robot_to_dict
 from torchcal.simulation.virtual_robot import VirtualRobot
 
 RATIOS = (220.0, 220.0, 180.0, 120.0, 120.0, 90.0)

@@ -19,7 +19,7 @@ from torchcal.io.targets_csv import read_targets
 from torchcal.errors import InputError
 from torchcal.calibration.plausibility import check_units
 from torchcal.io.measurement_csv import read_measurements
-from torchcal.robots.robot_file import robot_from_dict
+from torchcal.io.robot_file import robot_from_dict
 
 # a SCARA: revolute, revolute, prismatic (mm), revolute
 SCARA = json.loads((Path(__file__).resolve().parents[1] / "examples" / "scara.json").read_text())

@@ -10,7 +10,7 @@ import torch
 import torchcal
 from torchcal.cli import main
 from torchcal.errors import InputError
-from torchcal.robots.robot_file import load_robot_file, robot_from_dict, robot_to_dict, write_robot_file
+from torchcal.io.robot_file import load_robot_file, robot_from_dict, robot_to_dict, write_robot_file
 
 ARM7 = {"name": "arm7", "joints": [
     {"type": "revolute", "theta_offset_deg": 0, "d_mm": 340, "a_mm": 0, "alpha_deg": -90, "lower": -170, "upper": 170},

@@ -177,7 +177,7 @@ def test_effect_sizes_per_effect():
     its parameters (same seed) and leaves the other's unchanged."""
     import torch
 
-    from torchcal.robots.robot import robot
+    from torchcal.io.robot_file import robot
     from torchcal.simulation.virtual_robot import VirtualRobot
 
     r = robot("kr1000titan")

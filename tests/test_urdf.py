@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from torchcal.errors import InputError
-from torchcal.robots.urdf import minimal_urdf, read_chain, robot_from_urdf, urdf_fk
+from torchcal.io.urdf import minimal_urdf, read_chain, robot_from_urdf, urdf_fk
 
 
 def _joint(name, jtype, parent, child, xyz, rpy, axis="0 0 1", lim=(-3.0, 3.0)):
@@ -136,7 +136,7 @@ def test_bad_links_one_line(tmp_path):
 def test_calibrated_urdf_keeps_links_and_carries_calibration(tmp_path, key):
     import dataclasses
 
-    from torchcal.robots.urdf import calibrated_urdf
+    from torchcal.io.urdf import calibrated_urdf
 
     path, base, tip = _write(tmp_path, key)
     robot = robot_from_urdf(path, base, tip)

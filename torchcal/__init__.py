@@ -20,7 +20,7 @@ _LAZY = {
     "InputError": "torchcal.errors",
     "PRESETS": "torchcal.robots.robot",
     "Robot": "torchcal.robots.robot",
-    "robot": "torchcal.robots.robot",
+    "robot": "torchcal.io.robot_file",
     "calibrate": "torchcal.api",
     "compensate": "torchcal.api",
     "diagnose": "torchcal.api",
@@ -28,10 +28,11 @@ _LAZY = {
     "evaluate": "torchcal.api",
     "fit": "torchcal.api",
     "load": "torchcal.api",
+    "save": "torchcal.api",
     "register": "torchcal.api",
 }
 __all__ = ["InputError", "PRESETS", "Robot", "robot", "__version__",
-           "fit", "load", "evaluate", "diagnose", "discover", "calibrate", "compensate", "register"]
+           "fit", "load", "save", "evaluate", "diagnose", "discover", "calibrate", "compensate", "register"]
 
 
 def __getattr__(name):

@@ -5,7 +5,8 @@ Forgiving entry, strict kernels: the first argument may be a preset name or robo
 (``"kr1000titan"``), a `Robot`, a `CalibrationModel` or a fitted model (`FitResult`, or a
 MODEL.json path for `evaluate` / `compensate`); measurements may be a `Measurements` or the
 path of a measurement CSV (docs/formats.md). Every result is a dataclass whose
-``to_dict()`` is the JSON the command line writes. Argument order: robot or model
+``to_dict()`` is the JSON the command line writes; a fitted model (`FitResult`) is
+written by `save` (MODEL.json) and read by `load`. Argument order: robot or model
 first, then data, then options; ``seed`` is always a random seed, ``q0`` a starting
 joint vector (M, n) rad. Units: mm and rad inside, as everywhere in torchcal.
 
@@ -15,6 +16,7 @@ Example::
     res = torchcal.fit("kr1000titan", "data.csv", effects=["joint_compliance:2,3"])
     print(res.status, res.rms_mm)
     print(torchcal.evaluate(res, "test.csv").to_dict())
+    torchcal.save(res, "model.json")
 """
 
 from __future__ import annotations
@@ -31,9 +33,10 @@ from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.calibration.model import CalibrationModel
 from torchcal.errors import InputError
 from torchcal.measurements import Measurements
-from torchcal.robots.robot import Robot, robot as make_robot
+from torchcal.io.robot_file import robot as make_robot
+from torchcal.robots.robot import Robot
 
-__all__ = ["fit", "load", "evaluate", "diagnose", "discover", "calibrate", "compensate", "register", "Evaluation",
+__all__ = ["fit", "load", "save", "evaluate", "diagnose", "discover", "calibrate", "compensate", "register", "Evaluation",
            "compensate_targets", "TargetCompensation", "export", "Export", "accuracy", "simulate", "Simulation"]
 
 
@@ -77,6 +80,18 @@ def load(path, *, robot=None) -> FitResult:
     from torchcal.io.modelfile import load as read
 
     return read(path, robot=robot)
+
+
+def save(res: FitResult, path, *, source=None, seed: int = 0, pose_ids=None, force: bool = False):
+    """Write the fitted model `res` as MODEL.json at `path` (the layout of
+    `torchcal.io.modelfile.to_dict`, what ``torchcal fit --out`` writes; `load` reads it
+    back): atomically, an existing file only with force, never over `source` (the data it
+    was fitted on, recorded with its hash). Returns the path."""
+    from torchcal.io.files import write_json
+    from torchcal.io.modelfile import to_dict
+
+    obj = to_dict(res, source=source, seed=seed, pose_ids=pose_ids)
+    return write_json(path, obj, force=force, inputs=[] if source is None else [source])
 
 
 def _warn_range(q: torch.Tensor, q_range, robot: Robot, what: str, stage=None) -> int:
@@ -134,8 +149,8 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     (`torchcal.calibration.residual_model`) as ``res.residual_model`` only when its held-out
     gain is significant (`torchcal.diagnosis.residual_stage`, the figures in
     ``res.residual_test``; None otherwise); evaluate and compensate apply it.
-    Returns a `FitResult` (``.theta``, ``.status``, ``.rms_mm``, ``.to_dict()`` = the
-    MODEL.json of ``torchcal fit``).
+    Returns a `FitResult` (``.theta``, ``.status``, ``.rms_mm``); `save` writes it as the
+    MODEL.json of ``torchcal fit``, `load` reads it back.
     """
     from torchcal.calibration.fit import fit as fit_model
     from torchcal.calibration.mismatch import check_fitted
@@ -337,13 +352,13 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
 
 def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_method: str = "damped",
               damping="gcv_shared"):
-    """Interval calibration, global or per zone (`torchcal.workflows.zone_calibration.calibrate`).
+    """Interval calibration, global or per zone (`torchcal.calibration.zone_calibration.calibrate`).
 
     partition: a `Partition`, a PARTITION.json path or None. Returns an `IntervalModel`
     (`torchcal.io.interval_model.interval_model_to_dict` gives the MODEL.json of ``torchcal
     calibrate``) whose ``global_fit`` is the global `IntervalFit`.
     """
-    from torchcal.workflows.zone_calibration import calibrate as run
+    from torchcal.calibration.zone_calibration import calibrate as run
 
     model = _model(robot_or_model, effects)
     if isinstance(partition, (str, Path)):
@@ -603,7 +618,7 @@ def compensate_targets(model, targets, *, frame: str = "measuring", robot=None, 
     from torchcal.calibration.compensate import FRAMES, measuring_from_base, nominal_start
     from torchcal.calibration.mismatch import MismatchWarning, check_targets
     from torchcal.effects import make_context
-    from torchcal.robots.robot_file import check_same_robot
+    from torchcal.io.robot_file import check_same_robot
 
     where = str(targets) if isinstance(targets, (str, Path)) else "targets"
     if frame not in FRAMES:
@@ -695,10 +710,10 @@ def export(model, *, robot_file=None, urdf=None, table=None, data=None, length_u
     Other effects: with `data` (Measurements or CSV path in `length_unit` / `angle_unit`) the
     geometry alone is refitted on them (`refit_geometry`) and that geometry exported; without,
     they are listed in the robot file. A robot imported from a URDF keeps that file's links
-    (`torchcal.robots.urdf.calibrated_urdf`), any other gets `minimal_urdf`; the URDF keeps
+    (`torchcal.io.urdf.calibrated_urdf`), any other gets `minimal_urdf`; the URDF keeps
     the robot's own base and tool (``tool0``) and carries the measuring frame and the
     reflector(s) as separate fixed frames ``tracker`` and ``reflector``
-    (`torchcal.robots.urdf.add_frames`). Every output is checked before any work
+    (`torchcal.io.urdf.add_frames`). Every output is checked before any work
     (OutputExistsError without `force`; never one of the inputs or the files the model
     came from, `force` included; its folder must take a new file) and written atomically."""
     import dataclasses
@@ -708,8 +723,8 @@ def export(model, *, robot_file=None, urdf=None, table=None, data=None, length_u
     from torchcal.calibration.plausibility import check_units
     from torchcal.io.files import atomic_write, check_output
     from torchcal.io.mdh_table import mdh_table_csv
-    from torchcal.robots.robot_file import write_robot_file
-    from torchcal.robots.urdf import add_frames, calibrated_urdf, minimal_urdf
+    from torchcal.io.robot_file import write_robot_file
+    from torchcal.io.urdf import add_frames, calibrated_urdf, minimal_urdf
 
     outs = {"robot_file": robot_file, "urdf": urdf, "table": table}
     if not any(outs.values()):

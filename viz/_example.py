@@ -23,7 +23,7 @@ def make_example(seed: int = 0, n: int = 400) -> dict[str, np.ndarray]:
     """Synthetic workspace, zones, intervals and residuals (mm, rad); deterministic in `seed`."""
     from sklearn.cluster import KMeans
 
-    from torchcal.robots.robot import robot
+    from torchcal.io.robot_file import robot
 
     rng = np.random.default_rng(seed)
     kr = robot("kr1000titan")

@@ -26,4 +26,5 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "torchcal.calibration.plausibility": ["MAX_ANGLE_DEG", "MAX_LENGTH_MM", "beyond_plausible", "check_units",
                                           "plausible_scales"],
     "torchcal.calibration.registration": ["base_frame_summary", "register_frame"],
+    "torchcal.calibration.zone_calibration": ["ZONE_METHODS", "calibrate", "fit_zones"],
 })

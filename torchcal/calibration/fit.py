@@ -178,7 +178,7 @@ class FitResult:
     by evaluate and compensate. training: {"n", "rms_mm", "max_mm"} of the data the model
     was fitted on (kept by `register`, whose residuals are those of the new data).
     provenance: MODEL.json's {"input", "input_sha256", "torchcal_version", "seed"} after
-    `load`; None for a fit in memory (`to_dict` writes it from its arguments).
+    `load`; None for a fit in memory (`torchcal.save` writes it from its arguments).
     set_by_prior: names of free parameters the data do not determine (posterior sd at least
     half their plausible scale, `torchcal.calibration.plausibility.set_by_prior`): their
     value is the prior's, not a measurement.
@@ -233,15 +233,6 @@ class FitResult:
         """(3, 3) measured tool frame <- nominal tool frame of a model fitted to
         orientations, else None."""
         return None if self.orientation is None else self.orientation["tool_rotation"]
-
-    def to_dict(self, source=None, seed: int = 0, pose_ids=None) -> dict:
-        """The MODEL.json object of ``torchcal fit`` (`torchcal.io.modelfile.to_dict`):
-        format, robot, effects, parameters (value, unit, std, ci95), covariance,
-        identifiability, fit (n, rms_mm, max_mm, robust, outlier_poses, iterations,
-        status), provenance."""
-        from torchcal.io.modelfile import to_dict
-
-        return to_dict(self, source=source, seed=seed, pose_ids=pose_ids)
 
 
 def training_summary(residuals: torch.Tensor) -> dict:

@@ -242,7 +242,7 @@ def load_robot(text):
     """The `Robot` named by a ``--robot`` value (preset or robot-file path); None for None."""
     if text is None:
         return None
-    from torchcal.robots.robot import robot
+    from torchcal.io.robot_file import robot
 
     return robot(text)
 

@@ -60,7 +60,7 @@ def run(args) -> int:
     from torchcal.io.files import write_json
     from torchcal.io.interval_model import interval_model_to_dict
     from torchcal.io.partition_file import load_partition
-    from torchcal.robots.robot import robot as make_robot
+    from torchcal.io.robot_file import robot as make_robot
     from torchcal.effects.spec import parse_specs
 
     check_outputs([("--out", args.out)], args.force, inputs=[args.data, args.partition])

@@ -73,7 +73,7 @@ def run(args) -> int:
     from torchcal import api
     from torchcal.io import modelfile
     from torchcal.io.files import write_json
-    from torchcal.robots.robot import robot as make_robot
+    from torchcal.io.robot_file import robot as make_robot
 
     check_outputs([("--json", args.json), ("--rrd", args.rrd)], args.force,
                   inputs=[args.data, args.model, *robot_inputs(args.robot)])

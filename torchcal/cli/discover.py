@@ -51,7 +51,7 @@ def run(args) -> int:
     from torchcal import api
     from torchcal.io import modelfile
     from torchcal.io.files import write_json
-    from torchcal.robots.robot import robot as make_robot
+    from torchcal.io.robot_file import robot as make_robot
 
     device = device_of(args)  # a refused --device before any work
     check_outputs([("--json", args.json), ("--out", args.out), ("--rrd", args.rrd)], args.force,

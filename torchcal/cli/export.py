@@ -10,7 +10,7 @@ the calibrated geometry for a controller or a simulator.
   ``tracker`` (the measuring frame, on the base link) and ``reflector`` (the measured
   point, ``reflector_ID`` per point id, on the tool link). A robot imported from a URDF
   (``torchcal robot import``) keeps that file's links, inertias and visuals: its joint
-  origins and axes are rewritten (torchcal.robots.urdf.calibrated_urdf); otherwise a
+  origins and axes are rewritten (torchcal.io.urdf.calibrated_urdf); otherwise a
   minimal URDF (links base_link, link1..linkN, tool0; `minimal_urdf`).
 - ``--table``: CSV ``joint,type,theta_offset_deg,d_mm,a_mm,alpha_deg,beta_deg,lower,upper``.
 

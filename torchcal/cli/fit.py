@@ -61,7 +61,7 @@ def fit_file(args):
     from torchcal.api import fit
     from torchcal.cli._args import units
     from torchcal.effects.spec import parse_specs
-    from torchcal.robots.robot import robot as make_robot
+    from torchcal.io.robot_file import robot as make_robot
 
     device = device_of(args)
     robot = make_robot(args.robot).to(device)

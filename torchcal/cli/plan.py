@@ -46,7 +46,7 @@ def run(args) -> int:
     from torchcal.io.plan_csv import plan_csv
     from torchcal.planning.plan import OBSERVABILITY, plan
     from torchcal.robots.workspace import Workspace
-    from torchcal.robots.robot import robot as make_robot
+    from torchcal.io.robot_file import robot as make_robot
 
     check_outputs([("--out", args.out), *plot_outputs(args.plots, PNGS)], args.force,
                   inputs=robot_inputs(args.robot))  # all before the work
@@ -55,7 +55,7 @@ def run(args) -> int:
     from torchcal.cli._progress import progress
 
     with progress("plan", f"choosing {args.n} of {args.candidates} candidate poses"):
-        res = plan(args.robot, args.effects, n=args.n, candidates=args.candidates, criterion=args.criterion,
+        res = plan(make_robot(args.robot), args.effects, n=args.n, candidates=args.candidates, criterion=args.criterion,
                    seed=args.seed, payload_kg=args.payload, temp_c=args.temp, random_plans=args.random_plans,
                    workspace=Workspace(args.floor, args.column_radius, args.column_height, args.reach))
     robot = make_robot(args.robot)

@@ -1,6 +1,6 @@
 """`torchcal robot show ROBOT` prints a robot's MD-H table (degrees, mm), joint types,
 limits, base and tool; `torchcal robot import FILE.urdf --base LINK --tip LINK --out
-robot.json` converts a URDF chain to a robot file (torchcal.robots.urdf, docs/robots.md)."""
+robot.json` converts a URDF chain to a robot file (torchcal.io.urdf, docs/robots.md)."""
 
 from __future__ import annotations
 
@@ -55,8 +55,8 @@ def run_show(args) -> int:
 
 
 def run_import(args) -> int:
-    from torchcal.robots.robot_file import write_robot_file
-    from torchcal.robots.urdf import robot_from_urdf
+    from torchcal.io.robot_file import write_robot_file
+    from torchcal.io.urdf import robot_from_urdf
 
     check_outputs([("--out", args.out)], args.force, inputs=[args.urdf])
     r = robot_from_urdf(args.urdf, args.base, args.tip, args.name)

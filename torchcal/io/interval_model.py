@@ -22,7 +22,7 @@ from torchcal.calibration.joint_range import poses_from_dict, range_from_dict, r
 from torchcal.calibration.model import CalibrationModel
 from torchcal.errors import InputError
 from torchcal.io.partition_file import partition_from_dict, partition_to_dict
-from torchcal.robots.robot_file import model_robot, robot_to_dict
+from torchcal.io.robot_file import model_robot, robot_to_dict
 
 __all__ = ["INTERVAL_MODEL_FORMAT", "interval_model_to_dict", "interval_model_from_dict", "load_interval_model"]
 

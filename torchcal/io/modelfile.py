@@ -66,7 +66,7 @@ from torchcal.io.files import read_json
 from torchcal.calibration.model import CalibrationModel
 from torchcal.effects.joint_compliance import G_NM_PER_KG_MM
 from torchcal.robots.robot import Robot
-from torchcal.robots.robot_file import check_same_robot, model_robot, robot_to_dict
+from torchcal.io.robot_file import check_same_robot, model_robot, robot_to_dict
 
 FORMAT = "torchcal-model/2"
 FORMAT_RAD = "torchcal-model/1"  # files written before version 2: values in the model's units (rad)
@@ -192,7 +192,7 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
         raise InputError(f"{path}: model file is missing or has a bad field: {exc}") from None
     nominal = model_robot(obj, str(path))
     if robot is not None:
-        from torchcal.robots.robot import robot as make_robot
+        from torchcal.io.robot_file import robot as make_robot
 
         check_same_robot(nominal, make_robot(robot), str(path))
     try:

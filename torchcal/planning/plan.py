@@ -103,7 +103,7 @@ def _random_plans(M: int, n: int, count: int, seed: int):
 def plan(robot, effects=(), *, n: int, candidates: int = 10_000, criterion: str = "D", seed: int = 0,
          payload_kg: float | None = None, temp_c: float = 20.0, workspace=None,
          random_plans: int = 20) -> MeasurementPlan:
-    """Choose n of `candidates` workspace poses for fitting `robot` (preset, robot file or
+    """Choose n of `candidates` workspace poses for fitting `robot` (a preset name or a
     `Robot`) with `effects` (specs). criterion: "D", "O1" or "E"; seed: the candidates' and
     the random plans' seed (the random plans draw on seed + 1); payload_kg (default the rated
     payload) and temp_c: the conditions at which load and thermal effects are evaluated;
@@ -115,9 +115,9 @@ def plan(robot, effects=(), *, n: int, candidates: int = 10_000, criterion: str 
     from torchcal.planning import design
     from torchcal.planning.order import order_poses
     from torchcal.robots.workspace import sample_workspace
-    from torchcal.robots.robot import robot as make_robot
+    from torchcal.robots.robot import preset
 
-    rob = make_robot(robot)
+    rob = preset(robot)
     specs = [str(s) for s in parse_specs(list(effects), rob.n)] if effects else []
     model = CalibrationModel(rob, specs)
     if n > candidates:

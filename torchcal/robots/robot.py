@@ -254,19 +254,11 @@ PRESETS = {
 }
 
 
-def robot(name) -> Robot:
-    """A preset robot ('kr1000titan', 'ur5e', 'puma560') or the robot file at path `name`
-    (JSON, `torchcal.robots.robot_file`). A `Robot` is returned as it is."""
+def preset(name) -> Robot:
+    """A preset robot by name ('kr1000titan', 'ur5e', 'puma560'; case-insensitive); a
+    `Robot` is returned as it is. A robot file or any name: `torchcal.io.robot_file.robot`."""
     if isinstance(name, Robot):
         return name
-    from pathlib import Path
-
     if isinstance(name, str) and name.lower() in PRESETS:
         return PRESETS[name.lower()]()
-    if isinstance(name, (str, Path)) and (Path(name).suffix.lower() == ".json" or Path(name).is_file()):
-        from torchcal.robots.robot_file import load_robot_file
-
-        return load_robot_file(name)
-    raise InputError(f"unknown robot {str(name)!r}; expected one of {', '.join(sorted(PRESETS))} "
-                     f"or the path of a robot file (.json)")
-
+    raise InputError(f"unknown robot {str(name)!r}; expected one of {', '.join(sorted(PRESETS))}")

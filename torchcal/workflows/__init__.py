@@ -1,4 +1,4 @@
-"""Workflows that chain the library: calibration per zone, the paper's experiment
+"""Workflows that chain the library: the paper's experiment
 (configuration, experiment, report), and the facts of a calibration report.
 """
 
@@ -12,5 +12,4 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "torchcal.workflows.paper_report": ["DemoRun", "fit_json", "reduction_percent"],
     "torchcal.workflows.report": ["CalibrationReport", "calibration_report", "effect_physics", "file_facts",
                                   "load_model", "zone_table"],
-    "torchcal.workflows.zone_calibration": ["ZONE_METHODS", "calibrate", "fit_zones"],
 })

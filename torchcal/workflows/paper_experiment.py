@@ -68,7 +68,7 @@ from torchcal.calibration.intervals import identify_zones, pose_intervals
 from torchcal.calibration.model import CalibrationModel
 from torchcal.diagnosis.diagnose import discover
 from torchcal.partition.zones import partition_workspace
-from torchcal.robots.robot import robot as make_robot
+from torchcal.io.robot_file import robot as make_robot
 from torchcal.simulation.virtual_robot import VirtualRobot
 from torchcal.reliability.sweep import SweepResult, sweep
 from torchcal.robots.workspace import sample_workspace

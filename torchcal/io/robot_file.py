@@ -212,8 +212,6 @@ def model_robot(obj: dict, where: str) -> Robot:
     "nominal_robot" or, in model files written before it existed, the preset "robot"."""
     if "nominal_robot" in obj:
         return robot_from_dict(obj["nominal_robot"], f"{where}: nominal_robot")
-    from torchcal.robots.robot import robot
-
     if "robot" not in obj:
         raise InputError(f"{where}: model file names no robot (keys nominal_robot or robot)")
     return robot(obj["robot"])
@@ -227,3 +225,16 @@ def check_same_robot(model_robot: Robot, robot: Robot | None, where: str, what: 
     raise InputError(f"{where}: the model is for robot {model_robot.name!r} ({model_robot.n} joints), "
                      f"but {what} is robot {robot.name!r} ({robot.n} joints) with another nominal "
                      f"geometry; refusing to apply a model to another robot")
+
+
+def robot(name) -> Robot:
+    """A preset robot ('kr1000titan', 'ur5e', 'puma560', `torchcal.robots.robot.PRESETS`),
+    the robot file at path `name` (JSON, this module) or a `Robot` as it is."""
+    from torchcal.robots.robot import PRESETS, preset
+
+    if isinstance(name, Robot) or (isinstance(name, str) and name.lower() in PRESETS):
+        return preset(name)
+    if isinstance(name, (str, Path)) and (Path(name).suffix.lower() == ".json" or Path(name).is_file()):
+        return load_robot_file(name)
+    raise InputError(f"unknown robot {str(name)!r}; expected one of {', '.join(sorted(PRESETS))} "
+                     f"or the path of a robot file (.json)")

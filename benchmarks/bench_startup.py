@@ -7,7 +7,7 @@ policy); its CPU time (user + system of the child, from getrusage) and wall time
 medians over --repeats runs. Rows: `python -c pass` (the interpreter), `import torch`
 (the floor of any command that computes), `torchcal --help`, every sub-command's
 ``--help``, and `torchcal fit` of the UR10 series C training split (examples/ur10,
-60/40 by pose, seed 0; --effects base_frame tool_offset). Targets (issue 31): a
+60/40 by pose, seed 0; --effects base_frame tool_offset). Targets: a
 sub-command's --help under 0.3 s, the fit at most 1.5 s CPU. The load average is printed:
 on a shared machine it moves every figure.
 """

@@ -1,4 +1,4 @@
-"""Physics outside the vocabulary: does the "what is left" report say so? (issue 28 item 6)
+"""Physics outside the vocabulary: does the "what is left" report say so?
 
 An independent plain-numpy simulator (nothing of torchcal's effect classes or kinematics):
 a UR10 in standard DH (examples/ur10/ur10.json) with random geometric deviations (0.2 mm

@@ -97,7 +97,7 @@ def test_plausibility_ignores_slide_lengths(tmp_path):
     check_units(read_measurements(wrong, robot=robot, angle_unit="rad"), robot, angle_unit="rad")
 
 
-# --- joint effects on a slide, where_it_fails, the priors (issue 29, item 6) -----------------
+# --- joint effects on a slide, where_it_fails, the priors -----------------
 
 ANGLE_EFFECTS = ["backlash", "gear_periodic", "joint_compliance"]
 

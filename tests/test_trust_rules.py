@@ -1,4 +1,4 @@
-"""discover accepts only what the data determine (issue 28, items 1, 5, 7).
+"""discover accepts only what the data determine.
 
 - uncertainties include the prior: the posterior covariance against a numpy formula, and
   values the prior sets are labelled so (never listed as measured deviations);

@@ -6,7 +6,7 @@ parallel op. With other processes on the cores a 2-thread op waits for a desched
 partner, and torchcal's ops are small (a fit of a few thousand rows, the demo's zone
 fits and candidate screens): there a second intra-op thread costs more at its barriers
 than it saves: one seed of `torchcal demo` took 37.1 s wall with torch's default 2
-threads and 21.5 s on one (quiet machine, issue 31). The policy:
+threads and 21.5 s on one (quiet machine). The policy:
 
 - ``OMP_WAIT_POLICY=PASSIVE``: idle OpenMP threads sleep instead of spinning. OpenMP
   reads it once, when torch loads, so `torchcal/__init__.py` sets it (``setdefault``:

@@ -20,7 +20,7 @@ import math
 
 import torch
 
-from torchcal.effects.base import Effect
+from torchcal.effects.base import Effect, revolute_only
 from torchcal.errors import InputError
 
 #: plausible sine or cosine amplitude of one order (arcsec), the scale of the fit's prior.
@@ -50,6 +50,7 @@ class JointPeriodic(Effect):
         pairs = [(i, k) for i, ks in enumerate(orders) for k in ks]
         self._slot = [i for i, _ in pairs]  # which listed joint each order belongs to
         self._k = [k for _, k in pairs]
+        revolute_only(self)  # orders per turn of a joint angle: not a slide's mm
 
     def spec(self):
         from torchcal.effects.spec import format_spec

@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 import torch
 
+from npsim import numpy_fk
+
 import torchcal
 from torchcal.cli import main
 from torchcal.robots.poses import random_poses
@@ -20,6 +22,7 @@ R_WB = np.array([[C, -S, 0.0], [S, C, 0.0], [0.0, 0.0, 1.0]]) @ \
     np.array([[1.0, 0, 0], [0, np.cos(0.02), -np.sin(0.02)], [0, np.sin(0.02), np.cos(0.02)]])
 T_WB = np.array([2600.0, -1500.0, -300.0])  # the tracker 3 m from the robot base
 REFLECTOR = np.array([30.0, -20.0, 290.0])  # mm on the flange
+KR = torchcal.robot("kr1000titan")
 
 
 def _deviations(n: int) -> np.ndarray:
@@ -35,26 +38,15 @@ def _deviations(n: int) -> np.ndarray:
 
 
 def real_robot(table: np.ndarray, q: np.ndarray, frame: str) -> np.ndarray:
-    """Plain-numpy MD-H chain (A_i = Rz(q + theta) Tz(d) Tx(a) Rx(alpha) Ry(beta)) of the true
-    robot with a 0.01 deg gear error on joint 2 (sin 3 q2) that no fitted model here holds;
-    q (N, n) rad -> reflector positions (N, 3) mm in the measuring or base frame."""
-    out = []
-    for qq in q:
-        qq = qq.copy()
-        qq[1] += np.radians(0.01) * np.sin(3 * qq[1])
-        T = np.eye(4)
-        for (th, d, a, al, be), qj in zip(table, qq):
-            c, s = np.cos(qj + th), np.sin(qj + th)
-            ca, sa, cb, sb = np.cos(al), np.sin(al), np.cos(be), np.sin(be)
-            Rz = np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, d], [0, 0, 0, 1.0]])
-            Tx = np.eye(4)
-            Tx[0, 3] = a
-            Rx = np.array([[1.0, 0, 0, 0], [0, ca, -sa, 0], [0, sa, ca, 0], [0, 0, 0, 1]])
-            Ry = np.array([[cb, 0, sb, 0], [0, 1.0, 0, 0], [-sb, 0, cb, 0], [0, 0, 0, 1]])
-            T = T @ Rz @ Tx @ Rx @ Ry
-        p = T[:3, :3] @ REFLECTOR + T[:3, 3]
-        out.append(R_WB @ p + T_WB if frame == "measuring" else p)
-    return np.array(out)
+    """The true robot (MD-H `table`, the plain-numpy chain of tests/npsim.py) with a 0.01 deg
+    gear error on joint 2 (sin 3 q2) that no fitted model here holds; q (N, n) rad ->
+    reflector positions (N, 3) mm in the measuring or base frame."""
+    q = np.array(q, dtype=float)
+    q[:, 1] += np.radians(0.01) * np.sin(3 * q[:, 1])
+    reflector = np.eye(4)
+    reflector[:3, 3] = REFLECTOR
+    p = numpy_fk(KR, q, table - KR.table.numpy(), tool=reflector)  # KR's base is the identity
+    return p @ R_WB.T + T_WB if frame == "measuring" else p
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from scipy.spatial.transform import Rotation
+
+from npsim import numpy_fk
 
 from torchcal.calibration.fit import fit
 from torchcal.calibration.model import CalibrationModel
@@ -34,30 +35,6 @@ HIDDEN = (2, [(17, 60.0, 0.3), (31, 50.0, 1.1)])  # joint, [(order, amplitude ar
 
 
 # -- an independent simulated robot (numpy) -----------------------------------------------
-def _rz(t):
-    c, s = np.cos(t), np.sin(t)
-    T = np.zeros(t.shape + (4, 4))
-    T[..., 0, 0], T[..., 0, 1], T[..., 1, 0], T[..., 1, 1] = c, -s, s, c
-    T[..., 2, 2] = T[..., 3, 3] = 1.0
-    return T
-
-
-def _static(d, a, alpha, beta):
-    """Tz(d) Tx(a) Rx(alpha) Ry(beta) (4, 4), mm."""
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_euler("XY", [alpha, beta]).as_matrix()
-    T[:3, 3] = [a, 0.0, d]
-    return T
-
-
-def _fk(table, base, tool, q):
-    """(N, 3) mm: base A_1 ... A_n tool, A_i = Rz(theta_i + q_i) Tz(d_i) Tx(a_i) Rx(alpha_i) Ry(beta_i)."""
-    T = np.broadcast_to(base, (len(q), 4, 4))
-    for i, (off, d, a, alpha, beta) in enumerate(table):
-        T = T @ _rz(off + q[:, i]) @ _static(d, a, alpha, beta)
-    return (T @ tool)[:, :3, 3]
-
-
 def _session(n, seed, periodic=None):
     rng = np.random.default_rng(seed)
     centre, half = np.array([-90, -90, 60, -90, 0, 0]), np.array([60, 45, 65, 90, 70, 90])
@@ -73,7 +50,7 @@ def _session(n, seed, periodic=None):
         j, terms = periodic
         for k, amp, phase in terms:
             qa[:, j - 1] += amp * ARCSEC * np.sin(k * q[:, j - 1] + phase)
-    xyz = _fk(table, UR10.base.numpy(), UR10.tool.numpy(), qa) + rng.normal(0, 0.03, (n, 3))
+    xyz = numpy_fk(UR10, qa, table - UR10.table.numpy()) + rng.normal(0, 0.03, (n, 3))
     return Measurements(pose=torch.arange(n), q=torch.from_numpy(q), xyz=torch.from_numpy(xyz))
 
 

@@ -17,7 +17,7 @@ import base64
 import html
 import json
 
-from torchcal.io.files import atomic_write, check_output
+from torchcal.io.files import atomic_write
 
 __all__ = ["report_html", "write_report"]
 
@@ -521,5 +521,4 @@ def report_html(rep) -> str:
 def write_report(path, rep, *, force: bool = False, inputs=()):
     """Write `report_html(rep)` to `path` atomically (an existing file only with force,
     an input never); returns the path."""
-    check_output(path, force, inputs=inputs)
     return atomic_write(path, report_html(rep), force=force, inputs=inputs)

@@ -17,19 +17,7 @@ what stays learnable, and the transfer check when the history holds one.
 
 from __future__ import annotations
 
-from torchcal.cli._args import add_force, add_units, check_outputs, read_data
-
-
-def _tolerance(text: str) -> float:
-    import argparse
-
-    try:
-        v = float(text)
-    except ValueError:
-        v = float("nan")
-    if not v > 0 or v == float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a distance > 0 in mm, got {text!r}")
-    return v
+from torchcal.cli._args import add_force, add_units, check_outputs, positive_float, read_data
 
 
 def add_parser(sub):
@@ -37,7 +25,7 @@ def add_parser(sub):
     p.add_argument("model", help="MODEL.json from `torchcal fit` or `torchcal discover --out`")
     p.add_argument("--data", help="held-out measurement CSV (poses the fit never saw)")
     p.add_argument("--history", help="the --json of `torchcal discover` (its rounds and verdicts)")
-    p.add_argument("--tolerance-mm", type=_tolerance, help="distance tolerance in mm for the pass/fail verdict")
+    p.add_argument("--tolerance-mm", type=positive_float, help="distance tolerance in mm for the pass/fail verdict")
     p.add_argument("--out", required=True, help="REPORT.html to write")
     p.add_argument("--json", help="write the report's figures as JSON here too")
     add_units(p)

@@ -103,7 +103,7 @@ def test_fresh_test_moves_and_disjoint_poses(run):
         # the poses per zone are the configured numbers
         assert [int(n) for n in torch.bincount(res.test_zone)] == [SMALL.test_per_zone] * res.n_zones
         for f in res.fits["paper_partitioned"]:
-            assert f.residual_mm.shape[0] == SMALL.points_per_zone
+            assert f.residuals.shape[0] == SMALL.points_per_zone
         assert res.fits["global_geometric"][0].residuals.shape[0] == SMALL.points_per_zone * res.n_zones
     # different seeds, different robots and moves
     a, b = run.runs

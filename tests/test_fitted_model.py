@@ -223,6 +223,22 @@ def test_save_load_round_trip_of_an_interval_calibration(zoned, kind):
     same(modelfile.to_dict(back), json.loads(path.read_text()), "the file written back")
 
 
+def test_a_broken_zone_entry_is_one_clear_error(zoned, tmp_path):
+    from torchcal.errors import InputError
+
+    _, _, out = zoned
+    d = json.loads(out["zones"][2].read_text())
+    P = len(d["parameters"])
+    d["zones"][1]["value"] = d["zones"][1]["value"][:-1]
+    (tmp_path / "bad.json").write_text(json.dumps(d))
+    with pytest.raises(InputError, match=rf"bad.json: zone 2: value has {P - 1} values, expected {P}"):
+        torchcal.load(tmp_path / "bad.json")
+    del d["partition"]
+    (tmp_path / "bad.json").write_text(json.dumps(d))
+    with pytest.raises(InputError, match="bad.json: partition"):
+        torchcal.load(tmp_path / "bad.json")
+
+
 def test_a_zoned_model_predicts_each_row_with_its_zones_parameters(zoned):
     """evaluate of a ZonedFit = by hand: the partition's zone of each row's nominal TCP
     position, that zone's parameters in the model."""
@@ -259,8 +275,8 @@ def test_a_file_of_the_older_interval_format_still_loads(tmp_path):
     same(res.theta, res.zones[0].theta, "the older format stores no global fit: zone 1 stands in")
     for f, z in zip(res.zones, old["zones"]):
         same(f.theta, torch.tensor(z["theta"], dtype=torch.float64), "theta (radians in that file)")
-        same(2 * f.radius, torch.tensor(z["upper"], dtype=torch.float64) - torch.tensor(z["lower"], dtype=torch.float64),
-             "interval width")
+        width = torch.tensor(z["upper"], dtype=torch.float64) - torch.tensor(z["lower"], dtype=torch.float64)
+        same(2 * f.radius, width, "interval width")
     q = torch.deg2rad(torch.tensor(ref["q_deg"], dtype=torch.float64))
     assert res.assign(res.model.robot.fk(q)).tolist() == ref["zone"]
     pred = res.predict(make_context(res.model.robot, q))

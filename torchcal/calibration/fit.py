@@ -420,7 +420,8 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
             return torch.cat(rows).unsqueeze(0)
 
         def jac_fn(z):
-            rows = [jac(z[0]).reshape(-1, z.shape[-1]), torch.diag(prior)] + ([] if damp is None else [torch.diag(damp)])
+            rows = [jac(z[0]).reshape(-1, z.shape[-1]), torch.diag(prior)]
+            rows += [] if damp is None else [torch.diag(damp)]
             return torch.cat(rows).unsqueeze(0)
 
         for _ in range(rounds):

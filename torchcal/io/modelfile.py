@@ -317,10 +317,11 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
         return res
     from torchcal.io.partition_file import partition_from_dict
 
-    part = partition_from_dict(obj.get("partition"), f"{where}: partition")
+    part = partition_from_dict(_block(obj, "partition", where), f"{where}: partition")
     zones = [_zone_from_dict(z, res, file_units(model)[1], where) for z in _list(obj, "zones", where)]
     try:
-        return ZonedFit.of(res, zones, part, str(obj.get("zone_method", "damped")), [int(z["poses"]) for z in obj["zones"]])
+        poses = [int(z.get("poses") or 0) for z in obj["zones"]]
+        return ZonedFit.of(res, zones, part, str(obj.get("zone_method", "damped")), poses)
     except InputError as exc:
         raise InputError(f"{where}: {exc}") from None
 
@@ -401,7 +402,8 @@ def _interval_file(obj: dict, where: str) -> FitResult:
         return first
     part = partition_from_dict(obj["partition"], f"{where}: partition")
     try:
-        return ZonedFit.of(first, zones, part, str(obj.get("method", "damped")), [int(z.get("poses") or 0) for z in obj["zones"]])
+        poses = [int(z.get("poses") or 0) for z in obj["zones"]]
+        return ZonedFit.of(first, zones, part, str(obj.get("method", "damped")), poses)
     except InputError as exc:
         raise InputError(f"{where}: {exc}") from None
 

@@ -286,8 +286,8 @@ def test_damped_zone_is_the_ridge_solution_and_hull_holds(noisy_zone):
         zones.append(PoseIntervals(data.pose, data.q, e, e, data.count))
     for f in identify_zones(model, zones, damping=mu, theta0=theta0):
         assert hull(damped).contains(f.theta, atol=1e-3 * damped.radius + 1e-12).all()
-    gcv = identify_zones(model, [data, data], damping="gcv_shared", theta0=theta0)
-    assert gcv[0].damping == gcv[1].damping and gcv[0].damping >= 0
+    gcv = identify_zones(model, [data, data.subset(slice(0, 11))], damping="gcv_shared", theta0=theta0)
+    assert gcv[0].damping == gcv[1].damping and gcv[0].damping >= 0  # one mu for zones of any size
     with pytest.raises(InputError, match="damping: expected a number >= 0, 'gcv' or 'gcv_shared'"):
         identify_intervals(model, data, damping="lots")
 

@@ -233,6 +233,7 @@ def test_a_broken_zone_entry_is_one_clear_error(zoned, tmp_path):
     (tmp_path / "bad.json").write_text(json.dumps(d))
     with pytest.raises(InputError, match=rf"bad.json: zone 2: value has {P - 1} values, expected {P}"):
         torchcal.load(tmp_path / "bad.json")
+    d = json.loads(out["zones"][2].read_text())
     del d["partition"]
     (tmp_path / "bad.json").write_text(json.dumps(d))
     with pytest.raises(InputError, match="bad.json: partition"):

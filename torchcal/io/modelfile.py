@@ -315,13 +315,17 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
                     **settings)
     if obj.get("zones") is None:
         return res
+    zones = [_zone_from_dict(z, res, file_units(model)[1], where) for z in _list(obj, "zones", where)]
+    return _zoned(res, zones, obj, _block(obj, "partition", where), str(obj.get("zone_method", "damped")), where)
+
+
+def _zoned(glob: FitResult, zones: list, obj: dict, partition: dict, method: str, where: str) -> ZonedFit:
+    """The `ZonedFit` of a file: its global fit, zone fits, PARTITION.json dict and method."""
     from torchcal.io.partition_file import partition_from_dict
 
-    part = partition_from_dict(_block(obj, "partition", where), f"{where}: partition")
-    zones = [_zone_from_dict(z, res, file_units(model)[1], where) for z in _list(obj, "zones", where)]
+    part = partition_from_dict(partition, f"{where}: partition")
     try:
-        poses = [int(z.get("poses") or 0) for z in obj["zones"]]
-        return ZonedFit.of(res, zones, part, str(obj.get("zone_method", "damped")), poses)
+        return ZonedFit.of(glob, zones, part, method, [int(z.get("poses") or 0) for z in obj["zones"]])
     except InputError as exc:
         raise InputError(f"{where}: {exc}") from None
 
@@ -377,7 +381,6 @@ def _interval_file(obj: dict, where: str) -> FitResult:
     """A file of the older interval-model format (module doc): its one zone as a
     `FitResult`, or with a partition a `ZonedFit` whose global fields are zone 1's."""
     from torchcal.calibration.joint_range import poses_from_dict, range_from_dict
-    from torchcal.io.partition_file import partition_from_dict
 
     nominal = model_robot(obj, where)
     try:
@@ -397,15 +400,9 @@ def _interval_file(obj: dict, where: str) -> FitResult:
         theta, lower, upper = (_vector(z, key, P, where) for key in ("theta", "lower", "upper"))
         zones.append(_zone_fit(model, theta, torch.zeros(P, dtype=torch.float64), (upper - lower) / 2,
                                _vector(z, "free", P, where, torch.bool), z, where, shared))
-    first = zones[0]
     if obj.get("partition") is None:
-        return first
-    part = partition_from_dict(obj["partition"], f"{where}: partition")
-    try:
-        poses = [int(z.get("poses") or 0) for z in obj["zones"]]
-        return ZonedFit.of(first, zones, part, str(obj.get("method", "damped")), poses)
-    except InputError as exc:
-        raise InputError(f"{where}: {exc}") from None
+        return zones[0]
+    return _zoned(zones[0], zones, obj, obj["partition"], str(obj.get("method", "damped")), where)
 
 
 def _block(obj: dict, key: str, where: str) -> dict:

@@ -15,7 +15,8 @@ Timed, median of --repeat runs each:
   on each zone in turn (torch kernels for residual and Jacobian, converted to numpy);
 - torchcal per zone: `torchcal.calibration.lm.levenberg_marquardt` on each zone in turn (B = 1);
 - torchcal batched: one `levenberg_marquardt` call with the 10 zones stacked (B = 10);
-- torchcal full batched: `identify_zones` (identifiability + LM + interval radii).
+- torchcal identify_zones: identifiability + the one fit (`torchcal.calibration.fit.fit`)
+  per zone + interval radii, what ``calibrate`` and the demo run.
 
 Run: ``python benchmarks/bench_identify.py [--repeat N] [--threads T]``.
 """
@@ -31,7 +32,8 @@ import scipy.optimize
 import torch
 
 from torchcal.kinematics import mdh as K
-from torchcal.calibration.intervals import batched_jacobian, batched_predict, identify_zones, pose_intervals
+from torchcal.calibration.batched import batched_jacobian, batched_predict
+from torchcal.calibration.intervals import identify_zones, pose_intervals
 from torchcal.calibration.lm import levenberg_marquardt
 from torchcal.calibration.model import CalibrationModel
 from torchcal.io.robot_file import robot
@@ -65,7 +67,7 @@ def timeit(fn, repeat):
 def run_case(title, r, model, zones, repeat):
     Z, m, P = len(zones), len(zones[0]), model.n_params
     fits = identify_zones(model, zones)  # identifiability per zone (not timed below); warms up
-    free = torch.stack([f.free for f in fits])  # (Z, P)
+    free = torch.stack([f.report.free for f in fits])  # (Z, P)
     ctxs = [z.context(r) for z in zones]
     targets = torch.stack([z.center for z in zones])  # (Z, m, 3)
     x0 = torch.zeros(Z, P, dtype=torch.float64)

@@ -305,7 +305,7 @@ def test_unknown_effect_names_the_registry_in_the_library_and_the_option_in_the_
 
 
 def test_calibrate_cli_writes_the_apis_interval_model(tmp_path):
-    from torchcal.io.interval_model import interval_model_to_dict
+    from torchcal.io.modelfile import to_dict
 
     rob = torchcal.robot("ur5e")
     vr = VirtualRobot(rob, ["base_frame"], seed=6)
@@ -314,8 +314,7 @@ def test_calibrate_cli_writes_the_apis_interval_model(tmp_path):
     out = tmp_path / "model.json"
     assert main(["calibrate", str(data), "--robot", "ur5e", "--effects", "base_frame", "--out", str(out)]) == 0
     cli = json.loads(out.read_text())
-    api = json.loads(json.dumps(interval_model_to_dict(torchcal.calibrate("ur5e", data, ["base_frame"]),
-                                                       source=data)))
+    api = json.loads(json.dumps(to_dict(torchcal.calibrate("ur5e", data, ["base_frame"]), source=data)))
     assert cli.keys() == api.keys()
     for key in cli:
         assert cli[key] == api[key], key

@@ -103,8 +103,8 @@ def test_fresh_test_moves_and_disjoint_poses(run):
         # the poses per zone are the configured numbers
         assert [int(n) for n in torch.bincount(res.test_zone)] == [SMALL.test_per_zone] * res.n_zones
         for f in res.fits["paper_partitioned"]:
-            assert f.residual_mm.shape[0] == SMALL.points_per_zone
-        assert res.fits["global_geometric"][0].residual_mm.shape[0] == SMALL.points_per_zone * res.n_zones
+            assert f.residuals.shape[0] == SMALL.points_per_zone
+        assert res.fits["global_geometric"][0].residuals.shape[0] == SMALL.points_per_zone * res.n_zones
     # different seeds, different robots and moves
     a, b = run.runs
     assert not torch.equal(a.test_q, b.test_q) and a.before.rms_mm != b.before.rms_mm
@@ -231,9 +231,10 @@ def test_calibrate_and_compensate_commands(session, capsys):
         assert cli.main(["calibrate", str(d / "data.csv"), "--robot", "kr1000titan", "--effects", "base_frame",
                          *extra, "--out", str(d / name)]) == 0
         m = json.loads((d / name).read_text())
-        assert m["format"] == "torchcal-interval-model/1"
-        assert len(m["zones"]) == (1 if not extra else 2)
-        assert all(lo <= hi for z in m["zones"] for lo, hi in zip(z["lower"], z["upper"]))
+        assert m["format"] == "torchcal-model/2"
+        assert all(p["interval"][0] <= p["value"] <= p["interval"][1] for p in m["parameters"])
+        assert len(m.get("zones", [])) == (0 if not extra else 2)
+        assert all(lo <= hi for z in m.get("zones", []) for lo, hi in zip(z["lower"], z["upper"]))
         out = d / f"q_{name}.csv"
         assert cli.main(["compensate", str(d / "targets.csv"), "--model", str(d / name), "--out", str(out)]) == 0
         lines = out.read_text().splitlines()

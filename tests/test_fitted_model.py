@@ -1,7 +1,12 @@
 """One fitted-model type: a fit in memory and the same fit read back from its MODEL.json
 (`torchcal.load`) agree field by field, and evaluate / compensate give the same answers
 from either. Real UR10 rows with orientations, a robust fit with non-default
-uncertainties and a residual stage, so that every optional field is filled."""
+uncertainties and a residual stage, so that every optional field is filled.
+
+The interval calibration of ``calibrate`` is the same type: its global fit a `FitResult`
+with intervals, per zone a `ZonedFit`; both go through `torchcal.save` / `torchcal.load`
+with equal predictions, and a file of the older interval-model format (written by the
+earlier writer, tests/data) still loads and predicts what it predicted then."""
 
 import dataclasses
 import json
@@ -59,7 +64,7 @@ def same(a, b, where):
 def test_every_field_is_filled_by_this_fit(session):
     res, _, _, _ = session
     for f in dataclasses.fields(FitResult):
-        if f.name != "provenance":  # written by to_dict from its arguments
+        if f.name not in ("provenance", "radius"):  # written by to_dict from its arguments; intervals: calibrate's
             assert getattr(res, f.name) is not None, f.name
     assert res.robust == "huber" and res.sigma_mm == 0.02 and res.sigma_deg == 0.05
     assert res.orientation["sigma_deg"] == 0.05 and res.tool_rotation.shape == (3, 3)
@@ -149,3 +154,136 @@ def test_evaluate_command_reports_what_the_fit_in_memory_gives(session, tmp_path
     got = json.loads(out.read_text())
     assert "orientation_rms_deg" in got
     same(ref, got, "evaluate --json")
+
+
+# ----------------------------------------------------------------------------- interval calibration
+DATA = Path(__file__).resolve().parent / "data"
+
+
+@pytest.fixture(scope="module")
+def zoned(tmp_path_factory):
+    """`torchcal.calibrate` of a simulated UR5e (3 repeats per pose) globally and per zone of a
+    3-zone partition, each saved and loaded back."""
+    from torchcal.partition.zones import partition_workspace
+    from torchcal.robots.poses import random_poses
+    from torchcal.robots.workspace import sample_workspace
+    from torchcal.simulation.virtual_robot import VirtualRobot
+
+    rob = torchcal.robot("ur5e")
+    m = VirtualRobot(rob, ["base_frame"], seed=6).measure(random_poses(rob, 36, 6), repeats=3, seed=7)
+    pos = rob.fk(sample_workspace(rob, 40, seed=1))
+    r = torch.rand(40, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+    part = partition_workspace(pos, r, levels=2, zones=[2, 1], seed=0)
+    d = tmp_path_factory.mktemp("zoned")
+    out = {}
+    for name, p in (("global", None), ("zones", part)):
+        res = torchcal.calibrate(rob, m, ["base_frame"], partition=p)
+        torchcal.save(res, d / f"{name}.json")
+        out[name] = (res, torchcal.load(d / f"{name}.json"), d / f"{name}.json")
+    return rob, m, out
+
+
+def test_calibrate_returns_the_fitted_model_type(zoned):
+    from torchcal.calibration.zone_calibration import ZonedFit
+
+    _, m, out = zoned
+    glob, zones = out["global"][0], out["zones"][0]
+    assert type(glob) is FitResult and glob.radius is not None and (glob.radius >= 0).all()
+    assert isinstance(zones, ZonedFit) and zones.method == "damped" and zones.partition.n_zones == 3
+    assert zones.zone_theta.shape == (3, glob.theta.shape[0]) and sum(zones.zone_poses) == 36
+    same(zones.theta, glob.theta, "the global fit of the zoned model")  # its own fields: the global calibration
+    for f in zones.zones:  # each zone: a fit damped towards the global one, with its intervals
+        assert type(f) is FitResult and f.damping > 0 and f.radius is not None
+        assert bool((f.theta - f.radius <= f.theta + f.radius).all())
+    assert not torch.equal(zones.zone_theta[0], zones.zone_theta[1])
+
+
+@pytest.mark.parametrize("kind", ["global", "zones"])
+def test_save_load_round_trip_of_an_interval_calibration(zoned, kind):
+    """Equal parameters, intervals and zones, and equal predictions to 1e-9 mm."""
+    from torchcal.effects import context_of
+
+    rob, m, out = zoned
+    res, back, path = out[kind]
+    assert type(back) is type(res)
+    same(res.theta, back.theta, "theta")
+    same(res.radius, back.radius, "radius")
+    assert back.damping == res.damping and back.report.held == res.report.held
+    same(res.zone_theta, back.zone_theta, "zone_theta")
+    for a, b in zip(getattr(res, "zones", []), getattr(back, "zones", [])):
+        same(a.radius, b.radius, "zone radius")
+        assert a.report.held == b.report.held and a.damping == b.damping and a.status == b.status
+        assert b.rms_mm == pytest.approx(a.rms_mm, rel=1e-12)
+    ctx = context_of(rob, m)
+    assert float((res.predict(ctx) - back.predict(ctx)).abs().max()) <= 1e-9
+    probe = rob.fk(m.q)
+    assert torch.equal(res.assign(probe), back.assign(probe))
+    ev_a, ev_b = torchcal.evaluate(res, m), torchcal.evaluate(path, m)
+    assert float((ev_a.residuals_mm - ev_b.residuals_mm).abs().max()) <= 1e-9
+    same(modelfile.to_dict(back), json.loads(path.read_text()), "the file written back")
+
+
+def test_a_broken_zone_entry_is_one_clear_error(zoned, tmp_path):
+    from torchcal.errors import InputError
+
+    _, _, out = zoned
+    d = json.loads(out["zones"][2].read_text())
+    P = len(d["parameters"])
+    d["zones"][1]["value"] = d["zones"][1]["value"][:-1]
+    (tmp_path / "bad.json").write_text(json.dumps(d))
+    with pytest.raises(InputError, match=rf"bad.json: zone 2: value has {P - 1} values, expected {P}"):
+        torchcal.load(tmp_path / "bad.json")
+    d = json.loads(out["zones"][2].read_text())
+    del d["partition"]
+    (tmp_path / "bad.json").write_text(json.dumps(d))
+    with pytest.raises(InputError, match="bad.json: partition"):
+        torchcal.load(tmp_path / "bad.json")
+
+
+def test_a_zoned_model_predicts_each_row_with_its_zones_parameters(zoned):
+    """evaluate of a ZonedFit = by hand: the partition's zone of each row's nominal TCP
+    position, that zone's parameters in the model."""
+    from torchcal.effects import make_context
+
+    rob, m, out = zoned
+    res = out["zones"][0]
+    zone = res.partition.assign(rob.fk(m.q))
+    assert len(set(zone.tolist())) == 3
+    by_hand = torch.stack([res.model.predict(res.zones[int(z) - 1].theta, make_context(rob, m.q[i:i + 1]))[0]
+                           for i, z in enumerate(zone)])
+    ev = torchcal.evaluate(res, m)
+    assert float((ev.residuals_mm - (m.xyz - by_hand)).abs().max()) <= 1e-9
+    comp = torchcal.compensate(res, rob.fk(m.q[:6]), q0=m.q[:6])
+    assert bool(comp.converged.all())
+    for i in range(6):  # each target reached by its zone's model
+        z = int(res.assign(rob.fk(m.q[i:i + 1]))[0]) - 1
+        p = res.model.predict(res.zones[z].theta, make_context(rob, comp.q[i:i + 1]))[0]
+        assert float((p - rob.fk(m.q[i:i + 1])[0]).norm()) <= 1e-6
+
+
+def test_a_file_of_the_older_interval_format_still_loads(tmp_path):
+    """tests/data/old_interval_model.json: written by the earlier `torchcal-interval-model/1`
+    writer (UR5e + base_frame, 36 poses x 3, a 3-zone partition, damped zones); its
+    predictions then, per zone, are in old_interval_model_predictions.json."""
+    from torchcal.calibration.zone_calibration import ZonedFit
+    from torchcal.effects import make_context
+
+    old = json.loads((DATA / "old_interval_model.json").read_text())
+    ref = json.loads((DATA / "old_interval_model_predictions.json").read_text())
+    res = torchcal.load(DATA / "old_interval_model.json")
+    assert isinstance(res, ZonedFit) and res.method == "damped" and res.zone_poses == [10, 16, 10]
+    assert [f.report.held for f in res.zones] == [z["held"] for z in old["zones"]]
+    same(res.theta, res.zones[0].theta, "the older format stores no global fit: zone 1 stands in")
+    for f, z in zip(res.zones, old["zones"]):
+        same(f.theta, torch.tensor(z["theta"], dtype=torch.float64), "theta (radians in that file)")
+        width = torch.tensor(z["upper"], dtype=torch.float64) - torch.tensor(z["lower"], dtype=torch.float64)
+        same(2 * f.radius, width, "interval width")
+    q = torch.deg2rad(torch.tensor(ref["q_deg"], dtype=torch.float64))
+    assert res.assign(res.model.robot.fk(q)).tolist() == ref["zone"]
+    pred = res.predict(make_context(res.model.robot, q))
+    assert float((pred - torch.tensor(ref["predicted_mm"], dtype=torch.float64)).abs().max()) <= 1e-9
+    # saved again, in today's layout: the same predictions
+    torchcal.save(res, tmp_path / "again.json")
+    again = torchcal.load(tmp_path / "again.json")
+    assert json.loads((tmp_path / "again.json").read_text())["format"] == modelfile.FORMAT
+    assert float((again.predict(make_context(res.model.robot, q)) - pred).abs().max()) <= 1e-9

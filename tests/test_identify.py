@@ -5,8 +5,8 @@
   z6 axis, one of dd2 / dd3 on the parallel axes 2-3);
 - the interval hull contains the solutions of data sampled inside the error intervals
   (exactly for the linearised map, to second order for nonlinear refits) and is tight;
-- LM batched over zones equals per-zone fits, for the analytic (geometric) and the
-  autodiff (with effects) paths;
+- a zone's identification is the one fit (`torchcal.calibration.fit.fit` with damping,
+  no prior, no registration): the same numbers as calling it directly;
 - compensation converges, with the analytic and with the autograd joint Jacobian.
 """
 
@@ -17,8 +17,9 @@ from torch.testing import assert_close
 from torchcal.calibration.compensate import compensate, nominal_inverse
 from torchcal.effects import make_context
 from torchcal.errors import InputError
-from torchcal.calibration.intervals import (PoseIntervals, identify_intervals, identify_zones,
-                                        pose_intervals, solution_map)
+from torchcal.calibration.intervals import (PoseIntervals, identify_intervals, identify_zones, parameter_intervals,
+                                            pose_intervals, solution_map)
+from torchcal.reliability.interval import Interval
 from torchcal.measurements import Measurements
 from torchcal.calibration.model import CalibrationModel
 from torchcal.robots.poses import random_poses
@@ -32,6 +33,21 @@ def exact_intervals(model, theta, q, half_width=None):
     hw = torch.zeros_like(p) if half_width is None else half_width
     m = q.shape[0]
     return PoseIntervals(torch.arange(m), q, p - hw, p + hw, torch.full((m,), 3))
+
+
+def hull(fit) -> Interval:
+    """(P,) parameter intervals [theta - radius, theta + radius] of an interval fit."""
+    return Interval.from_center_radius(fit.theta, fit.radius)
+
+
+def solution_map_of(model, data, fit, theta0=None):
+    """S (P, 3m) of `fit` recomputed here: the damped map at the solution, D the column
+    norms at theta0 (default nominal)."""
+    ctx = data.context(model.robot)
+    x0 = model.zeros() if theta0 is None else theta0
+    J = model.jacobian(fit.theta, ctx).reshape(-1, model.n_params)
+    D = model.jacobian(x0, ctx).reshape(-1, model.n_params).norm(dim=0)
+    return solution_map(J, fit.report.free, fit.damping, scale=D)
 
 
 def random_theta(model, free, seed, scale=1.0):
@@ -59,12 +75,12 @@ def test_noise_free_recovery(kr):
     model = CalibrationModel(kr)
     q = random_poses(kr, 25, 1)
     # the analysis runs at nominal: it does not depend on the data
-    free = identify_intervals(model, exact_intervals(model, model.zeros(), q)).free
+    free = identify_intervals(model, exact_intervals(model, model.zeros(), q)).report.free
     truth = random_theta(model, free, 2, scale=4.0)  # only what the analysis keeps free
     fit = identify_intervals(model, exact_intervals(model, truth, q))
     assert fit.converged
-    assert_close(fit.free, free)
-    assert fit.residual_mm.abs().max() <= 1e-6
+    assert_close(fit.report.free, free)
+    assert fit.residuals.abs().max() <= 1e-6
     assert_close(fit.theta, truth, atol=1e-9, rtol=0)  # rad and mm
     assert fit.radius.abs().max() == 0  # zero-width data, zero-width parameters
 
@@ -72,10 +88,10 @@ def test_noise_free_recovery(kr):
 def test_noise_free_recovery_with_effect(kr):
     model = CalibrationModel(kr, ["base_frame"])
     q = random_poses(kr, 25, 3)
-    free = identify_intervals(model, exact_intervals(model, model.zeros(), q)).free
+    free = identify_intervals(model, exact_intervals(model, model.zeros(), q)).report.free
     truth = random_theta(model, free, 4, scale=2.0)
     fit = identify_intervals(model, exact_intervals(model, truth, q))
-    assert fit.residual_mm.abs().max() <= 1e-6
+    assert fit.residuals.abs().max() <= 1e-6
     assert_close(fit.theta, truth, atol=1e-8, rtol=0)
     # base z translation and rotation about z trade off against joint 1: held, named
     assert {"base_tz", "base_rz"} <= set(fit.report.held)
@@ -93,7 +109,7 @@ def test_unidentifiable_flagged_by_name(kr):
     idx = [model.param_names().index(n) for n in held]
     assert fit.theta[idx].abs().max() == 0 and fit.radius[idx].abs().max() == 0
     # every declared-absent beta is not even a candidate
-    assert "dbeta1" not in held and "dbeta1" not in [r["name"] for r in fit.rows()]
+    assert "dbeta1" not in held and "dbeta1" not in [r["name"] for r in parameter_intervals(fit)]
 
 
 @pytest.fixture(scope="module")
@@ -115,13 +131,14 @@ def test_hull_contains_linear_solutions_and_is_tight(noisy_zone):
     ec, er = data.center.reshape(-1), data.radius.reshape(-1)
     u = 2 * torch.rand(500, ec.numel(), generator=g, dtype=torch.float64) - 1
     de = u * er  # (500, 3m) inside the box, relative to the center
-    sols = fit.theta + de @ fit.S.T
-    iv = fit.interval
+    S = solution_map_of(model, data, fit)
+    sols = fit.theta + de @ S.T
+    iv = hull(fit)
     assert iv.contains(sols, atol=1e-12).all()
     # tight: the box vertex sign(S_k) * e_r reaches the upper bound of parameter k
-    for k in fit.free.nonzero().flatten()[:5].tolist():
-        vert = torch.sign(fit.S[k]) * er
-        assert_close(fit.theta[k] + fit.S[k] @ vert, iv.upper[k])
+    for k in fit.report.free.nonzero().flatten()[:5].tolist():
+        vert = torch.sign(S[k]) * er
+        assert_close(fit.theta[k] + S[k] @ vert, iv.upper[k])
 
 
 def test_hull_contains_nonlinear_refits(noisy_zone):
@@ -137,9 +154,9 @@ def test_hull_contains_nonlinear_refits(noisy_zone):
         e = data.center + u * data.radius
         zones.append(PoseIntervals(data.pose, data.q, e, e, data.count))
     fits = identify_zones(model, zones)
-    iv = fit.interval
+    iv = hull(fit)
     for f in fits:
-        assert_close(f.free, fit.free)
+        assert_close(f.report.free, fit.report.free)
         inside = iv.contains(f.theta, atol=1e-3 * fit.radius + 1e-12)
         assert inside.all(), f"outside: {[model.param_names()[k] for k in (~inside).nonzero().flatten()]}"
 
@@ -158,7 +175,12 @@ def test_solution_map_is_damped_pseudo_inverse():
 
 
 @pytest.mark.parametrize("effects", [(), ("base_frame",)], ids=["geometric", "base_frame"])
-def test_batched_over_zones_equals_per_zone(kr, effects):
+def test_zones_are_the_one_fit(kr, effects):
+    """Each zone of `identify_zones` is `fit` itself (damping towards theta0, no prior, no
+    registration, on the parameters identifiable at nominal): the same numbers, and the
+    zones do not depend on each other."""
+    from torchcal.calibration.fit import fit
+
     model = CalibrationModel(kr, list(effects))
     g = torch.Generator().manual_seed(12)
     truth = random_theta(model, model.default_free(), 13, scale=3.0)
@@ -169,13 +191,16 @@ def test_batched_over_zones_equals_per_zone(kr, effects):
         c = p + 0.05 * torch.randn(p.shape, generator=g, dtype=torch.float64)
         r = 0.1 * torch.rand(p.shape, generator=g, dtype=torch.float64)
         zones.append(PoseIntervals(torch.arange(11), q, c - r, c + r, torch.full((11,), 5)))
-    zones.append(zones[0].subset(slice(0, 10)))  # a zone of another size: its own group
-    batched = identify_zones(model, zones)
+    zones.append(zones[0].subset(slice(0, 10)))  # a zone of another size
+    theta0 = random_theta(model, model.default_free(), 14, scale=0.5)
+    together = identify_zones(model, zones, damping=0.01, theta0=theta0)
     for z, data in enumerate(zones):
-        single = identify_intervals(model, data)
-        assert single.report.held == batched[z].report.held
-        assert_close(batched[z].theta, single.theta, atol=1e-9, rtol=1e-7)
-        assert_close(batched[z].radius, single.radius, atol=1e-9, rtol=1e-7)
+        single = identify_intervals(model, data, damping=0.01, theta0=theta0)
+        assert single.report.held == together[z].report.held
+        assert torch.equal(together[z].theta, single.theta) and torch.equal(together[z].radius, single.radius)
+        direct = fit(model, data.context(kr), data.center, theta0=theta0, free=single.report.free, register=False,
+                     prior=False, damping=0.01, max_iter=100)
+        assert torch.equal(direct.theta, single.theta) and direct.n_iter == single.n_iter
 
 
 def test_pose_intervals_groups_repeats(kr):
@@ -240,7 +265,7 @@ def test_damped_zone_is_the_ridge_solution_and_hull_holds(noisy_zone):
     |r(x)|^2 + mu |D (x - theta0)|^2 (D: column norms at theta0), and the hull of its own
     map contains sampled refits."""
     model, data, fit = noisy_zone
-    theta0 = fit.theta + 1e-4 * torch.sign(fit.theta) * fit.free  # a nearby prior
+    theta0 = fit.theta + 1e-4 * torch.sign(fit.theta) * fit.report.free  # a nearby prior
     mu = 0.3
     damped = identify_intervals(model, data, damping=mu, theta0=theta0)
     ctx = data.context(model.robot)
@@ -248,9 +273,10 @@ def test_damped_zone_is_the_ridge_solution_and_hull_holds(noisy_zone):
     x = damped.theta
     J = model.jacobian(x, ctx).reshape(-1, model.n_params)
     r = (data.center - model.predict(x, ctx)).reshape(-1)
-    grad = (-J.T @ r + mu * D ** 2 * (x - theta0))[damped.free]
-    assert (grad.abs() / (D[damped.free] * r.norm())).max() < 1e-6
-    assert (x - theta0)[damped.free].abs().max() > 0  # it did move
+    free = damped.report.free
+    grad = (-J.T @ r + mu * D ** 2 * (x - theta0))[free]
+    assert (grad.abs() / (D[free] * r.norm())).max() < 1e-6
+    assert (x - theta0)[free].abs().max() > 0  # it did move
     assert damped.damping == mu and (damped.radius <= fit.radius + 1e-12).all()  # damping narrows
     g = torch.Generator().manual_seed(12)
     zones = []
@@ -259,31 +285,11 @@ def test_damped_zone_is_the_ridge_solution_and_hull_holds(noisy_zone):
         e = data.center + u * data.radius
         zones.append(PoseIntervals(data.pose, data.q, e, e, data.count))
     for f in identify_zones(model, zones, damping=mu, theta0=theta0):
-        assert damped.interval.contains(f.theta, atol=1e-3 * damped.radius + 1e-12).all()
-    gcv = identify_zones(model, [data, data], damping="gcv_shared", theta0=theta0)
-    assert gcv[0].damping == gcv[1].damping and gcv[0].damping >= 0
+        assert hull(damped).contains(f.theta, atol=1e-3 * damped.radius + 1e-12).all()
+    gcv = identify_zones(model, [data, data.subset(slice(0, 11))], damping="gcv_shared", theta0=theta0)
+    assert gcv[0].damping == gcv[1].damping and gcv[0].damping >= 0  # one mu for zones of any size
     with pytest.raises(InputError, match="damping: expected a number >= 0, 'gcv' or 'gcv_shared'"):
         identify_intervals(model, data, damping="lots")
-
-
-def test_interval_model_round_trip(noisy_zone):
-    import json
-
-    from torchcal.calibration.intervals import IntervalModel
-    from torchcal.io.interval_model import interval_model_from_dict, interval_model_to_dict
-
-    model, data, fit = noisy_zone
-    im = IntervalModel.from_fits([fit, fit], levels=[1, 2], poses=[12, 12], method="independent")
-    back = interval_model_from_dict(json.loads(json.dumps(interval_model_to_dict(im))))
-    assert_close(back.theta, im.theta)
-    assert_close(back.lower, im.lower)
-    assert_close(back.upper, im.upper)
-    assert back.free.tolist() == im.free.tolist() and back.zones[1]["level"] == 2
-    assert back.assign(torch.zeros(4, 3)).tolist() == [1, 1, 1, 1]  # no partition: one zone, id 1
-    bad = interval_model_to_dict(im)
-    bad["zones"][0]["theta"] = bad["zones"][0]["theta"][:-1]
-    with pytest.raises(InputError, match="zone 1: theta has 29 values, expected 30"):
-        interval_model_from_dict(bad)
 
 
 @pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(

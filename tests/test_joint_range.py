@@ -175,24 +175,24 @@ def test_prismatic_range_in_mm_round_trip_and_compensate(tmp_path, capsys):
     assert "torchcal: warning: 2 of 4 converged targets lie outside the calibrated joint range (joint 3: " in err
 
 
-def test_interval_model_keeps_the_range(session):
-    from torchcal.io.interval_model import interval_model_from_dict, interval_model_to_dict
-
+def test_interval_model_keeps_the_range(session, tmp_path):
     robot, real, m, _ = session
     q = m.q[:20]
     mm = real.measure(q, repeats=2, seed=9)
     im = torchcal.calibrate(robot, mm, effects=["base_frame"])
     assert_close(im.q_range, torch.stack([q.amin(0), q.amax(0)]), rtol=0, atol=0)
-    d = json.loads(json.dumps(interval_model_to_dict(im)))
+    torchcal.save(im, tmp_path / "im.json")
+    d = json.loads((tmp_path / "im.json").read_text())
     np.testing.assert_allclose(d["calibrated_range"]["q_max"], np.degrees(q.numpy()).max(0), rtol=0, atol=1e-9)
-    back = interval_model_from_dict(d)
+    back = torchcal.load(tmp_path / "im.json")
     assert_close(back.q_range, im.q_range, rtol=0, atol=1e-12)
     # one target whose nominal inverse turns joint 1 to 100 deg (calibrated -60 .. 30 deg)
     tq = q[:3].clone()
     tq[0, 0] = math.radians(100.0)
-    t = back.model.predict(back.theta[0], make_context(robot, tq))
+    t = back.model.predict(back.theta, make_context(robot, tq))
     with pytest.warns(CalibratedRangeWarning, match=r"1 of 3 converged targets .*joint 1: 100\.0 deg"):
         comp = torchcal.compensate(back, t, q0=tq)
     assert comp.converged.all() and comp.outside_range == 1
     del d["calibrated_range"]
-    assert interval_model_from_dict(d).q_range is None
+    (tmp_path / "old.json").write_text(json.dumps(d))
+    assert torchcal.load(tmp_path / "old.json").q_range is None

@@ -389,20 +389,23 @@ def test_cli_bad_options(tmp_path, capsys):
 
 
 def test_zones_numbered_alike_by_partition_and_interval_model(paper_partition, kr):
-    """A zone has one number everywhere (1..Z): the interval model assigns the ids the
+    """A zone has one number everywhere (1..Z): the per-zone model assigns the ids the
     partition assigns, and its zone - 1 row is that zone's parameters."""
-    from torchcal.calibration.intervals import IntervalModel
+    import dataclasses
+
+    from torchcal.calibration.fit import FitResult, Identifiability
     from torchcal.calibration.model import CalibrationModel
+    from torchcal.calibration.zone_calibration import ZonedFit
 
     p = paper_partition
     model = CalibrationModel(kr)
     Z = p.n_zones
-    theta = torch.arange(Z, dtype=torch.float64)[:, None].expand(Z, model.n_params).clone()
-    free = torch.ones(Z, model.n_params, dtype=torch.bool)
-    info = [{"zone": z, "level": int(p.zone_level[z - 1]), "poses": None, "held": [], "rms_mm": None,
-             "damping": 0.0} for z in range(1, Z + 1)]
-    im = IntervalModel(model, theta, theta, theta, free, info, p, "damped")
+    free = torch.ones(model.n_params, dtype=torch.bool)
+    glob = FitResult(model, model.zeros(), model.zeros(), None, None, Identifiability(free, [], 0, 1.0, {}, 0), 0)
+    zones = [dataclasses.replace(glob, theta=torch.full((model.n_params,), float(z), dtype=torch.float64))
+             for z in range(1, Z + 1)]
+    im = ZonedFit.of(glob, zones, p, "damped", [0] * Z)
     probe = p.positions[::7]
     ids = im.assign(probe)
     assert torch.equal(ids, p.assign(probe)) and int(ids.min()) >= 1 and int(ids.max()) <= Z
-    assert [im.zones[int(z) - 1]["zone"] for z in ids] == ids.tolist()
+    assert im.zone_theta[ids - 1, 0].tolist() == ids.double().tolist()

@@ -63,8 +63,8 @@ def _model(robot_or_model, effects=()) -> CalibrationModel:
 
 
 def _fitted(model) -> FitResult:
-    """The fitted model: a `FitResult` as it is, a MODEL.json path loaded into one
-    (`torchcal.io.modelfile.load`)."""
+    """The fitted model: a `FitResult` (a `ZonedFit` too) as it is, a MODEL.json path
+    loaded into one (`torchcal.io.modelfile.load`)."""
     if isinstance(model, FitResult):
         return model
     if isinstance(model, (str, Path)) and str(model).endswith(".json"):
@@ -75,23 +75,26 @@ def _fitted(model) -> FitResult:
 
 def load(path, *, robot=None) -> FitResult:
     """The fitted model of a MODEL.json (`torchcal.io.modelfile.load`): parameters,
-    effects, settings, tool rotation, calibrated range, covariance, residual stage.
+    effects, settings, tool rotation, calibrated range, covariance, residual stage; a
+    `ZonedFit` for the MODEL.json of a per-zone ``calibrate``.
     robot: a `Robot`, preset name or robot file the model must be for (None: no check)."""
     from torchcal.io.modelfile import load as read
 
     return read(path, robot=robot)
 
 
-def save(res: FitResult, path, *, source=None, seed: int = 0, pose_ids=None, force: bool = False):
-    """Write the fitted model `res` as MODEL.json at `path` (the layout of
-    `torchcal.io.modelfile.to_dict`, what ``torchcal fit --out`` writes; `load` reads it
-    back): atomically, an existing file only with force, never over `source` (the data it
-    was fitted on, recorded with its hash). Returns the path."""
+def save(res: FitResult, path, *, source=None, seed: int = 0, pose_ids=None, force: bool = False,
+         partition_source=None):
+    """Write the fitted model `res` (a `ZonedFit` too) as MODEL.json at `path` (the layout of
+    `torchcal.io.modelfile.to_dict`, what ``torchcal fit --out`` and ``calibrate --out``
+    write; `load` reads it back): atomically, an existing file only with force, never over
+    `source` (the data it was fitted on, recorded with its hash) or `partition_source` (the
+    PARTITION.json of a per-zone calibration, recorded). Returns the path."""
     from torchcal.io.files import write_json
     from torchcal.io.modelfile import to_dict
 
-    obj = to_dict(res, source=source, seed=seed, pose_ids=pose_ids)
-    return write_json(path, obj, force=force, inputs=[] if source is None else [source])
+    obj = to_dict(res, source=source, seed=seed, pose_ids=pose_ids, partition_source=partition_source)
+    return write_json(path, obj, force=force, inputs=[p for p in (source, partition_source) if p is not None])
 
 
 def _warn_range(q: torch.Tensor, q_range, robot: Robot, what: str, stage=None) -> int:
@@ -248,7 +251,7 @@ def evaluate(model, measurements) -> Evaluation:
     theta = fm.theta.to(m.xyz)
     enforce(check_measurements(cm, theta, m, fm.training_rms_mm))  # another robot, frame, units
     stage = fm.residual_model
-    err = m.xyz - cm.predict(theta, ctx)  # (N, 3) mm; minus the residual stage's correction
+    err = m.xyz - fm.predict(ctx)  # (N, 3) mm (each row in its zone); minus the residual stage's correction
     if stage is not None:
         err = err - stage.predict(m.q).to(err)
     fig = error_summary(err)
@@ -354,9 +357,9 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
               damping="gcv_shared"):
     """Interval calibration, global or per zone (`torchcal.calibration.zone_calibration.calibrate`).
 
-    partition: a `Partition`, a PARTITION.json path or None. Returns an `IntervalModel`
-    (`torchcal.io.interval_model.interval_model_to_dict` gives the MODEL.json of ``torchcal
-    calibrate``) whose ``global_fit`` is the global `IntervalFit`.
+    partition: a `Partition`, a PARTITION.json path or None. Returns the global interval
+    fit (a `FitResult` with ``radius``), with a partition a `ZonedFit` (the global fit and
+    one fit per zone); `save` writes it as the MODEL.json of ``torchcal calibrate``.
     """
     from torchcal.calibration.zone_calibration import calibrate as run
 
@@ -366,9 +369,7 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
         partition = load_partition(partition)
     m = _measurements(measurements, model.robot)
     with threads.for_work(_work(model, m)):
-        im, glob = run(model, m, partition, zone_method, damping)
-    im.global_fit = glob
-    return im
+        return run(model, m, partition, zone_method, damping)
 
 
 def _with_stage(stage, cm, theta, t, comp, zone, options, max_rounds: int = 10):
@@ -395,8 +396,8 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
                payload_kg=None, temp_c=None, check: bool = True):
     """Corrected joint commands (M, n) rad for target positions (M, 3) mm.
 
-    model: a fitted model (`FitResult`, or a MODEL.json path) or an
-    `IntervalModel` (targets assigned to its zones). targets: in the model's measuring
+    model: a fitted model (`FitResult`, or a MODEL.json path; a `ZonedFit`'s targets are
+    assigned to its zones). targets: in the model's measuring
     frame. q0: (M, n) rad starting commands, default
     `torchcal.calibration.compensate.nominal_start` (the nominal inverse in the measuring
     frame from the nearest calibration pose, as the command line seeds it; a target it
@@ -407,15 +408,13 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
     counted (``outside_range``) and named in one `CalibratedRangeWarning`. check: targets
     inside the robot's base (metres read as mm) are refused, targets beyond its reach
     named in a `MismatchWarning` (`torchcal.calibration.mismatch.check_targets`). A model
-    with a residual stage (``model.residual_model``, of a FitResult or an IntervalModel) is
+    with a residual stage (``model.residual_model``) is
     inverted with it (the physical model is solved for the target minus the stage's
     correction, repeated until it settles).
     """
     from torchcal.calibration.compensate import compensate as run, nominal_start
-    from torchcal.calibration.intervals import IntervalModel
 
-    if not isinstance(model, IntervalModel):
-        model = _fitted(model)
+    model = _fitted(model)
     cm, theta, q_range, stage = model.model, model.theta, model.q_range, model.residual_model
     robot = cm.robot
     t = torch.as_tensor(targets, dtype=robot.dtype, device=robot.device)
@@ -423,11 +422,11 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
         raise InputError(f"targets: expected (M, 3) mm, got shape {tuple(t.shape)}")
     if check:
         from torchcal.calibration.mismatch import check_targets
-        check_targets(cm, theta if theta.ndim == 1 else theta[0], t)
+        check_targets(cm, theta, t)
     if q0 is None:
-        q0 = nominal_start(cm, theta if theta.ndim == 1 else theta[0], t, poses=model.seed_poses,
-                           q_range=q_range).q
-    zone = model.assign(t) - 1 if isinstance(model, IntervalModel) else None  # row of theta
+        q0 = nominal_start(cm, theta, t, poses=model.seed_poses, q_range=q_range).q
+    zone = model.assign(t) - 1  # row of zone_theta
+    theta = model.zone_theta
     comp = run(cm, theta.to(t), t, q0, zone=zone, tol_mm=tol_mm, max_iter=max_iter, max_step_rad=max_step_rad,
                payload_kg=payload_kg, temp_c=temp_c)
     if stage is not None:
@@ -509,19 +508,6 @@ def _sources(model) -> list:
     return [p for p in out + [urdf and urdf.get("path")] if p]
 
 
-def _interval_model(model):
-    """An `IntervalModel` of a MODEL.json path (fit or calibrate), an `IntervalModel` or a
-    fitted model (one zone)."""
-    from torchcal.calibration.intervals import IntervalModel
-    from torchcal.io.interval_model import load_interval_model
-
-    if isinstance(model, IntervalModel):
-        return model
-    if isinstance(model, (str, Path)):
-        return load_interval_model(model)
-    return IntervalModel.of_fit(_fitted(model))
-
-
 @dataclass
 class TargetCompensation:
     """What ``torchcal compensate`` computes and writes: the corrected commands of a
@@ -594,9 +580,9 @@ def compensate_targets(model, targets, *, frame: str = "measuring", robot=None, 
                        angle_unit: str = "deg", seeds=None, payload_kg=None, temp_c=None) -> TargetCompensation:
     """``torchcal compensate``: corrected joint commands for a targets file or tensor.
 
-    model: a MODEL.json path of ``torchcal fit`` or ``torchcal calibrate`` (an interval
-    model: each target is compensated with its zone's parameters), an `IntervalModel`, or a
-    fitted model (FitResult). targets: a TARGETS.csv path
+    model: a MODEL.json path of ``torchcal fit`` or ``torchcal calibrate``, or a fitted
+    model (`FitResult`; of a `ZonedFit` each target is compensated with its zone's
+    parameters). targets: a TARGETS.csv path
     (`torchcal.io.targets_csv.read_targets`; its seeds and conditions are used, units per
     `length_unit` / `angle_unit`) or (M, 3) mm. frame: the frame the targets are in,
     "measuring" (the model's measuring frame: the tracker's when it has a base_frame
@@ -623,7 +609,7 @@ def compensate_targets(model, targets, *, frame: str = "measuring", robot=None, 
     where = str(targets) if isinstance(targets, (str, Path)) else "targets"
     if frame not in FRAMES:
         raise InputError(f"frame: expected one of {', '.join(FRAMES)}, got {frame!r}")
-    im = _interval_model(model)
+    im = _fitted(model)
     rob = im.model.robot
     if robot is not None:
         check_same_robot(rob, make_robot(robot), str(model) if isinstance(model, (str, Path)) else "model")
@@ -648,16 +634,19 @@ def compensate_targets(model, targets, *, frame: str = "measuring", robot=None, 
                              f"in the targets, which they lack") from None
     given = t
     if frame == "base":  # the solve is in the measuring frame, where the model predicts
-        R, o = measuring_from_base(im.model, im.theta[0].to(t))
+        R, o = measuring_from_base(im.model, im.theta.to(t))
         t = t @ R.T + o
     with warnings.catch_warnings():  # metres read as mm: refused; beyond the reach: listed
         warnings.simplefilter("ignore", MismatchWarning)
-        far = check_targets(im.model, im.theta[0], t, where=where)
-    q0 = nominal_start(im.model, im.theta[0], t, poses=im.seed_poses, q_range=im.q_range).q if seeds is None else \
+        far = check_targets(im.model, im.theta, t, where=where)
+    q0 = nominal_start(im.model, im.theta, t, poses=im.seed_poses, q_range=im.q_range).q if seeds is None else \
         rob.q_from_user(torch.as_tensor(seeds))
     comp = compensate(im, t, q0, check=False, payload_kg=payload_kg, temp_c=temp_c)
-    return TargetCompensation(given, comp, im.assign(t), rob.q_to_user(comp.q), im.n_zones, im.method, rob.name,
-                              far, frame)
+    from torchcal.calibration.zone_calibration import ZonedFit
+
+    method = im.method if isinstance(im, ZonedFit) else ("global" if im.radius is not None else "fit")
+    return TargetCompensation(given, comp, im.assign(t), rob.q_to_user(comp.q), im.zone_theta.shape[0], method,
+                              rob.name, far, frame)
 
 
 @dataclass
@@ -704,8 +693,8 @@ def export(model, *, robot_file=None, urdf=None, table=None, data=None, length_u
     """``torchcal export``: the calibrated geometry of a model as a robot file, a URDF and/or
     an MD-H table (CSV, `torchcal.io.mdh_table`).
 
-    model: a MODEL.json path (fit or calibrate; an interval model's zone 1), an
-    `IntervalModel` or a fitted model. The MD-H deviations go into the table, base_frame into
+    model: a MODEL.json path (fit or calibrate) or a fitted model (of a `ZonedFit` the
+    global fit). The MD-H deviations go into the table, base_frame into
     the base, tool_offset into the tool (`torchcal.calibration.geometry_only.calibrated_robot`).
     Other effects: with `data` (Measurements or CSV path in `length_unit` / `angle_unit`) the
     geometry alone is refitted on them (`refit_geometry`) and that geometry exported; without,
@@ -730,19 +719,19 @@ def export(model, *, robot_file=None, urdf=None, table=None, data=None, length_u
     if not any(outs.values()):
         raise InputError("export: give at least one output (robot file, URDF or MD-H table)")
     inputs = [p for p in (model, data) if isinstance(p, (str, Path))]
-    im = _interval_model(model)
+    im = _fitted(model)
     inputs += _sources(im)  # never over the files the model came from, force or not
     for p in outs.values():
         if p is not None:
             check_output(p, force=force, inputs=inputs)
-    cm, theta = im.model, im.theta[0]
+    cm, theta = im.model, im.theta
     cal, rest = calibrated_robot(cm, theta)
     refit, rows = None, None
     if data is not None and rest:  # data only matter when the model has effects the robot cannot hold
         m = _measurements(data, cm.robot, length_unit, angle_unit)
         check_units(m, cm.robot, length_unit=length_unit, angle_unit=angle_unit, where=m.source or "data")
-        enforce(check_measurements(cm, theta.to(m.xyz), m, im.zones[0].get("rms_mm")))
-        rows, refit = len(m), refit_geometry(cm, theta, m, identified=im.free[0])
+        enforce(check_measurements(cm, theta.to(m.xyz), m, im.training_rms_mm))
+        rows, refit = len(m), refit_geometry(cm, theta, m, identified=im.report.free)
         cm, theta = refit.fit.model, refit.fit.theta
         cal, rest = calibrated_robot(cm, theta)[0], []
     urdf_text, urdf_info, source, links = None, None, None, None

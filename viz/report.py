@@ -221,12 +221,10 @@ def _effects(rep) -> str:
 def _zone_model(rep) -> str:
     """The model section of an interval model (``torchcal calibrate``): zones, and each
     identified parameter's interval per zone, in mm and degrees."""
-    from torchcal.io.modelfile import file_unit
-
     m = rep.model
     zones = m.get("zones", [])
     out = ["<h2>2. The model</h2>", _effects(rep),
-           f'<p class="note">Interval calibration ({_e(m.get("method", "?"))}), {len(zones)} zone(s)'
+           f'<p class="note">Interval calibration ({_e(m.get("zone_method", "?"))}), {len(zones)} zone(s)'
            + (" of a workspace partition by R_set and position (the paper's pipeline, docs/paper.md)"
               if m.get("partition") else "") + ".</p>"]
     rows = [[_e(z["zone"]), _e(z.get("level") if z.get("level") is not None else "-"),
@@ -235,18 +233,16 @@ def _zone_model(rep) -> str:
              _num(z.get("damping"), 3), _e(z.get("note", ""))] for z in zones]
     out.append("<h3>Zones</h3>" + _table(["zone", "level", "poses", "fit RMS", "held", "damping mu", "note"], rows,
                                          numeric=(2, 3, 4, 5)))
-    names, units = m.get("parameter_names", []), m.get("parameter_units", [])
     head = ["parameter", "unit"] + [f"zone {z['zone']}" for z in zones]
     rows = []
-    for k, name in enumerate(names):
-        if not any(z["free"][k] for z in zones):
+    for k, p in enumerate(m.get("parameters", [])):  # the zones' values are in the file's units, as these
+        if not any(z["identified"][k] for z in zones):
             continue
-        unit, f = file_unit(units[k])
         cells = []
         for z in zones:
-            c, lo, hi = (f * z[key][k] for key in ("theta", "lower", "upper"))
-            cells.append(f"{c:.4g} [{lo:.4g}, {hi:.4g}]" if z["free"][k] else "held")
-        rows.append([_e(name), _e(unit)] + cells)
+            c, lo, hi = (z[key][k] for key in ("value", "lower", "upper"))
+            cells.append(f"{c:.4g} [{lo:.4g}, {hi:.4g}]" if z["identified"][k] else "held")
+        rows.append([_e(p["name"]), _e(p.get("unit", ""))] + cells)
     out.append("<h3>Interval parameters per zone</h3>"
                '<p class="note">center [lower, upper] of each identified parameter (deviation from nominal; '
                "frames: the pose itself); held: not identifiable in that zone.</p>"

@@ -3,7 +3,8 @@
 `batched_predict` / `batched_jacobian` stack per-zone contexts with equal row counts and
 evaluate ``x (B, P)``: geometric-only models through the MD-H kernel with a broadcast
 parameter batch, models with effects by vmap of `CalibrationModel.predict` and the
-analytic `CalibrationModel.jacobian` per zone. Used by `torchcal.calibration.intervals.identify_zones`.
+analytic `CalibrationModel.jacobian` per zone: the batched LM of benchmarks/bench_identify.py
+(the calibration itself fits zone after zone with `torchcal.calibration.fit.fit`).
 Units: parameters as in `CalibrationModel.param_units` (rad, mm); positions mm.
 """
 

@@ -208,6 +208,8 @@ class FitResult:
     provenance: dict | None = None
     set_by_prior: list = field(default_factory=list)
     residual_test: dict | None = None  # the residual stage's held-out test (torchcal.diagnosis.residual_stage)
+    radius: torch.Tensor | None = None  # (P,) interval half-widths of an interval calibration (intervals.py)
+    damping: float = 0.0  # mu of eq. 29 the fit was damped with (0: none)
 
     @property
     def converged(self) -> bool:
@@ -233,6 +235,21 @@ class FitResult:
         """(3, 3) measured tool frame <- nominal tool frame of a model fitted to
         orientations, else None."""
         return None if self.orientation is None else self.orientation["tool_rotation"]
+
+    # one parameter set for every position; `torchcal.calibration.zone_calibration.ZonedFit`
+    # overrides these three with one set per zone of its partition
+    @property
+    def zone_theta(self) -> torch.Tensor:
+        """(Z, P) parameters of each zone: theta as the one row of a model without zones."""
+        return self.theta[None]
+
+    def assign(self, positions: torch.Tensor) -> torch.Tensor:
+        """(M,) int64 1-based zone of each position (M, 3) mm: 1 without zones."""
+        return torch.ones(positions.shape[0], dtype=torch.long)
+
+    def predict(self, ctx: Context) -> torch.Tensor:
+        """(N, 3) mm model positions of the rows of ctx (the residual stage not included)."""
+        return self.model.predict(self.theta.to(ctx.q), ctx)
 
 
 def training_summary(residuals: torch.Tensor) -> dict:
@@ -292,7 +309,8 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
         pose=None, rotation: torch.Tensor | None = None, sigma_mm: float = SIGMA_MM,
         sigma_deg: float = SIGMA_DEG, register: bool = True,
         max_length_mm: float | None = MAX_LENGTH_MM,
-        max_angle_deg: float | None = MAX_ANGLE_DEG, prior_sigma_mm: float | None = None) -> FitResult:
+        max_angle_deg: float | None = MAX_ANGLE_DEG, prior_sigma_mm: float | None = None,
+        prior: bool = True, damping: float = 0.0) -> FitResult:
     """Fit model parameters to measured TCP positions xyz (N, 3) mm [and orientations].
 
     pose: (N,) int pose ids; with repeats the standard errors are pose-level
@@ -320,7 +338,15 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     per-axis RMS of the position residual of a first solve with rho = sigma_mm, or
     `prior_sigma_mm` when given (one solve; the fold refits of a cross-validation pass
     the full fit's). Free parameters ending beyond their scale are listed in
-    `FitResult.implausible`.
+    `FitResult.implausible`. prior=False leaves the plausibility prior out altogether.
+
+    Damping (docs/paper.md eq. 29, `torchcal.calibration.intervals`): with ``damping = mu
+    > 0`` the fit is the damped least-squares solution around the start theta0: rows
+    ``sqrt(mu) D (theta - theta0)`` on the free parameters, D the column norms of the
+    Jacobian at theta0 (scale-invariant), which shrink what the data barely determine
+    towards theta0 (e.g. a zone towards the global calibration). They count as prior
+    information in the covariance, and with them fewer equations than parameters are
+    allowed.
     """
     from torchcal.calibration import registration as reg
     from torchcal.calibration.plausibility import beyond_plausible, plausible_scales, set_by_prior
@@ -360,9 +386,10 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     if rotation is not None:
         fit_tool_rotation(theta0)
     J0 = jac(theta0)
-    scales = plausible_scales(model, max_length_mm, max_angle_deg).to(theta0)
+    scales = plausible_scales(model, max_length_mm, max_angle_deg).to(theta0) if prior else \
+        torch.full_like(theta0, math.inf)
     report = identifiability(J0, model.param_names(), cand, rank_tol, first=~torch.isfinite(scales))
-    if k * n_rows <= report.rank:
+    if k * n_rows <= report.rank and not damping:
         # the equations, not the model, bound the rank here: count the identifiable
         # parameters at generic poses (seeded, so the message is reproducible)
         kk = _generic_rank(model, ctx, cand, rank_tol)
@@ -378,6 +405,9 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     lower = None if bool(torch.isinf(lower).all()) else lower
     has_prior = bool(torch.isfinite(scales).any())
     inv_scale = torch.where(torch.isfinite(scales), 1.0 / scales, torch.zeros_like(scales))  # (P,)
+    # eq. 29's damping rows sqrt(mu) D (theta - theta0) on the free parameters (docstring)
+    damp = (math.sqrt(damping) * J0.reshape(-1, J0.shape[-1]).norm(dim=0)) * report.free.to(theta0.device) \
+        if damping else None
 
     def solve(x, free_now, rho):
         """LM on the measurement rows plus the prior rows rho * theta / s (module doc)."""
@@ -386,13 +416,17 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
         prior = rho * inv_scale
 
         def res_fn(z):
-            return torch.cat([resid(z[0]).reshape(-1), prior * z[0]]).unsqueeze(0)
+            rows = [resid(z[0]).reshape(-1), prior * z[0]] + ([] if damp is None else [damp * (z[0] - theta0)])
+            return torch.cat(rows).unsqueeze(0)
 
         def jac_fn(z):
-            return torch.cat([jac(z[0]).reshape(-1, z.shape[-1]), torch.diag(prior)]).unsqueeze(0)
+            rows = [jac(z[0]).reshape(-1, z.shape[-1]), torch.diag(prior)]
+            rows += [] if damp is None else [torch.diag(damp)]
+            return torch.cat(rows).unsqueeze(0)
 
         for _ in range(rounds):
-            w = torch.cat([weights.repeat_interleave(k), torch.ones_like(prior)]).unsqueeze(0)
+            w = torch.cat([weights.repeat_interleave(k), torch.ones_like(prior)]
+                          + ([] if damp is None else [torch.ones_like(damp)])).unsqueeze(0)
             res = levenberg_marquardt(res_fn, x, free=free_now, weights=w, jacobian_fn=jac_fn,
                                       max_iter=max_iter, lower=lower)
             x = res.x
@@ -450,6 +484,8 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     resid_pos = -r[:, :3]
     rot_res = None if rotation is None else r[:, 3:] / w_rot  # (N, 3) rad, model vs measured
     prior_rows = rho * inv_scale if has_prior and math.isfinite(rho) else None  # posterior (covariance.py)
+    if damp is not None:  # the damping rows are prior information too
+        prior_rows = damp if prior_rows is None else (prior_rows ** 2 + damp ** 2).sqrt()
     if rotation is None:
         covariance = parameter_covariance(model.jacobian(theta, ctx), resid_pos, free_now, pose=pose,
                                           weights=weights if robust else None, prior=prior_rows)
@@ -479,4 +515,4 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
                      {"max_length_mm": max_length_mm, "max_angle_deg": max_angle_deg, "prior_sigma_mm": rho},
                      q_range=joint_range(ctx.q), seed_poses=seed_poses(ctx.q), robust=robust, sigma_mm=sigma_mm,
                      sigma_deg=sigma_deg,
-                     training=training_summary(resid_pos), set_by_prior=prior_set)
+                     training=training_summary(resid_pos), set_by_prior=prior_set, damping=float(damping))

@@ -43,12 +43,13 @@ def gcv_damping(J: torch.Tensor, r: torch.Tensor, free: torch.Tensor, grid=GCV_G
 
 
 def choose_damping(J: torch.Tensor, r: torch.Tensor, free: torch.Tensor, mode: str, grid=GCV_GRID) -> list[float]:
-    """mu per zone by GCV: J (B, R, P) Jacobians, r (B, R) errors, free (B, P) bool.
+    """mu per zone by GCV: J B Jacobians (R_b, P), r B errors (R_b,), free (B, P) bool
+    (stacked tensors or sequences: zones may have different numbers of rows).
 
     mode ``"gcv"``: each zone its own grid value; ``"gcv_shared"``: one value for every
     zone, the one with the smallest sum of the zones' GCV. Returns B floats.
     """
-    scores = [gcv_damping(J[b], r[b], free[b], grid) for b in range(J.shape[0])]
+    scores = [gcv_damping(J[b], r[b], free[b], grid) for b in range(len(J))]
     if mode == "gcv":
         return [sc[0] for sc in scores]
     tot = [sum(sc[1][i] for sc in scores) for i in range(len(grid))]

@@ -9,8 +9,9 @@ the linearised solution map).
    current parameters the error interval is ``e_j = [min_k - p_j, max_k - p_j]`` (mm),
    in center/radius form ``e_c``, ``e_r`` (docs/paper.md eq. 23's notation).
 2. **Center.** The center parameters ``x_c`` solve the *nonlinear* least-squares problem
-   on the interval centers (the mid-range of the repeated measurements) by
-   Levenberg-Marquardt (`torchcal.calibration.lm`, eq. 29 with adaptive mu starting at 1e-3), over
+   on the interval centers (the mid-range of the repeated measurements) by the one fit of
+   torchcal (`torchcal.calibration.fit.fit`: Levenberg-Marquardt, eq. 29 with adaptive mu
+   starting at 1e-3; here without the plausibility prior and without registration), over
    the parameters the identifiability analysis keeps free (`torchcal.calibration.fit`, done at
    nominal: structural identifiability); the others are held at the starting point
    (nominal by default) and reported by name.
@@ -37,9 +38,9 @@ the linearised solution map).
    generalised cross-validation (`torchcal.calibration.gcv`) on a grid. A zone of few poses then
    moves away from the prior only as far as its own data support.
 
-Batched over zones: `identify_zones` stacks zones with equal numbers of poses into one
-batch ``x (B, P)`` and calls `torchcal.calibration.lm.levenberg_marquardt` once per group (per-zone
-damping and step acceptance); the result equals fitting the zones one by one.
+The result of each zone is a `FitResult` (the one fitted-model type) with ``radius`` (the
+half-widths ``|S| e_r``) and ``damping`` (mu) set; `parameter_intervals` lists its
+intervals. Zones are fitted one after another by the same `fit` as ``torchcal fit``.
 
 Units: parameters as in `CalibrationModel.param_units` (rad, mm); errors mm.
 """
@@ -53,15 +54,13 @@ import torch
 
 from torchcal.effects.context import Context, make_context
 from torchcal.errors import InputError
-from torchcal.calibration.batched import batched_jacobian, batched_predict
-from torchcal.calibration.fit import RANK_TOL, Identifiability, identifiability
+from torchcal.calibration.fit import RANK_TOL, FitResult, Identifiability, fit, identifiability
 from torchcal.calibration.gcv import choose_damping, gcv_damping
 from torchcal.reliability.interval import Interval
-from torchcal.calibration.lm import levenberg_marquardt
 from torchcal.calibration.model import CalibrationModel
 
-__all__ = ["PoseIntervals", "pose_intervals", "solution_map", "gcv_damping", "IntervalFit", "IntervalModel",
-           "identify_intervals", "identify_zones", "batched_predict", "batched_jacobian"]
+__all__ = ["PoseIntervals", "pose_intervals", "solution_map", "gcv_damping", "parameter_intervals",
+           "identify_intervals", "identify_zones"]
 
 
 # ------------------------------------------------------------------ interval errors
@@ -179,72 +178,20 @@ def solution_map(J: torch.Tensor, free: torch.Tensor, mu: float = 0.0, scale=Non
     return S
 
 
-# ------------------------------------------------------------------ results
+# ------------------------------------------------------------------ intervals of a fit
 
-@dataclass(eq=False)
-class IntervalFit:
-    """Interval parameters of one zone (or of a global calibration).
-
-    Attributes:
-        model: the `CalibrationModel`.
-        theta: (P,) center parameters x_c (rad, mm as `model.param_units()`).
-        radius: (P,) radius |S| e_r (0 for held parameters).
-        report: identifiability at the starting point (held names, rank, condition, O1..O5).
-        S: (P, 3m) linearised solution map at x_c (mm -> parameter units).
-        residual_mm: (m, 3) interval centers minus model at x_c.
-        error_radius_mm: (m, 3) half-range of the repeated measurements.
-        n_iter: LM iterations; converged: LM convergence rule met; status: 'converged',
-            'stalled' or 'max_iterations' (`torchcal.calibration.lm.LMStatus`).
-        damping: mu of eq. 29 used for this zone (0: plain least squares).
-    """
-
-    model: CalibrationModel
-    theta: torch.Tensor
-    radius: torch.Tensor
-    report: Identifiability
-    S: torch.Tensor
-    residual_mm: torch.Tensor
-    error_radius_mm: torch.Tensor
-    n_iter: int
-    converged: bool
-    damping: float = 0.0
-    status: str = "converged"
-
-    @property
-    def free(self) -> torch.Tensor:
-        """(P,) bool identified parameters."""
-        return self.report.free
-
-    @property
-    def interval(self) -> Interval:
-        """(P,) parameter intervals [theta - radius, theta + radius]."""
-        return Interval.from_center_radius(self.theta, self.radius)
-
-    @property
-    def rms_mm(self) -> float:
-        """RMS distance between the interval centers and the fitted model, mm."""
-        return float(self.residual_mm.norm(dim=-1).pow(2).mean().sqrt())
-
-    def rows(self, degrees: bool = True) -> list[dict]:
-        """Per identified parameter: {"name", "unit", "centre" (the center value; the JSON key
-        keeps its name), "lower", "upper"} (angles in degrees)."""
-        out = []
-        names, units = self.model.param_names(), self.model.param_units()
-        for k in self.free.nonzero().flatten().tolist():
-            f = 180.0 / torch.pi if (degrees and units[k] == "rad") else 1.0
-            c, r = float(self.theta[k]) * f, float(self.radius[k]) * f
-            out.append({"name": names[k], "unit": "deg" if f != 1.0 else units[k],
-                        "centre": c, "lower": c - r, "upper": c + r})
-        return out
-
-    def to_dict(self) -> dict:
-        """JSON-ready: centre/lower/upper for every parameter (model units), report."""
-        return {"theta": self.theta.tolist(), "radius": self.radius.tolist(),
-                "lower": (self.theta - self.radius).tolist(), "upper": (self.theta + self.radius).tolist(),
-                "free": self.free.tolist(), "identifiability": self.report.to_dict(),
-                "rms_mm": self.rms_mm, "n_iter": self.n_iter, "converged": self.converged,
-                "status": self.status, "damping": self.damping,
-                "parameters": self.rows(degrees=True)}
+def parameter_intervals(res: FitResult, degrees: bool = True) -> list[dict]:
+    """Per identified parameter of an interval fit (``res.radius`` set): {"name", "unit",
+    "centre" (the center value; the JSON key keeps its name), "lower", "upper"} (angles in
+    degrees when `degrees`)."""
+    out = []
+    names, units = res.model.param_names(), res.model.param_units()
+    for k in res.report.free.nonzero().flatten().tolist():
+        f = 180.0 / torch.pi if (degrees and units[k] == "rad") else 1.0
+        c, r = float(res.theta[k]) * f, float(res.radius[k]) * f
+        out.append({"name": names[k], "unit": "deg" if f != 1.0 else units[k],
+                    "centre": c, "lower": c - r, "upper": c + r})
+    return out
 
 
 # ------------------------------------------------------------------ identification
@@ -258,28 +205,32 @@ def _check_zone(model, ctx, data, what):
 
 
 def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
-                   rank_tol: float = RANK_TOL, max_iter: int = 100, theta0=None) -> list[IntervalFit]:
-    """Interval identification of several zones, batched.
+                   rank_tol: float = RANK_TOL, max_iter: int = 100, theta0=None) -> list[FitResult]:
+    """Interval identification of several zones, each by the one fit (`torchcal.calibration.fit.fit`).
 
     Args:
         model: the `CalibrationModel` (geometric deviations + effects).
         zones: list of `PoseIntervals` (contexts built from their q) or of
             ``(Context, PoseIntervals)`` pairs.
         free: (P,) bool candidate parameters (default `model.default_free()`); per zone
-            the identifiability analysis at theta0 may hold more (reported by name).
+            the identifiability analysis at nominal may hold more (reported by name).
         damping: mu of eq. 29, relative to the squared column norms of the Jacobian at
             theta0 (scale-invariant). 0 (default): plain least squares (LM's own damping
             goes to zero; the solution map is Gauss-Newton's). A number > 0: the damped
             solution, i.e. the minimiser of ``|r(x)|^2 + mu |D (x - theta0)|^2``, which
             shrinks each zone towards theta0 (e.g. a global calibration); the solution map
             is then the damped one, and the interval hull is exact for it. ``"gcv"``: mu
-            per zone by generalised cross-validation (`gcv_damping`).
+            per zone by generalised cross-validation (`gcv_damping`), ``"gcv_shared"``:
+            one mu for all zones.
         rank_tol: identifiability threshold (`torchcal.calibration.fit.identifiability`).
         max_iter: LM iterations at most.
         theta0: (P,) starting point; held parameters stay at its values (default nominal).
 
-    Zones with equal numbers of poses share one LM call. Returns one `IntervalFit` per
-    zone, in order.
+    Each zone is `fit` on its interval centers from theta0 with the damping, without the
+    plausibility prior and without registration, on the parameters identifiable at nominal
+    (structural identifiability, whatever theta0 is). Returns one `FitResult` per zone, in
+    order, with ``radius`` (the interval half-widths |S| e_r) and ``damping`` set; its
+    ``residuals`` are the interval centers minus the model, one row per pose.
     """
     if len(zones) == 0:
         raise InputError("identify_zones: no zones given")
@@ -295,151 +246,42 @@ def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
     cand = model.default_free() if free is None else torch.as_tensor(free, dtype=torch.bool)
     x0 = model.zeros() if theta0 is None else torch.as_tensor(theta0).to(model.zeros())
     names = model.param_names()
-    P = model.n_params
-    groups: dict[int, list[int]] = {}
-    for z, (_, d) in enumerate(pairs):
-        groups.setdefault(len(d), []).append(z)
-    fits: list[IntervalFit | None] = [None] * len(pairs)
-    for m, members in groups.items():
-        ctxs = [pairs[z][0] for z in members]
-        datas = [pairs[z][1] for z in members]
-        B = len(members)
-        xb = x0.expand(B, P).clone()
-        # structural identifiability: analysed at nominal, whatever theta0 is
-        Jn = batched_jacobian(model, torch.zeros_like(xb), ctxs)  # (B, m, 3, P)
-        reports = [identifiability(Jn[b], names, cand, rank_tol) for b in range(B)]
-        J0 = Jn if theta0 is None else batched_jacobian(model, xb, ctxs)
-        for b, rep in enumerate(reports):
-            if 3 * m <= rep.rank and damping == 0:
-                raise InputError(f"zone {members[b]}: {m} poses give {3 * m} equations for "
-                                 f"{rep.rank} identifiable parameters; need more poses")
-        freeb = torch.stack([r.free for r in reports]).to(xb.device)  # (B, P)
-        target = torch.stack([d.center for d in datas]).to(xb)  # (B, m, 3)
-        J0f = J0.reshape(B, 3 * m, P)
-        scale = J0f.norm(dim=1).clamp_min(1e-300)  # (B, P) column norms at theta0
+    reports, J0s, r0s = [], [], []
+    for z, (ctx, data) in enumerate(pairs):
+        rep = identifiability(model.jacobian(model.zeros(), ctx), names, cand, rank_tol)  # structural: at nominal
+        m = len(data)
+        if 3 * m <= rep.rank and damping == 0:
+            raise InputError(f"zone {z}: {m} poses give {3 * m} equations for "
+                             f"{rep.rank} identifiable parameters; need more poses")
+        reports.append(rep)
         if damping in ("gcv", "gcv_shared"):
-            r0 = (target - batched_predict(model, xb, ctxs)).reshape(B, -1)
-            mus = choose_damping(J0f, r0, freeb, damping)
-        else:
-            mus = [float(damping)] * B
-        mu_t = torch.tensor(mus, dtype=xb.dtype, device=xb.device)
-        prior = (mu_t.sqrt()[:, None] * scale) * freeb  # (B, P) rows sqrt(mu) D on free params
-        damped = bool((mu_t > 0).any())
+            J0s.append(model.jacobian(x0, ctx).reshape(3 * m, -1))
+            r0s.append((data.center.to(x0) - model.predict(x0, ctx)).reshape(-1))
+    if damping in ("gcv", "gcv_shared"):
+        mus = choose_damping(J0s, r0s, torch.stack([r.free for r in reports]), damping)
+    else:
+        mus = [float(damping)] * len(pairs)
+    return [_identify(model, ctx, data, rep, x0, mu, rank_tol, max_iter)
+            for (ctx, data), rep, mu in zip(pairs, reports, mus)]
 
-        def residual_fn(x):  # (B, P) -> (B, 3m [+ P])
-            r = (batched_predict(model, x, ctxs) - target).reshape(x.shape[0], -1)
-            return torch.cat([r, prior * (x - x0)], dim=1) if damped else r
 
-        def jacobian_fn(x):  # (B, 3m [+ P], P)
-            J = batched_jacobian(model, x, ctxs).reshape(x.shape[0], 3 * m, P)
-            return torch.cat([J, torch.diag_embed(prior)], dim=1) if damped else J
-
-        res = levenberg_marquardt(residual_fn, xb, free=freeb, jacobian_fn=jacobian_fn,
-                                  max_iter=max_iter)
-        J = batched_jacobian(model, res.x, ctxs).reshape(B, 3 * m, P)
-        pred = batched_predict(model, res.x, ctxs)
-        for b, z in enumerate(members):
-            S = solution_map(J[b], freeb[b], mus[b], scale=scale[b])  # (P, 3m)
-            er = datas[b].radius.to(xb).reshape(-1)  # (3m,)
-            radius = S.abs() @ er
-            fits[z] = IntervalFit(model, res.x[b].clone(), radius, reports[b], S,
-                                  target[b] - pred[b], datas[b].radius.to(xb),
-                                  int(res.n_iter[b]), bool(res.converged[b]), mus[b],
-                                  res.status_labels()[b])
-    return fits  # type: ignore[return-value]
+def _identify(model, ctx, data: PoseIntervals, structural: Identifiability, x0, mu: float, rank_tol: float,
+              max_iter: int) -> FitResult:
+    """One zone: `fit` on the interval centers, then the interval radii |S| e_r (module doc)."""
+    res = fit(model, ctx, data.center.to(x0), theta0=x0, free=structural.free, register=False, prior=False,
+              damping=mu, rank_tol=rank_tol, max_iter=max_iter)
+    # the structural analysis (at nominal) is the zone's report; whatever fit held beyond it at theta0 is added
+    report = structural if not res.report.held else \
+        dataclasses.replace(res.report, held=structural.held + res.report.held)
+    J = model.jacobian(res.theta, ctx).reshape(3 * len(data), -1)
+    scale = model.jacobian(x0, ctx).reshape(3 * len(data), -1).norm(dim=0)  # D: column norms at theta0
+    S = solution_map(J, report.free, mu, scale=scale)  # (P, 3m)
+    radius = S.abs() @ data.radius.to(x0).reshape(-1)
+    return dataclasses.replace(res, report=report, radius=radius)
 
 
 def identify_intervals(model: CalibrationModel, data: PoseIntervals, ctx: Context | None = None,
-                       **kwargs) -> IntervalFit:
+                       **kwargs) -> FitResult:
     """Interval identification of one zone (see `identify_zones` for the arguments)."""
     item = data if ctx is None else (ctx, data)
     return identify_zones(model, [item], **kwargs)[0]
-
-
-# ------------------------------------------------------------------ the model of all zones
-
-
-@dataclass(eq=False)
-class IntervalModel:
-    """Interval parameters per zone (or one global zone), with the partition that assigns
-    targets to zones. Plain data; its file (the MODEL.json of ``torchcal calibrate``) is
-    written and read by `torchcal.io.interval_model`.
-
-    Values in the model's units (mm, rad, ...); zones 1-based. Without a partition there
-    is exactly one zone and every target uses it.
-
-    Attributes:
-        model: the `CalibrationModel`.
-        theta: (Z, P) center parameters per zone; lower, upper: (Z, P) interval bounds.
-        free: (Z, P) bool identified parameters.
-        zones: per zone dict (zone, level, poses, held, rms_mm, damping).
-        partition: a `torchcal.partition.zones.Partition` or None.
-        method: how the zones were fitted ("global", "independent", "damped").
-        provenance: free-form dict (input file, versions).
-        global_fit: the global `IntervalFit` (its `report`, `rms_mm`) when the model comes
-            from `torchcal.calibrate`, else None; not stored in the file.
-        q_range: (2, n) [min; max] commanded q of the calibration data, rad / mm
-            (`torchcal.calibration.joint_range`), None when unknown.
-        seed_poses: (K, n) a few calibration poses that seed compensate, rad / mm, or None.
-        residual_model: the non-physical residual stage of a fitted model read as one
-            zone (`torchcal.calibration.residual_model`), else None.
-    """
-
-    model: CalibrationModel
-    theta: torch.Tensor
-    lower: torch.Tensor
-    upper: torch.Tensor
-    free: torch.Tensor
-    zones: list
-    partition: object = None
-    method: str = "global"
-    provenance: dict | None = None
-    global_fit: object = None
-    q_range: torch.Tensor | None = None
-    residual_model: object = None
-    seed_poses: torch.Tensor | None = None
-
-    @property
-    def n_zones(self) -> int:
-        return self.theta.shape[0]
-
-    @classmethod
-    def single(cls, model, theta: torch.Tensor, free: torch.Tensor | None = None, q_range=None) -> "IntervalModel":
-        """One zone holding a fitted model's parameters theta (P,) (method "fit"); free (P,)
-        bool identified parameters (default all)."""
-        free = torch.ones(theta.shape[-1], dtype=torch.bool) if free is None else free
-        return cls(model, theta[None], theta[None], theta[None], free[None],
-                   [{"zone": 1, "level": None, "poses": None, "held": [], "rms_mm": None, "damping": 0.0}],
-                   None, "fit", q_range=q_range)
-
-    @classmethod
-    def of_fit(cls, fitted) -> "IntervalModel":
-        """One zone holding a fitted model (`FitResult`): its parameters, identified set,
-        calibrated range, residual stage, and its training rms as the zone's ``rms_mm``."""
-        im = cls.single(fitted.model, fitted.theta, fitted.report.free, q_range=fitted.q_range)
-        im.zones[0]["rms_mm"] = fitted.training_rms_mm
-        return dataclasses.replace(im, residual_model=fitted.residual_model, provenance=fitted.provenance,
-                                   seed_poses=getattr(fitted, "seed_poses", None))
-
-    @classmethod
-    def from_fits(cls, fits: list, partition=None, levels=None, poses=None, method: str = "global",
-                  provenance=None) -> "IntervalModel":
-        """From one `IntervalFit` per zone (zone order = partition zone 1..Z)."""
-        model = fits[0].model
-        zones = []
-        for z, f in enumerate(fits):
-            zones.append({"zone": z + 1, "level": None if levels is None else int(levels[z]),
-                          "poses": None if poses is None else int(poses[z]), "held": f.report.held,
-                          "rms_mm": f.rms_mm, "damping": f.damping})
-        th = torch.stack([f.theta for f in fits])
-        rad = torch.stack([f.radius for f in fits])
-        return cls(model, th, th - rad, th + rad, torch.stack([f.free for f in fits]), zones, partition,
-                   method, provenance)
-
-    def assign(self, targets: torch.Tensor) -> torch.Tensor:
-        """(M,) int64 zone ids 1..Z of target positions (M, 3) mm, numbered as in the
-        partition (`Partition.assign`) and the files; 1 for every target without a partition.
-        Row ``zone - 1`` of `theta` holds that zone's parameters."""
-        if self.partition is None:
-            return torch.ones(targets.shape[0], dtype=torch.long)
-        return self.partition.assign(targets)

@@ -78,8 +78,8 @@ def format_report(run, table3_rows=(6, 2)) -> str:
         return sorted(v)[len(v) // 2] if v else float("nan")
     n = model.robot.n
     for z, f in enumerate(fits):
-        lens = [2 * float(f.radius[k]) for k in range(5 * n) if f.free[k] and units[k] == "mm"]
-        angs = [2 * math.degrees(float(f.radius[k])) for k in range(5 * n) if f.free[k] and units[k] == "rad"]
+        lens = [2 * float(f.radius[k]) for k in range(5 * n) if f.report.free[k] and units[k] == "mm"]
+        angs = [2 * math.degrees(float(f.radius[k])) for k in range(5 * n) if f.report.free[k] and units[k] == "rad"]
         e = ext[z]
         w(f"{z + 1:>4} {res.zone_level[z]:>5} {e['sweep_points']:>4} {e['rms_radius_mm']:>13.0f} "
           f"{e['max_radius_mm']:>7.0f} {len(f.report.held):>4} {f.rms_mm:>10.4f} {med(lens):>15.4f} {med(angs):>8.5f}")

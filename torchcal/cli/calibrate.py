@@ -15,8 +15,9 @@ propagated through the linearised solution map (torchcal.calibration.intervals).
   zone on its own from nominal (the paper's eq. 29 literally; every zone needs more
   equations than identifiable parameters).
 
-MODEL.json: format ``torchcal-interval-model/1`` (`torchcal.io.interval_model`), read by
-``torchcal compensate``.
+MODEL.json: the file of ``torchcal fit`` (`torchcal.io.modelfile`; the global fit, each
+parameter with its interval) plus, with ``--partition``, the partition and each zone's
+parameters and intervals; read by ``torchcal compensate``, ``evaluate``, ``export``, ``report``.
 """
 
 from __future__ import annotations
@@ -57,8 +58,6 @@ def add_parser(sub):
 
 def run(args) -> int:
     import torchcal
-    from torchcal.io.files import write_json
-    from torchcal.io.interval_model import interval_model_to_dict
     from torchcal.io.partition_file import load_partition
     from torchcal.io.robot_file import robot as make_robot
     from torchcal.effects.spec import parse_specs
@@ -68,20 +67,19 @@ def run(args) -> int:
     specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
     part = load_partition(args.partition) if args.partition else None
     meas = read_data(args.data, robot, args)
-    im = torchcal.calibrate(robot, meas, specs, partition=part, zone_method=args.zone_method, damping=args.damping)
-    glob = im.global_fit
-    write_json(args.out, interval_model_to_dict(im, source=args.data, partition_source=args.partition),
-               force=args.force, inputs=[args.data, args.partition])
-    rep = glob.report
-    print(f"calibrate {robot.name} + [{', '.join(im.model.specs()) or 'geometric only'}] on {len(meas)} rows "
-          f"({sum(z['poses'] or 0 for z in im.zones)} poses): global fit rms {glob.rms_mm:.4f} mm, "
+    res = torchcal.calibrate(robot, meas, specs, partition=part, zone_method=args.zone_method, damping=args.damping)
+    torchcal.save(res, args.out, source=args.data, partition_source=args.partition, force=args.force)
+    rep = res.report
+    print(f"calibrate {robot.name} + [{', '.join(res.model.specs()) or 'geometric only'}] on {len(meas)} rows "
+          f"({rep.n_rows} poses): global fit rms {res.rms_mm:.4f} mm, "
           f"{rep.rank} identified parameters, condition {rep.condition:.3g}")
     if rep.held:
         print(f"held (not identifiable from these poses): {', '.join(rep.held)}")
     if part is not None:
         print(f"{'zone':>4} {'level':>5} {'poses':>5} {'rms mm':>8} {'held':>4} {'mu':>7}")
-        for z in im.zones:
-            print(f"{z['zone']:>4} {z['level']:>5} {z['poses']:>5} {z['rms_mm']:>8.4f} {len(z['held']):>4} "
-                  f"{z['damping']:>7.0e}{'  ' + z['note'] if 'note' in z else ''}")
+        for z, (f, poses) in enumerate(zip(res.zones, res.zone_poses)):
+            note = "" if poses else "  no poses in this zone: global parameters"
+            print(f"{z + 1:>4} {int(part.zone_level[z]):>5} {poses:>5} {f.rms_mm:>8.4f} {len(f.report.held):>4} "
+                  f"{f.damping:>7.0e}{note}")
     print(f"wrote {args.out}")
     return 0

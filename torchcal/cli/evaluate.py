@@ -26,7 +26,8 @@ from torchcal.cli._args import (add_effects_module, add_force, add_units, add_vi
 def add_parser(sub):
     p = sub.add_parser("evaluate", help="errors of a fitted model on a measurement CSV", description=__doc__)
     p.add_argument("data", help="measurement CSV")
-    p.add_argument("--model", required=True, help="MODEL.json from `torchcal fit`")
+    p.add_argument("--model", required=True,
+                   help="MODEL.json from `torchcal fit` or `calibrate` (per zone: each row with its zone's parameters)")
     add_robot(p, required=False, what="check that the model is for this robot")
     p.add_argument("--json", help="write the report here")
     p.add_argument("--residuals", metavar="OUT.csv", help="write one row per measurement (errors in mm) here")

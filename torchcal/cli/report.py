@@ -34,15 +34,16 @@ def add_parser(sub):
 
 
 def run(args) -> int:
+    from torchcal.api import load
     from torchcal.io.files import write_json
-    from torchcal.workflows.report import calibration_report, load_model
+    from torchcal.workflows.report import calibration_report
     from viz.report import write_report
 
     inputs = [args.model, args.data, args.history]
     check_outputs([("--out", args.out), ("--json", args.json)], args.force, inputs=inputs)
     data = None
     if args.data:
-        data = read_data(args.data, load_model(args.model).model.robot, args)
+        data = read_data(args.data, load(args.model).model.robot, args)
     rep = calibration_report(args.model, data, history_path=args.history, tolerance_mm=args.tolerance_mm)
     write_report(args.out, rep, force=args.force, inputs=inputs)
     if args.json:

@@ -1,8 +1,8 @@
-"""Files: measurement CSV, MODEL.json (fit and interval models), partition and sweep files,
+"""Files: measurement CSV, MODEL.json (every fitted model, per zone included), partition and sweep files,
 atomic writes. Every reader raises InputError naming the file and place; every writer is
 atomic and refuses to replace a file without ``force``.
 
-MODEL.json of a fit is read and written by `torchcal.io.modelfile.load` / ``to_dict``
+MODEL.json of a fit (of ``calibrate`` too) is read and written by `torchcal.io.modelfile.load` / ``to_dict``
 (reached through the module: the names are too generic for the package).
 """
 
@@ -10,8 +10,6 @@ from torchcal._lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
     "torchcal.io.files": ["atomic_write", "check_output", "dumps_json", "read_json", "write_json"],
-    "torchcal.io.interval_model": ["INTERVAL_MODEL_FORMAT", "interval_model_from_dict", "interval_model_to_dict",
-                                   "load_interval_model"],
     "torchcal.io.mdh_table": ["mdh_table_csv"],
     "torchcal.io.measurement_csv": ["ANGLE_UNITS", "LENGTH_UNITS", "JointLimitWarning", "format_measurements",
                                     "read_measurements", "write_measurements"],

@@ -21,7 +21,12 @@
      "residual_model": {...} (the optional non-physical residual stage,
                        `torchcal.calibration.residual_model`),
      "residual_test": {"applied", "cv_without_mm", "cv_with_mm", "p_value", "level", "reason"}
-                      (its held-out test, `torchcal.diagnosis.residual_stage`)}
+                      (its held-out test, `torchcal.diagnosis.residual_stage`),
+     interval calibration (``torchcal calibrate``): each parameter's "interval": [lower, upper]
+     (the interval hull of `torchcal.calibration.intervals`) and "fit": {..., "damping"},
+     and per zone of a partition (a `ZonedFit`): "zone_method", "partition": {PARTITION.json},
+     "zones": [{"zone", "level", "poses", "value", "std", "lower", "upper", "identified",
+                "held", "rms_mm", "max_mm", "damping", "iterations", "status"[, "note"]}...]}
 
 Values are in the units named beside them: mm and degrees (radians inside; `file_unit`:
 'rad' -> 'deg', 'rad/mm' -> 'deg/mm', the joint_compliance payload term -> the joint's
@@ -39,6 +44,13 @@ no robot file; files written before it existed name a preset under ``robot``.
 ``calibrated_range`` (deg, mm for a prismatic joint) lets evaluate and compensate warn
 when the model is used outside the joint range it was fitted on
 (`torchcal.calibration.joint_range`).
+
+The file of a per-zone calibration is the file of its global fit plus the zones: the
+per-zone arrays are in the order and units (degrees, mm) of "parameters"; a zone without
+poses holds the global values (its "note" says so). Files of the older interval-model format
+("torchcal-interval-model/1": zones only, values in radians) load too: one zone without a
+partition as its fit, else a `ZonedFit` whose global fields are zone 1's (that format stores
+no global fit); unknown figures are zero (std) or absent.
 
 `load` returns the one fitted-model type, `torchcal.calibration.fit.FitResult`, with every
 field the file holds: theta, std, covariance, identifiability (``report``; identified and
@@ -64,12 +76,14 @@ from torchcal.calibration.covariance import ParameterCovariance
 from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult, Identifiability
 from torchcal.io.files import read_json
 from torchcal.calibration.model import CalibrationModel
+from torchcal.calibration.zone_calibration import ZonedFit
 from torchcal.effects.joint_compliance import G_NM_PER_KG_MM
 from torchcal.robots.robot import Robot
 from torchcal.io.robot_file import check_same_robot, model_robot, robot_to_dict
 
 FORMAT = "torchcal-model/2"
 FORMAT_RAD = "torchcal-model/1"  # files written before version 2: values in the model's units (rad)
+FORMAT_INTERVAL = "torchcal-interval-model/1"  # the older file of `torchcal calibrate` (zones only, rad)
 
 
 
@@ -106,7 +120,10 @@ def file_sha256(path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-def to_dict(res: FitResult, source=None, seed: int = 0, pose_ids=None) -> dict:
+def to_dict(res: FitResult, source=None, seed: int = 0, pose_ids=None, partition_source=None) -> dict:
+    """The MODEL.json dict of a fitted model (module doc), a `ZonedFit` with its zones.
+    source / partition_source: the data / PARTITION.json it was fitted on (paths), recorded
+    in the provenance (the data with its SHA-256); without source, ``res.provenance``."""
     from torchcal.calibration.joint_range import range_to_dict
     from torchcal.calibration.registration import base_frame_summary
     from torchcal.rotations import matrix_to_fixed_xyz
@@ -150,6 +167,20 @@ def to_dict(res: FitResult, source=None, seed: int = 0, pose_ids=None) -> dict:
         cov["matrix"] = (ki[:, None] * mat * ki[None, :]).tolist()
         cov["units"] = [units[model.param_names().index(n)] for n in cov["parameters"]]
     theta, std, lo, hi = (t.detach().to("cpu", torch.float64) * k for t in (res.theta, res.std, lo, hi))
+    interval = None if res.radius is None else _interval_rows(res, k)
+    fit_extra = {"damping": res.damping} if res.damping else {}
+    provenance = dict(res.provenance) if source is None and res.provenance is not None else \
+        {"input": None if source is None else str(source),
+         "input_sha256": None if source is None else file_sha256(source),
+         "torchcal_version": torchcal.__version__, "seed": seed}
+    if partition_source is not None:
+        provenance["partition"] = str(partition_source)
+    if isinstance(res, ZonedFit):
+        from torchcal.io.partition_file import partition_to_dict
+
+        extra["zone_method"] = res.method
+        extra["partition"] = partition_to_dict(res.partition)
+        extra["zones"] = [_zone_to_dict(res, z, k) for z in range(len(res.zones))]
     return {
         "format": FORMAT,
         "robot": model.robot.name,
@@ -157,22 +188,50 @@ def to_dict(res: FitResult, source=None, seed: int = 0, pose_ids=None) -> dict:
         "effects": model.specs(),
         "parameters": [
             {"name": n, "unit": u, "value": float(v), "std": float(s), "identified": bool(f),
-             "ci95": [float(a), float(b)], "set_by_prior": n in res.set_by_prior}
-            for n, u, v, s, f, a, b in zip(model.param_names(), units, theta.tolist(),
-                                           std.tolist(), res.report.free.tolist(), lo.tolist(),
-                                           hi.tolist())],
+             "ci95": [float(a), float(b)], "set_by_prior": n in res.set_by_prior,
+             **({} if interval is None else {"interval": interval[i]})}
+            for i, (n, u, v, s, f, a, b) in enumerate(zip(model.param_names(), units, theta.tolist(),
+                                                          std.tolist(), res.report.free.tolist(), lo.tolist(),
+                                                          hi.tolist()))],
         "covariance": cov,
-        "identifiability": res.report.to_dict(),
+        "identifiability": _identifiability(res.report),
         "fit": {"n": int(train["n"]), "rms_mm": float(train["rms_mm"]), "max_mm": float(train["max_mm"]),
                 "robust": res.robust, "sigma_mm": res.sigma_mm, "sigma_deg": res.sigma_deg,
                 "outlier_poses": outliers, "iterations": res.n_iter,
-                "status": res.status},
-        "provenance": dict(res.provenance) if source is None and res.provenance is not None else
-        {"input": None if source is None else str(source),
-         "input_sha256": None if source is None else file_sha256(source),
-         "torchcal_version": torchcal.__version__, "seed": seed},
+                "status": res.status, **fit_extra},
+        "provenance": provenance,
         **extra,
     }
+
+
+def _identifiability(report: Identifiability) -> dict:
+    """The identifiability block; an unknown condition number (NaN: a file of the older
+    interval format holds none) is written as null."""
+    out = report.to_dict()
+    if not math.isfinite(out["condition_number"]):
+        out["condition_number"] = None
+    return out
+
+
+def _interval_rows(res: FitResult, k: torch.Tensor) -> list:
+    """Per parameter [lower, upper] = theta -+ radius in file units (k: `file_units` factors)."""
+    th, r = (t.detach().to("cpu", torch.float64) * k for t in (res.theta, res.radius))
+    return torch.stack([th - r, th + r], dim=-1).tolist()
+
+
+def _zone_to_dict(res, z: int, k: torch.Tensor) -> dict:
+    """Zone z (0-based) of a `ZonedFit` as its MODEL.json entry (module doc), file units."""
+    f, poses = res.zones[z], int(res.zone_poses[z])
+    th, std = (t.detach().to("cpu", torch.float64) * k for t in (f.theta, f.std))
+    r = torch.zeros_like(th) if f.radius is None else f.radius.detach().to("cpu", torch.float64) * k
+    train = f.training or {}
+    out = {"zone": z + 1, "level": int(res.partition.zone_level[z]), "poses": poses, "value": th.tolist(),
+           "std": std.tolist(), "lower": (th - r).tolist(), "upper": (th + r).tolist(),
+           "identified": f.report.free.tolist(), "held": list(f.report.held), "rms_mm": f.rms_mm,
+           "max_mm": train.get("max_mm"), "damping": f.damping, "iterations": f.n_iter, "status": f.status}
+    if poses == 0:
+        out["note"] = "no poses in this zone: global parameters"
+    return out
 
 
 def load(path, robot: Robot | str | None = None) -> FitResult:
@@ -181,6 +240,13 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
     robot: a `Robot` or a preset name / robot-file path; when given, a model of another
     robot (joint count, types or nominal geometry) is refused with one line naming both."""
     obj = _read(path)
+    if obj["format"] == FORMAT_INTERVAL:
+        res = _interval_file(obj, str(path))
+        if robot is not None:
+            from torchcal.io.robot_file import robot as make_robot
+
+            check_same_robot(res.model.robot, make_robot(robot), str(path))
+        return res
     try:
         effects, params = obj["effects"], obj["parameters"]
         values = [float(p["value"]) for p in params]
@@ -233,13 +299,110 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
         from torchcal.calibration.joint_range import poses_from_dict, range_from_dict
         q_range = range_from_dict(obj["calibrated_range"], nominal, where)
         poses = poses_from_dict(obj["calibrated_range"], nominal, where)
-    return FitResult(model, theta, std, None, None, _report(obj, model, identified, where), covariance=
-                     _covariance(obj, model, where), registration=obj.get("registration"),
-                     implausible=list(plaus.get("beyond", [])), orientation=_orientation(obj, where),
-                     plausible_limits=limits, q_range=q_range, seed_poses=poses, residual_model=stage, training=training,
-                     provenance=obj.get("provenance"), set_by_prior=list(plaus.get("set_by_prior", [])),
-                     residual_test=obj.get("residual_test"),
-                     **settings)
+    radius = None  # the interval of each parameter, of an interval calibration
+    if all("interval" in p for p in params) and params:
+        try:
+            iv = torch.tensor([[float(v) for v in p["interval"]] for p in params], dtype=torch.float64)
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"{path}: bad parameter 'interval': {exc}") from None
+        radius = (iv[:, 1] - iv[:, 0]) / 2 / (1.0 if obj["format"] == FORMAT_RAD else file_units(model)[1])
+    res = FitResult(model, theta, std, None, None, _report(obj, model, identified, where), covariance=
+                    _covariance(obj, model, where), registration=obj.get("registration"),
+                    implausible=list(plaus.get("beyond", [])), orientation=_orientation(obj, where),
+                    plausible_limits=limits, q_range=q_range, seed_poses=poses, residual_model=stage, training=training,
+                    provenance=obj.get("provenance"), set_by_prior=list(plaus.get("set_by_prior", [])),
+                    residual_test=obj.get("residual_test"), radius=radius, damping=float(fit.get("damping", 0.0)),
+                    **settings)
+    if obj.get("zones") is None:
+        return res
+    zones = [_zone_from_dict(z, res, file_units(model)[1], where) for z in _list(obj, "zones", where)]
+    return _zoned(res, zones, obj, _block(obj, "partition", where), str(obj.get("zone_method", "damped")), where)
+
+
+def _zoned(glob: FitResult, zones: list, obj: dict, partition: dict, method: str, where: str) -> ZonedFit:
+    """The `ZonedFit` of a file: its global fit, zone fits, PARTITION.json dict and method."""
+    from torchcal.io.partition_file import partition_from_dict
+
+    part = partition_from_dict(partition, f"{where}: partition")
+    try:
+        return ZonedFit.of(glob, zones, part, method, [int(z.get("poses") or 0) for z in obj["zones"]])
+    except InputError as exc:
+        raise InputError(f"{where}: {exc}") from None
+
+
+def _list(obj: dict, key: str, where: str) -> list:
+    """obj[key] as a non-empty list."""
+    v = obj.get(key)
+    if not isinstance(v, list) or not v:
+        raise InputError(f"{where}: {key!r} is not a non-empty list")
+    return v
+
+
+def _zone_fit(model, theta, std, radius, free, info: dict, where: str, shared: dict) -> FitResult:
+    """A zone's `FitResult` from its values (model units) and its file entry `info`
+    (held, poses, rms_mm, max_mm, damping, iterations, status); shared: the calibrated
+    range (q_range, seed_poses) and provenance of the whole model."""
+    try:
+        rms, poses = info.get("rms_mm"), int(info.get("poses") or 0)
+        training = None if rms is None else {"n": poses, "rms_mm": float(rms),
+                                             "max_mm": float(info.get("max_mm") or rms)}
+        report = Identifiability(free, list(info.get("held", [])), int(free.sum()), float("nan"), {}, poses)
+        return FitResult(model, theta, std, None, None, report, int(info.get("iterations", 0)),
+                         status=str(info.get("status", "converged")), training=training, radius=radius,
+                         damping=float(info.get("damping", 0.0)), **shared)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{where}: zone {info.get('zone')}: bad field: {exc}") from None
+
+
+def _vector(z: dict, key: str, P: int, where: str, dtype=torch.float64) -> torch.Tensor:
+    """(P,) values of a zone entry's `key`; InputError naming the zone and key."""
+    try:
+        v = torch.tensor(z[key], dtype=dtype)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{where}: zone {z.get('zone')}: missing or bad {key!r}: {exc}") from None
+    if v.shape != (P,):
+        raise InputError(f"{where}: zone {z.get('zone')}: {key} has {v.numel()} values, expected {P}")
+    return v
+
+
+def _zone_from_dict(z: dict, glob: FitResult, k: torch.Tensor, where: str) -> FitResult:
+    """One zone entry of a `ZonedFit` file (file units, factors k) as a `FitResult`."""
+    if not isinstance(z, dict):
+        raise InputError(f"{where}: a zone entry is not an object")
+    P = glob.model.n_params
+    theta, lower, upper = (_vector(z, key, P, where) / k for key in ("value", "lower", "upper"))
+    std = _vector(z, "std", P, where) / k
+    shared = {"q_range": glob.q_range, "seed_poses": glob.seed_poses, "provenance": glob.provenance}
+    return _zone_fit(glob.model, theta, std, (upper - lower) / 2, _vector(z, "identified", P, where, torch.bool),
+                     z, where, shared)
+
+
+def _interval_file(obj: dict, where: str) -> FitResult:
+    """A file of the older interval-model format (module doc): its one zone as a
+    `FitResult`, or with a partition a `ZonedFit` whose global fields are zone 1's."""
+    from torchcal.calibration.joint_range import poses_from_dict, range_from_dict
+
+    nominal = model_robot(obj, where)
+    try:
+        model = CalibrationModel(nominal, list(obj["effects"]))
+        names = list(obj["parameter_names"])
+    except (KeyError, TypeError) as exc:
+        raise InputError(f"{where}: missing or malformed field: {exc}") from None
+    if names != model.param_names():
+        raise InputError(f"{where}: parameter names do not match robot {nominal.name!r} with effects {obj['effects']}")
+    block = obj.get("calibrated_range")
+    shared = {"q_range": None if block is None else range_from_dict(block, nominal, where),
+              "seed_poses": None if block is None else poses_from_dict(block, nominal, where),
+              "provenance": dict(obj.get("provenance") or {})}
+    P = model.n_params
+    zones = []
+    for z in _list(obj, "zones", where):
+        theta, lower, upper = (_vector(z, key, P, where) for key in ("theta", "lower", "upper"))
+        zones.append(_zone_fit(model, theta, torch.zeros(P, dtype=torch.float64), (upper - lower) / 2,
+                               _vector(z, "free", P, where, torch.bool), z, where, shared))
+    if obj.get("partition") is None:
+        return zones[0]
+    return _zoned(zones[0], zones, obj, obj["partition"], str(obj.get("method", "damped")), where)
 
 
 def _block(obj: dict, key: str, where: str) -> dict:
@@ -258,7 +421,7 @@ def _report(obj: dict, model: CalibrationModel, identified: list, where: str) ->
     free = torch.tensor(identified, dtype=torch.bool)
     try:
         return Identifiability(free, list(ident.get("held_at_nominal", [])), int(ident.get("rank", int(free.sum()))),
-                               float(ident.get("condition_number", float("nan"))),
+                               float(ident.get("condition_number") or float("nan")),
                                dict(ident.get("observability", {})), int(ident.get("poses", 0)))
     except (TypeError, ValueError) as exc:
         raise InputError(f"{where}: bad 'identifiability': {exc}") from None
@@ -295,7 +458,7 @@ def _orientation(obj: dict, where: str) -> dict | None:
 def _read(path) -> dict:
     """The model file's dict, of a format this version reads (FORMAT, or FORMAT_RAD)."""
     obj = read_json(path, "model file")
-    if obj.get("format") not in (FORMAT, FORMAT_RAD):
+    if obj.get("format") not in (FORMAT, FORMAT_RAD, FORMAT_INTERVAL):
         raise InputError(f"{path}: not a torchcal model file (format {obj.get('format')!r}, "
                          f"expected {FORMAT!r})")
     return obj

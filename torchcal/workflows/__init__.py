@@ -11,5 +11,5 @@ __getattr__, __dir__, __all__ = attach(__name__, {
                                             "run_pipeline", "sample_in_zones"],
     "torchcal.workflows.paper_report": ["DemoRun", "fit_json", "reduction_percent"],
     "torchcal.workflows.report": ["CalibrationReport", "calibration_report", "effect_physics", "file_facts",
-                                  "load_model", "zone_table"],
+                                  "zone_table"],
 })

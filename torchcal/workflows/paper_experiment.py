@@ -218,7 +218,7 @@ class MoveErrors:
 class PipelineResult:
     """One seed of the demo.
 
-    fits: {method: [IntervalFit per zone]} (one element for the global methods);
+    fits: {method: [interval FitResult per zone]} (one element for the global methods);
     models: {method: CalibrationModel}; comps: {method: Compensation};
     after: {method: MoveErrors}; cal_q: {"paper": (P, n), "more": (P', n)} rad calibration
     poses; zone_extent: per zone the RMS and largest distance of its sweep points from

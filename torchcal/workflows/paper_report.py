@@ -9,7 +9,8 @@ from dataclasses import dataclass
 
 import torch
 
-from torchcal.calibration.intervals import IntervalFit
+from torchcal.calibration.fit import FitResult
+from torchcal.calibration.intervals import parameter_intervals
 from torchcal.statistics import mean_ci, paired_comparison
 from torchcal.workflows.paper_config import AXES, BOUNDS, METHODS, PAPER_REDUCTION_PERCENT, DemoConfig
 
@@ -28,10 +29,11 @@ def reduction_percent(before_lo, before_hi, after_lo, after_hi, absolute: bool =
     return out
 
 
-def fit_json(f: IntervalFit) -> dict:
+def fit_json(f: FitResult) -> dict:
+    """One interval fit (a zone's or the global one) in the demo's JSON."""
     return {"fit_rms_mm": f.rms_mm, "damping": f.damping, "rank": f.report.rank,
             "condition_number": f.report.condition, "held": f.report.held,
-            "converged": f.converged, "parameters": f.rows(degrees=True)}
+            "converged": f.converged, "parameters": parameter_intervals(f, degrees=True)}
 
 
 @dataclass(eq=False)

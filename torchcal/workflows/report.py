@@ -12,7 +12,7 @@ held-out measurements and discover's ``--json`` history:
   one), each as `torchcal.metrics.error_summary`, `iso9283` and, with a tolerance,
   `tolerance_verdict`; what the calibrated model leaves learnable on these rows
   (`torchcal.diagnosis.unexplained`);
-- for an interval model of ``torchcal calibrate`` (per zone, the paper's pipeline): each row
+- for a per-zone model of ``torchcal calibrate`` (a `ZonedFit`, the paper's pipeline): each row
   predicted by its zone's center parameters, and the paper's Table 5 on the held-out
   poses (`zone_table`: per-axis error intervals and R_set before and after, per pose);
 - discover's rounds, refits, verdicts and reasons, its unexplained section and its
@@ -30,7 +30,7 @@ import torch
 
 from torchcal.errors import InputError
 
-__all__ = ["CalibrationReport", "calibration_report", "effect_physics", "file_facts", "load_model", "zone_table"]
+__all__ = ["CalibrationReport", "calibration_report", "effect_physics", "file_facts", "zone_table"]
 
 
 def file_facts(path) -> dict:
@@ -118,11 +118,12 @@ def calibration_report(model_path, data=None, *, history_path=None, tolerance_mm
 
     if tolerance_mm is not None and not tolerance_mm > 0:
         raise InputError(f"tolerance_mm: expected a distance > 0 mm, got {tolerance_mm}")
-    from torchcal.io.interval_model import INTERVAL_MODEL_FORMAT
+    from torchcal.io import modelfile
 
     model = read_json(model_path, "model file")
-    zones = model.get("format") == INTERVAL_MODEL_FORMAT
-    if not zones and not str(model.get("format", "")).startswith("torchcal-model/"):
+    if model.get("format") == modelfile.FORMAT_INTERVAL:  # the older file of calibrate: in today's layout
+        model = modelfile.to_dict(modelfile.load(model_path))
+    if not str(model.get("format", "")).startswith("torchcal-model/"):
         raise InputError(f"{model_path}: not a MODEL.json of `torchcal fit`, `discover` or `calibrate` "
                          f"(format {model.get('format')!r})")
     history = None
@@ -138,7 +139,9 @@ def calibration_report(model_path, data=None, *, history_path=None, tolerance_mm
                             tolerance_mm=tolerance_mm, history=history)
     if data is None:
         return rep
-    fitted = load_model(model_path)
+    from torchcal import api
+
+    fitted = api.load(model_path)
     m = data if isinstance(data, Measurements) else read_measurements(
         data, robot=fitted.model.robot, length_unit=length_unit, angle_unit=angle_unit)
     source = data if isinstance(data, (str, Path)) else m.source
@@ -148,54 +151,23 @@ def calibration_report(model_path, data=None, *, history_path=None, tolerance_mm
     return rep
 
 
-def load_model(path):
-    """The model at path: a `FitResult` (MODEL.json of fit / discover) or an
-    `IntervalModel` (of calibrate)."""
-    from torchcal import api
-    from torchcal.io.files import read_json
-    from torchcal.io.interval_model import INTERVAL_MODEL_FORMAT, load_interval_model
-
-    if read_json(path, "model file").get("format") == INTERVAL_MODEL_FORMAT:
-        return load_interval_model(path)
-    return api.load(path)
-
-
-def _zone_errors(im, m):
-    """(measured - model (N, 3) mm, zone per row (N,) 1-based) of an `IntervalModel` im on
-    measurements m: each row predicted with the center parameters of the zone of its
-    nominal TCP position (as ``calibrate`` assigns poses and ``compensate`` targets)."""
-    from torchcal.effects import context_of
-
-    cm = im.model
-    zone = im.assign(cm.robot.fk(m.q))
-    ctx = context_of(cm.robot, m)
-    pred = torch.stack([cm.predict(im.theta[z].to(m.xyz), ctx) for z in range(im.n_zones)])  # (Z, N, 3)
-    err = m.xyz - pred[zone - 1, torch.arange(len(m))]
-    if im.residual_model is not None:
-        err = err - im.residual_model.predict(m.q).to(err)
-    return err.detach(), zone
-
-
 def _held_out(rep: CalibrationReport, fitted, m, effects: set, tolerance_mm) -> None:
     """The held-out figures of `rep` (module doc) on measurements m; fitted: a `FitResult`
-    or an `IntervalModel` (then also the paper's Table 5, `zone_table`)."""
+    (of a `ZonedFit` also the paper's Table 5, `zone_table`)."""
     import warnings
 
     from torchcal import api
-    from torchcal.calibration.intervals import IntervalModel
     from torchcal.calibration.joint_range import CalibratedRangeWarning
+    from torchcal.calibration.zone_calibration import ZonedFit
     from torchcal.diagnosis.unexplained import unexplained
     from torchcal.metrics import error_summary, iso9283, pose_groups, tolerance_verdict
 
     robot = fitted.model.robot
-    if isinstance(fitted, IntervalModel):
-        err, zone = _zone_errors(fitted, m)
-    else:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", CalibratedRangeWarning)  # counted in outside_range
-            ev = api.evaluate(fitted, m)
-        err, zone = ev.residuals_mm, None
-        rep.outside_range = ev.outside_range
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CalibratedRangeWarning)  # counted in outside_range
+        ev = api.evaluate(fitted, m)  # a ZonedFit: each row with its zone's parameters
+    err, rep.outside_range = ev.residuals_mm, ev.outside_range
+    zone = fitted.assign(robot.fk(m.q)) if isinstance(fitted, ZonedFit) else None
     if "base_frame" in effects:  # the data are in the instrument's frame: the nominal robot in its best frame
         tool = "tool_offset" in effects
         err0 = api.evaluate(api.register(robot, m, tool=tool), m).residuals_mm

@@ -95,6 +95,11 @@ def identifiability(J: torch.Tensor, names, candidate_free, rank_tol: float = RA
     # robot's before the base frame's), whatever the rounding of the Jacobian
     Js = np.round(J[:, live] / np.linalg.norm(J[:, live], axis=0), 10)
     Js = Js * (1 + 1e-8 * np.arange(len(live), 0, -1) / max(len(live), 1))
+    if Js.shape[0] > Js.shape[1]:
+        # the triangular factor of Js has the same column norms, projections and singular
+        # values (an orthogonal map keeps inner products): the pivoting runs on (L, L)
+        # instead of (rows, L)
+        Js = np.linalg.qr(Js, mode="r")
     free = torch.zeros(J.shape[1], dtype=torch.bool)
     if live.size:
         pri = np.zeros(live.size, dtype=bool) if first is None else np.asarray(first.cpu())[live]

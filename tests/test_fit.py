@@ -7,6 +7,7 @@ against independent references.
   moves the prior-set parameters by 0.2-0.5 posterior sd;
 - the covariance: degrees of freedom 3N - K (6N - K with orientations) and s^2 the
   residual sum of squares over them, recomputed from the residuals;
+- IRLS: the robust solve is a fixed point of its kernel (scipy weighted least squares);
 - the start: the registration of a model with a base frame; keyword-only options.
 """
 
@@ -126,3 +127,34 @@ def test_options_are_keyword_only(narrow):
     model, ctx, m, _ = narrow
     with pytest.raises(TypeError):
         fit(model, ctx, m.xyz, model.zeros())
+
+
+def test_robust_solve_is_a_fixed_point_of_its_kernel():
+    """IRLS (`solve` with robust='huber'): the solution is scipy's weighted least-squares
+    solution for the weights it reports, and those weights are the Huber weights of its
+    own distance residuals (to the IRLS tolerance); the gross rows end down-weighted."""
+    from torchcal.calibration.fit import WEIGHT_TOL, solve
+    from torchcal.calibration.robust import robust_weights
+
+    m = VirtualRobot(ROBOT, [], seed=11).measure(random_poses(ROBOT, 80, torch.Generator().manual_seed(12)),
+                                                 noise_mm=0.02)
+    xyz = m.xyz.clone()
+    xyz[[3, 40, 77]] += torch.tensor([4.0, -3.0, 5.0], dtype=torch.float64)
+    model = CalibrationModel(ROBOT)
+    ctx = context_of(ROBOT, m)
+    rows = Rows(model, ctx, xyz)
+    free = model.default_free()
+    free[[0, 1]] = False  # any fixed subset: solve moves the others only
+    s = solve(rows, model.zeros()[None], free, torch.zeros(model.n_params, dtype=torch.float64), robust="huber")
+    dist = (model.predict(s.x[0], ctx) - xyz).norm(dim=-1)
+    assert float((robust_weights(dist, "huber") - s.weights).abs().max()) < WEIGHT_TOL
+    assert s.weights[[3, 40, 77]].max() < 0.1 and s.weights.min() == s.weights[[3, 40, 77]].min()
+    sw = s.weights.sqrt().repeat_interleave(3).numpy()
+
+    def f(t):
+        th = model.zeros()
+        th[free] = torch.from_numpy(t)
+        return sw * (model.predict(th, ctx) - xyz).reshape(-1).numpy()
+    ref = scipy.optimize.least_squares(f, s.x[0, free].numpy(), method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15).x
+    np.testing.assert_allclose(s.x[0, free].numpy(), ref, atol=1e-8)
+    assert bool((s.x[0, ~free] == 0).all())

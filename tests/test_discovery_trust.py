@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import scipy.stats
 import torch
 
 import torchcal
@@ -20,7 +19,6 @@ from torchcal.calibration.model import CalibrationModel
 from torchcal.cli import main
 from torchcal.diagnosis import diagnose, discover, refit_cv
 from torchcal.folds import fold_of_pose
-from torchcal.diagnosis.selection import paired_p_value, refit_decision
 from torchcal.diagnosis.step import Scored, score_current, score_step
 from torchcal.diagnosis.candidates import Candidate
 from torchcal.effects import context_of
@@ -60,9 +58,10 @@ def test_seed141_discover_names_the_two_hidden_effects_only(seed141, capsys):
     out = capsys.readouterr().out
     final = next(ln for ln in out.splitlines() if ln.startswith("final effects:"))
     assert sorted(final.split(": ", 1)[1].split(", ")) == ["gear_periodic:2", "joint_compliance:3"], out
-    # every round's model refit below the one before it (the issue's rounds went up to 1.006 mm)
-    cur = [float(ln.split("rms ")[1].split(" mm")[0]) for ln in out.splitlines() if ln.startswith("model [")]
-    assert all(b < a for a, b in zip(cur, cur[1:])), cur
+    # every round's model predicts held-out poses better than the one before it, by the
+    # 2 % floor at least (the refit CV; a training RMS falls with any added parameter)
+    cv = [float(ln.split("refit cv rms ")[1].split(" mm")[0]) for ln in out.splitlines() if ln.startswith("model [")]
+    assert len(cv) == 3 and all(b <= 0.98 * a for a, b in zip(cv, cv[1:])), cv
 
 
 def test_refit_cv_equals_an_independent_per_fold_refit():
@@ -104,24 +103,6 @@ def test_a_candidate_whose_refit_raises_the_held_out_error_is_rejected_with_its_
     assert f"refit cv {s.cv_rms_mm:.4f} mm vs {current.cv_rms_mm:.4f} mm: no gain" in s.reason
     text = "\n".join(step.lines())
     assert "+ joint_compliance:2" in text and "rejected (refit cv" in text
-
-
-def test_multiple_testing_correction_splits_alpha_over_the_refits():
-    """A paired gain with one-sided p between alpha / 3 and alpha: accepted when it is the
-    only candidate refitted, rejected when three were (Bonferroni). The p-value is
-    scipy's paired t-test (an independent reference)."""
-    rng = np.random.default_rng(0)
-    base = rng.gamma(2.0, 0.05, size=200)
-    d = rng.normal(0.0, 0.01, size=200)
-    d = d - d.mean() + 2.4 * d.std(ddof=1) / math.sqrt(200)  # t = 2.4: p ~ 0.0087
-    cand = base - d
-    p = paired_p_value(base, cand)
-    ref = scipy.stats.ttest_rel(base, cand, alternative="greater").pvalue
-    assert p == pytest.approx(ref, rel=1e-9) and 0.01 / 3 < p < 0.01
-    cv0, cv1 = math.sqrt(base.mean()), math.sqrt(cand.mean())
-    assert refit_decision(cv0, base, cv1, cand, n_refits=1, alpha=0.01, min_gain=0.0)[0]
-    ok, _, why = refit_decision(cv0, base, cv1, cand, n_refits=3, alpha=0.01, min_gain=0.0)
-    assert not ok and "not beyond chance" in why
 
 
 @pytest.mark.parametrize("seed", [11, 12, 13])

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 import torchcal
-from torchcal.calibration.fit import _so3_error_jacobian
+from torchcal.calibration.rows import so3_error_jacobian as _so3_error_jacobian
 from torchcal.rotations import so3_error as _so3_error
 from torchcal.calibration.model import CalibrationModel
 from torchcal.effects import build, make_context

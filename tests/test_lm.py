@@ -126,3 +126,29 @@ def test_fit_result_keeps_the_status(kr):
     bad = fit(model, ctx, xyz * torch.nan)
     assert bad.status == "stalled" and not bad.converged and bad.n_iter == 1
     assert to_dict(bad)["fit"]["status"] == "stalled"
+
+
+def test_a_step_lost_to_rounding_is_not_convergence():
+    """float32, r(x) = (1e4 + x) - 1e4 - 4e-4: the residual moves in steps of float32's
+    spacing at 1e4 (1e-3), so no step of x changes the cost, while the gradient (the
+    analytic derivative, 1) says x is not stationary (cosine 1). Equal costs are not
+    progress there: the solve stalls at the start and says so. Taking an equal cost as a
+    converged step would report x = 4e-4 as 'converged'."""
+    big = torch.tensor(1e4, dtype=torch.float32)
+
+    def residual(x):
+        return (big + x) - big - 4e-4
+
+    res = levenberg_marquardt(residual, torch.zeros(1, 1, dtype=torch.float32))
+    assert res.status.tolist() == [LMStatus.STALLED] and not bool(res.converged.any())
+    assert float(res.x) == 0.0
+
+
+def test_an_exact_fit_converges_at_rounding_level():
+    """Noise-free data: the residual ends at rounding level, where the cosine of the
+    stationarity test is noise; the Gauss-Newton step below sqrt(eps) relative to x
+    counts as stationary, so the solve converges (instead of running to max_iter)."""
+    y = torch.as_tensor(data(noise=0.0))
+    res = levenberg_marquardt(residual_factory(y), torch.as_tensor(X0), max_iter=100)
+    assert res.status.tolist() == [LMStatus.CONVERGED] * 2 and int(res.n_iter.max()) < 30
+    assert_close(res.x, torch.as_tensor(TRUTH), atol=1e-10, rtol=1e-10)

@@ -2,7 +2,9 @@
 
 Covariance of the fitted parameters (linearised at the solution, identified columns only):
 
-- every pose measured once: ``C = s^2 (J^T W J)^-1``, ``s^2 = sum w r^2 / (3N - K)``;
+- every pose measured once: ``C = s^2 (J^T W J)^-1``, ``s^2 = sum w r^2 / (R - K)`` for R
+  residual rows (3N for positions, 6N with orientations) and K identified parameters
+  (`row_covariance`);
 - poses measured more than once (repeated pose ids): *pose-level*. The residual of row k
   of pose g is modelled as ``b_g + e_gk``: a pose-level error b (what the model misses at
   that pose, shared by its repeats, variance sb2 per axis) plus measurement noise e
@@ -39,6 +41,7 @@ error due to the parameter uncertainty, mm.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -99,34 +102,55 @@ def parameter_covariance(J: torch.Tensor, resid: torch.Tensor, free: torch.Tenso
     A = Jf.reshape(-1, K)
     if K == 0:
         return ParameterCovariance(cov, max(3 * N, 1), 0.0, "rows")
-    Pp = torch.zeros(K, K, dtype=J.dtype, device=J.device) if prior is None else \
-        torch.diag(torch.as_tensor(prior, dtype=J.dtype, device=J.device)[free] ** 2)
-    Binv = torch.linalg.pinv(A.T @ A + Pp)
     groups = None
     if pose is not None:
         _, groups = torch.unique(torch.as_tensor(pose, device=J.device), return_inverse=True)
     G = N if groups is None else int(groups.max()) + 1
     if G == N:
-        dof = max(3 * N - K, 1)
-        s2 = float((r ** 2).sum()) / dof
-        cov_f = s2 * Binv  # = B (s^2 A^T A + s^2 Pp) B
-        out = dict(dof=dof, sigma_mm=s2 ** 0.5, method="rows")
-    else:
-        n_g = torch.zeros(G, dtype=J.dtype, device=J.device).index_add_(0, groups, torch.ones_like(w))
-        rbar = torch.zeros(G, 3, dtype=J.dtype, device=J.device).index_add_(0, groups, r) / n_g[:, None]
-        within = float(((r - rbar[groups]) ** 2).sum())
-        se2 = within / max(3 * (N - G), 1)
-        dof = max(3 * G - K, 1)
-        between = float((n_g[:, None] * rbar ** 2).sum()) / dof
-        sb2 = max(0.0, (between - se2) / (N / G))
-        S = torch.zeros(G, 3, K, dtype=J.dtype, device=J.device).index_add_(0, groups, Jf).reshape(-1, K)
-        meat = sb2 * (S.T @ S) + se2 * (A.T @ A)
-        cov_f = Binv @ (meat + (sb2 + se2) * Pp) @ Binv
-        out = dict(dof=dof, sigma_mm=(sb2 + se2) ** 0.5, method="pose-level",
-                   noise_mm=se2 ** 0.5, pose_mm=sb2 ** 0.5)
+        return row_covariance(J.reshape(-1, P), resid.reshape(-1), free, weights=w.repeat_interleave(3),
+                              prior=prior)
+    Pp = torch.zeros(K, K, dtype=J.dtype, device=J.device) if prior is None else \
+        torch.diag(torch.as_tensor(prior, dtype=J.dtype, device=J.device)[free] ** 2)
+    Binv = torch.linalg.pinv(A.T @ A + Pp)
+    n_g = torch.zeros(G, dtype=J.dtype, device=J.device).index_add_(0, groups, torch.ones_like(w))
+    rbar = torch.zeros(G, 3, dtype=J.dtype, device=J.device).index_add_(0, groups, r) / n_g[:, None]
+    within = float(((r - rbar[groups]) ** 2).sum())
+    se2 = within / max(3 * (N - G), 1)
+    dof = max(3 * G - K, 1)
+    between = float((n_g[:, None] * rbar ** 2).sum()) / dof
+    sb2 = max(0.0, (between - se2) / (N / G))
+    S = torch.zeros(G, 3, K, dtype=J.dtype, device=J.device).index_add_(0, groups, Jf).reshape(-1, K)
+    meat = sb2 * (S.T @ S) + se2 * (A.T @ A)
+    cov_f = Binv @ (meat + (sb2 + se2) * Pp) @ Binv
+    out = dict(dof=dof, sigma_mm=(sb2 + se2) ** 0.5, method="pose-level",
+               noise_mm=se2 ** 0.5, pose_mm=sb2 ** 0.5)
     idx = torch.nonzero(free).flatten()
     cov[idx[:, None], idx[None, :]] = 0.5 * (cov_f + cov_f.T)
     return ParameterCovariance(cov, **out)
+
+
+def row_covariance(J: torch.Tensor, r: torch.Tensor, free: torch.Tensor, weights=None,
+                   prior=None) -> ParameterCovariance:
+    """Covariance of independent residual rows: ``C = s^2 (J^T W J + Pp)^-1`` on the free
+    columns, ``s^2 = sum w r^2 / (R - K)`` (module doc).
+
+    J: (R, P) residual Jacobian at the solution; r: (R,) residuals (mm or mm-equivalent);
+    free: (P,) bool identified parameters (K of them); weights: (R,) row weights (None:
+    ones); prior: (P,) the prior rows' factors (None: no prior). dof = max(R - K, 1).
+    """
+    R, P = J.shape
+    K = int(free.sum())
+    sw = torch.ones(R, dtype=J.dtype, device=J.device) if weights is None else weights.to(J).sqrt()
+    dof = max(R - K, 1)
+    s2 = float(((r * sw) ** 2).sum()) / dof
+    cov = torch.zeros(P, P, dtype=J.dtype, device=J.device)
+    if K:
+        A = J[:, free] * sw[:, None]  # W^(1/2) J
+        Pp = 0.0 if prior is None else torch.diag(torch.as_tensor(prior, dtype=J.dtype, device=J.device)[free] ** 2)
+        C = s2 * torch.linalg.pinv(A.T @ A + Pp)
+        idx = torch.nonzero(free).flatten()
+        cov[idx[:, None], idx[None, :]] = 0.5 * (C + C.T)
+    return ParameterCovariance(cov, dof, math.sqrt(s2), "rows")
 
 
 def tcp_covariance(J: torch.Tensor, cov: torch.Tensor) -> torch.Tensor:

@@ -1,144 +1,53 @@
-"""Identification: identifiability analysis and the fit of a `CalibrationModel`.
+"""The fit of a `CalibrationModel`: `fit`, a composition of separately tested parts.
 
-Identifiability (at the starting point, on the column-scaled Jacobian):
+1. Start (`start`): the given theta0, or nominal, or (a model with base_frame) the
+   closed-form registration of the nominal model onto the measurements
+   (`torchcal.calibration.registration`).
+2. Rows (`torchcal.calibration.rows`): position rows and, with measured orientations,
+   orientation rows with the tool-rotation step (Procrustes at the start and after the
+   first solve).
+3. Identifiability (`torchcal.calibration.identifiability`) at the start, the parameters
+   without a plausibility prior (the frames) pivoted first; those the poses cannot
+   identify are held at nominal; too few equations is refused in words. From a cold start
+   (nominal or registration) it is judged once more at the first solution (`recheck`).
+4. Prior rows (`torchcal.calibration.prior`): one row ``rho * theta_i / s_i`` per
+   parameter with a plausible scale s_i (`torchcal.calibration.plausibility`); rho is the
+   fit's own per-axis residual RMS (a first solve with rho = sigma_mm gives it, a second,
+   warm-started, solve uses it, and up to three more while rho moves by more than 10 %; a
+   robust fit takes it over the rows within the IRLS threshold only).
+   Parameters that end beyond their scale anyway are named (`FitResult.implausible`).
+5. Solve (`solve`): Levenberg-Marquardt (`torchcal.calibration.lm`) on the identifiable
+   parameters, with robust row weights by IRLS when asked (`torchcal.calibration.robust`:
+   Huber or Cauchy on the per-pose distance residual).
+6. Covariance (`torchcal.calibration.covariance`): posterior standard errors, the prior
+   included, ``s^2 (J^T W J + Pp)^-1`` with ``Pp = diag(rho^2 / s_i^2)``, s^2 = weighted
+   RSS / dof, pose-level when poses repeat.
 
-- QR with column pivoting orders the free parameters from most to least independent;
-  those whose pivot |R_kk| falls below ``rank_tol * |R_00|`` cannot be identified from
-  these poses. They are reported by name and *held at nominal* (zero deviation) instead
-  of being silently damped as eq. 29 would. This is what removes the gauge (a base frame
-  against joint 1's dtheta and dd, a tool offset against the last link): it is decided
-  at the registered start, the parameters without a plausibility prior (the frames)
-  pivoted first, so the robot's deviation is the one held; from a cold start it is
-  judged once more at the first solution (a held parameter is freed only where its
-  pivot reaches `RECHECK_TOL`). Nothing is held for its size.
-- Plausibility is part of the estimation: a weak Gaussian prior on each parameter's
-  physical scale (`torchcal.calibration.plausibility.plausible_scales`), one residual row
-  ``rho * theta_i / s_i`` each, with rho the fit's own per-axis residual RMS (a first
-  solve with rho = sigma_mm gives it, a second, warm-started, solve uses it, and up to
-  three more while rho moves by more than 10 %; a robust fit takes it over the rows
-  within the IRLS threshold only, so gross rows do not inflate the prior). From a
-  cold start (nominal or registration) the identifiability is judged once more at the
-  first solution, before the second solve.
-  Parameters that end beyond their scale anyway are named (`FitResult.implausible`).
-- Singular values of the identifiable columns give the condition number and the
-  observability indices of Borm & Menq / Nahvi & Hollerbach (O1..O5, m = number of poses).
-
-The fit is Levenberg-Marquardt (`torchcal.calibration.lm`) on the identifiable parameters, with
-optional robust row weights by IRLS (Huber or Cauchy on the per-pose distance residual,
-scale = the median distance residual, thresholds at ROBUST_K = 2.5 times it). Standard errors are
-posterior ones, the prior included: ``s^2 (J^T W J + Pp)^-1`` with ``Pp = diag(rho^2 / s_i^2)``,
-s^2 = weighted RSS / dof, pose-level when poses repeat (`torchcal.calibration.covariance`).
+Each part is a function of its inputs; `fit` passes state between them explicitly.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
-import math
-
-import numpy as np
 import torch
 
-from torchcal.effects.context import Context
+from torchcal.calibration.covariance import ParameterCovariance, parameter_covariance, row_covariance
+from torchcal.calibration.identifiability import (RANK_TOL, Identifiability, check_enough_rows,
+                                                  identifiability, recheck)
+from torchcal.calibration.joint_range import joint_range, seed_poses
 from torchcal.errors import InputError
 from torchcal.calibration.lm import levenberg_marquardt
-from torchcal.calibration.joint_range import joint_range, seed_poses
 from torchcal.calibration.model import CalibrationModel
+from torchcal.calibration.prior import RHO_EXACT, prior_factors, prior_strength, rho_settled
+from torchcal.calibration.robust import robust_weights
+from torchcal.calibration.rows import Rows, orientation_weight
 from torchcal.defaults import MAX_ANGLE_DEG, MAX_LENGTH_MM, SIGMA_DEG, SIGMA_MM
-from torchcal.calibration.covariance import ParameterCovariance, parameter_covariance
-from torchcal.rotations import procrustes_rotation, so3_error
+from torchcal.effects.context import Context
 
-RANK_TOL = 1e-6
-RHO_EXACT = 1e-9  # mm: a residual RMS below it is a fit to rounding (the prior is left out)
-RECHECK_TOL = 1e-2  # pivot a parameter held at a cold start needs at the first solution
-
-
-@dataclass
-class Identifiability:
-    """Rank analysis of the scaled Jacobian.
-
-    free: (P,) bool identifiable parameters; held: names held at nominal; rank: number
-    identifiable; condition: condition number of the scaled identifiable columns;
-    observability: dict O1..O5.
-    """
-
-    free: torch.Tensor
-    held: list[str]
-    rank: int
-    condition: float
-    observability: dict
-    n_rows: int
-
-    def to_dict(self) -> dict:
-        return {"rank": self.rank, "condition_number": self.condition, "held_at_nominal": self.held,
-                "observability": self.observability, "poses": self.n_rows}
-
-
-def _pivoted(Js: np.ndarray, Q: np.ndarray, rank_tol: float) -> np.ndarray:
-    """Indices of the columns of Js (unit columns) kept, in pivot order, by Gram-Schmidt
-    with column pivoting of Js projected off the orthonormal Q: at each step the column
-    with the largest remaining norm (the lowest index among those equal to rounding, so
-    that exactly dependent columns of a symmetric geometry are chosen the same way
-    whatever the last digits of the data), while that norm exceeds rank_tol."""
-    P = Js - Q @ (Q.T @ Js) if Q.shape[1] else Js.copy()
-    kept: list[int] = []
-    for _ in range(P.shape[1]):
-        norms = np.linalg.norm(P, axis=0)
-        norms[kept] = -1.0
-        best = norms.max(initial=-1.0)
-        if best <= rank_tol:
-            break
-        i = int(np.flatnonzero(norms >= best * (1 - 1e-9))[0])
-        q = P[:, i] / norms[i]
-        P = P - np.outer(q, q @ P)
-        P = P - np.outer(q, q @ P)  # twice is enough (Kahan): orthogonal to rounding
-        kept.append(i)
-    return np.array(kept, dtype=int)
-
-
-def identifiability(J: torch.Tensor, names, candidate_free, rank_tol: float = RANK_TOL,
-                    first=None, rest_tol: float | None = None) -> Identifiability:
-    """J (N, 3, P) or (R, P) position Jacobian; candidate_free (P,) bool.
-
-    first: (P,) bool, columns chosen before the others (the gauge: of a base frame and
-    joint 1's dtheta / dd, or a tool offset and the last link's length, the ones in
-    `first` are kept and the others held). The fit passes the parameters without a
-    plausibility prior (frames), so the prior falls on a robot deviation only where
-    the data determine it. rest_tol: the pivot threshold of the columns not in `first`
-    (default rank_tol)."""
-    n_rows = J.shape[0]
-    J = J.reshape(-1, J.shape[-1]).detach().cpu().double().numpy()
-    cand = np.flatnonzero(candidate_free.cpu().numpy())
-    norms = np.linalg.norm(J[:, cand], axis=0)
-    live = cand[norms > 1e-12 * max(norms.max(initial=0.0), 1e-300)]
-    # unit columns, rounded to 1e-10: columns equal in exact arithmetic (dd of parallel
-    # axes, base_rz and dtheta1) become equal in floating point too, and a norm larger by
-    # at most 1e-8 for earlier columns makes the pivoting keep the first of them (the
-    # robot's before the base frame's), whatever the rounding of the Jacobian
-    Js = np.round(J[:, live] / np.linalg.norm(J[:, live], axis=0), 10)
-    Js = Js * (1 + 1e-8 * np.arange(len(live), 0, -1) / max(len(live), 1))
-    free = torch.zeros(J.shape[1], dtype=torch.bool)
-    if live.size:
-        pri = np.zeros(live.size, dtype=bool) if first is None else np.asarray(first.cpu())[live]
-        a = np.flatnonzero(pri)[_pivoted(Js[:, pri], np.zeros((Js.shape[0], 0)), rank_tol)]
-        Qa = np.linalg.qr(Js[:, a])[0] if a.size else np.zeros((Js.shape[0], 0))
-        b = np.flatnonzero(~pri)[_pivoted(Js[:, ~pri], Qa, rank_tol if rest_tol is None else rest_tol)]
-        kept = np.sort(np.concatenate([a, b]))
-        rank = kept.size
-        free[torch.as_tensor(live[kept])] = True
-        s = np.linalg.svd(Js[:, kept], compute_uv=False)
-    else:
-        rank, s = 0, np.ones(1)
-    held = [names[i] for i in cand if not free[i]]
-    m = max(n_rows, 1)
-    obs = {
-        "O1": float(np.exp(np.log(s).mean()) / np.sqrt(m)),
-        "O2": float(s[-1] / s[0]),
-        "O3": float(s[-1]),
-        "O4": float(s[-1] ** 2 / s[0]),
-        "O5": float(1.0 / np.sum(1.0 / s)),
-    }
-    return Identifiability(free, held, rank, float(s[0] / s[-1]), obs, n_rows)
+ROBUST_ROUNDS = 8  # IRLS rounds at most
+WEIGHT_TOL = 1e-4  # IRLS stops once no robust weight moves by more
 
 
 @dataclass
@@ -258,53 +167,74 @@ def training_summary(residuals: torch.Tensor) -> dict:
     return {"n": int(d.shape[0]), "rms_mm": float(d.pow(2).mean().sqrt()), "max_mm": float(d.max())}
 
 
-ROBUST_K = 2.5  # IRLS threshold, in units of the median distance residual
+def start(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None,
+          register: bool = True) -> tuple[torch.Tensor, dict | None]:
+    """(theta (P,), registration info or None): theta0 when given; else nominal, or, for a
+    model with base_frame and at least 3 rows when `register`, the closed-form rigid
+    registration of the nominal model onto xyz (N, 3) mm."""
+    from torchcal.calibration import registration as reg
+
+    if theta0 is not None:
+        return theta0, None
+    if register and any(e.name == "base_frame" for e in model.effects) and xyz.shape[0] >= 3:
+        return reg.register_frame(model, ctx, xyz)
+    return model.zeros(), None
 
 
-def _inliers(dist: torch.Tensor) -> torch.Tensor:
-    """(N,) bool: rows within ROBUST_K times the median distance residual dist (N,) mm,
-    the rows a robust loss treats as ordinary (their RMS is the prior's rho)."""
-    return dist <= ROBUST_K * dist.median().clamp_min(1e-9)
+@dataclass(frozen=True)
+class Solved:
+    """One `solve`: x (1, P), weights (N,) the final robust weights (ones when not
+    robust), n_iter and status of the last LM solve."""
+
+    x: torch.Tensor
+    weights: torch.Tensor
+    n_iter: int
+    status: str
 
 
-def _robust_weights(dist: torch.Tensor, kind: str) -> torch.Tensor:
-    u = dist / dist.median().clamp_min(1e-9)  # typical distance residual = 1
-    if kind == "huber":
-        return torch.where(u <= ROBUST_K, torch.ones_like(u), ROBUST_K / u)
-    if kind == "cauchy":
-        return 1.0 / (1.0 + (u / ROBUST_K) ** 2)
-    raise InputError(f"robust: unknown loss {kind!r}; expected 'huber' or 'cauchy'")
+def solve(rows: Rows, x: torch.Tensor, free: torch.Tensor, prior: torch.Tensor, *, robust: str | None = None,
+          max_iter: int = 60, lower: torch.Tensor | None = None, anchor=None) -> Solved:
+    """LM on the measurement rows plus the prior rows ``prior_i * theta_i`` (prior (P,),
+    `torchcal.calibration.prior.prior_factors`), from x (1, P), moving the parameters
+    `free` (P,) bool only, above `lower` (P,) (None: unbounded). robust ('huber',
+    'cauchy'): IRLS, the row weights recomputed from the distance residual after each
+    solve (`torchcal.calibration.robust.robust_weights`), at most ROBUST_ROUNDS times,
+    until no weight moves by more than WEIGHT_TOL. anchor (damp (P,), theta0 (P,)): the
+    damping rows ``damp_i * (theta_i - theta0_i)`` as well (`fit`'s `damping`)."""
+    n, k = rows.xyz.shape[0], rows.k
+    weights = torch.ones(n, dtype=rows.xyz.dtype, device=rows.xyz.device)
+    damp, theta0 = anchor if anchor is not None else (None, None)
+
+    def res_fn(z):
+        extra = [] if damp is None else [damp * (z[0] - theta0)]
+        return torch.cat([rows.residual(z[0]).reshape(-1), prior * z[0]] + extra).unsqueeze(0)
+
+    def jac_fn(z):
+        extra = [] if damp is None else [torch.diag(damp)]
+        return torch.cat([rows.jacobian(z[0]).reshape(-1, z.shape[-1]), torch.diag(prior)] + extra).unsqueeze(0)
+
+    for _ in range(1 if robust is None else ROBUST_ROUNDS):
+        w = torch.cat([weights.repeat_interleave(k), torch.ones_like(prior)]
+                      + ([] if damp is None else [torch.ones_like(damp)])).unsqueeze(0)
+        res = levenberg_marquardt(res_fn, x, free=free, weights=w, jacobian_fn=jac_fn, max_iter=max_iter, lower=lower)
+        x = res.x
+        if robust is None:
+            break
+        new = robust_weights((rows.model.predict(x[0], rows.ctx) - rows.xyz).norm(dim=-1), robust)
+        settled = bool((new - weights).abs().max() < WEIGHT_TOL)
+        weights = new
+        if settled:
+            break
+    return Solved(x, weights, int(res.n_iter[0]), res.status_labels()[0])
 
 
-def _generic_rank(model: CalibrationModel, ctx: Context, cand, rank_tol: float) -> int:
-    """Number of parameters identifiable at random poses inside the joint limits (the
-    data's payload / temperature values reused in turn): what enough poses would give."""
-    from torchcal.effects import make_context
-    from torchcal.robots.poses import random_poses
-
-    robot = model.robot
-    n = int(cand.sum()) + 16
-    q = random_poses(robot, n, torch.Generator().manual_seed(0)).to(ctx.q)
-    idx = torch.arange(n, device=ctx.q.device) % ctx.q.shape[0]
-    temp = None if ctx.temp_c is None else ctx.temp_c[idx]
-    payload = None if ctx.payload_kg is None else ctx.payload_kg[idx]
-    g = make_context(robot, q, payload, temp)
-    J = model.jacobian(model.zeros(), g)
-    return identifiability(J, model.param_names(), cand, rank_tol).rank
+def _position_residual(rows: Rows, x: torch.Tensor) -> torch.Tensor:
+    """(N, 3) model - measured positions mm at x (1, P), off the graph."""
+    with torch.no_grad():
+        return rows.model.predict(x[0], rows.ctx) - rows.xyz
 
 
-def _so3_error_jacobian(Rp: torch.Tensor, Rm: torch.Tensor, W: torch.Tensor) -> torch.Tensor:
-    """d `so3_error`(Rp, Rm) / d theta (N, 3, P) for d Rp / d theta_k = [W_k]x Rp,
-    W (N, 3, P) rad per unit (`CalibrationModel.rotation_jacobian`). With E = Rp^T Rm,
-    dE_k = -[w_k]x E for w_k = Rp^T W_k, and the axial vector of the skew part of
-    [w]x E is (tr(E) I - E) w / 2."""
-    E = Rp.transpose(-1, -2) @ Rm
-    tr = E.diagonal(dim1=-2, dim2=-1).sum(-1)
-    M = torch.diag_embed(tr.unsqueeze(-1).expand(-1, 3)) - E
-    return -0.5 * (M @ Rp.transpose(-1, -2)) @ W
-
-
-def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, free=None,
+def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, *, theta0=None, free=None,
         robust: str | None = None, max_iter: int = 60, rank_tol: float = RANK_TOL,
         pose=None, rotation: torch.Tensor | None = None, sigma_mm: float = SIGMA_MM,
         sigma_deg: float = SIGMA_DEG, register: bool = True,
@@ -348,171 +278,90 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None, f
     information in the covariance, and with them fewer equations than parameters are
     allowed.
     """
-    from torchcal.calibration import registration as reg
     from torchcal.calibration.plausibility import beyond_plausible, plausible_scales, set_by_prior
 
     model.check_context(ctx)
-    reg_info = None
     cold = theta0 is None  # a start at nominal / registration, possibly far from the fit
-    if theta0 is None:
-        theta0 = model.zeros()
-        if register and any(e.name == "base_frame" for e in model.effects) and xyz.shape[0] >= 3:
-            theta0, reg_info = reg.register_frame(model, ctx, xyz)
+    theta0, reg_info = start(model, ctx, xyz, theta0, register)
     cand = model.default_free() if free is None else free
-    n_cand = int(cand.sum())
-    n_rows = xyz.shape[0]
-    k = 3 if rotation is None else 6
-    w_rot = sigma_mm / math.radians(sigma_deg)  # mm per rad
-    state = {"tool_R": None}
-
-    def fit_tool_rotation(theta):
-        with torch.no_grad():
-            state["tool_R"] = procrustes_rotation(model.predict_rotation(theta, ctx), rotation)
-
-    def resid(theta):  # (N, k): model - measured (position mm, orientation mm-equivalent)
-        r = model.predict(theta, ctx) - xyz
-        if rotation is None:
-            return r
-        e = so3_error(model.predict_rotation(theta, ctx) @ state["tool_R"], rotation)
-        return torch.cat([r, -w_rot * e], dim=-1)
-
-    def jac(theta):  # (N, k, P), analytic (CalibrationModel.jacobians)
-        J, W = model.jacobians(theta, ctx, rotation=rotation is not None)
-        if rotation is None:
-            return J
-        Rp = model.predict_rotation(theta, ctx) @ state["tool_R"]
-        return torch.cat([J, -w_rot * _so3_error_jacobian(Rp, rotation, W)], dim=1)
-
+    names = model.param_names()
+    rows = Rows(model, ctx, xyz, rotation, orientation_weight(sigma_mm, sigma_deg))
     if rotation is not None:
-        fit_tool_rotation(theta0)
-    J0 = jac(theta0)
+        rows = rows.with_tool_rotation(theta0)
+    J0 = rows.jacobian(theta0)
     scales = plausible_scales(model, max_length_mm, max_angle_deg).to(theta0) if prior else \
         torch.full_like(theta0, math.inf)
-    report = identifiability(J0, model.param_names(), cand, rank_tol, first=~torch.isfinite(scales))
-    if k * n_rows <= report.rank and not damping:
-        # the equations, not the model, bound the rank here: count the identifiable
-        # parameters at generic poses (seeded, so the message is reproducible)
-        kk = _generic_rank(model, ctx, cand, rank_tol)
-        need = kk // 3 + 1
-        raise InputError(f"too few poses: {n_rows} poses give {3 * n_rows} equations (3 per pose) "
-                         f"but the model [{', '.join(model.specs()) or 'geometric only'}] has {kk} "
-                         f"identifiable parameters (of {n_cand}); need at least {need} poses, "
-                         f"in practice {max(2 * need, need + 10)} or more spread over the workspace")
-    if n_cand and report.rank == 0:
+    report = identifiability(J0, names, cand, rank_tol, first=~torch.isfinite(scales))
+    if not damping:  # damping rows make up for missing equations (docstring)
+        check_enough_rows(report, rows.k * xyz.shape[0], model, ctx, cand, rank_tol)
+    elif int(cand.sum()) and report.rank == 0:
         raise InputError("no parameter is identifiable from these poses")
 
     lower = model.lower_bounds().to(theta0)  # a physical sign (backlash >= 0): projected steps
     lower = None if bool(torch.isinf(lower).all()) else lower
     has_prior = bool(torch.isfinite(scales).any())
-    inv_scale = torch.where(torch.isfinite(scales), 1.0 / scales, torch.zeros_like(scales))  # (P,)
     # eq. 29's damping rows sqrt(mu) D (theta - theta0) on the free parameters (docstring)
     damp = (math.sqrt(damping) * J0.reshape(-1, J0.shape[-1]).norm(dim=0)) * report.free.to(theta0.device) \
         if damping else None
-
-    def solve(x, free_now, rho):
-        """LM on the measurement rows plus the prior rows rho * theta / s (module doc)."""
-        weights = torch.ones(n_rows, dtype=xyz.dtype, device=xyz.device)
-        rounds = 1 if robust is None else 8
-        prior = rho * inv_scale
-
-        def res_fn(z):
-            rows = [resid(z[0]).reshape(-1), prior * z[0]] + ([] if damp is None else [damp * (z[0] - theta0)])
-            return torch.cat(rows).unsqueeze(0)
-
-        def jac_fn(z):
-            rows = [jac(z[0]).reshape(-1, z.shape[-1]), torch.diag(prior)]
-            rows += [] if damp is None else [torch.diag(damp)]
-            return torch.cat(rows).unsqueeze(0)
-
-        for _ in range(rounds):
-            w = torch.cat([weights.repeat_interleave(k), torch.ones_like(prior)]
-                          + ([] if damp is None else [torch.ones_like(damp)])).unsqueeze(0)
-            res = levenberg_marquardt(res_fn, x, free=free_now, weights=w, jacobian_fn=jac_fn,
-                                      max_iter=max_iter, lower=lower)
-            x = res.x
-            if robust is None:
-                break
-            dist = (model.predict(x[0], ctx) - xyz).norm(dim=-1)
-            new = _robust_weights(dist, robust)
-            if (new - weights).abs().max() < 1e-4:
-                weights = new
-                break
-            weights = new
-        return x, weights, int(res.n_iter[0]), res.status_labels()[0]
+    options = dict(robust=robust, max_iter=max_iter, lower=lower,
+                   anchor=None if damp is None else (damp, theta0))
 
     free_now = report.free.clone()
     rho = sigma_mm if prior_sigma_mm is None else prior_sigma_mm
-    x, weights, n_iter, status = solve(theta0.unsqueeze(0), free_now, rho if has_prior else 0.0)
+    s = solve(rows, theta0.unsqueeze(0), free_now, prior_factors(rho if has_prior else 0.0, scales), **options)
+    x = s.x
     if rotation is not None:
-        fit_tool_rotation(x[0])
+        rows = rows.with_tool_rotation(x[0])
     again = rotation is not None
-    if cold:  # identifiability once more at the first solution (a far start, e.g. a tool
-        # 60 mm off its nominal point, can make parameters look dependent that are not):
-        # the free ones stay, a held one is freed where it is clearly identifiable there
-        # (RECHECK_TOL; small deviations only break an exact symmetry of the nominal
-        # geometry to their own order, which would free near-gauge parameters)
-        report = identifiability(jac(x[0]), model.param_names(), cand, rank_tol, first=free_now,
-                                 rest_tol=RECHECK_TOL)
+    if cold:  # identifiability once more at the first solution (identifiability.recheck)
+        report = recheck(rows.jacobian(x[0]), names, cand, free_now, rank_tol)
         if not torch.equal(report.free, free_now):
             newly = free_now & ~report.free
             x = x.clone()
             x[0, newly] = theta0[newly]
             free_now, again = report.free.clone(), True
-    def residual_rms():  # per-axis RMS mm; robust: of the inlier rows only (gross rows would inflate the prior)
-        with torch.no_grad():
-            r = model.predict(x[0], ctx) - xyz
-            if robust is not None:
-                r = r[_inliers(r.norm(dim=-1))]
-            return max(float(r.pow(2).mean().sqrt()), 1e-12)
-
     if has_prior and prior_sigma_mm is None:  # the prior's rho from this fit's own residual
-        rho = residual_rms()
+        rho = prior_strength(_position_residual(rows, x), robust is not None)
         again = again or rho >= RHO_EXACT  # below it the data are fitted exactly: no prior needed
     if again:
-        x, weights, n_iter, status = solve(x, free_now, rho if has_prior else 0.0)
+        s = solve(rows, x, free_now, prior_factors(rho if has_prior else 0.0, scales), **options)
+        x = s.x
     for _ in range(3):  # rho and the fit agree (a first solve far from the optimum gives a rho too large)
         if not has_prior or prior_sigma_mm is not None:
             break
-        new = residual_rms()
-        if abs(new - rho) <= 0.1 * rho or new < RHO_EXACT:
+        new = prior_strength(_position_residual(rows, x), robust is not None)
+        if rho_settled(new, rho):
             break
         rho = new
-        x, weights, n_iter, status = solve(x, free_now, rho)
-    implausible = beyond_plausible(model, x[0], free_now, scales.cpu()) if has_prior else []
+        s = solve(rows, x, free_now, prior_factors(rho, scales), **options)
+        x = s.x
     theta = x[0]
-    r = resid(theta).detach()
+    r = rows.residual(theta).detach()
     resid_pos = -r[:, :3]
-    rot_res = None if rotation is None else r[:, 3:] / w_rot  # (N, 3) rad, model vs measured
-    prior_rows = rho * inv_scale if has_prior and math.isfinite(rho) else None  # posterior (covariance.py)
+    prior_rows = prior_factors(rho, scales) if has_prior and math.isfinite(rho) else None  # posterior
     if damp is not None:  # the damping rows are prior information too
         prior_rows = damp if prior_rows is None else (prior_rows ** 2 + damp ** 2).sqrt()
     if rotation is None:
         covariance = parameter_covariance(model.jacobian(theta, ctx), resid_pos, free_now, pose=pose,
-                                          weights=weights if robust else None, prior=prior_rows)
+                                          weights=s.weights if robust else None, prior=prior_rows)
     else:  # rows of 6 residuals: row-wise estimate s^2 (J^T W J)^-1
-        J = jac(theta).reshape(-1, theta.shape[0])[:, free_now]
-        wk = weights.repeat_interleave(k)
-        dof = max(k * n_rows - int(free_now.sum()), 1)
-        s2 = float((wk * r.reshape(-1) ** 2).sum()) / dof
-        cov = torch.zeros(theta.shape[0], theta.shape[0], dtype=theta.dtype, device=theta.device)
-        if int(free_now.sum()):
-            idx = free_now.nonzero().flatten()
-            Pp = 0.0 if prior_rows is None else torch.diag(prior_rows[free_now] ** 2)
-            cov[idx[:, None], idx[None, :]] = s2 * torch.linalg.pinv((J.T * wk) @ J + Pp)
-        covariance = ParameterCovariance(cov, dof, math.sqrt(s2), "rows")
+        covariance = row_covariance(rows.jacobian(theta).reshape(-1, theta.shape[0]), r.reshape(-1), free_now,
+                                    weights=s.weights.repeat_interleave(rows.k), prior=prior_rows)
     std = covariance.std
-    prior_set = set_by_prior(model, std, free_now, scales.cpu()) if has_prior else []
-    outliers = torch.nonzero(weights < 0.1).flatten().tolist() if robust else []
     orient = None
     if rotation is not None:
-        orient = {"sigma_mm": sigma_mm, "sigma_deg": sigma_deg, "weight_mm_per_rad": w_rot,
-                  "tool_rotation": state["tool_R"],
+        rot_res = r[:, 3:] / rows.w_rot  # (N, 3) rad, model vs measured
+        orient = {"sigma_mm": sigma_mm, "sigma_deg": sigma_deg, "weight_mm_per_rad": rows.w_rot,
+                  "tool_rotation": rows.tool_R,
                   "rms_deg": math.degrees(float(rot_res.norm(dim=-1).pow(2).mean().sqrt()))}
-    return FitResult(model, theta.detach(), std, resid_pos, weights, report, n_iter, outliers, covariance,
-                     status=status,
-                     registration=reg_info, implausible=implausible, orientation=orient,
+    return FitResult(model, theta.detach(), std, resid_pos, s.weights, report, s.n_iter,
+                     torch.nonzero(s.weights < 0.1).flatten().tolist() if robust else [], covariance,
+                     status=s.status, registration=reg_info,
+                     implausible=beyond_plausible(model, theta, free_now, scales.cpu()) if has_prior else [],
+                     orientation=orient,
                      plausible_limits=None if not has_prior else
                      {"max_length_mm": max_length_mm, "max_angle_deg": max_angle_deg, "prior_sigma_mm": rho},
                      q_range=joint_range(ctx.q), seed_poses=seed_poses(ctx.q), robust=robust, sigma_mm=sigma_mm,
-                     sigma_deg=sigma_deg,
-                     training=training_summary(resid_pos), set_by_prior=prior_set, damping=float(damping))
+                     sigma_deg=sigma_deg, training=training_summary(resid_pos),
+                     set_by_prior=set_by_prior(model, std, free_now, scales.cpu()) if has_prior else [],
+                     damping=float(damping))

@@ -176,6 +176,15 @@ def collinear_with(A: torch.Tensor, i: int, names: list, free: torch.Tensor) -> 
     return names[others[int(np.argmax(drop))]], min(max(full, 0.0), 1.0)
 
 
+def undetermined(value: float, sd: float, scale: float, ratio: float = DETERMINED_RATIO) -> str | None:
+    """Why one parameter is not determined by the data (module doc): 'prior' when its
+    posterior sd is at least `ratio` times its plausible scale, else 'beyond' when
+    |value| exceeds the scale, else None (determined). value, sd, scale in its unit."""
+    if sd >= ratio * scale:
+        return "prior"
+    return "beyond" if abs(value) > scale else None
+
+
 def determination(fit, new: list, ctx, ratio: float = DETERMINED_RATIO) -> list[dict]:
     """Why the parameters `new` (names) of a fitted model (`FitResult`) are not determined
     by its data: one dict per offending parameter, {"name", "value", "sd", "scale" (its
@@ -193,7 +202,7 @@ def determination(fit, new: list, ctx, ratio: float = DETERMINED_RATIO) -> list[
         if not math.isfinite(s) or not bool(fit.report.free[i]):
             continue
         v, sd = float(fit.theta[i]), float(fit.std[i])
-        why = "prior" if sd >= ratio * s else "beyond" if abs(v) > s else None
+        why = undetermined(v, sd, s, ratio)
         if why is None:
             continue
         if A is None:

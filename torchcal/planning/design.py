@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import torch
 
-from torchcal.calibration.fit import identifiability
+from torchcal.calibration.identifiability import identifiability
 from torchcal.calibration.model import CalibrationModel
 from torchcal.effects import make_context
 from torchcal.errors import InputError

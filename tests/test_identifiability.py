@@ -1,0 +1,86 @@
+"""Identifiability (torchcal.calibration.identifiability) against numpy: the rank of the
+unit-scaled Jacobian, which of two dependent columns is held (the gauge: the `first`
+ones kept), the observability indices from its singular values, the recheck at a first
+solution and the refusal of too few poses."""
+
+import numpy as np
+import pytest
+import torch
+
+from torchcal.calibration.identifiability import (RECHECK_TOL, check_enough_rows, identifiability, recheck)
+from torchcal.calibration.model import CalibrationModel
+from torchcal.effects import make_context
+from torchcal.errors import InputError
+from torchcal.robots.poses import random_poses
+
+NAMES = ["a", "b", "c", "d", "e"]
+ALL = torch.ones(5, dtype=torch.bool)
+
+
+def _jacobian(seed=0, N=20):
+    """(N, 3, 5): column d = 2 b - c exactly, the others generic with different scales."""
+    rng = np.random.default_rng(seed)
+    J = rng.normal(size=(N, 3, 5)) * np.array([1.0, 30.0, 0.01, 1.0, 5.0])
+    J[:, :, 3] = 2 * J[:, :, 1] / 30.0 - J[:, :, 2] / 0.01
+    return torch.from_numpy(J)
+
+
+def test_rank_and_the_held_column_match_numpy():
+    J = _jacobian()
+    rep = identifiability(J, NAMES, ALL)
+    A = J.reshape(-1, 5).numpy()
+    unit = A / np.linalg.norm(A, axis=0)
+    assert rep.rank == np.linalg.matrix_rank(unit) == 4
+    assert rep.held == ["d"]  # the last of the dependent set, in column order
+    assert np.linalg.matrix_rank(unit[:, rep.free.numpy()]) == 4
+
+
+def test_the_first_columns_are_kept_the_others_held():
+    """The gauge: with d pivoted first, one of b, c (the robot's side) is held instead."""
+    rep = identifiability(_jacobian(), NAMES, ALL, first=torch.tensor([False, False, False, True, False]))
+    assert rep.rank == 4 and "d" not in rep.held and len(rep.held) == 1 and rep.held[0] in ("b", "c")
+
+
+def test_observability_indices_are_the_textbook_ones():
+    """O1 = (prod s)^(1/L) / sqrt(m), O2 = s_min / s_max, O3 = s_min, O4 = s_min^2 / s_max,
+    O5 = 1 / sum(1 / s) (Borm & Menq, Nahvi & Hollerbach), s the singular values of the
+    unit-scaled identified columns, m the number of poses."""
+    J = _jacobian()
+    rep = identifiability(J, NAMES, ALL)
+    A = J.reshape(-1, 5).numpy()[:, rep.free.numpy()]
+    s = np.linalg.svd(A / np.linalg.norm(A, axis=0), compute_uv=False)
+    ref = {"O1": np.prod(s) ** (1 / len(s)) / np.sqrt(20), "O2": s[-1] / s[0], "O3": s[-1],
+           "O4": s[-1] ** 2 / s[0], "O5": 1 / np.sum(1 / s)}
+    for k, v in ref.items():
+        assert rep.observability[k] == pytest.approx(v, rel=1e-6), k
+    assert rep.condition == pytest.approx(s[0] / s[-1], rel=1e-6)
+
+
+def test_candidates_only_and_zero_columns():
+    J = _jacobian()
+    J[:, :, 4] = 0.0
+    rep = identifiability(J, NAMES, torch.tensor([True, True, True, False, True]))
+    assert rep.rank == 3 and rep.held == ["e"] and not bool(rep.free[3])
+
+
+def test_recheck_frees_a_held_parameter_only_beyond_its_tolerance():
+    """At a first solution d = 2 b - c + eps * noise: freed where eps reaches RECHECK_TOL
+    (relative to the unit columns), held below; the parameters already free stay free."""
+    J = _jacobian()
+    held = identifiability(J, NAMES, ALL).free
+    noise = torch.from_numpy(np.random.default_rng(1).normal(size=(20, 3)))
+    for eps, freed in ((0.1, True), (1e-4, False)):
+        Jx = J.clone()
+        Jx[:, :, 3] += eps * noise / noise.norm() * Jx[:, :, 3].norm()
+        rep = recheck(Jx, NAMES, ALL, held)
+        assert bool(rep.free[3]) == freed and bool((rep.free | ~held).all()), eps
+    assert RECHECK_TOL == 1e-2
+
+
+def test_too_few_poses_are_refused_with_the_poses_needed(kr):
+    model = CalibrationModel(kr)
+    q = random_poses(kr, 5, torch.Generator().manual_seed(0))
+    ctx = make_context(kr, q)
+    rep = identifiability(model.jacobian(model.zeros(), ctx), model.param_names(), model.default_free())
+    with pytest.raises(InputError, match=r"too few poses: 5 poses give 15 equations .* need at least \d+ poses"):
+        check_enough_rows(rep, 15, model, ctx, model.default_free())

@@ -1,0 +1,165 @@
+"""Identifiability of the fit's parameters (at the starting point, on the column-scaled
+Jacobian).
+
+- Column pivoting orders the free parameters from most to least independent; those whose
+  pivot falls below ``rank_tol`` (unit columns) cannot be identified from these poses.
+  They are reported by name and *held at nominal* (zero deviation) instead of being
+  silently damped as eq. 29 would. This is what removes the gauge (a base frame against
+  joint 1's dtheta and dd, a tool offset against the last link): the columns in `first`
+  (the fit passes the parameters without a plausibility prior, the frames) are pivoted
+  first, so the robot's deviation is the one held.
+- `recheck`: from a cold start the fit judges once more at its first solution; the free
+  parameters stay, a held one is freed only where its pivot reaches `RECHECK_TOL` (a far
+  start can make parameters look dependent that are not; small deviations only break an
+  exact symmetry of the nominal geometry to their own order).
+- `check_enough_rows`: fewer equations than identifiable parameters is refused in words,
+  with the number of poses the model needs (`generic_rank` at random poses).
+- Singular values of the identifiable columns give the condition number and the
+  observability indices of Borm & Menq / Nahvi & Hollerbach (O1..O5, m = number of poses).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from torchcal.errors import InputError
+
+RANK_TOL = 1e-6
+RECHECK_TOL = 1e-2  # pivot a parameter held at a cold start needs at the first solution
+
+
+@dataclass
+class Identifiability:
+    """Rank analysis of the scaled Jacobian.
+
+    free: (P,) bool identifiable parameters; held: names held at nominal; rank: number
+    identifiable; condition: condition number of the scaled identifiable columns;
+    observability: dict O1..O5.
+    """
+
+    free: torch.Tensor
+    held: list[str]
+    rank: int
+    condition: float
+    observability: dict
+    n_rows: int
+
+    def to_dict(self) -> dict:
+        return {"rank": self.rank, "condition_number": self.condition, "held_at_nominal": self.held,
+                "observability": self.observability, "poses": self.n_rows}
+
+
+def _pivoted(Js: np.ndarray, Q: np.ndarray, rank_tol: float) -> np.ndarray:
+    """Indices of the columns of Js (unit columns) kept, in pivot order, by Gram-Schmidt
+    with column pivoting of Js projected off the orthonormal Q: at each step the column
+    with the largest remaining norm (the lowest index among those equal to rounding, so
+    that exactly dependent columns of a symmetric geometry are chosen the same way
+    whatever the last digits of the data), while that norm exceeds rank_tol."""
+    P = Js - Q @ (Q.T @ Js) if Q.shape[1] else Js.copy()
+    kept: list[int] = []
+    for _ in range(P.shape[1]):
+        norms = np.linalg.norm(P, axis=0)
+        norms[kept] = -1.0
+        best = norms.max(initial=-1.0)
+        if best <= rank_tol:
+            break
+        i = int(np.flatnonzero(norms >= best * (1 - 1e-9))[0])
+        q = P[:, i] / norms[i]
+        P = P - np.outer(q, q @ P)
+        P = P - np.outer(q, q @ P)  # twice is enough (Kahan): orthogonal to rounding
+        kept.append(i)
+    return np.array(kept, dtype=int)
+
+
+def identifiability(J: torch.Tensor, names, candidate_free, rank_tol: float = RANK_TOL,
+                    first=None, rest_tol: float | None = None) -> Identifiability:
+    """J (N, 3, P) or (R, P) position Jacobian; candidate_free (P,) bool.
+
+    first: (P,) bool, columns chosen before the others (the gauge: of a base frame and
+    joint 1's dtheta / dd, or a tool offset and the last link's length, the ones in
+    `first` are kept and the others held). The fit passes the parameters without a
+    plausibility prior (frames), so the prior falls on a robot deviation only where
+    the data determine it. rest_tol: the pivot threshold of the columns not in `first`
+    (default rank_tol)."""
+    n_rows = J.shape[0]
+    J = J.reshape(-1, J.shape[-1]).detach().cpu().double().numpy()
+    cand = np.flatnonzero(candidate_free.cpu().numpy())
+    norms = np.linalg.norm(J[:, cand], axis=0)
+    live = cand[norms > 1e-12 * max(norms.max(initial=0.0), 1e-300)]
+    # unit columns, rounded to 1e-10: columns equal in exact arithmetic (dd of parallel
+    # axes, base_rz and dtheta1) become equal in floating point too, and a norm larger by
+    # at most 1e-8 for earlier columns makes the pivoting keep the first of them (the
+    # robot's before the base frame's), whatever the rounding of the Jacobian
+    Js = np.round(J[:, live] / np.linalg.norm(J[:, live], axis=0), 10)
+    Js = Js * (1 + 1e-8 * np.arange(len(live), 0, -1) / max(len(live), 1))
+    if Js.shape[0] > Js.shape[1]:
+        # the triangular factor of Js has the same column norms, projections and singular
+        # values (an orthogonal map keeps inner products): the pivoting runs on (L, L)
+        # instead of (rows, L)
+        Js = np.linalg.qr(Js, mode="r")
+    free = torch.zeros(J.shape[1], dtype=torch.bool)
+    if live.size:
+        pri = np.zeros(live.size, dtype=bool) if first is None else np.asarray(first.cpu())[live]
+        a = np.flatnonzero(pri)[_pivoted(Js[:, pri], np.zeros((Js.shape[0], 0)), rank_tol)]
+        Qa = np.linalg.qr(Js[:, a])[0] if a.size else np.zeros((Js.shape[0], 0))
+        b = np.flatnonzero(~pri)[_pivoted(Js[:, ~pri], Qa, rank_tol if rest_tol is None else rest_tol)]
+        kept = np.sort(np.concatenate([a, b]))
+        rank = kept.size
+        free[torch.as_tensor(live[kept])] = True
+        s = np.linalg.svd(Js[:, kept], compute_uv=False)
+    else:
+        rank, s = 0, np.ones(1)
+    held = [names[i] for i in cand if not free[i]]
+    m = max(n_rows, 1)
+    obs = {
+        "O1": float(np.exp(np.log(s).mean()) / np.sqrt(m)),
+        "O2": float(s[-1] / s[0]),
+        "O3": float(s[-1]),
+        "O4": float(s[-1] ** 2 / s[0]),
+        "O5": float(1.0 / np.sum(1.0 / s)),
+    }
+    return Identifiability(free, held, rank, float(s[0] / s[-1]), obs, n_rows)
+
+
+def generic_rank(model, ctx, cand, rank_tol: float = RANK_TOL) -> int:
+    """Number of parameters identifiable at random poses inside the joint limits (the
+    data's payload / temperature values reused in turn): what enough poses would give."""
+    from torchcal.effects import make_context
+    from torchcal.robots.poses import random_poses
+
+    robot = model.robot
+    n = int(cand.sum()) + 16
+    q = random_poses(robot, n, torch.Generator().manual_seed(0)).to(ctx.q)
+    idx = torch.arange(n, device=ctx.q.device) % ctx.q.shape[0]
+    temp = None if ctx.temp_c is None else ctx.temp_c[idx]
+    payload = None if ctx.payload_kg is None else ctx.payload_kg[idx]
+    g = make_context(robot, q, payload, temp)
+    J = model.jacobian(model.zeros(), g)
+    return identifiability(J, model.param_names(), cand, rank_tol).rank
+
+
+def recheck(J: torch.Tensor, names, candidate_free, free_now: torch.Tensor,
+            rank_tol: float = RANK_TOL) -> Identifiability:
+    """Identifiability at a first solution (module doc): J (N, k, P) there; the parameters
+    `free_now` (P,) bool stay free, a held one is freed where its pivot reaches RECHECK_TOL."""
+    return identifiability(J, names, candidate_free, rank_tol, first=free_now, rest_tol=RECHECK_TOL)
+
+
+def check_enough_rows(report: Identifiability, n_equations: int, model, ctx, cand, rank_tol: float = RANK_TOL) -> None:
+    """InputError when `n_equations` (rows x residuals per row) do not exceed the rank of
+    `report` (the equations, not the model, bound it: the message counts the parameters
+    identifiable at generic poses, seeded, so it is reproducible), or when no candidate
+    parameter (cand (P,) bool) is identifiable."""
+    n_cand, n_rows = int(cand.sum()), report.n_rows
+    if n_equations <= report.rank:
+        kk = generic_rank(model, ctx, cand, rank_tol)
+        need = kk // 3 + 1
+        raise InputError(f"too few poses: {n_rows} poses give {3 * n_rows} equations (3 per pose) "
+                         f"but the model [{', '.join(model.specs()) or 'geometric only'}] has {kk} "
+                         f"identifiable parameters (of {n_cand}); need at least {need} poses, "
+                         f"in practice {max(2 * need, need + 10)} or more spread over the workspace")
+    if n_cand and report.rank == 0:
+        raise InputError("no parameter is identifiable from these poses")

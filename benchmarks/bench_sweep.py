@@ -183,7 +183,7 @@ def distributed_case(n: int, m: int, workers: int = 2) -> int:
     torch.set_num_threads(THREADS)
     import torchcal
     from torchcal.workflows.distributed import connect, plan_sweep
-    from torchcal.reliability.sweep import DEFAULT_BLOCK
+    from torchcal.reliability.sweep_blocks import DEFAULT_BLOCK
 
     robot = torchcal.robot("kr1000titan")
     plan = plan_sweep(robot, n_points=n, n_samples=m, seed=0)

@@ -396,7 +396,7 @@ def _sweep_points(rb, q, deviations, dev_box, *, include_nominal, linear, allowe
     if linear:
         hull, lin_far = linear_bounds(rb, q, dev_box, chunk=1 << 16 if gpu else 1024, threads=threads)
         lin_lo, lin_hi = hull.lower, hull.upper
-    positions = rb.fk(q)
+    positions = K.positions(q, rb.chain)  # (N, 3) mm
     rs, et = torch.empty_like(d_lo), torch.empty_like(d_lo)
     piece = 1 << 16  # in pieces: the temporaries of eta and R_set stay small
     for a in range(0, d_lo.shape[0], piece):

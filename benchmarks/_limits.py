@@ -10,19 +10,15 @@ rate / E (element-wise); the benchmarks print both next to the measured rate.
 from __future__ import annotations
 
 import statistics
-import time
+import timeit
 
 import torch
 
 
 def _median_s(fn, repeats: int) -> float:
+    """Median wall seconds of fn() over `repeats` runs after one warm-up."""
     fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+    return statistics.median(timeit.repeat(fn, number=1, repeat=repeats))
 
 
 def rates(dtype, threads: int, chunk: int, repeats: int = 5) -> tuple[float, float]:

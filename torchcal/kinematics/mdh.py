@@ -352,8 +352,7 @@ def fk_positions(q, chain: Chain, params=None, *, chunk: int | None = None) -> t
     pb = () if params is None else params.shape[:-2]
     batch = np.broadcast_shapes(qb, pb)  # torch.broadcast_shapes would import sympy
     total = math.prod(batch)
-    inputs = (q, table) if params is None else (q, table, params)
-    plain = _plain(inputs)
+    plain = _plain((q, table, chain.base, chain.tool) + (() if params is None else (params,)))
     if (total <= chunk or len(batch) == 0) and not plain:
         return positions(q, chain, params)
     out = torch.empty(*batch, 3, dtype=table.dtype, device=table.device)

@@ -6,7 +6,9 @@
 memberships for both, a fixed number of iterations for both (eps = 0 / error = 0 never
 stop early). Both run on the same cores: torch with `torch.set_num_threads(threads)`,
 numpy/BLAS limited to the same count. Prints the median (and min) wall time of `repeats`
-runs, iterations per second, the speed ratio, and how far apart the two results are.
+runs, the median CPU seconds of the process (all its threads; on a shared machine the
+figure to compare at 1 thread), iterations per second, the speed ratios by wall and by CPU
+time, and how far apart the two results are.
 
 Timings need cores to themselves: torch's OpenMP threads spin-wait at each op, so on a
 machine shared with other busy jobs (the load average is printed) a descheduled thread
@@ -45,7 +47,8 @@ def main(argv=None) -> int:
           f"{args.threads} threads, median of {args.repeats}; torch {torch.__version__}, "
           f"scikit-fuzzy {getattr(skfuzzy, '__version__', '?')}, numpy {np.__version__}")
     print(f"load average before: {' '.join(f'{v:.2f}' for v in os.getloadavg())} (machine shared with other jobs)")
-    print(f"{'d':>2} {'method':<24} {'time s':>8} {'min s':>7} {'iter/s':>8} {'speed-up':>9}   agreement")
+    print(f"{'d':>2} {'method':<24} {'time s':>8} {'min s':>7} {'cpu s':>7} {'iter/s':>8} {'speed-up':>9} "
+          f"{'by cpu':>7}   agreement")
     rng = np.random.default_rng(0)
     for d in (1, 3):
         centers = rng.uniform(-10, 10, size=(c, d))
@@ -68,19 +71,20 @@ def main(argv=None) -> int:
         out = {}
         for name, fn in (("torchcal.partition.fcm (torch)", run_torch), ("skfuzzy.cluster.cmeans", run_skfuzzy)):
             fn()  # warm-up (allocator, threads)
-            ts = []
+            ts, cs = [], []
             for _ in range(args.repeats):
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 out[name] = fn()
                 ts.append(time.perf_counter() - t0)
-            times[name] = (statistics.median(ts), min(ts))
+                cs.append(time.process_time() - c0)
+            times[name] = (statistics.median(ts), min(ts), statistics.median(cs))
         (ct, ut), (cs, us) = out["torchcal.partition.fcm (torch)"], out["skfuzzy.cluster.cmeans"]
         agree = f"max|dV| {np.abs(ct - cs).max():.1e}, max|dU| {np.abs(ut - us).max():.1e}"
-        ref = times["skfuzzy.cluster.cmeans"][0]
-        for name, (t, tmin) in times.items():
-            ratio = ref / t
+        ref, _, ref_cpu = times["skfuzzy.cluster.cmeans"]
+        for name, (t, tmin, cpu) in times.items():
             note = agree if name.startswith("torchcal") else "(reference)"
-            print(f"{d:>2} {name:<24} {t:>8.3f} {tmin:>7.3f} {K / t:>8.1f} {ratio:>8.1f}x   {note}")
+            print(f"{d:>2} {name:<24} {t:>8.3f} {tmin:>7.3f} {cpu:>7.3f} {K / t:>8.1f} {ref / t:>8.1f}x "
+                  f"{ref_cpu / cpu:>6.1f}x   {note}")
     print(f"load average after:  {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
     return 0
 

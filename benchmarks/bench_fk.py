@@ -11,6 +11,12 @@ This script times that workload, in one run on one machine, three ways:
 - numpy: a plain vectorised implementation, the 4x4 MD-H link matrices of the whole
   (chunked) batch multiplied along the chain with `np.matmul`.
 
+and, in the same run, the limits of the torchcal kernel (`torchcal.kinematics.mdh.positions_into`,
+6 fused element-wise torch ops per joint over 13 multiply-adds per pair): the compute limit,
+its flops per pair at the rate of a float matmul on the same threads, and the element-wise
+limit, its element operations per pair at the rate of one in-place fused op (addcmul_ with a
+broadcast operand, the kernel's commonest op) on chunk-sized buffers, one per worker.
+
 Figures are the median of several repeats (after one warm-up), printed with the targets:
 torchcal >= 60 M pairs/s in float64 and >= 100 M/s in float32 on 2 quiet CPU cores, and
 >= 50x pytorch-kinematics. `--device cuda` times torchcal (and pytorch-kinematics) on a
@@ -36,6 +42,7 @@ for _i, _a in enumerate(sys.argv):
         _THREADS = _a.split("=", 1)[1] if "=" in _a else sys.argv[_i + 1]
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, _THREADS)
+os.environ["TORCHCAL_THREADS"] = _THREADS  # Robot.fk's workers (torchcal.threads)
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # torchcal's policy (torchcal.threads): before torch loads
 
 import numpy as np  # noqa: E402
@@ -44,6 +51,7 @@ import torch  # noqa: E402
 from pytorch_kinematics import transforms as pk_tf  # noqa: E402
 
 import torchcal  # noqa: E402
+from _limits import print_limits  # noqa: E402
 from torchcal.kinematics import mdh as K  # noqa: E402
 
 TARGETS_CPU = {torch.float64: 60e6, torch.float32: 100e6}  # pairs/s on 2 quiet CPU cores
@@ -138,6 +146,17 @@ def pk_chain(robot, params, dtype, device):
         parent.children = [child]
         parent = child
     return pk.SerialChain(pk.Chain(root, dtype=dtype), "tcp", dtype=dtype).to(dtype=dtype, device=device)
+
+
+# -- the kernel's limits ------------------------------------------------------------------
+def kernel_counts(n: int, plain_base: bool) -> tuple[int, int]:
+    """(flops, element operations) per pair of `positions_into` for n joints: per joint
+    after the last, Rz(q) u (4 mul + 2 add; 2 ops over 2 rows) and R_i z + t_i (9 mul +
+    9 add; 4 ops over 3 rows); the world step 6 flops (5 element ops), or 24 (9 + 3 element
+    ops) with a base frame."""
+    flops = 24 * (n - 1) + (6 if plain_base else 24)
+    elems = 16 * (n - 1) + (5 if plain_base else 16)
+    return flops, elems
 
 
 # -- reporting --------------------------------------------------------------------------
@@ -247,6 +266,9 @@ def main(argv=None) -> int:
         rate_np = _line(f"numpy ({np_sets} sets)" if np_sets < M else "numpy", np_sets * P, t_np)
         err_np = np.abs(numpy_fk(qn, tn, pn, bn, tooln) - out_tc[:np_sets].cpu().numpy()).max()
 
+        if not gpu:
+            print_limits(rate_tc, *kernel_counts(n, robot.chain.plain_base), dtype, args.threads, chunk,
+                         args.repeats)
         ratio_pk, ratio_np = rate_tc / rate_pk, rate_tc / rate_np
         ok = "met" if ratio_pk >= TARGET_VS_PK else "BELOW TARGET"
         print(f"  torchcal / pytorch-kinematics   {ratio_pk:10.1f} x    target >= {TARGET_VS_PK:g} x: {ok}")

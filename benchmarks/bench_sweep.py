@@ -118,6 +118,15 @@ def child(n: int, m: int, threads: int) -> dict:
     }
 
 
+def sweep_counts(n: int) -> tuple[int, int]:
+    """(flops, element operations) per (point, state) of the sweep's envelope for n joints:
+    `outer_positions` (per joint: cos and sin of q + offset 6 flops, Ry, Rx and the
+    translation 14, Rz(q) 6 = 26 flops in 18 element ops), then the error against the
+    nominal (3 subtractions), |e|^2 (5 flops, 3 ops) and the running min and max of the 3
+    axes and of |e|^2 (8 comparisons, 8 ops)."""
+    return 26 * n + 16, 18 * n + 14
+
+
 def run_child(n: int, m: int, threads: int = THREADS) -> dict:
     env = dict(os.environ, OMP_NUM_THREADS=str(threads), MKL_NUM_THREADS=str(threads))
     out = subprocess.run([sys.executable, __file__, "--child", str(n), str(m), str(threads)],
@@ -183,7 +192,7 @@ def distributed_case(n: int, m: int, workers: int = 2) -> int:
     torch.set_num_threads(THREADS)
     import torchcal
     from torchcal.workflows.distributed import connect, plan_sweep
-    from torchcal.reliability.sweep import DEFAULT_BLOCK
+    from torchcal.reliability.sweep_blocks import DEFAULT_BLOCK
 
     robot = torchcal.robot("kr1000titan")
     plan = plan_sweep(robot, n_points=n, n_samples=m, seed=0)
@@ -277,6 +286,10 @@ def main(argv=None) -> int:
           f"adds {head['peak_mb'] - head['rss0_mb']:.0f} MB at its peak (results {head['results_mb']:.0f} MB); "
           f"an N x M x 3 float64 error tensor alone would be {head['dense_mb']:,.0f} MB")
     print(f"  R_set min {head['r_set_min']:.3f}, share of points with R_set = 1: {head['share_r_set_1']:.2f}")
+    from _limits import print_limits
+    from torchcal.reliability.sweep import DEFAULT_CHUNK
+    print_limits(1e9 / head["ns_per_eval"], *sweep_counts(6), torch.float64, THREADS, DEFAULT_CHUNK,
+                 unit="(point, state)")
     if torch.cuda.is_available():  # the same sweep on the GPU, next to the CPU figure
         g = gpu_case(100_000, 1000)
         print(f"  GPU ({g['device']}): {g['t_sweep_s']:.2f} s, {g['ns_per_eval']:.2f} ns per (point, state), "

@@ -124,12 +124,12 @@ def test_simulate_pose_seed_fresh_poses_of_the_same_robot(tmp_path, capsys):
 
 def test_plan_and_accuracy_refuse_existing_pngs_before_any_work(tmp_path, capsys, monkeypatch):
     import torchcal.planning.design as design
-    import torchcal.reliability.sweep as sweep
+    import torchcal.reliability.sweep_blocks as sweep_blocks
 
     def boom(*a, **k):
         raise AssertionError("computed before checking the outputs")
     monkeypatch.setattr(design, "candidate_jacobian", boom)
-    monkeypatch.setattr(sweep, "sample_workspace", boom)
+    monkeypatch.setattr(sweep_blocks, "sample_workspace", boom)
     plots = tmp_path / "plots"
     plots.mkdir()
     (plots / "plan_criterion.png").write_bytes(b"old")

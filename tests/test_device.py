@@ -74,7 +74,8 @@ def test_approach_directions_on_cuda_match_cpu():
 
 @needs_cuda
 def test_sweep_block_on_cuda_matches_cpu(kr):
-    from torchcal.reliability.sweep import sweep_block, sweep_states
+    from torchcal.reliability.sweep import sweep_states
+    from torchcal.workflows.distributed import sweep_block
 
     dev, box = sweep_states(kr, n_samples=50, seed=2)
     kw = dict(n_points=300, deviations=dev, dev_box=box, seed=2, block=300)

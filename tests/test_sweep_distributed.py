@@ -1,4 +1,5 @@
-"""Tests of the sweep in blocks (torchcal.reliability.sweep.sweep_block, block_seed), its
+"""Tests of the sweep in blocks (torchcal.workflows.distributed.sweep_block,
+torchcal.reliability.sweep_blocks.block_seed), its
 streamed and resumable output (torchcal.workflows.distributed.run_sweep,
 torchcal.io.sweep_blocks) and its runs on a Dask LocalCluster of 2 worker processes.
 
@@ -39,7 +40,9 @@ from torchcal import cli
 from torchcal.errors import InputError, OutputExistsError
 from torchcal.io.sweep_csv import sweep_csv_text
 from torchcal.workflows.distributed import _hist_median, plan_sweep, run_sweep
-from torchcal.reliability.sweep import block_seed, sweep, sweep_block, sweep_states
+from torchcal.reliability.sweep import sweep, sweep_states
+from torchcal.reliability.sweep_blocks import block_seed
+from torchcal.workflows.distributed import sweep_block
 from torchcal.robots.workspace import sample_workspace
 
 N, M, BLOCK = 700, 40, 100  # 7 blocks

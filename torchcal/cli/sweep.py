@@ -66,7 +66,7 @@ def run(args) -> int:
     import torchcal
     from torchcal.io.files import read_json
     from torchcal.workflows.distributed import connect, plan_sweep, run_sweep
-    from torchcal.reliability.sweep import DEFAULT_BLOCK
+    from torchcal.reliability.sweep_blocks import DEFAULT_BLOCK
     from torchcal.reliability.uncertainty import ClearanceModel, clearance_from_dict
 
     from torchcal.errors import InputError

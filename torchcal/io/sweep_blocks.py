@@ -1,6 +1,6 @@
 """The sweep CSV written block by block: a folder of finished blocks next to the output.
 
-A sweep of N points in blocks (torchcal.reliability.sweep.DEFAULT_BLOCK points each) that
+A sweep of N points in blocks (torchcal.reliability.sweep_blocks.DEFAULT_BLOCK points each) that
 writes ``OUT`` keeps, until it is complete, a folder ``OUT.blocks/`` holding
 
 - ``manifest.json``: what the sweep computes (robot, clearance states, N, M, D, seed,

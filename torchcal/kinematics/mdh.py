@@ -146,6 +146,24 @@ def _rotate(R, i, w, start=None):
     return u
 
 
+def _link_rotations(table, params):
+    """R_i = Rz(off_i) Rx(alpha_i) Ry(beta_i) and t_i = Rz(off_i) [a_i, 0, d_i] of every link.
+
+    table (n, 5), params (..., n, 5) or None -> (R, t): R rows, a 3 x 3 nest of tensors
+    (..., n); t, 3 tensors (..., n) mm (the deviations' batch, or (n,) without them).
+    """
+    off, d, a, alpha, beta = _effective(table, params)  # each (..., n) or (n,)
+    co, so = torch.cos(off), torch.sin(off)
+    ca, sa = torch.cos(alpha), torch.sin(alpha)
+    cb, sb = torch.cos(beta), torch.sin(beta)
+    sasb, sacb = sa * sb, sa * cb
+    # rows of Rz(off) Rx(alpha) Ry(beta); Rx Ry = [[cb, 0, sb], [sa sb, ca, -sa cb], [-ca sb, sa, ca cb]]
+    R = ((co * cb - so * sasb, -so * ca, co * sb + so * sacb),
+         (so * cb + co * sasb, co * ca, so * sb - co * sacb),
+         (-ca * sb, sa, ca * cb))
+    return R, (co * a, so * a, d)
+
+
 def positions(q, chain: Chain, params=None, *, tool_point=None, out=None) -> torch.Tensor:
     """TCP positions (world frame) by a backward recursion over the links, 3-vectors only.
 
@@ -174,16 +192,7 @@ def positions(q, chain: Chain, params=None, *, tool_point=None, out=None) -> tor
     n = table.shape[0]
     if tool_point is None:
         tool_point = chain.tool[:3, 3].to(table)
-    off, d, a, alpha, beta = _effective(table, params)  # each (..., n) or (n,)
-    co, so = torch.cos(off), torch.sin(off)
-    ca, sa = torch.cos(alpha), torch.sin(alpha)
-    cb, sb = torch.cos(beta), torch.sin(beta)
-    sasb, sacb = sa * sb, sa * cb
-    # rows of Rz(off) Rx(alpha) Ry(beta); Rx Ry = [[cb, 0, sb], [sa sb, ca, -sa cb], [-ca sb, sa, ca cb]]
-    R = ((co * cb - so * sasb, -so * ca, co * sb + so * sacb),
-         (so * cb + co * sasb, co * ca, so * sb - co * sacb),
-         (-ca * sb, sa, ca * cb))  # each (..., n)
-    tx, ty = co * a, so * a  # t = Rz(off) [a, 0, d]
+    R, (tx, ty, d) = _link_rotations(table, params)  # each (..., n) or (n,)
     k = [R[0][c] * tx + R[1][c] * ty + R[2][c] * d for c in range(3)]  # R^T t, each (..., n)
     qj = q.movedim(-1, 0)  # (n, ...): one contiguous block of angles per joint
     if chain.linear:
@@ -222,13 +231,120 @@ def positions(q, chain: Chain, params=None, *, tool_point=None, out=None) -> tor
     return out
 
 
+def positions_into(q, chain: Chain, params, out: torch.Tensor) -> torch.Tensor:
+    """TCP positions written into `out`, every full-size temporary in 3 reused buffers.
+
+    q (..., n) rad / mm, params (..., n, 5) or None, out (..., 3) mm: a tensor (or a view)
+    of the broadcast batch; the tool point is the chain's. Not differentiable (in-place
+    ops): `fk_positions` calls it when no input needs a gradient, `positions` otherwise.
+
+    The recursion of `positions` with t_i = R_i k_i = Rz(off_i) [a_i, 0, d_i] folded in::
+
+        u_(n-1) = R_(n-1) tool + t_(n-1)                 (deviation batch only)
+        u_i = R_i Rz(q_(i+1)) u_(i+1) + t_i              for i = n-2 .. 0
+        p = R_base Rz(q_1) u_0 + b
+
+    The three rows of u are one (3, ...) tensor, so a joint costs 6 fused torch ops
+    (2 for Rz(q), 4 for R_i z + t_i) over 13 multiply-adds per pair; a prismatic joint's
+    travel adds to the z of t_i.
+    """
+    batch = out.shape[:-1]
+    q = q.reshape((1,) * (len(batch) + 1 - q.ndim) + q.shape)
+    if params is not None:
+        params = params.reshape((1,) * (len(batch) + 2 - params.ndim) + params.shape)
+    return _positions_into(_PoseFactors.of(q, chain), _LinkFactors.of(chain.table, params, len(batch)),
+                           chain, out)
+
+
+class _PoseFactors(NamedTuple):
+    """The pose batch of `positions_into`, joint first: cs (n, 2, ...) [cos, sin] and
+    sc (n, 2, ...) [-sin, cos] of the joint rotations (0 at a prismatic joint), q (n, ...)
+    rad / mm."""
+
+    cs: torch.Tensor
+    sc: torch.Tensor
+    q: torch.Tensor
+
+    @classmethod
+    def of(cls, q, chain: Chain) -> "_PoseFactors":
+        """q (..., n) -> factors with the batch dims of q."""
+        qj = q.movedim(-1, 0)
+        qr = qj
+        if chain.linear:
+            qr = qj.masked_fill(chain.prismatic.view(-1, *([1] * (qj.ndim - 1))), 0.0)
+        c, s = torch.cos(qr), torch.sin(qr)
+        return cls(torch.stack([c, s], 1), torch.stack([-s, c], 1), qj)
+
+    def narrow(self, dim, start, size) -> "_PoseFactors":
+        """The slice start:start+size of batch dim `dim` (a size-1 dim is kept, it broadcasts)."""
+        return _PoseFactors(_narrow(self.cs, dim + 2, start, size), _narrow(self.sc, dim + 2, start, size),
+                            _narrow(self.q, dim + 1, start, size))
+
+
+class _LinkFactors(NamedTuple):
+    """The deviation batch of `positions_into`: R (3, 3, n, ...) rows of
+    R_i = Rz(off_i) Rx(alpha_i) Ry(beta_i); t (3, n, ...) mm, t_i = Rz(off_i) [a_i, 0, d_i]."""
+
+    R: torch.Tensor
+    t: torch.Tensor
+
+    @classmethod
+    def of(cls, table, params, ndim: int) -> "_LinkFactors":
+        """table (n, 5), params (..., n, 5) or None -> factors with `ndim` batch dims."""
+        R, t = _link_rotations(table, params)
+        R = torch.stack([torch.stack(row) for row in R]).movedim(-1, 2)  # (3, 3, n, ...)
+        t = torch.stack(t).movedim(-1, 1)  # (3, n, ...)
+        R = R.reshape(R.shape[:3] + (1,) * (ndim + 3 - R.ndim) + R.shape[3:]).contiguous()
+        return cls(R, t.reshape(t.shape[:2] + (1,) * (ndim + 2 - t.ndim) + t.shape[2:]).contiguous())
+
+    def narrow(self, dim, start, size) -> "_LinkFactors":
+        """The slice start:start+size of batch dim `dim` (a size-1 dim is kept, it broadcasts)."""
+        return _LinkFactors(_narrow(self.R, dim + 3, start, size), _narrow(self.t, dim + 2, start, size))
+
+
+def _narrow(x, dim, start, size):
+    return x.narrow(dim, start, size) if x.shape[dim] > 1 else x
+
+
+def _positions_into(pose: _PoseFactors, link: _LinkFactors, chain: Chain, out):
+    """`positions_into` on precomputed factors whose batch dims align with `out`'s."""
+    n = chain.n
+    shape = out.shape[:-1]
+    R, t = link.R, link.t
+    tp = chain.tool[:3, 3]
+    i = n - 1
+    u = R[:, 0, i] * tp[0] + R[:, 1, i] * tp[1] + R[:, 2, i] * tp[2] + t[:, i]  # (3, ...) mm
+    z = torch.empty((2,) + shape, dtype=out.dtype, device=out.device)
+    u, nu = (torch.empty((3,) + shape, dtype=out.dtype, device=out.device).copy_(u.expand((3,) + shape)),
+             torch.empty((3,) + shape, dtype=out.dtype, device=out.device))
+    if i in chain.linear:
+        u[2].add_(pose.q[i])
+    for i in range(n - 2, -1, -1):
+        torch.mul(pose.cs[i + 1], u[0], out=z).addcmul_(pose.sc[i + 1], u[1])  # Rz(q_(i+1)) u, rows 0, 1
+        torch.mul(R[:, 2, i], u[2], out=nu).addcmul_(R[:, 0, i], z[0]).addcmul_(R[:, 1, i], z[1])
+        nu.add_(t[:, i])  # u = R_i z + t_i
+        if i in chain.linear:
+            nu[2].add_(pose.q[i])
+        u, nu = nu, u
+    rows = out.movedim(-1, 0)  # (3, ...) view
+    if chain.plain_base:
+        torch.mul(pose.cs[0], u[0], out=rows[:2]).addcmul_(pose.sc[0], u[1])
+        rows[2].copy_(u[2])
+        return out
+    torch.mul(pose.cs[0], u[0], out=z).addcmul_(pose.sc[0], u[1])  # Rz(q_1) u
+    col = [chain.base[:3, c].view((3,) + (1,) * len(shape)) for c in range(4)]  # R_base columns, b
+    torch.mul(col[2], u[2], out=rows).addcmul_(col[0], z[0]).addcmul_(col[1], z[1]).add_(col[3])
+    return out
+
+
 def fk_positions(q, chain: Chain, params=None, *, chunk: int | None = None) -> torch.Tensor:
     """TCP positions for every (pose, parameter set) of the broadcast batch.
 
     q (..., n) rad / mm, params (..., n, 5) or None -> (..., 3) mm (`positions`).
     Work is cut along the largest broadcast batch dim into pieces of about `chunk`
     evaluations (default `chunk_for` the device), so temporaries stay bounded; the output
-    is the full (..., 3).
+    is the full (..., 3). Without autograd or vmap on the inputs the chunks run the
+    in-place kernel `positions_into`; with them, `positions`.
     """
     table = chain.table
     chunk = chunk or chunk_for(table.device)
@@ -236,18 +352,27 @@ def fk_positions(q, chain: Chain, params=None, *, chunk: int | None = None) -> t
     pb = () if params is None else params.shape[:-2]
     batch = np.broadcast_shapes(qb, pb)  # torch.broadcast_shapes would import sympy
     total = math.prod(batch)
-    if total <= chunk or len(batch) == 0:
+    plain = _plain((q, table, chain.base, chain.tool) + (() if params is None else (params,)))
+    if (total <= chunk or len(batch) == 0) and not plain:
         return positions(q, chain, params)
+    out = torch.empty(*batch, 3, dtype=table.dtype, device=table.device)
+    if total <= chunk or len(batch) == 0:
+        return positions_into(q, chain, params, out)
     # align leading dims, pick the largest batch dim to cut along
     q = q.reshape((1,) * (len(batch) - len(qb)) + q.shape)
     if params is not None:
         params = params.reshape((1,) * (len(batch) - len(pb)) + params.shape)
     dim = max(range(len(batch)), key=lambda k: batch[k])
     step = max(1, chunk * batch[dim] // total)
-    out = torch.empty(*batch, 3, dtype=table.dtype, device=table.device)
+    if plain:  # the trig of the whole batch once, sliced per chunk
+        pose, link = _PoseFactors.of(q, chain), _LinkFactors.of(chain.table, params, len(batch))
 
     def run(start):
         size = min(step, batch[dim] - start)
+        if plain:
+            _positions_into(pose.narrow(dim, start, size), link.narrow(dim, start, size), chain,
+                            out.narrow(dim, start, size))
+            return
         qc = q.narrow(dim, start, size) if q.shape[dim] > 1 else q
         pc = params
         if params is not None and params.shape[dim] > 1:
@@ -262,6 +387,15 @@ def fk_positions(q, chain: Chain, params=None, *, chunk: int | None = None) -> t
         return out
     _map_single_threaded(run, starts, workers)
     return out
+
+
+def _plain(tensors) -> bool:
+    """True when no tensor needs a gradient (with grad mode on) or is wrapped by
+    torch.func (vmap, jvp): the in-place kernel's condition."""
+    if torch.is_grad_enabled() and any(t.requires_grad for t in tensors):
+        return False
+    wrapped = torch._C._functorch.is_functorch_wrapped_tensor
+    return not any(wrapped(t) for t in tensors)
 
 
 def _map_single_threaded(fn, items, workers: int) -> None:

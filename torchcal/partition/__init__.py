@@ -4,7 +4,7 @@
 from torchcal._lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
-    "torchcal.partition.fcm": ["FCMResult", "FuzzyCMeans", "choose_c", "memberships", "objective",
-                               "partition_coefficient", "partition_entropy", "xie_beni"],
+    "torchcal.partition.fcm": ["FCMResult", "memberships", "objective"],
+    "torchcal.partition.validity": ["choose_c", "partition_coefficient", "partition_entropy", "xie_beni"],
     "torchcal.partition.zones": ["Partition", "partition_workspace"],
 })

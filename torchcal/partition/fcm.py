@@ -1,5 +1,6 @@
-"""Fuzzy c-means in torch (docs/paper.md section 4, eqs. 26-28), validity indices, and a
-scikit-learn style estimator.
+"""Fuzzy c-means in torch (docs/paper.md section 4, eqs. 26-28): `fcm` fits, `memberships`
+applies eq. 28 to new points, `objective` is eq. 26. The validity indices and the choice of
+c are `torchcal.partition.validity`.
 
 The maths. Points x_j (N of them, d features), c centers v_i, memberships u_ij with
 sum_i u_ij = 1, fuzzifier m > 1:
@@ -40,14 +41,10 @@ from typing import NamedTuple
 
 import numpy as np
 import torch
-from sklearn.base import BaseEstimator, ClusterMixin
 
 from torchcal.errors import InputError
 
-__all__ = [
-    "FCMResult", "fcm", "memberships", "objective", "partition_coefficient",
-    "partition_entropy", "xie_beni", "choose_c", "FuzzyCMeans",
-]
+__all__ = ["FCMResult", "fcm", "memberships", "objective"]
 
 
 class FCMResult(NamedTuple):
@@ -411,142 +408,3 @@ def objective(x, centers, u, m: float = 2.0) -> float:
     xt = x.T.contiguous()
     return float(_objective(xt, torch.as_tensor(u, dtype=x.dtype, device=x.device)[None], centers[None],
                             float(m), _default_chunk(x, centers.shape[0]))[0])
-
-
-def partition_coefficient(u) -> float:
-    """Bezdek's partition coefficient PC = (1/N) sum_ij u_ij^2, in [1/c, 1]; higher is crisper."""
-    u = torch.as_tensor(u)
-    return float((u * u).sum() / u.shape[-1])
-
-
-def partition_entropy(u) -> float:
-    """Bezdek's partition entropy PE = -(1/N) sum_ij u_ij ln u_ij (0 ln 0 = 0), in [0, ln c];
-    lower is crisper."""
-    u = torch.as_tensor(u)
-    return float(-torch.special.xlogy(u, u).sum() / u.shape[-1])
-
-
-def xie_beni(x, centers, u, m: float = 2.0) -> float:
-    """Xie-Beni index XB = J_m(U, V) / (N min_{i != k} ||v_i - v_k||^2); lower is better.
-
-    J_m is eq. 26 with the same fuzzifier m (Xie & Beni's original uses m = 2). Coinciding
-    centers give inf.
-    """
-    x = as_points(x)
-    centers = _as_centers(centers, x)
-    J = objective(x, centers, u, m)
-    sep = torch.cdist(centers, centers).square_()  # (c, c)
-    sep.fill_diagonal_(float("inf"))
-    smin = float(sep.min())
-    return float("inf") if smin == 0 else J / (x.shape[0] * smin)
-
-
-def choose_c(x, c_range=(2, 6), m: float = 2.0, eps: float = 1e-6, max_iter: int = 300,
-             seed: int = 0, restarts: int = 1):
-    """Pick the number of clusters in c_range (inclusive) with the lowest Xie-Beni index.
-
-    The upper end is clipped to N - 1; ties go to the smaller c.
-    Returns (c, result FCMResult for that c, scores {c: xie_beni}).
-    """
-    x = as_points(x)
-    lo, hi = _check_range(c_range, "c_range")
-    hi = min(hi, x.shape[0] - 1)
-    if lo > hi:
-        raise InputError(f"c_range: ({lo}, {c_range[1]}) leaves no c with 2 <= c < N for {x.shape[0]} points")
-    best = None
-    scores = {}
-    for c in range(lo, hi + 1):
-        res = fcm(x, c, m=m, eps=eps, max_iter=max_iter, seed=seed, restarts=restarts)
-        scores[c] = xie_beni(x, res.centers, res.memberships, m)
-        if best is None or scores[c] < scores[best[0]]:
-            best = (c, res)
-    return best[0], best[1], scores
-
-
-def _check_range(c_range, name):
-    try:
-        lo, hi = (int(v) for v in c_range)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}: expected (low, high) integers, got {c_range!r}") from None
-    if lo < 2 or hi < lo:
-        raise InputError(f"{name}: expected 2 <= low <= high, got {c_range!r}")
-    return lo, hi
-
-
-class FuzzyCMeans(ClusterMixin, BaseEstimator):
-    """Fuzzy c-means estimator (scikit-learn conventions) over `fcm`.
-
-    Parameters:
-        n_clusters: int c >= 2, or "auto" to pick c in `c_range` by the lowest Xie-Beni
-            index (default 3).
-        m: fuzzifier > 1 (default 2.0).
-        tol: `fcm`'s eps, stop when ||U(t+1) - U(t)||_F < tol (default 1e-6).
-        max_iter: most iterations (default 300).
-        n_init: `fcm`'s restarts, batched; lowest objective kept (default 1).
-        seed: `fcm`'s random seed (int, default 0).
-        c_range: (low, high) inclusive, used when n_clusters="auto" (default (2, 6)).
-
-    Attributes (torch tensors on x's device):
-        centers_: (c, d) centers; d = 1 for 1-D input.
-        memberships_: (c, N) memberships of the training points.
-        labels_: (N,) int64, cluster of largest membership.
-        n_clusters_: the c used.
-        n_iter_: iterations run.
-        objective_: eq. 26 at the solution (float).
-        partition_coefficient_, partition_entropy_, xie_beni_: validity indices (floats).
-        scores_: {c: xie_beni} when n_clusters="auto", else None.
-
-    Example:
-        >>> km = FuzzyCMeans(n_clusters=2).fit([0.0, 0.1, 0.2, 5.0, 5.1, 5.2])
-        >>> a, b = km.predict([0.05, 4.9]).tolist()  # cluster order is arbitrary
-        >>> a != b, km.labels_.tolist() in ([a, a, a, b, b, b],)
-        (True, True)
-    """
-
-    def __init__(self, n_clusters=3, m=2.0, tol=1e-6, max_iter=300, n_init=1, seed=0,
-                 c_range=(2, 6)):
-        self.n_clusters = n_clusters
-        self.m = m
-        self.tol = tol
-        self.max_iter = max_iter
-        self.n_init = n_init
-        self.seed = seed
-        self.c_range = c_range
-
-    def fit(self, x, y=None):
-        """Fit on x (N,) or (N, d); returns self."""
-        x = as_points(x)
-        kw = dict(m=self.m, eps=self.tol, max_iter=self.max_iter, seed=self.seed, restarts=self.n_init)
-        if isinstance(self.n_clusters, str):
-            if self.n_clusters != "auto":
-                raise InputError(f"n_clusters: expected an integer >= 2 or 'auto', got {self.n_clusters!r}")
-            c, res, scores = choose_c(x, self.c_range, **kw)
-        else:
-            c, res, scores = self.n_clusters, fcm(x, self.n_clusters, **kw), None
-        self.n_clusters_ = c
-        self.centers_ = res.centers
-        self.memberships_ = res.memberships
-        self.labels_ = res.memberships.argmax(dim=0)
-        self.n_iter_ = res.n_iter
-        self.objective_ = res.objective
-        self.partition_coefficient_ = partition_coefficient(res.memberships)
-        self.partition_entropy_ = partition_entropy(res.memberships)
-        self.xie_beni_ = scores[c] if scores else xie_beni(x, res.centers, res.memberships, self.m)
-        self.scores_ = scores
-        return self
-
-    def _fitted(self):
-        if not hasattr(self, "centers_"):
-            raise InputError("FuzzyCMeans: not fitted yet; call fit(x) first")
-
-    def predict_memberships(self, x) -> torch.Tensor:
-        """Eq. 28 memberships of new points x (M,) or (M, d) -> (c, M)."""
-        self._fitted()
-        x = as_points(x)
-        if x.shape[1] != self.centers_.shape[1]:
-            raise InputError(f"x: has {x.shape[1]} features, but the model was fitted on {self.centers_.shape[1]}")
-        return memberships(x.to(self.centers_.device), self.centers_, self.m)
-
-    def predict(self, x) -> torch.Tensor:
-        """Cluster of largest membership for x (M,) or (M, d) -> (M,) int64."""
-        return self.predict_memberships(x).argmax(dim=0)

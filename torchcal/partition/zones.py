@@ -48,7 +48,8 @@ import numpy as np
 import torch
 
 from torchcal.errors import InputError
-from torchcal.partition.fcm import _check_range, as_points, choose_c, fcm, memberships
+from torchcal.partition.fcm import as_points, fcm, memberships
+from torchcal.partition.validity import _check_range, choose_c
 
 __all__ = ["Partition", "partition_workspace"]
 

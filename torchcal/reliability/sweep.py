@@ -7,10 +7,11 @@ each point, distance-error interval per point, R_set":
    of joint space inside the robot's limits, filtered by a `Workspace` (TCP above the
    floor, outside the base column, within reach); rounds of fresh hypercubes are drawn
    until N points pass, and the first N are kept. The sweep draws its points in blocks
-   of `block` points (default DEFAULT_BLOCK), block b from its own seed (`block_seed`:
+   of `block` points (default DEFAULT_BLOCK), block b from its own seed
+   (`torchcal.reliability.sweep_blocks`: 
    block 0 from `seed` itself, so a sweep of at most one block is the plain hypercube of
    `seed`); a block is then a function of (seed, b) alone, and a sweep computed block by
-   block anywhere (`sweep_block`, torchcal.workflows.distributed) equals the in-process
+   block anywhere (`torchcal.workflows.distributed.sweep_block`) equals the in-process
    one bit for bit, whatever the number of workers.
 2. M perturbed parameter sets: clearance states of a `ClearanceModel` turned into MD-H
    deviations (torchcal.reliability.uncertainty), the same M sets for every point (common random
@@ -63,26 +64,14 @@ from torchcal.reliability import rset as reliability
 from torchcal.errors import InputError
 from torchcal.reliability.interval import Interval, linear_hull
 from torchcal.reliability.uncertainty import ClearanceModel, sample_deviations
-from torchcal.robots.workspace import Workspace, sample_workspace
+from torchcal.reliability.sweep_blocks import DEFAULT_BLOCK, block_points, block_range
+from torchcal.robots.workspace import Workspace
 
 # (point, set) evaluations per kernel call: on a CPU small enough for the 7 buffers to stay
 # in the L2 cache and for every op to run on one core (torch splits ops over threads from
 # 32768 elements on); on a GPU large enough to fill it
 DEFAULT_CHUNK = 1 << 14
 DEFAULT_CHUNK_GPU = 1 << 22
-# workspace points per block (the unit of seeding, of distributed tasks and of the streamed
-# output): measured (benchmarks/bench_sweep.py --distributed, docs/scale.md) a block costs
-# 0.067 ms of one core per point at M = 1e3 states plus 12.6 ms per block on a local Dask
-# cluster: under 1% overhead from 18700 points; 20000 points = 1.34 s of one core
-DEFAULT_BLOCK = 20_000
-
-
-def block_seed(seed: int, index: int):
-    """The seed of block `index` of a sweep: `seed` itself for block 0, else the numpy
-    SeedSequence(seed, spawn_key=(index,)) (independent streams, a function of (seed, index))."""
-    return int(seed) if index == 0 else np.random.SeedSequence(int(seed), spawn_key=(int(index),))
-
-
 @dataclass(frozen=True, eq=False)
 class SweepResult:
     """Per workspace point: TCP error envelopes and reliability (N points, n joints).
@@ -316,7 +305,8 @@ def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_m
             not depend on it.
         block: points per block (default DEFAULT_BLOCK): the points of block b are drawn
             from `block_seed(seed, b)`, so the result depends on `block` (not on chunk,
-            threads or on how many machines compute the blocks: `sweep_block`).
+            threads or on how many machines compute the blocks:
+            `torchcal.workflows.distributed.sweep_block`).
         device, dtype: where and in which float type to compute (float64 default).
         progress: tqdm progress bar on stderr (only when stderr is a terminal).
 
@@ -397,52 +387,6 @@ def sweep_states(robot, *, n_samples: int = 300, seed: int = 0, model: Clearance
     return deviations, dev_box
 
 
-def block_range(index: int, *, n_points: int, block: int) -> tuple[int, int]:
-    """Rows [start, stop) of block `index` among n_points points in blocks of `block`."""
-    return index * block, min(n_points, (index + 1) * block)
-
-
-def block_points(robot, index: int, *, n_points: int, block: int = DEFAULT_BLOCK, seed: int = 0,
-                 workspace: Workspace | None = None) -> torch.Tensor:
-    """The workspace points (B, n) rad, float64 CPU, of block `index` of a sweep of n_points:
-    `sample_workspace` of the block's size from `block_seed(seed, index)`."""
-    a0, a1 = block_range(index, n_points=n_points, block=block)
-    if not 0 <= a0 < a1:
-        raise InputError(f"block {index} is outside a sweep of {n_points} points in blocks of {block}")
-    return sample_workspace(robot.to("cpu", torch.float64), a1 - a0, block_seed(seed, index), workspace)
-
-
-def sweep_block(robot, index: int, *, n_points: int, deviations: torch.Tensor, dev_box: Interval | None = None,
-                allowed_mm: float = 2.5, seed: int = 0, block: int = DEFAULT_BLOCK,
-                workspace: Workspace | None = None, include_nominal: bool = True,
-                allowed_axis_mm: float | None = None, chunk: int | None = None, threads: int = 1,
-                dtype=torch.float64, device=None) -> SweepResult:
-    """Block `index` of `sweep(robot, n_points=n_points, seed=seed, block=block, ...)` on
-    `device` (default the CPU; chunk default per device, as in `sweep`).
-
-    deviations, dev_box: `sweep_states(robot, n_samples=M, seed=seed, model=...)` (the
-    same for every block); the linearised hull is computed when dev_box is given. The
-    result's `point` holds the global point ids; it equals the block's rows of the
-    in-process sweep bit for bit (same points, same kernel on the same block), whatever
-    `threads` and `chunk` (on the same device).
-    """
-    _check_allowed(allowed_mm, allowed_axis_mm)
-    device = torch.device(device or "cpu")
-    gpu = device.type != "cpu"
-    rb = robot.to(device, dtype)
-    a0, a1 = block_range(index, n_points=n_points, block=block)
-    with _serial_ops(not gpu):
-        q = rb.check_q(block_points(robot, index, n_points=n_points, block=block, seed=seed, workspace=workspace))
-        q = q.to(device=device, dtype=dtype)
-        box = None if dev_box is None else dev_box.to(device, dtype)
-        r = _sweep_points(rb, q, deviations.to(device=device, dtype=dtype), box, include_nominal=include_nominal,
-                          linear=dev_box is not None, allowed_mm=allowed_mm, allowed_axis_mm=allowed_axis_mm,
-                          chunk=chunk or (DEFAULT_CHUNK_GPU if gpu else DEFAULT_CHUNK), threads=1 if gpu else threads,
-                          bar=None)
-    return SweepResult(**{**{f.name: getattr(r, f.name) for f in fields(r)},
-                          "point": torch.arange(a0, a1, device=device)})
-
-
 def _sweep_points(rb, q, deviations, dev_box, *, include_nominal, linear, allowed_mm, allowed_axis_mm,
                   chunk, threads, bar) -> SweepResult:
     """The sweep of the points q (N, n) against deviations (M, n, 5), both on rb's device."""
@@ -452,7 +396,7 @@ def _sweep_points(rb, q, deviations, dev_box, *, include_nominal, linear, allowe
     if linear:
         hull, lin_far = linear_bounds(rb, q, dev_box, chunk=1 << 16 if gpu else 1024, threads=threads)
         lin_lo, lin_hi = hull.lower, hull.upper
-    positions = rb.fk(q)
+    positions = K.positions(q, rb.chain)  # (N, 3) mm
     rs, et = torch.empty_like(d_lo), torch.empty_like(d_lo)
     piece = 1 << 16  # in pieces: the temporaries of eta and R_set stay small
     for a in range(0, d_lo.shape[0], piece):

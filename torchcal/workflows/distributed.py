@@ -4,7 +4,7 @@
     with connect(workers=2) as client:            # or connect(scheduler="tcp://host:8786")
         summary = run_sweep(plan, "sweep.csv", client=client)
 
-A block of points (`torchcal.reliability.sweep.sweep_block`: its points drawn from the
+A block of points (`sweep_block`; its points drawn (`torchcal.reliability.sweep_blocks`) from the
 block's own seed, the same clearance states for every block) is one task (it carries the
 plan: robot and states); each worker runs
 the sweep's batched kernel on it and sends back the block's CSV rows and summary
@@ -26,7 +26,7 @@ import logging
 import sys
 import uuid
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 import torch
@@ -39,12 +39,44 @@ from torchcal.io.sweep_blocks import BlockFolder
 from torchcal.io.sweep_csv import sweep_columns, sweep_csv_rows
 from torchcal.reliability.interval import Interval
 from torchcal.robots.workspace import Workspace
-from torchcal.reliability.sweep import (DEFAULT_BLOCK, SweepResult, _check_allowed, _check_count,
-                                        block_range, sweep_block, sweep_states)
+from torchcal.reliability.sweep import (DEFAULT_CHUNK, DEFAULT_CHUNK_GPU, SweepResult, _check_allowed,
+                                        _check_count, _serial_ops, _sweep_points, sweep_states)
+from torchcal.reliability.sweep_blocks import DEFAULT_BLOCK, block_points, block_range
 
 EXTRA_HINT = "pip install 'torchcal[distributed]'"
 R_BINS = 10_000  # R_set histogram over [0, 1]: the summary's median to 1e-4
 RATIO_BINS = 20_000  # sampled / linearised half-width over [0, 2]: its median to 1e-4
+
+
+def sweep_block(robot, index: int, *, n_points: int, deviations: torch.Tensor, dev_box: Interval | None = None,
+                allowed_mm: float = 2.5, seed: int = 0, block: int = DEFAULT_BLOCK,
+                workspace: Workspace | None = None, include_nominal: bool = True,
+                allowed_axis_mm: float | None = None, chunk: int | None = None, threads: int = 1,
+                dtype=torch.float64, device=None) -> SweepResult:
+    """Block `index` of `sweep(robot, n_points=n_points, seed=seed, block=block, ...)` on
+    `device` (default the CPU; chunk default per device, as in `sweep`).
+
+    deviations, dev_box: `sweep_states(robot, n_samples=M, seed=seed, model=...)` (the
+    same for every block); the linearised hull is computed when dev_box is given. The
+    result's `point` holds the global point ids; it equals the block's rows of the
+    in-process sweep bit for bit (same points, same kernel on the same block), whatever
+    `threads` and `chunk` (on the same device).
+    """
+    _check_allowed(allowed_mm, allowed_axis_mm)
+    device = torch.device(device or "cpu")
+    gpu = device.type != "cpu"
+    rb = robot.to(device, dtype)
+    a0, a1 = block_range(index, n_points=n_points, block=block)
+    with _serial_ops(not gpu):
+        q = rb.check_q(block_points(robot, index, n_points=n_points, block=block, seed=seed, workspace=workspace))
+        q = q.to(device=device, dtype=dtype)
+        box = None if dev_box is None else dev_box.to(device, dtype)
+        r = _sweep_points(rb, q, deviations.to(device=device, dtype=dtype), box, include_nominal=include_nominal,
+                          linear=dev_box is not None, allowed_mm=allowed_mm, allowed_axis_mm=allowed_axis_mm,
+                          chunk=chunk or (DEFAULT_CHUNK_GPU if gpu else DEFAULT_CHUNK), threads=1 if gpu else threads,
+                          bar=None)
+    return SweepResult(**{**{f.name: getattr(r, f.name) for f in fields(r)},
+                          "point": torch.arange(a0, a1, device=device)})
 
 
 @dataclass(frozen=True, eq=False)

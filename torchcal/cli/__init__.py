@@ -107,12 +107,12 @@ def main(argv: list[str] | None = None) -> int:
     first = next((a for a in argv if not a.startswith("-")), None)  # the sub-command, named in argparse errors
     _Parser.command = first if first in COMMANDS else None
     args = build_parser((first,) if first in COMMANDS else ()).parse_args(argv)
-    _apply_threads()
+    import_torch()
     with quiet_broken_pipe():  # `torchcal ... | head` ends quietly
         return _run(args)
 
 
-def _apply_threads() -> None:
+def import_torch() -> None:
     """`torchcal.threads.apply`, which imports torch, with the cyclic garbage collector
     off, then what the import made frozen (`gc.freeze`): torch's import leaves about
     170 000 objects that live until the process ends, and every full collection after it,

@@ -101,3 +101,22 @@ def test_builtin_effect_names_match_the_registry():
     from torchcal.effects import registry
 
     assert set(cli.BUILTIN_EFFECTS) == set(registry._BUILTIN)
+
+
+
+@pytest.mark.parametrize("torch_first", [False, True])
+def test_the_command_line_freezes_what_importing_torch_made(torch_first):
+    """A command that imports torch does so with the cyclic collector off and then freezes
+    the objects it made (gc.freeze: no later full collection, nor the ones at exit, scans
+    them again), and leaves the collector on. In a process that imported torch before
+    (the test suite, a program calling `main`), main leaves the collector as it is."""
+    code = ("import gc\n" + ("import torch\n" if torch_first else "") +
+            "import torchcal.cli\nassert torchcal.cli.main(['robot', 'show', 'ur5e']) == 0\n"
+            "print('@@', gc.get_freeze_count(), gc.isenabled())")
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT)
+    line = [x for x in out.stdout.splitlines() if x.startswith("@@")]
+    assert line, out.stderr
+    _, frozen, enabled = line[-1].split()
+    assert enabled == "True"
+    assert (int(frozen) == 0) if torch_first else (int(frozen) > 50_000)

@@ -112,7 +112,7 @@ def main() -> None:
         return c
 
     row("python -c pass", [py, "-c", "pass"])
-    torch_cpu = row("python -c 'import torch'", [py, "-c", "import torch"])
+    row("python -c 'import torch'", [py, "-c", "import torch"])
     row("torchcal --help", tc + ["--help"], HELP_TARGET_S)
     for cmd in COMMANDS:
         row(f"torchcal {cmd} --help", tc + [cmd, "--help"], HELP_TARGET_S)
@@ -125,9 +125,12 @@ def main() -> None:
                   tc + ["fit", train, "--robot", ur10, "--effects", "base_frame",
                         "tool_offset", "--out", f"{tmp}/m.json", "--force"], FIT_TARGET_S)
         print(f"where the fit's CPU goes (its steps one by one, median of {a.repeats} processes):")
-        for name, cpu in phases(train, ur10, f"{tmp}/p.json", a.repeats).items():
+        split = phases(train, ur10, f"{tmp}/p.json", a.repeats)
+        for name, cpu in split.items():
             print(f"  {name:<42} {cpu:>8.3f}")
-    print(f"fit - import torch: {fit - torch_cpu:.3f} s cpu (torchcal's own imports, reading, the fit, writing); "
+    floor = split["interpreter"] + split["import torch"]
+    print(f"torchcal fit {fit:.3f} s cpu; the interpreter and import torch (as the command imports it) "
+          f"{floor:.3f} s, the rest {fit - floor:.3f} s (torchcal's imports, reading, the fit, writing, exit); "
           f"load average {os.getloadavg()[0]:.1f} at the end")
 
 

@@ -65,9 +65,9 @@ class ParameterCovariance:
 
     def interval95(self, theta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(lower, upper) (P,) 95 % confidence interval, Student's t with `dof`."""
-        from scipy.special import stdtrit  # Student's t quantile (scipy.stats.t.ppf without scipy.stats)
+        from torchcal.statistics import t_quantile
 
-        h = float(stdtrit(max(self.dof, 1), 0.975)) * self.std
+        h = t_quantile(0.975, max(self.dof, 1)) * self.std
         return theta - h, theta + h
 
     def to_dict(self, names) -> dict:

@@ -72,7 +72,7 @@ class ParameterCovariance:
 
     def to_dict(self, names) -> dict:
         """JSON form: identified parameters only (nonzero variance or free)."""
-        idx = [i for i in range(self.cov.shape[0]) if float(self.cov[i, i]) > 0]
+        idx = torch.nonzero(torch.diagonal(self.cov) > 0).flatten().tolist()  # one transfer, not one per parameter
         sub = self.cov[idx][:, idx]
         return {"method": self.method, "dof": self.dof, "sigma_mm": self.sigma_mm,
                 "noise_mm": self.noise_mm, "pose_mm": self.pose_mm,

@@ -68,14 +68,14 @@ class ParameterCovariance:
 
     def interval95(self, theta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(lower, upper) (P,) 95 % confidence interval, Student's t with `dof`."""
-        from scipy.special import stdtrit  # Student's t quantile (scipy.stats.t.ppf without scipy.stats)
+        from torchcal.statistics import t_quantile
 
-        h = float(stdtrit(max(self.dof, 1), 0.975)) * self.std
+        h = t_quantile(0.975, max(self.dof, 1)) * self.std
         return theta - h, theta + h
 
     def to_dict(self, names) -> dict:
         """JSON form: identified parameters only (nonzero variance or free)."""
-        idx = [i for i in range(self.cov.shape[0]) if float(self.cov[i, i]) > 0]
+        idx = torch.nonzero(torch.diagonal(self.cov) > 0).flatten().tolist()  # one transfer, not one per parameter
         sub = self.cov[idx][:, idx]
         return {"method": self.method, "dof": self.dof, "sigma_mm": self.sigma_mm,
                 "noise_mm": self.noise_mm, "pose_mm": self.pose_mm,

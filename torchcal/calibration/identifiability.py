@@ -22,7 +22,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
+import math
+
 import torch
 
 from torchcal.errors import InputError
@@ -52,26 +53,28 @@ class Identifiability:
                 "observability": self.observability, "poses": self.n_rows}
 
 
-def _pivoted(Js: np.ndarray, Q: np.ndarray, rank_tol: float) -> np.ndarray:
-    """Indices of the columns of Js (unit columns) kept, in pivot order, by Gram-Schmidt
-    with column pivoting of Js projected off the orthonormal Q: at each step the column
-    with the largest remaining norm (the lowest index among those equal to rounding, so
-    that exactly dependent columns of a symmetric geometry are chosen the same way
-    whatever the last digits of the data), while that norm exceeds rank_tol."""
-    P = Js - Q @ (Q.T @ Js) if Q.shape[1] else Js.copy()
+def _pivoted(U: torch.Tensor, Q: torch.Tensor, rank_tol: float) -> list[int]:
+    """Indices of the rows of U (p, R) (unit vectors: the columns of the scaled Jacobian)
+    kept, in pivot order, by Gram-Schmidt with pivoting of U projected off the orthonormal
+    rows of Q (k, R): at each step the row with the largest remaining norm (the lowest
+    index among those equal to rounding, so that exactly dependent columns of a symmetric
+    geometry are chosen the same way whatever the last digits of the data), while that
+    norm exceeds rank_tol."""
+    P = U - (U @ Q.T) @ Q if Q.shape[0] else U.clone()
     kept: list[int] = []
-    for _ in range(P.shape[1]):
-        norms = np.linalg.norm(P, axis=0)
-        norms[kept] = -1.0
-        best = norms.max(initial=-1.0)
+    taken = torch.zeros(P.shape[0], dtype=torch.bool, device=P.device)
+    for _ in range(P.shape[0]):
+        norms = torch.linalg.vector_norm(P, dim=1).masked_fill_(taken, -1.0)
+        best = float(norms.max())
         if best <= rank_tol:
             break
-        i = int(np.flatnonzero(norms >= best * (1 - 1e-9))[0])
-        q = P[:, i] / norms[i]
-        P = P - np.outer(q, q @ P)
-        P = P - np.outer(q, q @ P)  # twice is enough (Kahan): orthogonal to rounding
+        i = int(torch.nonzero(norms >= best * (1 - 1e-9))[0])
+        q = P[i] / norms[i]
+        P.addr_(P @ q, q, alpha=-1.0)
+        P.addr_(P @ q, q, alpha=-1.0)  # twice is enough (Kahan): orthogonal to rounding
         kept.append(i)
-    return np.array(kept, dtype=int)
+        taken[i] = True
+    return kept
 
 
 def identifiability(J: torch.Tensor, names, candidate_free, rank_tol: float = RANK_TOL,
@@ -83,43 +86,45 @@ def identifiability(J: torch.Tensor, names, candidate_free, rank_tol: float = RA
     `first` are kept and the others held). The fit passes the parameters without a
     plausibility prior (frames), so the prior falls on a robot deviation only where
     the data determine it. rest_tol: the pivot threshold of the columns not in `first`
-    (default rank_tol)."""
+    (default rank_tol). Computed in float64 on J's device."""
     n_rows = J.shape[0]
-    J = J.reshape(-1, J.shape[-1]).detach().cpu().double().numpy()
-    cand = np.flatnonzero(candidate_free.cpu().numpy())
-    norms = np.linalg.norm(J[:, cand], axis=0)
-    live = cand[norms > 1e-12 * max(norms.max(initial=0.0), 1e-300)]
+    J = J.detach().reshape(-1, J.shape[-1]).to(torch.float64)
+    dev = J.device
+    cand = torch.nonzero(candidate_free.to(dev)).flatten()
+    norms = torch.linalg.vector_norm(J[:, cand], dim=0)
+    live = cand[norms > 1e-12 * max(float(norms.max()) if norms.numel() else 0.0, 1e-300)]
     # unit columns, rounded to 1e-10: columns equal in exact arithmetic (dd of parallel
     # axes, base_rz and dtheta1) become equal in floating point too, and a norm larger by
     # at most 1e-8 for earlier columns makes the pivoting keep the first of them (the
     # robot's before the base frame's), whatever the rounding of the Jacobian
-    Js = np.round(J[:, live] / np.linalg.norm(J[:, live], axis=0), 10)
-    Js = Js * (1 + 1e-8 * np.arange(len(live), 0, -1) / max(len(live), 1))
-    if Js.shape[0] > Js.shape[1]:
-        # the triangular factor of Js has the same column norms, projections and singular
+    U = torch.round(J[:, live].T / torch.linalg.vector_norm(J[:, live], dim=0)[:, None], decimals=10)
+    n_live = live.numel()
+    U = U * (1 + 1e-8 * torch.arange(n_live, 0, -1, dtype=J.dtype, device=dev) / max(n_live, 1))[:, None]
+    if U.shape[1] > n_live:
+        # the triangular factor of U^T has the same column norms, projections and singular
         # values (an orthogonal map keeps inner products): the pivoting runs on (L, L)
-        # instead of (rows, L)
-        Js = np.linalg.qr(Js, mode="r")
+        # instead of (L, rows)
+        U = torch.linalg.qr(U.T, mode="r").R.T.contiguous()
     free = torch.zeros(J.shape[1], dtype=torch.bool)
-    if live.size:
-        pri = np.zeros(live.size, dtype=bool) if first is None else np.asarray(first.cpu())[live]
-        a = np.flatnonzero(pri)[_pivoted(Js[:, pri], np.zeros((Js.shape[0], 0)), rank_tol)]
-        Qa = np.linalg.qr(Js[:, a])[0] if a.size else np.zeros((Js.shape[0], 0))
-        b = np.flatnonzero(~pri)[_pivoted(Js[:, ~pri], Qa, rank_tol if rest_tol is None else rest_tol)]
-        kept = np.sort(np.concatenate([a, b]))
-        rank = kept.size
-        free[torch.as_tensor(live[kept])] = True
-        s = np.linalg.svd(Js[:, kept], compute_uv=False)
+    if n_live:  # U (n_live, R): the unit columns as rows, each one contiguous
+        pri = torch.zeros(n_live, dtype=torch.bool, device=dev) if first is None else first.to(dev)[live]
+        a = torch.nonzero(pri).flatten()[_pivoted(U[pri], U.new_zeros(0, U.shape[1]), rank_tol)]
+        Qa = torch.linalg.qr(U[a].T).Q.T if a.numel() else U.new_zeros(0, U.shape[1])
+        b = torch.nonzero(~pri).flatten()[_pivoted(U[~pri], Qa, rank_tol if rest_tol is None else rest_tol)]
+        kept = torch.cat([a, b]).sort().values
+        rank = kept.numel()
+        free[live[kept].cpu()] = True
+        s = torch.linalg.svdvals(U[kept]).cpu()
     else:
-        rank, s = 0, np.ones(1)
-    held = [names[i] for i in cand if not free[i]]
+        rank, s = 0, torch.ones(1, dtype=torch.float64)
+    held = [names[i] for i in cand.tolist() if not free[i]]
     m = max(n_rows, 1)
     obs = {
-        "O1": float(np.exp(np.log(s).mean()) / np.sqrt(m)),
+        "O1": float(s.log().mean().exp() / math.sqrt(m)),
         "O2": float(s[-1] / s[0]),
         "O3": float(s[-1]),
         "O4": float(s[-1] ** 2 / s[0]),
-        "O5": float(1.0 / np.sum(1.0 / s)),
+        "O5": float(1.0 / (1.0 / s).sum()),
     }
     return Identifiability(free, held, rank, float(s[0] / s[-1]), obs, n_rows)
 

@@ -213,7 +213,7 @@ class CalibrationModel:
             if rotation:
                 W[..., sl] += cj.wparams @ G
         for sl, T in d_tool:  # (3, k) or (N, 3, k)
-            J[..., sl] += cj.rotation @ T
+            J[..., sl] += _rows_times(cj.rotation, T) if T.dim() == 3 else _times_shared(cj.rotation, T)
         v = cj.position
         if scales:
             total = torch.stack([s.expand(N) for _, s, _ in scales]).prod(0)  # (N,)
@@ -257,6 +257,12 @@ class CalibrationModel:
                     Om = torch.einsum("ijk,lj->kil", dR, Rw)  # dR_k Rw^T, skew (k, 3, 3)
                     W[..., sl] += torch.stack([Om[:, 2, 1], Om[:, 0, 2], Om[:, 1, 0]], dim=0)
         return J, W
+
+
+def _times_shared(M: torch.Tensor, T: torch.Tensor) -> torch.Tensor:
+    """M_i @ T for every row: M (N, 3, 3), one T (3, k) -> (N, 3, k), as one GEMM of the
+    stacked rows instead of N small ones."""
+    return (M.reshape(-1, 3) @ T).reshape(M.shape[0], 3, T.shape[-1])
 
 
 def _rows_times(M: torch.Tensor, J: torch.Tensor) -> torch.Tensor:

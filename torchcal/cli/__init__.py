@@ -9,6 +9,7 @@ This module only composes them and turns user mistakes into one line on stderr
 from __future__ import annotations
 
 import argparse
+import gc
 import importlib
 import os
 import sys
@@ -106,11 +107,32 @@ def main(argv: list[str] | None = None) -> int:
     first = next((a for a in argv if not a.startswith("-")), None)  # the sub-command, named in argparse errors
     _Parser.command = first if first in COMMANDS else None
     args = build_parser((first,) if first in COMMANDS else ()).parse_args(argv)
-    from torchcal import threads
-
-    threads.apply()
+    import_torch()
     with quiet_broken_pipe():  # `torchcal ... | head` ends quietly
         return _run(args)
+
+
+def import_torch() -> None:
+    """`torchcal.threads.apply`, which imports torch, with the cyclic garbage collector
+    off, then what the import made frozen (`gc.freeze`): torch's import leaves about
+    170 000 objects that live until the process ends, and every full collection after it,
+    the ones at interpreter exit included, would scan them again: 0.4-0.5 s of CPU in a
+    `torchcal fit` of 1.3 s (docs/performance.md). Only where this call imports torch: a
+    process that already has it (the test suite, a program calling `main`) keeps its
+    collector as it is."""
+    from torchcal import threads
+
+    if "torch" in sys.modules:
+        threads.apply()
+        return
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        threads.apply()
+    finally:
+        gc.freeze()
+        if enabled:
+            gc.enable()
 
 
 def _caused_by(exc: BaseException, kind) -> bool:

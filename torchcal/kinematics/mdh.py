@@ -456,7 +456,7 @@ def chain_jacobians(q, chain: Chain, params=None, *, tool_point=None) -> ChainJa
     p = frames[..., -1, :3, 3]
     if tool_point is None:
         tool_point = chain.tool[:3, 3]
-    p = p + (R @ tool_point.to(R).unsqueeze(-1)).squeeze(-1)
+    p = p + (R * tool_point.to(R).unsqueeze(-2)).sum(-1)  # R tool_point, without a batched GEMM of 3 x 1
     F = frames[..., :n, :, :]  # input frame of each link (..., n, 4, 4)
     z, o = F[..., :3, 2], F[..., :3, 3]
     off, d, a, alpha, beta = _effective(table, params)

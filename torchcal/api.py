@@ -363,7 +363,7 @@ def compensate_targets(model, targets, *, frame: str = "measuring", robot=None, 
     `CalibratedRangeWarning`.
     """
     from torchcal.calibration.compensate import compensate_targets as run
-    from torchcal.io.robot_file import check_same_robot
+    from torchcal.calibration.mismatch import check_same_robot
 
     where = str(targets) if isinstance(targets, (str, Path)) else "targets"
     im = _interval_model(model)

@@ -65,6 +65,8 @@ The calibrated joint range (`range_warning`, `warn_outside_range`): rows or conv
 commands beyond the range a model was fitted on (`torchcal.calibration.joint_range`) are
 counted and named in one `CalibratedRangeWarning`: the model extrapolates there.
 
+A robot given with a model (`check_same_robot`) must be the robot it was fitted for.
+
 Robot files (`check_robot_lengths`): an arm whose links (sum over joints of
 ``sqrt(d^2 + a^2)``, prismatic strokes included) reach less than MIN_REACH_MM = 50 mm is
 not an industrial arm; its lengths were written in metres.
@@ -290,6 +292,16 @@ def check_targets(model, theta: torch.Tensor, targets: torch.Tensor, where: str 
                       f"from the base; up to {float(dist.max()):.4g} mm): row(s) {rows}; another robot, "
                       "another frame (targets are in the model's frame) or units?", MismatchWarning, stacklevel=2)
     return far
+
+
+def check_same_robot(model_robot, robot, where: str, what: str = "the given robot") -> None:
+    """Refuse (one InputError line naming both) when `robot` is not the robot the model
+    was fitted for: another joint count, joint types, nominal table, base or tool."""
+    if robot is None or robot.same_geometry(model_robot):
+        return
+    raise InputError(f"{where}: the model is for robot {model_robot.name!r} ({model_robot.n} joints), "
+                     f"but {what} is robot {robot.name!r} ({robot.n} joints) with another nominal "
+                     f"geometry; refusing to apply a model to another robot")
 
 
 def link_reach_mm(table: torch.Tensor, prismatic: torch.Tensor, limits: torch.Tensor) -> float:

@@ -22,24 +22,34 @@ Example::
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from torchcal import threads
-from torchcal.calibration.compensate import TargetCompensation
-from torchcal.calibration.evaluation import Evaluation
+from torchcal._lazy import attach
 from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult
 from torchcal.calibration.mismatch import check_diagnosis_data, check_robot_data_of
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.calibration.model import CalibrationModel
 from torchcal.errors import InputError
-from torchcal.io.export import Export
 from torchcal.measurements import Measurements
 from torchcal.io.robot_file import robot as make_robot
 from torchcal.robots.robot import Robot
-from torchcal.simulation.session import Simulation
+
+if TYPE_CHECKING:
+    from torchcal.calibration.compensate import TargetCompensation
+    from torchcal.calibration.evaluation import Evaluation
+    from torchcal.io.export import Export
+    from torchcal.simulation.session import Simulation
 
 __all__ = ["fit", "load", "save", "evaluate", "diagnose", "discover", "calibrate", "compensate", "register", "Evaluation",
            "compensate_targets", "TargetCompensation", "export", "Export", "accuracy", "simulate", "Simulation",
            "check_diagnosis_data", "check_robot_data_of"]
+
+# the result types live beside their computations; loaded on first use (`torchcal._lazy`)
+__getattr__ = attach(__name__, {"torchcal.calibration.evaluation": ["Evaluation"],
+                                "torchcal.calibration.compensate": ["TargetCompensation"],
+                                "torchcal.io.export": ["Export"],
+                                "torchcal.simulation.session": ["Simulation"]})[0]
 
 
 def _robot(robot_or_model) -> Robot:

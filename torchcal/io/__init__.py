@@ -13,7 +13,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "torchcal.io.interval_model": ["INTERVAL_MODEL_FORMAT", "interval_model_from_dict", "interval_model_to_dict",
                                    "load_interval_model"],
     "torchcal.io.mdh_table": ["mdh_table_csv"],
-    "torchcal.io.export": ["Export", "export"],
+    "torchcal.io.export": ["Export"],
     "torchcal.io.measurement_csv": ["ANGLE_UNITS", "LENGTH_UNITS", "JointLimitWarning", "as_measurements",
                                     "format_measurements", "read_measurements", "write_measurements"],
     "torchcal.io.modelfile": ["file_sha256", "load_covariance"],

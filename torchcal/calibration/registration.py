@@ -168,3 +168,4 @@ def reregister(model, theta: torch.Tensor, ctx, xyz: torch.Tensor, *, tool: bool
             **base_frame_summary(model, res.theta), "n": int(xyz.shape[0]), "tool": bool(tool)}
     return dataclasses.replace(res, std=cov.std, covariance=cov, report=dataclasses.replace(res.report, free=ident),
                                registration=info, q_range=q_range, plausible_limits=None, implausible=[])
+

@@ -20,6 +20,8 @@ from torch.testing import assert_close
 
 import torchcal
 from torchcal.api import accuracy, compensate_targets, export
+from torchcal.io.targets_csv import compensation_csv
+from torchcal.io.truth_file import truth_to_dict
 from torchcal.cli import main
 from torchcal.io.measurement_csv import write_measurements
 from torchcal.planning.plan import plan
@@ -59,7 +61,7 @@ def test_compensate_cli_and_api_agree_field_by_field(fitted, tmp_path, capsys):
     code = main(["compensate", str(targets), "--model", str(model), "--out", str(out)])
     printed = capsys.readouterr()
     res = compensate_targets(str(model), targets)
-    assert out.read_text() == res.to_csv()  # every command, zone, residual and flag
+    assert out.read_text() == compensation_csv(res)  # every command, zone, residual and flag
     d = res.to_dict()
     assert code == (1 if res.failed else 0)
     assert f"compensated {len(d['targets'])} targets (x,y,z in the {d['frame']} frame) with {d['n_zones']} " \
@@ -86,7 +88,7 @@ def test_compensate_failure_line_lists_the_apis_rows(fitted, tmp_path, capsys):
     assert main(["compensate", str(targets), "--model", str(model), "--out", str(tmp_path / "q.csv")]) == 1
     err = capsys.readouterr().err
     res = compensate_targets(model, targets)
-    assert (tmp_path / "q.csv").read_text() == res.to_csv()
+    assert (tmp_path / "q.csv").read_text() == compensation_csv(res)
     d = res.to_dict()
     assert 3 in d["not_converged"] and d["beyond_reach"] == [3]
     failed = sorted(set(d["not_converged"]) | set(d["outside_limits"]))
@@ -110,7 +112,7 @@ def test_compensate_unit_refusal_is_the_same_finding(fitted, tmp_path, capsys):
     assert not out.exists()
     # read in metres, both accept it and write the same file
     assert main(["compensate", str(targets), "--model", str(model), "--out", str(out), "--length-unit", "m"]) == 0
-    assert out.read_text() == compensate_targets(model, targets, length_unit="m").to_csv()
+    assert out.read_text() == compensation_csv(compensate_targets(model, targets, length_unit="m"))
 
 
 def test_compensate_needs_the_conditions_of_the_models_effects(tmp_path, capsys):
@@ -243,7 +245,7 @@ def test_simulate_cli_and_api_write_the_same_session(tmp_path, capsys):
     sim = simulate("ur5e", ["joint_compliance:2", "thermal_expansion"], n=7, repeats=2, noise_mm=0.05, seed=4,
                    pose_seed=9)
     assert out.read_text() == format_measurements(sim.measurements, robot=sim.robot)
-    assert json.loads(truth.read_text()) == json.loads(json.dumps(sim.truth()))
+    assert json.loads(truth.read_text()) == json.loads(json.dumps(truth_to_dict(sim)))
     d = sim.to_dict()
     assert (d["rows"], d["poses"], d["pose_seed"]) == (14, 7, 9) and "temp_c" in d["columns"]
     assert f"7 poses x 2 repeats = 14 rows (+ {', '.join(d['columns'])}), noise 0.05 mm, seed 4, pose seed 9" in printed
@@ -284,7 +286,7 @@ def test_compensate_with_an_interval_model_cli_and_api_agree(tmp_path, capsys):
     code = main(["compensate", str(targets), "--model", str(model), "--out", str(out)])
     printed = capsys.readouterr().out
     res = compensate_targets(model, targets)
-    assert out.read_text() == res.to_csv() and code == (1 if res.failed else 0)
+    assert out.read_text() == compensation_csv(res) and code == (1 if res.failed else 0)
     d = res.to_dict()
     assert d["method"] == "global" and d["n_zones"] == 1
     assert f"with 1 parameter set(s) (global)" in printed

@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 from torch.testing import assert_close
 
 from torchcal.rotations import (fixed_xyz_to_matrix, kabsch, matrix_to_fixed_xyz, matrix_to_rotvec,
-                                procrustes_rotation, rotvec_to_matrix, so3_error)
+                                procrustes_rotation, rotvec_to_matrix, skew, so3_error)
 
 ANGLES = torch.tensor([[0.3, -0.7, 2.1], [0.0, 0.0, 0.0], [-2.5, 1.2, -0.4], [1.0, np.pi / 2 - 1e-3, 0.2]],
                       dtype=torch.float64)
@@ -46,3 +46,14 @@ def test_fits_recover_a_known_rotation():
     assert float(torch.linalg.det(procrustes_rotation(A, -A))) == pytest.approx(1.0)  # proper, never a reflection
     small = torch.tensor([1e-4, -2e-4, 3e-4], dtype=torch.float64)
     assert_close(so3_error(X, X @ rotvec_to_matrix(small)), small, rtol=1e-6, atol=0)
+
+
+def test_skew_is_the_cross_product():
+    g = torch.Generator().manual_seed(3)
+    w, x = torch.randn(4, 2, 3, generator=g, dtype=torch.float64), torch.randn(4, 2, 3, generator=g,
+                                                                                dtype=torch.float64)
+    S = skew(w)  # (4, 2, 3, 3)
+    assert S.shape == (4, 2, 3, 3)
+    assert torch.allclose((S @ x[..., None])[..., 0], torch.linalg.cross(w, x), atol=1e-14)
+    assert torch.equal(S, -S.transpose(-1, -2))
+    assert torch.allclose(skew(w[0, 0]) @ x[0, 0], torch.linalg.cross(w[0, 0], x[0, 0]), atol=1e-14)  # one vector

@@ -20,8 +20,16 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-__all__ = ["fixed_xyz_to_matrix", "matrix_to_fixed_xyz", "rotvec_to_matrix", "rotvec_jacobian", "matrix_to_rotvec",
+__all__ = ["skew", "fixed_xyz_to_matrix", "matrix_to_fixed_xyz", "rotvec_to_matrix", "rotvec_jacobian", "matrix_to_rotvec",
            "nearest_rotation", "kabsch", "procrustes_rotation", "so3_error"]
+
+
+def skew(w: torch.Tensor) -> torch.Tensor:
+    """Cross-product (hat) matrices: w (..., 3) -> (..., 3, 3) with skew(w) x = w x x."""
+    zero = torch.zeros_like(w[..., 0])
+    return torch.stack([torch.stack([zero, -w[..., 2], w[..., 1]], -1),
+                        torch.stack([w[..., 2], zero, -w[..., 0]], -1),
+                        torch.stack([-w[..., 1], w[..., 0], zero], -1)], -2)
 
 
 def _axis(axis: int, a: torch.Tensor) -> torch.Tensor:
@@ -57,10 +65,7 @@ def rotvec_to_matrix(r: torch.Tensor) -> torch.Tensor:
     small = theta2 < 1e-12
     a = torch.where(small, 1 - theta2 / 6, torch.sin(theta) / theta)
     b = torch.where(small, 0.5 - theta2 / 24, (1 - torch.cos(theta)) / (theta2 + 1e-300))
-    zero = torch.zeros_like(r[0])
-    k = torch.stack([torch.stack([zero, -r[2], r[1]]),
-                     torch.stack([r[2], zero, -r[0]]),
-                     torch.stack([-r[1], r[0], zero])])
+    k = skew(r)
     return torch.eye(3, dtype=r.dtype, device=r.device) + a * k + b * (k @ k)
 
 
@@ -137,8 +142,7 @@ def rotvec_jacobian(r: torch.Tensor) -> torch.Tensor:
     da = torch.where(small, torch.full_like(s, -1 / 6), (t * cos - sin) / (2 * t ** 3 + 1e-300))
     db = torch.where(small, torch.full_like(s, -1 / 24), (t * sin - 2 * (1 - cos)) / (2 * s * s + 1e-300))
     eye = torch.eye(3, dtype=r.dtype, device=r.device)
-    E = torch.linalg.cross(eye[:, None, :].expand(3, 3, 3), eye[None, :, :].expand(3, 3, 3)).permute(0, 2, 1)
-    # E[k] = [e_k]x: column j of [e_k]x is e_k x e_j
+    E = skew(eye)  # E[k] = [e_k]x
     K = torch.einsum("kij,k->ij", E, r)
     KK = K @ K
     out = (2 * r[:, None, None] * (da * K + db * KK) + a * E + b * (E @ K + K @ E))  # (k, 3, 3)

@@ -4,7 +4,8 @@ Two kinds of output, both plain functions over numpy arrays or torch tensors (an
 they are copied to host float64 once), so they depend on no other torchcal module than
 `torchcal.errors` and `torchcal.io.files.atomic_write`:
 
-- `viz.recording`: rerun recordings (``.rrd``), written to a file without a viewer.
+- `viz.recording`: rerun recordings (``.rrd``), written to a file without a viewer (the
+  file writer itself, `viz.recording_writer`, knows nothing of what is logged).
   Open one with ``rerun FILE.rrd``::
 
       from viz.recording import (RecordingWriter, log_workspace, log_residuals,
@@ -38,7 +39,7 @@ from __future__ import annotations
 
 import importlib
 
-__all__ = ["figures", "recording"]
+__all__ = ["figures", "recording", "recording_writer"]
 
 
 def __getattr__(name: str):

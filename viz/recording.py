@@ -1,13 +1,12 @@
-"""Rerun recordings (``.rrd``) of a calibration, written to a file without a viewer.
+"""What a calibration logs into a rerun recording (``.rrd``), and the layout it opens on.
 
 Open one with ``rerun FILE.rrd``. Two layers:
 
-- ``log_*`` functions log plain arrays (numpy or torch, any device) into a
-  ``rerun.RecordingStream``: no files, no viewer, no global recording;
-- `RecordingWriter` opens the file, hands out its stream, and on close lays out the
-  default blueprint for what was logged, finalises the file (flush, then disconnect, which
-  writes the footer) and moves it into place atomically. On an error the half-written
-  file is removed and nothing appears at the target path.
+- ``log_*`` functions (here) log plain arrays (numpy or torch, any device) into a
+  ``rerun.RecordingStream`` or a writer: no files, no viewer, no global recording;
+- the file writer (`viz.recording_writer`) opens the file, hands out its stream, and on
+  close finalises the file and moves it into place atomically; `RecordingWriter` here is
+  that writer laid out on `default_blueprint` for what was logged.
 
 Example::
 
@@ -45,27 +44,23 @@ bounds per test point are read most easily as a plot, as in the paper. A time-se
 shows the timeline selected in the time panel; the default blueprint selects
 ``test_point`` when error intervals were logged, else ``round``.
 
-Recordings are deterministic in content: the recording id is derived from ``seed``
-(`recording_id`), and the ``log_time``/``log_tick`` timelines and the wall-clock start
-time property are not written.
+Recordings are deterministic in content (`viz.recording_writer`).
 """
 
 from __future__ import annotations
 
-import os
-import uuid
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
 from torchcal.errors import InputError
-from torchcal.io.files import check_output
 from viz import _common as C
+from viz.recording_writer import APPLICATION_ID, recording_id  # noqa: F401 (re-exported)
+from viz.recording_writer import RecordingWriter as _Writer
+from viz.recording_writer import stream_of as _stream
 
-APPLICATION_ID = "torchcal"
 RESIDUAL_ARROW_SCALE = 100.0
 """Default factor from residual length (mm) to drawn arrow length (mm): a 0.5 mm residual
 is drawn 50 mm long, visible next to a 3 m robot."""
@@ -76,22 +71,6 @@ MAX_LABELS = 5_000
 STAGES = ("before", "after")
 TEST_POINT_TIMELINE = "test_point"
 ROUND_TIMELINE = "round"
-
-
-def recording_id(seed: int, application_id: str = APPLICATION_ID) -> str:
-    """Deterministic recording id (a UUID string) for `application_id` and `seed`."""
-    return str(uuid.uuid5(uuid.NAMESPACE_URL, f"torchcal:{application_id}:{int(seed)}"))
-
-
-def _stream(rec, section: str) -> rr.RecordingStream:
-    """The stream behind `rec` (a RecordingStream or a RecordingWriter); notes `section`."""
-    if isinstance(rec, RecordingWriter):
-        rec.sections.add(section)
-        return rec.stream
-    if isinstance(rec, rr.RecordingStream):
-        return rec
-    raise InputError(f"rec: expected a rerun.RecordingStream or a viz.recording.RecordingWriter, "
-                     f"got {type(rec).__name__}")
 
 
 def _columns(stream: rr.RecordingStream, entity: str, timeline: str, steps, values) -> None:
@@ -512,99 +491,15 @@ def default_blueprint(sections=ALL_SECTIONS, *, arrow_scale: float = RESIDUAL_AR
 
 
 # --------------------------------------------------------------------------- writer
-class RecordingWriter:
-    """Open an ``.rrd`` file for logging; finalise it and move it into place on close.
+class RecordingWriter(_Writer):
+    """A `viz.recording_writer.RecordingWriter` (same arguments) that opens on
+    `default_blueprint` for the sections its ``log_*`` calls logged, with their arrow scale
+    and variable views."""
 
-    Args:
-        path: target ``.rrd`` file; its folder must exist.
-        seed: makes the recording id deterministic (`recording_id`).
-        application_id: rerun application id (default ``"torchcal"``).
-        name: recording name shown by the viewer (default: the file name).
-        blueprint: a ``rerun.blueprint.Blueprint`` to open on; default: `default_blueprint`
-            for the sections logged through this writer.
-        force: replace an existing file at `path`.
-
-    Attributes:
-        stream: the ``rerun.RecordingStream`` (pass the writer or the stream to ``log_*``).
-        sections: the sections logged through this writer (for the default blueprint).
-        path: the target path.
-
-    Use as a context manager, or call `open` and then `close` (or `abort`).
-    """
-
-    def __init__(self, path, *, seed: int = 0, application_id: str = APPLICATION_ID, name: str | None = None,
-                 blueprint: rrb.Blueprint | None = None, force: bool = False):
-        self.path = Path(path)
-        self.seed = int(seed)
-        self.application_id = application_id
-        self.name = name if name is not None else self.path.stem
-        self.blueprint = blueprint
-        self.force = force
-        self.sections: set[str] = set()
+    def __init__(self, path, **options):
+        super().__init__(path, **options)
         self.arrow_scale = RESIDUAL_ARROW_SCALE
         self.variable_views: list[tuple[str, str]] = []
-        self.stream: rr.RecordingStream | None = None
-        self._tmp: Path | None = None
 
-    def open(self) -> "RecordingWriter":
-        """Check the target, start the stream and its file sink (a temporary file beside it)."""
-        if self.stream is not None:
-            raise InputError(f"{self.path}: recording is already open")
-        check_output(self.path, self.force)
-        self._tmp = C.temp_beside(self.path)
-        stream = rr.RecordingStream(self.application_id, recording_id=recording_id(self.seed, self.application_id),
-                                    send_properties=False)
-        stream.set_log_time_enabled(False)  # no wall-clock timeline: deterministic content
-        stream.set_log_tick_enabled(False)
-        stream.save(self._tmp)
-        stream.send_recording_name(self.name)
-        stream.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)  # robot base frame, z up
-        self.stream = stream
-        return self
-
-    def close(self) -> Path:
-        """Send the blueprint, flush, disconnect (writes the footer), move into place."""
-        if self.stream is None:
-            raise InputError(f"{self.path}: recording is not open")
-        stream, tmp = self.stream, self._tmp
-        try:
-            bp = self.blueprint if self.blueprint is not None else default_blueprint(
-                self.sections, arrow_scale=self.arrow_scale, variable_views=self.variable_views)
-            stream.send_blueprint(bp, make_active=True, make_default=True)
-            stream.flush()
-            stream.disconnect()  # drops the FileSink: the file gets its footer and is complete
-            check_output(self.path, self.force)  # nobody created it meanwhile
-            os.replace(tmp, self.path)
-        except BaseException:
-            self._discard()
-            raise
-        self.stream, self._tmp = None, None
-        return self.path
-
-    def abort(self) -> None:
-        """Stop without writing the target; remove the temporary file."""
-        if self.stream is not None:
-            self._discard()
-
-    def _discard(self) -> None:
-        stream, tmp = self.stream, self._tmp
-        self.stream, self._tmp = None, None
-        try:
-            if stream is not None:
-                stream.disconnect()
-        finally:
-            if tmp is not None and tmp.exists():
-                tmp.unlink()
-
-    def __enter__(self) -> "RecordingWriter":
-        return self.open()
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
-
-    def __repr__(self) -> str:
-        state = "open" if self.stream is not None else "closed"
-        return f"RecordingWriter({str(self.path)!r}, seed={self.seed}, {state})"
+    def layout(self) -> rrb.Blueprint:
+        return default_blueprint(self.sections, arrow_scale=self.arrow_scale, variable_views=self.variable_views)

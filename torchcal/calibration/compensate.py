@@ -26,12 +26,19 @@ step that increases the residual is halved (up to 30 times), a step longer than
 (`torchcal.kinematics.mdh.joint_jacobian` with the zone's deviations) and reverse-mode
 autograd of `CalibrationModel.predict` otherwise. Every target is solved in one batch.
 
+A fitted model (`compensate_fitted`: a `FitResult`; of a `ZonedFit` each target
+with its zone's parameters) with a non-physical residual stage is inverted with it: the
+physical model is solved for the target minus the stage's correction at the current
+solution, repeated until the correction settles (`with_stage`). `compensate_targets`
+is ``torchcal compensate``: the targets' frame, conditions and reach checked, the
+commands in the user's units (`TargetCompensation`).
+
 Units: targets mm, joint angles rad inside (the CLI reads and writes degrees).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import torch
 
@@ -41,7 +48,7 @@ from torchcal.errors import InputError
 from torchcal.calibration.model import CalibrationModel
 
 __all__ = ["Compensation", "compensate", "predict_rows", "nominal_inverse", "nominal_start", "measuring_from_base",
-           "frame_model", "FRAMES"]
+           "frame_model", "FRAMES", "with_stage", "compensate_fitted", "TargetCompensation", "compensate_targets"]
 
 FRAMES = ("measuring", "base")  # the frames compensate reads targets in
 TRIES = 8  # nearest calibration poses a nominal start tries per target
@@ -307,3 +314,160 @@ def nominal_start(model: CalibrationModel, theta: torch.Tensor, targets, poses=N
                                             "within_limits")))
             score[take] = level(alt)[better]
     return best
+
+
+def with_stage(stage, model: CalibrationModel, theta, t, comp: Compensation, zone, options: dict,
+               max_rounds: int = 10) -> Compensation:
+    """Compensation through the physical model plus a residual stage (`stage.predict(q)`
+    (M, 3) mm): solve the physical model for the target minus the stage's correction at the
+    current solution `comp`, until the correction changes by at most options' tol_mm (it
+    varies slowly with q: a few rounds). options: the keywords of `compensate`."""
+    tol = float(options.get("tol_mm", 1e-6))
+    corr = stage.predict(comp.q).to(t)
+    for _ in range(max_rounds):
+        comp = compensate(model, theta, t - corr, comp.q, zone=zone, **options)
+        new = stage.predict(comp.q).to(t)
+        moved = float((new - corr).norm(dim=-1).max()) if len(t) else 0.0
+        corr = new
+        if moved <= tol:
+            break
+    pred = comp.predicted_mm + corr
+    res = t - pred
+    return replace(comp, predicted_mm=pred, residual_mm=res, converged=comp.converged & (res.norm(dim=-1) <= tol))
+
+
+def compensate_fitted(fitted, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int = 30,
+                      max_step_rad: float = 0.2, payload_kg=None, temp_c=None, check: bool = True,
+                      stacklevel: int = 1) -> Compensation:
+    """Corrected joint commands (M, n) rad for targets (M, 3) mm in the measuring frame of a
+    fitted model: a `FitResult` (of a `ZonedFit` each target is assigned to its zone).
+
+    q0: (M, n) rad starting commands, default `nominal_start`. check: refuse targets inside
+    the robot's base (metres read as mm), warn about those beyond its reach
+    (`torchcal.calibration.mismatch.check_targets`). A residual stage is inverted with the
+    model (`with_stage`). Converged commands outside the calibrated range are counted
+    (``outside_range``) and named in one `CalibratedRangeWarning` (at `stacklevel`, counted
+    from the caller)."""
+    from torchcal.calibration.mismatch import check_targets, warn_outside_range
+
+    cm, theta, q_range, stage = fitted.model, fitted.theta, fitted.q_range, fitted.residual_model
+    robot = cm.robot
+    t = torch.as_tensor(targets, dtype=robot.dtype, device=robot.device)
+    if t.ndim != 2 or t.shape[-1] != 3:
+        raise InputError(f"targets: expected (M, 3) mm, got shape {tuple(t.shape)}")
+    if check:
+        check_targets(cm, theta, t)
+    if q0 is None:
+        q0 = nominal_start(cm, theta, t, poses=fitted.seed_poses, q_range=q_range).q
+    zone = fitted.assign(t) - 1  # row of zone_theta
+    theta = fitted.zone_theta
+    options = dict(tol_mm=tol_mm, max_iter=max_iter, max_step_rad=max_step_rad, payload_kg=payload_kg,
+                   temp_c=temp_c)
+    comp = compensate(cm, theta.to(t), t, q0, zone=zone, **options)
+    if stage is not None:
+        comp = with_stage(stage, cm, theta.to(t), t, comp, zone, options)
+    if q_range is None:
+        return comp
+    outside = warn_outside_range(comp.q[comp.converged], q_range, robot, "converged targets", stage,
+                                 stacklevel=stacklevel + 1)
+    return replace(comp, outside_range=outside)
+
+
+@dataclass
+class TargetCompensation:
+    """What ``torchcal compensate`` computes and writes: the corrected commands of a
+    targets file, each with the zone it was compensated in (Q.csv:
+    `torchcal.io.targets_csv.compensation_csv`).
+
+    Attributes:
+        targets: (M, 3) mm target positions in `frame`.
+        compensation: the `Compensation` (q rad / mm, residuals, convergence, limits).
+        zone: (M,) 1-based zone of each target (1 for a single-set model).
+        q_user: (M, n) corrected commands in deg (mm for a prismatic joint).
+        n_zones, method: the model's parameter sets and how it was calibrated ("fit" for
+            a fitted model).
+        robot: the robot's name.
+        beyond_reach: 0-based rows of targets beyond the robot's reach (named, not refused).
+        frame: the frame the targets were given in, "measuring" or "base".
+    """
+
+    targets: torch.Tensor
+    compensation: Compensation
+    zone: torch.Tensor
+    q_user: torch.Tensor
+    n_zones: int
+    method: str
+    robot: str
+    beyond_reach: list = field(default_factory=list)
+    frame: str = "measuring"
+
+    @property
+    def residual_mm(self) -> torch.Tensor:
+        """(M,) mm distance from the calibrated model's position to each target."""
+        return self.compensation.residual_mm.norm(dim=-1)
+
+    @property
+    def not_converged(self) -> list:
+        """0-based rows that did not meet the tolerance."""
+        return (~self.compensation.converged).nonzero().flatten().tolist()
+
+    @property
+    def outside_limits(self) -> list:
+        """0-based rows whose command lies outside the joint limits."""
+        return (~self.compensation.within_limits).nonzero().flatten().tolist()
+
+    @property
+    def failed(self) -> list:
+        """0-based rows that did not converge or lie outside the joint limits."""
+        return sorted(set(self.not_converged) | set(self.outside_limits))
+
+    def to_dict(self) -> dict:
+        """Q.csv's rows and the failures (1-based rows), JSON types."""
+        c, res = self.compensation, self.residual_mm.tolist()
+        rows = [{"point": i + 1, "zone": int(self.zone[i]), "q": self.q_user[i].tolist(), "residual_mm": res[i],
+                 "converged": bool(c.converged[i]), "within_limits": bool(c.within_limits[i])}
+                for i in range(self.targets.shape[0])]
+        return {"robot": self.robot, "frame": self.frame, "n_zones": self.n_zones, "method": self.method,
+                "targets": rows,
+                "max_residual_mm": max(res), "outside_range": c.outside_range,
+                "not_converged": [i + 1 for i in self.not_converged],
+                "outside_limits": [i + 1 for i in self.outside_limits],
+                "beyond_reach": [i + 1 for i in self.beyond_reach]}
+
+
+def compensate_targets(im, targets, *, frame: str = "measuring", seeds=None, payload_kg=None, temp_c=None,
+                       where: str = "targets", stacklevel: int = 1) -> TargetCompensation:
+    """``torchcal compensate`` on a fitted model `im` (a `ZonedFit`: each target in its zone):
+    targets (M, 3) mm in `frame` ("measuring": the model's measuring frame; "base": the
+    robot base frame, mapped to the measuring frame with the fitted base frame of the first
+    parameter set, `measuring_from_base`). seeds: (M, n) starting commands in deg (mm for a
+    slide), default `nominal_start`; payload_kg, temp_c: (M,) conditions. A model effect
+    that needs a condition the targets lack is refused naming it; targets inside the
+    robot's base (metres read as mm) are refused, those beyond its reach listed in
+    ``beyond_reach``; `where` names the targets in messages."""
+    import warnings
+
+    from torchcal.calibration.mismatch import MismatchWarning, check_target_conditions, check_targets
+
+    if frame not in FRAMES:
+        raise InputError(f"frame: expected one of {', '.join(FRAMES)}, got {frame!r}")
+    rob = im.model.robot
+    t = torch.as_tensor(targets, dtype=torch.float64)
+    if t.ndim != 2 or t.shape[-1] != 3:
+        raise InputError(f"targets: expected (M, 3) mm, got shape {tuple(t.shape)}")
+    check_target_conditions(im.model, t, payload_kg, temp_c, where)
+    given = t
+    if frame == "base":  # the solve is in the measuring frame, where the model predicts
+        R, o = measuring_from_base(im.model, im.theta.to(t))
+        t = t @ R.T + o
+    with warnings.catch_warnings():  # metres read as mm: refused; beyond the reach: listed
+        warnings.simplefilter("ignore", MismatchWarning)
+        far = check_targets(im.model, im.theta, t, where=where)
+    q0 = nominal_start(im.model, im.theta, t, poses=im.seed_poses, q_range=im.q_range).q if seeds is None else \
+        rob.q_from_user(torch.as_tensor(seeds))
+    comp = compensate_fitted(im, t, q0, check=False, payload_kg=payload_kg, temp_c=temp_c, stacklevel=stacklevel + 1)
+    from torchcal.calibration.zone_calibration import ZonedFit
+
+    method = im.method if isinstance(im, ZonedFit) else ("global" if im.radius is not None else "fit")
+    return TargetCompensation(given, comp, im.assign(t), rob.q_to_user(comp.q), im.zone_theta.shape[0], method,
+                              rob.name, far, frame)

@@ -104,31 +104,3 @@ def outside_range(q: torch.Tensor, q_range: torch.Tensor, prismatic: torch.Tenso
     r = q_range.to(q)
     tol = _tolerance(r, prismatic.to(q.device))
     return (q < r[0] - tol) | (q > r[1] + tol)
-
-
-def range_warning(q: torch.Tensor, q_range: torch.Tensor | None, robot, what: str = "rows",
-                  max_joints: int = 3) -> tuple[int, str | None]:
-    """(number of rows of q (N, n) rad / mm outside q_range, one-line message or None).
-
-    q_range None (a model file written before torchcal recorded it): (0, None). The
-    message names each offending joint (up to `max_joints`) with its farthest value and
-    the calibrated range, in deg (mm for a prismatic joint)."""
-    if q_range is None or q.shape[0] == 0:
-        return 0, None
-    out = outside_range(q, q_range, robot.prismatic)  # (N, n)
-    rows = int(out.any(1).sum())
-    if rows == 0:
-        return 0, None
-    r = q_range.to(q)
-    dist = torch.where(out, torch.maximum(r[0] - q, q - r[1]), torch.full_like(q, -1.0))
-    worst = dist.argmax(0)  # (n,) row farthest outside per joint
-    qu = robot.q_to_user(q.detach().to("cpu", torch.float64))
-    ru = robot.q_to_user(r.detach().to("cpu", torch.float64))
-    units = robot.joint_units()
-    joints = out.any(0).nonzero().flatten().tolist()
-    parts = [f"joint {j + 1}: {qu[int(worst[j]), j].item():.1f} {units[j]}, calibrated "
-             f"{ru[0, j].item():.1f} .. {ru[1, j].item():.1f} {units[j]}" for j in joints[:max_joints]]
-    more = f"; and {len(joints) - max_joints} more joint(s)" if len(joints) > max_joints else ""
-    msg = (f"{rows} of {q.shape[0]} {what} lie outside the calibrated joint range "
-           f"({'; '.join(parts)}{more}); the model extrapolates there")
-    return rows, msg

@@ -1,4 +1,7 @@
-"""Gross mismatch: data, targets or a robot file that cannot belong to this model.
+"""Input checks against a model: data, targets or a robot file that cannot belong to it.
+
+The one place for checks of whether inputs fit a robot or a model (docs/design.md); the
+readers of `torchcal.io` check a file's own content (cells, columns, joint limits).
 
 A fitted model applied to measurements of another robot, to measurements taken in a
 measuring frame that moved since the fit, or to numbers in the wrong unit gives errors
@@ -26,7 +29,7 @@ Targets (`check_targets`, positions (M, 3) mm in the model's frame) against the
 workspace of the model: the nominal TCP at `WORKSPACE_POSES` seeded random poses inside
 the joint limits. The reach R is their largest distance from the robot base origin (as
 the model's base frame maps it). Targets whose median distance from the base origin is below R / 20 (the
-factor of `torchcal.calibration.plausibility`'s unit check) sit inside the robot's
+factor of the unit check, `check_units`) sit inside the robot's
 base, or whose median distance from the origin of the measuring frame (the instrument) is
 below R / 20: metres read as mm (a refusal); targets beyond 1.05 R cannot be reached (a warning
 naming them; compensate reports them as not converged).
@@ -36,6 +39,33 @@ measuring frame and tool offset fitted must come within GROSS_MM of the data, el
 cause is named (a frame the model lacks, gross outlier rows, a mirrored frame, reversed
 joint columns, another robot or units); a fitted RMS beyond GROSS_MM (the robust fit's
 outliers left out) is no calibration (docs/registration.md).
+
+Units (before any fit, `check_units`). Measurements are compared with the nominal model at
+the same joint angles by a registration-invariant spread: the RMS distance of the points
+to their centroid, ``s = sqrt(mean |p - mean(p)|^2)`` (a rigid change of frame leaves it
+unchanged, so the instrument's frame does not matter). For a right file and the right
+robot the ratio ``s_measured / s_nominal`` is 1 within a few percent (a different tool
+point moves it by tens of percent at most); a unit mistake moves it by about 1000.
+
+- ratio < 1/20 with ``length_unit='mm'``: positions look like metres read as mm
+  (fix: ``length_unit='m'``); ratio > 20 with ``length_unit='m'``: mm read as metres
+  (fix: ``length_unit='mm'``). Any other ratio outside [1/20, 20] is refused too, naming
+  the spreads (wrong unit or wrong robot).
+- ``angle_unit='deg'`` and every joint angle within +-2 pi (6.283 "degrees") while the
+  measured points spread more than 2x the nominal ones: joint angles look like radians
+  read as degrees (fix: ``angle_unit='rad'``). A real data set in degrees that only
+  moves a few degrees keeps ratio ~1 and passes.
+- ``angle_unit='rad'`` and a joint angle beyond max(2 pi, the robot's widest limit) rad
+  (+ 0.01): degrees read as radians (fix: ``angle_unit='deg'``).
+
+The check needs at least 3 rows and a nominal spread of at least 1 mm; otherwise it
+says nothing.
+
+The calibrated joint range (`range_warning`, `warn_outside_range`): rows or converged
+commands beyond the range a model was fitted on (`torchcal.calibration.joint_range`) are
+counted and named in one `CalibratedRangeWarning`: the model extrapolates there.
+
+A robot given with a model (`check_same_robot`) must be the robot it was fitted for.
 
 Robot files (`check_robot_lengths`): an arm whose links (sum over joints of
 ``sqrt(d^2 + a^2)``, prismatic strokes included) reach less than MIN_REACH_MM = 50 mm is
@@ -50,12 +80,16 @@ from dataclasses import dataclass
 
 import torch
 
+from torchcal.errors import InputError
+
 GROSS_RATIO = 10.0
 GROSS_MM = 10.0
 TARGET_RATIO = 20.0
 REACH_MARGIN = 1.05
 MIN_REACH_MM = 50.0
 WORKSPACE_POSES = 2000
+RATIO_LIMIT = 20.0
+RAD_RATIO = 2.0
 
 
 class MismatchWarning(UserWarning):
@@ -90,6 +124,58 @@ def bound_mm(training_rms_mm: float | None) -> float:
     return max(GROSS_RATIO * training_rms_mm, GROSS_MM)
 
 
+def spread_mm(p: torch.Tensor) -> float:
+    """RMS distance of points p (N, 3) mm to their centroid (invariant to a rigid motion)."""
+    return float((p - p.mean(0)).pow(2).sum(-1).mean().sqrt())
+
+
+def check_units(m, robot, length_unit: str = "mm", angle_unit: str = "deg", where: str = "") -> dict:
+    """Refuse the classic unit mistakes (module docstring) with one InputError line.
+
+    m: Measurements (already converted with the given units); robot: the nominal robot.
+    Returns {"measured_spread_mm", "nominal_spread_mm", "ratio"} (None values when the
+    check could not judge).
+    """
+    pre = f"{where}: " if where else ""
+    rev = ~robot.prismatic.cpu()  # a prismatic joint's q is a length (mm), never an angle
+    q = m.q.detach().to("cpu", torch.float64)[..., rev]
+    qmax_file = float(q.abs().max()) if q.numel() else 0.0  # rad inside
+    if angle_unit == "rad" and q.numel():
+        lim = float(robot.limits.detach().cpu()[rev].abs().max())
+        bound = max(2 * math.pi, lim) + 0.01
+        if qmax_file > bound:
+            raise InputError(f"{pre}joint angles reach {qmax_file:.4g} rad, beyond what a joint can "
+                             f"turn ({bound:.3g} rad): they look like degrees read as radians",
+                             fix=("angle_unit", "deg"))
+    out = {"measured_spread_mm": None, "nominal_spread_mm": None, "ratio": None}
+    if len(m) < 3:
+        return out
+    nominal = robot.fk(m.q.to(robot.device, robot.dtype)).detach().to("cpu", torch.float64)
+    s_nom = spread_mm(nominal)
+    s_meas = spread_mm(m.xyz.detach().to("cpu", torch.float64))
+    if s_nom < 1.0:
+        return out
+    ratio = s_meas / s_nom
+    out.update(measured_spread_mm=s_meas, nominal_spread_mm=s_nom, ratio=ratio)
+    spreads = (f"the measured points spread {s_meas:.4g} mm (RMS distance to their centroid), "
+               f"the nominal {robot.name} at these joint angles {s_nom:.4g} mm")
+    if angle_unit == "deg" and q.numel() and math.degrees(qmax_file) <= 2 * math.pi + 1e-9 and ratio > RAD_RATIO:
+        raise InputError(f"{pre}every joint angle lies within +-{math.degrees(qmax_file):.4g} deg and "
+                         f"{spreads}: the joint angles look like radians read as degrees",
+                         fix=("angle_unit", "rad"))
+    if ratio < 1 / RATIO_LIMIT:
+        if length_unit == "mm":
+            raise InputError(f"{pre}{spreads} ({1 / ratio:.4g} times less): the positions look like "
+                             "metres read as mm", fix=("length_unit", "m"))
+        raise InputError(f"{pre}{spreads} ({1 / ratio:.4g} times less): wrong unit or wrong robot?")
+    if ratio > RATIO_LIMIT:
+        if length_unit == "m":
+            raise InputError(f"{pre}{spreads} ({ratio:.4g} times more): the positions look like "
+                             "mm read as metres", fix=("length_unit", "mm"))
+        raise InputError(f"{pre}{spreads} ({ratio:.4g} times more): wrong unit or wrong robot?")
+    return out
+
+
 def _units_hint(ratio: float) -> str:
     for f, what in ((1000.0, "metres read as mm (length unit m)"), (1e-3, "mm read as metres"),
                     (math.degrees(1.0), "radians read as degrees (angle unit rad)")):
@@ -101,7 +187,6 @@ def _units_hint(ratio: float) -> str:
 def check_points(predicted: torch.Tensor, measured: torch.Tensor, training_rms_mm: float | None = None,
                  what: str = "data", model_name: str = "the model") -> Mismatch:
     """Judge measured points (N, 3) mm against a model's predicted points (N, 3) mm."""
-    from torchcal.calibration.plausibility import spread_mm
     from torchcal.calibration.registration import kabsch
 
     p = predicted.detach().to("cpu", torch.float64)
@@ -150,8 +235,6 @@ def check_measurements(model, theta: torch.Tensor, m, training_rms_mm: float | N
 def enforce(result: Mismatch, refuse_frame: bool = True, refuse_mismatch: bool = True) -> Mismatch:
     """Raise InputError (a refusal) or warn `MismatchWarning` (the command goes on) for a
     verdict; nothing when consistent. Returns `result`."""
-    from torchcal.errors import InputError
-
     if result.verdict is None:
         return result
     refuse = refuse_frame if result.verdict == "frame" else refuse_mismatch
@@ -184,8 +267,6 @@ def check_targets(model, theta: torch.Tensor, targets: torch.Tensor, where: str 
     """Refuse targets (M, 3) mm that sit inside the robot's base (metres read as mm);
     warn (`MismatchWarning`) naming targets beyond the reach. Returns the 0-based rows
     beyond the reach."""
-    from torchcal.errors import InputError
-
     pts, origin = workspace(model, theta)
     reach = float((pts - origin).norm(dim=-1).max())
     t = targets.detach().to("cpu", torch.float64)
@@ -213,6 +294,16 @@ def check_targets(model, theta: torch.Tensor, targets: torch.Tensor, where: str 
     return far
 
 
+def check_same_robot(model_robot, robot, where: str, what: str = "the given robot") -> None:
+    """Refuse (one InputError line naming both) when `robot` is not the robot the model
+    was fitted for: another joint count, joint types, nominal table, base or tool."""
+    if robot is None or robot.same_geometry(model_robot):
+        return
+    raise InputError(f"{where}: the model is for robot {model_robot.name!r} ({model_robot.n} joints), "
+                     f"but {what} is robot {robot.name!r} ({robot.n} joints) with another nominal "
+                     f"geometry; refusing to apply a model to another robot")
+
+
 def link_reach_mm(table: torch.Tensor, prismatic: torch.Tensor, limits: torch.Tensor) -> float:
     """Sum over joints of sqrt(d^2 + a^2) plus each prismatic joint's largest |limit|, mm;
     table (n, 5) [theta, d, a, alpha, beta], limits (n, 2)."""
@@ -226,8 +317,6 @@ def link_reach_mm(table: torch.Tensor, prismatic: torch.Tensor, limits: torch.Te
 
 def check_robot_lengths(table, prismatic, limits, where: str = "robot file") -> None:
     """InputError when the links reach less than MIN_REACH_MM (lengths in metres)."""
-    from torchcal.errors import InputError
-
     reach = link_reach_mm(table, prismatic, limits)
     if reach < MIN_REACH_MM:
         raise InputError(f"{where}: the links reach only {reach:.4g} mm in all (sum of sqrt(d_mm^2 + a_mm^2)), less "
@@ -284,8 +373,6 @@ def _quick_fit(model, ctx, xyz: torch.Tensor) -> bool:
 
 
 def _fits(model, m) -> bool:
-    from torchcal.errors import InputError
-
     try:
         return _rms((_registered(model, m) - m.xyz).norm(dim=-1)) <= GROSS_MM
     except InputError:
@@ -313,8 +400,6 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
     import dataclasses
 
     from torchcal.effects import context_of
-    from torchcal.errors import InputError
-
     what = m.source or "data"
     name = model.robot.name
     try:
@@ -370,8 +455,6 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
     if model.robot.n > 1 and _fits(model, dataclasses.replace(m, q=m.q.flip(-1))):
         return result("reversed", f"{what}: the joint columns are in reverse order: rms {reg:.4g} mm as given "
                       f"but within {GROSS_MM:g} mm with q{model.robot.n} .. q1 read as q1 .. q{model.robot.n}")
-    from torchcal.calibration.plausibility import spread_mm
-
     s_x, s_p = spread_mm(m.xyz), spread_mm(pred)
     return result("mismatch", f"{what}: cannot come from {name}: rms {reg:.4g} mm with the best measuring frame "
                   f"and tool offset, point spread {s_x:.4g} mm measured vs {s_p:.4g} mm modelled; likely causes: "
@@ -390,3 +473,86 @@ def check_fitted(residuals: torch.Tensor, outliers=(), what: str = "data", name:
             f"than {GROSS_MM:g} mm): nothing sensible was fitted; likely causes: data of another robot, units, "
             "joint columns in another order, a mirrored frame, gross outliers (a robust loss), or a measuring "
             "frame the model lacks (the effects base_frame tool_offset)")
+
+
+def check_robot_data_of(model, m, robust: bool | None = None):
+    """Refuse (InputError, one line naming the cause) measurements `m` that the nominal
+    robot of `model` cannot explain, or that need a measuring frame the model lacks
+    (`check_robot_data`; robust: True when a robust fit follows, False for a fit without,
+    None for a command without a robust loss); fit, diagnose and discover call it."""
+    found = check_robot_data(model, m, robust=robust)
+    return None if found is None else enforce(found)
+
+
+def check_diagnosis_data(robot_or_model, model, m):
+    """The gross-mismatch check of `diagnose`: a fitted model (`FitResult`) as it is (a moved
+    frame only warns: the diagnosis refits it), else the nominal robot of `model`
+    (`CalibrationModel`) with the frame effects it has (`check_robot_data_of`)."""
+    from torchcal.calibration.fit import FitResult
+    from torchcal.calibration.model import CalibrationModel
+
+    if isinstance(robot_or_model, FitResult):
+        res = check_measurements(model, robot_or_model.theta, m, robot_or_model.training_rms_mm)
+        return enforce(res, refuse_frame=False, refuse_mismatch=True)
+    return check_robot_data_of(CalibrationModel.for_measurements(model.robot, model.specs(), m), m)
+
+
+def check_target_conditions(model, targets: torch.Tensor, payload_kg=None, temp_c=None,
+                            where: str = "targets") -> None:
+    """InputError naming the effect of `model` that needs a condition (temp_c, payload_kg)
+    the targets (M, 3) mm lack."""
+    from torchcal.effects import make_context
+
+    rob = model.robot
+    probe = make_context(rob, rob.limits.mean(-1).expand(targets.shape[0], rob.n), payload_kg, temp_c)
+    for e in model.effects:
+        try:
+            e.check_context(probe)
+        except InputError as exc:
+            need = "column temp_c" if e.name == "thermal_expansion" else str(exc)
+            raise InputError(f"{where}: the model's effect {e.spec()} needs {need} "
+                             f"in the targets, which they lack") from None
+
+
+def range_warning(q: torch.Tensor, q_range: torch.Tensor | None, robot, what: str = "rows",
+                  max_joints: int = 3) -> tuple[int, str | None]:
+    """(number of rows of q (N, n) rad / mm outside q_range, one-line message or None).
+
+    q_range None (a model file written before torchcal recorded it): (0, None). The
+    message names each offending joint (up to `max_joints`) with its farthest value and
+    the calibrated range, in deg (mm for a prismatic joint)."""
+    from torchcal.calibration.joint_range import outside_range
+
+    if q_range is None or q.shape[0] == 0:
+        return 0, None
+    out = outside_range(q, q_range, robot.prismatic)  # (N, n)
+    rows = int(out.any(1).sum())
+    if rows == 0:
+        return 0, None
+    r = q_range.to(q)
+    dist = torch.where(out, torch.maximum(r[0] - q, q - r[1]), torch.full_like(q, -1.0))
+    worst = dist.argmax(0)  # (n,) row farthest outside per joint
+    qu = robot.q_to_user(q.detach().to("cpu", torch.float64))
+    ru = robot.q_to_user(r.detach().to("cpu", torch.float64))
+    units = robot.joint_units()
+    joints = out.any(0).nonzero().flatten().tolist()
+    parts = [f"joint {j + 1}: {qu[int(worst[j]), j].item():.1f} {units[j]}, calibrated "
+             f"{ru[0, j].item():.1f} .. {ru[1, j].item():.1f} {units[j]}" for j in joints[:max_joints]]
+    more = f"; and {len(joints) - max_joints} more joint(s)" if len(joints) > max_joints else ""
+    msg = (f"{rows} of {q.shape[0]} {what} lie outside the calibrated joint range "
+           f"({'; '.join(parts)}{more}); the model extrapolates there")
+    return rows, msg
+
+
+def warn_outside_range(q: torch.Tensor, q_range, robot, what: str, stage=None, stacklevel: int = 1) -> int:
+    """Rows of q (N, n) rad / mm outside the calibrated range q_range (2, n) (None: not
+    recorded, 0); one `CalibratedRangeWarning` when any (saying so when a residual stage
+    `stage` is applied there). stacklevel: as for `warnings.warn`, counted from the caller."""
+    from torchcal.calibration.joint_range import CalibratedRangeWarning
+
+    count, msg = range_warning(q, q_range, robot, what)
+    if msg is not None and stage is not None:
+        msg += "; its non-physical residual stage extrapolates worst of all"
+    if msg is not None:
+        warnings.warn(msg, CalibratedRangeWarning, stacklevel=stacklevel + 1)
+    return count

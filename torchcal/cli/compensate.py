@@ -59,12 +59,13 @@ def run(args) -> int:
     from torchcal.calibration.joint_range import CalibratedRangeWarning
     from torchcal.cli._args import units, warnings_to_stderr
     from torchcal.io.files import atomic_write
+    from torchcal.io.targets_csv import compensation_csv
 
     check_outputs([("--out", args.out)], args.force, inputs=[args.targets, args.model])
     with warnings_to_stderr(CalibratedRangeWarning):  # converged outside the calibrated range: one line
         res = compensate_targets(args.model, args.targets, frame=args.frame, robot=load_robot(args.robot),
                                  **units(args))
-    atomic_write(args.out, res.to_csv(), force=args.force, inputs=[args.targets, args.model])
+    atomic_write(args.out, compensation_csv(res), force=args.force, inputs=[args.targets, args.model])
     d = res.to_dict()
     print(f"compensated {len(d['targets'])} targets (x,y,z in the {args.frame} frame) with {d['n_zones']} "
           f"parameter set(s) ({d['method']}): "

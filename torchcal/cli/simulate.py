@@ -56,6 +56,7 @@ def run(args) -> int:
     from torchcal.api import simulate
     from torchcal.io.files import write_json
     from torchcal.io.measurement_csv import write_measurements
+    from torchcal.io.truth_file import truth_to_dict
 
     check_outputs([("--out", args.out), ("--truth", args.truth)], args.force, inputs=robot_inputs(args.robot))
     out, truth = Path(args.out), Path(args.truth) if args.truth else None
@@ -63,7 +64,7 @@ def run(args) -> int:
                    pose_seed=args.pose_seed)
     write_measurements(out, sim.measurements, force=args.force, robot=sim.robot)
     if truth is not None:
-        write_json(truth, sim.truth(), force=args.force, inputs=(out,))
+        write_json(truth, truth_to_dict(sim), force=args.force, inputs=(out,))
     d = sim.to_dict()
     extra = f" (+ {', '.join(d['columns'])})" if d["columns"] else ""
     print(f"simulate: {d['robot']}, effects [{' '.join(d['effects']) or 'none'}], {args.n} poses x "

@@ -26,14 +26,7 @@ import torch
 
 from torchcal.effects.axis_tilt import MAX_TILT_DEG, load_moment
 from torchcal.effects.base import Effect
-
-
-def skew(w: torch.Tensor) -> torch.Tensor:
-    """(N, 3) -> (N, 3, 3) with skew(w) x = w x x."""
-    z = torch.zeros_like(w[:, 0])
-    return torch.stack([torch.stack([z, -w[:, 2], w[:, 1]], -1),
-                        torch.stack([w[:, 2], z, -w[:, 0]], -1),
-                        torch.stack([-w[:, 1], w[:, 0], z], -1)], dim=-2)
+from torchcal.rotations import skew
 
 
 class BaseCompliance(Effect):

@@ -20,6 +20,7 @@ import math
 import torch
 
 from torchcal.effects.base import Effect
+from torchcal.rotations import skew
 
 #: plausible axis tilt (deg) and shift (mm) inside a bearing: clearances of hundredths of
 #: a mm over bearing lengths of tens of mm
@@ -94,10 +95,3 @@ class JointClearance(Effect):
             dv = dv + p[2 * i] * skew(m_dir)
         return torch.stack(dp, dim=-1), dv
 
-
-def skew(w: torch.Tensor) -> torch.Tensor:
-    """Cross-product matrices: w (..., 3) -> (..., 3, 3) with skew(w) x = w x x."""
-    zero = torch.zeros_like(w[..., 0])
-    return torch.stack([torch.stack([zero, -w[..., 2], w[..., 1]], -1),
-                        torch.stack([w[..., 2], zero, -w[..., 0]], -1),
-                        torch.stack([-w[..., 1], w[..., 0], zero], -1)], -2)

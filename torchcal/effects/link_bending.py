@@ -25,7 +25,7 @@ import math
 import torch
 
 from torchcal.effects.base import Effect
-from torchcal.effects.base_compliance import skew
+from torchcal.rotations import skew
 from torchcal.errors import InputError
 
 #: largest plausible tip deflection over length (deg): 0.1 deg is 1.7 mm per metre of link.

@@ -294,6 +294,16 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
     return m
 
 
+def as_measurements(measurements, robot, length_unit: str = "mm", angle_unit: str = "deg") -> Measurements:
+    """`Measurements` as they are, or the measurement CSV at a path read for `robot` in
+    `length_unit` / `angle_unit` (`read_measurements`); InputError for anything else."""
+    if isinstance(measurements, Measurements):
+        return measurements
+    if isinstance(measurements, (str, Path)):
+        return read_measurements(measurements, robot=robot, length_unit=length_unit, angle_unit=angle_unit)
+    raise InputError(f"measurements: expected Measurements or a CSV path, got {type(measurements).__name__}")
+
+
 def _check_limits(path, m: Measurements, robot, lines: list[int], strict: bool) -> None:
     rb = robot.to("cpu", torch.float64)
     lim = rb.q_to_user(rb.limits.detach().T).T  # (n, 2) deg (mm for a prismatic joint)

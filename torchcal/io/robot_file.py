@@ -32,6 +32,7 @@ from pathlib import Path
 import torch
 
 from torchcal.errors import InputError
+from torchcal.calibration.mismatch import check_same_robot  # noqa: F401 (modelfile reads it here)
 from torchcal.robots.robot import Robot
 
 JOINT_KEYS = {"type", "theta_offset_deg", "d_mm", "a_mm", "alpha_deg", "beta_deg", "lower", "upper"}
@@ -215,16 +216,6 @@ def model_robot(obj: dict, where: str) -> Robot:
     if "robot" not in obj:
         raise InputError(f"{where}: model file names no robot (keys nominal_robot or robot)")
     return robot(obj["robot"])
-
-
-def check_same_robot(model_robot: Robot, robot: Robot | None, where: str, what: str = "the given robot") -> None:
-    """Refuse (one InputError line naming both) when `robot` is not the robot the model
-    was fitted for: another joint count, joint types, nominal table, base or tool."""
-    if robot is None or robot.same_geometry(model_robot):
-        return
-    raise InputError(f"{where}: the model is for robot {model_robot.name!r} ({model_robot.n} joints), "
-                     f"but {what} is robot {robot.name!r} ({robot.n} joints) with another nominal "
-                     f"geometry; refusing to apply a model to another robot")
 
 
 def robot(name) -> Robot:

@@ -93,10 +93,13 @@ def read_targets(path, n: int, length_unit: str = "mm", angle_unit: str = "deg",
     return t, seeds, cond
 
 
-def compensation_csv(zone, q_user, residual_mm, converged, within_limits) -> str:
-    """Q.csv text ``point,zone,q1..qN,residual_mm,converged,within_limits``: zone (M,) 1-based,
-    q_user (M, n) deg (mm for a prismatic joint), residual_mm (M,) distance mm, converged and
-    within_limits (M,) bool; points 1-based."""
+def compensation_csv(result) -> str:
+    """Q.csv text ``point,zone,q1..qN,residual_mm,converged,within_limits`` of a
+    `torchcal.calibration.compensate.TargetCompensation`: zone 1-based, q in deg (mm for a
+    prismatic joint), residual_mm the distance in mm, converged and within_limits as
+    true / false; points 1-based."""
+    zone, q_user, residual_mm = result.zone, result.q_user, result.residual_mm
+    converged, within_limits = result.compensation.converged, result.compensation.within_limits
     n = q_user.shape[1]
     lines = [",".join(["point", "zone", *(f"q{k}" for k in range(1, n + 1)), "residual_mm", "converged",
                        "within_limits"])]

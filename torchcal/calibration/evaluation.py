@@ -1,0 +1,90 @@
+"""The errors of a fitted model on measurements (``torchcal evaluate``): `Evaluation`.
+
+Distance errors measured - model (the residual stage's correction subtracted when the model
+has one), their summary (`torchcal.metrics.error_summary`), the orientation error when the
+data carry rx, ry, rz and the model was fitted to orientations, and the rows outside the
+calibrated joint range (`torchcal.calibration.joint_range`). Data that cannot come from
+the model are refused first (`torchcal.calibration.mismatch.check_measurements`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import torch
+
+from torchcal.calibration.fit import FitResult
+from torchcal.measurements import Measurements
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Distance errors measured - model: n rows; rms_mm, mean_mm, max_mm; per_axis_rms_mm
+    [x, y, z]; orientation_rms_deg when the data carry rx, ry, rz and the model was fitted
+    to orientations (else None); outside_range: rows whose commanded q lie outside the
+    joint range the model was calibrated on (`torchcal.calibration.joint_range`), None
+    when the model does not record it (a MODEL.json written before it existed).
+
+    Per row (not in `to_dict`): residuals_mm (N, 3) measured - model; orientation_deg
+    (N,) orientation error angle, deg (None as for orientation_rms_deg); outside (N,)
+    bool, the row lies outside the calibrated range (None as for outside_range)."""
+
+    n: int
+    rms_mm: float
+    mean_mm: float
+    max_mm: float
+    per_axis_rms_mm: list
+    orientation_rms_deg: float | None = None
+    outside_range: int | None = None
+    residuals_mm: torch.Tensor | None = field(default=None, compare=False, repr=False)
+    orientation_deg: torch.Tensor | None = field(default=None, compare=False, repr=False)
+    outside: torch.Tensor | None = field(default=None, compare=False, repr=False)
+    p95_mm: float | None = None
+
+    def to_dict(self) -> dict:
+        """{"n", "rms_mm", "mean_mm", "p95_mm", "max_mm", "per_axis_rms_mm"[, "orientation_rms_deg"]
+        [, "outside_range"]}: the JSON of ``torchcal evaluate --json`` (`torchcal.metrics.error_summary`)."""
+        out = {"n": self.n, "rms_mm": self.rms_mm, "mean_mm": self.mean_mm, "p95_mm": self.p95_mm,
+               "max_mm": self.max_mm, "per_axis_rms_mm": list(self.per_axis_rms_mm)}
+        if self.orientation_rms_deg is not None:
+            out["orientation_rms_deg"] = self.orientation_rms_deg
+        if self.outside_range is not None:
+            out["outside_range"] = self.outside_range
+        return out
+
+
+def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
+    """Errors of the fitted model `fm` on measurements `m` (module doc): InputError for data
+    that cannot come from the model (another robot, a moved measuring frame, units); one
+    `CalibratedRangeWarning` (at `stacklevel`, counted from the caller) for rows outside
+    the calibrated range."""
+    from torchcal.calibration.joint_range import outside_range
+    from torchcal.calibration.mismatch import check_measurements, enforce, warn_outside_range
+    from torchcal.effects import context_of
+    from torchcal.metrics import error_summary
+    from torchcal.rotations import so3_error
+
+    cm = fm.model
+    ctx = context_of(cm.robot, m)
+    cm.check_context(ctx)
+    theta = fm.theta.to(m.xyz)
+    enforce(check_measurements(cm, theta, m, fm.training_rms_mm))  # another robot, frame, units
+    stage = fm.residual_model
+    err = m.xyz - fm.predict(ctx)  # (N, 3) mm (each row in its zone); minus the residual stage's correction
+    if stage is not None:
+        err = err - stage.predict(m.q).to(err)
+    fig = error_summary(err)
+    orient = orient_rows = None
+    tool_r = fm.tool_rotation
+    if m.rxyz is not None and tool_r is not None:
+        e = so3_error(cm.predict_rotation(theta, ctx) @ tool_r.to(theta), m.rotation)  # (N, 3) rad
+        orient = math.degrees(float(e.norm(dim=-1).pow(2).mean().sqrt()))
+        orient_rows = torch.rad2deg(e.norm(dim=-1)).detach()
+    q_range = fm.q_range
+    outside = rows_out = None
+    if q_range is not None:
+        outside = warn_outside_range(m.q, q_range, cm.robot, "rows", stage, stacklevel=stacklevel + 1)
+        rows_out = outside_range(m.q, q_range, cm.robot.prismatic).any(dim=-1)
+    return Evaluation(len(m), fig["rms_mm"], fig["mean_mm"], fig["max_mm"], [fig["axes"][a]["rms_mm"] for a in "xyz"],
+                      orient, outside, err.detach(), orient_rows, rows_out, fig["p95_mm"])

@@ -1,0 +1,127 @@
+"""``torchcal export``: the calibrated geometry of a model as a robot file, a URDF and/or an
+MD-H table (CSV, `torchcal.io.mdh_table`), and what was written (`Export`).
+
+The MD-H deviations go into the table, base_frame into the base, tool_offset into the tool
+(`torchcal.calibration.geometry_only.calibrated_robot`). Other effects: with data the
+geometry alone is refitted on them (`refit_geometry`) and that geometry exported; without,
+they are listed in the robot file. A robot imported from a URDF keeps that file's links
+(`torchcal.io.urdf.calibrated_urdf`), any other gets `minimal_urdf`; the URDF keeps the
+robot's own base and tool (``tool0``) and carries the measuring frame and the reflector(s)
+as separate fixed frames ``tracker`` and ``reflector`` (`torchcal.io.urdf.add_frames`).
+Every output is checked before any work (OutputExistsError without `force`; never one of
+the inputs or the files the model came from, `force` included; its folder must take a new
+file) and written atomically.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+from torchcal.errors import InputError
+from torchcal.robots.robot import Robot
+
+
+@dataclass
+class Export:
+    """What ``torchcal export`` computed and wrote.
+
+    Attributes:
+        robot: the calibrated `Robot` of the robot file (geometry, base frame and tool offset
+            folded in; its ``urdf`` names the written URDF when that URDF has the same chain).
+        effects_not_held: [{"spec", "parameters"}] of the model's effects that a robot file, a
+            URDF or an MD-H table cannot hold (listed in the robot file; empty after a refit).
+        residual_stage_dropped: the model had a non-physical residual stage, which is not exported.
+        refit: the `GeometryRefit` on `data` (the geometry alone refitted), else None.
+        data_rows: rows of `data` refitted on (None: no refit; data are read only when the
+            model has effects the exported robot cannot hold).
+        urdf_source: the nominal URDF whose links the calibrated URDF keeps, None for a minimal URDF.
+        written: {"robot_file", "urdf", "table"} paths written (None: not asked).
+        urdf_links: {"base_link", "tip_link", "frames"} of the written URDF (its base and
+            tool links, the names of its separate measuring frames), None without a URDF.
+    """
+
+    robot: Robot
+    effects_not_held: list
+    residual_stage_dropped: bool
+    refit: object
+    data_rows: int | None
+    urdf_source: str | None
+    written: dict
+    urdf_links: dict | None = None
+
+    def to_dict(self) -> dict:
+        r = self.refit
+        return {"robot": self.robot.name, "joints": self.robot.n, "written": dict(self.written),
+                "effects_not_held": [e["spec"] for e in self.effects_not_held],
+                "residual_stage_dropped": self.residual_stage_dropped,
+                "urdf": None if self.urdf_links is None else dict(self.urdf_links, source=self.urdf_source),
+                "refit": None if r is None else {"rows": self.data_rows, "dropped": list(r.dropped),
+                                                 "refit_rms_mm": r.refit_rms_mm, "full_rms_mm": r.full_rms_mm,
+                                                 "naive_rms_mm": r.naive_rms_mm, "status": str(r.fit.status)}}
+
+
+def sources(im) -> list:
+    """Paths the model `im` came from, as it records them: its data (provenance ``input``,
+    ``partition``) and the URDF its robot was imported from."""
+    out = [(im.provenance or {}).get(k) for k in ("input", "partition")]
+    urdf = im.model.robot.urdf
+    return [p for p in out + [urdf and urdf.get("path")] if p]
+
+
+def export(im, *, robot_file=None, urdf=None, table=None, data=None, length_unit: str = "mm",
+           angle_unit: str = "deg", force: bool = False, inputs=()) -> Export:
+    """Export the fitted model `im` (of a `ZonedFit` the global fit) as the
+    outputs given (module doc). data: `Measurements` or a measurement CSV path in
+    `length_unit` / `angle_unit`, read only when the model has effects the exported robot
+    cannot hold. inputs: paths never written over (the model's file, the data), beside
+    the files the model came from (`sources`)."""
+    from torchcal.calibration.geometry_only import calibrated_robot, measuring_frames, refit_geometry
+    from torchcal.calibration.mismatch import check_measurements, check_units, enforce
+    from torchcal.io.files import atomic_write, check_output
+    from torchcal.io.mdh_table import mdh_table_csv
+    from torchcal.io.measurement_csv import as_measurements
+    from torchcal.io.robot_file import write_robot_file
+    from torchcal.io.urdf import add_frames, calibrated_urdf, minimal_urdf
+
+    outs = {"robot_file": robot_file, "urdf": urdf, "table": table}
+    if not any(outs.values()):
+        raise InputError("export: give at least one output (robot file, URDF or MD-H table)")
+    inputs = list(inputs) + sources(im)  # never over the files the model came from, force or not
+    for p in outs.values():
+        if p is not None:
+            check_output(p, force=force, inputs=inputs)
+    cm, theta = im.model, im.theta
+    cal, rest = calibrated_robot(cm, theta)
+    refit, rows = None, None
+    if data is not None and rest:  # data only matter when the model has effects the robot cannot hold
+        m = as_measurements(data, cm.robot, length_unit, angle_unit)
+        check_units(m, cm.robot, length_unit=length_unit, angle_unit=angle_unit, where=m.source or "data")
+        enforce(check_measurements(cm, theta.to(m.xyz), m, im.training_rms_mm))
+        rows, refit = len(m), refit_geometry(cm, theta, m, identified=im.report.free)
+        cm, theta = refit.fit.model, refit.fit.theta
+        cal, rest = calibrated_robot(cm, theta)[0], []
+    urdf_text, urdf_info, source, links = None, None, None, None
+    if urdf is not None:  # the robot's own base and tool; the measuring set-up as separate frames
+        own = calibrated_robot(cm, theta, fold=False)[0]
+        W, reflectors = measuring_frames(cm, theta)
+        if own.urdf is not None:
+            urdf_text, tip = calibrated_urdf(im.model.robot, own)
+            source, base_link = own.urdf["path"], own.urdf["base_link"]
+        else:
+            urdf_text, tip, base_link = minimal_urdf(own), "tool0", "base_link"
+        urdf_text = add_frames(urdf_text, base_link, tip, W, reflectors)
+        urdf_info = {"path": str(Path(urdf).resolve()), "base_link": base_link, "tip_link": tip}
+        links = dict(urdf_info, frames=(["tracker"] if W is not None else []) + [n for n, _ in reflectors])
+        if W is not None or reflectors:  # the robot file folds the frames in: its URDF chain is another
+            urdf_info = None
+    cal = dataclasses.replace(cal, urdf=urdf_info)  # the calibrated robot file points at the calibrated URDF
+    if robot_file is not None:
+        write_robot_file(robot_file, cal, effects=rest, force=force, inputs=inputs)
+    if urdf is not None:
+        atomic_write(urdf, urdf_text, force=force, inputs=inputs)
+    if table is not None:
+        atomic_write(table, mdh_table_csv(cal), force=force, inputs=inputs)
+    return Export(cal, rest, im.residual_model is not None, refit, rows, source,
+                  {k: (None if v is None else str(v)) for k, v in outs.items()}, links if urdf else None)

@@ -1,0 +1,61 @@
+"""A simulated measurement session (``torchcal simulate``): `simulate` and its `Simulation`.
+
+n seeded random poses of a `VirtualRobot` (the nominal robot with `effects` whose true
+parameters are drawn with `seed`), each measured `repeats` times with Gaussian noise; the
+true parameters come back with the measurements (written in file units by
+`torchcal.io.truth_file`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from torchcal.measurements import Measurements
+from torchcal.robots.robot import Robot
+
+
+@dataclass
+class Simulation:
+    """A simulated measurement session (``torchcal simulate``).
+
+    measurements: the `Measurements` (rows in movement order); robot: the nominal `Robot`;
+    effects: the virtual robot's effect specs; theta: (P,) its true parameters (model units);
+    parameter_names: (P,) their names; seed, pose_seed: the robot's seed and the seed of
+    the poses and the session; repeats, noise_mm."""
+
+    measurements: Measurements
+    robot: Robot
+    effects: list
+    theta: torch.Tensor
+    parameter_names: list
+    seed: int
+    pose_seed: int
+    repeats: int
+    noise_mm: float
+
+    def to_dict(self) -> dict:
+        m = self.measurements
+        return {"robot": self.robot.name, "effects": list(self.effects), "rows": len(m),
+                "poses": len(m) // self.repeats, "repeats": self.repeats, "noise_mm": self.noise_mm,
+                "seed": self.seed, "pose_seed": self.pose_seed,
+                "columns": [c for c, v in (("payload_kg", m.payload_kg), ("temp_c", m.temp_c)) if v is not None]}
+
+
+def simulate(robot: Robot, effects=(), *, n: int = 50, repeats: int = 1, noise_mm: float = 0.02, seed: int = 0,
+             pose_seed: int | None = None) -> Simulation:
+    """n random poses of a virtual robot (`robot` with `effects` whose true parameters are
+    drawn with `seed`), each measured `repeats` times with noise_mm (1 sigma per axis).
+    pose_seed: seed of the poses and the session (default `seed`; another value gives fresh
+    poses of the same virtual robot)."""
+    from torchcal.effects.spec import parse_specs
+    from torchcal.simulation.virtual_robot import VirtualRobot, random_poses
+
+    specs = [str(s) for s in parse_specs(list(effects), robot.n)] if effects else []
+    ps = seed if pose_seed is None else pose_seed
+    q = random_poses(robot, n, torch.Generator().manual_seed(ps))
+    vr = VirtualRobot(robot, specs, seed=seed)
+    # the session's seed as VirtualRobot.measure derives it from its own seed (the same file without pose_seed)
+    m = vr.measure(q, repeats=repeats, noise_mm=noise_mm, seed=ps * 1_000_003 + 17)
+    return Simulation(m, robot, specs, vr.theta, vr.model.param_names(), seed, ps, repeats, noise_mm)

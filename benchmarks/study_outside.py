@@ -22,11 +22,13 @@ physical error applied as joint-angle deflections before the forward kinematics:
   the second stage's the direction of the move before it (it turns over only after the
   next move): dq2 = 0.1 mrad s_i + 0.1 mrad s_(i-1), s_i = sign(q2_i - q2_(i-1)) in the
   visiting order (s = +1 for the first row and before it). The first term is torchcal's
-  `backlash:2`; the second is outside the vocabulary (no recorded variable holds it).
+  `backlash:2`; the second no effect of the vocabulary models (the report's variable
+  `approach_prev_q2` holds it).
 
 Each session runs `torchcal.discover(robot, m, ["base_frame", "tool_offset"])` and reads
 its final `unexplained` report (--fit-only: the report on the fit of those two effects,
-cheaper, for null sessions of many poses). Printed per session: the effects discover added, whether
+cheaper, for null sessions of many poses). Printed per session: the effects discover added and
+those it named as physics (the others it reports as absorbing, torchcal.diagnosis.stability), whether
 the report is significant (flagged), the probe's p-value, what it says is learnable and
 from which variables, the noise floor it prints (and from what) against the true 0.0346 mm,
 and the oracle "structured error left": the distance RMS that the final model leaves on
@@ -203,8 +205,11 @@ def main(argv=None):
         inband = [r for r in rows if 0.05 <= r["structured_left_mm"] <= 0.13]
         print(f"{case}: flagged {sum(r['flagged'] for r in rows)} of {len(rows)} (probe p < 0.01 in "
               f"{sum(r['probe_p'] < 0.01 for r in rows)}); with 0.05-0.13 mm structured left: "
-              f"flagged {sum(r['flagged'] for r in inband)} of {len(inband)}; noise floor / truth median "
-              f"{statistics.median(r['floor_mm'] / TRUE_FLOOR for r in rows):.2f}; discover median "
+              f"flagged {sum(r['flagged'] for r in inband)} of {len(inband)}; an effect labelled absorbing in "
+              f"{sum(r['named'] != r['added'] for r in rows)}; noise floor / truth median "
+              f"{statistics.median(r['floor_mm'] / TRUE_FLOOR for r in rows):.2f} (range "
+              f"{min(r['floor_mm'] for r in rows) / TRUE_FLOOR:.2f}-{max(r['floor_mm'] for r in rows) / TRUE_FLOOR:.2f}); "
+              f"discover median "
               f"{statistics.median(r['wall_s'] for r in rows):.1f} s\n", flush=True)
 
 

@@ -202,15 +202,25 @@ def test_probe_reports_a_smooth_error_as_learnable_from_its_joint():
 
 
 def test_discover_json_is_valid_when_the_probe_chooses_no_input(tmp_path):
-    """Nothing learnable (geometric-only data): the probe picks no input, and the history
-    JSON (strict JSON, no NaN) says so with null length scale and ridge."""
+    """Nothing learnable (geometric-only data): the history JSON is strict JSON (no NaN),
+    the probe finds nothing beyond chance; a probe that picks no input is written with
+    null length scale and ridge."""
     import json
 
     from torchcal.cli import main
+    from torchcal.diagnosis.probe import Probe
+    from torchcal.diagnosis.unexplained import Unexplained
+
+    def strict(text):
+        return json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} in the JSON"))
 
     data, hist = tmp_path / "d.csv", tmp_path / "h.json"
     assert main(["simulate", "--robot", "ur5e", "--n", "60", "--noise", "0.02", "--seed", "4",
                  "--out", str(data)]) == 0
     assert main(["discover", str(data), "--robot", "ur5e", "--json", str(hist)]) == 0
-    probe = json.loads(hist.read_text())["unexplained"]["probe"]
+    u = strict(hist.read_text())["unexplained"]
+    assert u["probe"]["p_value"] >= 0.01 and not u["significant"], u
+    none = Unexplained(False, 0.035, 0.035, [], "probe", probe=Probe(0.035, 0.035, 1.0, [], float("nan"), float("nan")),
+                       learnable_rms_mm=0.0, probe_left_rms_mm=0.035)
+    probe = strict(json.dumps(none.to_dict()))["probe"]
     assert probe["inputs"] == [] and probe["length_scale_rad"] is None and probe["ridge"] is None

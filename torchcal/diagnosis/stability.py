@@ -9,8 +9,13 @@ carried to a part of the workspace it has not seen it gains nothing, or loses.
 The test, for an effect e of a fitted model (`FitResult` ``full``): for each joint angle
 q_j that varies, the poses are split at the median of q_j into two halves (a pose's rows
 together). The model is refitted on one half and predicts the other, both ways (a
-two-fold `torchcal.diagnosis.crossval.refit_cv` whose folds are the halves), with e and
-without it (the model without e fitted on all rows first, from ``full``). Per pose p,
+two-fold refit CV whose folds are the halves, `extrapolated`), with e and without it (the
+model without e fitted on all rows first, from ``full``). A split is used only where
+each half determines what the full data determine (every parameter whose posterior sd
+is below half its plausible size on all rows stays so on each half, the rule of
+`torchcal.calibration.plausibility.determination`): fitted on half of a joint's range,
+the harmonics of that joint's gear error are not determined, and predicting the other
+half from them tests that, not the physics. Per pose p,
 ``d_p = e_without_p - e_with_p``, the extrapolated squared distance error without e
 minus with e; a one-sided paired t-test over the poses of mean(d) > 0
 (`torchcal.diagnosis.selection.paired_p_value`). e is physics when its extrapolated gain
@@ -36,10 +41,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 
 from torchcal.calibration.fit import fit
 from torchcal.calibration.model import CalibrationModel
-from torchcal.diagnosis.crossval import refit_cv
+from torchcal.calibration.plausibility import determination
+from torchcal.diagnosis.crossval import fold_refits
 from torchcal.diagnosis.selection import paired_p_value
 from torchcal.errors import InputError
 
@@ -103,6 +110,29 @@ def without(full, spec: str, m, ctx, *, sigma_mm: float, sigma_deg: float):
     return fit(model, ctx, m.xyz, theta0=theta0, free=free, **fit_options(m, sigma_mm=sigma_mm, sigma_deg=sigma_deg))
 
 
+def extrapolated(full, m, ctx, half: np.ndarray, *, sigma_mm: float, sigma_deg: float):
+    """(per-pose squared errors (P,) mm^2, distance RMS mm) of the model `full` refitted
+    on each half of `half` (N,) 0/1 and predicting the other; None when a half cannot
+    carry it, or when a parameter the full fit determines is not determined on a half
+    (posterior sd at least half its plausible size, `determination`'s rule: the split
+    then tests what the half cannot resolve, e.g. the harmonics of a joint over half its
+    range, not the physics)."""
+    names = full.model.param_names()
+    determined = [n for n in names if n not in {d["name"] for d in determination(full, names, ctx)}]
+    err = np.zeros(len(m))
+    try:
+        for test, res in fold_refits(full, m, ctx, half, sigma_mm=sigma_mm, sigma_deg=sigma_deg):
+            if any(d["why"] == "prior" for d in determination(res, determined, ctx)):
+                return None
+            with torch.no_grad():
+                d = (full.model.predict(res.theta, ctx.subset(test)) - m.xyz[test]).pow(2).sum(-1)
+            err[test.numpy()] = d.cpu().numpy()
+    except InputError:
+        return None
+    _, pose_of_row = np.unique(m.pose.cpu().numpy(), return_inverse=True)
+    return np.bincount(pose_of_row, weights=err), float(np.sqrt(err.mean()))
+
+
 def stability(full, spec: str, m, ctx, *, sigma_mm: float, sigma_deg: float, alpha: float = ALPHA) -> Stability:
     """The extrapolation test of the effect `spec` of the fitted model `full` on
     measurements m (context ctx), see the module doc."""
@@ -112,12 +142,12 @@ def stability(full, spec: str, m, ctx, *, sigma_mm: float, sigma_deg: float, alp
         return Stability(1.0, "", 0.0, 0, alpha)
     results = []
     for name, half in halves(m).items():
-        with_e = refit_cv(full, m, ctx, half, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
-        without_e = refit_cv(reduced, m, ctx, half, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
-        if with_e.error or without_e.error:
+        with_e = extrapolated(full, m, ctx, half, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
+        without_e = None if with_e is None else extrapolated(reduced, m, ctx, half, sigma_mm=sigma_mm,
+                                                             sigma_deg=sigma_deg)
+        if without_e is None:
             continue
-        p = paired_p_value(without_e.sq, with_e.sq)
-        results.append((p, name, without_e.cv_rms_mm - with_e.cv_rms_mm))
+        results.append((paired_p_value(without_e[0], with_e[0]), name, without_e[1] - with_e[1]))
     if not results:
         return Stability(1.0, "", 0.0, 0, alpha)
     p, name, gain = max(results)

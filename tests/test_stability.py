@@ -65,3 +65,16 @@ def test_halves_split_each_joint_at_its_median_by_pose():
     for j, (name, side) in enumerate(h.items()):
         assert (side[::2] == side[1::2]).all() and side.sum() == 10
         assert np.array_equal(side[::2] == 1, q[::2, j].numpy() > np.median(q[::2, j].numpy()))
+
+
+def test_discover_names_only_the_stable_effects_and_says_why_the_others_are_not():
+    from torchcal.diagnosis.diagnose import Discovery
+    from torchcal.diagnosis.stability import Stability
+
+    st = {"joint_compliance:2": Stability(1e-9, "q3", 0.004, 6), "joint_clearance:1": Stability(0.4, "q1", -0.001, 6)}
+    d = Discovery([], ["base_frame", "joint_compliance:2", "joint_clearance:1"], None, [], stability=st)
+    assert d.absorbing == ["joint_clearance:1"]
+    first, second = d.final_words().splitlines()
+    assert first == "final effects: base_frame, joint_compliance:2"
+    assert second.startswith("  joint_clearance:1: in the model as a fit term only, not named: fitted on the poses on "
+                             "one side of the median of q1") and "gain -1.0 um, p 0.4 >= 0.01" in second

@@ -85,6 +85,7 @@ def test_discover_finds_two_effects_and_error_falls_each_round():
     _, m = session(hidden, seed=5)
     res = discover(ROBOT, m.subset(TRAIN))
     assert sorted(res.final_effects) == sorted(hidden)
+    assert res.absorbing == [], res.stability
     rounds = [h["effects"] for h in res.history]
     held = [held_out_rms(e, m) for e in rounds]
     assert all(b < a for a, b in zip(held, held[1:])), held

@@ -152,6 +152,7 @@ def test_discover_names_the_hidden_periodic_error_and_none_without(tmp_path):
 
     d = discover(UR10, _session(400, 1, HIDDEN))
     assert [s for s in d.final_effects if s.startswith("joint_periodic")] == ["joint_periodic:2@17+31"], d.history
+    assert "joint_periodic:2@17+31" not in d.absorbing, d.stability
     d0 = discover(UR10, _session(400, 2))
     assert not [s for s in d0.final_effects if s.startswith("joint_periodic")], d0.history
 

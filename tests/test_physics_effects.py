@@ -259,6 +259,7 @@ def _session(hidden, seed, n=120):
 def test_discover_names_the_hidden_effect(spec):
     d = discover(TITAN, _session([spec], seed=1))
     assert d.final_effects == [spec], d.history
+    assert d.absorbing == [], d.stability  # named as physics, not as an absorber
     assert d.history[-1]["cv_rms_mm"] < 1.25 * 0.02 * math.sqrt(3) < d.history[0]["cv_rms_mm"] / 2
 
 
@@ -268,3 +269,4 @@ def test_discover_names_none_of_them_without_them(hidden):
     d = discover(TITAN, _session(hidden, seed=2))
     assert not [e for e in d.final_effects if e.split(":")[0] in NEW], d.history
     assert sorted(d.final_effects) == sorted(hidden)
+    assert d.absorbing == [], d.stability

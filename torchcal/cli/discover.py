@@ -82,7 +82,7 @@ def run(args) -> int:
         if "transfer" in h:
             from torchcal.diagnosis.transfer import describe_verdict
             print("\n".join(describe_verdict(h["transfer"])))
-    print(f"final effects: {', '.join(res.final_effects) or 'none'}")
+    print(res.final_words())
     if res.unexplained is not None:
         print(res.unexplained.describe())
     if args.residual_model:

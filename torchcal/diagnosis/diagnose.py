@@ -37,6 +37,7 @@ import torch
 from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult, fit
 from torchcal.calibration.model import CalibrationModel
 from torchcal.diagnosis.candidates import Candidate
+from torchcal.diagnosis.stability import absorbing
 from torchcal.folds import fold_of_pose
 from torchcal.diagnosis.screen import prescreen
 from torchcal.diagnosis.selection import ALPHA, MIN_GAIN, REFIT_ALPHA, REFITS, shortlist
@@ -146,19 +147,35 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
 @dataclass
 class Discovery:
     """history[i] = {"effects", "rms_mm" (full fit, training), "cv_rms_mm" (its refit CV),
-    "step" (the refits of that round)}; final_effects, fit: the last accepted model."""
+    "step" (the refits of that round)}; final_effects, fit: the last accepted model;
+    stability: added effect -> its `torchcal.diagnosis.stability.Stability` in the final
+    model; absorbing: those that fail it (kept in the model, not named as physics)."""
 
     history: list
     final_effects: list
     fit: FitResult
     diagnoses: list
     unexplained: Unexplained | None = None  # what the final model leaves
+    stability: dict = field(default_factory=dict)
+
+    @property
+    def absorbing(self) -> list:
+        return [e for e, st in self.stability.items() if not st.stable]
+
+    def final_words(self) -> str:
+        """The final effects named as physics, and the absorbing ones, in words."""
+        named = [e for e in self.final_effects if e not in self.absorbing]
+        out = [f"final effects: {', '.join(named) or 'none'}"]
+        out += [f"  {e}: in the model as a fit term only, not named: {self.stability[e].words()}; it absorbs "
+                f"structure outside the vocabulary (what is left, below)" for e in self.absorbing]
+        return "\n".join(out)
 
     def to_dict(self) -> dict:
         return {"history": self.history, "final_effects": self.final_effects,
                 "held": list(self.fit.report.held), "beyond_plausible": list(self.fit.implausible),
                 "set_by_prior": list(self.fit.set_by_prior),
                 "unexplained": None if self.unexplained is None else self.unexplained.to_dict(),
+                "stability": {e: st.to_dict() for e, st in self.stability.items()}, "absorbing": self.absorbing,
                 "residual_stage": self.fit.residual_test}
 
 
@@ -194,5 +211,6 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
             break
         base, current = acc.fit, Scored(acc.effects, "", acc.rms_mm, acc.cv_rms_mm, acc.fit, acc.cv,
                                         prior_held=d.step.current.prior_held + acc.prior_held)
-    return Discovery(history, base.model.specs(), base, diagnoses,
-                     unexplained(robot, m, base.residuals, seed=seed))
+    added = [e for e in base.model.specs() if e not in specs]  # physics or absorption (stability.py)
+    return Discovery(history, base.model.specs(), base, diagnoses, unexplained(robot, m, base.residuals, seed=seed),
+                     absorbing(base, added, m, ctx, sigma_mm=sigma_mm, sigma_deg=sigma_deg))

@@ -9,16 +9,20 @@
     within a pose, ``sqrt(sum_p sum_i |r_pi - mean_p r|^2 / sum_p (m_p - 1))``. It is the
     repeatability of the session: an error shared by a pose's repeats (target nest,
     fixture) is *not* in it, and shows as rms_mm above the floor with no correlate.
-  * Without repeats: the smaller of two held-out errors, each an upper bound of the
-    noise (it keeps whatever structure that model does not learn): the probe's
-    ``probe_left_rms_mm`` (floor_from 'probe') and ``rms_mm * sqrt(1 - strength)`` of the
-    strongest variable below (floor_from 'variables'). Where the probe learns the
-    structure it is close to the noise (1.03-1.06x on simulated sessions; 1.4-1.5x where
-    it learns a fifth of a force spread over all joints: benchmarks/study_outside.py).
+  * Without repeats: an estimate from neighbours (floor_from 'neighbours',
+    `noise_floor_from_neighbours`: the Gamma test on the joint angles, the differences of
+    the residual between poses close in joint space regressed to zero distance), unless
+    one of two upper bounds is below it. The upper bounds are held-out errors, which keep
+    whatever structure their model does not learn: the probe's ``probe_left_rms_mm``
+    (floor_from 'probe') and ``rms_mm * sqrt(1 - strength)`` of the strongest variable
+    below (floor_from 'variables'). Figures on simulated sessions:
+    benchmarks/study_outside.py, docs/diagnosis.md.
 - correlates_with: the variables the residual depends on. The variables are each joint
   angle ``q1..qn``, ``temp_c`` and ``payload_kg`` (when they vary), the measurement
-  ``order`` (row index) and the approach direction of each joint ``approach_q1..`` (sign
-  of q - q_prev). For one variable v the residual is fitted by a smooth function of v in
+  ``order`` (row index), the approach direction of each joint ``approach_q1..`` (sign
+  of q - q_prev) and that of the move before it ``approach_prev_q1..`` (sign of q_prev
+  minus the angle the joint came from to reach q_prev, in measurement order; 0 where
+  there is none), where a two-move hysteresis shows. For one variable v the residual is fitted by a smooth function of v in
   joint space and in the base frame: columns ``phi_b(v) * [dP/dq (3, n), I3]`` (3 rows
   per measurement), phi_b the piecewise-linear hat functions on 6 quantile knots of v (one
   indicator per value when v takes at most 3 values), i.e. a joint-angle error and a TCP
@@ -69,7 +73,8 @@ import torch
 
 from torchcal.diagnosis.probe import Probe, probe
 from torchcal.folds import fold_of_pose
-from torchcal.measurements import Measurements
+from torchcal.kernel_ridge import variable_features
+from torchcal.measurements import Measurements, previous_rows
 from torchcal.robots.robot import Robot
 
 ALPHA = 1e-3
@@ -79,9 +84,13 @@ FOLDS = 5
 #: level of the probe's one-sided test over poses (held-out gain > 0).
 PROBE_ALPHA = 0.01
 #: where the noise floor comes from, in words.
-FLOOR_WORDS = {"repeats": "from repeats",
-               "probe": "no repeats: the probe's held-out error, an upper bound of the noise",
-               "variables": "no repeats: the strongest variable's held-out error, an upper bound of the noise"}
+FLOOR_WORDS = {"repeats": "estimate from repeats",
+               "neighbours": "no repeats: estimate from neighbours, the differences of the residual between "
+                             "poses close in joint space regressed to zero distance",
+               "probe": "no repeats: upper bound, the probe's held-out error",
+               "variables": "no repeats: upper bound, the strongest variable's held-out error"}
+#: nearest neighbours of each pose in the Gamma test (`noise_floor_from_neighbours`).
+NEIGHBOURS = 10
 
 
 @dataclass
@@ -157,9 +166,14 @@ def variables(robot: Robot, m: Measurements) -> dict:
         if v is not None:
             out[name] = v.detach().cpu().numpy().astype(np.float64)
     out["order"] = np.arange(len(m), dtype=np.float64)
-    step = np.sign(q - m.q_prev.detach().cpu().numpy())
+    q_prev = m.q_prev.detach().cpu()
+    step = np.sign(q - q_prev.numpy())
+    rows = previous_rows(m.q.detach().cpu())  # the row each joint was reached from (-1: the start)
+    before = torch.sign(q_prev - torch.where(rows >= 0, q_prev.gather(0, rows.clamp_min(0)), q_prev)).numpy()
     for j in range(robot.n):
         out[f"approach_q{j + 1}"] = step[:, j]
+    for j in range(robot.n):
+        out[f"approach_prev_q{j + 1}"] = before[:, j]
     return {k: v for k, v in out.items() if np.ptp(v) > 0}
 
 
@@ -202,6 +216,32 @@ def noise_floor_from_repeats(pose: np.ndarray, r: np.ndarray) -> float | None:
     np.add.at(mean, inv, r)
     mean /= counts[:, None]
     return float(np.sqrt(((r - mean[inv]) ** 2).sum() / dof))
+
+
+def noise_floor_from_neighbours(x: np.ndarray, r: np.ndarray, k: int = NEIGHBOURS) -> float | None:
+    """Gamma-test estimate (distance RMS, mm) of the noise in residual rows r (N, 3), one row
+    per pose, at inputs x (N, d), or None (fewer than 2 k + 2 rows, or a non-positive
+    intercept).
+
+    For the p-th nearest neighbour nn_p(i) of each row (p = 1..k, Euclidean in x),
+    ``delta_p = mean_i |x_i - x_nn_p(i)|^2`` and ``gamma_p = mean_i |r_i - r_nn_p(i)|^2 / 2``.
+    A smooth structure s(x) adds ``E|s(x_i) - s(x_j)|^2 / 2``, which goes to zero with the
+    distance, to gamma = E|e|^2 (independent noise e of both rows): the least-squares line
+    gamma_p = G + A delta_p, extrapolated to zero distance, gives G, the noise's mean
+    squared distance; the floor is sqrt(G). (Stefansson, Koncar and Jones, 1997.) It needs no
+    model to learn the structure; it is biased up where the structure changes faster than
+    the neighbours are close, and down where gamma bends over the distances sampled."""
+    import scipy.spatial
+
+    n = len(r)
+    if n < 2 * k + 2:
+        return None
+    _, nn = scipy.spatial.cKDTree(x).query(x, k + 1)
+    nn = nn[:, 1:]  # (N, k): each row's neighbours, itself left out
+    delta = ((x[:, None, :] - x[nn]) ** 2).sum(-1).mean(0)
+    gamma = 0.5 * ((r[:, None, :] - r[nn]) ** 2).sum(-1).mean(0)
+    slope, intercept = np.polyfit(delta, gamma, 1)
+    return float(np.sqrt(intercept)) if intercept > 0 else None
 
 
 #: ridge weights tried, relative to the (unit) squared column norms.
@@ -295,6 +335,11 @@ def unexplained(robot: Robot, m: Measurements, residuals: torch.Tensor, seed: in
         best = max((s for s, _ in strengths.values()), default=0.0)
         by_variable = rms * float(np.sqrt(1 - min(max(best, 0.0), 1.0)))
         floor, source = (pr.learnable_rms_mm, "probe") if pr.learnable_rms_mm <= by_variable else (by_variable, "variables")
+        q = {f"q{j + 1}": v for j, v in enumerate(m.q.detach().cpu().numpy().T)}
+        x = np.hstack(list(variable_features(q, robot.prismatic.nonzero().flatten().tolist()).values()))
+        near = noise_floor_from_neighbours(x, r) if len(np.unique(pose)) == N else None
+        if near is not None and near <= floor:  # an estimate, unless an upper bound is below it
+            floor, source = near, "neighbours"
     found = pr.p_value < PROBE_ALPHA
     return Unexplained(bool(corr) or found, rms, floor, [(k, float(s)) for k, s in corr], source, strengths, r,
                        pr.learnable_mm, pr.carried_by() if found else [], pr, pr.learnable_rms_mm)

@@ -156,7 +156,11 @@ def collinear_with(A: torch.Tensor, i: int, names: list, free: torch.Tensor) -> 
     """Which parameter column i of the Jacobian A (R, P) is collinear with: R^2 of column
     i regressed on the other free columns (1: exactly collinear), and the partner, the
     column whose removal lowers that R^2 most (what explains column i that nothing else
-    does). Unit-norm columns, least squares. ('', 0.0) when there is no other column."""
+    does). Unit-norm columns, least squares. ('', 0.0) when there is no other column.
+
+    The drop of R^2 when column j is removed is x_j^2 / [(B^T B)^-1]_jj (x the least-squares
+    coefficients on the other columns B, a unit): one SVD of B instead of a regression per
+    column; when B is rank-deficient at lstsq's cut, each drop is a regression of its own."""
     M = A.detach().cpu().to(torch.float64).numpy()
     others = [j for j in free.nonzero().flatten().tolist() if j != i]
     if not others or not np.linalg.norm(M[:, i]) > 0:
@@ -172,7 +176,12 @@ def collinear_with(A: torch.Tensor, i: int, names: list, free: torch.Tensor) -> 
 
     idx = list(range(len(others)))
     full = r2(idx)
-    drop = [full - r2([k for k in idx if k != j]) for j in idx]
+    _, s, vt = np.linalg.svd(B, full_matrices=False)
+    if s[-1] > np.finfo(float).eps * max(B.shape) * s[0]:  # full rank: the closed form
+        x = vt.T @ ((vt @ (B.T @ a)) / s ** 2)
+        drop = x ** 2 / ((vt.T / s) ** 2).sum(-1)
+    else:
+        drop = [full - r2([k for k in idx if k != j]) for j in idx]
     return names[others[int(np.argmax(drop))]], min(max(full, 0.0), 1.0)
 
 

@@ -1,0 +1,50 @@
+"""torchcal.calibration.plausibility.collinear_with: the partner by the closed-form R^2 drop
+is the one the per-column regressions name."""
+
+import numpy as np
+import torch
+
+from torchcal.calibration.plausibility import collinear_with
+
+
+def _by_regressions(M: np.ndarray, i: int, free: np.ndarray):
+    """The definition: R^2 of column i on the other free columns, and the column whose
+    removal lowers it most, each by its own least-squares regression."""
+    others = [j for j in np.flatnonzero(free) if j != i]
+    a = M[:, i] / np.linalg.norm(M[:, i])
+    B = M[:, others] / np.linalg.norm(M[:, others], axis=0)
+
+    def r2(cols):
+        x = np.linalg.lstsq(B[:, cols], a, rcond=None)[0]
+        return 1 - float(((a - B[:, cols] @ x) ** 2).sum())
+
+    idx = list(range(len(others)))
+    full = r2(idx)
+    drop = [full - r2([k for k in idx if k != j]) for j in idx]
+    return others[int(np.argmax(drop))], min(max(full, 0.0), 1.0)
+
+
+def test_partner_and_r2_are_those_of_the_regressions():
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        M = rng.normal(size=(300, 40))
+        M[:, 5] = 0.9 * M[:, 3] + 0.3 * M[:, 7] + 0.01 * rng.normal(size=300)  # nearly collinear
+        M[:, 10] = M[:, 11] + 1e-4 * rng.normal(size=300)
+        free = np.ones(40, dtype=bool)
+        free[20] = False
+        names = [f"p{k}" for k in range(40)]
+        for i in (5, 10, 3, 0):
+            j, r2 = _by_regressions(M, i, free)
+            got = collinear_with(torch.from_numpy(M), i, names, torch.from_numpy(free))
+            assert got[0] == names[j] and got[1] == r2
+
+
+def test_rank_deficient_others_fall_back_to_the_regressions():
+    rng = np.random.default_rng(1)
+    M = rng.normal(size=(200, 12))
+    M[:, 4] = M[:, 6] - M[:, 8]  # the other columns are exactly dependent
+    M[:, 0] = M[:, 6] + 0.05 * rng.normal(size=200)
+    free = np.ones(12, dtype=bool)
+    j, r2 = _by_regressions(M, 0, free)
+    got = collinear_with(torch.from_numpy(M), 0, [f"p{k}" for k in range(12)], torch.from_numpy(free))
+    assert got == (f"p{j}", r2) and r2 > 0.9

@@ -173,24 +173,3 @@ def test_a_narrow_joint_is_not_searched_and_warned_about_once(capsys):
             warnings.warn("joint_periodic: joint 3: ...", NarrowRangeWarning)
     err = capsys.readouterr().err
     assert err.count("\n") == 2 and err.startswith("torchcal: warning: joint_periodic: joint 3: its measured range")
-
-
-def test_search_offers_no_order_within_the_resolution_of_a_chosen_one():
-    """Over a 2 rad range (resolution pi orders) a term between two orders (12.5) is fitted
-    by neighbouring orders whose columns are nearly collinear there; the search keeps the
-    best of a band and offers none closer than the resolution to it."""
-    rng = np.random.default_rng(0)
-    n = 400
-    q = rng.uniform(-1.0, 1.0, n)
-    t = rng.normal(size=(n, 3))
-    A = rng.normal(size=(3 * n, 5))
-    grid = list(range(7, 61))
-    C = np.stack([f(k * q)[:, None] * t for k in grid for f in (np.sin, np.cos)], -1).reshape(3 * n, -1)
-    r = A @ rng.normal(size=5) + ((0.3 * np.sin(12.5 * q) + 0.2 * np.cos(30.4 * q))[:, None] * t).reshape(-1) \
-        + rng.normal(0, 0.05, 3 * n)
-    folds = rng.permutation(n) % 5
-    found = [grid[i] for i in search_orders(r, A, C, grid, folds, resolution=math.pi)[0]]
-    assert found[:2] in ([12, 30], [13, 30], [13, 31], [12, 31])
-    assert all(abs(a - b) >= math.pi for k, a in enumerate(found) for b in found[:k])
-    full_turn = [grid[i] for i in search_orders(r, A, C, grid, folds)[0]]  # resolution 1: all orders apart
-    assert any(abs(a - b) == 1 for k, a in enumerate(full_turn) for b in full_turn[:k])

@@ -15,10 +15,7 @@ range resolves and keeps those that predict held-out poses (`search_orders`):
 3. The order with the smallest held-out sum of squares is added when it cuts the held-out
    RMS by at least `MIN_ORDER_GAIN` and its F-test on all training rows (2 new columns
    beyond X) passes ``alpha / K`` (Bonferroni over the grid); repeat from 2 with it in X,
-   at most `MAX_ORDERS` times. An order closer than the resolution (below) to one already
-   chosen is not offered again: over the range the two pairs of columns are nearly
-   collinear, so their coefficients would be set by each other's (large and opposite,
-   the model's plausibility then refuses the whole candidate), not by the data.
+   at most `MAX_ORDERS` times.
 
 What a joint's measured range R (rad) resolves (`order_limits`):
 
@@ -136,12 +133,9 @@ def held_out_sums(r: np.ndarray, X: np.ndarray, C: np.ndarray, rows: np.ndarray)
 
 
 def search_orders(r: np.ndarray, A: np.ndarray, C: np.ndarray, grid, folds: np.ndarray, *,
-                  alpha: float = ALPHA, max_orders: int = MAX_ORDERS, min_gain: float = MIN_ORDER_GAIN,
-                  resolution: float = 1.0):
+                  alpha: float = ALPHA, max_orders: int = MAX_ORDERS, min_gain: float = MIN_ORDER_GAIN):
     """Greedy held-out search (module doc) of residual r (3N,) mm on base columns A (3N, p)
-    over the orders `grid` (K,) with columns C (3N, 2K) (sin, cos per order), folds (N,);
-    an order closer than `resolution` (orders, `OrderLimits.resolution`) to a chosen one
-    is not offered.
+    over the orders `grid` (K,) with columns C (3N, 2K) (sin, cos per order), folds (N,).
 
     Returns (indices into grid, in the order chosen; held-out RMS mm before and after each;
     F-test p-values).
@@ -152,12 +146,11 @@ def search_orders(r: np.ndarray, A: np.ndarray, C: np.ndarray, grid, folds: np.n
     rows = np.repeat(np.asarray(folds), 3)
     level = alpha / max(len(grid), 1)
     chosen, path, ps = [], [], []
-    too_close = np.zeros(len(grid), dtype=bool)
     while len(chosen) < max_orders:
         base, per = held_out_sums(r, X, Cn, rows)
         if not path:
             path.append(math.sqrt(base / n_rows))
-        per[too_close] = np.inf
+        per[chosen] = np.inf
         best = int(np.argmin(per))
         cv = math.sqrt(max(per[best], 0.0) / n_rows)
         U, _ = _pinv_parts(X)
@@ -174,8 +167,6 @@ def search_orders(r: np.ndarray, A: np.ndarray, C: np.ndarray, grid, folds: np.n
         if p >= level or cv > path[-1] * (1 - min_gain):
             break
         chosen.append(best)
-        too_close |= np.abs(np.asarray(grid, dtype=float) - grid[best]) < resolution - 1e-9
-        too_close[best] = True
         path.append(cv)
         ps.append(p)
         X = np.hstack([X, pair])
@@ -197,7 +188,7 @@ def propose_orders(robot, model, theta, ctx, r: np.ndarray, A: np.ndarray, folds
     grid = tuple(range(lim.k_min, lim.k_max + 1))
     key = ("joint_periodic", (joint,))
     C = all_candidate_columns(robot, model, theta, ctx, [key], {key: (grid,)})[key]
-    idx, path, ps = search_orders(r, A, C, grid, folds, resolution=lim.resolution, **kw)
+    idx, path, ps = search_orders(r, A, C, grid, folds, **kw)
     amps = ()
     if idx:
         cols = np.hstack([C[:, 2 * i:2 * i + 2] for i in idx])

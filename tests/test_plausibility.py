@@ -39,12 +39,31 @@ def test_partner_and_r2_are_those_of_the_regressions():
             assert got[0] == names[j] and got[1] == r2
 
 
-def test_rank_deficient_others_fall_back_to_the_regressions():
+def test_a_rank_near_lstsqs_cut_falls_back_to_the_regressions():
     rng = np.random.default_rng(1)
     M = rng.normal(size=(200, 12))
-    M[:, 4] = M[:, 6] - M[:, 8]  # the other columns are exactly dependent
+    M[:, 4] = M[:, 6] - M[:, 8] + 3e-12 * rng.normal(size=200)  # a singular value near the cut
     M[:, 0] = M[:, 6] + 0.05 * rng.normal(size=200)
     free = np.ones(12, dtype=bool)
+    B = M[:, 1:] / np.linalg.norm(M[:, 1:], axis=0)
+    s = np.linalg.svd(B, compute_uv=False)
+    cut = np.finfo(float).eps * 200 * s[0]
+    assert cut / 100 < s[-1] < 100 * cut  # the case this test is for
     j, r2 = _by_regressions(M, 0, free)
     got = collinear_with(torch.from_numpy(M), 0, [f"p{k}" for k in range(12)], torch.from_numpy(free))
     assert got == (f"p{j}", r2) and r2 > 0.9
+
+
+def test_exact_dependencies_among_the_others_give_the_regressions_partner():
+    """Position columns of parameters that only orientation rows identify are exactly
+    dependent: lstsq cuts them, and a column in such a dependency drops nothing."""
+    rng = np.random.default_rng(2)
+    for trial in range(10):
+        M = rng.normal(size=(300, 30))
+        M[:, 12] = M[:, 13] + M[:, 14]  # exact dependencies of the other columns
+        M[:, 20] = 0.5 * M[:, 21]
+        M[:, 0] = 0.8 * M[:, 3] + 0.4 * M[:, 13] + 0.02 * rng.normal(size=300)
+        free = np.ones(30, dtype=bool)
+        j, r2 = _by_regressions(M, 0, free)
+        got = collinear_with(torch.from_numpy(M), 0, [f"p{k}" for k in range(30)], torch.from_numpy(free))
+        assert got == (f"p{j}", r2), (trial, got, j)

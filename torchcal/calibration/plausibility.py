@@ -181,7 +181,11 @@ def collinear_with(A: torch.Tensor, i: int, names: list, free: torch.Tensor) -> 
     _, s, vt = np.linalg.svd(B, full_matrices=False)
     cut = np.finfo(float).eps * max(B.shape) * s[0]  # lstsq's (rcond=None)
     r = int((s > cut).sum())
-    if not np.any((s > cut / 100) & (s < cut * 100)):  # the rank is clear: the closed form
+    # without a column, lstsq's cut is at least eps * max(shape) * s[1] (interlacing):
+    # no singular value within a factor 10 of [that, cut] means every regression keeps
+    # the rank the closed form uses
+    low = np.finfo(float).eps * max(B.shape) * (s[1] if len(s) > 1 else s[0])
+    if not np.any((s > low / 10) & (s < cut * 10)):
         v = vt[:r].T / s[:r]  # (m, r)
         x = v @ (v.T @ (B.T @ a))
         in_dependency = (vt[r:] ** 2).sum(0) > 1e-12  # (m,)

@@ -11,7 +11,9 @@ For each series (B, C, D of examples/ur10) and split seed (60/40 by pose, seeds 
 Prints one line per run, a table of means and standard deviations (mm, validation RMS of
 the distance error) and a table of the held-out distance error's mean, RMS, 95th
 percentile and maximum (each the mean over the splits) against the targets, and writes
-every figure to ``--json``. Wall times are of whole commands (start-up included).
+every figure to ``--json``, each split's `discover` history (the JSON of ``discover
+--json``: every round's refitted candidates, figures and reasons) under its row's
+"discover_history". Wall times are of whole commands (start-up included).
 
 Usage: python benchmarks/study_real.py [--series b c d] [--seeds 0 1 2 3 4] [--json OUT]
 """
@@ -73,6 +75,7 @@ def one(series: str, seed: int, work: Path) -> dict:
     row["discover_stats"] = val_stats(work / "disc.json", va, work)
     row["discover"] = row["discover_stats"]["rms"]
     hist = json.loads((work / "hist.json").read_text())
+    row["discover_history"] = hist
     found = json.loads((work / "disc.json").read_text())["effects"]
     row["effects"] = [e if isinstance(e, str) else e.get("spec", str(e)) for e in found]
     row["learnable"] = (hist.get("unexplained") or {}).get("probe_left_rms_mm")

@@ -1,15 +1,17 @@
-"""The determined-by-the-data rule (torchcal.calibration.plausibility.undetermined): a
+"""torchcal.calibration.plausibility: the determined-by-the-data rule (`undetermined`: a
 parameter is set by the prior when its posterior sd is at least half its plausible
-scale (the data then carry less than three times the prior's information), beyond its
-plausible size when |value| exceeds the scale; set_by_prior applies the same rule to a
-fit's parameters."""
+scale, the data then carrying less than three times the prior's information; beyond its
+plausible size when |value| exceeds the scale; `set_by_prior` applies it to a fit's
+parameters) and `collinear_with` (the partner by the closed-form R^2 drop is the one the
+per-column regressions name)."""
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
-from torchcal.calibration.plausibility import DETERMINED_RATIO, set_by_prior, undetermined
+from torchcal.calibration.plausibility import DETERMINED_RATIO, collinear_with, set_by_prior, undetermined
 
 
 def test_half_the_scale_separates_measured_from_set_by_the_prior():
@@ -39,3 +41,65 @@ def test_set_by_prior_names_the_free_parameters_with_a_wide_posterior():
     std = torch.tensor([0.49, 0.5, 0.9, 100.0], dtype=torch.float64)
     free = torch.tensor([True, True, False, True])
     assert set_by_prior(_Model(), std, free, scales) == ["b"]
+
+
+def _by_regressions(M: np.ndarray, i: int, free: np.ndarray):
+    """The definition: R^2 of column i on the other free columns, and the column whose
+    removal lowers it most, each by its own least-squares regression."""
+    others = [j for j in np.flatnonzero(free) if j != i]
+    a = M[:, i] / np.linalg.norm(M[:, i])
+    B = M[:, others] / np.linalg.norm(M[:, others], axis=0)
+
+    def r2(cols):
+        x = np.linalg.lstsq(B[:, cols], a, rcond=None)[0]
+        return 1 - float(((a - B[:, cols] @ x) ** 2).sum())
+
+    idx = list(range(len(others)))
+    full = r2(idx)
+    drop = [full - r2([k for k in idx if k != j]) for j in idx]
+    return others[int(np.argmax(drop))], min(max(full, 0.0), 1.0)
+
+
+def test_partner_and_r2_are_those_of_the_regressions():
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        M = rng.normal(size=(300, 40))
+        M[:, 5] = 0.9 * M[:, 3] + 0.3 * M[:, 7] + 0.01 * rng.normal(size=300)  # nearly collinear
+        M[:, 10] = M[:, 11] + 1e-4 * rng.normal(size=300)
+        free = np.ones(40, dtype=bool)
+        free[20] = False
+        names = [f"p{k}" for k in range(40)]
+        for i in (5, 10, 3, 0):
+            j, r2 = _by_regressions(M, i, free)
+            got = collinear_with(torch.from_numpy(M), i, names, torch.from_numpy(free))
+            assert got[0] == names[j] and got[1] == r2
+
+
+def test_a_rank_near_lstsqs_cut_falls_back_to_the_regressions():
+    rng = np.random.default_rng(1)
+    M = rng.normal(size=(200, 12))
+    M[:, 4] = M[:, 6] - M[:, 8] + 1e-13 * rng.normal(size=200)  # a singular value near the cut
+    M[:, 0] = M[:, 6] + 0.05 * rng.normal(size=200)
+    free = np.ones(12, dtype=bool)
+    B = M[:, 1:] / np.linalg.norm(M[:, 1:], axis=0)
+    s = np.linalg.svd(B, compute_uv=False)
+    eps = np.finfo(float).eps
+    assert eps * 200 * s[1] / 10 < s[-1] < 10 * eps * 200 * s[0]  # the case this test is for
+    j, r2 = _by_regressions(M, 0, free)
+    got = collinear_with(torch.from_numpy(M), 0, [f"p{k}" for k in range(12)], torch.from_numpy(free))
+    assert got == (f"p{j}", r2) and r2 > 0.9
+
+
+def test_exact_dependencies_among_the_others_give_the_regressions_partner():
+    """Position columns of parameters that only orientation rows identify are exactly
+    dependent: lstsq cuts them, and a column in such a dependency drops nothing."""
+    rng = np.random.default_rng(2)
+    for trial in range(10):
+        M = rng.normal(size=(300, 30))
+        M[:, 12] = M[:, 13] + M[:, 14]  # exact dependencies of the other columns
+        M[:, 20] = 0.5 * M[:, 21]
+        M[:, 0] = 0.8 * M[:, 3] + 0.4 * M[:, 13] + 0.02 * rng.normal(size=300)
+        free = np.ones(30, dtype=bool)
+        j, r2 = _by_regressions(M, 0, free)
+        got = collinear_with(torch.from_numpy(M), 0, [f"p{k}" for k in range(30)], torch.from_numpy(free))
+        assert got == (f"p{j}", r2), (trial, got, j)

@@ -81,7 +81,13 @@ def collinear_with(A: torch.Tensor, i: int, names: list, free: torch.Tensor) -> 
     """Which parameter column i of the Jacobian A (R, P) is collinear with: R^2 of column
     i regressed on the other free columns (1: exactly collinear), and the partner, the
     column whose removal lowers that R^2 most (what explains column i that nothing else
-    does). Unit-norm columns, least squares. ('', 0.0) when there is no other column."""
+    does). Unit-norm columns, least squares. ('', 0.0) when there is no other column.
+
+    The drop of R^2 when column j is removed is x_j^2 / [(B^T B)^+]_jj (x the minimum-norm
+    least-squares coefficients on the other columns B, a unit), and 0 for a column in an
+    exact dependency of B (removing it leaves the span as it is): one SVD of B with
+    lstsq's rank cut instead of a regression per column; when a singular value lies near
+    that cut, each drop is a regression of its own."""
     M = A.detach().cpu().to(torch.float64).numpy()
     others = [j for j in free.nonzero().flatten().tolist() if j != i]
     if not others or not np.linalg.norm(M[:, i]) > 0:
@@ -97,7 +103,20 @@ def collinear_with(A: torch.Tensor, i: int, names: list, free: torch.Tensor) -> 
 
     idx = list(range(len(others)))
     full = r2(idx)
-    drop = [full - r2([k for k in idx if k != j]) for j in idx]
+    _, s, vt = np.linalg.svd(B, full_matrices=False)
+    cut = np.finfo(float).eps * max(B.shape) * s[0]  # lstsq's (rcond=None)
+    r = int((s > cut).sum())
+    # without a column, lstsq's cut is at least eps * max(shape) * s[1] (interlacing):
+    # no singular value within a factor 10 of [that, cut] means every regression keeps
+    # the rank the closed form uses
+    low = np.finfo(float).eps * max(B.shape) * (s[1] if len(s) > 1 else s[0])
+    if not np.any((s > low / 10) & (s < cut * 10)):
+        v = vt[:r].T / s[:r]  # (m, r)
+        x = v @ (v.T @ (B.T @ a))
+        in_dependency = (vt[r:] ** 2).sum(0) > 1e-12  # (m,)
+        drop = np.where(in_dependency, 0.0, x ** 2 / (v ** 2).sum(-1).clip(1e-300))
+    else:
+        drop = [full - r2([k for k in idx if k != j]) for j in idx]
     return names[others[int(np.argmax(drop))]], min(max(full, 0.0), 1.0)
 
 

@@ -120,7 +120,7 @@ def test_compensate_failure_line_lists_the_apis_rows(fitted, tmp_path, capsys):
     failed = sorted(set(d["not_converged"]) | set(d["outside_limits"]))
     assert err.startswith(f"torchcal compensate: error: {len(failed)} target(s) failed (")
     assert f"not converged: target(s) {', '.join(map(str, d['not_converged']))}" in err
-    assert f"beyond the reach of ur5e: target(s) 3" in err and err.count("\n") == 1
+    assert "beyond the reach of ur5e: target(s) 3" in err and err.count("\n") == 1
 
 
 @pytest.mark.parametrize("command", ["fit", "compensate"])

@@ -1,5 +1,5 @@
-"""The optional residual stage (a non-physical kernel correction on top of the physical
-model) and the kernel probe it is built from.
+"""The optional residual stage (torchcal.calibration.residual_model): a non-physical
+kernel correction on top of the physical model.
 
 Data: the project's simulator (UR5e, geometric deviations as the "real" robot), 0.02 mm
 noise per axis, plus a smooth error the physical model cannot hold, injected here by hand:
@@ -17,8 +17,6 @@ import torchcal
 from torchcal.calibration.joint_range import CalibratedRangeWarning
 from torchcal.cli import main
 from torchcal import kernel_ridge as KR
-from torchcal.diagnosis import probe as P
-from torchcal.folds import fold_of_pose
 from torchcal.io import modelfile
 from torchcal.io.measurement_csv import write_measurements
 from torchcal.measurements import Measurements
@@ -126,39 +124,6 @@ def test_fit_cli_stores_the_stage_and_evaluate_applies_it(sessions, tmp_path, ca
                  "--json", str(tmp_path / "e.json")]) == 0
     got = json.loads((tmp_path / "e.json").read_text())["rms_mm"]
     assert got == pytest.approx(torchcal.evaluate(res, test).rms_mm, rel=1e-6)
-
-
-# ------------------------------------------------------------------------- the probe
-def test_block_cv_matches_explicit_kernel_ridge_solves():
-    g = np.random.default_rng(5)
-    X, Y = torch.from_numpy(g.normal(size=(30, 2))), torch.from_numpy(g.normal(size=(30, 3)))
-    K = KR.rbf(X, X, 0.8)
-    blocks = [torch.arange(0, 10), torch.arange(10, 30)]
-    pred, alpha = KR.block_cv(K, Y, blocks, (0.01, 1.0))
-    Kn, Yn = K.numpy(), Y.numpy()
-    for i, lam in enumerate((0.01, 1.0)):
-        np.testing.assert_allclose(alpha[i].numpy(), np.linalg.solve(Kn + lam * np.eye(30), Yn), atol=1e-9)
-        for B in blocks:
-            b = B.numpy()
-            rest = np.setdiff1d(np.arange(30), b)
-            a = np.linalg.solve(Kn[np.ix_(rest, rest)] + lam * np.eye(len(rest)), Yn[rest])
-            np.testing.assert_allclose(pred[i, B].numpy(), Kn[np.ix_(b, rest)] @ a, atol=1e-9)
-
-
-def test_probe_prediction_of_a_fold_never_sees_that_fold():
-    g = np.random.default_rng(6)
-    q = g.uniform(-3, 3, size=(120, 2))
-    r = np.stack([np.sin(2 * q[:, 0]), np.zeros(120), 0.1 * g.normal(size=120)], -1)
-    pose = np.arange(120)
-    fold = fold_of_pose(pose, 0)
-    a = P.probe({"q1": q[:, 0], "q2": q[:, 1]}, r, pose)
-    moved = r.copy()
-    moved[fold == 1] += 5.0
-    b = P.probe({"q1": q[:, 0], "q2": q[:, 1]}, moved, pose)
-    np.testing.assert_allclose(a.prediction[fold == 1], b.prediction[fold == 1], atol=1e-12)
-    assert np.abs(a.prediction[fold != 1] - b.prediction[fold != 1]).max() > 1e-3
-    assert a.p_value < 1e-6 and [v for v, _ in a.carried_by()] == ["q1"], (a.p_value, a.relevance)
-    assert a.learnable_rms_mm < 0.5 * a.rms_mm
 
 
 def test_compensate_cli_applies_the_stage(sessions, tmp_path):

@@ -69,11 +69,11 @@ def interval(tmp_path_factory):
 @pytest.mark.filterwarnings("ignore:targets.*beyond the reach")
 def test_compensate_cli_and_api_agree_field_by_field(request, kind, far, tmp_path, capsys):
     """The same file, printed figures and exit status from the CLI and the API, for a fitted
-    model and an interval model; with a target 100 m away (no seeds) the others still solve."""
+    model and an interval model; with a target beyond reach (no seeds) the others still solve."""
     rob, model = request.getfixturevalue("fitted" if kind == "fit" else "interval")[:2]
     t = rob.fk(random_poses(rob, 25, 40))
     if far:
-        t = torch.cat([t, torch.tensor([[1e5, 0.0, 0.0]], dtype=t.dtype)])
+        t = torch.cat([t, torch.tensor([[3000.0, 0.0, 500.0]], dtype=t.dtype)])  # beyond the ur5e's reach
     targets = _targets(tmp_path / "t.csv", t)
     out = tmp_path / "q.csv"
     capsys.readouterr()

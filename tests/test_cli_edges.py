@@ -9,7 +9,6 @@ import sys
 from pathlib import Path
 
 import pytest
-import torch
 
 import torchcal
 from torchcal.cli import main
@@ -53,14 +52,29 @@ def test_urdf_as_robot_hints_at_robot_import(tmp_path, capsys):
         load_robot_file(x)
 
 
-def test_fit_refuses_to_write_over_the_robot_file(tmp_path, capsys):
-    rf = _robot_file(tmp_path)
+@pytest.mark.parametrize("command, over", [("fit", "robot"), ("simulate", "robot"), ("simulate", "urdf"),
+                                           ("plan", "urdf")])
+def test_no_command_writes_over_its_robot_file_or_the_urdf(tmp_path, capsys, command, over):
+    """--out naming the robot file (or the URDF it was imported from) is refused, even with
+    --force, in one line; both files are left as they were."""
+    from torchcal.io.urdf import minimal_urdf
+
+    src = tmp_path / "arm.urdf"
+    src.write_text(minimal_urdf(torchcal.robot("ur5e")))
+    robot = tmp_path / "arm.json"
+    assert main(["robot", "import", str(src), "--base", "base_link", "--tip", "tool0", "--out", str(robot)]) == 0
     data = tmp_path / "d.csv"
-    assert main(["simulate", "--robot", str(rf), "--n", "20", "--out", str(data)]) == 0
-    before = rf.read_bytes()
-    assert main(["fit", str(data), "--robot", str(rf), "--out", str(rf), "--force"]) == 2
+    assert main(["simulate", "--robot", str(robot), "--n", "20", "--seed", "1", "--out", str(data)]) == 0
+    before = {p: p.read_bytes() for p in (src, robot)}
+    out = str(robot if over == "robot" else src)
+    argv = {"fit": ["fit", str(data), "--robot", str(robot)],
+            "simulate": ["simulate", "--robot", str(robot), "--n", "10", "--seed", "1"],
+            "plan": ["plan", "--robot", str(robot), "--n", "10", "--candidates", "50"]}[command]
+    capsys.readouterr()
+    assert main([*argv, "--out", out, "--force"]) == 2
     err = capsys.readouterr().err
-    assert "input file" in err and rf.read_bytes() == before
+    assert "names the input file" in err and "refusing to write over it" in err and err.count("\n") == 1
+    assert all(p.read_bytes() == b for p, b in before.items())
 
 
 @pytest.mark.parametrize("argv, prog", [

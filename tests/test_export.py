@@ -138,20 +138,3 @@ def test_unwritable_output_is_found_before_the_work_with_the_users_path(fitted, 
     cap = capsys.readouterr()
     assert cap.out == "" and len(cap.err.splitlines()) == 1  # nothing ran: no refit line
     assert f"{out}: cannot write in folder /proc" in cap.err and ".tmp" not in cap.err and "Errno" not in cap.err
-
-
-def test_no_command_writes_over_the_robot_file_or_its_urdf(tmp_path, capsys):
-    from torchcal.io.urdf import minimal_urdf
-
-    src = tmp_path / "arm.urdf"
-    src.write_text(minimal_urdf(torchcal.robot("ur5e")))
-    robot = tmp_path / "arm.json"
-    assert main(["robot", "import", str(src), "--base", "base_link", "--tip", "tool0", "--out", str(robot)]) == 0
-    before = {p: p.read_bytes() for p in (src, robot)}
-    for argv in (["simulate", "--robot", str(robot), "--n", "10", "--seed", "1", "--out", str(robot)],
-                 ["simulate", "--robot", str(robot), "--n", "10", "--seed", "1", "--out", str(src)],
-                 ["plan", "--robot", str(robot), "--n", "10", "--candidates", "50", "--out", str(src)]):
-        capsys.readouterr()
-        assert main([*argv, "--force"]) == 2
-        assert "refusing to write over it" in capsys.readouterr().err
-    assert all(p.read_bytes() == b for p, b in before.items())

@@ -17,10 +17,14 @@ geometric deviations the fits are exact (< 1e-9 mm), checked below for two effec
 """
 
 import pytest
+import torch
+from torch.testing import assert_close
 
 from npsim import numpy_fk
 
+import torchcal
 from torchcal.effects import make_context
+from torchcal.measurements import Measurements
 from torchcal.calibration.fit import fit
 from torchcal.calibration.model import CalibrationModel
 from torchcal.simulation.virtual_robot import VirtualRobot, random_poses
@@ -109,3 +113,19 @@ def test_recovery_against_an_independent_reference(kr):
     pred = model.predict(res.theta, make_context(kr, q_new)).numpy()
     err = np.linalg.norm(pred - numpy_fk(kr, q_new.numpy(), dev), axis=1)
     assert err.max() <= 1e-6
+
+
+def test_residuals_are_measured_minus_model(kr):
+    """The sign every consumer relies on (viz draws measured - residual as the model; the
+    direction tests of unexplained read it): FitResult.residuals = measured - model, checked
+    against the model's prediction computed here, on noisy data so the sign shows."""
+    model = CalibrationModel(kr, ["base_frame"])
+    q = random_poses(kr, 40, 41)
+    g = torch.Generator().manual_seed(42)
+    xyz = model.predict(model.zeros(), make_context(kr, q))
+    xyz = xyz + 0.05 * torch.randn(xyz.shape, generator=g, dtype=torch.float64)
+    for robust in (None, "huber"):
+        res = torchcal.fit(model, Measurements(torch.arange(40), q, xyz), robust=robust)
+        expected = xyz - res.model.predict(res.theta, make_context(kr, q))
+        assert float(expected.abs().max()) > 0.02  # the noise is there
+        assert_close(res.residuals, expected, rtol=0, atol=1e-9)

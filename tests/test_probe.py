@@ -10,6 +10,7 @@ import torch
 
 from torchcal import kernel_ridge as KR
 from torchcal.diagnosis import probe as P
+from torchcal.folds import fold_of_pose
 
 
 def blocks_of(n, folds=5):
@@ -76,3 +77,19 @@ def test_with_many_rows_the_choice_never_sees_the_tested_poses(large):
 def test_with_many_rows_and_nothing_to_learn_the_probe_is_not_significant(large):
     values, _, noise, pose = large
     assert P.probe(values, noise, pose).p_value > 0.01
+
+
+def test_probe_prediction_of_a_fold_never_sees_that_fold():
+    g = np.random.default_rng(6)
+    q = g.uniform(-3, 3, size=(120, 2))
+    r = np.stack([np.sin(2 * q[:, 0]), np.zeros(120), 0.1 * g.normal(size=120)], -1)
+    pose = np.arange(120)
+    fold = fold_of_pose(pose, 0)
+    a = P.probe({"q1": q[:, 0], "q2": q[:, 1]}, r, pose)
+    moved = r.copy()
+    moved[fold == 1] += 5.0
+    b = P.probe({"q1": q[:, 0], "q2": q[:, 1]}, moved, pose)
+    np.testing.assert_allclose(a.prediction[fold == 1], b.prediction[fold == 1], atol=1e-12)
+    assert np.abs(a.prediction[fold != 1] - b.prediction[fold != 1]).max() > 1e-3
+    assert a.p_value < 1e-6 and [v for v, _ in a.carried_by()] == ["q1"], (a.p_value, a.relevance)
+    assert a.learnable_rms_mm < 0.5 * a.rms_mm

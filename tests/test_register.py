@@ -5,7 +5,6 @@ does in its own frame; geometry, effects, covariance and calibrated range are ke
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from pathlib import Path
 

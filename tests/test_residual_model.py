@@ -1,5 +1,5 @@
-"""The optional residual stage (a non-physical kernel correction on top of the physical
-model) and the kernel probe it is built from.
+"""The optional residual stage (torchcal.calibration.residual_model): a non-physical
+kernel correction on top of the physical model.
 
 Data: the project's simulator (UR5e, geometric deviations as the "real" robot), 0.02 mm
 noise per axis, plus a smooth error the physical model cannot hold, injected here by hand:
@@ -17,8 +17,6 @@ import torchcal
 from torchcal.calibration.joint_range import CalibratedRangeWarning
 from torchcal.cli import main
 from torchcal import kernel_ridge as KR
-from torchcal.diagnosis import probe as P
-from torchcal.folds import fold_of_pose
 from torchcal.io import modelfile
 from torchcal.io.measurement_csv import write_measurements
 from torchcal.measurements import Measurements
@@ -128,39 +126,6 @@ def test_fit_cli_stores_the_stage_and_evaluate_applies_it(sessions, tmp_path, ca
     assert got == pytest.approx(torchcal.evaluate(res, test).rms_mm, rel=1e-6)
 
 
-# ------------------------------------------------------------------------- the probe
-def test_block_cv_matches_explicit_kernel_ridge_solves():
-    g = np.random.default_rng(5)
-    X, Y = torch.from_numpy(g.normal(size=(30, 2))), torch.from_numpy(g.normal(size=(30, 3)))
-    K = KR.rbf(X, X, 0.8)
-    blocks = [torch.arange(0, 10), torch.arange(10, 30)]
-    pred, alpha = KR.block_cv(K, Y, blocks, (0.01, 1.0))
-    Kn, Yn = K.numpy(), Y.numpy()
-    for i, lam in enumerate((0.01, 1.0)):
-        np.testing.assert_allclose(alpha[i].numpy(), np.linalg.solve(Kn + lam * np.eye(30), Yn), atol=1e-9)
-        for B in blocks:
-            b = B.numpy()
-            rest = np.setdiff1d(np.arange(30), b)
-            a = np.linalg.solve(Kn[np.ix_(rest, rest)] + lam * np.eye(len(rest)), Yn[rest])
-            np.testing.assert_allclose(pred[i, B].numpy(), Kn[np.ix_(b, rest)] @ a, atol=1e-9)
-
-
-def test_probe_prediction_of_a_fold_never_sees_that_fold():
-    g = np.random.default_rng(6)
-    q = g.uniform(-3, 3, size=(120, 2))
-    r = np.stack([np.sin(2 * q[:, 0]), np.zeros(120), 0.1 * g.normal(size=120)], -1)
-    pose = np.arange(120)
-    fold = fold_of_pose(pose, 0)
-    a = P.probe({"q1": q[:, 0], "q2": q[:, 1]}, r, pose)
-    moved = r.copy()
-    moved[fold == 1] += 5.0
-    b = P.probe({"q1": q[:, 0], "q2": q[:, 1]}, moved, pose)
-    np.testing.assert_allclose(a.prediction[fold == 1], b.prediction[fold == 1], atol=1e-12)
-    assert np.abs(a.prediction[fold != 1] - b.prediction[fold != 1]).max() > 1e-3
-    assert a.p_value < 1e-6 and [v for v, _ in a.carried_by()] == ["q1"], (a.p_value, a.relevance)
-    assert a.learnable_rms_mm < 0.5 * a.rms_mm
-
-
 def test_compensate_cli_applies_the_stage(sessions, tmp_path):
     train, test, res = sessions
     (tmp_path / "m.json").write_text(json.dumps(modelfile.to_dict(res)))
@@ -174,3 +139,63 @@ def test_compensate_cli_applies_the_stage(sessions, tmp_path):
     q_cli = np.stack([out[f"q{j + 1}"] for j in range(ROBOT.n)], -1)
     lib = torchcal.compensate(res, test.xyz[:10], q0=test.q[:10])
     np.testing.assert_allclose(q_cli, torch.rad2deg(lib.q).numpy(), atol=1e-6)
+
+
+def test_stage_is_sklearns_kernel_ridge_on_the_chosen_joints():
+    """`fit_residual_model` on a residual of q2 alone (plain numpy draws, no robot fit): it
+    keeps q2, and its dual weights and predictions at new poses are those of scikit-learn's
+    KernelRidge (RBF, gamma = 1 / (2 l^2), alpha = the ridge) on (sin q2, cos q2)."""
+    from sklearn.kernel_ridge import KernelRidge
+
+    from torchcal.calibration.residual_model import fit_residual_model
+
+    rng = np.random.default_rng(71)
+    q = torch.from_numpy(rng.uniform(-2.5, 2.5, (150, ROBOT.n)))
+    Y = np.stack([0.3 * np.sin(2 * q[:, 1].numpy()), np.zeros(150), 0.2 * np.cos(q[:, 1].numpy())], -1)
+    Y = Y + rng.normal(0, 0.01, Y.shape)
+    m = Measurements(torch.arange(150), q, torch.zeros(150, 3, dtype=torch.float64))
+    stage = fit_residual_model(ROBOT, m, torch.from_numpy(Y), seed=0)
+    assert stage is not None and stage.inputs[0] == "q2"
+    X = np.concatenate([np.sin(q[:, stage.joints].numpy()), np.cos(q[:, stage.joints].numpy())], -1)
+    ref = KernelRidge(alpha=stage.ridge, kernel="rbf", gamma=1 / (2 * stage.length_scale ** 2)).fit(X, Y)
+    np.testing.assert_allclose(stage.alpha.numpy(), ref.dual_coef_, rtol=1e-6, atol=1e-9)
+    q_new = torch.from_numpy(rng.uniform(-2.5, 2.5, (40, ROBOT.n)))
+    X_new = np.concatenate([np.sin(q_new[:, stage.joints].numpy()), np.cos(q_new[:, stage.joints].numpy())], -1)
+    np.testing.assert_allclose(stage.predict(q_new).numpy(), ref.predict(X_new), rtol=0, atol=1e-9)
+    # what it learns is the residual: held-out rms well under the signal's
+    truth = np.stack([0.3 * np.sin(2 * q_new[:, 1].numpy()), np.zeros(40), 0.2 * np.cos(q_new[:, 1].numpy())], -1)
+    assert np.sqrt(np.mean(np.sum((stage.predict(q_new).numpy() - truth) ** 2, -1))) < 0.2 * np.sqrt(
+        np.mean(np.sum(truth ** 2, -1)))
+
+
+def test_stage_of_too_few_poses_is_none_and_of_noise_gains_nothing():
+    from torchcal.calibration.residual_model import fit_residual_model
+
+    rng = np.random.default_rng(72)
+    q = torch.from_numpy(rng.uniform(-2.5, 2.5, (120, ROBOT.n)))
+    m = Measurements(torch.arange(120), q, torch.zeros(120, 3, dtype=torch.float64))
+    few = Measurements(torch.arange(KR.MIN_POSES - 1), q[:KR.MIN_POSES - 1], torch.zeros(KR.MIN_POSES - 1, 3,
+                                                                                       dtype=torch.float64))
+    assert fit_residual_model(ROBOT, few, torch.ones(KR.MIN_POSES - 1, 3, dtype=torch.float64)) is None
+    noise = torch.from_numpy(rng.normal(0, 0.02, (120, 3)))
+    stage = fit_residual_model(ROBOT, m, noise)  # may keep a joint (the choice has no significance test) ...
+    floor = float(noise.pow(2).sum(-1).mean().sqrt())
+    assert stage is None or stage.cv_rms_mm >= 0.95 * floor  # ... but claims no held-out gain on noise
+
+
+@pytest.mark.parametrize("change, match", [
+    ({"kind": "spline"}, "kind 'spline'"),
+    ({"inputs": ["q9"]}, "not revolute joints"),
+    ({"ridge": 0.0}, "not > 0"),
+    ({"dual_weights_mm": [[0.0, 0.0, 0.0]]}, "differ in length"),
+    ({"q_train_deg": [[float("nan")], [0.0]]}, "non-finite"),
+])
+def test_a_malformed_stage_in_a_file_is_one_line_naming_where(change, match):
+    from torchcal.calibration.residual_model import from_dict
+
+    good = {"kind": "kernel", "inputs": ["q2"], "length_scale_rad": 0.4, "ridge": 0.1, "cv_rms_mm": 0.01,
+            "q_train_deg": [[10.0], [20.0]], "dual_weights_mm": [[0.1, 0.0, 0.0], [0.0, 0.1, 0.0]]}
+    assert from_dict(good, ROBOT, "m.json").inputs == ("q2",)
+    with pytest.raises(torchcal.InputError, match=match) as exc:
+        from_dict({**good, **change}, ROBOT, "m.json")
+    assert str(exc.value).startswith("m.json: bad 'residual_model': ") and "\n" not in str(exc.value)

@@ -28,7 +28,7 @@ the linearised solution map).
    parameter k reaches ``x_c,k +- (|S| e_r)_k`` at the box vertex
    ``de = +-sign(S_k) e_r``, and no point of the box goes further
    (`torchcal.reliability.interval.linear_hull`). It is exact for the linearised map; the nonlinear
-   map differs by second-order terms (the deviations are small: test_identify checks
+   map differs by second-order terms (the deviations are small: test_intervals_identify checks
    that refitting sampled data inside the box lands inside the hull).
 4. **Damping (optional).** With ``damping = mu > 0`` a zone is the damped
    least-squares solution of eq. 29 around a prior ``theta0`` (e.g. a global

@@ -18,7 +18,7 @@ from torchcal.cli._args import FORCE_HINT
 from torchcal.errors import InputError, OutputExistsError
 
 #: the sub-commands and their one-line help (the same text as each module's
-#: ``add_parser(help=...)``; tests/test_startup.py checks that they agree)
+#: ``add_parser(help=...)``; tests/test_cli_startup.py checks that they agree)
 SUMMARIES = {
     "demo": "the paper's whole pipeline on a simulated KR 1000 Titan",
     "simulate": "simulate a measurement session of a virtual robot (CSV)",
@@ -41,7 +41,7 @@ SUMMARIES = {
 COMMANDS = tuple(SUMMARIES)
 
 #: names of the built-in effects (torchcal.effects registers these classes; the top-level
-#: --help lists them without importing torch, tests/test_startup.py checks the list)
+#: --help lists them without importing torch, tests/test_cli_startup.py checks the list)
 BUILTIN_EFFECTS = ("axis_tilt", "backlash", "base_compliance", "base_frame", "cross_coupling", "encoder_scale",
                    "gear_periodic", "gear_transmission", "joint_clearance", "joint_compliance", "joint_periodic",
                    "link_bending",

@@ -36,7 +36,7 @@ def nonneg_float(text: str) -> float:
 FORCE_HINT = "pass --force to replace it"
 
 #: the preset robots' names, for option help built without importing torch
-#: (tests/test_startup.py checks them against torchcal.robots.robot.PRESETS)
+#: (tests/test_cli_startup.py checks them against torchcal.robots.robot.PRESETS)
 PRESET_NAMES = ("kr1000titan", "puma560", "ur5e")
 
 

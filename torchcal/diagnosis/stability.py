@@ -26,7 +26,7 @@ absorber, and the split where its gain failed is named.
 
 Why not a test of the parameters themselves (a Chow / Wald test of the parameters
 fitted on the two halves): it rejects true effects whenever anything else is missing or
-the gauge of the halves differs (on the simulated session of tests/test_discovery_trust.py,
+the gauge of the halves differs (on the simulated session of tests/test_discover.py,
 the true gear_periodic:2 and joint_compliance:3 of the final model gave p 0 and 4e-4),
 and it accepts an absorber whose parameters the data barely determine (joint_clearance:1
 in hose sessions), so it named the absorber and not the physics (docs/diagnosis.md).

@@ -50,7 +50,7 @@ R_set = 2.5 / s^u for s^u > 2.5 -> 0.984, 0.97, 0.867, 0.994 and 1, 1. Two rows 
 table (s^u = 3.244466201 -> 0.7 and 3.287477271 -> 0.685) match no formula that also
 matches the other six (2.5 / s^u gives 0.771 and 0.760; the interval-limit readings of
 [0, 2.5] give 0.385 and 0.380 and already fail the other rows): we treat them as errors
-in the paper (tests/test_reliability.py checks both statements).
+in the paper (tests/test_rset.py checks both statements).
 
 A degenerate actual interval (s_l == s_u) gets the weight of its single value.
 Units: any, the same for both arguments (mm here). Inputs stay on their device.

@@ -45,7 +45,7 @@ joint 1 (a linear track) has no link before it, and a motion fixed in the base f
 pushed through Tz(d + q) would change with q (the tilt times the travel): we model it as
 a carriage whose bearing seats ride on the rail, so the motion is fixed in the frame
 after Rz(theta) Tz(d + q) (pivot at the carriage) and produced, as for a revolute joint 1,
-by link 1's deviations plus dd_2 and dtheta_2. tests/test_clearance_prismatic.py checks
+by link 1's deviations plus dd_2 and dtheta_2. tests/test_uncertainty_prismatic.py checks
 both against the exact rigid motions inserted into the FK chain (second-order agreement).
 
 `box` is the exact per-component bound of the deviations over all clearance states (max

@@ -24,6 +24,8 @@ from torchcal.io.targets_csv import compensation_csv
 from torchcal.io.truth_file import truth_to_dict
 from torchcal.cli import main
 from torchcal.io.measurement_csv import write_measurements
+from torchcal.io.modelfile import file_units
+from torchcal.measurements import Measurements
 from torchcal.planning.plan import plan
 from torchcal.robots.poses import random_poses
 from torchcal.simulation.virtual_robot import VirtualRobot
@@ -52,9 +54,28 @@ def _numbers(text: str) -> list[float]:
     return [float(v) for v in NUMBER.findall(text)]
 
 
-def test_compensate_cli_and_api_agree_field_by_field(fitted, tmp_path, capsys):
-    rob, model, _, _ = fitted
+@pytest.fixture(scope="module")
+def interval(tmp_path_factory):
+    """(robot, model path, data path): a ur5e interval model written by `torchcal calibrate`."""
+    d = tmp_path_factory.mktemp("interval")
+    rob = torchcal.robot("ur5e")
+    vr = VirtualRobot(rob, ["base_frame"], seed=6)
+    write_measurements(d / "m.csv", vr.measure(random_poses(rob, 30, 6), repeats=3, seed=7))
+    assert main(["calibrate", str(d / "m.csv"), "--robot", "ur5e", "--effects", "base_frame",
+                 "--out", str(d / "model.json")]) == 0
+    return rob, d / "model.json", d / "m.csv"
+
+
+@pytest.mark.parametrize("kind, far", [("fit", False), ("fit", True), ("calibrate", False)],
+                         ids=["fit", "fit-unreachable", "interval"])
+@pytest.mark.filterwarnings("ignore:targets.*beyond the reach")
+def test_compensate_cli_and_api_agree_field_by_field(request, kind, far, tmp_path, capsys):
+    """The same file, printed figures and exit status from the CLI and the API, for a fitted
+    model and an interval model; with a target beyond reach (no seeds) the others still solve."""
+    rob, model = request.getfixturevalue("fitted" if kind == "fit" else "interval")[:2]
     t = rob.fk(random_poses(rob, 25, 40))
+    if far:
+        t = torch.cat([t, torch.tensor([[3000.0, 0.0, 500.0]], dtype=t.dtype)])  # beyond the ur5e's reach
     targets = _targets(tmp_path / "t.csv", t)
     out = tmp_path / "q.csv"
     capsys.readouterr()
@@ -68,11 +89,17 @@ def test_compensate_cli_and_api_agree_field_by_field(fitted, tmp_path, capsys):
            f"parameter set(s) ({d['method']})" in printed.out
     assert f"{len(d['targets']) - len(res.failed)} converged within the joint limits" in printed.out
     assert f"max predicted residual {d['max_residual_mm']:.3g} mm" in printed.out
+    assert [r["q"] for r in d["targets"]] == res.q_user.tolist()
+    if kind == "calibrate":
+        assert d["method"] == "global" and d["n_zones"] == 1
+        return
     # the one library answer: the same commands as torchcal.compensate from the same nominal seeds
     comp = torchcal.compensate(str(model), t)
     assert_close(res.q_user, rob.q_to_user(comp.q), rtol=0, atol=1e-9)
     assert res.compensation.converged.tolist() == comp.converged.tolist()
-    assert [r["q"] for r in d["targets"]] == res.q_user.tolist()
+    if far:
+        assert comp.converged.tolist() == [True] * 25 + [False] and code == 1 and d["beyond_reach"] == [26]
+        assert "not converged: target(s) 26" in printed.err
 
 
 def test_compensate_failure_line_lists_the_apis_rows(fitted, tmp_path, capsys):
@@ -94,25 +121,47 @@ def test_compensate_failure_line_lists_the_apis_rows(fitted, tmp_path, capsys):
     failed = sorted(set(d["not_converged"]) | set(d["outside_limits"]))
     assert err.startswith(f"torchcal compensate: error: {len(failed)} target(s) failed (")
     assert f"not converged: target(s) {', '.join(map(str, d['not_converged']))}" in err
-    assert f"beyond the reach of ur5e: target(s) 3" in err and err.count("\n") == 1
+    assert "beyond the reach of ur5e: target(s) 3" in err and err.count("\n") == 1
 
 
-def test_compensate_unit_refusal_is_the_same_finding(fitted, tmp_path, capsys):
-    """Targets in metres in an mm file: the library names its keyword, the CLI its option."""
+@pytest.mark.parametrize("command", ["fit", "compensate"])
+def test_metres_in_an_mm_file_are_the_same_finding(fitted, tmp_path, capsys, command):
+    """Positions in metres in an mm file: the library names its keyword, the CLI its option,
+    nothing is written; read in metres, both accept the file and agree."""
     rob, model, _, _ = fitted
-    t = rob.fk(random_poses(rob, 8, 42)) / 1000
-    targets = _targets(tmp_path / "t.csv", t)
+    q = random_poses(rob, 30, 42)
+    out = tmp_path / ("model.json" if command == "fit" else "q.csv")
+    if command == "fit":
+        path = tmp_path / "m.csv"
+        write_measurements(path, Measurements(torch.arange(30), q, rob.fk(q) / 1000))
+        argv = ["fit", str(path), "--robot", "ur5e", "--out", str(out)]
+
+        def library(**kw):
+            return torchcal.fit("ur5e", path, **kw)
+        with pytest.raises(torchcal.InputError, match="look like metres read as mm"):
+            library(max_length_mm=None, max_angle_deg=None)  # refused without the plausibility limits too
+    else:
+        path = _targets(tmp_path / "t.csv", rob.fk(q) / 1000)
+        argv = ["compensate", str(path), "--model", str(model), "--out", str(out)]
+
+        def library(**kw):
+            return compensate_targets(model, path, **kw)
     with pytest.raises(torchcal.InputError) as exc:
-        compensate_targets(model, targets)
+        library()
     assert exc.value.fix == ("length_unit", "m") and str(exc.value).endswith("; pass length_unit='m'")
+    assert "--" not in str(exc.value)
     capsys.readouterr()
-    out = tmp_path / "q.csv"
-    assert main(["compensate", str(targets), "--model", str(model), "--out", str(out)]) == 2
-    assert capsys.readouterr().err == f"torchcal compensate: error: {exc.value.message}; pass --length-unit m\n"
+    assert main(argv) == 2
+    assert capsys.readouterr().err == f"torchcal {command}: error: {exc.value.message}; pass --length-unit m\n"
     assert not out.exists()
-    # read in metres, both accept it and write the same file
-    assert main(["compensate", str(targets), "--model", str(model), "--out", str(out), "--length-unit", "m"]) == 0
-    assert out.read_text() == compensation_csv(compensate_targets(model, targets, length_unit="m"))
+    assert main(argv + ["--length-unit", "m"]) == 0
+    res = library(length_unit="m")
+    if command == "fit":
+        _, k = file_units(res.model)  # the file's units (deg, mm) per parameter
+        values = [p["value"] for p in json.loads(out.read_text())["parameters"]]
+        assert values == pytest.approx((res.theta * k).tolist(), abs=1e-10)
+    else:
+        assert out.read_text() == compensation_csv(res)
 
 
 def test_compensate_needs_the_conditions_of_the_models_effects(tmp_path, capsys):
@@ -273,25 +322,6 @@ def _workspace(**kw):
                      w.column_height_mm, w.reach_fraction)
 
 
-def test_compensate_with_an_interval_model_cli_and_api_agree(tmp_path, capsys):
-    rob = torchcal.robot("ur5e")
-    vr = VirtualRobot(rob, ["base_frame"], seed=6)
-    write_measurements(tmp_path / "m.csv", vr.measure(random_poses(rob, 30, 6), repeats=3, seed=7))
-    model = tmp_path / "model.json"
-    assert main(["calibrate", str(tmp_path / "m.csv"), "--robot", "ur5e", "--effects", "base_frame",
-                 "--out", str(model)]) == 0
-    targets = _targets(tmp_path / "t.csv", rob.fk(random_poses(rob, 10, 8)))
-    out = tmp_path / "q.csv"
-    capsys.readouterr()
-    code = main(["compensate", str(targets), "--model", str(model), "--out", str(out)])
-    printed = capsys.readouterr().out
-    res = compensate_targets(model, targets)
-    assert out.read_text() == compensation_csv(res) and code == (1 if res.failed else 0)
-    d = res.to_dict()
-    assert d["method"] == "global" and d["n_zones"] == 1
-    assert f"with 1 parameter set(s) (global)" in printed
-
-
 def test_unknown_effect_names_the_registry_in_the_library_and_the_option_in_the_cli(tmp_path, capsys):
     from torchcal.effects.spec import UnknownEffectError
 
@@ -306,17 +336,24 @@ def test_unknown_effect_names_the_registry_in_the_library_and_the_option_in_the_
     assert capsys.readouterr().err == f"torchcal plan: error: {expected}\n" and expected != str(exc.value)
 
 
-def test_calibrate_cli_writes_the_apis_interval_model(tmp_path):
+@pytest.mark.parametrize("command", ["fit", "calibrate"])
+def test_the_cli_writes_the_apis_model(interval, command):
+    """MODEL.json of `torchcal fit` / `calibrate` = the API's fit / interval model written by
+    the library, key by key (the fit's settings recorded)."""
     from torchcal.io.modelfile import to_dict
 
-    rob = torchcal.robot("ur5e")
-    vr = VirtualRobot(rob, ["base_frame"], seed=6)
-    data = tmp_path / "m.csv"
-    write_measurements(data, vr.measure(random_poses(rob, 30, 6), repeats=3, seed=7))
-    out = tmp_path / "model.json"
-    assert main(["calibrate", str(data), "--robot", "ur5e", "--effects", "base_frame", "--out", str(out)]) == 0
+    _, _, data = interval
+    out = data.parent / f"{command}-model.json"
+    settings = ["--robust", "huber", "--sigma-mm", "0.02", "--sigma-deg", "0.03"] if command == "fit" else []
+    assert main([command, str(data), "--robot", "ur5e", "--effects", "base_frame", *settings, "--out", str(out)]) == 0
     cli = json.loads(out.read_text())
-    api = json.loads(json.dumps(to_dict(torchcal.calibrate("ur5e", data, ["base_frame"]), source=data)))
+    if command == "fit":
+        res = torchcal.fit("ur5e", data, ["base_frame"], robust="huber", sigma_mm=0.02, sigma_deg=0.03)
+        assert (res.robust, res.sigma_mm, res.sigma_deg) == ("huber", 0.02, 0.03)
+        api = json.loads(json.dumps(to_dict(res, source=data)))
+        assert api["fit"]["robust"] == "huber" and api["fit"]["sigma_mm"] == 0.02
+    else:
+        api = json.loads(json.dumps(to_dict(torchcal.calibrate("ur5e", data, ["base_frame"]), source=data)))
     assert cli.keys() == api.keys()
     for key in cli:
         assert cli[key] == api[key], key

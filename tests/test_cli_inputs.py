@@ -309,28 +309,23 @@ def test_output_exists_without_force(work, capsys, command):
     _bad(capsys, _cmd(command, work / "good.csv", work, out), str(out), "--force", untouched=[out])
 
 
-def test_fit_out_is_the_input(work, capsys):
-    data = work / "good.csv"
-    _bad(capsys, ["fit", data, "--robot", ROBOT, "--out", data, "--force"], str(data), "input",
-         untouched=[data])
+# an output option naming an input file: (argv of the work folder w, the file named, files left untouched)
+INPUT_AS_OUTPUT = {
+    "fit --out DATA": (lambda w: ["fit", w / "good.csv", "--robot", ROBOT, "--out", w / "good.csv", "--force"],
+                       "good.csv", ["good.csv"]),
+    "evaluate --json MODEL": (lambda w: ["evaluate", w / "good.csv", "--model", w / "model.json", "--json",
+                                         w / "model.json", "--force"], "model.json", ["model.json", "good.csv"]),
+    "evaluate --json DATA": (lambda w: ["evaluate", w / "good.csv", "--model", w / "model.json", "--json",
+                                        w / "good.csv", "--force"], "good.csv", ["good.csv"]),
+    "diagnose --json DATA": (lambda w: ["diagnose", w / "good.csv", "--robot", ROBOT, "--json", w / "good.csv",
+                                        "--force"], "good.csv", ["good.csv"]),
+}
 
 
-def test_evaluate_json_is_the_model(work, capsys):
-    model = work / "model.json"
-    _bad(capsys, ["evaluate", work / "good.csv", "--model", model, "--json", model, "--force"],
-         str(model), "input", untouched=[model, work / "good.csv"])
-
-
-def test_evaluate_json_is_the_data(work, capsys):
-    data = work / "good.csv"
-    _bad(capsys, ["evaluate", data, "--model", work / "model.json", "--json", data, "--force"],
-         str(data), "input", untouched=[data])
-
-
-def test_diagnose_json_is_the_data(work, capsys):
-    data = work / "good.csv"
-    _bad(capsys, ["diagnose", data, "--robot", ROBOT, "--json", data, "--force"], str(data), "input",
-         untouched=[data])
+@pytest.mark.parametrize("case", sorted(INPUT_AS_OUTPUT))
+def test_an_output_naming_an_input_is_refused(work, capsys, case):
+    argv, named, untouched = INPUT_AS_OUTPUT[case]
+    _bad(capsys, argv(work), str(work / named), "input", untouched=[work / u for u in untouched])
 
 
 def test_discover_two_outputs_one_file(work, capsys):
@@ -399,36 +394,24 @@ def test_constant_joint_names_unidentifiable(work, capsys):
 # reproducibility: same inputs and seed -> byte-identical JSON
 # --------------------------------------------------------------------------------------
 
-def _twice(work, capsys, argv_of):
+# the argv of each command writing its JSON to `out`, in the work folder w
+REPRODUCIBLE = {
+    "fit": lambda w, out: ["fit", w / "good.csv", "--robot", ROBOT, "--robust", "huber", "--seed", "3", "--out", out],
+    "evaluate": lambda w, out: ["evaluate", w / "good.csv", "--model", w / "model.json", "--json", out],
+    "diagnose": lambda w, out: ["diagnose", w / "good.csv", "--robot", ROBOT, "--folds", "3", "--seed", "5",
+                                "--json", out],
+    "discover": lambda w, out: ["discover", w / "good.csv", "--robot", ROBOT, "--folds", "3", "--seed", "5",
+                                "--json", out],
+}
+
+
+@pytest.mark.parametrize("command", sorted(REPRODUCIBLE))
+def test_the_same_inputs_and_seed_give_byte_identical_json(work, capsys, command):
     outs = []
     for k in (1, 2):
-        out = work / f"repro-{argv_of.__name__}-{k}.json"
-        assert main([str(a) for a in argv_of(out)]) == 0
+        out = work / f"repro-{command}-{k}.json"
+        assert main([str(a) for a in REPRODUCIBLE[command](work, out)]) == 0
         outs.append(out.read_bytes())
     capsys.readouterr()
     assert outs[0] == outs[1]
     json.loads(outs[0])
-
-
-def test_reproducible_fit(work, capsys):
-    def fit(out):
-        return ["fit", work / "good.csv", "--robot", ROBOT, "--robust", "huber", "--seed", "3", "--out", out]
-    _twice(work, capsys, fit)
-
-
-def test_reproducible_evaluate(work, capsys):
-    def evaluate(out):
-        return ["evaluate", work / "good.csv", "--model", work / "model.json", "--json", out]
-    _twice(work, capsys, evaluate)
-
-
-def test_reproducible_diagnose(work, capsys):
-    def diagnose(out):
-        return ["diagnose", work / "good.csv", "--robot", ROBOT, "--folds", "3", "--seed", "5", "--json", out]
-    _twice(work, capsys, diagnose)
-
-
-def test_reproducible_discover(work, capsys):
-    def discover(out):
-        return ["discover", work / "good.csv", "--robot", ROBOT, "--folds", "3", "--seed", "5", "--json", out]
-    _twice(work, capsys, discover)

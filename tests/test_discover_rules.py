@@ -44,7 +44,7 @@ ROBOT = torchcal.robot("kr1000titan")
 @pytest.fixture(scope="module")
 def seed141(tmp_path_factory):
     """kr1000titan, gear_periodic:2 joint_compliance:3, 60 poses x 2 (the session of
-    tests/test_discovery_trust.py)."""
+    tests/test_discover.py)."""
     path = tmp_path_factory.mktemp("s141") / "s141.csv"
     assert main(["simulate", "--robot", "kr1000titan", "--effects", "gear_periodic:2", "joint_compliance:3",
                  "--n", "60", "--repeats", "2", "--seed", "141", "--out", str(path)]) == 0

@@ -97,15 +97,16 @@ def test_loaded_model_writes_the_same_file(session):
     same(json.loads(path.read_text()), modelfile.to_dict(back), "MODEL.json")
 
 
-def test_evaluate_and_compensate_agree_from_memory_and_from_the_file(session):
+@pytest.mark.parametrize("source", ["loaded", "path"])
+def test_evaluate_and_compensate_agree_from_memory_and_from_the_file(session, source):
     res, back, path, test = session
+    other = back if source == "loaded" else path
     ref = torchcal.evaluate(res, test)
     assert ref.orientation_rms_deg is not None and ref.outside_range is not None
-    for other in (back, path):
-        ev = torchcal.evaluate(other, test)
-        same(ref.to_dict(), ev.to_dict(), "evaluate")
-        same(ref.residuals_mm, ev.residuals_mm, "residuals")
-        same(ref.orientation_deg, ev.orientation_deg, "orientation rows")
+    ev = torchcal.evaluate(other, test)
+    same(ref.to_dict(), ev.to_dict(), "evaluate")
+    same(ref.residuals_mm, ev.residuals_mm, "residuals")
+    same(ref.orientation_deg, ev.orientation_deg, "orientation rows")
     # the orientation error by hand: model rotation times the fitted tool rotation vs measured
     from torchcal.effects import context_of
     from torchcal.rotations import so3_error
@@ -114,10 +115,19 @@ def test_evaluate_and_compensate_agree_from_memory_and_from_the_file(session):
     assert ref.orientation_rms_deg == pytest.approx(by_hand, rel=1e-9)
     targets = test.xyz[:10]
     a = torchcal.compensate(res, targets, q0=test.q[:10])
-    b = torchcal.compensate(back, targets, q0=test.q[:10])
+    b = torchcal.compensate(other, targets, q0=test.q[:10])
     assert bool(a.converged.all())
     same(a.q, b.q, "compensate q")
     same(a.residual_mm, b.residual_mm, "compensate residual")
+
+
+def test_evaluate_on_the_fitted_rows_gives_the_fits_orientation_rms(session):
+    res, back, _, _ = session
+    robot = res.model.robot
+    train = read_measurements(EXAMPLES / "series_d.csv", robot=robot).subset(slice(0, 120))
+    for fitted in (res, back):
+        assert torchcal.evaluate(fitted, train).orientation_rms_deg == pytest.approx(res.orientation["rms_deg"],
+                                                                                     rel=1e-9)
 
 
 def test_register_keeps_the_fitted_models_fields(session):

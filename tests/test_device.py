@@ -108,9 +108,10 @@ def test_cli_fit_and_sweep_on_cuda_match_cpu(tmp_path, capsys):
 
 
 @needs_cuda
-@pytest.mark.xfail(strict=True, reason="discover's pre-screen and cross-validation read device tensors with "
-                                       ".numpy() (torchcal/diagnosis/screen.py, candidates.py, crossval.py): "
-                                       "a CUDA tensor has no numpy view; found by reading, no GPU to run it")
+@pytest.mark.xfail(strict=True, reason="never run on a GPU: discover's diagnosis reads tensors to numpy with "
+                                       ".numpy(force=True) (a copy to the CPU), but its numpy results meet device "
+                                       "tensors again in places not yet read for it; remove this mark once a GPU "
+                                       "runs it green")
 def test_cli_discover_on_cuda_matches_cpu(tmp_path, capsys):
     import json
 

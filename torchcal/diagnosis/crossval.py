@@ -80,10 +80,10 @@ def refit_cv(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: flo
         for test, res in fold_refits(full, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg):
             with torch.no_grad():
                 d = (model.predict(res.theta, ctx.subset(test)) - m.xyz[test]).pow(2).sum(-1)
-            err[test.numpy()] = d.cpu().numpy()
+            err[test.numpy(force=True)] = d.cpu().numpy(force=True)
     except InputError as e:
-        return RefitCV(float("inf"), np.full(len(np.unique(m.pose.cpu().numpy())), np.inf), str(e))
-    _, pose_of_row = np.unique(m.pose.cpu().numpy(), return_inverse=True)
+        return RefitCV(float("inf"), np.full(len(np.unique(m.pose.cpu().numpy(force=True))), np.inf), str(e))
+    _, pose_of_row = np.unique(m.pose.cpu().numpy(force=True), return_inverse=True)
     sq = np.bincount(pose_of_row, weights=err)
     return RefitCV(float(np.sqrt(err.mean())), sq)
 
@@ -135,7 +135,7 @@ class LinearRefit:
         if Cp.shape[1] == 0:
             return Cp
         U, s, _ = torch.linalg.svd(torch.from_numpy(Cp), full_matrices=False)
-        return U[:, s > RANK_TOL].numpy()  # columns were normalised: s is relative
+        return U[:, s > RANK_TOL].numpy(force=True)  # columns were normalised: s is relative
 
     def new_columns(self, C: np.ndarray | None) -> np.ndarray:
         """An orthonormal basis (3N, k) of what C adds beyond span(A)."""
@@ -177,7 +177,7 @@ class LinearRefit:
             Xt, rt = X[tt], r[tt]
             if X.shape[1]:
                 coef = torch.linalg.solve(eye - Xt.T @ Xt, Xr - Xt.T @ rt)
-                held[test] = (rt - Xt @ coef).numpy()
+                held[test] = (rt - Xt @ coef).numpy(force=True)
                 train[i] = r - X @ coef
             else:
                 held[test] = self.r[test]
@@ -185,7 +185,7 @@ class LinearRefit:
         # the variance model of every fold from its training rows, in one batched fit
         w = torch.from_numpy(rows3[None] != self.folds[:, None])  # (F, N)
         logp = fit_variances(train.reshape(len(self.folds), -1, 3),
-                             None if Bs is None or not Bs.shape[-1] else torch.from_numpy(Bs), w).numpy()
+                             None if Bs is None or not Bs.shape[-1] else torch.from_numpy(Bs), w).numpy(force=True)
         for i, f in enumerate(self.folds):
             t3 = rows3 == f
             ll[t3] = variance_loglik(held[self.rows == f].reshape(-1, 3), None if Bs is None else Bs[t3], logp[i])

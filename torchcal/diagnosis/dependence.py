@@ -32,21 +32,21 @@ from torchcal.robots.robot import Robot
 def signed_components(robot: Robot, m: Measurements, residuals) -> dict[str, np.ndarray]:
     """{variable: (N,) mm} the signed component of residuals (N, 3) mm along the fitted
     dependence on each variable of `unexplained.variables(robot, m)` (module doc)."""
-    r = (residuals.detach().cpu().to(torch.float64).numpy() if isinstance(residuals, torch.Tensor)
+    r = (residuals.detach().cpu().to(torch.float64).numpy(force=True) if isinstance(residuals, torch.Tensor)
          else np.asarray(residuals, dtype=np.float64)).reshape(-1, 3)
     D = tcp_columns(robot, m.q)  # (N, 3, n + 3)
     D = D / (D ** 2).sum(1).mean(0).sqrt().clamp_min(1e-300)  # unit RMS TCP displacement per column
     out = {}
     for name, v in variables(robot, m).items():
         H = basis(v)  # (N, b), columns in increasing v
-        X = smooth_columns(torch.from_numpy(H), D).numpy()
+        X = smooth_columns(torch.from_numpy(H), D).numpy(force=True)
         c = np.linalg.lstsq(X, r.reshape(-1), rcond=1e-10)[0].reshape(H.shape[1], -1)  # (b, n + 3)
         weight = H.sum(0)
         centred = (c - (weight[:, None] * c).sum(0) / weight.sum()) * np.sqrt(weight)[:, None]
         w = np.linalg.svd(centred, full_matrices=False)[2][0]  # (n + 3,)
         if (c[-1] - c[0]) @ w < 0:
             w = -w
-        u = D.numpy() @ w  # (N, 3)
+        u = D.numpy(force=True) @ w  # (N, 3)
         length = np.linalg.norm(u, axis=1)
         out[name] = np.where(length > 0, (r * u).sum(1) / np.where(length > 0, length, 1.0), 0.0)
     return out

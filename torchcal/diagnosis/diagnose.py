@@ -84,8 +84,8 @@ def where_it_fails(robot: Robot, m: Measurements, residuals: torch.Tensor, bins:
     """Residual distance RMS per joint-value quantile bin and per workspace region. A
     joint's bins are {"q": [lo, hi], "n", "rms_mm"} in its "unit": 'deg' (revolute) or
     'mm' (prismatic)."""
-    d = residuals.norm(dim=-1).numpy()
-    q = robot.q_to_user(m.q).numpy()
+    d = residuals.norm(dim=-1).numpy(force=True)
+    q = robot.q_to_user(m.q).numpy(force=True)
     out = {"per_joint": [], "per_region": []}
     for j, unit in enumerate(robot.joint_units()):
         edges = np.quantile(q[:, j], np.linspace(0, 1, bins + 1))
@@ -94,7 +94,7 @@ def where_it_fails(robot: Robot, m: Measurements, residuals: torch.Tensor, bins:
             {"q": [float(edges[b]), float(edges[b + 1])], "n": int((idx == b).sum()),
              "rms_mm": float(np.sqrt((d[idx == b] ** 2).mean())) if (idx == b).any() else None}
             for b in range(bins)]})
-    xyz = m.xyz.numpy()
+    xyz = m.xyz.numpy(force=True)
     reach = np.hypot(xyz[:, 0], xyz[:, 1])
     r_edges = np.quantile(reach, [0, 1 / 3, 2 / 3, 1])
     z_mid = float(np.median(xyz[:, 2]))

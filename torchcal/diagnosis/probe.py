@@ -111,7 +111,7 @@ def probe(values: dict, residuals: np.ndarray, pose: np.ndarray, *, seed: int = 
         if inputs:
             X, T = stack_inputs(feats, inputs), torch.from_numpy(train)
             alpha = fit_dual(X[T], Y[T], ell, lam)
-            pred[fold == f] = (rbf(X[torch.from_numpy(fold == f)], X[T], ell) @ alpha).numpy()
+            pred[fold == f] = (rbf(X[torch.from_numpy(fold == f)], X[T], ell) @ alpha).numpy(force=True)
     tested = ~rows if split else np.ones(len(r), dtype=bool)
     gain_row = (r ** 2).sum(-1) - ((r - pred) ** 2).sum(-1)
     learn = float(np.sqrt(max(rms ** 2 - gain_row[tested].mean(), 0.0)))

@@ -84,8 +84,8 @@ class Stability:
 def halves(m) -> dict:
     """'qJ' -> (N,) int 0/1: the halves of the poses below and above the median of each
     joint angle that varies (a pose's rows on one side)."""
-    pose = m.pose.cpu().numpy()
-    q = m.q.detach().cpu().numpy()
+    pose = m.pose.cpu().numpy(force=True)
+    q = m.q.detach().cpu().numpy(force=True)
     _, first, inv = np.unique(pose, return_index=True, return_inverse=True)
     out = {}
     for j in range(q.shape[1]):
@@ -126,10 +126,10 @@ def extrapolated(full, m, ctx, half: np.ndarray, *, sigma_mm: float, sigma_deg: 
                 return None
             with torch.no_grad():
                 d = (full.model.predict(res.theta, ctx.subset(test)) - m.xyz[test]).pow(2).sum(-1)
-            err[test.numpy()] = d.cpu().numpy()
+            err[test.numpy(force=True)] = d.cpu().numpy(force=True)
     except InputError:
         return None
-    _, pose_of_row = np.unique(m.pose.cpu().numpy(), return_inverse=True)
+    _, pose_of_row = np.unique(m.pose.cpu().numpy(force=True), return_inverse=True)
     return np.bincount(pose_of_row, weights=err), float(np.sqrt(err.mean()))
 
 

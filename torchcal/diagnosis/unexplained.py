@@ -159,17 +159,17 @@ class Unexplained:
 
 def variables(robot: Robot, m: Measurements) -> dict:
     """name -> (N,) float64 numpy values of every variable that varies over the rows."""
-    q = m.q.detach().cpu().numpy()
+    q = m.q.detach().cpu().numpy(force=True)
     out = {f"q{j + 1}": q[:, j] for j in range(robot.n)}
     for name in ("temp_c", "payload_kg"):
         v = getattr(m, name)
         if v is not None:
-            out[name] = v.detach().cpu().numpy().astype(np.float64)
+            out[name] = v.detach().cpu().numpy(force=True).astype(np.float64)
     out["order"] = np.arange(len(m), dtype=np.float64)
     q_prev = m.q_prev.detach().cpu()
-    step = np.sign(q - q_prev.numpy())
+    step = np.sign(q - q_prev.numpy(force=True))
     rows = previous_rows(m.q.detach().cpu())  # the row each joint was reached from (-1: the start)
-    before = torch.sign(q_prev - torch.where(rows >= 0, q_prev.gather(0, rows.clamp_min(0)), q_prev)).numpy()
+    before = torch.sign(q_prev - torch.where(rows >= 0, q_prev.gather(0, rows.clamp_min(0)), q_prev)).numpy(force=True)
     for j in range(robot.n):
         out[f"approach_q{j + 1}"] = step[:, j]
     for j in range(robot.n):
@@ -293,7 +293,7 @@ def _test(name_values: dict, D: torch.Tensor, r: np.ndarray, folds: np.ndarray, 
     for name, v in name_values.items():
         X = smooth_columns(torch.from_numpy(basis(v)), D)  # (3N, b (n + 3))
         X = X / X.norm(dim=0).clamp_min(1e-300)
-        pred = held_out_prediction(X, y, rows).reshape(-1, 3).numpy()
+        pred = held_out_prediction(X, y, rows).reshape(-1, 3).numpy(force=True)
         strength = 1.0 - float(((r - pred) ** 2).sum()) / total
         c = np.bincount(pose_idx, weights=(r * pred).sum(-1), minlength=P)
         sd = c.std(ddof=1) if P > 1 else 0.0
@@ -306,9 +306,9 @@ def unexplained(robot: Robot, m: Measurements, residuals: torch.Tensor, seed: in
                 alpha: float = ALPHA) -> Unexplained:
     """What the model leaves unexplained in `residuals` (N, 3) mm (measured - model or
     model - measured: the sign does not matter) on the rows of m (see the module doc)."""
-    r = residuals.detach().cpu().to(torch.float64).numpy().reshape(-1, 3)
+    r = residuals.detach().cpu().to(torch.float64).numpy(force=True).reshape(-1, 3)
     N = len(r)
-    pose = m.pose.cpu().numpy()
+    pose = m.pose.cpu().numpy(force=True)
     rms = float(np.sqrt((r ** 2).sum(-1).mean()))
     folds = fold_of_pose(pose, seed, FOLDS)
     _, pose_idx = np.unique(pose, return_inverse=True)
@@ -335,7 +335,7 @@ def unexplained(robot: Robot, m: Measurements, residuals: torch.Tensor, seed: in
         best = max((s for s, _ in strengths.values()), default=0.0)
         by_variable = rms * float(np.sqrt(1 - min(max(best, 0.0), 1.0)))
         floor, source = (pr.learnable_rms_mm, "probe") if pr.learnable_rms_mm <= by_variable else (by_variable, "variables")
-        q = {f"q{j + 1}": v for j, v in enumerate(m.q.detach().cpu().numpy().T)}
+        q = {f"q{j + 1}": v for j, v in enumerate(m.q.detach().cpu().numpy(force=True).T)}
         x = np.hstack(list(variable_features(q, robot.prismatic.nonzero().flatten().tolist()).values()))
         near = noise_floor_from_neighbours(x, r) if len(np.unique(pose)) == N else None
         if near is not None and near <= floor:  # an estimate, unless an upper bound is below it

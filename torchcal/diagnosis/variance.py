@@ -158,5 +158,5 @@ def fit_variance(r3: np.ndarray, Bs: np.ndarray | None) -> np.ndarray:
     """Maximum-likelihood log variances (1 + K,) for residual rows r3 (M, 3), Bs (M, 3, 2K)
     (see `fit_variances`)."""
     Bt = None if Bs is None or not Bs.shape[-1] else torch.from_numpy(Bs)
-    return fit_variances(torch.from_numpy(r3)[None], Bt)[0].numpy()
+    return fit_variances(torch.from_numpy(r3)[None], Bt)[0].numpy(force=True)
 

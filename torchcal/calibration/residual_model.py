@@ -109,7 +109,7 @@ def fit_residual_model(robot, m, residuals: torch.Tensor, *, kind: str = "kernel
     if kind not in KINDS:
         raise InputError(f"residual model: unknown kind {kind!r} (known: {', '.join(KINDS)})")
     q = m.q.detach().cpu().to(torch.float64)
-    pose = m.pose.cpu().numpy(force=True)
+    pose = m.pose.cpu().numpy()
     values = {f"q{j + 1}": q[:, j].numpy(force=True) for j in range(robot.n)
               if not bool(robot.prismatic[j]) and float(q[:, j].max() - q[:, j].min()) > 0}
     if len(np.unique(pose)) < P.MIN_POSES or not values:

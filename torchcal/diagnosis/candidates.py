@@ -97,7 +97,7 @@ def candidate_columns(robot, base_model: CalibrationModel, theta, ctx, spec: str
         return np.zeros((3 * ctx.n_rows, 0))
 
     C = aug.jacobian(torch.cat([theta, theta.new_zeros(k)]), ctx)[..., base_model.n_params:]
-    return C.reshape(-1, k).detach().numpy(force=True)
+    return C.reshape(-1, k).numpy(force=True)
 
 
 def all_candidate_columns(robot, base_model: CalibrationModel, theta, ctx, specs, orders=None) -> dict:
@@ -113,7 +113,7 @@ def all_candidate_columns(robot, base_model: CalibrationModel, theta, ctx, specs
     k = aug.n_params - base_model.n_params
 
     C = aug.jacobian(torch.cat([theta, theta.new_zeros(k)]), ctx)[..., base_model.n_params:]
-    C = C.reshape(-1, k).detach().numpy(force=True)
+    C = C.reshape(-1, k).numpy(force=True)
     out, start = {}, 0
     for spec, e in zip(specs, extra):
         out[spec] = C[:, start:start + e.n_params]

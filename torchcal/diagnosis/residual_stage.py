@@ -71,7 +71,7 @@ def stage_test(full, m, ctx, *, kind: str = "kernel", folds: int = 5, seed: int 
         if "residual model" in str(e):  # a wrong kind: the caller's mistake, not a fold's
             raise
         return StageTest(False, float("inf"), float("inf"), 1.0, alpha, f"fold refit impossible: {e}")
-    _, pose_of_row = np.unique(m.pose.cpu().numpy(force=True), return_inverse=True)
+    _, pose_of_row = np.unique(m.pose.cpu().numpy(), return_inverse=True)
     sq0, sq1 = np.bincount(pose_of_row, weights=e0), np.bincount(pose_of_row, weights=e1)
     cv0, cv1 = float(np.sqrt(e0.mean())), float(np.sqrt(e1.mean()))
     ok, p, why = refit_decision(cv0, sq0, cv1, sq1, n_refits=1, alpha=alpha, min_gain=min_gain)

@@ -64,8 +64,8 @@ def prescreen(robot, model, specs: list, base_fit, m, ctx, folds_: np.ndarray, *
     (context ctx) with the folds folds_ (N,) (module doc)."""
     theta = base_fit.theta
     r = base_fit.residuals.reshape(-1).numpy(force=True)
-    A = model.jacobian(theta, ctx).reshape(-1, model.n_params)[:, base_fit.report.free].detach().numpy(force=True)
-    pose_np = m.pose.cpu().numpy(force=True)
+    A = model.jacobian(theta, ctx).reshape(-1, model.n_params)[:, base_fit.report.free].numpy(force=True)
+    pose_np = m.pose.cpu().numpy()
     lin = LinearRefit(r, A, folds_, pose_np)
     n_eq = len(r)
     present = {s.name: s.joints for s in parse_specs(specs, robot.n)} if specs else {}

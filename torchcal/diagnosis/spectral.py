@@ -180,7 +180,7 @@ def propose_orders(robot, model, theta, ctx, r: np.ndarray, A: np.ndarray, folds
     measured range resolves no order."""
     from torchcal.diagnosis.candidates import all_candidate_columns
 
-    q = ctx.q[:, joint - 1].detach().cpu().numpy(force=True)
+    q = ctx.q[:, joint - 1].detach().cpu().numpy()
     lim = order_limits(q)
     if lim.empty:
         warnings.warn(f"joint_periodic: {lim.text(joint)}", NarrowRangeWarning, stacklevel=2)

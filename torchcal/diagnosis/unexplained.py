@@ -159,12 +159,12 @@ class Unexplained:
 
 def variables(robot: Robot, m: Measurements) -> dict:
     """name -> (N,) float64 numpy values of every variable that varies over the rows."""
-    q = m.q.detach().cpu().numpy(force=True)
+    q = m.q.detach().cpu().numpy()
     out = {f"q{j + 1}": q[:, j] for j in range(robot.n)}
     for name in ("temp_c", "payload_kg"):
         v = getattr(m, name)
         if v is not None:
-            out[name] = v.detach().cpu().numpy(force=True).astype(np.float64)
+            out[name] = v.detach().cpu().numpy().astype(np.float64)
     out["order"] = np.arange(len(m), dtype=np.float64)
     q_prev = m.q_prev.detach().cpu()
     step = np.sign(q - q_prev.numpy(force=True))
@@ -308,7 +308,7 @@ def unexplained(robot: Robot, m: Measurements, residuals: torch.Tensor, seed: in
     model - measured: the sign does not matter) on the rows of m (see the module doc)."""
     r = residuals.detach().cpu().to(torch.float64).numpy(force=True).reshape(-1, 3)
     N = len(r)
-    pose = m.pose.cpu().numpy(force=True)
+    pose = m.pose.cpu().numpy()
     rms = float(np.sqrt((r ** 2).sum(-1).mean()))
     folds = fold_of_pose(pose, seed, FOLDS)
     _, pose_idx = np.unique(pose, return_inverse=True)
@@ -335,7 +335,7 @@ def unexplained(robot: Robot, m: Measurements, residuals: torch.Tensor, seed: in
         best = max((s for s, _ in strengths.values()), default=0.0)
         by_variable = rms * float(np.sqrt(1 - min(max(best, 0.0), 1.0)))
         floor, source = (pr.learnable_rms_mm, "probe") if pr.learnable_rms_mm <= by_variable else (by_variable, "variables")
-        q = {f"q{j + 1}": v for j, v in enumerate(m.q.detach().cpu().numpy(force=True).T)}
+        q = {f"q{j + 1}": v for j, v in enumerate(m.q.detach().cpu().numpy().T)}
         x = np.hstack(list(variable_features(q, robot.prismatic.nonzero().flatten().tolist()).values()))
         near = noise_floor_from_neighbours(x, r) if len(np.unique(pose)) == N else None
         if near is not None and near <= floor:  # an estimate, unless an upper bound is below it

@@ -74,18 +74,31 @@ def refit_cv(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: flo
     orientations when m has them (weighed by sigma_mm / sigma_deg as in the full fit);
     predicted positions of the held-out rows.
     """
-    model = full.model
-    err = np.zeros(len(m))
     try:
-        for test, res in fold_refits(full, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg):
-            with torch.no_grad():
-                d = (model.predict(res.theta, ctx.subset(test)) - m.xyz[test]).pow(2).sum(-1)
-            err[test.numpy(force=True)] = d.cpu().numpy(force=True)
+        err = held_out_errors(full, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
     except InputError as e:
-        return RefitCV(float("inf"), np.full(len(np.unique(m.pose.cpu().numpy(force=True))), np.inf), str(e))
-    _, pose_of_row = np.unique(m.pose.cpu().numpy(force=True), return_inverse=True)
-    sq = np.bincount(pose_of_row, weights=err)
-    return RefitCV(float(np.sqrt(err.mean())), sq)
+        return RefitCV(float("inf"), np.full(len(np.unique(m.pose.cpu().numpy())), np.inf), str(e))
+    return RefitCV(float(np.sqrt(err.mean())), per_pose(m, err))
+
+
+def held_out_errors(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: float, accept=None):
+    """(N,) mm^2: each row's squared distance error predicted by `full` refitted on the
+    other folds of folds (N,) (`fold_refits`); None as soon as `accept(fold_fit)` is false
+    for a fold's fit. A fold fit's InputError propagates."""
+    err = np.zeros(len(m))
+    for test, res in fold_refits(full, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg):
+        if accept is not None and not accept(res):
+            return None
+        with torch.no_grad():
+            d = (full.model.predict(res.theta, ctx.subset(test)) - m.xyz[test]).pow(2).sum(-1)
+        err[test.numpy()] = d.cpu().numpy()
+    return err
+
+
+def per_pose(m, err: np.ndarray) -> np.ndarray:
+    """(P,) the row values err (N,) summed per pose of m, poses in sorted id order."""
+    _, pose_of_row = np.unique(m.pose.cpu().numpy(), return_inverse=True)
+    return np.bincount(pose_of_row, weights=err)
 
 
 class LinearRefit:

@@ -41,12 +41,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
 from torchcal.calibration.fit import fit
 from torchcal.calibration.model import CalibrationModel
 from torchcal.calibration.plausibility import determination
-from torchcal.diagnosis.crossval import fold_refits
+from torchcal.diagnosis.crossval import held_out_errors, per_pose
 from torchcal.diagnosis.selection import paired_p_value
 from torchcal.errors import InputError
 
@@ -84,8 +83,8 @@ class Stability:
 def halves(m) -> dict:
     """'qJ' -> (N,) int 0/1: the halves of the poses below and above the median of each
     joint angle that varies (a pose's rows on one side)."""
-    pose = m.pose.cpu().numpy(force=True)
-    q = m.q.detach().cpu().numpy(force=True)
+    pose = m.pose.cpu().numpy()
+    q = m.q.detach().cpu().numpy()
     _, first, inv = np.unique(pose, return_index=True, return_inverse=True)
     out = {}
     for j in range(q.shape[1]):
@@ -119,18 +118,12 @@ def extrapolated(full, m, ctx, half: np.ndarray, *, sigma_mm: float, sigma_deg: 
     range, not the physics)."""
     names = full.model.param_names()
     determined = [n for n in names if n not in {d["name"] for d in determination(full, names, ctx)}]
-    err = np.zeros(len(m))
     try:
-        for test, res in fold_refits(full, m, ctx, half, sigma_mm=sigma_mm, sigma_deg=sigma_deg):
-            if any(d["why"] == "prior" for d in determination(res, determined, ctx)):
-                return None
-            with torch.no_grad():
-                d = (full.model.predict(res.theta, ctx.subset(test)) - m.xyz[test]).pow(2).sum(-1)
-            err[test.numpy(force=True)] = d.cpu().numpy(force=True)
+        err = held_out_errors(full, m, ctx, half, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
+                              accept=lambda res: all(d["why"] != "prior" for d in determination(res, determined, ctx)))
     except InputError:
         return None
-    _, pose_of_row = np.unique(m.pose.cpu().numpy(force=True), return_inverse=True)
-    return np.bincount(pose_of_row, weights=err), float(np.sqrt(err.mean()))
+    return None if err is None else (per_pose(m, err), float(np.sqrt(err.mean())))
 
 
 def stability(full, spec: str, m, ctx, *, sigma_mm: float, sigma_deg: float, alpha: float = ALPHA) -> Stability:

@@ -251,12 +251,16 @@ def test_calibrate_and_compensate_commands(session, capsys):
 
 def test_command_errors(session, capsys):
     d, *_ = session
+    model = d / "errors_model.json"  # its own model: the test does not lean on another test's output
+    assert cli.main(["calibrate", str(d / "data.csv"), "--robot", "kr1000titan", "--effects", "base_frame",
+                     "--out", str(model)]) == 0
+    capsys.readouterr()
     bad = d / "bad_targets.csv"
     bad.write_text("x,y\n1,2\n")
-    assert cli.main(["compensate", str(bad), "--model", str(d / "global.json"), "--out", str(d / "o.csv")]) == 2
+    assert cli.main(["compensate", str(bad), "--model", str(model), "--out", str(d / "o.csv")]) == 2
     assert "header has no column 'z'" in capsys.readouterr().err
     bad.write_text("x,y,z\n1,2,abc\n")
-    assert cli.main(["compensate", str(bad), "--model", str(d / "global.json"), "--out", str(d / "o.csv")]) == 2
+    assert cli.main(["compensate", str(bad), "--model", str(model), "--out", str(d / "o.csv")]) == 2
     assert "line 2, column z: expected a number (mm)" in capsys.readouterr().err
     assert cli.main(["calibrate", str(d / "data.csv"), "--robot", "kr1000titan", "--out",
                      str(d / "data.csv"), "--force"]) == 2

@@ -37,7 +37,6 @@ from torchcal.calibration.covariance import ParameterCovariance, parameter_covar
 from torchcal.calibration.identifiability import (RANK_TOL, Identifiability, check_enough_rows,
                                                   identifiability, recheck)
 from torchcal.calibration.joint_range import joint_range, seed_poses
-from torchcal.errors import InputError
 from torchcal.calibration.lm import levenberg_marquardt
 from torchcal.calibration.model import CalibrationModel
 from torchcal.calibration.prior import RHO_EXACT, prior_factors, prior_strength, rho_settled
@@ -292,10 +291,8 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, *, theta0=None
     scales = plausible_scales(model, max_length_mm, max_angle_deg).to(theta0) if prior else \
         torch.full_like(theta0, math.inf)
     report = identifiability(J0, names, cand, rank_tol, first=~torch.isfinite(scales))
-    if not damping:  # damping rows make up for missing equations (docstring)
-        check_enough_rows(report, rows.k * xyz.shape[0], model, ctx, cand, rank_tol)
-    elif int(cand.sum()) and report.rank == 0:
-        raise InputError("no parameter is identifiable from these poses")
+    # damping rows make up for missing equations (docstring): only "nothing identifiable" is refused then
+    check_enough_rows(report, math.inf if damping else rows.k * xyz.shape[0], model, ctx, cand, rank_tol)
 
     lower = model.lower_bounds().to(theta0)  # a physical sign (backlash >= 0): projected steps
     lower = None if bool(torch.isinf(lower).all()) else lower

@@ -153,7 +153,7 @@ def recheck(J: torch.Tensor, names, candidate_free, free_now: torch.Tensor,
     return identifiability(J, names, candidate_free, rank_tol, first=free_now, rest_tol=RECHECK_TOL)
 
 
-def check_enough_rows(report: Identifiability, n_equations: int, model, ctx, cand, rank_tol: float = RANK_TOL) -> None:
+def check_enough_rows(report: Identifiability, n_equations: float, model, ctx, cand, rank_tol: float = RANK_TOL) -> None:
     """InputError when `n_equations` (rows x residuals per row) do not exceed the rank of
     `report` (the equations, not the model, bound it: the message counts the parameters
     identifiable at generic poses, seeded, so it is reproducible), or when no candidate

@@ -9,8 +9,8 @@ model fitted on all of S is registered (frame only, `torchcal.register`) on T's 
 - fit: ``fit --effects base_frame tool_offset`` on S (geometry);
 - discover: ``discover`` on S from the same start;
 - discover, check U: ``discover`` on S with the third series U as the transfer check
-  (``--transfer U``): a step is kept only when it does not raise U's held-out error; T
-  is never seen;
+  (``--transfer U``): a step is kept only when it lowers U's held-out error beyond
+  chance (torchcal.diagnosis.transfer); T is never seen; each round's check is printed;
 - + residual: ``fit`` of discover's effects with ``--residual-model kernel`` on S.
 
 "!" marks a registration `torchcal register` warns about (rms above 3x the model's
@@ -31,7 +31,7 @@ import torch
 
 import torchcal
 from torchcal.calibration.registration import TransferWarning
-from torchcal.diagnosis.transfer import first_poses
+from torchcal.diagnosis.transfer import describe_verdict, first_poses
 from torchcal.effects import context_of
 from torchcal.errors import InputError
 from torchcal.io.measurement_csv import read_measurements
@@ -69,7 +69,7 @@ def main():
     args = ap.parse_args()
     robot = torchcal.robot(UR10 / "ur10.json")
     data = {s: read_measurements(UR10 / f"series_{s}.csv", robot=robot) for s in args.series}
-    models, found = {}, {}
+    models, found, checks = {}, {}, {}
     for s in args.series:  # the models of each source session
         t0 = time.perf_counter()
         models[s, "fit"] = torchcal.fit(robot, data[s], START)
@@ -82,6 +82,10 @@ def main():
                 chk = torchcal.discover(robot, data[s], START, transfer=data[u], transfer_poses=args.poses)
                 models[s, f"check {u}"] = chk.fit
                 found[s, f"check {u}"] = chk.final_effects
+                checks[s, u] = [h["transfer"] for h in chk.history]
+                print(f"  {s.upper()} checked by {u.upper()}, round by round:", flush=True)
+                for k, rec in enumerate(checks[s, u]):
+                    print("\n".join(f"    {k}: {ln}" for ln in describe_verdict(rec)), flush=True)
         print(f"models of {s.upper()} ({time.perf_counter() - t0:.0f} s): training rms "
               + ", ".join(f"{k[1]} {v.training_rms_mm:.4f} mm" for k, v in models.items() if k[0] == s), flush=True)
         for k, v in found.items():
@@ -112,7 +116,9 @@ def main():
     if args.json:
         Path(args.json).write_text(json.dumps({"rows": rows, "training_rms_mm": {f"{k[0]} {k[1]}": v.training_rms_mm
                                                                                  for k, v in models.items()},
-                                               "effects": {f"{k[0]} {k[1]}": v for k, v in found.items()}}, indent=1))
+                                               "effects": {f"{k[0]} {k[1]}": v for k, v in found.items()},
+                                               "checks": {f"{k[0]} check {k[1]}": v for k, v in checks.items()}},
+                                              indent=1))
 
 
 if __name__ == "__main__":

@@ -8,9 +8,10 @@ robot's links would otherwise absorb the frame and the reflector.
 ``--transfer OTHER.csv``: measurements of the same robot from another session as a check.
 Each round's model is registered (frame only, as `torchcal register` does) on OTHER's
 first K poses (``--transfer-poses``, default 30) and its error on OTHER's other poses is
-printed; a step that raises it is refused ("helps within the session only"), the next
-candidate that met the acceptance rule is tried, and a round with none left ends the
-discovery (docs/diagnosis.md)."""
+printed; a step that does not lower it beyond chance (the in-session refit test, on
+OTHER's poses) is refused ("helps within the session only"), the next candidate that
+met the acceptance rule is tried, and a round with none left ends the discovery
+(docs/diagnosis.md). Without --transfer the output says that transfer was not tested."""
 
 from __future__ import annotations
 
@@ -33,7 +34,7 @@ def add_parser(sub):
     p.add_argument("--json", help="write the history here")
     p.add_argument("--out", help="write the final MODEL.json here")
     p.add_argument("--transfer", metavar="OTHER.csv", help="measurements of another session: keep a step only "
-                                                         "if it does not raise that session's error")
+                                                         "if it lowers that session's error beyond chance")
     p.add_argument("--transfer-poses", type=positive_int, default=30, metavar="K",
                    help="poses of OTHER.csv the frame is registered on (default 30)")
     p.add_argument("--residual-model", choices=["kernel"],
@@ -83,6 +84,9 @@ def run(args) -> int:
             from torchcal.diagnosis.transfer import describe_verdict
             print("\n".join(describe_verdict(h["transfer"])))
     print(res.final_words())
+    if other is None:
+        from torchcal.diagnosis.transfer import not_tested_words
+        print(not_tested_words())
     if res.unexplained is not None:
         print(res.unexplained.describe())
     if args.residual_model:

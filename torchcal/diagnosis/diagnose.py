@@ -19,8 +19,8 @@
 `discover` repeats the step: the accepted candidate's full fit and its CV become the
 next round's current model, so a round prints exactly the figures `diagnose` prints for
 that step. With a `TransferCheck` (`torchcal.diagnosis.transfer`) a round's accepted
-step is kept only when it does not raise the error on another session's held-out
-poses; the next candidate that met the rule is tried instead, and a round whose
+step is kept only when it lowers the error on another session's held-out poses beyond
+chance; the next candidate that met the rule is tried instead, and a round whose
 candidates are all refused ends the discovery. Round i is `diagnose` with budget
 alpha / 2^i, whose pre-screen spends half of it, so all the pre-screen tests of all rounds keep the family-wise error below alpha; the
 refit tests are a second condition.
@@ -191,7 +191,7 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
     base = fit(CalibrationModel.for_measurements(robot, specs, m), ctx, m.xyz,
                **fit_options(m, sigma_mm=sigma_mm, sigma_deg=sigma_deg))
     current = None
-    t_now = None if transfer is None else transfer.rms_mm(base)
+    t_now = None if transfer is None else transfer.score(base)
     for i in range(max_rounds + 1):
         d = diagnose(robot, m, folds=folds, seed=seed, base_fit=base, current=current, alpha=alpha / 2 ** i,
                      sigma_mm=sigma_mm, sigma_deg=sigma_deg, report_rest=False)  # the final model's, once, below
@@ -203,10 +203,11 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
         history.append({"effects": list(cur.effects), "rms_mm": cur.rms_mm, "cv_rms_mm": cur.cv_rms_mm,
                         "step": d.step.to_dict()})
         acc = d.step.accepted
-        if transfer is not None:  # a step must not make the other session worse
-            passed = [s for s in d.step.refits if s.accepted or s.passed] if i < max_rounds else []
-            acc, history[-1]["transfer"] = transfer.choose(t_now, passed)
-            t_now = t_now if acc is None else history[-1]["transfer"]["tried"][-1]["after_mm"]
+        if transfer is not None:  # a step must lower the other session's error (transfer.py)
+            passed = sorted([s for s in d.step.refits if s.accepted or s.passed] if i < max_rounds else [],
+                            key=lambda s: not s.accepted)  # the step's verdict first, then rank order
+            (acc, after), history[-1]["transfer"] = transfer.choose(t_now, passed)
+            t_now = t_now if acc is None else after
         if acc is None or i == max_rounds:
             break
         base, current = acc.fit, Scored(acc.effects, "", acc.rms_mm, acc.cv_rms_mm, acc.fit, acc.cv,

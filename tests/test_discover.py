@@ -58,6 +58,7 @@ def test_seed141_discover_names_the_two_hidden_effects_only(seed141, capsys):
     out = capsys.readouterr().out
     final = next(ln for ln in out.splitlines() if ln.startswith("final effects:"))
     assert sorted(final.split(": ", 1)[1].split(", ")) == ["gear_periodic:2", "joint_compliance:3"], out
+    assert "transfer to another session: not tested" in out and "--transfer OTHER.csv" in out  # no check given
     # every round's model predicts held-out poses better than the one before it, by the
     # 2 % floor at least (the refit CV; a training RMS falls with any added parameter)
     cv = [float(ln.split("refit cv rms ")[1].split(" mm")[0]) for ln in out.splitlines() if ln.startswith("model [")]

@@ -161,14 +161,15 @@ def test_report_shows_a_transfer_check_when_the_history_has_one(session):
     assert "Transfer check" not in out.read_text()
     # the record discover writes per round (torchcal.diagnosis.transfer.TransferCheck.choose)
     hist["history"][0]["transfer"] = {"current_mm": 0.4321, "kept": None,
-                                      "tried": [{"effect": "gear_periodic:2", "after_mm": 0.9876, "refused": True}]}
+                                      "tried": [{"effect": "gear_periodic:2", "after_mm": 0.9876, "refused": True,
+                                                 "p_value": 1.0, "reason": "no gain (>=)"}]}
     (session / "hist_t.json").write_text(json.dumps(hist))
     out = session / "transfer.html"
     assert main(["report", str(session / "disc.json"), "--history", str(session / "hist_t.json"), "--out",
                  str(out)]) == 0
     text = out.read_text()
     assert "Transfer check" in text and "gear_periodic:2" in text and "0.4321" in text and "0.9876" in text
-    assert "refused: helps within the session only" in text
+    assert "refused: helps within the session only (no gain (&gt;=))" in text
 
 
 @pytest.mark.parametrize("args,needle", [

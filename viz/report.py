@@ -488,16 +488,18 @@ def _transfer(rep) -> str:
         return ""
     out = ["<h2>7. Transfer check (second session)</h2>",
            '<p class="note">Each round\'s model registered (frame only) on the other session\'s first poses, '
-           "its distance RMS on that session's other poses; a step that raised it was refused as helping within "
-           "the training session only (docs/diagnosis.md).</p>"]
+           "its distance RMS on that session's other poses; a step that did not lower it beyond chance (paired "
+           "test over that session's poses) was refused as helping within the training session only "
+           "(docs/diagnosis.md).</p>"]
     rows, cls = [], []
     for k, t in rounds:
         if not t.get("tried"):
             rows.append([str(k), "none", _mm(t.get("current_mm")), "", "no step to check"])
             cls.append("")
         for c in t.get("tried", []):
+            why = f" ({_e(c['reason'])})" if c.get("reason") else ""
             rows.append([str(k), _e(c.get("effect")), _mm(t.get("current_mm")), _mm(c.get("after_mm")),
-                         "refused: helps within the session only" if c.get("refused") else "kept"])
+                         ("refused: helps within the session only" if c.get("refused") else "kept") + why])
             cls.append("rej" if c.get("refused") else "")
     out.append(_table(["round", "step", "other session before", "other session after", "verdict"], rows,
                       numeric=(2, 3), cls_rows=cls))

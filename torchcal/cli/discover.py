@@ -23,6 +23,12 @@ from torchcal.cli.diagnose import add_sigmas, print_step
 from torchcal.cli.fit import residual_stage_line
 from torchcal.errors import InputError
 
+#: what discover without --transfer says about its effects
+NOT_TESTED = ("transfer to another session: not tested. The effects above lower the error within this session "
+              "(its cross-validation folds share one set-up and day); terms of the session cannot be told from the "
+              "robot's here. --transfer OTHER.csv (another session of this robot) keeps a step only when it lowers "
+              "OTHER's held-out error beyond chance (docs/diagnosis.md).")
+
 
 def add_parser(sub):
     p = sub.add_parser("discover", help="add missing effects round by round", description=__doc__)
@@ -85,8 +91,7 @@ def run(args) -> int:
             print("\n".join(describe_verdict(h["transfer"])))
     print(res.final_words())
     if other is None:
-        from torchcal.diagnosis.transfer import not_tested_words
-        print(not_tested_words())
+        print(NOT_TESTED)
     if res.unexplained is not None:
         print(res.unexplained.describe())
     if args.residual_model:

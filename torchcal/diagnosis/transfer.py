@@ -139,10 +139,3 @@ def describe_verdict(v: dict) -> list[str]:
                    else f"  {t['effect']} kept: {fig}{why}")
     return out
 
-
-def not_tested_words() -> str:
-    """What `discover` without a transfer check says about its effects."""
-    return ("transfer to another session: not tested. The effects above lower the error within this session "
-            "(its cross-validation folds share one set-up and day); terms of the session cannot be told from "
-            "the robot's here. --transfer OTHER.csv (another session of this robot) keeps a step only when it "
-            "lowers OTHER's held-out error beyond chance (docs/diagnosis.md).")

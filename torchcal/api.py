@@ -235,7 +235,7 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     (None: the defaults of `torchcal.diagnosis`). Data the nominal robot cannot explain,
     or that need a measuring frame the effects lack, are refused as by `diagnose`.
     transfer: measurements of another session (Measurements or CSV path) as a check: a
-    step is kept only when it does not raise that session's error after registration on
+    step is kept only when it lowers that session's error beyond chance after registration on
     its first `transfer_poses` poses (`torchcal.diagnosis.transfer`). residual_model:
     'kernel' adds the residual stage to the final model when its held-out test passes, as
     `fit` does (``.fit.residual_test`` holds the figures). Returns a `Discovery`."""

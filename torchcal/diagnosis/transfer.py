@@ -18,7 +18,7 @@ of at least `MIN_GAIN`. A term that lowers the error within the session but leav
 other session's as it was (up to chance) or raises it describes that session (its
 tracker set-up, its temperature, its order), not the robot: on the UR10 series, series
 B's `joint_periodic:3` terms left D's error as it was (0.854 -> 0.849 mm, p 0.21) and
-raised C's (0.608 -> 0.617 mm); "not above", the rule before, kept them.
+raised C's (0.608 -> 0.617 mm); "not above", the rule before, kept it.
 """
 
 from __future__ import annotations

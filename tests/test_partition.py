@@ -50,6 +50,54 @@ def test_fcm_matches_skfuzzy_from_same_start(d, m):
     assert res.objective == pytest.approx(objective(x, res.centers, res.memberships, m), rel=1e-12)
 
 
+def numpy_fcm(x, u0, m, eps, max_iter):
+    """FCM written from eqs. 26-28 in plain numpy (no torchcal code): x (N, d), u0 (c, N)
+    with columns summing to 1. Each iteration: centers from U (eq. 27), memberships from
+    those centers (eq. 28, the ratio form literally), stop when ||U_new - U_old||_F < eps.
+    Returns (centers the returned U was computed from, U, J of eq. 26 for them, iterations)."""
+    u = u0
+    for it in range(1, max_iter + 1):
+        um = u ** m
+        v = um @ x / um.sum(axis=1, keepdims=True)  # (c, d), eq. 27
+        dist = np.sqrt(((x[None, :, :] - v[:, None, :]) ** 2).sum(-1))  # (c, N)
+        u_new = 1.0 / ((dist[:, None, :] / dist[None, :, :]) ** (2.0 / (m - 1.0))).sum(axis=1)  # eq. 28
+        change = np.linalg.norm(u_new - u)
+        u = u_new
+        if change < eps:
+            break
+    return v, u, float((u ** m * dist ** 2).sum()), it
+
+
+@pytest.mark.parametrize("d, m, eps, chunk", [(1, 2.0, 1e-9, None), (1, 2.0, 1e-9, 37), (3, 2.0, 1e-9, 37),
+                                               (2, 1.7, 1e-9, 50), (3, 2.0, 0.0, None), (2, 3.0, 0.0, 37)])
+def test_fcm_matches_the_formulas_in_numpy(d, m, eps, chunk):
+    # tight: the kernel's last bits differ from numpy's (summation order, 1/S vs the ratio form)
+    x, _ = blobs(150, [[0.0] * d, [4.0] + [0.0] * (d - 1), [0.0] * (d - 1) + [-5.0]], 0.8, 11)
+    u0 = np.random.default_rng(12).random((3, 450))
+    u0 /= u0.sum(axis=0)
+    v_ref, u_ref, j_ref, it_ref = numpy_fcm(x, u0, m, eps, 40)
+    assert it_ref < 40 if eps > 0 else it_ref == 40  # converged runs exercise the stopping rule
+    res = fcm(x, 3, m=m, eps=eps, max_iter=40, init_u=u0, chunk_size=chunk)
+    assert res.n_iter == it_ref
+    np.testing.assert_allclose(res.memberships.numpy(), u_ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(res.centers.numpy(), v_ref, rtol=1e-12, atol=1e-12)
+    assert res.objective == pytest.approx(j_ref, rel=1e-12)
+
+
+def test_restarts_that_stop_at_different_iterations_match_numpy():
+    x, _ = blobs(100, [[0.0, 0.0], [3.0, 0.5], [0.5, 3.5], [4.0, 4.0]], 0.9, 13)
+    u0 = np.random.default_rng(14).random((5, 4, 400))
+    u0 /= u0.sum(axis=1, keepdims=True)
+    refs = [numpy_fcm(x, u0[r], 2.0, 1e-8, 300) for r in range(5)]
+    assert len({r[3] for r in refs}) > 1  # the batch shrinks as restarts stop
+    best = min(range(5), key=lambda r: (refs[r][2], r))
+    res = fcm(x, 4, eps=1e-8, init_u=u0, restarts=5, chunk_size=64)
+    v_ref, u_ref, j_ref, it_ref = refs[best]
+    assert res.n_iter == it_ref and res.objective == pytest.approx(j_ref, rel=1e-12)
+    np.testing.assert_allclose(res.memberships.numpy(), u_ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(res.centers.numpy(), v_ref, rtol=1e-12, atol=1e-12)
+
+
 def test_chunking_and_default_start_do_not_change_results():
     x, _ = blobs(100, [[0, 0], [4, 0], [0, 4]], 0.5, 0)
     a = fcm(x, 3, seed=3, chunk_size=17)

@@ -28,9 +28,25 @@ iterations. The returned centers are the ones the returned memberships were comp
 
 Restarts run as one batched ``(restarts, c, N)`` computation; a restart that has
 converged drops out of the batch, and the one with the lowest objective is kept (ties: the
-lowest restart index). Points are streamed in chunks (about 2 MiB of memberships per chunk
-on a CPU, so the ~10 element-wise passes of an iteration mostly run in cache and memory
-sees one read and one write of U; very large chunks on a GPU); buffers are preallocated.
+lowest restart index). Points are streamed in chunks (about 256 KiB of memberships per
+chunk on a CPU, so a chunk's scratch stays in a core's L2 cache; very large chunks on a
+GPU). No (c, N) tensor is written while iterating (the starting memberships are read in
+the first iteration): an iteration computes each
+chunk's memberships from the current centers (eq. 28) and adds them into the sums of
+eq. 27, and U is written once, at the end, from the kept centers. The stopping rule needs
+the previous memberships; they are recomputed from the previous centers (the same
+values), and only while the rule can still fire: the squared norm is summed chunk by
+chunk and, once every restart's partial sum has reached eps^2, the iteration cannot stop
+and the rest of its chunks skip it (exact, not a bound; with eps = 0 it is never
+computed). The fast path of eq. 28 is checked once per iteration (sums that turn inf or
+NaN); a failed check reruns the iteration with each chunk checked and, where needed, done
+the careful way, and later iterations stay checked.
+
+Rounding: the results equal eqs. 26-28 to the last bits, not bit for bit any other
+implementation (summation order over chunks and within the matrix-vector products);
+tests/test_partition.py compares memberships, centers and objective with a plain-numpy
+implementation of the formulas to 1e-12, and the iteration count exactly.
+
 Randomness only through an explicit `torch.Generator` seeded with `seed`.
 """
 
@@ -117,33 +133,45 @@ def _check_not_identical(x: torch.Tensor) -> None:
 
 
 def _default_chunk(x: torch.Tensor, rc: int) -> int:
-    """Points per chunk: ~2 MiB per (restarts, c, chunk) float64 buffer on a CPU (measured
-    best for 1-2 threads; 1-4 MiB are within 10%), very large on a GPU."""
+    """Points per chunk: on a CPU about 256 KiB per (restarts, c, chunk) float64 buffer
+    (32768 memberships), so the three scratch buffers of a chunk stay in a core's L2 cache;
+    very large on a GPU."""
     if x.device.type == "cpu":
-        return max(4096, (1 << 18) // rc)
+        return max(1024, (1 << 15) // rc)
     return max(1 << 16, (1 << 26) // rc)
 
 
 # --------------------------------------------------------------------------- kernels
+#
+# Points travel as chunks ((s, e), rows): rows = (x_k[s:e] for each feature k), and centers
+# as columns: cols = (V[..., k, None] for each feature k), each (R, c, 1); both are made
+# once (per call, per iteration) so that the per-chunk loop indexes nothing.
 
-def _sq_dist(xt: torch.Tensor, V: torch.Tensor, s: int, e: int) -> torch.Tensor:
-    """Squared distances of points s:e to the centers.
+def _columns(V: torch.Tensor) -> list:
+    """Centers V (R, c, d) -> [V[..., k, None] (R, c, 1) for each feature k]."""
+    return [V[..., k, None] for k in range(V.shape[-1])]
 
-    xt (d or d+1, N) points transposed (extra rows ignored); V (R, c, d) -> (R, c, e - s).
-    Direct differences (no |x|^2 - 2x.v + |v|^2 cancellation), so d = 0 is exact.
+
+def _chunked(xt: torch.Tensor, chunk: int) -> list:
+    """Points xt (d, N) -> [((s, e), (xt[k, s:e] for each k))], chunks of `chunk` points."""
+    N = xt.shape[1]
+    return [((s, min(s + chunk, N)), xt[:, s:s + chunk].unbind(0)) for s in range(0, N, chunk)]
+
+
+def _sq_dist(rows, V: torch.Tensor) -> torch.Tensor:
+    """Squared distances of the points of a chunk (rows, as `_chunked`) to centers V (R, c, d)
+    -> (R, c, n). Direct differences (no |x|^2 - 2x.v + |v|^2 cancellation), so d = 0 is exact.
     """
-    n = e - s
-    out = torch.empty(V.shape[0], V.shape[1], n, dtype=V.dtype, device=V.device)
-    return _sq_dist_into(xt, V, s, e, out, torch.empty_like(out))
+    out = torch.empty(V.shape[0], V.shape[1], rows[0].shape[0], dtype=V.dtype, device=V.device)
+    return _sq_dist_into(rows, _columns(V), out, torch.empty_like(out))
 
 
-def _sq_dist_into(xt, V, s, e, out, tmp):
-    """out (R, c, n) = squared distances of points s:e (xt (d(+1), N)) to centers V (R, c, d)."""
-    d = V.shape[-1]
-    torch.sub(xt[0, s:e], V[..., 0, None], out=tmp)  # (R, c, n)
+def _sq_dist_into(rows, cols, out, tmp):
+    """out (R, c, n) = squared distances of a chunk's points (rows) to centers (cols); tmp: scratch like out."""
+    torch.sub(rows[0], cols[0], out=tmp)  # (R, c, n)
     torch.mul(tmp, tmp, out=out)
-    for k in range(1, d):
-        torch.sub(xt[k, s:e], V[..., k, None], out=tmp)
+    for xk, vk in zip(rows[1:], cols[1:]):
+        torch.sub(xk, vk, out=tmp)
         out.addcmul_(tmp, tmp)
     return out
 
@@ -169,65 +197,61 @@ def _u_from_sq_dist_(d2: torch.Tensor, m: float) -> torch.Tensor:
     return w.div_(S)
 
 
-def _pass(xt, V, blocks, m, bounds, buf):
-    """One FCM iteration over all points, streamed in chunks.
-
-    xt (d, N) points transposed; V (R, c, d) centers; blocks: views (R, c, n_b) of the
-    memberships, one per (s, e) in `bounds`, replaced in place by the eq. 28 memberships
-    for V; buf: scratch of 2 * R * c * max(n_b) elements.
-    Returns diff2 (R,) = ||U_new - U_old||_F^2, J (R,) = J(U_new, V) of eq. 26, and
-    acc (d+1, R*c) = [sum_j u^m x_j ; sum_j u^m] for the next centers (eq. 27).
-
-    Fast path: w = (d^2)^(-1/(m-1)), S = sum_k w, u = w / S, and eq. 26 for this pair is
-    sum_j S_j^(1-m) (since u^m d^2 = w / S^m). A chunk where some S is 0 or inf (a point on
-    a center gives w = inf; or w under/overflows) is done by `_u_from_sq_dist_` instead.
-    """
-    R, c, d = V.shape
-    Rc = R * c
-    nmax = buf.numel() // (2 * Rc)
-    acc = torch.zeros(d + 1, Rc, dtype=V.dtype, device=V.device)
-    diff2 = torch.zeros(R, dtype=V.dtype, device=V.device)
-    J = torch.zeros(R, dtype=V.dtype, device=V.device)
-    for (s, e), blk in zip(bounds, blocks):
-        n = e - s
-        w = buf[:Rc * n].view(R, c, n)  # scratch
-        t = buf[Rc * nmax:Rc * (nmax + n)].view(R, c, n)  # scratch
-        if d == 1 and m == 2.0:
-            torch.sub(xt[0, s:e], V[..., 0, None], out=t)
-            torch.pow(t, -2, out=w)  # w = 1 / d^2 in one pass
+def _w_and_S(rows, cols, w, t, m):
+    """The fast path's w = (d^2)^(-1/(m-1)) into w (R, c, n) (t: scratch like w); returns
+    S = sum_k w (R, 1, n). S is inf for a point on a center (w = inf), and 0 or inf where
+    w under- or overflows: the caller checks."""
+    if len(rows) == 1 and m == 2.0:
+        torch.sub(rows[0], cols[0], out=t)
+        torch.pow(t, -2, out=w)  # w = 1 / d^2 in one pass
+    else:
+        _sq_dist_into(rows, cols, w, t)  # d^2
+        if m == 2.0:
+            w.reciprocal_()
         else:
-            _sq_dist_into(xt, V, s, e, w, t)  # d^2
-            if m == 2.0:
-                w.reciprocal_()
-            else:
-                w.pow_(-1.0 / (m - 1.0))
-        inv = w.sum(dim=1, keepdim=True).reciprocal_()  # (R, 1, n) 1 / S
-        lo, hi = torch.aminmax(inv)
-        if bool((lo > 0) & (hi < math.inf)):  # every S finite and > 0
-            Jc = (inv if m == 2.0 else inv.pow(m - 1.0)).sum(dim=(1, 2))  # (R,) sum_j S_j^(1-m)
-            torch.addcmul(blk, w, inv, value=-1.0, out=t)  # U_old - U_new
-            dc = _row_dots(t.view(R, c * n))  # (R,)
-            torch.mul(w, inv, out=blk)  # U_new, eq. 28
-        else:  # careful path for this chunk
-            _sq_dist_into(xt, V, s, e, w, t)
-            d2 = w.clone()
-            u = _u_from_sq_dist_(w, m)
-            Jc = (u.pow(m) * d2).sum(dim=(1, 2))
-            dc = _row_dots(torch.sub(blk, u, out=t).view(R, c * n))
-            blk.copy_(u)
-        diff2 += dc
-        J += Jc
-        um = torch.mul(blk, blk, out=w) if m == 2.0 else torch.pow(blk, m, out=w)
-        _accumulate(acc, um.view(Rc, n), xt, s, e)
-    return diff2, J, acc
+            w.pow_(-1.0 / (m - 1.0))
+    return w.sum(dim=1, keepdim=True)
 
 
-def _accumulate(acc, um, xt, s, e):
-    """acc (d+1, Rc) += [um @ x_k for each feature k; row sums of um]; um (Rc, n)."""
-    d = xt.shape[0]
-    for k in range(d):
-        acc[k].addmv_(um, xt[k, s:e])
-    acc[d] += um.sum(dim=1)
+def _j_fast(inv, m):
+    """This chunk's part of eq. 26, (R,), from inv = 1 / S (R, 1, n): sum_j S_j^(1-m)
+    (u^m d^2 = w / S^m, summed over the clusters)."""
+    return (inv if m == 2.0 else inv.pow(m - 1.0)).sum(dim=(1, 2))
+
+
+def _memberships_unchecked(rows, cols, w, t, m, checks):
+    """Eq. 28, fast path, for one chunk: memberships into w (R, c, n); appends sum_j S_j to
+    `checks` (finite iff every S is; the caller tests them all once, with the centers'
+    sums, which turn NaN or inf where some S is 0). Returns inv = 1 / S (R, 1, n)."""
+    S = _w_and_S(rows, cols, w, t, m)
+    checks.append(S.sum())
+    inv = S.reciprocal_()
+    w.mul_(inv)
+    return inv
+
+
+def _memberships_checked(rows, cols, w, t, m, want_j):
+    """Eq. 28 for one chunk, checked: memberships into w (R, c, n) (t: scratch like w) by the
+    fast path if every S is finite and > 0, else the careful way (`_u_from_sq_dist_`).
+    Returns this chunk's part of eq. 26 (R,) when want_j, else None. Equal, bit for bit, to
+    `_memberships_unchecked` wherever that one passes its check."""
+    inv = _w_and_S(rows, cols, w, t, m).reciprocal_()  # (R, 1, n) 1 / S
+    lo, hi = torch.aminmax(inv)
+    if lo.item() > 0 and hi.item() < math.inf:
+        w.mul_(inv)
+        return _j_fast(inv, m) if want_j else None
+    _sq_dist_into(rows, cols, w, t)  # careful path for this chunk
+    d2 = w.clone()
+    _u_from_sq_dist_(w, m)
+    return (w.pow(m) * d2).sum(dim=(1, 2)) if want_j else None
+
+
+def _accumulate(acc, um, rows, ones):
+    """acc (d+1, Rc) += [um @ x_k for each feature k; row sums of um]; um (Rc, n), rows as
+    `_chunked`, ones (n,)."""
+    for a, xk in zip(acc, rows):
+        a.addmv_(um, xk)
+    acc[-1].addmv_(um, ones)
 
 
 def _row_dots(t: torch.Tensor) -> torch.Tensor:
@@ -235,38 +259,110 @@ def _row_dots(t: torch.Tensor) -> torch.Tensor:
     return torch.stack([torch.dot(row, row) for row in t])
 
 
+def _pass(chunks, V, V_prev, U_prev, m, eps, last, bufs, checked):
+    """One FCM iteration over all points, chunk by chunk; no (c, N) tensor is written.
+
+    chunks: as `_chunked`; V (R, c, d) the centers; V_prev (R, c, d) those of the previous
+    iteration, or None in the first, where U_prev (R, c, N) (the starting memberships)
+    stands for U(V_prev); last: whether this is the last allowed iteration; bufs: three
+    scratch tensors of R * c * max(n) elements and ones(max(n)); checked: every chunk
+    checked on its own (`_memberships_checked`), else all at once at the end.
+    Returns (diff2 (R,), J (R,), acc (d+1, R*c)): ||U(V) - U(V_prev)||_F^2, eq. 26 for
+    (U(V), V), and [sum_j u^m x_j ; sum_j u^m] for the next centers (eq. 27); or None when
+    unchecked and some chunk failed its check (the caller runs the pass again, checked).
+
+    The stopping rule ||U(V) - U(V_prev)|| < eps is evaluated exactly, lazily: the squared
+    norm is summed chunk by chunk, and once every restart's partial sum has a square root
+    >= eps (the sum only grows) none of them can stop in this iteration, so the remaining
+    chunks skip the old memberships (recomputed from V_prev: the values the previous
+    iteration had), the norm and J. diff2 is then a partial sum and J incomplete; neither
+    is used. With eps = 0 no restart can stop before max_iter: no norm is computed.
+    """
+    R, c, d = V.shape
+    Rc = R * c
+    cols = _columns(V)
+    cols_prev = None if V_prev is None else _columns(V_prev)
+    acc = torch.zeros(d + 1, Rc, dtype=V.dtype, device=V.device)
+    acc_rows = acc.unbind(0)
+    diff2 = torch.zeros(R, dtype=V.dtype, device=V.device)
+    J = torch.zeros(R, dtype=V.dtype, device=V.device)
+    checks = []
+    undecided = eps > 0  # some restart's ||dU|| may still turn out < eps
+    for (s, e), rows in chunks:
+        n = e - s
+        w, t, t2 = (b[:Rc * n].view(R, c, n) for b in bufs[:3])
+        want_j = undecided or last
+        if checked:
+            Jc = _memberships_checked(rows, cols, w, t, m, want_j)
+        else:
+            inv = _memberships_unchecked(rows, cols, w, t, m, checks)
+            Jc = _j_fast(inv, m) if want_j else None
+        if Jc is not None:
+            J += Jc
+        if undecided:
+            if cols_prev is None:
+                up = U_prev[..., s:e]
+            elif checked:
+                _memberships_checked(rows, cols_prev, t2, t, m, False)
+                up = t2
+            else:
+                _memberships_unchecked(rows, cols_prev, t2, t, m, checks)
+                up = t2
+            diff2 += _row_dots(torch.sub(up, w, out=t).view(R, c * n))
+            undecided = any(math.sqrt(v) < eps for v in diff2.tolist())
+        um = torch.mul(w, w, out=t) if m == 2.0 else torch.pow(w, m, out=t)
+        _accumulate(acc_rows, um.view(Rc, n), rows, bufs[3][:n])
+    if not checked and not bool(torch.isfinite(torch.stack(checks)).all() & torch.isfinite(acc).all()):
+        return None
+    return diff2, J, acc
+
+
 def _iterate(xt, U, m, eps, max_iter, chunk):
-    """Run FCM from memberships U (R, c, N) (a fresh tensor, overwritten; its columns must
-    sum to 1). Returns (J, U (c, N), V (c, d), n_iter) of the restart with the lowest
-    objective (first of ties), V being the centers its U was computed from.
+    """Run FCM from memberships U (R, c, N) (its columns must sum to 1). Returns (J, U (c, N),
+    V (c, d), n_iter) of the restart with the lowest objective (first of ties), V being the
+    centers its U was computed from. The returned U is computed from V at the end (eq. 28:
+    the values its last iteration had).
     """
     R, c, N = U.shape
-    bounds = [(s, min(s + chunk, N)) for s in range(0, N, chunk)]
-    nmax = bounds[0][1] - bounds[0][0]
-    buf = torch.empty(2 * R * c * nmax, dtype=xt.dtype, device=xt.device)
-    V = _centers(xt, U, bounds, m)  # (R, c, d)
+    chunks = _chunked(xt, chunk)
+    nmax = chunks[0][0][1]
+    bufs = [torch.empty(R * c * nmax, dtype=xt.dtype, device=xt.device) for _ in range(3)]
+    bufs.append(torch.ones(nmax, dtype=xt.dtype, device=xt.device))
+    V = _centers(chunks, U, m, bufs[3])  # (R, c, d)
     d = V.shape[-1]
-    ids = list(range(R))  # restart id of each row of U
+    V_prev = None
+    checked = False  # becomes True for good once a pass fails its check
+    ids = list(range(R))  # restart id of each row of V
     best = None
     for it in range(1, max_iter + 1):
         Ra = len(ids)
-        blocks = [U[..., s:e] for s, e in bounds]  # views (Ra, c, n_b)
-        diff2, J, acc = _pass(xt, V, blocks, m, bounds, buf)
+        out = None if checked else _pass(chunks, V, V_prev, U, m, eps, it == max_iter, bufs, False)
+        if out is None:
+            checked = True
+            out = _pass(chunks, V, V_prev, U, m, eps, it == max_iter, bufs, True)
+        diff2, J, acc = out
+        U = None  # the starting memberships are needed in the first iteration only
         done = ((diff2.sqrt() < eps) | (it == max_iter)).tolist()
         Jl = J.tolist()
         for j in range(Ra):
             if done[j] and (best is None or (Jl[j], ids[j]) < best[:2]):
                 best = (Jl[j], ids[j], V[j].clone(), it)
-                best_U = U[j] if Ra == 1 else U[j].clone()
         keep = [j for j in range(Ra) if not done[j]]
         if not keep:
             break
-        V = (acc[:d] / acc[d:]).T.reshape(Ra, c, d)  # eq. 27
+        V_prev, V = V, (acc[:d] / acc[d:]).T.reshape(Ra, c, d)  # eq. 27
         if len(keep) < Ra:
             kt = torch.tensor(keep, device=xt.device)
-            U, V = U.index_select(0, kt), V.index_select(0, kt)
+            V, V_prev = V.index_select(0, kt), V_prev.index_select(0, kt)
             ids = [ids[j] for j in keep]
-    return best[0], best_U, best[2], best[3]
+    J, _, V_best, n_iter = best
+    U_best = torch.empty(c, N, dtype=xt.dtype, device=xt.device)
+    cols = _columns(V_best[None])
+    for (s, e), rows in chunks:
+        w, t = (b[:c * (e - s)].view(1, c, e - s) for b in bufs[:2])
+        _memberships_checked(rows, cols, w, t, m, False)
+        U_best[:, s:e] = w[0]
+    return J, U_best, V_best, n_iter
 
 
 def _normalised(U: torch.Tensor) -> torch.Tensor:
@@ -277,23 +373,22 @@ def _normalised(U: torch.Tensor) -> torch.Tensor:
     return U / col
 
 
-def _centers(xt: torch.Tensor, U: torch.Tensor, bounds, m: float) -> torch.Tensor:
-    """Eq. 27: xt (d, N), memberships U (R, c, N) -> centers (R, c, d)."""
-    d = xt.shape[0]
+def _centers(chunks, U: torch.Tensor, m: float, ones: torch.Tensor) -> torch.Tensor:
+    """Eq. 27: points in chunks (as `_chunked`), memberships U (R, c, N), ones (max n,) ->
+    centers (R, c, d)."""
+    d = len(chunks[0][1])
     R, c, _ = U.shape
-    acc = torch.zeros(d + 1, R * c, dtype=xt.dtype, device=xt.device)
-    for s, e in bounds:
-        um = U[..., s:e].pow(m).view(R * c, e - s)
-        _accumulate(acc, um, xt, s, e)
+    acc = torch.zeros(d + 1, R * c, dtype=U.dtype, device=U.device)
+    for (s, e), rows in chunks:
+        _accumulate(acc.unbind(0), U[..., s:e].pow(m).view(R * c, e - s), rows, ones[:e - s])
     return (acc[:d] / acc[d:]).T.reshape(R, c, d)
 
 
 def _objective(xt, U, V, m, chunk) -> torch.Tensor:
-    """Eq. 26 per restart: xt (d(+1), N), U (R, c, N), V (R, c, d) -> (R,)."""
+    """Eq. 26 per restart: xt (d, N), U (R, c, N), V (R, c, d) -> (R,)."""
     J = torch.zeros(U.shape[0], dtype=U.dtype, device=U.device)
-    for s in range(0, xt.shape[1], chunk):
-        e = min(s + chunk, xt.shape[1])
-        J += (U[:, :, s:e].pow(m) * _sq_dist(xt, V, s, e)).sum(dim=(1, 2))
+    for (s, e), rows in _chunked(xt, chunk):
+        J += (U[:, :, s:e].pow(m) * _sq_dist(rows, V)).sum(dim=(1, 2))
     return J
 
 
@@ -317,9 +412,10 @@ def fcm(x, c: int, m: float = 2.0, eps: float = 1e-6, max_iter: int = 300, seed:
             the lowest objective is returned (default 1).
         init_u: optional initial memberships (c, N) or (restarts, c, N), non-negative; each
             column is normalised to sum 1 (as scikit-fuzzy does).
-        chunk_size: points per streamed chunk (default: about 2 MiB of memberships per
+        chunk_size: points per streamed chunk (default: about 256 KiB of memberships per
             chunk on a CPU, 64 Mi memberships on a GPU). Results do not depend on it beyond
-            rounding.
+            rounding (which, among restarts that reach the same minimum, can change the
+            one kept).
 
     Returns:
         FCMResult(centers (c, d), memberships (c, N), objective float, n_iter int).
@@ -383,9 +479,8 @@ def memberships(x, centers, m: float = 2.0) -> torch.Tensor:
     if not float(m) > 1:
         raise InputError(f"m: expected a fuzzifier m > 1, got {m!r}")
     xt = x.T.contiguous()  # (d, N)
-    chunk = _default_chunk(x, centers.shape[0])
-    out = [_u_from_sq_dist_(_sq_dist(xt, centers[None], s, min(s + chunk, x.shape[0])), float(m))[0]
-           for s in range(0, x.shape[0], chunk)]
+    out = [_u_from_sq_dist_(_sq_dist(rows, centers[None]), float(m))[0]
+           for _, rows in _chunked(xt, _default_chunk(x, centers.shape[0]))]
     return torch.cat(out, dim=1)
 
 

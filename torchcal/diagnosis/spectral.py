@@ -36,8 +36,10 @@ What a joint's measured range R (rad) resolves (`order_limits`):
   reproduces: the lowest order searched is ``k_min = ceil(2 * 2 pi / R)``;
 - two orders k and k' are nearly orthogonal over the range when their phases drift
   apart by a full turn across it, ``|k - k'| R >= 2 pi``: the resolution is
-  ``2 pi / R`` orders. Below a full joint turn neighbouring orders are not separated:
-  an order found is the centre of a band that wide (the search keeps the best one);
+  ``2 pi / R`` orders. Below a full joint turn neighbouring orders are not well
+  separated: an order found is the centre of a band that wide; whether a second order
+  of the band is kept is step 4's decision, on the poses' own design (the resolution is
+  printed, not enforced);
 - the samples must see each period: with g90 the 90th percentile of the gaps between
   the sorted measured angles, at least two samples per period over most of the range
   gives ``k_max = floor(pi / g90)``, at most `MAX_GRID_ORDER`.

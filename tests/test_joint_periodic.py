@@ -138,6 +138,50 @@ def test_search_on_a_linear_problem_finds_the_hidden_orders_only():
     assert path[-1] < 0.06 * math.sqrt(3) < path[0] and all(p < 0.01 / len(grid) for p in ps)
 
 
+def _linear_session(span_deg, dq_of_q, seed, n=300, noise=0.02):
+    """Independent of any robot: one joint's angles q (n,) uniform over span_deg around 0,
+    its sensitivity t (n, 3) mm/rad, base columns (a translation and the joint offset), the
+    grid's sin/cos columns and the residual r = (dq_of_q(q) rad) t + noise (mm)."""
+    rng = np.random.default_rng(seed)
+    q = np.radians(rng.uniform(-span_deg / 2, span_deg / 2, n))
+    t = rng.normal(0, 600, (n, 3))
+    A = np.hstack([np.tile(np.eye(3), (n, 1)), t.reshape(3 * n, 1)])
+    lim = order_limits(q)
+    grid = list(range(lim.k_min, min(lim.k_max, 40) + 1))
+    C = np.stack([f(k * q)[:, None] * t for k in grid for f in (np.sin, np.cos)], -1).reshape(3 * n, -1)
+    r = (dq_of_q(q)[:, None] * t).reshape(-1) + rng.normal(0, noise, 3 * n)
+    return r, A, C, grid, rng.permutation(n) % 5
+
+
+@pytest.mark.parametrize("span_deg", [90, 360])
+def test_close_orders_the_data_determine_are_both_kept_over_any_range(span_deg):
+    """60 and 50 arcsec at orders 10 and 11: over 90 deg (a resolution of 4 orders) as over
+    a full turn the data determine both pairs of coefficients, and both are kept."""
+    r, A, C, grid, folds = _linear_session(span_deg, lambda q: (60 * np.sin(10 * q) + 50 * np.cos(11 * q)) * ARCSEC, 0)
+    idx, _, _ = search_orders(r, A, C, grid, folds, scale=180 * ARCSEC)
+    assert sorted(grid[i] for i in idx) == [10, 11]
+
+
+def test_close_orders_only_implausible_coefficients_explain_are_not_both_kept():
+    """Over 90 deg, 400 arcsec/rad x q cos(10.5 q) (an order between two of the grid whose
+    amplitude grows across the range): orders 10 and 11 together fit it only with large,
+    opposite coefficients beyond the plausible 180 arcsec. Without the check the search
+    keeps both; with it, not both, and every coefficient of the orders kept (refitted by
+    plain least squares) stays near the plausible size."""
+    r, A, C, grid, folds = _linear_session(90, lambda q: 400 * ARCSEC * q * np.cos(10.5 * q), 0)
+
+    def kept_and_largest(scale):
+        idx, _, _ = search_orders(r, A, C, grid, folds, scale=scale)
+        X = np.hstack([A] + [C[:, 2 * i:2 * i + 2] for i in idx])
+        coef = np.linalg.lstsq(X, r, rcond=None)[0][A.shape[1]:]
+        return {grid[i] for i in idx}, float(np.abs(coef).max()) / ARCSEC
+
+    free, free_max = kept_and_largest(None)
+    assert {10, 11} <= free and free_max > 180 * 1.5  # the failure the check prevents
+    kept, kept_max = kept_and_largest(180 * ARCSEC)
+    assert not {10, 11} <= kept and kept_max < 180 * 1.1
+
+
 # -- on an independent simulated robot ----------------------------------------------------
 def test_search_names_the_hidden_joint_and_orders():
     found = _searches(_session(400, 1, HIDDEN))

@@ -16,6 +16,18 @@ range resolves and keeps those that predict held-out poses (`search_orders`):
    RMS by at least `MIN_ORDER_GAIN` and its F-test on all training rows (2 new columns
    beyond X) passes ``alpha / K`` (Bonferroni over the grid); repeat from 2 with it in X,
    at most `MAX_ORDERS` times.
+4. Determined by the data (`determined_orders`): an order is kept only when, fitted on all
+   rows with the base columns and the orders already kept, every coefficient of the
+   joint's orders (the kept ones and the new pair) would be determined by the data as the
+   fit's plausibility judges it (`torchcal.calibration.plausibility.undetermined`: with
+   the fit's prior N(0, s^2) on each coefficient, s = the effect's plausible size, the
+   posterior sd below half of s and the value within s). Two orders whose columns are
+   nearly collinear on THESE poses (neighbours over a narrow range: their phases drift
+   apart by less than a turn across it) get large, opposite coefficients set by each
+   other, not by the data, and the plausibility would refuse the whole candidate; over a
+   wide range the same two orders are separated and both may stay. An order that fails
+   is not offered again and the next best (by held-out error) is tried in the same step.
+   The rule and its figures are the plausibility's; no threshold of its own.
 
 What a joint's measured range R (rad) resolves (`order_limits`):
 
@@ -24,8 +36,10 @@ What a joint's measured range R (rad) resolves (`order_limits`):
   reproduces: the lowest order searched is ``k_min = ceil(2 * 2 pi / R)``;
 - two orders k and k' are nearly orthogonal over the range when their phases drift
   apart by a full turn across it, ``|k - k'| R >= 2 pi``: the resolution is
-  ``2 pi / R`` orders. Below a full joint turn neighbouring orders are not separated:
-  an order found is the centre of a band that wide (the search keeps the best one);
+  ``2 pi / R`` orders. Below a full joint turn neighbouring orders are not well
+  separated: an order found is the centre of a band that wide; whether a second order
+  of the band is kept is step 4's decision, on the poses' own design (the resolution is
+  printed, not enforced);
 - the samples must see each period: with g90 the 90th percentile of the gaps between
   the sorted measured angles, at least two samples per period over most of the range
   gives ``k_max = floor(pi / g90)``, at most `MAX_GRID_ORDER`.
@@ -42,14 +56,15 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.stats
 
+from torchcal.calibration.plausibility import undetermined
 from torchcal.diagnosis.crossval import RANK_TOL
+from torchcal.effects.joint_periodic import ARCSEC, MAX_AMPLITUDE_ARCSEC
 
 MAX_GRID_ORDER = 120  # highest order searched (cycles per joint turn)
 MIN_PERIODS = 2  # periods of the lowest order inside the measured range
 MAX_ORDERS = 8  # orders kept per joint at most
 MIN_ORDER_GAIN = 0.005  # relative held-out RMS gain an order must bring
 ALPHA = 0.01  # family level of one joint's search (split over the grid)
-ARCSEC = math.pi / 180 / 3600
 
 
 class NarrowRangeWarning(UserWarning):
@@ -132,10 +147,35 @@ def held_out_sums(r: np.ndarray, X: np.ndarray, C: np.ndarray, rows: np.ndarray)
     return base, per
 
 
+def determined_orders(r_perp: np.ndarray, C_perp: np.ndarray, dof: int, scale: float) -> bool:
+    """Whether the data determine every coefficient of the orders whose columns C_perp
+    (3N, 2m) (sin, cos per order, the coefficients' unit: rad) are, with the base columns
+    projected out of them and of the residual r_perp (3N,) mm (module doc, step 4).
+
+    The linear fit with the prior N(0, scale^2) of the effect's parameters (noise variance
+    from the unregularised fit's residual, dof = rows - base rank - 2m): posterior
+    covariance (C^T C / s2 + I / scale^2)^-1, its mean the shrunk coefficients; each
+    judged by `undetermined` (posterior sd < DETERMINED_RATIO * scale, |value| <= scale)."""
+    if dof < 1:
+        return False
+    ls = np.linalg.lstsq(C_perp, r_perp, rcond=None)[0]
+    e = r_perp - C_perp @ ls
+    s2 = max(float(e @ e) / dof, 1e-300)
+    H = C_perp.T @ C_perp / s2 + np.eye(C_perp.shape[1]) / scale ** 2
+    cov = np.linalg.inv(H)
+    mean = cov @ (C_perp.T @ r_perp) / s2
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return all(undetermined(float(v), float(d), scale) is None for v, d in zip(mean, sd))
+
+
 def search_orders(r: np.ndarray, A: np.ndarray, C: np.ndarray, grid, folds: np.ndarray, *,
-                  alpha: float = ALPHA, max_orders: int = MAX_ORDERS, min_gain: float = MIN_ORDER_GAIN):
+                  alpha: float = ALPHA, max_orders: int = MAX_ORDERS, min_gain: float = MIN_ORDER_GAIN,
+                  scale: float | None = None):
     """Greedy held-out search (module doc) of residual r (3N,) mm on base columns A (3N, p)
     over the orders `grid` (K,) with columns C (3N, 2K) (sin, cos per order), folds (N,).
+    scale: the plausible size of one coefficient in C's coefficient unit (rad): an order
+    is kept only when the data determine the joint's coefficients with it (step 4,
+    `determined_orders`); None: no such check.
 
     Returns (indices into grid, in the order chosen; held-out RMS mm before and after each;
     F-test p-values).
@@ -145,13 +185,33 @@ def search_orders(r: np.ndarray, A: np.ndarray, C: np.ndarray, grid, folds: np.n
     Cn = C / np.linalg.norm(C, axis=0).clip(1e-300)
     rows = np.repeat(np.asarray(folds), 3)
     level = alpha / max(len(grid), 1)
+    if scale is not None:
+        UA, _ = _pinv_parts(X)
+        r_perp, C_perp = r - UA @ (UA.T @ r), C - UA @ (UA.T @ C)
     chosen, path, ps = [], [], []
+    refused = np.zeros(len(grid), dtype=bool)  # not determined beside the orders kept
     while len(chosen) < max_orders:
         base, per = held_out_sums(r, X, Cn, rows)
         if not path:
             path.append(math.sqrt(base / n_rows))
         per[chosen] = np.inf
-        best = int(np.argmin(per))
+        per[refused] = np.inf
+        best = None
+        for i in np.argsort(per, kind="stable"):
+            i = int(i)
+            if not np.isfinite(per[i]) or math.sqrt(max(per[i], 0.0) / n_rows) > path[-1] * (1 - min_gain):
+                break  # this and every later one gains too little
+            if scale is None:
+                best = i
+                break
+            cols = [c for j in chosen + [i] for c in (2 * j, 2 * j + 1)]
+            dof = len(r) - UA.shape[1] - len(cols)
+            if determined_orders(r_perp, C_perp[:, cols], dof, scale):
+                best = i
+                break
+            refused[i] = True
+        if best is None:
+            break
         cv = math.sqrt(max(per[best], 0.0) / n_rows)
         U, _ = _pinv_parts(X)
         e0 = r - U @ (U.T @ r)
@@ -164,7 +224,7 @@ def search_orders(r: np.ndarray, A: np.ndarray, C: np.ndarray, grid, folds: np.n
             break
         F = ((e0 @ e0 - e1 @ e1) / k_new) / max(e1 @ e1 / dof, 1e-300)
         p = float(scipy.stats.f.sf(F, k_new, dof))
-        if p >= level or cv > path[-1] * (1 - min_gain):
+        if p >= level:
             break
         chosen.append(best)
         path.append(cv)
@@ -188,6 +248,7 @@ def propose_orders(robot, model, theta, ctx, r: np.ndarray, A: np.ndarray, folds
     grid = tuple(range(lim.k_min, lim.k_max + 1))
     key = ("joint_periodic", (joint,))
     C = all_candidate_columns(robot, model, theta, ctx, [key], {key: (grid,)})[key]
+    kw.setdefault("scale", MAX_AMPLITUDE_ARCSEC * ARCSEC)  # the effect's plausible size (rad)
     idx, path, ps = search_orders(r, A, C, grid, folds, **kw)
     amps = ()
     if idx:

@@ -72,8 +72,8 @@ class Stability:
 
     parts: for an effect on several joints, joint (1-based) -> (the spec of that joint's
     part, its own `Stability`); the effect's own fields then repeat those of its worst
-    part (largest p-value). named / fit_terms: the specs named as physics and those kept
-    as fit terms only (the effect's spec, or its parts' specs joined per side)."""
+    part (largest p-value); stable: every part stable. `split_spec` says what is named
+    and what is a fit term."""
 
     p_value: float
     split: str

@@ -28,7 +28,8 @@ physical error applied as joint-angle deflections before the forward kinematics:
 Each session runs `torchcal.discover(robot, m, ["base_frame", "tool_offset"])` and reads
 its final `unexplained` report (--fit-only: the report on the fit of those two effects,
 cheaper, for null sessions of many poses). Printed per session: the effects discover added and
-those it named as physics (the others it reports as absorbing, torchcal.diagnosis.stability), whether
+those it named as physics (the others it reports as absorbing, torchcal.diagnosis.stability; an
+effect on several joints named for the joints whose part holds), whether
 the report is significant (flagged), the probe's p-value, what it says is learnable and
 from which variables, the noise floor it prints (and from what) against the true 0.0346 mm,
 and the oracle "structured error left": the distance RMS that the final model leaves on
@@ -172,14 +173,15 @@ def run_session(case, poses, seed, fit_only=False):
         from torchcal.diagnosis.unexplained import unexplained
 
         final = ["base_frame", "tool_offset"]
-        u, absorbing = unexplained(robot, m, torchcal.fit(robot, m, final).residuals), []
+        u, named = unexplained(robot, m, torchcal.fit(robot, m, final).residuals), final
     else:
         d = torchcal.discover(robot, m, ["base_frame", "tool_offset"])
-        final, u, absorbing = d.final_effects, d.unexplained, getattr(d, "absorbing", [])
+        final, u, named = d.final_effects, d.unexplained, d.named  # per joint part of a several-joint effect
     wall = time.perf_counter() - t0
     left = torchcal.fit(robot, meas(clean), final).rms_mm  # the oracle: no noise
     added = [e for e in final if e not in ("base_frame", "tool_offset")]
-    return {"case": case, "seed": seed, "added": added, "named": [e for e in added if e not in absorbing],
+    return {"case": case, "seed": seed, "added": added,
+            "named": [e for e in named if e not in ("base_frame", "tool_offset")],
             "flagged": bool(u.significant), "probe_p": u.probe.p_value, "learnable_mm": u.probe.learnable_mm,
             "carried_by": [v for v, _ in u.carried_by], "rms_mm": u.rms_mm, "floor_mm": u.noise_floor_mm,
             "floor_from": u.floor_from, "structured_left_mm": left, "wall_s": wall}

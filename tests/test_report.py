@@ -172,6 +172,31 @@ def test_report_shows_a_transfer_check_when_the_history_has_one(session):
     assert "refused: helps within the session only (no gain (&gt;=))" in text
 
 
+def test_report_names_the_joints_whose_part_holds_and_lists_the_fit_terms(session):
+    """discover's split-half labels (torchcal.diagnosis.stability), per joint part of an
+    effect on several joints, as its history JSON records them."""
+    from torchcal.diagnosis.diagnose import Discovery
+    from torchcal.diagnosis.stability import Stability
+
+    hist = json.loads((session / "hist.json").read_text())
+    spec = "joint_periodic:1@12+22,2@20+29"
+    ok, bad = Stability(1e-9, "q1", 0.0123, 6), Stability(0.56, "q5", -0.0033, 6)
+    st = {spec: Stability(0.56, "q5", -0.0033, 6, parts={1: ("joint_periodic:1@12+22", bad),
+                                                          2: ("joint_periodic:2@20+29", ok)})}
+    d = Discovery([], ["base_frame", spec], None, [], stability=st)
+    hist.update(final_effects=d.final_effects, named=d.named, absorbing=d.absorbing,
+                stability={e: s.to_dict() for e, s in st.items()})
+    (session / "hist_s.json").write_text(json.dumps(hist))
+    out = session / "labels.html"
+    assert main(["report", str(session / "disc.json"), "--history", str(session / "hist_s.json"), "--out",
+                 str(out)]) == 0
+    text = out.read_text()
+    assert "Named as physics: base_frame, joint_periodic:2@20+29." in text
+    assert ("In the model as fit terms only, not named: joint_periodic:1@12+22 (fitted on one side of the median "
+            "of q5 it does not predict the other side better: gain -3.3 um, p 0.56).") in text
+    assert "fit terms only, not named: joint_periodic:1@12+22</td>" in text
+
+
 @pytest.mark.parametrize("args,needle", [
     (["--tolerance-mm", "-1"], "--tolerance-mm"),
     (["--history", "{data}"], "history"),

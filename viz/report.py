@@ -151,8 +151,10 @@ def _summary(rep) -> str:
         pairs.append(("held-out data", f"{_e(d['name'] if d else 'measurements')}: {rep.after['n']} rows, "
                                        f"{rep.iso_after['poses']} poses (the fit never saw them)"))
     if rep.history is not None:
+        terms = rep.history.get("absorbing", [])
         pairs.append(("discovery", f"{len(rep.history.get('history', []))} round(s); final effects "
-                                   f"{_e(', '.join(rep.history.get('final_effects', [])) or 'none')}"))
+                                   f"{_e(', '.join(rep.history.get('final_effects', [])) or 'none')}"
+                                   + (f"; fit terms only, not named: {_e(', '.join(terms))}" if terms else "")))
     out.append(_kv(pairs))
     if rep.after is not None:
         out.append("<h3>Accuracy on the held-out poses</h3>")
@@ -406,6 +408,30 @@ def _table5(rep) -> str:
     return '<section class="page">' + "".join(out) + "</section>"
 
 
+def _fit_terms(h: dict) -> list:
+    """[(spec, stability record)] of what discover kept as fit terms only (its history's
+    ``absorbing``: effects, or joint parts of an effect on several joints, that failed
+    the split-half check, `torchcal.diagnosis.stability`)."""
+    records = {}
+    for spec, st in (h.get("stability") or {}).items():
+        records[spec] = st
+        records.update({p["spec"]: p for p in (st.get("parts") or {}).values()})
+    return [(spec, records.get(spec, {})) for spec in h.get("absorbing", [])]
+
+
+def _labels(h: dict) -> str:
+    """The named effects and the fit terms of a discover history, as a paragraph ('' for
+    a history without the split-half check)."""
+    if "named" not in h and not h.get("absorbing"):
+        return ""
+    terms = [f"{_e(spec)} (fitted on one side of the median of {_e(st.get('split', '?'))} it does not predict "
+             f"the other side better: gain {1000 * st.get('gain_mm', 0.0):+.1f} um, p {st.get('p_value', 1.0):.2g})"
+             for spec, st in _fit_terms(h)]
+    return (f"<p>Named as physics: {_e(', '.join(h.get('named', [])) or 'none')}. "
+            + (f"In the model as fit terms only, not named: {'; '.join(terms)}." if terms else
+               "Every added effect held on the half of the poses it was not fitted on.") + "</p>")
+
+
 def _rounds(rep) -> str:
     h = rep.history
     out = ["<h2>5. Discovery rounds</h2>"]
@@ -416,6 +442,7 @@ def _rounds(rep) -> str:
     out.append(f'<p class="note">Each round refits the most promising missing effects in full and accepts one '
                f"only when the refit lowers the held-out (cross-validated) error beyond chance and by enough "
                f"(docs/diagnosis.md). Final effects: {_e(', '.join(h.get('final_effects', [])) or 'none')}.</p>")
+    out.append(_labels(h))
     for k, r in enumerate(h.get("history", [])):
         out.append(f"<h3>Round {k}: model [{_e(', '.join(r.get('effects', [])) or 'geometric only')}]</h3>")
         out.append(f"<p>fit RMS {_mm(r.get('rms_mm'))}, refit cross-validated RMS {_mm(r.get('cv_rms_mm'))}</p>")

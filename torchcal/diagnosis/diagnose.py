@@ -149,7 +149,10 @@ class Discovery:
     """history[i] = {"effects", "rms_mm" (full fit, training), "cv_rms_mm" (its refit CV),
     "step" (the refits of that round)}; final_effects, fit: the last accepted model;
     stability: added effect -> its `torchcal.diagnosis.stability.Stability` in the final
-    model; absorbing: those that fail it (kept in the model, not named as physics)."""
+    model (per joint part for an effect on several joints); absorbing: the effects, or
+    joint parts (``joint_periodic:1@12+22``), that fail it (kept in the model, not named as
+    physics); named: the final effects named as physics (an effect on several joints
+    restricted to the joints whose part holds)."""
 
     history: list
     final_effects: list
@@ -158,16 +161,24 @@ class Discovery:
     unexplained: Unexplained | None = None  # what the final model leaves
     stability: dict = field(default_factory=dict)
 
+    def _fit_terms(self) -> list:
+        """[(spec, Stability)] of the effects and joint parts kept as fit terms only."""
+        return [t for e, st in self.stability.items() for t in st.split_spec(e)[1]]
+
     @property
     def absorbing(self) -> list:
-        return [e for e, st in self.stability.items() if not st.stable]
+        return [e for e, _ in self._fit_terms()]
+
+    @property
+    def named(self) -> list:
+        return [n for e in self.final_effects
+                for n in (self.stability[e].split_spec(e)[0] if e in self.stability else [e])]
 
     def final_words(self) -> str:
         """The final effects named as physics, and the absorbing ones, in words."""
-        named = [e for e in self.final_effects if e not in self.absorbing]
-        out = [f"final effects: {', '.join(named) or 'none'}"]
-        out += [f"  {e}: in the model as a fit term only, not named: {self.stability[e].words()}; it absorbs "
-                f"structure outside the vocabulary (what is left, below)" for e in self.absorbing]
+        out = [f"final effects: {', '.join(self.named) or 'none'}"]
+        out += [f"  {e}: in the model as a fit term only, not named: {st.words()}; it absorbs "
+                f"structure outside the vocabulary (what is left, below)" for e, st in self._fit_terms()]
         return "\n".join(out)
 
     def to_dict(self) -> dict:
@@ -176,6 +187,7 @@ class Discovery:
                 "set_by_prior": list(self.fit.set_by_prior),
                 "unexplained": None if self.unexplained is None else self.unexplained.to_dict(),
                 "stability": {e: st.to_dict() for e, st in self.stability.items()}, "absorbing": self.absorbing,
+                "named": self.named,
                 "residual_stage": self.fit.residual_test}
 
 

@@ -31,14 +31,23 @@ the true gear_periodic:2 and joint_compliance:3 of the final model gave p 0 and 
 and it accepts an absorber whose parameters the data barely determine (joint_clearance:1
 in hose sessions), so it named the absorber and not the physics (docs/diagnosis.md).
 
+An effect on several joints (``joint_periodic:1@12+22,2@20+29``, ``gear_periodic:1,2,3``)
+is one effect of the model but a separate claim per joint: one joint's gear error can be
+physics while another joint's terms absorb something else. Its test is made per joint
+(`part_specs`): joint j's part is tested as above, the model with all of the effect
+against the model with the effect on the other joints only (same splits, same rule, same
+ALPHA; the 'with' side is the same fit for every part). The joints whose part holds are
+named, the others are fit terms; the whole effect has no test of its own (the rule was
+fixed before the UR10 outcome was looked at; docs/diagnosis.md).
+
 `discover` applies it to the effects it added, in its final model (`absorbing`): an
-effect that fails stays in the model as a fit term (the held-out error it bought is
-real) and is reported as absorbing, not named as physics.
+effect (or an effect's joint part) that fails stays in the model as a fit term (the
+held-out error it bought is real) and is reported as absorbing, not named as physics.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -47,6 +56,7 @@ from torchcal.calibration.model import CalibrationModel
 from torchcal.calibration.plausibility import determination
 from torchcal.diagnosis.crossval import held_out_errors, per_pose
 from torchcal.diagnosis.selection import paired_p_value
+from torchcal.effects.spec import format_spec, parse_spec
 from torchcal.errors import InputError
 
 #: level of the extrapolated gain's test in each split.
@@ -58,17 +68,37 @@ class Stability:
     """Result of `stability` for one effect: p_value, the largest over the splits (the
     intersection-union test's p-value); split: the variable of that split ('q3'); gain:
     the extrapolated distance-RMS gain there (mm, without minus with); splits: how many
-    were tested; level: ALPHA. stable: p_value < level (True when nothing was tested)."""
+    were tested; level: ALPHA. stable: p_value < level (True when nothing was tested).
+
+    parts: for an effect on several joints, joint (1-based) -> (the spec of that joint's
+    part, its own `Stability`); the effect's own fields then repeat those of its worst
+    part (largest p-value); stable: every part stable. `split_spec` says what is named
+    and what is a fit term."""
 
     p_value: float
     split: str
     gain_mm: float
     splits: int
     level: float = ALPHA
+    parts: dict = field(default_factory=dict)
 
     @property
     def stable(self) -> bool:
+        if self.parts:
+            return all(st.stable for _, st in self.parts.values())
         return self.splits == 0 or self.p_value < self.level
+
+    def split_spec(self, spec: str) -> tuple[list, list]:
+        """([specs named as physics], [(spec, Stability) kept as fit terms]) of the effect
+        `spec` tested here: the whole spec on one side, or per joint part."""
+        if not self.parts:
+            return ([spec], []) if self.stable else ([], [(spec, self)])
+        named = [j for j, (_, st) in self.parts.items() if st.stable]
+        parsed = parse_spec(spec, max(self.parts))
+        keep = [i for i, j in enumerate(parsed.joints) if j in named]
+        named_spec = format_spec(parsed.name, [parsed.joints[i] for i in keep],
+                                 [parsed.orders[i] for i in keep] if parsed.orders else ())
+        return ([named_spec] if keep else []), [(part, st) for j, (part, st) in self.parts.items() if j not in named]
 
     def words(self) -> str:
         """Why an effect is taken for an absorber, in words."""
@@ -76,8 +106,27 @@ class Stability:
                 f"better (extrapolated gain {1000 * self.gain_mm:+.1f} um, p {self.p_value:.2g} >= {self.level:g})")
 
     def to_dict(self) -> dict:
-        return {"stable": self.stable, "p_value": self.p_value, "split": self.split, "gain_mm": self.gain_mm,
-                "splits": self.splits, "level": self.level}
+        out = {"stable": self.stable, "p_value": self.p_value, "split": self.split, "gain_mm": self.gain_mm,
+               "splits": self.splits, "level": self.level}
+        if self.parts:
+            out["parts"] = {str(j): {"spec": part, **st.to_dict()} for j, (part, st) in self.parts.items()}
+        return out
+
+
+def part_specs(spec: str, n_joints: int) -> dict:
+    """joint (1-based) -> (the spec of that joint's part, the spec of the effect without
+    it) for an effect on several joints (``joint_periodic:1@12,2@20+29`` -> {1:
+    ('joint_periodic:1@12', 'joint_periodic:2@20+29'), 2: (...)}); {} for an effect on
+    one joint or none."""
+    s = parse_spec(spec, n_joints)
+    if len(s.joints) < 2:
+        return {}
+    out = {}
+    for i, j in enumerate(s.joints):
+        rest = [k for k in range(len(s.joints)) if k != i]
+        out[j] = (format_spec(s.name, [j], [s.orders[i]] if s.orders else ()),
+                  format_spec(s.name, [s.joints[k] for k in rest], [s.orders[k] for k in rest] if s.orders else ()))
+    return out
 
 
 def halves(m) -> dict:
@@ -94,12 +143,15 @@ def halves(m) -> dict:
     return out
 
 
-def without(full, spec: str, m, ctx, *, sigma_mm: float, sigma_deg: float):
-    """The model of `full` (`FitResult`) without the effect `spec`, fitted on all of m from
-    full's values, with full's held parameters held."""
+def without(full, spec: str, m, ctx, *, sigma_mm: float, sigma_deg: float, by: str | None = None):
+    """The model of `full` (`FitResult`) without the effect `spec` (replaced by the spec
+    `by` when given: the effect on fewer joints), fitted on all of m from full's values,
+    with full's held parameters held."""
     from torchcal.diagnosis.step import fit_options
 
-    model = CalibrationModel.for_measurements(full.model.robot, [s for s in full.model.specs() if s != spec], m)
+    specs = [s for s in full.model.specs() if s != spec] if by is None else \
+        [by if s == spec else s for s in full.model.specs()]
+    model = CalibrationModel.for_measurements(full.model.robot, specs, m)
     names, held = full.model.param_names(), set(full.report.held)
     theta0, free = model.zeros(), model.default_free()
     for i, n in enumerate(model.param_names()):
@@ -126,28 +178,49 @@ def extrapolated(full, m, ctx, half: np.ndarray, *, sigma_mm: float, sigma_deg: 
     return None if err is None else (per_pose(m, err), float(np.sqrt(err.mean())))
 
 
-def stability(full, spec: str, m, ctx, *, sigma_mm: float, sigma_deg: float, alpha: float = ALPHA) -> Stability:
-    """The extrapolation test of the effect `spec` of the fitted model `full` on
-    measurements m (context ctx), see the module doc."""
-    try:
-        reduced = without(full, spec, m, ctx, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
-    except InputError:
-        return Stability(1.0, "", 0.0, 0, alpha)
+def _tested(reduced, with_e: dict, m, ctx, *, sigma_mm: float, sigma_deg: float, alpha: float) -> Stability:
+    """The test of `reduced` (the model without the effect or part, or None when it cannot
+    be fitted) against the 'with' side `with_e` (split name -> `extrapolated` of the full
+    model, usable splits only)."""
     results = []
-    for name, half in halves(m).items():
-        with_e = extrapolated(full, m, ctx, half, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
-        without_e = None if with_e is None else extrapolated(reduced, m, ctx, half, sigma_mm=sigma_mm,
-                                                             sigma_deg=sigma_deg)
-        if without_e is None:
-            continue
-        results.append((paired_p_value(without_e[0], with_e[0]), name, without_e[1] - with_e[1]))
+    for name, (half, with_) in with_e.items():
+        without_e = None if reduced is None else extrapolated(reduced, m, ctx, half, sigma_mm=sigma_mm,
+                                                              sigma_deg=sigma_deg)
+        if without_e is not None:
+            results.append((paired_p_value(without_e[0], with_[0]), name, without_e[1] - with_[1]))
     if not results:
         return Stability(1.0, "", 0.0, 0, alpha)
     p, name, gain = max(results)
     return Stability(p, name, gain, len(results), alpha)
 
 
+def stability(full, spec: str, m, ctx, *, sigma_mm: float, sigma_deg: float, alpha: float = ALPHA) -> Stability:
+    """The extrapolation test of the effect `spec` of the fitted model `full` on
+    measurements m (context ctx), per joint part for an effect on several joints; see
+    the module doc."""
+    parts = part_specs(spec, full.model.robot.n)
+    reduced = {}
+    for j, by in ({None: None} if not parts else {j: rest for j, (_, rest) in parts.items()}).items():
+        try:
+            reduced[j] = without(full, spec, m, ctx, sigma_mm=sigma_mm, sigma_deg=sigma_deg, by=by)
+        except InputError:
+            reduced[j] = None
+    with_e = {}
+    if any(r is not None for r in reduced.values()):
+        for name, half in halves(m).items():
+            w = extrapolated(full, m, ctx, half, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
+            if w is not None:
+                with_e[name] = (half, w)
+    kw = dict(sigma_mm=sigma_mm, sigma_deg=sigma_deg, alpha=alpha)
+    if not parts:
+        return _tested(reduced[None], with_e, m, ctx, **kw)
+    tests = {j: (parts[j][0], _tested(reduced[j], with_e, m, ctx, **kw)) for j in parts}
+    worst = max((st for _, st in tests.values()), key=lambda st: (st.splits > 0, st.p_value))
+    return Stability(worst.p_value, worst.split, worst.gain_mm, worst.splits, alpha, parts=tests)
+
+
 def absorbing(full, added: list, m, ctx, *, sigma_mm: float, sigma_deg: float, alpha: float = ALPHA) -> dict:
-    """spec -> `Stability` of each effect spec in `added` in the fitted model `full`."""
+    """spec -> `Stability` of each effect spec in `added` in the fitted model `full` (per
+    joint part for an effect on several joints)."""
     return {spec: stability(full, spec, m, ctx, sigma_mm=sigma_mm, sigma_deg=sigma_deg, alpha=alpha)
             for spec in added}

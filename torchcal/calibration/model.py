@@ -226,9 +226,10 @@ class CalibrationModel:
                 J[..., sl] += v.unsqueeze(-1) * (others[:, None] * S).unsqueeze(1)
             v = v * total.unsqueeze(-1)
         base = robot.base.to(theta)
-        J = _rows_times(base[:3, :3], J)
-        if rotation:
-            W = _rows_times(base[:3, :3], W)
+        if not robot.chain.plain_base:  # an identity base leaves the columns as they are
+            J = _rows_times(base[:3, :3], J)
+            if rotation:
+                W = _rows_times(base[:3, :3], W)
         v = v @ base[:3, :3].T + base[:3, 3]
         for e, sl in parts:
             p = theta[sl]
@@ -266,8 +267,11 @@ def _times_shared(M: torch.Tensor, T: torch.Tensor) -> torch.Tensor:
 
 
 def _rows_times(M: torch.Tensor, J: torch.Tensor) -> torch.Tensor:
-    """M_i @ J_i for every row: M (N, 3, 3) or one (3, 3) (also an expanded one), J (N, 3, P).
-    One matrix for all rows runs as a single GEMM instead of N small ones."""
+    """M_i @ J_i for every row: M (N, 3, 3) or one (3, 3) (also an expanded one), J (N, 3, P)
+    -> (N, 3, P) contiguous. On a CPU a batched product of small matrices is fast only on
+    contiguous operands (else it runs as a loop of N small GEMMs), so J is made contiguous
+    and one matrix for all rows is broadcast rather than expanded."""
+    J = J.contiguous()
     if M.dim() == 2 or M.stride(0) == 0:
-        return torch.einsum("ij,njp->nip", M if M.dim() == 2 else M[0], J)
-    return M @ J
+        return torch.matmul(M if M.dim() == 2 else M[0], J)
+    return M.contiguous() @ J

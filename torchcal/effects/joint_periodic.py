@@ -84,4 +84,4 @@ class JointPeriodic(Effect):
 
     def joint_offset_jacobian(self, p, ctx):
         basis, place = self._basis(ctx).to(p), self._place(ctx).to(p)
-        return basis.unsqueeze(1) * place.T.unsqueeze(0)  # (N, n, 2m)
+        return basis.unsqueeze(1) * place.T.contiguous().unsqueeze(0)  # (N, n, 2m), contiguous

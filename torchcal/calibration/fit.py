@@ -208,9 +208,14 @@ def solve(rows: Rows, x: torch.Tensor, free: torch.Tensor, prior: torch.Tensor, 
         extra = [] if damp is None else [damp * (z[0] - theta0)]
         return torch.cat([rows.residual(z[0]).reshape(-1), prior * z[0]] + extra).unsqueeze(0)
 
-    def jac_fn(z):
-        extra = [] if damp is None else [torch.diag(damp)]
-        return torch.cat([rows.jacobian(z[0]).reshape(-1, z.shape[-1]), torch.diag(prior)] + extra).unsqueeze(0)
+    def jac_fn(z):  # one (1, n k + P [+ P], P) buffer: the rows' Jacobian is written into it
+        P = z.shape[-1]
+        out = z.new_empty(n * k + (1 if damp is None else 2) * P, P)
+        rows.jacobian(z[0], out=out[: n * k].view(n, k, P))
+        out[n * k: n * k + P] = torch.diag(prior)
+        if damp is not None:
+            out[n * k + P:] = torch.diag(damp)
+        return out.unsqueeze(0)
 
     for _ in range(1 if robust is None else ROBUST_ROUNDS):
         w = torch.cat([weights.repeat_interleave(k), torch.ones_like(prior)]

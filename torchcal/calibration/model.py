@@ -173,8 +173,10 @@ class CalibrationModel:
         `predict_rotation`, measurement frame: d R / d theta_k = [W[..., k]]x R."""
         return self.jacobians(theta, ctx, rotation=True)[1]
 
-    def jacobians(self, theta: torch.Tensor, ctx: Context, *, rotation: bool = False):
-        """(J (N, 3, P) of `jacobian`, W (N, 3, P) of `rotation_jacobian` or None)."""
+    def jacobians(self, theta: torch.Tensor, ctx: Context, *, rotation: bool = False, frame: bool = False):
+        """(J (N, 3, P) of `jacobian`, W (N, 3, P) of `rotation_jacobian` or None); with
+        `frame` also R (N, 3, 3), the orientations of `predict_rotation` (from the same
+        chain walk, so the fit's orientation rows need no second one)."""
         robot = self.robot
         n, P = robot.n, self.n_params
         geo = theta[self.slices[0]].reshape(n, 5)
@@ -257,7 +259,16 @@ class CalibrationModel:
                     dR = e.world_rotation_jacobian(p, ctx)  # (3, 3, k)
                     Om = torch.einsum("ijk,lj->kil", dR, Rw)  # dR_k Rw^T, skew (k, 3, 3)
                     W[..., sl] += torch.stack([Om[:, 2, 1], Om[:, 0, 2], Om[:, 1, 0]], dim=0)
-        return J, W
+        if not frame:
+            return J, W
+        R = cj.rotation @ robot.tool[:3, :3].to(theta)  # predict_rotation's steps
+        if not robot.chain.plain_base:
+            R = base[:3, :3] @ R
+        for e, sl in parts:
+            w = e.world_rotation(theta[sl], ctx)
+            if w is not None:
+                R = w @ R
+        return J, W, R
 
 
 def _times_shared(M: torch.Tensor, T: torch.Tensor) -> torch.Tensor:

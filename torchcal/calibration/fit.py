@@ -244,7 +244,7 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, *, theta0=None
         sigma_deg: float = SIGMA_DEG, register: bool = True,
         max_length_mm: float | None = MAX_LENGTH_MM,
         max_angle_deg: float | None = MAX_ANGLE_DEG, prior_sigma_mm: float | None = None,
-        prior: bool = True, damping: float = 0.0) -> FitResult:
+        prior: bool = True, damping: float = 0.0, posterior: bool = True) -> FitResult:
     """Fit model parameters to measured TCP positions xyz (N, 3) mm [and orientations].
 
     pose: (N,) int pose ids; with repeats the standard errors are pose-level
@@ -281,6 +281,9 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, *, theta0=None
     towards theta0 (e.g. a zone towards the global calibration). They count as prior
     information in the covariance, and with them fewer equations than parameters are
     allowed.
+
+    posterior=False skips the covariance (std NaN, covariance None, set_by_prior empty):
+    for the fold refits of a cross-validation, which use theta only.
     """
     from torchcal.calibration.plausibility import beyond_plausible, plausible_scales, set_by_prior
 
@@ -343,13 +346,15 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, *, theta0=None
     prior_rows = prior_factors(rho, scales) if has_prior and math.isfinite(rho) else None  # posterior
     if damp is not None:  # the damping rows are prior information too
         prior_rows = damp if prior_rows is None else (prior_rows ** 2 + damp ** 2).sqrt()
-    if rotation is None:
+    if not posterior:
+        covariance = None
+    elif rotation is None:
         covariance = parameter_covariance(model.jacobian(theta, ctx), resid_pos, free_now, pose=pose,
                                           weights=s.weights if robust else None, prior=prior_rows)
     else:  # rows of 6 residuals: row-wise estimate s^2 (J^T W J)^-1
         covariance = row_covariance(rows.jacobian(theta).reshape(-1, theta.shape[0]), r.reshape(-1), free_now,
                                     weights=s.weights.repeat_interleave(rows.k), prior=prior_rows)
-    std = covariance.std
+    std = torch.full_like(theta, math.nan).detach() if covariance is None else covariance.std
     orient = None
     if rotation is not None:
         rot_res = r[:, 3:] / rows.w_rot  # (N, 3) rad, model vs measured
@@ -365,5 +370,5 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, *, theta0=None
                      {"max_length_mm": max_length_mm, "max_angle_deg": max_angle_deg, "prior_sigma_mm": rho},
                      q_range=joint_range(ctx.q), seed_poses=seed_poses(ctx.q), robust=robust, sigma_mm=sigma_mm,
                      sigma_deg=sigma_deg, training=training_summary(resid_pos),
-                     set_by_prior=set_by_prior(model, std, free_now, scales.cpu()) if has_prior else [],
+                     set_by_prior=set_by_prior(model, std, free_now, scales.cpu()) if has_prior and posterior else [],
                      damping=float(damping))

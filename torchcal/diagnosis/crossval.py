@@ -44,10 +44,11 @@ class RefitCV:
     error: str | None = None
 
 
-def fold_fit(full, m, ctx, train: torch.Tensor, *, sigma_mm: float, sigma_deg: float):
+def fold_fit(full, m, ctx, train: torch.Tensor, *, sigma_mm: float, sigma_deg: float, posterior: bool = True):
     """The fitted model `full` (`FitResult`) refitted on the rows `train` (N,) bool of m:
     from full.theta, with full's identifiable set, plausible scales and prior rho, the
-    measured orientations when m has them. InputError when the rows cannot carry it."""
+    measured orientations when m has them. InputError when the rows cannot carry it.
+    posterior=False: without the covariance (`fit`'s option; a refit used for its theta only)."""
     from torchcal.calibration.fit import fit
 
     lim = full.plausible_limits or {}
@@ -55,14 +56,14 @@ def fold_fit(full, m, ctx, train: torch.Tensor, *, sigma_mm: float, sigma_deg: f
                pose=m.pose[train], rotation=None if m.rotation is None else m.rotation[train],
                sigma_mm=sigma_mm, sigma_deg=sigma_deg, register=False, max_iter=REFIT_MAX_ITER,
                max_length_mm=lim.get("max_length_mm"), max_angle_deg=lim.get("max_angle_deg"),
-               prior_sigma_mm=lim.get("prior_sigma_mm"))
+               prior_sigma_mm=lim.get("prior_sigma_mm"), posterior=posterior)
 
 
-def fold_refits(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: float):
+def fold_refits(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: float, posterior: bool = True):
     """Per fold of folds (N,): (test (N,) bool, `fold_fit` on the other folds' rows)."""
     for f in np.unique(folds):
         test = torch.from_numpy(folds == f)
-        yield test, fold_fit(full, m, ctx, ~test, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
+        yield test, fold_fit(full, m, ctx, ~test, sigma_mm=sigma_mm, sigma_deg=sigma_deg, posterior=posterior)
 
 
 def refit_cv(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: float) -> RefitCV:
@@ -84,9 +85,11 @@ def refit_cv(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: flo
 def held_out_errors(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: float, accept=None):
     """(N,) mm^2: each row's squared distance error predicted by `full` refitted on the
     other folds of folds (N,) (`fold_refits`); None as soon as `accept(fold_fit)` is false
-    for a fold's fit. A fold fit's InputError propagates."""
+    for a fold's fit. A fold fit's InputError propagates. The fold fits carry their
+    posterior only for `accept` (the held-out errors need their theta only)."""
     err = np.zeros(len(m))
-    for test, res in fold_refits(full, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg):
+    for test, res in fold_refits(full, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
+                                 posterior=accept is not None):
         if accept is not None and not accept(res):
             return None
         with torch.no_grad():

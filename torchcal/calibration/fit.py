@@ -192,14 +192,17 @@ class Solved:
 
 
 def solve(rows: Rows, x: torch.Tensor, free: torch.Tensor, prior: torch.Tensor, *, robust: str | None = None,
-          max_iter: int = 60, lower: torch.Tensor | None = None, anchor=None) -> Solved:
+          max_iter: int = 60, lower: torch.Tensor | None = None, anchor=None, known=None) -> Solved:
     """LM on the measurement rows plus the prior rows ``prior_i * theta_i`` (prior (P,),
     `torchcal.calibration.prior.prior_factors`), from x (1, P), moving the parameters
     `free` (P,) bool only, above `lower` (P,) (None: unbounded). robust ('huber',
     'cauchy'): IRLS, the row weights recomputed from the distance residual after each
     solve (`torchcal.calibration.robust.robust_weights`), at most ROBUST_ROUNDS times,
     until no weight moves by more than WEIGHT_TOL. anchor (damp (P,), theta0 (P,)): the
-    damping rows ``damp_i * (theta_i - theta0_i)`` as well (`fit`'s `damping`)."""
+    damping rows ``damp_i * (theta_i - theta0_i)`` as well (`fit`'s `damping`). known
+    (theta (P,), J (N, k, P)): the rows' Jacobian already evaluated at theta (`fit`'s
+    identifiability step), taken for an LM iteration at that theta instead of a second
+    evaluation (the same numbers)."""
     n, k = rows.xyz.shape[0], rows.k
     weights = torch.ones(n, dtype=rows.xyz.dtype, device=rows.xyz.device)
     damp, theta0 = anchor if anchor is not None else (None, None)
@@ -211,7 +214,10 @@ def solve(rows: Rows, x: torch.Tensor, free: torch.Tensor, prior: torch.Tensor, 
     def jac_fn(z):  # one (1, n k + P [+ P], P) buffer: the rows' Jacobian is written into it
         P = z.shape[-1]
         out = z.new_empty(n * k + (1 if damp is None else 2) * P, P)
-        rows.jacobian(z[0], out=out[: n * k].view(n, k, P))
+        if known is not None and torch.equal(z[0], known[0]):
+            out[: n * k] = known[1].reshape(n * k, P)
+        else:
+            rows.jacobian(z[0], out=out[: n * k].view(n, k, P))
         out[n * k: n * k + P] = torch.diag(prior)
         if damp is not None:
             out[n * k + P:] = torch.diag(damp)
@@ -313,13 +319,15 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, *, theta0=None
 
     free_now = report.free.clone()
     rho = sigma_mm if prior_sigma_mm is None else prior_sigma_mm
-    s = solve(rows, theta0.unsqueeze(0), free_now, prior_factors(rho if has_prior else 0.0, scales), **options)
+    s = solve(rows, theta0.unsqueeze(0), free_now, prior_factors(rho if has_prior else 0.0, scales), **options,
+              known=(theta0, J0))
     x = s.x
     if rotation is not None:
         rows = rows.with_tool_rotation(x[0])
-    again = rotation is not None
+    again, known = rotation is not None, None
     if cold:  # identifiability once more at the first solution (identifiability.recheck)
-        report = recheck(rows.jacobian(x[0]), names, cand, free_now, rank_tol)
+        known = (x[0], rows.jacobian(x[0]))
+        report = recheck(known[1], names, cand, free_now, rank_tol)
         if not torch.equal(report.free, free_now):
             newly = free_now & ~report.free
             x = x.clone()
@@ -329,7 +337,7 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, *, theta0=None
         rho = prior_strength(_position_residual(rows, x), robust is not None)
         again = again or rho >= RHO_EXACT  # below it the data are fitted exactly: no prior needed
     if again:
-        s = solve(rows, x, free_now, prior_factors(rho if has_prior else 0.0, scales), **options)
+        s = solve(rows, x, free_now, prior_factors(rho if has_prior else 0.0, scales), **options, known=known)
         x = s.x
     for _ in range(3):  # rho and the fit agree (a first solve far from the optimum gives a rho too large)
         if not has_prior or prior_sigma_mm is not None:

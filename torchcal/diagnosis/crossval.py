@@ -125,6 +125,7 @@ class LinearRefit:
         self.Ab = self.pose_mean(A)
         self.rb = self.pose_mean(r[:, None])[:, 0]
         self.Qb = self._new(np.zeros((len(self.rb), 0)), self.Ab, len(self.rb))
+        self._parts = None  # `_fold_parts`, on first use
 
     @property
     def n_poses(self) -> int:
@@ -172,6 +173,20 @@ class LinearRefit:
         e = self.rb - self.Qb @ (self.Qb.T @ self.rb)
         return e - Bb @ (Bb.T @ e) if Bb.size else e
 
+    def _fold_parts(self):
+        """(Q, r, Q^T r, per fold (test (3N,) bool, its torch mask, Q_t, r_t, Q_t^T Q_t,
+        Q_t^T r_t)) as torch tensors: what every `cross_validate` call shares, computed once."""
+        if self._parts is None:
+            Q, r = torch.from_numpy(self.Q), torch.from_numpy(self.r)
+            parts = []
+            for f in self.folds:
+                test = self.rows == f
+                tt = torch.from_numpy(test)
+                Qt, rt = Q[tt], r[tt]
+                parts.append((test, tt, Qt, rt, Qt.T @ Qt, Qt.T @ rt))
+            self._parts = (Q, r, Q.T @ r, parts)
+        return self._parts
+
     def cross_validate(self, B: np.ndarray, Bs: np.ndarray | None):
         """Held-out distance RMS and mean held-out log-likelihood per row of r on [A B],
         with the residual covariance model Bs (N, 3, K) (None: isotropic).
@@ -179,25 +194,35 @@ class LinearRefit:
         X = [Q B] is orthonormal over all rows, so the training normal matrix of a fold is
         I - X_test^T X_test (well conditioned): one small torch solve per fold.
         """
-        X = torch.from_numpy(np.hstack([self.Q, B]) if B.size else self.Q)
-        r = torch.from_numpy(self.r)
+        Q, r, Qr, parts = self._fold_parts()
+        Bt_ = torch.from_numpy(B) if B.size else None
         held = np.empty_like(self.r)
         ll = np.empty(len(self.r) // 3)
         rows3 = self.rows[::3]
-        Xr = X.T @ r
-        eye = torch.eye(X.shape[1], dtype=X.dtype)
+        k = Q.shape[1] + (0 if Bt_ is None else Bt_.shape[1])
+        Xr = Qr if Bt_ is None else torch.cat([Qr, Bt_.T @ r])
+        eye = torch.eye(k, dtype=r.dtype)
         train = torch.empty(len(self.folds), len(self.r), dtype=r.dtype)  # (F, 3N): test rows unused
-        for i, f in enumerate(self.folds):
-            test = self.rows == f
-            tt = torch.from_numpy(test)
-            Xt, rt = X[tt], r[tt]
-            if X.shape[1]:
-                coef = torch.linalg.solve(eye - Xt.T @ Xt, Xr - Xt.T @ rt)
-                held[test] = (rt - Xt @ coef).numpy(force=True)
-                train[i] = r - X @ coef
-            else:
+        for i, (test, tt, Qt, rt, QtQt, Qtrt) in enumerate(parts):
+            if not k:
                 held[test] = self.r[test]
                 train[i] = r
+                continue
+            # the blocks of X_t^T X_t and X_t^T r_t for X = [Q B], the Q blocks cached
+            if Bt_ is None:
+                XtX, Xtr = QtQt, Qtrt
+            else:
+                Bt = Bt_[tt]
+                QtB = Qt.T @ Bt
+                XtX = torch.cat([torch.cat([QtQt, QtB], 1), torch.cat([QtB.T, Bt.T @ Bt], 1)])
+                Xtr = torch.cat([Qtrt, Bt.T @ rt])
+            coef = torch.linalg.solve(eye - XtX, Xr - Xtr)
+            q_, b_ = coef[:Q.shape[1]], coef[Q.shape[1]:]
+            pred_t, pred = Qt @ q_, Q @ q_
+            if Bt_ is not None:
+                pred_t, pred = pred_t + Bt @ b_, pred + Bt_ @ b_
+            held[test] = (rt - pred_t).numpy(force=True)
+            train[i] = r - pred
         # the variance model of every fold from its training rows, in one batched fit
         w = torch.from_numpy(rows3[None] != self.folds[:, None])  # (F, N)
         logp = fit_variances(train.reshape(len(self.folds), -1, 3),

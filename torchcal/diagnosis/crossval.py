@@ -195,12 +195,12 @@ class LinearRefit:
         I - X_test^T X_test (well conditioned): one small torch solve per fold.
         """
         Q, r, Qr, parts = self._fold_parts()
-        Bt_ = torch.from_numpy(B) if B.size else None
+        Bx = torch.from_numpy(B) if B.size else None
         held = np.empty_like(self.r)
         ll = np.empty(len(self.r) // 3)
         rows3 = self.rows[::3]
-        k = Q.shape[1] + (0 if Bt_ is None else Bt_.shape[1])
-        Xr = Qr if Bt_ is None else torch.cat([Qr, Bt_.T @ r])
+        k = Q.shape[1] + (0 if Bx is None else Bx.shape[1])
+        Xr = Qr if Bx is None else torch.cat([Qr, Bx.T @ r])
         eye = torch.eye(k, dtype=r.dtype)
         train = torch.empty(len(self.folds), len(self.r), dtype=r.dtype)  # (F, 3N): test rows unused
         for i, (test, tt, Qt, rt, QtQt, Qtrt) in enumerate(parts):
@@ -209,18 +209,18 @@ class LinearRefit:
                 train[i] = r
                 continue
             # the blocks of X_t^T X_t and X_t^T r_t for X = [Q B], the Q blocks cached
-            if Bt_ is None:
+            if Bx is None:
                 XtX, Xtr = QtQt, Qtrt
             else:
-                Bt = Bt_[tt]
+                Bt = Bx[tt]
                 QtB = Qt.T @ Bt
                 XtX = torch.cat([torch.cat([QtQt, QtB], 1), torch.cat([QtB.T, Bt.T @ Bt], 1)])
                 Xtr = torch.cat([Qtrt, Bt.T @ rt])
             coef = torch.linalg.solve(eye - XtX, Xr - Xtr)
             q_, b_ = coef[:Q.shape[1]], coef[Q.shape[1]:]
             pred_t, pred = Qt @ q_, Q @ q_
-            if Bt_ is not None:
-                pred_t, pred = pred_t + Bt @ b_, pred + Bt_ @ b_
+            if Bx is not None:
+                pred_t, pred = pred_t + Bt @ b_, pred + Bx @ b_
             held[test] = (rt - pred_t).numpy(force=True)
             train[i] = r - pred
         # the variance model of every fold from its training rows, in one batched fit

@@ -343,3 +343,26 @@ def test_model_is_differentiable_with_every_effect(kr):
                       for h, e in zip(hs, eye)], dim=-1)  # (6, 3, P)
     scale = J.abs().amax((0, 1)).clamp_min(1.0)  # (P,) per-column size, mm per unit
     assert_close(J / scale, fd / scale, rtol=0, atol=1e-5)
+
+
+def test_a_periodic_basis_kept_per_context_follows_the_context_and_pickles(kr):
+    """`per_context` (the joint-angle basis of joint_periodic / gear_periodic kept across a
+    solve's evaluations): the offset of a second context is that context's, returning to
+    the first gives the first's again, a context whose q requires grad keeps its graph
+    (two backward passes), and a model that used it pickles (the cache is not state)."""
+    import pickle
+
+    model = CalibrationModel(kr, ["joint_periodic:2@3+5", "gear_periodic:4"])
+    p = torch.randn(model.n_params, generator=torch.Generator().manual_seed(1), dtype=torch.float64) * 1e-4
+    qa, qb = random_poses(kr, 12, 7), random_poses(kr, 12, 8)
+    ca, cb = make_context(kr, qa), make_context(kr, qb)
+    fresh = [CalibrationModel(kr, model.specs()).predict(p, c) for c in (ca, cb)]  # never cached before
+    for c, ref in ((ca, fresh[0]), (cb, fresh[1]), (ca, fresh[0])):
+        assert torch.equal(model.predict(p, c), ref)
+    assert not torch.equal(fresh[0], fresh[1])
+    qg = qa.clone().requires_grad_(True)
+    cg = make_context(kr, qg)
+    for _ in range(2):  # a kept graph would be freed by the first backward
+        model.predict(p, cg).sum().backward()
+    back = pickle.loads(pickle.dumps(model))
+    assert torch.equal(back.predict(p, cb), fresh[1])

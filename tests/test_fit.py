@@ -123,6 +123,16 @@ def test_the_start_of_a_model_with_a_base_frame_is_its_registration(ur10_rows):
     assert start(CalibrationModel(robot), ctx, m.xyz)[1] is None  # no frame to register
 
 
+def test_a_fit_without_its_posterior_has_the_same_parameters(narrow):
+    """posterior=False (the fold refits of a cross-validation): the same theta to the bit,
+    no covariance, std NaN, nothing named as set by the prior."""
+    model, ctx, m, res = narrow
+    lean = fit(model, ctx, m.xyz, posterior=False)
+    assert torch.equal(lean.theta, res.theta) and lean.covariance is None
+    assert bool(torch.isnan(lean.std).all()) and lean.set_by_prior == []
+    assert res.covariance is not None and bool(torch.isfinite(res.std).all())
+
+
 def test_options_are_keyword_only(narrow):
     model, ctx, m, _ = narrow
     with pytest.raises(TypeError):

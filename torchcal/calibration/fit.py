@@ -192,14 +192,17 @@ class Solved:
 
 
 def solve(rows: Rows, x: torch.Tensor, free: torch.Tensor, prior: torch.Tensor, *, robust: str | None = None,
-          max_iter: int = 60, lower: torch.Tensor | None = None, anchor=None) -> Solved:
+          max_iter: int = 60, lower: torch.Tensor | None = None, anchor=None, known=None) -> Solved:
     """LM on the measurement rows plus the prior rows ``prior_i * theta_i`` (prior (P,),
     `torchcal.calibration.prior.prior_factors`), from x (1, P), moving the parameters
     `free` (P,) bool only, above `lower` (P,) (None: unbounded). robust ('huber',
     'cauchy'): IRLS, the row weights recomputed from the distance residual after each
     solve (`torchcal.calibration.robust.robust_weights`), at most ROBUST_ROUNDS times,
     until no weight moves by more than WEIGHT_TOL. anchor (damp (P,), theta0 (P,)): the
-    damping rows ``damp_i * (theta_i - theta0_i)`` as well (`fit`'s `damping`)."""
+    damping rows ``damp_i * (theta_i - theta0_i)`` as well (`fit`'s `damping`). known
+    (theta (P,), J (N, k, P)): the rows' Jacobian already evaluated at theta (`fit`'s
+    identifiability step), taken for an LM iteration at that theta instead of a second
+    evaluation (the same numbers)."""
     n, k = rows.xyz.shape[0], rows.k
     weights = torch.ones(n, dtype=rows.xyz.dtype, device=rows.xyz.device)
     damp, theta0 = anchor if anchor is not None else (None, None)
@@ -208,9 +211,17 @@ def solve(rows: Rows, x: torch.Tensor, free: torch.Tensor, prior: torch.Tensor, 
         extra = [] if damp is None else [damp * (z[0] - theta0)]
         return torch.cat([rows.residual(z[0]).reshape(-1), prior * z[0]] + extra).unsqueeze(0)
 
-    def jac_fn(z):
-        extra = [] if damp is None else [torch.diag(damp)]
-        return torch.cat([rows.jacobian(z[0]).reshape(-1, z.shape[-1]), torch.diag(prior)] + extra).unsqueeze(0)
+    def jac_fn(z):  # one (1, n k + P [+ P], P) buffer: the rows' Jacobian is written into it
+        P = z.shape[-1]
+        out = z.new_empty(n * k + (1 if damp is None else 2) * P, P)
+        if known is not None and torch.equal(z[0], known[0]):
+            out[: n * k] = known[1].reshape(n * k, P)
+        else:
+            rows.jacobian(z[0], out=out[: n * k].view(n, k, P))
+        out[n * k: n * k + P] = torch.diag(prior)
+        if damp is not None:
+            out[n * k + P:] = torch.diag(damp)
+        return out.unsqueeze(0)
 
     for _ in range(1 if robust is None else ROBUST_ROUNDS):
         w = torch.cat([weights.repeat_interleave(k), torch.ones_like(prior)]
@@ -239,7 +250,7 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, *, theta0=None
         sigma_deg: float = SIGMA_DEG, register: bool = True,
         max_length_mm: float | None = MAX_LENGTH_MM,
         max_angle_deg: float | None = MAX_ANGLE_DEG, prior_sigma_mm: float | None = None,
-        prior: bool = True, damping: float = 0.0) -> FitResult:
+        prior: bool = True, damping: float = 0.0, posterior: bool = True) -> FitResult:
     """Fit model parameters to measured TCP positions xyz (N, 3) mm [and orientations].
 
     pose: (N,) int pose ids; with repeats the standard errors are pose-level
@@ -276,6 +287,9 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, *, theta0=None
     towards theta0 (e.g. a zone towards the global calibration). They count as prior
     information in the covariance, and with them fewer equations than parameters are
     allowed.
+
+    posterior=False skips the covariance (std NaN, covariance None, set_by_prior empty):
+    for the fold refits of a cross-validation, which use theta only.
     """
     from torchcal.calibration.plausibility import beyond_plausible, plausible_scales, set_by_prior
 
@@ -305,13 +319,15 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, *, theta0=None
 
     free_now = report.free.clone()
     rho = sigma_mm if prior_sigma_mm is None else prior_sigma_mm
-    s = solve(rows, theta0.unsqueeze(0), free_now, prior_factors(rho if has_prior else 0.0, scales), **options)
+    s = solve(rows, theta0.unsqueeze(0), free_now, prior_factors(rho if has_prior else 0.0, scales), **options,
+              known=(theta0, J0))
     x = s.x
     if rotation is not None:
         rows = rows.with_tool_rotation(x[0])
-    again = rotation is not None
+    again, known = rotation is not None, None
     if cold:  # identifiability once more at the first solution (identifiability.recheck)
-        report = recheck(rows.jacobian(x[0]), names, cand, free_now, rank_tol)
+        known = (x[0], rows.jacobian(x[0]))
+        report = recheck(known[1], names, cand, free_now, rank_tol)
         if not torch.equal(report.free, free_now):
             newly = free_now & ~report.free
             x = x.clone()
@@ -321,7 +337,7 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, *, theta0=None
         rho = prior_strength(_position_residual(rows, x), robust is not None)
         again = again or rho >= RHO_EXACT  # below it the data are fitted exactly: no prior needed
     if again:
-        s = solve(rows, x, free_now, prior_factors(rho if has_prior else 0.0, scales), **options)
+        s = solve(rows, x, free_now, prior_factors(rho if has_prior else 0.0, scales), **options, known=known)
         x = s.x
     for _ in range(3):  # rho and the fit agree (a first solve far from the optimum gives a rho too large)
         if not has_prior or prior_sigma_mm is not None:
@@ -338,13 +354,15 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, *, theta0=None
     prior_rows = prior_factors(rho, scales) if has_prior and math.isfinite(rho) else None  # posterior
     if damp is not None:  # the damping rows are prior information too
         prior_rows = damp if prior_rows is None else (prior_rows ** 2 + damp ** 2).sqrt()
-    if rotation is None:
+    if not posterior:
+        covariance = None
+    elif rotation is None:
         covariance = parameter_covariance(model.jacobian(theta, ctx), resid_pos, free_now, pose=pose,
                                           weights=s.weights if robust else None, prior=prior_rows)
     else:  # rows of 6 residuals: row-wise estimate s^2 (J^T W J)^-1
         covariance = row_covariance(rows.jacobian(theta).reshape(-1, theta.shape[0]), r.reshape(-1), free_now,
                                     weights=s.weights.repeat_interleave(rows.k), prior=prior_rows)
-    std = covariance.std
+    std = torch.full_like(theta, math.nan).detach() if covariance is None else covariance.std
     orient = None
     if rotation is not None:
         rot_res = r[:, 3:] / rows.w_rot  # (N, 3) rad, model vs measured
@@ -360,5 +378,5 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, *, theta0=None
                      {"max_length_mm": max_length_mm, "max_angle_deg": max_angle_deg, "prior_sigma_mm": rho},
                      q_range=joint_range(ctx.q), seed_poses=seed_poses(ctx.q), robust=robust, sigma_mm=sigma_mm,
                      sigma_deg=sigma_deg, training=training_summary(resid_pos),
-                     set_by_prior=set_by_prior(model, std, free_now, scales.cpu()) if has_prior else [],
+                     set_by_prior=set_by_prior(model, std, free_now, scales.cpu()) if has_prior and posterior else [],
                      damping=float(damping))

@@ -132,7 +132,7 @@ def levenberg_marquardt(residual_fn, x0, free=None, weights=None, jacobian_fn=No
         if done.all():
             break
         J = jac(x) * fmask0[:, None, :]  # held columns dropped
-        JtW = J.transpose(1, 2) * w[:, None, :]
+        JtW = (J * w[:, :, None]).transpose(1, 2)  # (B, P, R), a view of a row-major product
         g = (JtW @ r.unsqueeze(-1)).squeeze(-1)  # (B, P)
         fmask = fmask0
         if lo is not None:  # at the bound and pushed below it: held this iteration

@@ -173,8 +173,10 @@ class CalibrationModel:
         `predict_rotation`, measurement frame: d R / d theta_k = [W[..., k]]x R."""
         return self.jacobians(theta, ctx, rotation=True)[1]
 
-    def jacobians(self, theta: torch.Tensor, ctx: Context, *, rotation: bool = False):
-        """(J (N, 3, P) of `jacobian`, W (N, 3, P) of `rotation_jacobian` or None)."""
+    def jacobians(self, theta: torch.Tensor, ctx: Context, *, rotation: bool = False, frame: bool = False):
+        """(J (N, 3, P) of `jacobian`, W (N, 3, P) of `rotation_jacobian` or None); with
+        `frame` also R (N, 3, 3), the orientations of `predict_rotation` (from the same
+        chain walk, so the fit's orientation rows need no second one)."""
         robot = self.robot
         n, P = robot.n, self.n_params
         geo = theta[self.slices[0]].reshape(n, 5)
@@ -226,9 +228,10 @@ class CalibrationModel:
                 J[..., sl] += v.unsqueeze(-1) * (others[:, None] * S).unsqueeze(1)
             v = v * total.unsqueeze(-1)
         base = robot.base.to(theta)
-        J = _rows_times(base[:3, :3], J)
-        if rotation:
-            W = _rows_times(base[:3, :3], W)
+        if not robot.chain.plain_base:  # an identity base leaves the columns as they are
+            J = _rows_times(base[:3, :3], J)
+            if rotation:
+                W = _rows_times(base[:3, :3], W)
         v = v @ base[:3, :3].T + base[:3, 3]
         for e, sl in parts:
             p = theta[sl]
@@ -256,7 +259,16 @@ class CalibrationModel:
                     dR = e.world_rotation_jacobian(p, ctx)  # (3, 3, k)
                     Om = torch.einsum("ijk,lj->kil", dR, Rw)  # dR_k Rw^T, skew (k, 3, 3)
                     W[..., sl] += torch.stack([Om[:, 2, 1], Om[:, 0, 2], Om[:, 1, 0]], dim=0)
-        return J, W
+        if not frame:
+            return J, W
+        R = cj.rotation @ robot.tool[:3, :3].to(theta)  # predict_rotation's steps
+        if not robot.chain.plain_base:
+            R = base[:3, :3] @ R
+        for e, sl in parts:
+            w = e.world_rotation(theta[sl], ctx)
+            if w is not None:
+                R = w @ R
+        return J, W, R
 
 
 def _times_shared(M: torch.Tensor, T: torch.Tensor) -> torch.Tensor:
@@ -266,8 +278,11 @@ def _times_shared(M: torch.Tensor, T: torch.Tensor) -> torch.Tensor:
 
 
 def _rows_times(M: torch.Tensor, J: torch.Tensor) -> torch.Tensor:
-    """M_i @ J_i for every row: M (N, 3, 3) or one (3, 3) (also an expanded one), J (N, 3, P).
-    One matrix for all rows runs as a single GEMM instead of N small ones."""
+    """M_i @ J_i for every row: M (N, 3, 3) or one (3, 3) (also an expanded one), J (N, 3, P)
+    -> (N, 3, P) contiguous. On a CPU a batched product of small matrices is fast only on
+    contiguous operands (else it runs as a loop of N small GEMMs), so J is made contiguous
+    and one matrix for all rows is broadcast rather than expanded."""
+    J = J.contiguous()
     if M.dim() == 2 or M.stride(0) == 0:
-        return torch.einsum("ij,njp->nip", M if M.dim() == 2 else M[0], J)
-    return M @ J
+        return torch.matmul(M if M.dim() == 2 else M[0], J)
+    return M.contiguous() @ J

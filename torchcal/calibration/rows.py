@@ -38,15 +38,16 @@ def tool_rotation(model, theta: torch.Tensor, ctx, rotation: torch.Tensor) -> to
         return procrustes_rotation(model.predict_rotation(theta, ctx), rotation)
 
 
-def so3_error_jacobian(Rp: torch.Tensor, Rm: torch.Tensor, W: torch.Tensor) -> torch.Tensor:
+def so3_error_jacobian(Rp: torch.Tensor, Rm: torch.Tensor, W: torch.Tensor, scale: float = 1.0) -> torch.Tensor:
     """d `so3_error`(Rp, Rm) / d theta (N, 3, P) for d Rp / d theta_k = [W_k]x Rp,
-    W (N, 3, P) rad per unit (`CalibrationModel.rotation_jacobian`). With E = Rp^T Rm,
-    dE_k = -[w_k]x E for w_k = Rp^T W_k, and the axial vector of the skew part of
-    [w]x E is (tr(E) I - E) w / 2."""
+    W (N, 3, P) rad per unit (`CalibrationModel.rotation_jacobian`), times `scale`. With
+    E = Rp^T Rm, dE_k = -[w_k]x E for w_k = Rp^T W_k, and the axial vector of the skew
+    part of [w]x E is (tr(E) I - E) w / 2. (The scale multiplies the (N, 3, 3) factor,
+    not the (N, 3, P) result.)"""
     E = Rp.transpose(-1, -2) @ Rm
     tr = E.diagonal(dim1=-2, dim2=-1).sum(-1)
     M = torch.diag_embed(tr.unsqueeze(-1).expand(-1, 3)) - E
-    return -0.5 * (M @ Rp.transpose(-1, -2)) @ W
+    return ((-0.5 * scale) * (M @ Rp.transpose(-1, -2))) @ W.contiguous()
 
 
 @dataclass(frozen=True)
@@ -80,10 +81,14 @@ class Rows:
         e = so3_error(self.model.predict_rotation(theta, self.ctx) @ self.tool_R, self.rotation)
         return torch.cat([r, -self.w_rot * e], dim=-1)
 
-    def jacobian(self, theta: torch.Tensor) -> torch.Tensor:
-        """(N, k, P) d residual / d theta at theta (P,), analytic."""
-        J, W = self.model.jacobians(theta, self.ctx, rotation=self.rotation is not None)
+    def jacobian(self, theta: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
+        """(N, k, P) d residual / d theta at theta (P,), analytic; written into `out`
+        (N, k, P) when given (a view of the solver's stacked Jacobian: no copy of it)."""
         if self.rotation is None:
-            return J
-        Rp = self.model.predict_rotation(theta, self.ctx) @ self.tool_R
-        return torch.cat([J, -self.w_rot * so3_error_jacobian(Rp, self.rotation, W)], dim=1)
+            J = self.model.jacobians(theta, self.ctx)[0]
+            return J if out is None else out.copy_(J)
+        J, W, R = self.model.jacobians(theta, self.ctx, rotation=True, frame=True)
+        out = J.new_empty(J.shape[0], 6, J.shape[-1]) if out is None else out
+        out[:, :3] = J
+        out[:, 3:] = so3_error_jacobian(R @ self.tool_R, self.rotation, W, -self.w_rot)
+        return out

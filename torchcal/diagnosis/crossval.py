@@ -44,10 +44,11 @@ class RefitCV:
     error: str | None = None
 
 
-def fold_fit(full, m, ctx, train: torch.Tensor, *, sigma_mm: float, sigma_deg: float):
+def fold_fit(full, m, ctx, train: torch.Tensor, *, sigma_mm: float, sigma_deg: float, posterior: bool = True):
     """The fitted model `full` (`FitResult`) refitted on the rows `train` (N,) bool of m:
     from full.theta, with full's identifiable set, plausible scales and prior rho, the
-    measured orientations when m has them. InputError when the rows cannot carry it."""
+    measured orientations when m has them. InputError when the rows cannot carry it.
+    posterior=False: without the covariance (`fit`'s option; a refit used for its theta only)."""
     from torchcal.calibration.fit import fit
 
     lim = full.plausible_limits or {}
@@ -55,14 +56,14 @@ def fold_fit(full, m, ctx, train: torch.Tensor, *, sigma_mm: float, sigma_deg: f
                pose=m.pose[train], rotation=None if m.rotation is None else m.rotation[train],
                sigma_mm=sigma_mm, sigma_deg=sigma_deg, register=False, max_iter=REFIT_MAX_ITER,
                max_length_mm=lim.get("max_length_mm"), max_angle_deg=lim.get("max_angle_deg"),
-               prior_sigma_mm=lim.get("prior_sigma_mm"))
+               prior_sigma_mm=lim.get("prior_sigma_mm"), posterior=posterior)
 
 
-def fold_refits(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: float):
+def fold_refits(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: float, posterior: bool = True):
     """Per fold of folds (N,): (test (N,) bool, `fold_fit` on the other folds' rows)."""
     for f in np.unique(folds):
         test = torch.from_numpy(folds == f)
-        yield test, fold_fit(full, m, ctx, ~test, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
+        yield test, fold_fit(full, m, ctx, ~test, sigma_mm=sigma_mm, sigma_deg=sigma_deg, posterior=posterior)
 
 
 def refit_cv(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: float) -> RefitCV:
@@ -84,9 +85,11 @@ def refit_cv(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: flo
 def held_out_errors(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: float, accept=None):
     """(N,) mm^2: each row's squared distance error predicted by `full` refitted on the
     other folds of folds (N,) (`fold_refits`); None as soon as `accept(fold_fit)` is false
-    for a fold's fit. A fold fit's InputError propagates."""
+    for a fold's fit. A fold fit's InputError propagates. The fold fits carry their
+    posterior only for `accept` (the held-out errors need their theta only)."""
     err = np.zeros(len(m))
-    for test, res in fold_refits(full, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg):
+    for test, res in fold_refits(full, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
+                                 posterior=accept is not None):
         if accept is not None and not accept(res):
             return None
         with torch.no_grad():
@@ -122,6 +125,7 @@ class LinearRefit:
         self.Ab = self.pose_mean(A)
         self.rb = self.pose_mean(r[:, None])[:, 0]
         self.Qb = self._new(np.zeros((len(self.rb), 0)), self.Ab, len(self.rb))
+        self._parts = None  # `_fold_parts`, on first use
 
     @property
     def n_poses(self) -> int:
@@ -169,6 +173,20 @@ class LinearRefit:
         e = self.rb - self.Qb @ (self.Qb.T @ self.rb)
         return e - Bb @ (Bb.T @ e) if Bb.size else e
 
+    def _fold_parts(self):
+        """(Q, r, Q^T r, per fold (test (3N,) bool, its torch mask, Q_t, r_t, Q_t^T Q_t,
+        Q_t^T r_t)) as torch tensors: what every `cross_validate` call shares, computed once."""
+        if self._parts is None:
+            Q, r = torch.from_numpy(self.Q), torch.from_numpy(self.r)
+            parts = []
+            for f in self.folds:
+                test = self.rows == f
+                tt = torch.from_numpy(test)
+                Qt, rt = Q[tt], r[tt]
+                parts.append((test, tt, Qt, rt, Qt.T @ Qt, Qt.T @ rt))
+            self._parts = (Q, r, Q.T @ r, parts)
+        return self._parts
+
     def cross_validate(self, B: np.ndarray, Bs: np.ndarray | None):
         """Held-out distance RMS and mean held-out log-likelihood per row of r on [A B],
         with the residual covariance model Bs (N, 3, K) (None: isotropic).
@@ -176,25 +194,35 @@ class LinearRefit:
         X = [Q B] is orthonormal over all rows, so the training normal matrix of a fold is
         I - X_test^T X_test (well conditioned): one small torch solve per fold.
         """
-        X = torch.from_numpy(np.hstack([self.Q, B]) if B.size else self.Q)
-        r = torch.from_numpy(self.r)
+        Q, r, Qr, parts = self._fold_parts()
+        Bx = torch.from_numpy(B) if B.size else None
         held = np.empty_like(self.r)
         ll = np.empty(len(self.r) // 3)
         rows3 = self.rows[::3]
-        Xr = X.T @ r
-        eye = torch.eye(X.shape[1], dtype=X.dtype)
+        k = Q.shape[1] + (0 if Bx is None else Bx.shape[1])
+        Xr = Qr if Bx is None else torch.cat([Qr, Bx.T @ r])
+        eye = torch.eye(k, dtype=r.dtype)
         train = torch.empty(len(self.folds), len(self.r), dtype=r.dtype)  # (F, 3N): test rows unused
-        for i, f in enumerate(self.folds):
-            test = self.rows == f
-            tt = torch.from_numpy(test)
-            Xt, rt = X[tt], r[tt]
-            if X.shape[1]:
-                coef = torch.linalg.solve(eye - Xt.T @ Xt, Xr - Xt.T @ rt)
-                held[test] = (rt - Xt @ coef).numpy(force=True)
-                train[i] = r - X @ coef
-            else:
+        for i, (test, tt, Qt, rt, QtQt, Qtrt) in enumerate(parts):
+            if not k:
                 held[test] = self.r[test]
                 train[i] = r
+                continue
+            # the blocks of X_t^T X_t and X_t^T r_t for X = [Q B], the Q blocks cached
+            if Bx is None:
+                XtX, Xtr = QtQt, Qtrt
+            else:
+                Bt = Bx[tt]
+                QtB = Qt.T @ Bt
+                XtX = torch.cat([torch.cat([QtQt, QtB], 1), torch.cat([QtB.T, Bt.T @ Bt], 1)])
+                Xtr = torch.cat([Qtrt, Bt.T @ rt])
+            coef = torch.linalg.solve(eye - XtX, Xr - Xtr)
+            q_, b_ = coef[:Q.shape[1]], coef[Q.shape[1]:]
+            pred_t, pred = Qt @ q_, Q @ q_
+            if Bx is not None:
+                pred_t, pred = pred_t + Bt @ b_, pred + Bx @ b_
+            held[test] = (rt - pred_t).numpy(force=True)
+            train[i] = r - pred
         # the variance model of every fold from its training rows, in one batched fit
         w = torch.from_numpy(rows3[None] != self.folds[:, None])  # (F, N)
         logp = fit_variances(train.reshape(len(self.folds), -1, 3),

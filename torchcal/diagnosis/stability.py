@@ -161,15 +161,21 @@ def without(full, spec: str, m, ctx, *, sigma_mm: float, sigma_deg: float, by: s
     return fit(model, ctx, m.xyz, theta0=theta0, free=free, **fit_options(m, sigma_mm=sigma_mm, sigma_deg=sigma_deg))
 
 
-def extrapolated(full, m, ctx, half: np.ndarray, *, sigma_mm: float, sigma_deg: float):
+def determined_names(full, ctx) -> list:
+    """The parameters of the fitted model `full` its data determine (`determination`'s rule:
+    posterior sd below half the plausible size, or no plausible size), context ctx."""
+    names = full.model.param_names()
+    return [n for n in names if n not in {d["name"] for d in determination(full, names, ctx)}]
+
+
+def extrapolated(full, m, ctx, half: np.ndarray, *, sigma_mm: float, sigma_deg: float, determined=None):
     """(per-pose squared errors (P,) mm^2, distance RMS mm) of the model `full` refitted
     on each half of `half` (N,) 0/1 and predicting the other; None when a half cannot
     carry it, or when a parameter the full fit determines is not determined on a half
     (posterior sd at least half its plausible size, `determination`'s rule: the split
     then tests what the half cannot resolve, e.g. the harmonics of a joint over half its
-    range, not the physics)."""
-    names = full.model.param_names()
-    determined = [n for n in names if n not in {d["name"] for d in determination(full, names, ctx)}]
+    range, not the physics). determined: `determined_names` of full (computed here when None)."""
+    determined = determined_names(full, ctx) if determined is None else determined
     try:
         err = held_out_errors(full, m, ctx, half, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
                               accept=lambda res: all(d["why"] != "prior" for d in determination(res, determined, ctx)))
@@ -183,9 +189,12 @@ def _tested(reduced, with_e: dict, m, ctx, *, sigma_mm: float, sigma_deg: float,
     be fitted) against the 'with' side `with_e` (split name -> `extrapolated` of the full
     model, usable splits only)."""
     results = []
+    det_reduced = None  # the same in every split: computed once, when first needed
     for name, (half, with_) in with_e.items():
+        if reduced is not None and det_reduced is None:
+            det_reduced = determined_names(reduced, ctx)
         without_e = None if reduced is None else extrapolated(reduced, m, ctx, half, sigma_mm=sigma_mm,
-                                                              sigma_deg=sigma_deg)
+                                                              sigma_deg=sigma_deg, determined=det_reduced)
         if without_e is not None:
             results.append((paired_p_value(without_e[0], with_[0]), name, without_e[1] - with_[1]))
     if not results:
@@ -207,8 +216,9 @@ def stability(full, spec: str, m, ctx, *, sigma_mm: float, sigma_deg: float, alp
             reduced[j] = None
     with_e = {}
     if any(r is not None for r in reduced.values()):
+        det_full = determined_names(full, ctx)  # the same in every split
         for name, half in halves(m).items():
-            w = extrapolated(full, m, ctx, half, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
+            w = extrapolated(full, m, ctx, half, sigma_mm=sigma_mm, sigma_deg=sigma_deg, determined=det_full)
             if w is not None:
                 with_e[name] = (half, w)
     kw = dict(sigma_mm=sigma_mm, sigma_deg=sigma_deg, alpha=alpha)

@@ -69,6 +69,8 @@ the command line, or an entry point of group ``torchcal.effects`` in an installe
 
 from __future__ import annotations
 
+import functools
+import weakref
 from typing import TYPE_CHECKING
 
 import torch
@@ -90,6 +92,10 @@ class Effect:
     def __init__(self, robot: Robot, joints=()):
         self.robot = robot
         self.joints = tuple(int(j) for j in joints)  # 1-based, as in specs and reports
+
+    def __getstate__(self):
+        """Pickled and copied without the `per_context` caches (weak references)."""
+        return {k: v for k, v in self.__dict__.items() if not k.startswith("_per_context_")}
 
     # parameter description ----------------------------------------------------------
     def param_names(self) -> list[str]:
@@ -179,6 +185,27 @@ class Effect:
     def world_jacobian(self, p, ctx, v):
         """(d / d p (N, 3, k), d / d v (N, 3, 3)) of world."""
         return row_jacobians(lambda t, u: self.world(t, ctx, u), p, v)
+
+
+def per_context(method):
+    """Decorator for an effect's method ``method(self, ctx) -> tensor`` that depends on the
+    rows of ctx only (a basis of the joint angles): the value for the last `Context` it
+    was called with is kept (a Context is immutable), so that the residual and Jacobian
+    evaluations of a solve on the same rows compute it once. Held by a weak reference to
+    that ctx; not kept when ctx.q requires grad (a graph must not outlive its backward)."""
+    attr = f"_per_context_{method.__name__}"
+
+    @functools.wraps(method)
+    def cached(self, ctx):
+        memo = self.__dict__.get(attr)
+        if memo is not None and memo[0]() is ctx:
+            return memo[1]
+        value = method(self, ctx)
+        if not ctx.q.requires_grad:
+            self.__dict__[attr] = (weakref.ref(ctx), value)
+        return value
+
+    return cached
 
 
 def row_jacobians(fn, p: torch.Tensor, v: torch.Tensor):

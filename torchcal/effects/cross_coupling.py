@@ -66,4 +66,4 @@ class CrossCoupling(Effect):
 
     def joint_offset_jacobian(self, p, ctx):  # (N, n, k)
         drive, into = self._maps(ctx)
-        return (ctx.q @ drive.T).unsqueeze(1) * into.T  # (N, 1, k) * (n, k)
+        return (ctx.q @ drive.T).unsqueeze(1) * into.T.contiguous()  # (N, 1, k) * (n, k), contiguous

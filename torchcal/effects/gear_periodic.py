@@ -11,7 +11,7 @@ import math
 
 import torch
 
-from torchcal.effects.base import Effect, joint_columns, revolute_only, scatter_joints
+from torchcal.effects.base import Effect, joint_columns, per_context, revolute_only, scatter_joints
 
 HARMONICS = (1, 2, 3, 4)
 #: plausible sine or cosine amplitude of one harmonic (deg), the scale of the fit's prior.
@@ -45,6 +45,7 @@ class GearPeriodic(Effect):
         """(N, J) rad: the angle whose harmonics make the error (here the joint angle)."""
         return ctx.q[:, [j - 1 for j in self.joints]]
 
+    @per_context
     def _basis(self, ctx):
         """(N, J, H, 2) sin and cos of each harmonic of each listed joint's `_angles`."""
         k = torch.tensor(self.harmonics, dtype=ctx.q.dtype, device=ctx.q.device)

@@ -20,7 +20,7 @@ import math
 
 import torch
 
-from torchcal.effects.base import Effect, revolute_only
+from torchcal.effects.base import Effect, per_context, revolute_only
 from torchcal.errors import InputError
 
 #: plausible sine or cosine amplitude of one order (arcsec), the scale of the fit's prior.
@@ -66,12 +66,14 @@ class JointPeriodic(Effect):
     def plausible_max(self):
         return [MAX_AMPLITUDE_ARCSEC * ARCSEC] * self.n_params
 
+    @per_context
     def _basis(self, ctx):
         """(N, 2m) sin(k q_J), cos(k q_J) of the m orders, in parameter order."""
         q = ctx.q[:, [self.joints[i] - 1 for i in self._slot]]  # (N, m)
         arg = q * torch.tensor(self._k, dtype=q.dtype, device=q.device)
         return torch.stack([torch.sin(arg), torch.cos(arg)], dim=-1).reshape(len(q), -1)
 
+    @per_context
     def _place(self, ctx):
         """(2m, n) one-hot: the joint each parameter moves."""
         place = ctx.q.new_zeros(2 * len(self._k), ctx.q.shape[1])
@@ -84,4 +86,4 @@ class JointPeriodic(Effect):
 
     def joint_offset_jacobian(self, p, ctx):
         basis, place = self._basis(ctx).to(p), self._place(ctx).to(p)
-        return basis.unsqueeze(1) * place.T.unsqueeze(0)  # (N, n, 2m)
+        return basis.unsqueeze(1) * place.T.contiguous().unsqueeze(0)  # (N, n, 2m), contiguous

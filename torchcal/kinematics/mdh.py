@@ -116,12 +116,11 @@ def fk_frames(q, chain: Chain, params=None) -> torch.Tensor:
 
 def fk_pose(q, chain: Chain, params=None) -> torch.Tensor:
     """TCP pose, world <- TCP. q (..., n) rad / mm, params (..., n, 5) or None -> (..., 4, 4) mm."""
-    A = link_transforms(q, chain, params)
-    T = A[..., 0, :, :]
-    for i in range(1, A.shape[-3]):
-        T = T @ A[..., i, :, :]
-    if not chain.plain_base:
-        T = chain.base.to(T) @ T
+    *_, (X, Y, Z, o) = _walk(q, chain, params)  # the flange, from the base
+    top = torch.stack(torch.broadcast_tensors(X, Y, Z, o), dim=-1)  # (..., 3, 4)
+    last = torch.zeros(4, dtype=top.dtype, device=top.device)
+    last[3] = 1.0
+    T = torch.cat([top, last.expand(*top.shape[:-2], 1, 4)], dim=-2)
     if not chain.plain_tool:
         T = T @ chain.tool.to(T)
     return T
@@ -435,6 +434,48 @@ class ChainJacobians(NamedTuple):
     wparams: torch.Tensor
 
 
+def _walk(q, chain: Chain, params=None):
+    """The frames of the chain as axis vectors, from its base through every link.
+
+    q (..., n) rad / mm, params (..., n, 5) or None -> (zs, origins, xs, ys, ends, (X, Y, Z, o)):
+    per link i (lists of n tensors (..., 3), each broadcastable to the batch) the z axis and
+    origin of its input frame, its mid axes R Rz(theta) e_x and R Rz(theta) Rx(alpha) e_y,
+    and its end origin; then the last frame's axes and origin (the flange, the chain's
+    tool not applied). Link i maps the frame by A_i = Rz(theta) Rx(alpha) Ry(beta) with
+    translation [a ct, a st, d] (`link_transforms`), one fused op per product term: on
+    a CPU several times faster than products of stacked 4 x 4 matrices.
+    """
+    table = chain.table
+    n = table.shape[0]
+    off, d, a, alpha, beta = _effective(table, params)  # each (..., n) or (n,)
+    qr, qt = _split(q, chain)
+    theta = qr + off
+    if qt is not None:
+        d = d + qt
+    # per joint (..., 1) factors, broadcast against the (..., 3) axis vectors below
+    ct, st = torch.cos(theta).unsqueeze(-1), torch.sin(theta).unsqueeze(-1)
+    ca, sa = torch.cos(alpha).unsqueeze(-1), torch.sin(alpha).unsqueeze(-1)
+    cb, sb = torch.cos(beta).unsqueeze(-1), torch.sin(beta).unsqueeze(-1)
+    tx, ty, tz = a.unsqueeze(-1) * ct, a.unsqueeze(-1) * st, d.unsqueeze(-1)
+    base = chain.base.to(theta)
+    X, Y, Z, o = base[:3, 0], base[:3, 1], base[:3, 2], base[:3, 3]
+    zs, origins, xs, ys, ends = [], [], [], [], []
+    for i in range(n):
+        c, s, ci, si, cbi, sbi = ct[..., i, :], st[..., i, :], ca[..., i, :], sa[..., i, :], cb[..., i, :], sb[..., i, :]
+        x_mid = X * c + Y * s  # R Rz(theta) e_x
+        y_rz = Y * c - X * s  # R Rz(theta) e_y
+        y_mid = y_rz * ci + Z * si  # R Rz Rx(alpha) e_y
+        z_mid = Z * ci - y_rz * si  # R Rz Rx(alpha) e_z
+        zs.append(Z)
+        origins.append(o)
+        xs.append(x_mid)
+        ys.append(y_mid)
+        o = X * tx[..., i, :] + Y * ty[..., i, :] + Z * tz[..., i, :] + o
+        ends.append(o)
+        X, Y, Z = x_mid * cbi - z_mid * sbi, y_mid, x_mid * sbi + z_mid * cbi
+    return zs, origins, xs, ys, ends, (X, Y, Z, o)
+
+
 def chain_jacobians(q, chain: Chain, params=None, *, tool_point=None) -> ChainJacobians:
     """Analytic TCP Jacobians w.r.t. q and the MD-H deviations (docs/paper.md eqs. 14-18).
 
@@ -449,40 +490,30 @@ def chain_jacobians(q, chain: Chain, params=None, *, tool_point=None) -> ChainJa
     Rx(alpha), both through the link's end origin o_i. A revolute q_i acts as dtheta_i,
     a prismatic one as dd_i.
     """
-    frames = fk_frames(q, chain.flange, params)  # (..., n+2, 4, 4), last = flange
-    table = chain.table
-    n = table.shape[0]
-    R = frames[..., -1, :3, :3]
-    p = frames[..., -1, :3, 3]
+    n = chain.table.shape[0]
+    zs, origins, xs, ys, ends, (X, Y, Z, o) = _walk(q, chain, params)
+    R = torch.stack([X, Y, Z], dim=-1)  # (..., 3, 3) flange rotation, columns X, Y, Z
     if tool_point is None:
         tool_point = chain.tool[:3, 3]
-    p = p + (R * tool_point.to(R).unsqueeze(-2)).sum(-1)  # R tool_point, without a batched GEMM of 3 x 1
-    F = frames[..., :n, :, :]  # input frame of each link (..., n, 4, 4)
-    z, o = F[..., :3, 2], F[..., :3, 3]
-    off, d, a, alpha, beta = _effective(table, params)
-    theta = _split(q, chain)[0] + off
-    ct, st = torch.cos(theta).unsqueeze(-1), torch.sin(theta).unsqueeze(-1)
-    ca, sa = torch.cos(alpha).unsqueeze(-1), torch.sin(alpha).unsqueeze(-1)
-    x_mid = F[..., :3, 0] * ct + F[..., :3, 1] * st  # R Rz(theta) e_x
-    y_rz = -F[..., :3, 0] * st + F[..., :3, 1] * ct  # R Rz(theta) e_y
-    y_mid = y_rz * ca + z * sa  # R Rz Rx(alpha) e_y
-    o_end = frames[..., 1:n + 1, :3, 3]
-    pp = p.unsqueeze(-2)
-    x_mid, y_mid, z, o, o_end, pp = torch.broadcast_tensors(x_mid, y_mid, z, o, o_end, pp)
+    tp = tool_point.to(R)
+    p = o + X * tp[..., 0:1] + Y * tp[..., 1:2] + Z * tp[..., 2:3]  # R tool_point
+    # (..., 3, n) per joint: its input frame's z axis and origin, the mid axes, the end origin
+    z, o, x_mid, y_mid, o_end, pp = torch.broadcast_tensors(
+        torch.stack(torch.broadcast_tensors(*zs), dim=-1), torch.stack(torch.broadcast_tensors(*origins), dim=-1),
+        torch.stack(torch.broadcast_tensors(*xs), dim=-1), torch.stack(torch.broadcast_tensors(*ys), dim=-1),
+        torch.stack(torch.broadcast_tensors(*ends), dim=-1), p.unsqueeze(-1))
     zero = torch.zeros_like(z)
-    rot_z = torch.linalg.cross(z, pp - o)
-    cols = torch.stack([rot_z, z, x_mid,
-                        torch.linalg.cross(x_mid, pp - o_end),
-                        torch.linalg.cross(y_mid, pp - o_end)], dim=-1)  # (..., n, 3, 5)
-    wcols = torch.stack([z, zero, zero, x_mid, y_mid], dim=-1)
-    batch = cols.shape[:-3]
-    dparams = cols.movedim(-3, -2).reshape(*batch, 3, 5 * n)
-    wparams = wcols.movedim(-3, -2).reshape(*batch, 3, 5 * n)
+    rot_z = torch.linalg.cross(z, pp - o, dim=-2)
+    lever = pp - o_end
+    batch = z.shape[:-2]
+    dparams = torch.stack([rot_z, z, x_mid, torch.linalg.cross(x_mid, lever, dim=-2),
+                           torch.linalg.cross(y_mid, lever, dim=-2)], dim=-1).reshape(*batch, 3, 5 * n)
+    wparams = torch.stack([z, zero, zero, x_mid, y_mid], dim=-1).reshape(*batch, 3, 5 * n)
     dq, wq = rot_z, z
     if chain.linear:
-        lin = chain.prismatic.unsqueeze(-1)
+        lin = chain.prismatic
         dq, wq = torch.where(lin, z, rot_z), torch.where(lin, zero, z)
-    return ChainJacobians(p, R, dq.transpose(-1, -2), dparams, wq.transpose(-1, -2), wparams)
+    return ChainJacobians(p, R, dq, dparams, wq, wparams)
 
 
 def param_jacobian(q, chain: Chain, params=None) -> torch.Tensor:

@@ -194,7 +194,8 @@ def test_report_names_the_joints_whose_part_holds_and_lists_the_fit_terms(sessio
     assert "Named as physics: base_frame, joint_periodic:2@20+29." in text
     assert ("In the model as fit terms only, not named: joint_periodic:1@12+22 (fitted on one side of the median "
             "of q5 it does not predict the other side better: gain -3.3 um, p 0.56).") in text
-    assert "fit terms only, not named: joint_periodic:1@12+22</td>" in text
+    assert ("; named as physics: base_frame, joint_periodic:2@20+29; fit terms only, not named: "
+            "joint_periodic:1@12+22</td>") in text  # page 1's discovery row
 
 
 @pytest.mark.parametrize("args,needle", [

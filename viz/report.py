@@ -152,8 +152,10 @@ def _summary(rep) -> str:
                                        f"{rep.iso_after['poses']} poses (the fit never saw them)"))
     if rep.history is not None:
         terms = rep.history.get("absorbing", [])
+        named = rep.history.get("named")  # absent in a history written before the split-half check
         pairs.append(("discovery", f"{len(rep.history.get('history', []))} round(s); final effects "
                                    f"{_e(', '.join(rep.history.get('final_effects', [])) or 'none')}"
+                                   + ("" if named is None else f"; named as physics: {_e(', '.join(named) or 'none')}")
                                    + (f"; fit terms only, not named: {_e(', '.join(terms))}" if terms else "")))
     out.append(_kv(pairs))
     if rep.after is not None:

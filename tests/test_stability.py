@@ -25,15 +25,23 @@ EFFECTS = ["base_frame", "tool_offset", "encoder_scale:2"]
 def _session(dq2, seed, n=200):
     """n random poses (q2 in [-170, -10] deg), MD-H errors, a joint-2 error dq2(q2) rad,
     0.02 mm noise per axis; plain numpy."""
+    def dq(q):
+        out = np.zeros_like(q)
+        out[:, 1] = dq2(q[:, 1])
+        return out
+    return _measured(dq, seed, n)
+
+
+def _measured(dq, seed, n):
+    """n random poses (q2 in [-170, -10] deg), MD-H errors, joint errors dq(q) (n, 6) rad
+    added to the commanded angles, 0.02 mm noise per axis; plain numpy."""
     rng = np.random.default_rng(seed)
     q = np.column_stack([rng.uniform(-np.pi, np.pi, n), np.radians(rng.uniform(-170, -10, n)),
                          rng.uniform(-2.6, 2.6, n), rng.uniform(-np.pi, np.pi, (n, 3))])
     dev = np.zeros((6, 5))
     dev[:, 0] = rng.normal(0, math.radians(0.02), 6)
     dev[:, 1:3] = rng.normal(0, 0.2, (6, 2))
-    qa = q.copy()
-    qa[:, 1] += dq2(q[:, 1])
-    xyz = numpy_fk(UR10, qa, dev) + rng.normal(0, 0.02, (n, 3))
+    xyz = numpy_fk(UR10, q + dq(q), dev) + rng.normal(0, 0.02, (n, 3))
     return Measurements(pose=torch.arange(n), q=torch.from_numpy(q), xyz=torch.from_numpy(xyz))
 
 
@@ -91,17 +99,12 @@ def _two_joint_session(seed, n=300):
     arcsec per 80 deg of q2 beyond it), which joint_periodic:1@12 can only absorb: its
     amplitude, fitted on the poses of one side of the median of q2, is not the other
     side's. Plain numpy."""
-    rng = np.random.default_rng(seed)
-    q = np.column_stack([rng.uniform(-np.pi, np.pi, n), np.radians(rng.uniform(-170, -10, n)),
-                         rng.uniform(-2.6, 2.6, n), rng.uniform(-np.pi, np.pi, (n, 3))])
-    dev = np.zeros((6, 5))
-    dev[:, 0] = rng.normal(0, math.radians(0.02), 6)
-    dev[:, 1:3] = rng.normal(0, 0.2, (6, 2))
-    qa = q.copy()
-    qa[:, 1] += 60 * ARCSEC * np.sin(17 * q[:, 1] + 0.4)
-    qa[:, 0] += 30 * ARCSEC * (q[:, 1] - np.radians(-130)) / np.radians(80) * np.sin(12 * q[:, 0] + 1.0)
-    xyz = numpy_fk(UR10, qa, dev) + rng.normal(0, 0.02, (n, 3))
-    return Measurements(pose=torch.arange(n), q=torch.from_numpy(q), xyz=torch.from_numpy(xyz))
+    def dq(q):
+        out = np.zeros_like(q)
+        out[:, 1] = 60 * ARCSEC * np.sin(17 * q[:, 1] + 0.4)
+        out[:, 0] = 30 * ARCSEC * (q[:, 1] - np.radians(-130)) / np.radians(80) * np.sin(12 * q[:, 0] + 1.0)
+        return out
+    return _measured(dq, seed, n)
 
 
 def test_a_periodic_effect_on_two_joints_names_the_joint_that_holds_and_labels_the_absorbing_one():

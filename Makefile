@@ -24,7 +24,7 @@ demo: $(STAMP)
 	$(VENV)/bin/torchcal demo
 
 test: $(STAMP)
-	# one worker per core (pytest-xdist); each runs torch on one thread (tests/conftest.py)
+	# one worker per core (pytest-xdist, --dist worksteal); each runs torch on one thread (tests/conftest.py)
 	$(PY) -m pytest -q -n auto
 
 bench: $(STAMP)

@@ -16,6 +16,18 @@ from torchcal import threads
 threads.apply()  # torch and numpy's / scipy's BLAS on one intra-op thread
 
 
+@pytest.hookimpl(tryfirst=True)
+def pytest_cmdline_main(config):
+    """With pytest-xdist workers (-n) and no --dist given: `--dist worksteal`. xdist's
+    default (`load`) hands out the first quarter of the tests one by one, alternating
+    workers, so a module's tests are split and its module fixtures (a simulated session,
+    a discover run) are computed on both; `worksteal` gives each worker a contiguous half
+    and lets an idle one take the other's tail, so neither waits at the end."""
+    opt = config.option
+    if getattr(opt, "numprocesses", None) and getattr(opt, "dist", None) == "no" and not getattr(opt, "distload", False):
+        opt.dist = "worksteal"
+
+
 @pytest.fixture(scope="module")
 def kr():
     """The KR 1000 Titan preset (a fresh Robot per test module)."""

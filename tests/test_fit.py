@@ -142,8 +142,12 @@ def test_options_are_keyword_only(narrow):
 def test_robust_solve_is_a_fixed_point_of_its_kernel():
     """IRLS (`solve` with robust='huber'): the solution is scipy's weighted least-squares
     solution for the weights it reports, and those weights are the Huber weights of its
-    own distance residuals (to the IRLS tolerance); the gross rows end down-weighted."""
+    own distance residuals (to the IRLS tolerance); the gross rows end down-weighted.
+    The free set is an identifiable one, as `fit` passes to `solve`: with unidentifiable
+    columns free the least-squares minimum is a valley, and two solvers end at different
+    points of it (2e-3 apart along near-null directions, equal cost to 1e-6)."""
     from torchcal.calibration.fit import WEIGHT_TOL, solve
+    from torchcal.calibration.identifiability import identifiability
     from torchcal.calibration.robust import robust_weights
 
     m = VirtualRobot(ROBOT, [], seed=11).measure(random_poses(ROBOT, 80, torch.Generator().manual_seed(12)),
@@ -153,8 +157,10 @@ def test_robust_solve_is_a_fixed_point_of_its_kernel():
     model = CalibrationModel(ROBOT)
     ctx = context_of(ROBOT, m)
     rows = Rows(model, ctx, xyz)
-    free = model.default_free()
-    free[[0, 1]] = False  # any fixed subset: solve moves the others only
+    cand = model.default_free()
+    cand[[0, 1]] = False  # any fixed subset: solve moves the others only
+    free = identifiability(rows.jacobian(model.zeros()), model.param_names(), cand).free
+    assert not bool(free[[0, 1]].any()) and int(free.sum()) >= 15
     s = solve(rows, model.zeros()[None], free, torch.zeros(model.n_params, dtype=torch.float64), robust="huber")
     dist = (model.predict(s.x[0], ctx) - xyz).norm(dim=-1)
     assert float((robust_weights(dist, "huber") - s.weights).abs().max()) < WEIGHT_TOL

@@ -182,8 +182,9 @@ def start(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, theta0=None,
 
 @dataclass(frozen=True)
 class Solved:
-    """One `solve`: x (1, P), weights (N,) the final robust weights (ones when not
-    robust), n_iter and status of the last LM solve."""
+    """One `solve`: x (1, P), weights (N,) the robust weights x was solved with (ones
+    when not robust; once IRLS settled, the robust weights of x's own residuals to within
+    WEIGHT_TOL), n_iter and status of the last LM solve."""
 
     x: torch.Tensor
     weights: torch.Tensor
@@ -223,7 +224,7 @@ def solve(rows: Rows, x: torch.Tensor, free: torch.Tensor, prior: torch.Tensor, 
             out[n * k + P:] = torch.diag(damp)
         return out.unsqueeze(0)
 
-    for _ in range(1 if robust is None else ROBUST_ROUNDS):
+    for i in range(1 if robust is None else ROBUST_ROUNDS):
         w = torch.cat([weights.repeat_interleave(k), torch.ones_like(prior)]
                       + ([] if damp is None else [torch.ones_like(damp)])).unsqueeze(0)
         res = levenberg_marquardt(res_fn, x, free=free, weights=w, jacobian_fn=jac_fn, max_iter=max_iter, lower=lower)
@@ -231,10 +232,9 @@ def solve(rows: Rows, x: torch.Tensor, free: torch.Tensor, prior: torch.Tensor, 
         if robust is None:
             break
         new = robust_weights((rows.model.predict(x[0], rows.ctx) - rows.xyz).norm(dim=-1), robust)
-        settled = bool((new - weights).abs().max() < WEIGHT_TOL)
+        if bool((new - weights).abs().max() < WEIGHT_TOL) or i == ROBUST_ROUNDS - 1:
+            break  # x is returned with the weights it was solved with
         weights = new
-        if settled:
-            break
     return Solved(x, weights, int(res.n_iter[0]), res.status_labels()[0])
 
 

@@ -8,6 +8,8 @@ model fitted on all of S is registered (frame only, `torchcal.register`) on T's 
 - nominal: the nominal robot registered on the same poses (no model of S at all);
 - fit: ``fit --effects base_frame tool_offset`` on S (geometry);
 - discover: ``discover`` on S from the same start;
+- named only: ``fit`` on S of the effects discover names (its split-half check's fit
+  terms left out): does that label pick the terms that carry?
 - discover, check U: ``discover`` on S with the third series U as the transfer check
   (``--transfer U``): a step is kept only when it lowers U's held-out error beyond
   chance (torchcal.diagnosis.transfer); T is never seen; each round's check is printed;
@@ -76,6 +78,9 @@ def main():
         disc = torchcal.discover(robot, data[s], START)
         models[s, "discover"] = disc.fit
         found[s, "discover"] = disc.final_effects
+        # the effects the split-half check names (fit terms dropped), refitted on S
+        models[s, "named"] = torchcal.fit(robot, data[s], disc.named)
+        found[s, "named"] = disc.named
         models[s, "residual"] = torchcal.fit(robot, data[s], disc.final_effects, residual_model="kernel")
         for u in args.series:
             if u != s:
@@ -92,8 +97,8 @@ def main():
             if k[0] == s:
                 print(f"  {k[1]}: {', '.join(v)}", flush=True)
     rows = []
-    print(f"\n| S -> T | nominal | fit | discover | discover, check U | + residual (discover's effects) |")
-    print("| --- | --- | --- | --- | --- | --- |")
+    print(f"\n| S -> T | nominal | fit | discover | named only | discover, check U | + residual (discover's effects) |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
     for s in args.series:
         for t in args.series:
             if t == s:
@@ -102,7 +107,7 @@ def main():
             row = {"source": s, "target": t, "check": u}
             row["nominal"], _ = transfer(robot, data[t], args.poses)
             cells = []
-            for key in ("fit", "discover", f"check {u}", "residual"):
+            for key in ("fit", "discover", "named", f"check {u}", "residual"):
                 if (s, key) not in models:
                     cells.append("-")
                     continue

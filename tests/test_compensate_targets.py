@@ -65,3 +65,28 @@ def test_failed_target_is_named_and_exits_non_zero(model, capsys):
     assert code == 1 and "not converged: target(s) 2" in err and len(err.strip().splitlines()) == 1
     rows = (d / "o3.csv").read_text().splitlines()[1:]
     assert rows[1].split(",")[-2] == "false" and rows[0].split(",")[-2] == "true"
+
+
+def test_targets_beyond_reach_get_one_start_only(monkeypatch):
+    """`nominal_start(once=rows)`: the rows beyond the reach are solved from their nearest
+    start only; the other rows are still retried from further starts until one lands inside
+    the limits and the calibrated range (here: no q_range, so every reachable row is done
+    after its first try unless it failed)."""
+    from torchcal.calibration import compensate as comp
+    from torchcal.calibration.model import CalibrationModel
+
+    rob = torchcal.robot("ur5e")
+    model = CalibrationModel(rob)
+    reach = rob.fk(random_poses(rob, 6, 4))
+    t = torch.cat([reach, torch.tensor([[9000.0, 0.0, 0.0], [0.0, -9000.0, 500.0]], dtype=reach.dtype)])
+    calls = []
+    solve = comp.compensate
+    monkeypatch.setattr(comp, "compensate", lambda m, th, tt, q0, **kw: calls.append(tt.clone()) or solve(m, th, tt, q0, **kw))
+    res = comp.nominal_start(model, model.zeros(), t, once=[6, 7])
+    assert len(calls) >= 1 and calls[0].shape[0] == 8
+    assert not res.converged[6:].any() and res.converged[:6].all()
+    for c in calls[1:]:  # no later try holds a far target
+        assert not (c.abs() > 5000).any()
+    calls.clear()
+    comp.nominal_start(model, model.zeros(), t)  # without `once` the far rows are retried
+    assert len(calls) > 1 and any((c.abs() > 5000).any() for c in calls[1:])

@@ -264,7 +264,7 @@ def frame_model(model: CalibrationModel, theta: torch.Tensor):
 
 
 def nominal_start(model: CalibrationModel, theta: torch.Tensor, targets, poses=None, q_range=None, seed: int = 0,
-                  tol_mm: float = 1e-6) -> Compensation:
+                  tol_mm: float = 1e-6, once=()) -> Compensation:
     """Starting commands for compensating targets (M, 3) mm given in the model's measuring
     frame, the one default of `torchcal.compensate` and ``torchcal compensate``: the
     nominal inverse (nominal MD-H geometry with the model's base frame and tool offset at
@@ -275,7 +275,8 @@ def nominal_start(model: CalibrationModel, theta: torch.Tensor, targets, poses=N
     calibrated joint range q_range (2, n) (`torchcal.calibration.joint_range`; where the
     model does not extrapolate); failing that, the first inside the limits. Without poses:
     256 seeded random poses inside the joint limits (`torchcal.robots.poses.random_poses`,
-    seed).
+    seed). once: 0-based rows tried from their nearest pose only (targets beyond the
+    robot's reach, `torchcal.calibration.mismatch.check_targets`: no start reaches them).
 
     Returns the `Compensation` of the nominal inverse: q (M, n) rad / mm; ``converged``
     (M,) says which targets it reached (the others keep the nearest q it found, and the
@@ -301,6 +302,7 @@ def nominal_start(model: CalibrationModel, theta: torch.Tensor, targets, poses=N
 
     best = compensate(cm, th, t, cand[order[:, 0]], tol_mm=tol_mm, max_iter=100)
     score = level(best)
+    score[torch.as_tensor(list(once), dtype=torch.long, device=score.device)] = 2  # not tried again
     for k in range(1, order.shape[1]):
         left = (score < 2).nonzero().flatten()
         if not left.numel():
@@ -463,7 +465,7 @@ def compensate_targets(im, targets, *, frame: str = "measuring", seeds=None, pay
     with warnings.catch_warnings():  # metres read as mm: refused; beyond the reach: listed
         warnings.simplefilter("ignore", MismatchWarning)
         far = check_targets(im.model, im.theta, t, where=where)
-    q0 = nominal_start(im.model, im.theta, t, poses=im.seed_poses, q_range=im.q_range).q if seeds is None else \
+    q0 = nominal_start(im.model, im.theta, t, poses=im.seed_poses, q_range=im.q_range, once=far).q if seeds is None else \
         rob.q_from_user(torch.as_tensor(seeds))
     comp = compensate_fitted(im, t, q0, check=False, payload_kg=payload_kg, temp_c=temp_c, stacklevel=stacklevel + 1)
     from torchcal.calibration.zone_calibration import ZonedFit

@@ -105,10 +105,6 @@ class TransferCheck:
         sq = err.pow(2).sum(-1).numpy(force=True)  # (N_b,) mm^2
         return Transferred(float(np.sqrt(sq.mean())), per_pose(b, sq))
 
-    def rms_mm(self, fit) -> float:
-        """Distance RMS (mm) on the held-out rows of the other session (`score`)."""
-        return self.score(fit).rms_mm
-
     def choose(self, current: Transferred, passed: list):
         """The step to keep among `passed` (the round's candidates that met the acceptance
         rule, `Scored`s in rank order): the first that lowers the other session's error
@@ -138,4 +134,3 @@ def describe_verdict(v: dict) -> list[str]:
         out.append(f"  {t['effect']} refused: helps within the session only: {fig}{why}" if t["refused"]
                    else f"  {t['effect']} kept: {fig}{why}")
     return out
-

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from torchcal.folds import fold_of_pose
-from torchcal.diagnosis.crossval import fold_refits
+from torchcal.diagnosis.crossval import fold_refits, per_pose
 from torchcal.diagnosis.selection import MIN_GAIN, REFIT_ALPHA, refit_decision
 from torchcal.errors import InputError
 
@@ -60,7 +60,9 @@ def stage_test(full, m, ctx, *, kind: str = "kernel", folds: int = 5, seed: int 
     fold = fold_of_pose(m.pose, seed, folds)
     e0, e1 = np.zeros(len(m)), np.zeros(len(m))
     try:
-        for test, res in fold_refits(full, m, ctx, fold, sigma_mm=sigma_mm, sigma_deg=sigma_deg):
+        # the refits' theta and residuals only: no posterior (`fit`'s posterior=False)
+        for test, res in fold_refits(full, m, ctx, fold, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
+                                     posterior=False):
             with torch.no_grad():
                 r = (m.xyz[test] - full.model.predict(res.theta, ctx.subset(test))).cpu().to(torch.float64)
             stage = fit_residual_model(robot, m.subset(~test), res.residuals, kind=kind, seed=seed)
@@ -71,8 +73,7 @@ def stage_test(full, m, ctx, *, kind: str = "kernel", folds: int = 5, seed: int 
         if "residual model" in str(e):  # a wrong kind: the caller's mistake, not a fold's
             raise
         return StageTest(False, float("inf"), float("inf"), 1.0, alpha, f"fold refit impossible: {e}")
-    _, pose_of_row = np.unique(m.pose.cpu().numpy(), return_inverse=True)
-    sq0, sq1 = np.bincount(pose_of_row, weights=e0), np.bincount(pose_of_row, weights=e1)
+    sq0, sq1 = per_pose(m, e0), per_pose(m, e1)
     cv0, cv1 = float(np.sqrt(e0.mean())), float(np.sqrt(e1.mean()))
     ok, p, why = refit_decision(cv0, sq0, cv1, sq1, n_refits=1, alpha=alpha, min_gain=min_gain)
     why = f"rms {cv1:.4f} mm with the stage vs {cv0:.4f} mm without ({folds} pose-grouped folds): " + \

@@ -129,12 +129,13 @@ def test_cli_discover_refuses_bad_transfer_input(sessions, tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.csv", "b.csv"]
 
 
-def _numpy_session(robot, q: torch.Tensor, seed: int, session_term: bool) -> Measurements:
+def _numpy_session(robot, q: torch.Tensor, seed: int, session_term: bool, session_scale: float = 1.0) -> Measurements:
     """A session of one "real" UR5e made in plain numpy (tests/npsim.py): MD-H deviations
     (seed 11, the same robot in every session), the robot's own joint-2 transmission error
     3e-4 sin(q2 + 0.4) + 2e-4 sin(2 q2 + 1.1) rad; with `session_term` a joint-1 error
-    3e-4 sin(q1 + 0.7) + 2e-4 sin(2 q1 + 0.2) rad that only this session carries; the
-    tracker frame turned about z by a seeded angle and shifted 1 m; noise 0.02 mm."""
+    session_scale (3e-4 sin(q1 + 0.7) + 2e-4 sin(2 q1 + 0.2)) rad that only this session
+    carries; the tracker frame turned about z by a seeded angle and shifted 1 m; noise
+    0.02 mm."""
     from npsim import _rz, numpy_fk
 
     rng = np.random.default_rng(seed)
@@ -146,7 +147,7 @@ def _numpy_session(robot, q: torch.Tensor, seed: int, session_term: bool) -> Mea
     dq = np.zeros_like(qn)
     dq[:, 1] = 3e-4 * np.sin(qn[:, 1] + 0.4) + 2e-4 * np.sin(2 * qn[:, 1] + 1.1)
     if session_term:
-        dq[:, 0] = 3e-4 * np.sin(qn[:, 0] + 0.7) + 2e-4 * np.sin(2 * qn[:, 0] + 0.2)
+        dq[:, 0] = session_scale * (3e-4 * np.sin(qn[:, 0] + 0.7) + 2e-4 * np.sin(2 * qn[:, 0] + 0.2))
     p = numpy_fk(robot, qn + dq, dev)
     xyz = p @ _rz(rng.uniform(0, 2 * np.pi))[:3, :3].T + np.array([1000.0, -300.0, 50.0])
     xyz = xyz + rng.normal(0, 0.02, xyz.shape)
@@ -161,9 +162,11 @@ def test_a_term_neutral_on_the_check_is_refused_and_a_robot_term_is_kept():
     Not above U's figure is not enough: it is refused; the robot's gear_periodic:2,
     which lowers U's error, is kept."""
     from torchcal.diagnosis.step import Scored, candidate_fit, fit_options
+    from torchcal.diagnosis.transfer import Within
     from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, fit
     from torchcal.calibration.model import CalibrationModel
     from torchcal.effects import context_of
+    from torchcal.folds import fold_of_pose
 
     robot = torchcal.robot("ur5e")
     qa = random_poses(robot, 150, torch.Generator().manual_seed(21))
@@ -188,6 +191,11 @@ def test_a_term_neutral_on_the_check_is_refused_and_a_robot_term_is_kept():
     assert ses_t.rms_mm > cur_t.rms_mm + 0.05
     (kept, after), rec = check_u.choose(cur_u, cands)
     assert kept is cands[1] and after.rms_mm == rob_u.rms_mm and rec["kept"] == "gear_periodic:2"
+    # steps on one joint: with the fitting session given (the per-part check's input) the
+    # same decision, the same record, no part figures
+    (kept_w, after_w), rec_w = check_u.choose(cur_u, cands, Within(start, a, ctx, fold_of_pose(a.pose, 0, 5)))
+    assert kept_w is kept and after_w.rms_mm == after.rms_mm and rec_w == rec
+    assert all("parts" not in t for t in rec["tried"])
     first, second = rec["tried"]
     assert first["refused"] and first["effect"] == "gear_periodic:1"
     assert first["p_value"] >= REFIT_ALPHA / 2 or first["after_mm"] > cur_u.rms_mm * (1 - 0.02)
@@ -235,3 +243,58 @@ def test_rule_is_the_paired_test_over_the_check_poses():
     for t, sq in zip(rec["tried"], (neutral, better)):
         assert t["p_value"] == pytest.approx(scipy.stats.ttest_rel(e0, sq, alternative="greater").pvalue, rel=1e-9)
     assert rec["tried"][0]["p_value"] >= REFIT_ALPHA / 2 and rec["tried"][1]["p_value"] < REFIT_ALPHA / 2
+
+
+def test_a_step_on_two_joints_keeps_the_robot_joint_and_drops_the_session_joint():
+    """Per joint part (TransferCheck.choose with the fitting session, module doc 1-3): session
+    A carries the robot's joint-2 error and a joint-1 error of its own (half the size);
+    the pre-screen on A offers both joints in one step. B (the same robot, joint 1 moving)
+    gains from the step as a whole; per part, the step without joint 2's part is worse on
+    B beyond chance (kept), the step without joint 1's part is better (dropped); what
+    lands is joint 2's part refitted on A, with its refit CV, and the record and the
+    printed lines say so."""
+    from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, fit
+    from torchcal.calibration.model import CalibrationModel
+    from torchcal.diagnosis.screen import prescreen
+    from torchcal.diagnosis.selection import ALPHA, MIN_GAIN
+    from torchcal.diagnosis.step import Scored, candidate_fit, fit_options
+    from torchcal.diagnosis.transfer import Within
+    from torchcal.effects import context_of
+    from torchcal.folds import fold_of_pose
+
+    robot = torchcal.robot("ur5e")
+    qa, qb = (random_poses(robot, 150, torch.Generator().manual_seed(k)) for k in (41, 42))
+    a = _numpy_session(robot, qa, 51, session_term=True, session_scale=0.5)
+    b = _numpy_session(robot, qb, 52, session_term=False)
+    ctx = context_of(robot, a)
+    start = fit(CalibrationModel.for_measurements(robot, ["base_frame", "tool_offset"], a), ctx, a.xyz,
+                **fit_options(a))
+    folds = fold_of_pose(a.pose, 0, 5)
+    verdict = prescreen(robot, start.model, start.model.specs(), start, a, ctx, folds, alpha=ALPHA / 2,
+                        min_gain=MIN_GAIN).verdict
+    assert sorted(verdict.joints) == [1, 2]  # the premise: one step on both joints
+    whole = candidate_fit(start, verdict.spec, a, ctx, sigma_mm=SIGMA_MM, sigma_deg=SIGMA_DEG)
+    step = Scored(whole.model.specs(), verdict.spec, whole.rms_mm, 0.0, whole, passed=True)
+    check = TransferCheck(b, 30, "B")
+    cur = check.score(start)
+    (landed, after), rec = check.choose(cur, [step], Within(start, a, ctx, folds))
+    t = rec["tried"][0]
+    parts = {p["joint"]: p for p in t["parts"]}
+    robot_part = next(p for p in parts.values() if p["joint"] == 2)["effect"]
+    assert t["p_value"] < REFIT_ALPHA and t["after_mm"] < cur.rms_mm  # the bundle gains on B
+    assert t["part_level"] == REFIT_ALPHA / 2
+    assert parts[2]["kept"] and parts[2]["p_value"] < REFIT_ALPHA / 2 and parts[2]["without_mm"] > t["after_mm"]
+    assert not parts[1]["kept"] and parts[1]["without_mm"] < t["after_mm"]  # B is better without joint 1's
+    assert rec["kept"] == robot_part == landed.spec and not t["refused"]
+    assert landed.fit.model.specs() == start.model.specs() + [robot_part]  # what the next round holds
+    assert np.isfinite(landed.cv_rms_mm) and landed.cv.sq.shape == (150,)
+    assert t["landed"] == {"effect": robot_part, "after_mm": after.rms_mm, "refused": False,
+                           "p_value": t["landed"]["p_value"], "reason": t["landed"]["reason"]}
+    assert after.rms_mm < cur.rms_mm and t["landed"]["p_value"] < REFIT_ALPHA
+    lines = describe_verdict(rec)
+    assert lines[1].startswith(f"  {verdict.spec} lowers it as a whole: transfer {cur.rms_mm:.3f} -> "
+                               f"{t['after_mm']:.3f} mm (")
+    assert any(ln.startswith(f"    joint 1 {parts[1]['effect']} dropped: transfer {parts[1]['without_mm']:.3f} -> ")
+               for ln in lines)
+    assert lines[-1].startswith(f"  {robot_part} kept (the step without joint 1, refitted): transfer "
+                                f"{cur.rms_mm:.3f} -> {after.rms_mm:.3f} mm (")

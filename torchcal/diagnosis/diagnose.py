@@ -20,8 +20,10 @@
 next round's current model, so a round prints exactly the figures `diagnose` prints for
 that step. With a `TransferCheck` (`torchcal.diagnosis.transfer`) a round's accepted
 step is kept only when it lowers the error on another session's held-out poses beyond
-chance; the next candidate that met the rule is tried instead, and a round whose
-candidates are all refused ends the discovery. Round i is `diagnose` with budget
+chance, and a step on several joints only with the joints whose part does so on its own
+(the union of those parts refitted lands; what the round's transfer record names as kept
+is what the next round's model holds); the next candidate that met the rule is tried
+instead, and a round whose candidates are all refused ends the discovery. Round i is `diagnose` with budget
 alpha / 2^i, whose pre-screen spends half of it, so all the pre-screen tests of all rounds keep the family-wise error below alpha; the
 refit tests are a second condition.
 Everything is deterministic for a given seed (fold assignment).
@@ -42,6 +44,7 @@ from torchcal.folds import fold_of_pose
 from torchcal.diagnosis.screen import prescreen
 from torchcal.diagnosis.selection import ALPHA, MIN_GAIN, REFIT_ALPHA, REFITS, shortlist
 from torchcal.diagnosis.step import Scored, Step, fit_options, score_current, score_step
+from torchcal.diagnosis.transfer import Within
 from torchcal.diagnosis.unexplained import Unexplained, unexplained
 from torchcal.effects import context_of
 from torchcal.effects.spec import parse_specs
@@ -196,7 +199,8 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
              sigma_deg: float = SIGMA_DEG, transfer=None) -> Discovery:
     """Add the accepted candidate of each step until none is (module doc); at most
     `max_rounds` effects. transfer: a `TransferCheck` or None; with it, history[i]
-    ["transfer"] holds the round's `TransferCheck.choose` record."""
+    ["transfer"] holds the round's `TransferCheck.choose` record (its "kept": the spec
+    that lands, a step or the union of its kept joint parts)."""
     specs = [str(s) for s in parse_specs(list(effects), robot.n)] if effects else []
     history, diagnoses = [], []
     ctx = context_of(robot, m)
@@ -218,7 +222,8 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
         if transfer is not None:  # a step must lower the other session's error (transfer.py)
             passed = sorted([s for s in d.step.refits if s.accepted or s.passed] if i < max_rounds else [],
                             key=lambda s: not s.accepted)  # the step's verdict first, then rank order
-            (acc, after), history[-1]["transfer"] = transfer.choose(t_now, passed)
+            within = Within(base, m, ctx, fold_of_pose(m.pose, seed, folds), sigma_mm, sigma_deg)
+            (acc, after), history[-1]["transfer"] = transfer.choose(t_now, passed, within)
             t_now = t_now if acc is None else after
         if acc is None or i == max_rounds:
             break

@@ -94,11 +94,8 @@ class Stability:
         if not self.parts:
             return ([spec], []) if self.stable else ([], [(spec, self)])
         named = [j for j, (_, st) in self.parts.items() if st.stable]
-        parsed = parse_spec(spec, max(self.parts))
-        keep = [i for i, j in enumerate(parsed.joints) if j in named]
-        named_spec = format_spec(parsed.name, [parsed.joints[i] for i in keep],
-                                 [parsed.orders[i] for i in keep] if parsed.orders else ())
-        return ([named_spec] if keep else []), [(part, st) for j, (part, st) in self.parts.items() if j not in named]
+        return (([restricted(spec, named, max(self.parts))] if named else []),
+                [(part, st) for j, (part, st) in self.parts.items() if j not in named])
 
     def words(self) -> str:
         """Why an effect is taken for an absorber, in words."""
@@ -118,15 +115,19 @@ def part_specs(spec: str, n_joints: int) -> dict:
     it) for an effect on several joints (``joint_periodic:1@12,2@20+29`` -> {1:
     ('joint_periodic:1@12', 'joint_periodic:2@20+29'), 2: (...)}); {} for an effect on
     one joint or none."""
-    s = parse_spec(spec, n_joints)
-    if len(s.joints) < 2:
+    joints = parse_spec(spec, n_joints).joints
+    if len(joints) < 2:
         return {}
-    out = {}
-    for i, j in enumerate(s.joints):
-        rest = [k for k in range(len(s.joints)) if k != i]
-        out[j] = (format_spec(s.name, [j], [s.orders[i]] if s.orders else ()),
-                  format_spec(s.name, [s.joints[k] for k in rest], [s.orders[k] for k in rest] if s.orders else ()))
-    return out
+    return {j: (restricted(spec, [j], n_joints), restricted(spec, [k for k in joints if k != j], n_joints))
+            for j in joints}
+
+
+def restricted(spec: str, joints, n_joints: int) -> str:
+    """The effect `spec` on the `joints` (1-based) among its own only, each with its orders
+    (``joint_periodic:1@12,2@20+29,3@18`` on [1, 3] -> ``joint_periodic:1@12,3@18``)."""
+    s = parse_spec(spec, n_joints)
+    keep = [i for i, j in enumerate(s.joints) if j in set(joints)]
+    return format_spec(s.name, [s.joints[i] for i in keep], [s.orders[i] for i in keep] if s.orders else ())
 
 
 def halves(m) -> dict:

@@ -170,6 +170,24 @@ def test_report_shows_a_transfer_check_when_the_history_has_one(session):
     text = out.read_text()
     assert "Transfer check" in text and "gear_periodic:2" in text and "0.4321" in text and "0.9876" in text
     assert "refused: helps within the session only (no gain (&gt;=))" in text
+    # a step on several joints judged per joint part: each part's verdict and what landed
+    hist["history"][0]["transfer"] = {
+        "current_mm": 0.4321, "kept": "gear_periodic:2",
+        "tried": [{"effect": "gear_periodic:1,2", "after_mm": 0.3012, "refused": False, "p_value": 1e-9,
+                   "reason": "gain 30.3 %", "part_level": 0.025,
+                   "parts": [{"joint": 1, "effect": "gear_periodic:1", "without_mm": 0.2101, "kept": False,
+                              "p_value": 1.0, "reason": "no gain (>=)"},
+                             {"joint": 2, "effect": "gear_periodic:2", "without_mm": 0.5012, "kept": True,
+                              "p_value": 1e-12, "reason": "gain 39.9 %"}],
+                   "landed": {"effect": "gear_periodic:2", "after_mm": 0.2034, "refused": False, "p_value": 1e-14,
+                              "reason": "gain 52.9 %"}}]}
+    (session / "hist_p.json").write_text(json.dumps(hist))
+    out = session / "transfer_parts.html"
+    assert main(["report", str(session / "disc.json"), "--history", str(session / "hist_p.json"), "--out",
+                 str(out)]) == 0
+    text = out.read_text()
+    assert "joint 1: gear_periodic:1" in text and "0.2101" in text and "dropped (no gain (&gt;=)" in text
+    assert "joint 2: gear_periodic:2" in text and "0.5012" in text and "0.2034" in text and "kept (gain 52.9 %)" in text
 
 
 def test_report_names_the_joints_whose_part_holds_and_lists_the_fit_terms(session):

@@ -298,3 +298,75 @@ def test_a_step_on_two_joints_keeps_the_robot_joint_and_drops_the_session_joint(
                for ln in lines)
     assert lines[-1].startswith(f"  {robot_part} kept (the step without joint 1, refitted): transfer "
                                 f"{cur.rms_mm:.3f} -> {after.rms_mm:.3f} mm (")
+
+
+def test_part_rule_on_figures_made_in_numpy():
+    """The per-part rule on per-pose figures made in numpy (no fit): a step on joints 1-3
+    gains 10 % on the check; without joint 2's part the check is 20 % worse than with the
+    whole step (kept), without joint 1's or 3's it is the same up to zero-mean noise
+    (dropped); the parts' p-values are scipy's paired t-test at level REFIT_ALPHA / (R J)
+    (R 2 steps tried, J 3 parts); the union (joint 2's part) lands when it lowers the
+    check's error against the current model, else nothing of the step lands and the next
+    step is tried. A step whose parts are all neutral lands nothing."""
+    import scipy.stats
+    from types import SimpleNamespace
+
+    from torchcal.diagnosis.transfer import Transferred
+
+    rng = np.random.default_rng(7)
+    e0 = rng.chisquare(3, 300) * 0.04  # (P,) mm^2 per pose, the current model
+    whole = 0.9 * e0
+
+    def neutral():
+        n = rng.normal(0, 0.02, 300)
+        return whole + n - n.mean() + 1e-4
+
+    # each model named by its spec; "without j" is the step on the other two joints
+    sq = {"whole": whole, "gear_periodic:2,3": neutral(), "gear_periodic:1,3": 1.2 * whole,
+          "gear_periodic:1,2": neutral(), "gear_periodic:2": 0.92 * e0, "next": 0.8 * e0}
+    without = {1: "gear_periodic:2,3", 2: "gear_periodic:1,3", 3: "gear_periodic:1,2"}
+
+    def fig(x):
+        return Transferred(float(np.sqrt(x.mean())), x)
+
+    class Fixed(TransferCheck):
+        def score(self, fit):
+            return fig(sq[fit.key])
+
+    class Session:  # the fitting session: a refit is named by its spec
+        def step_fit(self, spec, hold):
+            return SimpleNamespace(key=spec)
+
+        def scored(self, f, spec, prior_held):
+            return SimpleNamespace(spec=spec)
+
+    def step(key, spec):
+        return SimpleNamespace(spec=spec, random_only=False, prior_held=[],
+                               fit=SimpleNamespace(key=key, model=SimpleNamespace(robot=SimpleNamespace(n=6)),
+                                                   report=SimpleNamespace(held=[])))
+
+    check = Fixed(Measurements(torch.arange(10), torch.zeros(10, 6, dtype=torch.float64),
+                               torch.zeros(10, 3, dtype=torch.float64), None, None), 3, "U")
+    steps = [step("whole", "gear_periodic:1,2,3"), step("next", "gear_periodic:4")]
+    (landed, after), rec = check.choose(fig(e0), steps, Session())
+    t = rec["tried"][0]
+    assert landed.spec == rec["kept"] == t["landed"]["effect"] == "gear_periodic:2" and len(rec["tried"]) == 1
+    assert after.rms_mm == fig(sq["gear_periodic:2"]).rms_mm and t["part_level"] == REFIT_ALPHA / 6
+    for p in t["parts"]:
+        assert p["without_mm"] == fig(sq[without[p["joint"]]]).rms_mm
+        assert p["p_value"] == pytest.approx(scipy.stats.ttest_rel(sq[without[p["joint"]]], whole,
+                                                                   alternative="greater").pvalue, rel=1e-9)
+    assert [p["kept"] for p in t["parts"]] == [False, True, False]
+    assert t["parts"][1]["p_value"] < REFIT_ALPHA / 6 <= min(t["parts"][0]["p_value"], t["parts"][2]["p_value"])
+    assert describe_verdict(rec)[-1].startswith("  gear_periodic:2 kept (the step without joints 1, 3, refitted)")
+    # the union does not lower the check's error against the current model: nothing of the
+    # step lands, and the next step is tried (and kept)
+    sq["gear_periodic:2"] = e0 + whole - neutral()
+    (landed, after), rec = check.choose(fig(e0), steps, Session())
+    assert rec["tried"][0]["refused"] and rec["tried"][0]["landed"]["refused"] and rec["kept"] == "gear_periodic:4"
+    assert landed is steps[1] and after.rms_mm == fig(sq["next"]).rms_mm
+    # no part lowers it on its own: nothing of the step lands
+    sq["gear_periodic:1,3"] = neutral()
+    (landed, _), rec = check.choose(fig(e0), steps[:1], Session())
+    assert landed is None and rec["kept"] is None and rec["tried"][0]["landed"] is None
+    assert "  gear_periodic:1,2,3 refused: no joint's part lowers it on its own" in describe_verdict(rec)

@@ -527,8 +527,25 @@ def _transfer(rep) -> str:
             cls.append("")
         for c in t.get("tried", []):
             why = f" ({_e(c['reason'])})" if c.get("reason") else ""
+            if "parts" not in c:
+                rows.append([str(k), _e(c.get("effect")), _mm(t.get("current_mm")), _mm(c.get("after_mm")),
+                             ("refused: helps within the session only" if c.get("refused") else "kept") + why])
+                cls.append("rej" if c.get("refused") else "")
+                continue
+            # a step on several joints, judged per joint part (torchcal.diagnosis.transfer)
             rows.append([str(k), _e(c.get("effect")), _mm(t.get("current_mm")), _mm(c.get("after_mm")),
-                         ("refused: helps within the session only" if c.get("refused") else "kept") + why])
+                         "lowers it as a whole" + why + "; per joint:"])
+            cls.append("")
+            for p in c["parts"]:
+                rows.append([str(k), f"&nbsp;&nbsp;joint {p['joint']}: {_e(p.get('effect'))}", _mm(p.get("without_mm")),
+                             _mm(c.get("after_mm")), ("kept" if p.get("kept") else "dropped") +
+                             f" ({_e(p.get('reason'))}; before: the step without this part)"])
+                cls.append("" if p.get("kept") else "rej")
+            landed = c.get("landed")
+            rows.append([str(k), _e(c.get("effect") if landed is None else landed.get("effect")),
+                         _mm(t.get("current_mm")), _mm(None if landed is None else landed.get("after_mm")),
+                         "refused: no joint's part lowers it on its own" if landed is None else
+                         ("refused" if landed.get("refused") else "kept") + f" ({_e(landed.get('reason'))})"])
             cls.append("rej" if c.get("refused") else "")
     out.append(_table(["round", "step", "other session before", "other session after", "verdict"], rows,
                       numeric=(2, 3), cls_rows=cls))

@@ -193,10 +193,11 @@ class TransferCheck:
         Returns (the `Scored` that lands, its `Transferred`) or (None, None)."""
         level_n = n_steps * len(parts)
         rec.update(part_level=self.alpha / level_n, parts=[], landed=None)
-        held = list(s.fit.report.held)
+        held, fits = list(s.fit.report.held), {}  # fits: spec -> refit (one dropped part: the union is its 'without')
         for j, (part, rest) in parts.items():
             try:
-                without = self.score(within.step_fit(rest, held))
+                fits[rest] = within.step_fit(rest, held)
+                without = self.score(fits[rest])
             except InputError as e:
                 rec["parts"].append({"joint": j, "effect": part, "without_mm": None, "kept": False, "p_value": 1.0,
                                      "reason": f"the step without it cannot be refitted: {e}"})
@@ -214,7 +215,7 @@ class TransferCheck:
             return None, None
         union = restricted(s.spec, kept, s.fit.model.robot.n)
         try:
-            f = within.step_fit(union, held)
+            f = fits[union] if union in fits else within.step_fit(union, held)
         except InputError as e:
             rec["refused"] = True
             rec["landed"] = {"effect": union, "after_mm": None, "refused": True, "p_value": 1.0,

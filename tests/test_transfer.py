@@ -246,58 +246,41 @@ def test_rule_is_the_paired_test_over_the_check_poses():
 
 
 def test_a_step_on_two_joints_keeps_the_robot_joint_and_drops_the_session_joint():
-    """Per joint part (TransferCheck.choose with the fitting session, module doc 1-3): session
-    A carries the robot's joint-2 error and a joint-1 error of its own (half the size);
-    the pre-screen on A offers both joints in one step. B (the same robot, joint 1 moving)
-    gains from the step as a whole; per part, the step without joint 2's part is worse on
-    B beyond chance (kept), the step without joint 1's part is better (dropped); what
-    lands is joint 2's part refitted on A, with its refit CV, and the record and the
-    printed lines say so."""
-    from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, fit
-    from torchcal.calibration.model import CalibrationModel
-    from torchcal.diagnosis.screen import prescreen
-    from torchcal.diagnosis.selection import ALPHA, MIN_GAIN
-    from torchcal.diagnosis.step import Scored, candidate_fit, fit_options
-    from torchcal.diagnosis.transfer import Within
-    from torchcal.effects import context_of
-    from torchcal.folds import fold_of_pose
-
+    """Per joint part (TransferCheck.choose, module doc 1-3), through `discover`: session A
+    carries the robot's joint-2 error and a joint-1 error of its own (half the size), and
+    discover on A offers both joints in one step. B (the same robot, joint 1 moving) gains
+    from the step as a whole; per part, the step without joint 2's part is worse on B
+    beyond chance (kept), the step without joint 1's part is better (dropped); what lands
+    is joint 2's part refitted on A, which the next round's model and the final effects
+    hold, and the printed lines say so."""
     robot = torchcal.robot("ur5e")
     qa, qb = (random_poses(robot, 150, torch.Generator().manual_seed(k)) for k in (41, 42))
     a = _numpy_session(robot, qa, 51, session_term=True, session_scale=0.5)
     b = _numpy_session(robot, qb, 52, session_term=False)
-    ctx = context_of(robot, a)
-    start = fit(CalibrationModel.for_measurements(robot, ["base_frame", "tool_offset"], a), ctx, a.xyz,
-                **fit_options(a))
-    folds = fold_of_pose(a.pose, 0, 5)
-    verdict = prescreen(robot, start.model, start.model.specs(), start, a, ctx, folds, alpha=ALPHA / 2,
-                        min_gain=MIN_GAIN).verdict
-    assert sorted(verdict.joints) == [1, 2]  # the premise: one step on both joints
-    whole = candidate_fit(start, verdict.spec, a, ctx, sigma_mm=SIGMA_MM, sigma_deg=SIGMA_DEG)
-    step = Scored(whole.model.specs(), verdict.spec, whole.rms_mm, 0.0, whole, passed=True)
-    check = TransferCheck(b, 30, "B")
-    cur = check.score(start)
-    (landed, after), rec = check.choose(cur, [step], Within(start, a, ctx, folds))
-    t = rec["tried"][0]
+    start = ["base_frame", "tool_offset"]
+    res = torchcal.discover(robot, a, start, transfer=b, max_rounds=1)
+    rec = res.history[0]["transfer"]
+    t = next(t for t in rec["tried"] if not t["refused"])
+    spec = t["effect"]  # the step offered on A
     parts = {p["joint"]: p for p in t["parts"]}
-    robot_part = next(p for p in parts.values() if p["joint"] == 2)["effect"]
-    assert t["p_value"] < REFIT_ALPHA and t["after_mm"] < cur.rms_mm  # the bundle gains on B
-    assert t["part_level"] == REFIT_ALPHA / 2
-    assert parts[2]["kept"] and parts[2]["p_value"] < REFIT_ALPHA / 2 and parts[2]["without_mm"] > t["after_mm"]
+    assert sorted(parts) == [1, 2] and res.history[0]["step"]["accepted"] == spec
+    assert t["p_value"] < REFIT_ALPHA and t["after_mm"] < rec["current_mm"]  # the bundle gains on B
+    assert t["part_level"] == rec["level"] / 2 and rec["level"] <= REFIT_ALPHA
+    assert parts[2]["kept"] and parts[2]["p_value"] < t["part_level"] and parts[2]["without_mm"] > t["after_mm"]
     assert not parts[1]["kept"] and parts[1]["without_mm"] < t["after_mm"]  # B is better without joint 1's
-    assert rec["kept"] == robot_part == landed.spec and not t["refused"]
-    assert landed.fit.model.specs() == start.model.specs() + [robot_part]  # what the next round holds
-    assert np.isfinite(landed.cv_rms_mm) and landed.cv.sq.shape == (150,)
-    assert t["landed"] == {"effect": robot_part, "after_mm": after.rms_mm, "refused": False,
-                           "p_value": t["landed"]["p_value"], "reason": t["landed"]["reason"]}
-    assert after.rms_mm < cur.rms_mm and t["landed"]["p_value"] < REFIT_ALPHA
+    robot_part = parts[2]["effect"]
+    assert rec["kept"] == t["landed"]["effect"] == robot_part and not t["landed"]["refused"]
+    assert t["landed"]["after_mm"] < rec["current_mm"] and t["landed"]["p_value"] < REFIT_ALPHA
+    # what the round keeps is what the next round's model and the final model hold
+    assert res.history[1]["effects"] == res.final_effects == start + [robot_part]
+    assert res.history[1]["transfer"]["current_mm"] == t["landed"]["after_mm"]
     lines = describe_verdict(rec)
-    assert lines[1].startswith(f"  {verdict.spec} lowers it as a whole: transfer {cur.rms_mm:.3f} -> "
+    assert lines[1].startswith(f"  {spec} lowers it as a whole: transfer {rec['current_mm']:.3f} -> "
                                f"{t['after_mm']:.3f} mm (")
     assert any(ln.startswith(f"    joint 1 {parts[1]['effect']} dropped: transfer {parts[1]['without_mm']:.3f} -> ")
                for ln in lines)
     assert lines[-1].startswith(f"  {robot_part} kept (the step without joint 1, refitted): transfer "
-                                f"{cur.rms_mm:.3f} -> {after.rms_mm:.3f} mm (")
+                                f"{rec['current_mm']:.3f} -> {t['landed']['after_mm']:.3f} mm (")
 
 
 def test_part_rule_on_figures_made_in_numpy():

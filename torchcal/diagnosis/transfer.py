@@ -156,16 +156,16 @@ class TransferCheck:
         the fitting session, for the parts' refits; None: every step decided as a whole).
 
         Returns (the `Scored` that lands, the step itself or the refitted union of its kept
-        parts, and its `Transferred`; or (None, None)), and the record {"current_mm",
-        "tried": [{"effect", "after_mm", "refused", "p_value", "reason"}], "kept": the spec
-        that lands or None}. A step split into joint parts adds to its "tried" entry
+        parts, and its `Transferred`; or (None, None)), and the record {"current_mm", "level"
+        (the step tests' level), "tried": [{"effect", "after_mm", "refused", "p_value",
+        "reason"}], "kept": the spec that lands or None}. A step split into joint parts adds to its "tried" entry
         "part_level" (the parts' test level), "parts": [{"joint", "effect" (the part's
         spec), "without_mm" (the figure of the step without that part; None when it could
         not be refitted), "kept", "p_value", "reason"}] and "landed": None (no part kept)
         or {"effect", "after_mm", "refused", "p_value", "reason"} (the union of the kept
         parts against the current model; the step itself when every part is kept); its
         "refused" is then true when nothing of it lands."""
-        tried = []
+        tried, level = [], self.alpha / max(len(passed), 1)
         for s in passed:
             after = self.score(s.fit)
             keep, p, why = self._decide(current, after, len(passed), s.random_only)
@@ -176,8 +176,8 @@ class TransferCheck:
                 s, after = self._split(current, s, after, parts, len(passed), within, tried[-1])
                 keep = s is not None
             if keep:
-                return (s, after), {"current_mm": current.rms_mm, "tried": tried, "kept": s.spec}
-        return (None, None), {"current_mm": current.rms_mm, "tried": tried, "kept": None}
+                return (s, after), {"current_mm": current.rms_mm, "level": level, "tried": tried, "kept": s.spec}
+        return (None, None), {"current_mm": current.rms_mm, "level": level, "tried": tried, "kept": None}
 
     def _decide(self, base: Transferred, cand: Transferred, n_tests: int, random_only: bool = False):
         """(keep, p-value, reason without the figures, printed as the transfer's) of `cand`

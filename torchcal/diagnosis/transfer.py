@@ -156,15 +156,16 @@ class TransferCheck:
         the fitting session, for the parts' refits; None: every step decided as a whole).
 
         Returns (the `Scored` that lands, the step itself or the refitted union of its kept
-        parts, and its `Transferred`; or (None, None)), and the record {"current_mm", "level"
-        (the step tests' level), "tried": [{"effect", "after_mm", "refused", "p_value",
-        "reason"}], "kept": the spec that lands or None}. A step split into joint parts adds to its "tried" entry
-        "part_level" (the parts' test level), "parts": [{"joint", "effect" (the part's
-        spec), "without_mm" (the figure of the step without that part; None when it could
-        not be refitted), "kept", "p_value", "reason"}] and "landed": None (no part kept)
-        or {"effect", "after_mm", "refused", "p_value", "reason"} (the union of the kept
-        parts against the current model; the step itself when every part is kept); its
-        "refused" is then true when nothing of it lands."""
+        parts, and its `Transferred`; or (None, None)), and the record {"current_mm",
+        "level" (the step tests' level), "tried": [{"effect", "after_mm", "refused",
+        "p_value", "reason"}], "kept": the spec that lands or None}. A step split into
+        joint parts adds to its "tried" entry "part_level" (the parts' test level),
+        "parts": [{"joint", "effect" (the part's spec), "without_mm" (the figure of the
+        step without that part; None when it could not be refitted), "kept", "p_value",
+        "reason"}] and "landed": None (no part kept) or {"effect", "after_mm", "refused",
+        "p_value", "reason"} (the union of the kept parts against the current model; the
+        step itself when every part is kept); its "refused" is then true when nothing of
+        it lands."""
         tried, level = [], self.alpha / max(len(passed), 1)
         for s in passed:
             after = self.score(s.fit)

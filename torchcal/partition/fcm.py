@@ -126,8 +126,7 @@ def _check_fcm_args(n_points: int, c, m, eps, max_iter, restarts) -> None:
 
 def _check_not_identical(xt: torch.Tensor) -> None:
     """xt (d, N), the points as rows of features: InputError if all N points are equal."""
-    lo, hi = torch.aminmax(xt, dim=1)  # (d,), (d,): contiguous rows
-    if torch.equal(lo, hi):
+    if all(bool(lo == hi) for lo, hi in map(torch.aminmax, xt)):  # row by row (aminmax(dim=1) is 8x slower)
         raise InputError(
             f"x: all {xt.shape[1]} points are identical ({xt[:, 0].tolist()}); "
             "no partition into clusters is possible, expected at least 2 distinct points")
@@ -162,26 +161,28 @@ def _chunked(xt: torch.Tensor, chunk: int) -> list:
 
 class _Scratch:
     """Chunk scratch for R restarts of c clusters and chunks of at most nmax points: three
-    (R, c, n) buffers, a (R, 1, n) one for the sums over the clusters, ones (R, 1, c) (the
-    sums over the clusters as one batched product) and ones (n,) (the row sums of eq. 27
-    as a matrix-vector product). `views(Ra, n)` gives them for Ra <= R restarts and n points,
-    made once per (Ra, n)."""
+    (R, c, n) buffers, two (R, 1, n) ones for the sums over the clusters S and 1/S, ones
+    (R, 1, c) (the sums over the clusters as one batched product) and ones (n,) (the row
+    sums of eq. 27 as a matrix-vector product). `views(Ra, n)` gives them for Ra <= R
+    restarts and n points, made once per (Ra, n)."""
 
     def __init__(self, R: int, c: int, nmax: int, dtype, device):
         self.c = c
         self.flat = [torch.empty(R * c * nmax, dtype=dtype, device=device) for _ in range(3)]
-        self.sums = torch.empty(R * nmax, dtype=dtype, device=device)
+        self.sums = torch.empty(2, R * nmax, dtype=dtype, device=device)
         self.ones_c = torch.ones(R, 1, c, dtype=dtype, device=device)
         self.ones_n = torch.ones(nmax, dtype=dtype, device=device)
         self._views = {}
 
     def views(self, R: int, n: int) -> tuple:
-        """-> (w, t, t2 (R, c, n), S (R, 1, n), ones_c (R, 1, c), ones_n (n,))."""
+        """-> (w, t, t2 (R, c, n), Si, ones_c (R, 1, c), ones_n (n,)); Si = (S, inv (R, 1, n),
+        the same flat (R n,))."""
         v = self._views.get((R, n))
         if v is None:
             c = self.c
+            S, inv = (b[:R * n] for b in self.sums)
             v = tuple(b[:R * c * n].view(R, c, n) for b in self.flat) + (
-                self.sums[:R * n].view(R, 1, n), self.ones_c[:R], self.ones_n[:n])
+                (S.view(R, 1, n), inv.view(R, 1, n), S, inv), self.ones_c[:R], self.ones_n[:n])
             self._views[(R, n)] = v
         return v
 
@@ -248,15 +249,16 @@ def _j_fast(inv, m):
     return (inv if m == 2.0 else inv.pow(m - 1.0)).sum(dim=(1, 2))
 
 
-def _memberships_unchecked(rows, cols, m, w, t, S, ones_c, checks, out=None):
+def _memberships_unchecked(rows, cols, m, w, t, Si, ones_c, checks, out=None):
     """Eq. 28, fast path, for one chunk: memberships into w (R, c, n), or into `out` (same
-    shape, may be strided) when given, with t (like w) and S (R, 1, n) as scratch and
-    ones_c (R, 1, c); appends sum_j S_j and sum_j 1/S_j to `checks` (both finite iff every
-    S is finite and > 0; the caller tests them all at once). Returns inv = 1 / S in S."""
+    shape, may be strided) when given, with t (like w) and Si (as `_Scratch.views`) as
+    scratch and ones_c (R, 1, c); appends sum_j S_j * (1 / S_j) to `checks` (finite iff
+    every S is finite and > 0: inf * 0 and 0 * inf are NaN; the caller tests them all at
+    once). Returns inv = 1 / S (R, 1, n)."""
+    S, inv, S_flat, inv_flat = Si
     _w_and_S(rows, cols, m, w, t, S, ones_c)
-    checks.append(S.sum())
-    inv = S.reciprocal_()
-    checks.append(inv.sum())
+    torch.reciprocal(S, out=inv)
+    checks.append(torch.dot(S_flat, inv_flat))
     if out is None:
         w.mul_(inv)
     else:
@@ -264,13 +266,14 @@ def _memberships_unchecked(rows, cols, m, w, t, S, ones_c, checks, out=None):
     return inv
 
 
-def _memberships_checked(rows, cols, m, w, t, S, ones_c, want_j):
-    """Eq. 28 for one chunk, checked: memberships into w (R, c, n) (t like w, S (R, 1, n):
-    scratch; ones_c (R, 1, c)) by the fast path if every S is finite and > 0, else the
+def _memberships_checked(rows, cols, m, w, t, Si, ones_c, want_j):
+    """Eq. 28 for one chunk, checked: memberships into w (R, c, n) (t like w, Si as
+    `_Scratch.views`: scratch; ones_c (R, 1, c)) by the fast path if every S is finite and > 0, else the
     careful way (`_u_from_sq_dist_`). Returns this chunk's part of eq. 26 (R,) when want_j,
     else None. Equal, bit for bit, to `_memberships_unchecked` wherever that one passes
     its check."""
-    inv = _w_and_S(rows, cols, m, w, t, S, ones_c).reciprocal_()  # (R, 1, n) 1 / S
+    S, inv = Si[:2]
+    torch.reciprocal(_w_and_S(rows, cols, m, w, t, S, ones_c), out=inv)  # (R, 1, n) 1 / S
     lo, hi = torch.aminmax(inv)
     if lo.item() > 0 and hi.item() < math.inf:
         w.mul_(inv)
@@ -294,13 +297,14 @@ def _row_dots(t: torch.Tensor) -> torch.Tensor:
     return torch.stack([torch.dot(row, row) for row in t])
 
 
-def _start_u(U0c: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
+def _start_u(U0c: torch.Tensor, out: torch.Tensor, Si, ones_c) -> torch.Tensor:
     """Starting memberships of one chunk: U0c (R, c, n) with each column divided by its sum,
-    into out (R, c, n). Raises InputError for a column that sums to 0."""
-    col = U0c.sum(dim=1, keepdim=True)  # (R, 1, n)
-    if not bool(col.amin() > 0):
+    into out (R, c, n) (Si, ones_c: scratch as `_Scratch.views`). Raises InputError for a
+    column that sums to 0."""
+    S = torch.bmm(ones_c, U0c, out=Si[0])  # (R, 1, n) column sums
+    if not bool(S.amin() > 0):
         raise InputError("init_u: some point has all memberships 0; expected each column to sum > 0")
-    return torch.div(U0c, col, out=out)
+    return torch.div(U0c, S, out=out)
 
 
 def _pass(chunks, V, V_prev, U0, m, eps, last, scratch, checked):
@@ -334,22 +338,22 @@ def _pass(chunks, V, V_prev, U0, m, eps, last, scratch, checked):
     undecided = eps > 0  # some restart's ||dU|| may still turn out < eps
     square = m == 2.0
     for (s, e), rows in chunks:
-        w, t, t2, S, ones_c, ones_n = scratch.views(R, e - s)
+        w, t, t2, Si, ones_c, ones_n = scratch.views(R, e - s)
         want_j = undecided or last
         if checked:
-            Jc = _memberships_checked(rows, cols, m, w, t, S, ones_c, want_j)
+            Jc = _memberships_checked(rows, cols, m, w, t, Si, ones_c, want_j)
         else:
-            inv = _memberships_unchecked(rows, cols, m, w, t, S, ones_c, checks)
+            inv = _memberships_unchecked(rows, cols, m, w, t, Si, ones_c, checks)
             Jc = _j_fast(inv, m) if want_j else None
         if Jc is not None:
             J += Jc
         if undecided:
             if cols_prev is None:
-                _start_u(U0[..., s:e], t2)
+                _start_u(U0[..., s:e], t2, Si, ones_c)
             elif checked:
-                _memberships_checked(rows, cols_prev, m, t2, t, S, ones_c, False)
+                _memberships_checked(rows, cols_prev, m, t2, t, Si, ones_c, False)
             else:
-                _memberships_unchecked(rows, cols_prev, m, t2, t, S, ones_c, checks)
+                _memberships_unchecked(rows, cols_prev, m, t2, t, Si, ones_c, checks)
             diff2 += _row_dots(torch.sub(t2, w, out=t).view(R, c * (e - s)))
             undecided = any(math.sqrt(v) < eps for v in diff2.tolist())
         um = torch.mul(w, w, out=t) if square else torch.pow(w, m, out=t)
@@ -368,12 +372,12 @@ def _final_memberships(chunks, V, m, scratch, N):
     cols = _columns(V)
     checks = []
     for (s, e), rows in chunks:
-        w, t, _, S, ones_c, _ = scratch.views(1, e - s)
-        _memberships_unchecked(rows, cols, m, w, t, S, ones_c, checks, out=U[None, :, s:e])
+        w, t, _, Si, ones_c, _ = scratch.views(1, e - s)
+        _memberships_unchecked(rows, cols, m, w, t, Si, ones_c, checks, out=U[None, :, s:e])
     if not bool(torch.isfinite(torch.stack(checks)).all()):
         for (s, e), rows in chunks:
-            w, t, _, S, ones_c, _ = scratch.views(1, e - s)
-            _memberships_checked(rows, cols, m, w, t, S, ones_c, False)
+            w, t, _, Si, ones_c, _ = scratch.views(1, e - s)
+            _memberships_checked(rows, cols, m, w, t, Si, ones_c, False)
             U[:, s:e] = w[0]
     return U
 
@@ -425,8 +429,8 @@ def _start_centers(chunks, U0: torch.Tensor, m: float, scratch: _Scratch) -> tor
     R, c, _ = U0.shape
     acc = torch.zeros(d + 1, R * c, dtype=U0.dtype, device=U0.device)
     for (s, e), rows in chunks:
-        w, t, _, _, _, ones = scratch.views(R, e - s)
-        u = _start_u(U0[..., s:e], w)
+        w, t, _, Si, ones_c, ones = scratch.views(R, e - s)
+        u = _start_u(U0[..., s:e], w, Si, ones_c)
         um = torch.mul(u, u, out=t) if m == 2.0 else torch.pow(u, m, out=t)
         _accumulate(acc.unbind(0), um.view(R * c, e - s), rows, ones)
     return (acc[:d] / acc[d:]).T.reshape(R, c, d)

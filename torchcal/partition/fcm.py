@@ -307,14 +307,16 @@ def _start_u(U0c: torch.Tensor, out: torch.Tensor, Si, ones_c) -> torch.Tensor:
     return torch.div(U0c, S, out=out)
 
 
-def _pass(chunks, V, V_prev, U0, m, eps, last, scratch, checked):
+def _pass(chunks, V, V_prev, U0, m, eps, last, scratch, checked, out_u=None):
     """One FCM iteration over all points, chunk by chunk; no (c, N) tensor is written.
 
     chunks: as `_chunked`; V (R, c, d) the centers; V_prev (R, c, d) those of the previous
     iteration, or None in the first, where U0 (R, c, N) (the starting memberships, columns
     not yet normalised: `_start_u`) stands for U(V_prev); last: whether this is the last
     allowed iteration; scratch: a `_Scratch`; checked: every chunk checked on its own
-    (`_memberships_checked`), else all at once at the end.
+    (`_memberships_checked`), else all at once at the end; out_u: None, or (when R = 1 in
+    the last allowed iteration) a (c, N) tensor that receives the memberships U(V), and
+    then no sums for the next centers are made (acc stays 0).
     Returns (diff2 (R,), J (R,), acc (d+1, R*c)): ||U(V) - U(V_prev)||_F^2, eq. 26 for
     (U(V), V), and [sum_j u^m x_j ; sum_j u^m] for the next centers (eq. 27); or None when
     unchecked and some chunk failed its check (the caller runs the pass again, checked).
@@ -340,10 +342,13 @@ def _pass(chunks, V, V_prev, U0, m, eps, last, scratch, checked):
     for (s, e), rows in chunks:
         w, t, t2, Si, ones_c, ones_n = scratch.views(R, e - s)
         want_j = undecided or last
+        u = w if out_u is None else out_u[None, :, s:e]  # where the memberships go
         if checked:
             Jc = _memberships_checked(rows, cols, m, w, t, Si, ones_c, want_j)
+            if out_u is not None:
+                u.copy_(w)
         else:
-            inv = _memberships_unchecked(rows, cols, m, w, t, Si, ones_c, checks)
+            inv = _memberships_unchecked(rows, cols, m, w, t, Si, ones_c, checks, out=None if out_u is None else u)
             Jc = _j_fast(inv, m) if want_j else None
         if Jc is not None:
             J += Jc
@@ -354,10 +359,11 @@ def _pass(chunks, V, V_prev, U0, m, eps, last, scratch, checked):
                 _memberships_checked(rows, cols_prev, m, t2, t, Si, ones_c, False)
             else:
                 _memberships_unchecked(rows, cols_prev, m, t2, t, Si, ones_c, checks)
-            diff2 += _row_dots(torch.sub(t2, w, out=t).view(R, c * (e - s)))
+            diff2 += _row_dots(torch.sub(t2, u, out=t).view(R, c * (e - s)))
             undecided = any(math.sqrt(v) < eps for v in diff2.tolist())
-        um = torch.mul(w, w, out=t) if square else torch.pow(w, m, out=t)
-        _accumulate(acc_rows, um.view(Rc, e - s), rows, ones_n)
+        if out_u is None:
+            um = torch.mul(w, w, out=t) if square else torch.pow(w, m, out=t)
+            _accumulate(acc_rows, um.view(Rc, e - s), rows, ones_n)
     if not checked and not bool(torch.isfinite(torch.stack(checks)).all() & torch.isfinite(acc).all()):
         return None
     return diff2, J, acc
@@ -397,12 +403,16 @@ def _iterate(xt, U0, m, eps, max_iter, chunk):
     checked = False  # becomes True for good once a pass fails its check
     ids = list(range(R))  # restart id of each row of V
     best = None
+    U_last = None  # memberships of the last allowed iteration when one restart is left
     for it in range(1, max_iter + 1):
         Ra = len(ids)
-        out = None if checked else _pass(chunks, V, V_prev, U0, m, eps, it == max_iter, scratch, False)
+        last = it == max_iter
+        if last and Ra == 1:
+            U_last = torch.empty(c, N, dtype=xt.dtype, device=xt.device)
+        out = None if checked else _pass(chunks, V, V_prev, U0, m, eps, last, scratch, False, U_last)
         if out is None:
             checked = True
-            out = _pass(chunks, V, V_prev, U0, m, eps, it == max_iter, scratch, True)
+            out = _pass(chunks, V, V_prev, U0, m, eps, last, scratch, True, U_last)
         diff2, J, acc = out
         U0 = None  # the starting memberships are needed in the first iteration only
         done = ((diff2.sqrt() < eps) | (it == max_iter)).tolist()
@@ -419,17 +429,23 @@ def _iterate(xt, U0, m, eps, max_iter, chunk):
             V, V_prev = V.index_select(0, kt), V_prev.index_select(0, kt)
             ids = [ids[j] for j in keep]
     J, _, V_best, n_iter = best
+    if U_last is not None and n_iter == max_iter:  # the kept restart is the one U_last is of
+        return J, U_last, V_best, n_iter
     return J, _final_memberships(chunks, V_best[None], m, scratch, N), V_best, n_iter
 
 
 def _start_centers(chunks, U0: torch.Tensor, m: float, scratch: _Scratch) -> torch.Tensor:
     """Eq. 27 from the starting memberships: points in chunks (as `_chunked`), U0 (R, c, N)
-    (columns normalised chunk by chunk: `_start_u`) -> centers (R, c, d)."""
+    (columns normalised chunk by chunk: `_start_u`) -> centers (R, c, d). Raises InputError
+    where U0 holds a negative value, NaN or inf (checked chunk by chunk, while it is read)."""
     d = len(chunks[0][1])
     R, c, _ = U0.shape
     acc = torch.zeros(d + 1, R * c, dtype=U0.dtype, device=U0.device)
     for (s, e), rows in chunks:
         w, t, _, Si, ones_c, ones = scratch.views(R, e - s)
+        lo, hi = torch.aminmax(U0[..., s:e])
+        if not bool((lo >= 0) & (hi < math.inf)):
+            raise InputError("init_u: expected finite, non-negative memberships")
         u = _start_u(U0[..., s:e], w, Si, ones_c)
         um = torch.mul(u, u, out=t) if m == 2.0 else torch.pow(u, m, out=t)
         _accumulate(acc.unbind(0), um.view(R * c, e - s), rows, ones)
@@ -515,10 +531,7 @@ def _check_init_u(init_u, c, N, restarts, dtype, device) -> torch.Tensor:
         raise InputError(f"init_u: expected shape ({c}, {N}) or (restarts, {c}, {N}), got {tuple(U.shape)}")
     if restarts != 1 and U.shape[0] != restarts:
         raise InputError(f"init_u: holds {U.shape[0]} starts but restarts={restarts}; expected them equal")
-    lo, hi = torch.aminmax(U)
-    if not bool((lo >= 0) & (hi < math.inf)):
-        raise InputError("init_u: expected finite, non-negative memberships")
-    return U  # columns are normalised chunk by chunk (_start_u)
+    return U  # values are checked and columns normalised chunk by chunk (_start_centers)
 
 
 def memberships(x, centers, m: float = 2.0) -> torch.Tensor:

@@ -30,17 +30,21 @@ Restarts run as one batched ``(restarts, c, N)`` computation; a restart that has
 converged drops out of the batch, and the one with the lowest objective is kept (ties: the
 lowest restart index). Points are streamed in chunks (about 256 KiB of memberships per
 chunk on a CPU, so a chunk's scratch stays in a core's L2 cache; very large chunks on a
-GPU). No (c, N) tensor is written while iterating (the starting memberships are read in
-the first iteration): an iteration computes each
-chunk's memberships from the current centers (eq. 28) and adds them into the sums of
-eq. 27, and U is written once, at the end, from the kept centers. The stopping rule needs
+GPU). No (c, N) tensor is written while iterating (the starting memberships are read,
+and their columns normalised chunk by chunk, in the first iteration): an iteration
+computes each chunk's memberships from the current centers (eq. 28) and adds them into
+the sums of eq. 27, and U is written once: during the last allowed iteration when one
+restart is left then (and kept if that restart is the one returned), else at the end,
+from the kept centers. The stopping rule needs
 the previous memberships; they are recomputed from the previous centers (the same
 values), and only while the rule can still fire: the squared norm is summed chunk by
 chunk and, once every restart's partial sum has reached eps^2, the iteration cannot stop
 and the rest of its chunks skip it (exact, not a bound; with eps = 0 it is never
-computed). The fast path of eq. 28 is checked once per iteration (sums that turn inf or
-NaN); a failed check reruns the iteration with each chunk checked and, where needed, done
-the careful way, and later iterations stay checked.
+computed). The fast path of eq. 28 is checked once per iteration: per chunk
+sum_j S_j * (1 / S_j), which is NaN where some S is inf or 0; a failed check reruns the
+iteration with each chunk checked and, where needed, done the careful way, and later
+iterations stay checked. The sums over the clusters are one batched product with ones
+(one read of the chunk, no fill).
 
 Rounding: the results equal eqs. 26-28 to the last bits, not bit for bit any other
 implementation (summation order over chunks and within the matrix-vector products);

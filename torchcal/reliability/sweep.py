@@ -225,13 +225,16 @@ def _envelope(robot, q, dev, include_nominal, chunk, bar, threads):
         bufs = getattr(local, "bufs", None)
         if bufs is None:
             bufs = local.bufs = [torch.empty(n_step, m_step, dtype=q.dtype, device=q.device) for _ in range(7)]
+            local.views = {}  # (points, sets) -> the 7 buffers' views, made once per shape
         a1 = min(N, a0 + n_step)
         qc = q[a0:a1]
         nom = nominal[a0:a1]  # (Nc, 3)
         angles = K.outer_angles(qc, chain)
         lo = hi = dlo = dhi = None
         for b0, b1, Fc in set_blocks:
-            views = [t[:a1 - a0, :b1 - b0] for t in bufs]
+            views = local.views.get((a1 - a0, b1 - b0))
+            if views is None:
+                views = local.views[a1 - a0, b1 - b0] = [t[:a1 - a0, :b1 - b0] for t in bufs]
             ex, ey, ez = K.outer_positions(angles, chain, Fc, views)
             ex.sub_(nom[:, 0:1]), ey.sub_(nom[:, 1:2]), ez.sub_(nom[:, 2:3])
             if rotate:  # error vectors into the world frame

@@ -272,10 +272,10 @@ def _memberships_unchecked(rows, cols, m, w, t, Si, ones_c, checks, out=None):
 
 def _memberships_checked(rows, cols, m, w, t, Si, ones_c, want_j):
     """Eq. 28 for one chunk, checked: memberships into w (R, c, n) (t like w, Si as
-    `_Scratch.views`: scratch; ones_c (R, 1, c)) by the fast path if every S is finite and > 0, else the
-    careful way (`_u_from_sq_dist_`). Returns this chunk's part of eq. 26 (R,) when want_j,
-    else None. Equal, bit for bit, to `_memberships_unchecked` wherever that one passes
-    its check."""
+    `_Scratch.views`: scratch; ones_c (R, 1, c)) by the fast path if every S is finite and
+    > 0, else the careful way (`_u_from_sq_dist_`). Returns this chunk's part of eq. 26
+    (R,) when want_j, else None. Equal, bit for bit, to `_memberships_unchecked` wherever
+    that one passes its check."""
     S, inv = Si[:2]
     torch.reciprocal(_w_and_S(rows, cols, m, w, t, S, ones_c), out=inv)  # (R, 1, n) 1 / S
     lo, hi = torch.aminmax(inv)
@@ -352,7 +352,8 @@ def _pass(chunks, V, V_prev, U0, m, eps, last, scratch, checked, out_u=None):
             if out_u is not None:
                 u.copy_(w)
         else:
-            inv = _memberships_unchecked(rows, cols, m, w, t, Si, ones_c, checks, out=None if out_u is None else u)
+            inv = _memberships_unchecked(rows, cols, m, w, t, Si, ones_c, checks,
+                                         out=None if out_u is None else u)
             Jc = _j_fast(inv, m) if want_j else None
         if Jc is not None:
             J += Jc
@@ -396,7 +397,8 @@ def _iterate(xt, U0, m, eps, max_iter, chunk):
     """Run FCM from memberships U0 (R, c, N) (each column is divided by its sum: `_start_u`).
     Returns (J, U (c, N), V (c, d), n_iter) of the restart with the lowest objective (first
     of ties), V being the centers its U was computed from. The returned U is computed from V
-    at the end (eq. 28: the values its last iteration had).
+    (eq. 28: the values its last iteration had) during that iteration when it was the last
+    allowed one and one restart was left, else at the end.
     """
     R, c, N = U0.shape
     chunks = _chunked(xt, chunk)

@@ -13,6 +13,15 @@ runs, the median CPU seconds of the process (all its threads; on a shared machin
 figure to compare at 1 thread), iterations per second, the speed ratios by wall and by CPU
 time, and how far apart the two results are.
 
+Then, for torch on one thread, what bounds an iteration: its CPU time per point (the
+slope between a 1-iteration and a 10-iteration run at eps = 0, so the start and the final memberships
+are left out) beside a floor built from rates measured in the same run: the bytes one
+iteration moves per point through the L2 cache (eager torch ops, each a pass over the
+chunk's (c, n) scratch, `bytes_per_point`) at the rate of an in-cache multiply, its c + 1
+divisions per point at the rate of an in-cache reciprocal, the 8 d bytes of x read from
+memory at the rate of a large sum, and the op dispatches per chunk at the cost of an op
+on one element.
+
 Timings need cores to themselves: torch's OpenMP threads spin-wait at each op, so on a
 machine shared with other busy jobs (the load average is printed) a descheduled thread
 stalls every op and the torch times inflate far more than the single-threaded numpy ones.
@@ -25,6 +34,44 @@ import os
 import statistics
 import sys
 import time
+
+
+def bytes_per_point(c: int, d: int) -> tuple:
+    """What one iteration of torchcal's FCM (m = 2, eps = 0, float64) moves per point:
+    (bytes through the L2 cache outside the division passes, bytes in the division passes,
+    divisions, ops per chunk). The ops on a chunk of n points, each reading and writing
+    (c, n) float64 buffers: d = 1: x - v (writes 8c; x itself comes from memory), 1/d^2
+    (division pass: 16c); d > 1: x_1 - v, its square, and per further feature x_k - v and
+    addcmul (8c + 16c + (d-1)(8c + 24c)), 1/d^2 (division pass: 16c); then S = sum over
+    the clusters (8c + 8), 1/S (division pass: 16), the check dot(S, 1/S) (16), u = w/S
+    (16c + 8), u^2 (16c), and d + 1 matrix-vector products for eq. 27 (8c + 8 each)."""
+    dist = 8 * c if d == 1 else 24 * c + (d - 1) * 32 * c
+    rest = (8 * c + 8) + 16 + (16 * c + 8) + 16 * c + (d + 1) * (8 * c + 8)
+    ops = (2 if d == 1 else 2 * d + 1) + 5 + (d + 1)
+    return dist + rest, 16 * c + 16, c + 1, ops
+
+
+def machine_rates(torch) -> dict:
+    """Single-thread rates measured now (CPU time): an in-cache multiply and reciprocal on
+    32768 float64 (256 KiB per operand, the kernel's chunk), a sum over 64 MiB (memory), an
+    op on one element (dispatch)."""
+    import time
+
+    def per_call(fn, reps):
+        fn()
+        t = time.process_time()
+        for _ in range(reps):
+            fn()
+        return (time.process_time() - t) / reps
+
+    a, b, o = (torch.rand(1 << 15, dtype=torch.float64) + 1.0 for _ in range(3))
+    big = torch.rand(1 << 23, dtype=torch.float64)
+    one = torch.ones(1, dtype=torch.float64)
+    mul = per_call(lambda: torch.mul(a, b, out=o), 2000)
+    return {"l2_gbs": 24 * (1 << 15) / mul / 1e9,  # two reads and a write per element
+            "div_ns": per_call(lambda: torch.reciprocal(a, out=o), 2000) / (1 << 15) * 1e9,
+            "mem_gbs": 8 * (1 << 23) / per_call(big.sum, 20) / 1e9,
+            "op_us": per_call(lambda: torch.mul(one, one, out=one), 20000) * 1e6}
 
 
 def main(argv=None) -> int:
@@ -47,6 +94,7 @@ def main(argv=None) -> int:
 
     torch.set_num_threads(args.threads)
     c, m, K = 4, 2.0, args.iters
+    KB = 10  # iterations of the longer run of the bound (eps = 0), whatever --iters and --eps are
     iters = f"{K} iterations (fixed)" if args.eps == 0 else f"until ||dU|| < {args.eps:g} (at most {K} iterations)"
     print(f"FCM benchmark: N={args.n:,} points, c={c}, m={m}, {iters}, float64, "
           f"{args.threads} threads, median of {args.repeats}; torch {torch.__version__}, "
@@ -55,6 +103,7 @@ def main(argv=None) -> int:
     print(f"{'d':>2} {'method':<24} {'time s':>8} {'min s':>7} {'cpu s':>7} {'iter/s':>8} {'speed-up':>9} "
           f"{'by cpu':>7}   agreement")
     rng = np.random.default_rng(0)
+    bounds = []  # (d, CPU ns per point and iteration)
     for d in (1, 3):
         centers = rng.uniform(-10, 10, size=(c, d))
         x = centers[rng.integers(0, c, args.n)] + rng.standard_normal((args.n, d))  # (N, d)
@@ -71,6 +120,23 @@ def main(argv=None) -> int:
             res = fcm(xt, c, m=m, eps=args.eps, max_iter=K, init_u=u0t)
             return res.centers.numpy(), res.memberships.numpy(), res.n_iter
 
+        if args.threads == 1:
+            def run_torch_1():
+                return fcm(xt, c, m=m, eps=0.0, max_iter=1, init_u=u0t)
+
+            def run_torch_k():
+                return fcm(xt, c, m=m, eps=0.0, max_iter=KB, init_u=u0t)
+
+            cpu = {}
+            for name, fn in (("1", run_torch_1), ("K", run_torch_k)):
+                fn()
+                ts = []
+                for _ in range(args.repeats):
+                    c0 = time.process_time()
+                    fn()
+                    ts.append(time.process_time() - c0)
+                cpu[name] = statistics.median(ts)
+            bounds.append((d, (cpu["K"] - cpu["1"]) / (KB - 1) / args.n * 1e9))
         times = {}
         out = {}
         for name, fn in (("torchcal.partition.fcm (torch)", run_torch), ("skfuzzy.cluster.cmeans", run_skfuzzy)):
@@ -90,6 +156,20 @@ def main(argv=None) -> int:
             note = agree if name.startswith("torchcal") else "(reference)"
             print(f"{d:>2} {name:<24} {t:>8.3f} {tmin:>7.3f} {cpu:>7.3f} {n_it[name] / t:>8.1f} {ref / t:>8.1f}x "
                   f"{ref_cpu / cpu:>6.1f}x   {note}")
+    if bounds:
+        r = machine_rates(torch)
+        chunk = max(1024, (1 << 15) // c)
+        print(f"one iteration, torch, 1 thread, CPU time per point (runs of 1 and {KB} iterations, eps 0) against the floor "
+              f"of its passes; rates now: in-cache multiply {r['l2_gbs']:.0f} GB/s, reciprocal {r['div_ns']:.2f} ns, "
+              f"memory read {r['mem_gbs']:.1f} GB/s, one op {r['op_us']:.2f} us")
+        for d, ns in bounds:
+            l2, l2_div, divs, ops = bytes_per_point(c, d)
+            parts = {"L2": l2 / r["l2_gbs"], "div": divs * r["div_ns"], "mem": 8 * d / r["mem_gbs"],
+                     "ops": ops * r["op_us"] * 1e3 / chunk}
+            floor = sum(parts.values())
+            print(f"{d:>2} {ns:.2f} ns per point; floor {floor:.2f} ns ({ns / floor:.2f}x): "
+                  f"{l2} B through L2 {parts['L2']:.2f} ns + {divs} divisions ({l2_div} B) {parts['div']:.2f} ns + "
+                  f"{8 * d} B from memory {parts['mem']:.2f} ns + {ops} ops per {chunk}-point chunk {parts['ops']:.2f} ns")
     print(f"load average after:  {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
     return 0
 

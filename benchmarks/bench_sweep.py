@@ -28,8 +28,8 @@ resource's ru_maxrss (the whole process) is used and the table says so. Columns:
 - results: bytes of the returned tensors (O(N), about 250 bytes per point);
 - B/pt: sweep / N: the memory the sweep needs per point, whatever M;
 - dense: what one N x M x 3 float64 tensor of the errors would need (N M 24 bytes).
-Memory per point stays flat: the N x M work runs in fixed buffers (7 x 16384 float64
-per thread), only the per-point results grow with N.
+Memory per point stays flat: the N x M work runs in fixed buffers (7 x DEFAULT_CHUNK
+float64 per thread, sized for a core's L2 cache), only the per-point results grow with N.
 
 --distributed (torchcal.workflows.distributed; needs the extra torchcal[distributed]):
 the streamed sweep of N x M (default 1e6 x 1e3, DEFAULT_BLOCK points per block) in this

@@ -98,6 +98,24 @@ def test_restarts_that_stop_at_different_iterations_match_numpy():
     np.testing.assert_allclose(res.centers.numpy(), v_ref, rtol=1e-12, atol=1e-12)
 
 
+def test_a_restart_cut_at_max_iter_beside_one_that_stopped_earlier_matches_numpy():
+    # at the last allowed iteration one restart is left: its memberships are written during
+    # that pass; the kept one stopped earlier (lower objective), so U is recomputed from it
+    x, y = blobs(60, [[0.0], [3.0], [6.0], [20.0]], 1.0, 21)
+    good = np.full((3, 240), 0.05)
+    good[np.minimum(y, 2), np.arange(240)] = 0.9  # near the planted labels: stops first
+    rnd = np.random.default_rng(0).random((3, 240))
+    v_g, u_g, j_g, it_g = numpy_fcm(x, good / good.sum(0), 2.0, 1e-3, 300)
+    v_r, u_r, j_r, it_r = numpy_fcm(x, rnd / rnd.sum(0), 2.0, 1e-3, it_g + 1)
+    assert it_r == it_g + 1 and j_r > j_g * (1 + 1e-9)  # cut, not converged: the stopped one wins
+    for init, (v, u, j, it) in ((np.stack([rnd, good]), (v_g, u_g, j_g, it_g)), (rnd, (v_r, u_r, j_r, it_r))):
+        res = fcm(x, 3, eps=1e-3, max_iter=it_g + 1, init_u=init, restarts=len(init) if init.ndim == 3 else 1,
+                  chunk_size=50)
+        assert res.n_iter == it and res.objective == pytest.approx(j, rel=1e-12)
+        np.testing.assert_allclose(res.memberships.numpy(), u, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(res.centers.numpy(), v, rtol=1e-12, atol=1e-12)
+
+
 def test_chunking_and_default_start_do_not_change_results():
     x, _ = blobs(100, [[0, 0], [4, 0], [0, 4]], 0.5, 0)
     a = fcm(x, 3, seed=3, chunk_size=17)
@@ -201,6 +219,9 @@ def test_planted_blobs_are_recovered(centers):
     (dict(x=[0.0, 1.0, float("inf"), 3.0], c=2), r"NaN or inf"),
     (dict(x=np.zeros((2, 2, 2)), c=2), r"x: expected shape \(N,\) or \(N, d\)"),
     (dict(x=np.arange(5.0), c=2, init_u=np.ones((3, 5))), r"init_u: expected shape \(2, 5\)"),
+    (dict(x=np.arange(5.0), c=2, init_u=[[1, 1, 1, 1, 1], [0, 0, -1, 0, 0]]), r"init_u: expected finite, non-negative"),
+    (dict(x=np.arange(5.0), c=2, init_u=[[1, 1, 1, 1, 1], [0, 0, float("nan"), 0, 0]]), r"init_u: expected finite, non-negative"),
+    (dict(x=np.arange(5.0), c=2, init_u=[[1, 0, 1, 1, 1], [1, 0, 0, 0, 0]]), r"init_u: some point has all memberships 0"),
 ])
 def test_fcm_errors(kwargs, match):
     with pytest.raises(ValueError, match=match) as info:

@@ -246,6 +246,31 @@ def test_chunked_equals_unchunked(kr, chunk):
         torch.testing.assert_close(getattr(got, name), getattr(ref, name), rtol=1e-12, atol=1e-12)
 
 
+def test_cpu_chunk_sizes_give_the_same_csv_bit_for_bit(kr):
+    # 40 x 500 pairs: 2 calls of the kernel at 16384 (1 MiB of L2), 1 at 32768 (2 MiB)
+    from torchcal.io.sweep_csv import sweep_csv_text
+
+    q = sample_workspace(kr, 40, seed=3)
+    texts = {ch: sweep_csv_text(sweep(kr, q, n_samples=500, seed=4, chunk=ch, threads=2)) for ch in (1 << 14, 1 << 15)}
+    assert texts[1 << 14] == texts[1 << 15]
+
+
+def test_default_cpu_chunk_follows_the_l2_cache(tmp_path):
+    from torchcal.reliability.sweep import _l2_bytes, _l2_chunk
+
+    assert _l2_chunk(None) == 1 << 14  # unknown cache: the old default
+    assert _l2_chunk(1 << 20) == 1 << 14 and _l2_chunk(2 << 20) == 1 << 15  # 7 x 8 B x chunk <= L2
+    assert _l2_chunk(256 << 10) == 1 << 12 and _l2_chunk(64 << 20) == 1 << 16  # clamped
+    for idx, (level, kind, size) in enumerate((("1", "Data", "48K"), ("1", "Instruction", "32K"),
+                                              ("2", "Unified", "2048K"), ("3", "Unified", "105M"))):
+        d = tmp_path / f"index{idx}"
+        d.mkdir()
+        for name, text in (("level", level), ("type", kind), ("size", size)):
+            (d / name).write_text(text + "\n")
+    assert _l2_bytes(str(tmp_path)) == 2 << 20
+    assert _l2_bytes(str(tmp_path / "missing")) is None
+
+
 def test_envelope_equals_brute_force(kr):
     q = sample_workspace(kr, 5, seed=8)
     dev = ClearanceModel.defaults(kr).sample(kr, 30, torch.Generator().manual_seed(0))

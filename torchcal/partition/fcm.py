@@ -30,17 +30,21 @@ Restarts run as one batched ``(restarts, c, N)`` computation; a restart that has
 converged drops out of the batch, and the one with the lowest objective is kept (ties: the
 lowest restart index). Points are streamed in chunks (about 256 KiB of memberships per
 chunk on a CPU, so a chunk's scratch stays in a core's L2 cache; very large chunks on a
-GPU). No (c, N) tensor is written while iterating (the starting memberships are read in
-the first iteration): an iteration computes each
-chunk's memberships from the current centers (eq. 28) and adds them into the sums of
-eq. 27, and U is written once, at the end, from the kept centers. The stopping rule needs
+GPU). No (c, N) tensor is written while iterating (the starting memberships are read,
+and their columns normalised chunk by chunk, in the first iteration): an iteration
+computes each chunk's memberships from the current centers (eq. 28) and adds them into
+the sums of eq. 27, and U is written once: during the last allowed iteration when one
+restart is left then (and kept if that restart is the one returned), else at the end,
+from the kept centers. The stopping rule needs
 the previous memberships; they are recomputed from the previous centers (the same
 values), and only while the rule can still fire: the squared norm is summed chunk by
 chunk and, once every restart's partial sum has reached eps^2, the iteration cannot stop
 and the rest of its chunks skip it (exact, not a bound; with eps = 0 it is never
-computed). The fast path of eq. 28 is checked once per iteration (sums that turn inf or
-NaN); a failed check reruns the iteration with each chunk checked and, where needed, done
-the careful way, and later iterations stay checked.
+computed). The fast path of eq. 28 is checked once per iteration: per chunk
+sum_j S_j * (1 / S_j), which is NaN where some S is inf or 0; a failed check reruns the
+iteration with each chunk checked and, where needed, done the careful way, and later
+iterations stay checked. The sums over the clusters are one batched product with ones
+(one read of the chunk, no fill).
 
 Rounding: the results equal eqs. 26-28 to the last bits, not bit for bit any other
 implementation (summation order over chunks and within the matrix-vector products);
@@ -124,17 +128,17 @@ def _check_fcm_args(n_points: int, c, m, eps, max_iter, restarts) -> None:
         raise InputError(f"restarts: expected an integer >= 1, got {restarts!r}")
 
 
-def _check_not_identical(x: torch.Tensor) -> None:
-    lo, hi = torch.aminmax(x, dim=0)  # (d,), (d,)
-    if torch.equal(lo, hi):
+def _check_not_identical(xt: torch.Tensor) -> None:
+    """xt (d, N), the points as rows of features: InputError if all N points are equal."""
+    if all(bool(lo == hi) for lo, hi in map(torch.aminmax, xt)):  # row by row (aminmax(dim=1) is 8x slower)
         raise InputError(
-            f"x: all {x.shape[0]} points are identical ({x[0].tolist()}); "
+            f"x: all {xt.shape[1]} points are identical ({xt[:, 0].tolist()}); "
             "no partition into clusters is possible, expected at least 2 distinct points")
 
 
 def _default_chunk(x: torch.Tensor, rc: int) -> int:
     """Points per chunk: on a CPU about 256 KiB per (restarts, c, chunk) float64 buffer
-    (32768 memberships), so the three scratch buffers of a chunk stay in a core's L2 cache;
+    (32768 memberships), so the scratch buffers of a chunk stay in a core's L2 cache;
     very large on a GPU."""
     if x.device.type == "cpu":
         return max(1024, (1 << 15) // rc)
@@ -145,7 +149,8 @@ def _default_chunk(x: torch.Tensor, rc: int) -> int:
 #
 # Points travel as chunks ((s, e), rows): rows = (x_k[s:e] for each feature k), and centers
 # as columns: cols = (V[..., k, None] for each feature k), each (R, c, 1); both are made
-# once (per call, per iteration) so that the per-chunk loop indexes nothing.
+# once (per call, per iteration) so that the per-chunk loop indexes nothing. Chunk scratch
+# comes from `_Scratch`, whose views are made once per (restarts, chunk length).
 
 def _columns(V: torch.Tensor) -> list:
     """Centers V (R, c, d) -> [V[..., k, None] (R, c, 1) for each feature k]."""
@@ -156,6 +161,34 @@ def _chunked(xt: torch.Tensor, chunk: int) -> list:
     """Points xt (d, N) -> [((s, e), (xt[k, s:e] for each k))], chunks of `chunk` points."""
     N = xt.shape[1]
     return [((s, min(s + chunk, N)), xt[:, s:s + chunk].unbind(0)) for s in range(0, N, chunk)]
+
+
+class _Scratch:
+    """Chunk scratch for R restarts of c clusters and chunks of at most nmax points: three
+    (R, c, n) buffers, two (R, 1, n) ones for the sums over the clusters S and 1/S, ones
+    (R, 1, c) (the sums over the clusters as one batched product) and ones (n,) (the row
+    sums of eq. 27 as a matrix-vector product). `views(Ra, n)` gives them for Ra <= R
+    restarts and n points, made once per (Ra, n)."""
+
+    def __init__(self, R: int, c: int, nmax: int, dtype, device):
+        self.c = c
+        self.flat = [torch.empty(R * c * nmax, dtype=dtype, device=device) for _ in range(3)]
+        self.sums = torch.empty(2, R * nmax, dtype=dtype, device=device)
+        self.ones_c = torch.ones(R, 1, c, dtype=dtype, device=device)
+        self.ones_n = torch.ones(nmax, dtype=dtype, device=device)
+        self._views = {}
+
+    def views(self, R: int, n: int) -> tuple:
+        """-> (w, t, t2 (R, c, n), Si, ones_c (R, 1, c), ones_n (n,)); Si = (S, inv (R, 1, n),
+        the same flat (R n,))."""
+        v = self._views.get((R, n))
+        if v is None:
+            c = self.c
+            S, inv = (b[:R * n] for b in self.sums)
+            v = tuple(b[:R * c * n].view(R, c, n) for b in self.flat) + (
+                (S.view(R, 1, n), inv.view(R, 1, n), S, inv), self.ones_c[:R], self.ones_n[:n])
+            self._views[(R, n)] = v
+        return v
 
 
 def _sq_dist(rows, V: torch.Tensor) -> torch.Tensor:
@@ -197,10 +230,11 @@ def _u_from_sq_dist_(d2: torch.Tensor, m: float) -> torch.Tensor:
     return w.div_(S)
 
 
-def _w_and_S(rows, cols, w, t, m):
-    """The fast path's w = (d^2)^(-1/(m-1)) into w (R, c, n) (t: scratch like w); returns
-    S = sum_k w (R, 1, n). S is inf for a point on a center (w = inf), and 0 or inf where
-    w under- or overflows: the caller checks."""
+def _w_and_S(rows, cols, m, w, t, S, ones_c):
+    """The fast path's w = (d^2)^(-1/(m-1)) into w (R, c, n) (t: scratch like w) and
+    S = sum_k w into S (R, 1, n) (a batched product with ones_c (R, 1, c): one read of w, no
+    fill); returns S. S is inf for a point on a center (w = inf), and 0 or inf where w
+    under- or overflows: the caller checks."""
     if len(rows) == 1 and m == 2.0:
         torch.sub(rows[0], cols[0], out=t)
         torch.pow(t, -2, out=w)  # w = 1 / d^2 in one pass
@@ -210,7 +244,7 @@ def _w_and_S(rows, cols, w, t, m):
             w.reciprocal_()
         else:
             w.pow_(-1.0 / (m - 1.0))
-    return w.sum(dim=1, keepdim=True)
+    return torch.bmm(ones_c, w, out=S)
 
 
 def _j_fast(inv, m):
@@ -219,23 +253,31 @@ def _j_fast(inv, m):
     return (inv if m == 2.0 else inv.pow(m - 1.0)).sum(dim=(1, 2))
 
 
-def _memberships_unchecked(rows, cols, w, t, m, checks):
-    """Eq. 28, fast path, for one chunk: memberships into w (R, c, n); appends sum_j S_j to
-    `checks` (finite iff every S is; the caller tests them all once, with the centers'
-    sums, which turn NaN or inf where some S is 0). Returns inv = 1 / S (R, 1, n)."""
-    S = _w_and_S(rows, cols, w, t, m)
-    checks.append(S.sum())
-    inv = S.reciprocal_()
-    w.mul_(inv)
+def _memberships_unchecked(rows, cols, m, w, t, Si, ones_c, checks, out=None):
+    """Eq. 28, fast path, for one chunk: memberships into w (R, c, n), or into `out` (same
+    shape, may be strided) when given, with t (like w) and Si (as `_Scratch.views`) as
+    scratch and ones_c (R, 1, c); appends sum_j S_j * (1 / S_j) to `checks` (finite iff
+    every S is finite and > 0: inf * 0 and 0 * inf are NaN; the caller tests them all at
+    once). Returns inv = 1 / S (R, 1, n)."""
+    S, inv, S_flat, inv_flat = Si
+    _w_and_S(rows, cols, m, w, t, S, ones_c)
+    torch.reciprocal(S, out=inv)
+    checks.append(torch.dot(S_flat, inv_flat))
+    if out is None:
+        w.mul_(inv)
+    else:
+        torch.mul(w, inv, out=out)
     return inv
 
 
-def _memberships_checked(rows, cols, w, t, m, want_j):
-    """Eq. 28 for one chunk, checked: memberships into w (R, c, n) (t: scratch like w) by the
-    fast path if every S is finite and > 0, else the careful way (`_u_from_sq_dist_`).
-    Returns this chunk's part of eq. 26 (R,) when want_j, else None. Equal, bit for bit, to
-    `_memberships_unchecked` wherever that one passes its check."""
-    inv = _w_and_S(rows, cols, w, t, m).reciprocal_()  # (R, 1, n) 1 / S
+def _memberships_checked(rows, cols, m, w, t, Si, ones_c, want_j):
+    """Eq. 28 for one chunk, checked: memberships into w (R, c, n) (t like w, Si as
+    `_Scratch.views`: scratch; ones_c (R, 1, c)) by the fast path if every S is finite and
+    > 0, else the careful way (`_u_from_sq_dist_`). Returns this chunk's part of eq. 26
+    (R,) when want_j, else None. Equal, bit for bit, to `_memberships_unchecked` wherever
+    that one passes its check."""
+    S, inv = Si[:2]
+    torch.reciprocal(_w_and_S(rows, cols, m, w, t, S, ones_c), out=inv)  # (R, 1, n) 1 / S
     lo, hi = torch.aminmax(inv)
     if lo.item() > 0 and hi.item() < math.inf:
         w.mul_(inv)
@@ -259,14 +301,26 @@ def _row_dots(t: torch.Tensor) -> torch.Tensor:
     return torch.stack([torch.dot(row, row) for row in t])
 
 
-def _pass(chunks, V, V_prev, U_prev, m, eps, last, bufs, checked):
+def _start_u(U0c: torch.Tensor, out: torch.Tensor, Si, ones_c) -> torch.Tensor:
+    """Starting memberships of one chunk: U0c (R, c, n) with each column divided by its sum,
+    into out (R, c, n) (Si, ones_c: scratch as `_Scratch.views`). Raises InputError for a
+    column that sums to 0."""
+    S = torch.bmm(ones_c, U0c, out=Si[0])  # (R, 1, n) column sums
+    if not bool(S.amin() > 0):
+        raise InputError("init_u: some point has all memberships 0; expected each column to sum > 0")
+    return torch.div(U0c, S, out=out)
+
+
+def _pass(chunks, V, V_prev, U0, m, eps, last, scratch, checked, out_u=None):
     """One FCM iteration over all points, chunk by chunk; no (c, N) tensor is written.
 
     chunks: as `_chunked`; V (R, c, d) the centers; V_prev (R, c, d) those of the previous
-    iteration, or None in the first, where U_prev (R, c, N) (the starting memberships)
-    stands for U(V_prev); last: whether this is the last allowed iteration; bufs: three
-    scratch tensors of R * c * max(n) elements and ones(max(n)); checked: every chunk
-    checked on its own (`_memberships_checked`), else all at once at the end.
+    iteration, or None in the first, where U0 (R, c, N) (the starting memberships, columns
+    not yet normalised: `_start_u`) stands for U(V_prev); last: whether this is the last
+    allowed iteration; scratch: a `_Scratch`; checked: every chunk checked on its own
+    (`_memberships_checked`), else all at once at the end; out_u: None, or (when R = 1 in
+    the last allowed iteration) a (c, N) tensor that receives the memberships U(V), and
+    then no sums for the next centers are made (acc stays 0).
     Returns (diff2 (R,), J (R,), acc (d+1, R*c)): ||U(V) - U(V_prev)||_F^2, eq. 26 for
     (U(V), V), and [sum_j u^m x_j ; sum_j u^m] for the next centers (eq. 27); or None when
     unchecked and some chunk failed its check (the caller runs the pass again, checked).
@@ -288,60 +342,85 @@ def _pass(chunks, V, V_prev, U_prev, m, eps, last, bufs, checked):
     J = torch.zeros(R, dtype=V.dtype, device=V.device)
     checks = []
     undecided = eps > 0  # some restart's ||dU|| may still turn out < eps
+    square = m == 2.0
     for (s, e), rows in chunks:
-        n = e - s
-        w, t, t2 = (b[:Rc * n].view(R, c, n) for b in bufs[:3])
+        w, t, t2, Si, ones_c, ones_n = scratch.views(R, e - s)
         want_j = undecided or last
+        u = w if out_u is None else out_u[None, :, s:e]  # where the memberships go
         if checked:
-            Jc = _memberships_checked(rows, cols, w, t, m, want_j)
+            Jc = _memberships_checked(rows, cols, m, w, t, Si, ones_c, want_j)
+            if out_u is not None:
+                u.copy_(w)
         else:
-            inv = _memberships_unchecked(rows, cols, w, t, m, checks)
+            inv = _memberships_unchecked(rows, cols, m, w, t, Si, ones_c, checks,
+                                         out=None if out_u is None else u)
             Jc = _j_fast(inv, m) if want_j else None
         if Jc is not None:
             J += Jc
         if undecided:
             if cols_prev is None:
-                up = U_prev[..., s:e]
+                _start_u(U0[..., s:e], t2, Si, ones_c)
             elif checked:
-                _memberships_checked(rows, cols_prev, t2, t, m, False)
-                up = t2
+                _memberships_checked(rows, cols_prev, m, t2, t, Si, ones_c, False)
             else:
-                _memberships_unchecked(rows, cols_prev, t2, t, m, checks)
-                up = t2
-            diff2 += _row_dots(torch.sub(up, w, out=t).view(R, c * n))
+                _memberships_unchecked(rows, cols_prev, m, t2, t, Si, ones_c, checks)
+            diff2 += _row_dots(torch.sub(t2, u, out=t).view(R, c * (e - s)))
             undecided = any(math.sqrt(v) < eps for v in diff2.tolist())
-        um = torch.mul(w, w, out=t) if m == 2.0 else torch.pow(w, m, out=t)
-        _accumulate(acc_rows, um.view(Rc, n), rows, bufs[3][:n])
+        if out_u is None:
+            um = torch.mul(w, w, out=t) if square else torch.pow(w, m, out=t)
+            _accumulate(acc_rows, um.view(Rc, e - s), rows, ones_n)
     if not checked and not bool(torch.isfinite(torch.stack(checks)).all() & torch.isfinite(acc).all()):
         return None
     return diff2, J, acc
 
 
-def _iterate(xt, U, m, eps, max_iter, chunk):
-    """Run FCM from memberships U (R, c, N) (its columns must sum to 1). Returns (J, U (c, N),
-    V (c, d), n_iter) of the restart with the lowest objective (first of ties), V being the
-    centers its U was computed from. The returned U is computed from V at the end (eq. 28:
-    the values its last iteration had).
+def _final_memberships(chunks, V, m, scratch, N):
+    """Eq. 28 for centers V (1, c, d) over all points -> (c, N), written straight into the
+    result (the fast path, checked once at the end; the careful way for a chunk only where
+    some S fails: `_memberships_checked`)."""
+    c = V.shape[1]
+    U = torch.empty(c, N, dtype=V.dtype, device=V.device)
+    cols = _columns(V)
+    checks = []
+    for (s, e), rows in chunks:
+        w, t, _, Si, ones_c, _ = scratch.views(1, e - s)
+        _memberships_unchecked(rows, cols, m, w, t, Si, ones_c, checks, out=U[None, :, s:e])
+    if not bool(torch.isfinite(torch.stack(checks)).all()):
+        for (s, e), rows in chunks:
+            w, t, _, Si, ones_c, _ = scratch.views(1, e - s)
+            _memberships_checked(rows, cols, m, w, t, Si, ones_c, False)
+            U[:, s:e] = w[0]
+    return U
+
+
+def _iterate(xt, U0, m, eps, max_iter, chunk):
+    """Run FCM from memberships U0 (R, c, N) (each column is divided by its sum: `_start_u`).
+    Returns (J, U (c, N), V (c, d), n_iter) of the restart with the lowest objective (first
+    of ties), V being the centers its U was computed from. The returned U is computed from V
+    (eq. 28: the values its last iteration had) during that iteration when it was the last
+    allowed one and one restart was left, else at the end.
     """
-    R, c, N = U.shape
+    R, c, N = U0.shape
     chunks = _chunked(xt, chunk)
-    nmax = chunks[0][0][1]
-    bufs = [torch.empty(R * c * nmax, dtype=xt.dtype, device=xt.device) for _ in range(3)]
-    bufs.append(torch.ones(nmax, dtype=xt.dtype, device=xt.device))
-    V = _centers(chunks, U, m, bufs[3])  # (R, c, d)
+    scratch = _Scratch(R, c, chunks[0][0][1], xt.dtype, xt.device)
+    V = _start_centers(chunks, U0, m, scratch)  # (R, c, d)
     d = V.shape[-1]
     V_prev = None
     checked = False  # becomes True for good once a pass fails its check
     ids = list(range(R))  # restart id of each row of V
     best = None
+    U_last = None  # memberships of the last allowed iteration when one restart is left
     for it in range(1, max_iter + 1):
         Ra = len(ids)
-        out = None if checked else _pass(chunks, V, V_prev, U, m, eps, it == max_iter, bufs, False)
+        last = it == max_iter
+        if last and Ra == 1:
+            U_last = torch.empty(c, N, dtype=xt.dtype, device=xt.device)
+        out = None if checked else _pass(chunks, V, V_prev, U0, m, eps, last, scratch, False, U_last)
         if out is None:
             checked = True
-            out = _pass(chunks, V, V_prev, U, m, eps, it == max_iter, bufs, True)
+            out = _pass(chunks, V, V_prev, U0, m, eps, last, scratch, True, U_last)
         diff2, J, acc = out
-        U = None  # the starting memberships are needed in the first iteration only
+        U0 = None  # the starting memberships are needed in the first iteration only
         done = ((diff2.sqrt() < eps) | (it == max_iter)).tolist()
         Jl = J.tolist()
         for j in range(Ra):
@@ -356,31 +435,26 @@ def _iterate(xt, U, m, eps, max_iter, chunk):
             V, V_prev = V.index_select(0, kt), V_prev.index_select(0, kt)
             ids = [ids[j] for j in keep]
     J, _, V_best, n_iter = best
-    U_best = torch.empty(c, N, dtype=xt.dtype, device=xt.device)
-    cols = _columns(V_best[None])
-    for (s, e), rows in chunks:
-        w, t = (b[:c * (e - s)].view(1, c, e - s) for b in bufs[:2])
-        _memberships_checked(rows, cols, w, t, m, False)
-        U_best[:, s:e] = w[0]
-    return J, U_best, V_best, n_iter
+    if U_last is not None and n_iter == max_iter:  # the kept restart is the one U_last is of
+        return J, U_last, V_best, n_iter
+    return J, _final_memberships(chunks, V_best[None], m, scratch, N), V_best, n_iter
 
 
-def _normalised(U: torch.Tensor) -> torch.Tensor:
-    """Memberships U (R, c, N) -> a new tensor with each column divided by its sum."""
-    col = U.sum(dim=1, keepdim=True)  # (R, 1, N)
-    if not bool(col.amin() > 0):
-        raise InputError("init_u: some point has all memberships 0; expected each column to sum > 0")
-    return U / col
-
-
-def _centers(chunks, U: torch.Tensor, m: float, ones: torch.Tensor) -> torch.Tensor:
-    """Eq. 27: points in chunks (as `_chunked`), memberships U (R, c, N), ones (max n,) ->
-    centers (R, c, d)."""
+def _start_centers(chunks, U0: torch.Tensor, m: float, scratch: _Scratch) -> torch.Tensor:
+    """Eq. 27 from the starting memberships: points in chunks (as `_chunked`), U0 (R, c, N)
+    (columns normalised chunk by chunk: `_start_u`) -> centers (R, c, d). Raises InputError
+    where U0 holds a negative value, NaN or inf (checked chunk by chunk, while it is read)."""
     d = len(chunks[0][1])
-    R, c, _ = U.shape
-    acc = torch.zeros(d + 1, R * c, dtype=U.dtype, device=U.device)
+    R, c, _ = U0.shape
+    acc = torch.zeros(d + 1, R * c, dtype=U0.dtype, device=U0.device)
     for (s, e), rows in chunks:
-        _accumulate(acc.unbind(0), U[..., s:e].pow(m).view(R * c, e - s), rows, ones[:e - s])
+        w, t, _, Si, ones_c, ones = scratch.views(R, e - s)
+        lo, hi = torch.aminmax(U0[..., s:e])
+        if not bool((lo >= 0) & (hi < math.inf)):
+            raise InputError("init_u: expected finite, non-negative memberships")
+        u = _start_u(U0[..., s:e], w, Si, ones_c)
+        um = torch.mul(u, u, out=t) if m == 2.0 else torch.pow(u, m, out=t)
+        _accumulate(acc.unbind(0), um.view(R * c, e - s), rows, ones)
     return (acc[:d] / acc[d:]).T.reshape(R, c, d)
 
 
@@ -432,7 +506,8 @@ def fcm(x, c: int, m: float = 2.0, eps: float = 1e-6, max_iter: int = 300, seed:
     N, d = x.shape
     _check_fcm_args(N, c, m, eps, max_iter, restarts)
     m = float(m)
-    _check_not_identical(x)
+    xt = x.T.contiguous()  # (d, N)
+    _check_not_identical(xt)
     dtype, device = x.dtype, x.device
 
     if init_u is not None:
@@ -445,8 +520,7 @@ def fcm(x, c: int, m: float = 2.0, eps: float = 1e-6, max_iter: int = 300, seed:
     if chunk < 1:
         raise InputError(f"chunk_size: expected a positive integer, got {chunk_size!r}")
 
-    xt = x.T.contiguous()  # (d, N)
-    J, U_best, V_best, n_iter = _iterate(xt, _normalised(U), m, float(eps), int(max_iter), chunk)
+    J, U_best, V_best, n_iter = _iterate(xt, U, m, float(eps), int(max_iter), chunk)
     return FCMResult(V_best, U_best, J, n_iter)
 
 
@@ -463,10 +537,7 @@ def _check_init_u(init_u, c, N, restarts, dtype, device) -> torch.Tensor:
         raise InputError(f"init_u: expected shape ({c}, {N}) or (restarts, {c}, {N}), got {tuple(U.shape)}")
     if restarts != 1 and U.shape[0] != restarts:
         raise InputError(f"init_u: holds {U.shape[0]} starts but restarts={restarts}; expected them equal")
-    lo, hi = torch.aminmax(U)
-    if not bool((lo >= 0) & (hi < math.inf)):
-        raise InputError("init_u: expected finite, non-negative memberships")
-    return U  # columns are normalised by _normalised
+    return U  # values are checked and columns normalised chunk by chunk (_start_centers)
 
 
 def memberships(x, centers, m: float = 2.0) -> torch.Tensor:

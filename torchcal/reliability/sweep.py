@@ -48,6 +48,7 @@ writes and reads it); positions and errors mm. Every tensor stays on `device`.
 from __future__ import annotations
 
 import math
+import os
 import sys
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -67,10 +68,44 @@ from torchcal.reliability.uncertainty import ClearanceModel, sample_deviations
 from torchcal.reliability.sweep_blocks import DEFAULT_BLOCK, block_points, block_range
 from torchcal.robots.workspace import Workspace
 
-# (point, set) evaluations per kernel call: on a CPU small enough for the 7 buffers to stay
-# in the L2 cache and for every op to run on one core (torch splits ops over threads from
-# 32768 elements on); on a GPU large enough to fill it
-DEFAULT_CHUNK = 1 << 14
+
+def _l2_chunk(l2_bytes: int | None, buffers: int = 7, lo: int = 1 << 12, hi: int = 1 << 16) -> int:
+    """(point, set) evaluations per CPU kernel call for a core's L2 cache of `l2_bytes`: the
+    largest power of two whose `buffers` float64 buffers fit in it, within [lo, hi];
+    16384 where the size is unknown (None)."""
+    if not l2_bytes:
+        return 1 << 14
+    n = lo
+    while n * 2 <= hi and n * 2 * 8 * buffers <= l2_bytes:
+        n *= 2
+    return n
+
+
+def _l2_bytes(path: str = "/sys/devices/system/cpu/cpu0/cache") -> int | None:
+    """Size of cpu0's level-2 data or unified cache in bytes from Linux's sysfs; None where
+    it cannot be read (other systems)."""
+    try:
+        for idx in sorted(os.listdir(path)):
+            d = os.path.join(path, idx)
+            with open(os.path.join(d, "level")) as fh:
+                level = fh.read().strip()
+            with open(os.path.join(d, "type")) as fh:
+                kind = fh.read().strip()
+            if level == "2" and kind in ("Data", "Unified"):
+                with open(os.path.join(d, "size")) as fh:
+                    size = fh.read().strip().upper()
+                unit = {"K": 1 << 10, "M": 1 << 20}.get(size[-1:], 1)
+                return int(size.rstrip("KM")) * unit
+    except (OSError, ValueError):
+        return None
+    return None
+
+
+# (point, set) evaluations per kernel call: on a CPU the 7 buffers fill (not spill) a core's
+# L2 cache (32768 with 2 MiB of L2, 16384 with 1 MiB; each op runs on one core: the CPU
+# sweep sets torch's intra-op threads to 1, its own workers use the cores); on a GPU large
+# enough to fill it. Results do not depend on it.
+DEFAULT_CHUNK = _l2_chunk(_l2_bytes())
 DEFAULT_CHUNK_GPU = 1 << 22
 @dataclass(frozen=True, eq=False)
 class SweepResult:
@@ -178,20 +213,28 @@ def _envelope(robot, q, dev, include_nominal, chunk, bar, threads):
     m_step = min(M, chunk)
     n_step = max(1, chunk // m_step)
     local = threading.local()
+    # the per-joint rows of the factors, per block of sets, made once: outer_positions only
+    # indexes them by joint (F[k][i]), and indexing a tuple is no torch op (a select is one,
+    # some 100 per kernel call otherwise); the same tensors, so the same results
+    set_blocks = [(b0, min(M, b0 + m_step), [f[:, b0:b0 + m_step].unbind(0) for f in F]) for b0 in range(0, M, m_step)]
+    # nominal positions of all points in one call (element-wise per point: the same values
+    # as chunk by chunk), not one call of the general kernel per chunk of a few points
+    nominal = K.positions(q, chain.local, tool_point=chain.tool[:3, 3])  # (N, 3), joint-1 frame
 
     def work(a0):
         bufs = getattr(local, "bufs", None)
         if bufs is None:
             bufs = local.bufs = [torch.empty(n_step, m_step, dtype=q.dtype, device=q.device) for _ in range(7)]
+            local.views = {}  # (points, sets) -> the 7 buffers' views, made once per shape
         a1 = min(N, a0 + n_step)
         qc = q[a0:a1]
-        nom = K.positions(qc, chain.local, tool_point=chain.tool[:3, 3])  # (Nc, 3), joint-1 frame
+        nom = nominal[a0:a1]  # (Nc, 3)
         angles = K.outer_angles(qc, chain)
         lo = hi = dlo = dhi = None
-        for b0 in range(0, M, m_step):
-            b1 = min(M, b0 + m_step)
-            views = [t[:a1 - a0, :b1 - b0] for t in bufs]
-            Fc = [f[:, b0:b1] for f in F]
+        for b0, b1, Fc in set_blocks:
+            views = local.views.get((a1 - a0, b1 - b0))
+            if views is None:
+                views = local.views[a1 - a0, b1 - b0] = [t[:a1 - a0, :b1 - b0] for t in bufs]
             ex, ey, ez = K.outer_positions(angles, chain, Fc, views)
             ex.sub_(nom[:, 0:1]), ey.sub_(nom[:, 1:2]), ez.sub_(nom[:, 2:3])
             if rotate:  # error vectors into the world frame
@@ -297,7 +340,8 @@ def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_m
         allowed_axis_mm: optional allowed +-a (mm) per axis: fills `r_set_axis` and
             `eta_axis` (N, 3) (docs/paper.md Table 5 uses +-1 mm).
         chunk: (point, set) evaluations per kernel call; the working memory is 7 buffers
-            of `chunk` floats per thread. Default DEFAULT_CHUNK (16384) on a CPU,
+            of `chunk` floats per thread. Default DEFAULT_CHUNK on a CPU (sized for its L2
+            cache: 32768 with 2 MiB a core, 16384 with 1 MiB or where unknown),
             DEFAULT_CHUNK_GPU on a GPU. Results do not depend on it.
         threads: worker threads over point chunks (default: `torchcal.threads.workers()`
             on a CPU, 1 on a GPU). On a CPU torch's own intra-op threads are set to 1 while the

@@ -270,14 +270,19 @@ def test_command_errors(session, capsys):
 def test_seeds_in_processes_equal_seeds_in_turn():
     """Seeds side by side in 2 processes (`processes=2`, what `torchcal demo` does on 2
     cores) give the report of the seeds one after another, figure for figure, with
-    discovery on (its fitted effects carry autograd history across the process boundary)."""
+    discovery on (its fitted effects carry autograd history across the process boundary).
+    One reliability level of one zone each (2 zones, 20 calibration poses, not SMALL's 4
+    and 40): discovery is most of a seed's work, it scales with the poses, and the equality
+    asked for is as strict on the smaller run, as long as discovery does add an effect."""
     import dataclasses
 
-    cfg = dataclasses.replace(SMALL, discover_rounds=1)
+    cfg = dataclasses.replace(SMALL, discover_rounds=1, zones_per_level=(1, 1))
 
     def figures(r):
         d = r.to_json()
         for k in ("seconds", "timings_s"):
             d.pop(k, None)
         return json.dumps(d, sort_keys=True)
-    assert figures(run_demo(cfg, seeds=2, processes=2)) == figures(run_demo(cfg, seeds=2))
+    in_turn = run_demo(cfg, seeds=2)
+    assert all(len(r.models["discovered_global"].effects) == 2 for r in in_turn.runs)  # base_frame + one found
+    assert figures(run_demo(cfg, seeds=2, processes=2)) == figures(in_turn)

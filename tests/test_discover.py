@@ -140,10 +140,23 @@ def test_null_sessions_give_no_verdict(seed, repeats):
     assert len(res.history) == 1
 
 
-def test_diagnose_and_discover_print_the_same_figures_for_a_step(seed141, seed141_discover, capsys):
-    path, m = seed141
-    assert main(["diagnose", str(path), "--robot", "kr1000titan"]) == 0
-    diag = capsys.readouterr().out.splitlines()
+@pytest.fixture(scope="module")
+def seed141_diagnose(seed141, tmp_path_factory):
+    """(stdout, JSON path) of one `torchcal diagnose --json` of seed141, read by the two
+    tests below instead of running it twice."""
+    import contextlib
+    import io
+
+    path, _ = seed141
+    js = tmp_path_factory.mktemp("diag") / "diag.json"
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert main(["diagnose", str(path), "--robot", "kr1000titan", "--json", str(js)]) == 0
+    return out.getvalue(), js
+
+
+def test_diagnose_and_discover_print_the_same_figures_for_a_step(seed141_diagnose, seed141_discover):
+    diag = seed141_diagnose[0].splitlines()
     disc = seed141_discover[0].splitlines()
     step = diag[diag.index(next(ln for ln in diag if ln.startswith("model ["))):]
     step = step[:next(i for i, ln in enumerate(step) if ln.startswith("verdict:"))]
@@ -189,16 +202,14 @@ def test_prescreen_significance_is_bonferroni_over_its_candidates(seed141):
             assert c.deterministic == (c.k > 0 and c.p_value < level and c.cv_gain >= 0), c.to_dict()
 
 
-def test_held_and_beyond_are_printed_and_written_by_diagnose(seed141, tmp_path, capsys):
+def test_held_and_beyond_are_printed_and_written_by_diagnose(seed141, seed141_diagnose, tmp_path):
     """diagnose prints one line of held (unidentifiable) parameters per model and writes the
     same names to its JSON; fit writes them to MODEL.json."""
     import json
 
     path, _ = seed141
-    out = tmp_path / "diag.json"
-    assert main(["diagnose", str(path), "--robot", "kr1000titan", "--json", str(out)]) == 0
-    text = capsys.readouterr().out.splitlines()
-    obj = json.loads(out.read_text())
+    text = seed141_diagnose[0].splitlines()
+    obj = json.loads(seed141_diagnose[1].read_text())
     cur = obj["refits"]["current"]
     line = next(ln for ln in text if ln.startswith("  held at nominal (not identifiable): "))
     assert line.split(": ", 1)[1].split(", ") == cur["held"] == obj["baseline"]["held"] and cur["held"]

@@ -25,12 +25,25 @@ functions) and check the layer rules of docs/design.md.
 """
 
 import ast
+import functools
 import re
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1] / "torchcal"
+
+
+@functools.lru_cache(maxsize=None)
+def _tree(path: Path) -> ast.Module:
+    """The parsed file, parsed once for all the checks below (they only read it)."""
+    return ast.parse(path.read_text())
+
+
+@functools.lru_cache(maxsize=None)
+def _nodes(path: Path) -> tuple:
+    """Every node of the file, in `ast.walk` order."""
+    return tuple(ast.walk(_tree(path)))
 
 
 def imports_of(path: Path) -> set[str]:
@@ -41,7 +54,7 @@ def imports_of(path: Path) -> set[str]:
     else:
         pkg = pkg[:-1]
     out = set()
-    for node in ast.walk(ast.parse(path.read_text())):
+    for node in _nodes(path):
         if isinstance(node, ast.Import):
             out.update(a.name for a in node.names)
         elif isinstance(node, ast.ImportFrom):
@@ -53,8 +66,12 @@ def imports_of(path: Path) -> set[str]:
     return out
 
 
-MODULES = {".".join(("torchcal", *p.relative_to(ROOT).with_suffix("").parts)): imports_of(p)
-           for p in sorted(ROOT.rglob("*.py"))}
+@functools.lru_cache(maxsize=None)
+def modules() -> dict:
+    """{module name: the modules it imports} over torchcal (parsed when a test first asks,
+    not when the file is collected)."""
+    return {".".join(("torchcal", *p.relative_to(ROOT).with_suffix("").parts)): imports_of(p)
+            for p in sorted(ROOT.rglob("*.py"))}
 
 # (package, forbidden prefixes)
 RULES = [
@@ -89,23 +106,23 @@ def hits(mod_imports, forbidden):
 
 @pytest.mark.parametrize("pkg,forbidden", RULES, ids=[f"{p}-not-{f[0]}" for p, f in RULES])
 def test_layer(pkg, forbidden):
-    bad = {m: hits(imps, forbidden) for m, imps in MODULES.items()
+    bad = {m: hits(imps, forbidden) for m, imps in modules().items()
            if (m == pkg or m.startswith(pkg + ".")) and hits(imps, forbidden)}
     assert not bad, f"{pkg} must not import {forbidden}: {bad}"
 
 
 def test_only_the_cli_imports_viz():
-    bad = {m: hits(i, ["viz"]) for m, i in MODULES.items()
+    bad = {m: hits(i, ["viz"]) for m, i in modules().items()
            if not m.startswith("torchcal.cli") and hits(i, ["viz"])}
     assert not bad
 
 
 def test_the_checker_sees_imports():
     """The parser is not vacuous: known edges are found."""
-    assert "torchcal.calibration.lm" in MODULES["torchcal.calibration.fit"]
-    assert any(i.startswith("torchcal.") for i in MODULES["torchcal.cli.fit"])
+    assert "torchcal.calibration.lm" in modules()["torchcal.calibration.fit"]
+    assert any(i.startswith("torchcal.") for i in modules()["torchcal.cli.fit"])
     assert hits({"torchcal.cli._args"}, ["torchcal.cli"]) and not hits({"torchcal.client"}, ["torchcal.cli"])
-    assert "torchcal.reliability.sweep" in MODULES["torchcal.io.sweep_csv"]
+    assert "torchcal.reliability.sweep" in modules()["torchcal.io.sweep_csv"]
 
 
 # -- one kinematic structure: the kernels of torchcal.kinematics.mdh take a Chain -----------
@@ -116,7 +133,7 @@ SOURCES = sorted(p for d in ("torchcal", "tests", "benchmarks", "viz", "examples
 
 
 def _calls(path: Path):
-    for node in ast.walk(ast.parse(path.read_text())):
+    for node in _nodes(path):
         if isinstance(node, ast.Call):
             f = node.func
             yield node, f.attr if isinstance(f, ast.Attribute) else getattr(f, "id", None)
@@ -131,7 +148,7 @@ def test_no_module_passes_a_prismatic_keyword_to_a_kernel():
 def test_no_module_uses_a_private_kernel_or_the_pris_alias():
     bad = []
     for p in SOURCES:
-        for node in ast.walk(ast.parse(p.read_text())):
+        for node in _nodes(p):
             if isinstance(node, ast.Attribute) and (node.attr in ("pris", "_positions_kernel")):
                 bad.append(f"{p.relative_to(ROOT.parent)}:{node.lineno} .{node.attr}")
     assert not bad, bad
@@ -152,11 +169,11 @@ def test_context_is_defined_in_its_own_module():
     imports them from torchcal.effects.base (no alias left there)."""
     defined = {}
     for p in sorted(ROOT.rglob("*.py")):
-        for node in ast.parse(p.read_text()).body:
+        for node in _tree(p).body:
             if isinstance(node, (ast.ClassDef, ast.FunctionDef)) and node.name in CONTEXT_NAMES:
                 defined.setdefault(node.name, []).append(str(p.relative_to(ROOT.parent)))
     assert defined == {name: ["torchcal/effects/context.py"] for name in CONTEXT_NAMES}
-    bad = [f"{p.relative_to(ROOT.parent)}:{node.lineno}" for p in SOURCES for node in ast.walk(ast.parse(p.read_text()))
+    bad = [f"{p.relative_to(ROOT.parent)}:{node.lineno}" for p in SOURCES for node in _nodes(p)
            if isinstance(node, ast.ImportFrom) and node.module == "torchcal.effects.base"
            and CONTEXT_NAMES & {a.name for a in node.names}]
     assert not bad, bad
@@ -210,11 +227,10 @@ COMMANDS_QUOTED = {("torchcal.io.robot_file", " --base BASE_LINK --tip TIP_LINK 
 
 def flag_strings(path: Path) -> list[str]:
     """Non-docstring string constants of a file that name a ``--option``."""
-    tree = ast.parse(path.read_text())
-    docs = {id(n.body[0].value) for n in ast.walk(tree)
+    docs = {id(n.body[0].value) for n in _nodes(path)
             if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and n.body
             and isinstance(n.body[0], ast.Expr) and isinstance(n.body[0].value, ast.Constant)}
-    return [n.value for n in ast.walk(tree) if isinstance(n, ast.Constant) and isinstance(n.value, str)
+    return [n.value for n in _nodes(path) if isinstance(n, ast.Constant) and isinstance(n.value, str)
             and id(n) not in docs and FLAG.search(n.value)]
 
 
@@ -255,7 +271,7 @@ def _unit(module: str) -> str:
 def _unit_edges() -> dict:
     """{(importer unit, imported unit): [(module, import)]} over every torchcal import."""
     edges = {}
-    for mod, imps in MODULES.items():
+    for mod, imps in modules().items():
         for imp in imps:
             if imp.startswith("torchcal.") and _unit(imp) != _unit(mod) and not mod.endswith(".__init__"):
                 edges.setdefault((_unit(mod), _unit(imp)), []).append((mod, imp))
@@ -263,7 +279,7 @@ def _unit_edges() -> dict:
 
 
 def test_every_unit_has_a_layer():
-    units = {_unit(m) for m in MODULES}
+    units = {_unit(m) for m in modules()}
     assert units <= set(LAYER_OF), f"place these in docs/design.md's layers and LAYERS: {sorted(units - set(LAYER_OF))}"
 
 

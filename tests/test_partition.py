@@ -8,7 +8,6 @@ import math
 import numpy as np
 import pytest
 import torch
-from sklearn.metrics import adjusted_rand_score
 
 from torchcal import cli
 from torchcal.errors import InputError
@@ -198,6 +197,8 @@ def test_memberships_of_the_result_follow_eq_28():
 
 @pytest.mark.parametrize("centers", [[[0.0], [5.0], [12.0]], [[0, 0, 0], [6, 0, 0], [0, 6, 3]]])
 def test_planted_blobs_are_recovered(centers):
+    from sklearn.metrics import adjusted_rand_score  # here: scikit-learn is slow to import for one check
+
     x, y = blobs(80, centers, 0.5, 2)
     res = fcm(x, 3, restarts=3)
     labels = res.memberships.argmax(dim=0)

@@ -6,7 +6,6 @@ import math
 import numpy as np
 import pytest
 import torch
-from sklearn.metrics import adjusted_rand_score
 
 from torchcal.partition.fcm import fcm
 from torchcal.partition.validity import choose_c, partition_coefficient, partition_entropy, xie_beni
@@ -36,6 +35,8 @@ def test_validity_indices():
 
 
 def test_number_of_clusters_chosen_by_xie_beni():
+    from sklearn.metrics import adjusted_rand_score  # here: scikit-learn is slow to import for one check
+
     x, y = _blobs(60, [[0, 0], [8, 0], [0, 8], [8, 8]], 0.6, 4)
     c, res, scores = choose_c(x, (2, 6))
     assert c == 4 and set(scores) == {2, 3, 4, 5, 6}

@@ -152,3 +152,24 @@ def test_start_stays_inside_the_calibrated_joint_range(cell):
     goal = torch.as_tensor(real_robot(table, q_cal.numpy(), "measuring"))  # places the robot was calibrated at
     comp = torchcal.compensate(fm, goal)
     assert bool(comp.converged.all()) and comp.outside_range == 0
+
+
+def test_the_models_own_calibration_positions_are_within_its_reach(cell):
+    """The reach counts the fitted 290 mm reflector: every position the model was fitted
+    on is reachable (before, the nominal TCP's reach flagged one pose, 4442 mm from the
+    base, as beyond it, and compensate then gave that target one start only)."""
+    import warnings
+
+    from torchcal.calibration.mismatch import check_targets
+    from torchcal.io.measurement_csv import read_measurements
+
+    d, _, _ = cell
+    fitted = torchcal.load(d / "model.json")
+    xyz = read_measurements(d / "data.csv", robot=KR).xyz
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert check_targets(fitted.model, fitted.theta, xyz) == []
+    far = xyz.clone()
+    far[3] += torch.tensor([9000.0, 0.0, 0.0], dtype=far.dtype)
+    with pytest.warns(UserWarning, match="row\\(s\\) 4;"):
+        assert check_targets(fitted.model, fitted.theta, far) == [3]

@@ -27,8 +27,9 @@ Measurements (`check_measurements`). With the model's errors d (N,) mm:
 
 Targets (`check_targets`, positions (M, 3) mm in the model's frame) against the
 workspace of the model: the nominal TCP at `WORKSPACE_POSES` seeded random poses inside
-the joint limits. The reach R is their largest distance from the robot base origin (as
-the model's base frame maps it). Targets whose median distance from the base origin is below R / 20 (the
+the joint limits, each pushed out by the fitted tool offset's length when the model has
+one. The reach R is their largest distance from the robot base origin (as the model's
+base frame maps it). Targets whose median distance from the base origin is below R / 20 (the
 factor of the unit check, `check_units`) sit inside the robot's
 base, or whose median distance from the origin of the measuring frame (the instrument) is
 below R / 20: metres read as mm (a refusal); targets beyond 1.05 R cannot be reached (a warning
@@ -246,7 +247,10 @@ def enforce(result: Mismatch, refuse_frame: bool = True, refuse_mismatch: bool =
 
 def workspace(model, theta: torch.Tensor, seed: int = 0):
     """(points (K, 3) mm, origin (3,) mm): the nominal geometry's TCP at WORKSPACE_POSES
-    seeded random poses and the robot base origin, both mapped by the model's base frame."""
+    seeded random poses and the robot base origin, both mapped by the model's base frame.
+    With a fitted tool offset each point is pushed away from the origin by the longest
+    offset, the most the offset can add to its distance (else a target that the fitted
+    tool reaches, e.g. a calibration pose with a 290 mm reflector, reads as out of reach)."""
     from torchcal.effects.base_frame import rotvec_to_matrix
     from torchcal.robots.poses import random_poses
 
@@ -256,6 +260,10 @@ def workspace(model, theta: torch.Tensor, seed: int = 0):
         v = robot.fk(q.to(robot.device, robot.dtype)).detach().to("cpu", torch.float64)
     origin = robot.base[:3, 3].detach().to("cpu", torch.float64)
     for e, sl in zip(model.effects, model.slices[1:]):
+        if e.name == "tool_offset":  # each point's offset turns with the flange: the farthest
+            # point moves out by at most the longest offset (a reflector 290 mm off the flange)
+            off = float(theta[sl].detach().to("cpu", torch.float64).reshape(-1, 3).norm(dim=-1).max())
+            v = origin + (v - origin) * (1 + off / (v - origin).norm(dim=-1, keepdim=True).clamp_min(1e-9))
         if e.name == "base_frame":
             p = theta[sl].detach().to("cpu", torch.float64)
             R = rotvec_to_matrix(p[3:6])

@@ -353,3 +353,31 @@ def test_part_rule_on_figures_made_in_numpy():
     (landed, _), rec = check.choose(fig(e0), steps[:1], Session())
     assert landed is None and rec["kept"] is None and rec["tried"][0]["landed"] is None
     assert "  gear_periodic:1,2,3 refused: no joint's part lowers it on its own" in describe_verdict(rec)
+
+
+def test_a_fit_term_the_check_kept_is_said_to_carry():
+    """The final words give both labels: a joint part that fails the split-half test but
+    that a transfer check kept is "the robot's ... not the effect it is named after"; a
+    fit term no check kept, and one on another joint, are not said to carry."""
+    from types import SimpleNamespace
+
+    from torchcal.diagnosis.diagnose import Discovery
+    from torchcal.diagnosis.stability import Stability
+
+    bad = Stability(p_value=0.9, split="q2", gain_mm=-0.4, splits=2)
+    good = Stability(p_value=1e-9, split="q1", gain_mm=0.1, splits=2)
+    spec = "joint_periodic:1@6,2@8+18"
+    st = Stability(p_value=0.9, split="q2", gain_mm=-0.4, splits=2,
+                   parts={1: ("joint_periodic:1@6", good), 2: ("joint_periodic:2@8+18", bad)})
+    fit = SimpleNamespace(model=SimpleNamespace(robot=SimpleNamespace(n=6)))
+    history = [{"transfer": {"kept": "joint_periodic:2@8+18"}}, {"transfer": {"kept": None}}, {}]
+    d = Discovery(history, ["base_frame", spec], fit, [], stability={spec: st})
+    assert d.carried == ["joint_periodic:2@8+18"]
+    words = d.final_words().splitlines()
+    assert words[0] == "final effects: base_frame, joint_periodic:1@6"
+    assert words[1].startswith("  joint_periodic:2@8+18: in the model as a fit term only") and "carried" in words[1]
+    d = Discovery(history[1:], ["base_frame", spec], fit, [], stability={spec: st})
+    assert d.carried == [] and "carried" not in d.final_words()
+    d = Discovery([{"transfer": {"kept": "joint_periodic:1@6"}}], ["base_frame", spec], fit, [],
+                  stability={spec: st})
+    assert "carried" not in d.final_words()

@@ -47,7 +47,7 @@ from torchcal.diagnosis.step import Scored, Step, fit_options, score_current, sc
 from torchcal.diagnosis.transfer import Within
 from torchcal.diagnosis.unexplained import Unexplained, unexplained
 from torchcal.effects import context_of
-from torchcal.effects.spec import parse_specs
+from torchcal.effects.spec import parse_spec, parse_specs
 from torchcal.measurements import Measurements
 from torchcal.robots.robot import Robot
 
@@ -155,7 +155,10 @@ class Discovery:
     model (per joint part for an effect on several joints); absorbing: the effects, or
     joint parts (``joint_periodic:1@12+22``), that fail it (kept in the model, not named as
     physics); named: the final effects named as physics (an effect on several joints
-    restricted to the joints whose part holds)."""
+    restricted to the joints whose part holds); carried: the steps a transfer check kept.
+    The two labels answer two questions: the split-half label, "does it hold beyond the
+    half of this session's workspace it was fitted on", the transfer check, "does it
+    hold in another session"; a fit term that carried is printed as both."""
 
     history: list
     final_effects: list
@@ -173,6 +176,24 @@ class Discovery:
         return [e for e, _ in self._fit_terms()]
 
     @property
+    def carried(self) -> list:
+        """The steps a transfer check kept, in round order (specs): each lowered the other
+        session's held-out error beyond chance (`torchcal.diagnosis.transfer`); [] without
+        a check."""
+        return [h["transfer"]["kept"] for h in self.history if (h.get("transfer") or {}).get("kept")]
+
+    def _carried(self, spec: str) -> bool:
+        """Whether every joint of the effect (or joint part) `spec` is in a step the
+        transfer check kept (the same effect on the same joints; by name for an effect
+        without joints)."""
+        if not self.carried:
+            return False
+        n = self.fit.model.robot.n
+        held = {(s.name, j) for c in self.carried for s in [parse_spec(c, n)] for j in (s.joints or [None])}
+        s = parse_spec(spec, n)
+        return all((s.name, j) in held for j in (s.joints or [None]))
+
+    @property
     def named(self) -> list:
         return [n for e in self.final_effects
                 for n in (self.stability[e].split_spec(e)[0] if e in self.stability else [e])]
@@ -180,8 +201,10 @@ class Discovery:
     def final_words(self) -> str:
         """The final effects named as physics, and the absorbing ones, in words."""
         out = [f"final effects: {', '.join(self.named) or 'none'}"]
-        out += [f"  {e}: in the model as a fit term only, not named: {st.words()}; it absorbs "
-                f"structure outside the vocabulary (what is left, below)" for e, st in self._fit_terms()]
+        out += [f"  {e}: in the model as a fit term only, not named: {st.words()}; "
+                + ("it carried to the other session (the transfer check kept it): the robot's, not this session's, "
+                   "but not the effect it is named after: " if self._carried(e) else "")
+                + "it absorbs structure outside the vocabulary (what is left, below)" for e, st in self._fit_terms()]
         return "\n".join(out)
 
     def to_dict(self) -> dict:
@@ -190,7 +213,7 @@ class Discovery:
                 "set_by_prior": list(self.fit.set_by_prior),
                 "unexplained": None if self.unexplained is None else self.unexplained.to_dict(),
                 "stability": {e: st.to_dict() for e, st in self.stability.items()}, "absorbing": self.absorbing,
-                "named": self.named,
+                "named": self.named, "carried": self.carried,
                 "residual_stage": self.fit.residual_test}
 
 

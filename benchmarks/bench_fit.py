@@ -23,6 +23,9 @@ wall time over the scipy fit's median wall time from the same run (target <= 1.5
 same validation RMS, peak RSS <= 0.2 GB. Prints medians over --repeats, the ratios and
 the machine load.
 
+Where torch sees a CUDA device, the torchcal fits (positions, positions + orientations)
+and discover run again on it (``.to("cuda")``), printed next to the CPU figures.
+
     python benchmarks/bench_fit.py [--repeats 5] [--threads 2] [--skip-discover]
 """
 
@@ -170,34 +173,43 @@ def _scipy_part(train: Path, val: Path, repeats: int) -> dict:
 
 
 # -- torchcal ------------------------------------------------------------------------------
-def _torchcal_part(train: Path, val: Path, repeats: int, orientation: bool) -> dict:
+def _torchcal_part(train: Path, val: Path, repeats: int, orientation: bool, device: str = "cpu") -> dict:
     import dataclasses
+
+    import torch
 
     import torchcal
     from torchcal.io.measurement_csv import read_measurements
     from torchcal.io.robot_file import load_robot_file
 
-    robot = load_robot_file(ROBOT)
-    m = read_measurements(train, robot=robot)
-    mv = read_measurements(val, robot=robot)
+    robot = load_robot_file(ROBOT).to(device)
+    m = read_measurements(train, robot=robot).to(device)
+    mv = read_measurements(val, robot=robot).to(device)
     if not orientation:
         m = dataclasses.replace(m, rxyz=None)
         mv = dataclasses.replace(mv, rxyz=None)
-    wall, cpu, res = _timed(lambda: torchcal.fit(robot, m, EFFECTS), repeats)
+
+    def run():
+        out = torchcal.fit(robot, m, EFFECTS)
+        if device != "cpu":
+            torch.cuda.synchronize()
+        return out
+
+    wall, cpu, res = _timed(run, repeats)
     ev = torchcal.evaluate(res, mv)
     return {"wall_s": wall, "cpu_s": cpu, "val_rms_mm": ev.rms_mm, "peak_gb": _peak_gb(),
             "iterations": res.n_iter, "status": res.status}
 
 
-def _discover_part(train: Path, repeats: int) -> dict:
+def _discover_part(train: Path, repeats: int, device: str = "cpu") -> dict:
     import torchcal
     from torchcal.io.measurement_csv import read_measurements
     from torchcal.io.robot_file import load_robot_file
 
     import torchcal.diagnosis.diagnose  # noqa: F401  (imports are not discover's work)
 
-    robot = load_robot_file(ROBOT)
-    m = read_measurements(train, robot=robot)
+    robot = load_robot_file(ROBOT).to(device)
+    m = read_measurements(train, robot=robot).to(device)
     wall, cpu, disc = [], [], None
     for _ in range(repeats):  # no warm-up: a user runs it once
         w, c = time.perf_counter(), time.process_time()
@@ -216,6 +228,14 @@ def _import_part() -> dict:
 
     torchcal.robot  # noqa: B018
     return {"peak_gb": _peak_gb()}
+
+
+def _cuda_name() -> str | None:
+    """The CUDA device's name when torch sees one (asked in a subprocess, so the parent
+    never initialises CUDA), else None."""
+    out = subprocess.run([sys.executable, "-c", "import torch; print(torch.cuda.get_device_name() "
+                          "if torch.cuda.is_available() else '')"], capture_output=True, text=True)
+    return out.stdout.strip() or None
 
 
 def _run_part(part: str, folder: Path, repeats: int, threads: int) -> dict:
@@ -246,6 +266,9 @@ def main(argv=None) -> int:
                 "torchcal": lambda: _torchcal_part(train, val, args.repeats, False),
                 "torchcal+orientation": lambda: _torchcal_part(train, val, args.repeats, True),
                 "discover": lambda: _discover_part(train, 1),
+                "torchcal cuda": lambda: _torchcal_part(train, val, args.repeats, False, "cuda"),
+                "torchcal+orientation cuda": lambda: _torchcal_part(train, val, args.repeats, True, "cuda"),
+                "discover cuda": lambda: _discover_part(train, 1, "cuda"),
                 "import": _import_part}[args.part]()
         print(json.dumps(part))
         return 0
@@ -260,6 +283,10 @@ def main(argv=None) -> int:
                for p in ("import", "scipy", "torchcal", "torchcal+orientation")}
         if not args.skip_discover:
             res["discover"] = _run_part("discover", folder, 1, args.threads)
+        gpu = _cuda_name()
+        if gpu:  # the same contenders on the GPU, next to the CPU figures (one warm-up fit each)
+            for p in ("torchcal cuda", "torchcal+orientation cuda") + (() if args.skip_discover else ("discover cuda",)):
+                res[p] = _run_part(p, folder, args.repeats, args.threads)
     print("FIGAROH: not run (pip resolves figaroh 1.0.2 with pin 4.1 and about 40 more packages, "
           "not installed into the project's environment; its calibration also needs a URDF, a YAML "
           "configuration and its own data layout, not written for this benchmark)")
@@ -267,6 +294,14 @@ def main(argv=None) -> int:
     for name in ("scipy", "torchcal", "torchcal+orientation"):
         r = res[name]
         print(f"{name:24s} {r['wall_s']:8.3f} {r['cpu_s']:8.3f} {r['val_rms_mm']:11.4f} {r['peak_gb']:12.3f}")
+    for name in ("torchcal cuda", "torchcal+orientation cuda"):
+        if name in res:
+            r = res[name]
+            print(f"{name:24s} {r['wall_s']:8.3f} {r['cpu_s']:8.3f} {r['val_rms_mm']:11.4f} {'(host)':>12s}")
+    if not gpu:
+        print("(no CUDA device visible to torch: the GPU contenders were not run)")
+    else:
+        print(f"(GPU: {gpu}; its fits above after one warm-up fit, times include a synchronize)")
     print(f"{'(import torch+torchcal)':24s} {'':8s} {'':8s} {'':11s} {res['import']['peak_gb']:12.3f}")
     s, t = res["scipy"], res["torchcal"]
     speed = s["wall_s"] / t["wall_s"]
@@ -289,6 +324,10 @@ def main(argv=None) -> int:
               f"{'met' if ratio <= TARGET_DISCOVER_RATIO else 'MISSED'}; CPU {d['cpu_s'] / s['cpu_s']:.2f}x "
               f"(discover on {args.threads} threads, scipy on 1: on a loaded machine wall time favours one thread)")
         print(d["unexplained"])
+        if "discover cuda" in res:
+            g = res["discover cuda"]
+            print(f"discover on the GPU: {g['wall_s']:.2f} s wall ({d['wall_s'] / g['wall_s']:.2f}x the CPU run), "
+                  f"added {g['added']} ({'the same' if g['added'] == d['added'] else 'DIFFERENT'} effects)")
     print(f"load after: {tuple(round(x, 2) for x in os.getloadavg())}")
     return 0
 

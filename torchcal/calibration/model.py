@@ -113,8 +113,7 @@ class CalibrationModel:
             g = e.geometric_offset(theta[sl], ctx)
             if g is not None:
                 geo = geo + g
-        T = K.fk_pose(q, robot.chain.to(theta).flange, geo)
-        R = T[..., :3, :3] @ robot.tool[:3, :3].to(theta)
+        R = K.fk_rotation(q, robot.chain.to(theta).flange, geo) @ robot.tool[:3, :3].to(theta)
         for e, sl in parts:
             w = e.world_rotation(theta[sl], ctx)
             if w is not None:

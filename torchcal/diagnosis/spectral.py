@@ -144,12 +144,13 @@ def held_out_sums(r: np.ndarray, X: np.ndarray, C: np.ndarray, rows: np.ndarray)
     base, per = 0.0, np.zeros(K)
     for f in np.unique(rows):
         t, v = rows != f, rows == f
-        U, M = _pinv_parts(X[t])
-        a, P = M @ (U.T @ r[t]), M @ (U.T @ C[t])  # X coefficients of r and of each column
-        eT, DT = r[t] - X[t] @ a, (C[t] - X[t] @ P).reshape(-1, K, 2)
+        Xt, Ct, rt, Xv = X[t], C[t], r[t], X[v]  # each row selection once
+        U, M = _pinv_parts(Xt)
+        a, P = M @ (U.T @ rt), M @ (U.T @ Ct)  # X coefficients of r and of each column
+        eT, DT = rt - Xt @ a, (Ct - Xt @ P).reshape(-1, K, 2)
         G = _pair_grams(DT) + 1e-12 * np.eye(2)
         beta = np.linalg.solve(G, np.einsum("tka,t->ka", DT, eT)[..., None])[..., 0]  # (K, 2)
-        eV, DV = r[v] - X[v] @ a, (C[v] - X[v] @ P).reshape(-1, K, 2)
+        eV, DV = r[v] - Xv @ a, (C[v] - Xv @ P).reshape(-1, K, 2)
         pred = DV[..., 0] * beta[:, 0] + DV[..., 1] * beta[:, 1]  # (V, K)
         base += float(eV @ eV)
         per += (eV @ eV) - 2 * (eV @ pred) + (pred * pred).sum(0)

@@ -17,6 +17,8 @@ the angle (Rodrigues). Matrices are (..., 3, 3), float, on the device of their i
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import torch
 
@@ -26,10 +28,9 @@ __all__ = ["skew", "fixed_xyz_to_matrix", "matrix_to_fixed_xyz", "rotvec_to_matr
 
 def skew(w: torch.Tensor) -> torch.Tensor:
     """Cross-product (hat) matrices: w (..., 3) -> (..., 3, 3) with skew(w) x = w x x."""
-    zero = torch.zeros_like(w[..., 0])
-    return torch.stack([torch.stack([zero, -w[..., 2], w[..., 1]], -1),
-                        torch.stack([w[..., 2], zero, -w[..., 0]], -1),
-                        torch.stack([-w[..., 1], w[..., 0], zero], -1)], -2)
+    w0, w1, w2 = w.unbind(-1)
+    zero = torch.zeros_like(w0)
+    return torch.stack([zero, -w2, w1, w2, zero, -w0, -w1, w0, zero], -1).reshape(*w.shape[:-1], 3, 3)
 
 
 def _axis(axis: int, a: torch.Tensor) -> torch.Tensor:
@@ -126,6 +127,12 @@ def so3_error(Rp: torch.Tensor, Rm: torch.Tensor) -> torch.Tensor:
                               E[..., 1, 0] - E[..., 0, 1]], dim=-1)
 
 
+@functools.lru_cache(maxsize=8)
+def _unit_skews(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """(3, 3, 3) [e_k]x for k = 0, 1, 2 (a constant, built once per dtype and device)."""
+    return skew(torch.eye(3, dtype=dtype, device=device))
+
+
 def rotvec_jacobian(r: torch.Tensor) -> torch.Tensor:
     """d rotvec_to_matrix(r) / d r (3, 3, 3), last index the component of r.
 
@@ -141,8 +148,7 @@ def rotvec_jacobian(r: torch.Tensor) -> torch.Tensor:
     b = torch.where(small, 0.5 - s / 24, (1 - cos) / (s + 1e-300))
     da = torch.where(small, torch.full_like(s, -1 / 6), (t * cos - sin) / (2 * t ** 3 + 1e-300))
     db = torch.where(small, torch.full_like(s, -1 / 24), (t * sin - 2 * (1 - cos)) / (2 * s * s + 1e-300))
-    eye = torch.eye(3, dtype=r.dtype, device=r.device)
-    E = skew(eye)  # E[k] = [e_k]x
+    E = _unit_skews(r.dtype, r.device)  # E[k] = [e_k]x
     K = torch.einsum("kij,k->ij", E, r)
     KK = K @ K
     out = (2 * r[:, None, None] * (da * K + db * KK) + a * E + b * (E @ K + K @ E))  # (k, 3, 3)

@@ -126,19 +126,27 @@ def levenberg_marquardt(residual_fn, x0, free=None, weights=None, jacobian_fn=No
     n_iter = torch.zeros(B, dtype=torch.long, device=x.device)
     eye = torch.eye(P, dtype=x.dtype, device=x.device)
     fmask0 = free.to(x.dtype)
+    # unit weights (every fit that is not robust) leave J as it is: no weighted copy of it
+    unit = weights is None or bool((w == 1).all())
+    held_any = not bool(free.all())
     tiny = torch.finfo(x.dtype).tiny
     root_eps = torch.finfo(x.dtype).eps ** 0.5
     for _ in range(max_iter):
         if done.all():
             break
-        J = jac(x) * fmask0[:, None, :]  # held columns dropped
-        JtW = (J * w[:, :, None]).transpose(1, 2)  # (B, P, R), a view of a row-major product
-        g = (JtW @ r.unsqueeze(-1)).squeeze(-1)  # (B, P)
+        # held columns dropped: their rows and columns of J^T W J and their entries of g
+        # are zeroed after the products (the same numbers as products of a masked J,
+        # without a masked copy of J)
+        J = jac(x)
+        JtW = J.transpose(1, 2) if unit else (J * w[:, :, None]).transpose(1, 2)  # (B, P, R), a view
+        g = (JtW @ r.unsqueeze(-1)).squeeze(-1) * fmask0  # (B, P)
         fmask = fmask0
         if lo is not None:  # at the bound and pushed below it: held this iteration
             fmask = fmask0 * ~((x <= lo) & (g > 0))
-            J, JtW, g = J * fmask[:, None, :], JtW * fmask[:, :, None], g * fmask
+            g = g * fmask
         A = JtW @ J  # (B, P, P)
+        if held_any or lo is not None:
+            A = A * (fmask[:, :, None] * fmask[:, None, :])
         diag = torch.diagonal(A, dim1=1, dim2=2).clamp_min(1e-30)
         # a held parameter gets a unit row so the system stays regular and its step is 0
         A_held = eye * (1 - fmask)[:, None, :]

@@ -113,8 +113,7 @@ class CalibrationModel:
             g = e.geometric_offset(theta[sl], ctx)
             if g is not None:
                 geo = geo + g
-        T = K.fk_pose(q, robot.chain.to(theta).flange, geo)
-        R = T[..., :3, :3] @ robot.tool[:3, :3].to(theta)
+        R = K.fk_rotation(q, robot.chain.to(theta).flange, geo) @ robot.tool[:3, :3].to(theta)
         for e, sl in parts:
             w = e.world_rotation(theta[sl], ctx)
             if w is not None:
@@ -250,10 +249,11 @@ class CalibrationModel:
                 J = _rows_times(Dv, J)
                 J[..., sl] += Dp
                 v = w
+        world_R = {}  # effect index -> its world_rotation, for the frame below as well
         if rotation:
-            for e, sl in parts:
+            for i, (e, sl) in enumerate(parts):
                 p = theta[sl]
-                Rw = e.world_rotation(p, ctx)
+                Rw = world_R[i] = e.world_rotation(p, ctx)
                 if Rw is not None:
                     W = _rows_times(Rw, W)
                     dR = e.world_rotation_jacobian(p, ctx)  # (3, 3, k)
@@ -264,8 +264,8 @@ class CalibrationModel:
         R = cj.rotation @ robot.tool[:3, :3].to(theta)  # predict_rotation's steps
         if not robot.chain.plain_base:
             R = base[:3, :3] @ R
-        for e, sl in parts:
-            w = e.world_rotation(theta[sl], ctx)
+        for i, (e, sl) in enumerate(parts):
+            w = world_R[i] if i in world_R else e.world_rotation(theta[sl], ctx)
             if w is not None:
                 R = w @ R
         return J, W, R

@@ -129,13 +129,15 @@ def undetermined(value: float, sd: float, scale: float, ratio: float = DETERMINE
     return "beyond" if abs(value) > scale else None
 
 
-def determination(fit, new: list, ctx, ratio: float = DETERMINED_RATIO) -> list[dict]:
+def determination(fit, new: list, ctx, ratio: float = DETERMINED_RATIO, partners: bool = True) -> list[dict]:
     """Why the parameters `new` (names) of a fitted model (`FitResult`) are not determined
     by its data: one dict per offending parameter, {"name", "value", "sd", "scale" (its
     unit, `unit`), "why": 'prior' (posterior sd >= ratio x scale, module doc) or 'beyond'
     (|value| > scale), "partner", "r2" (`collinear_with` on the position Jacobian at the
     solution, context ctx)}. Parameters held at nominal (not identifiable) or without a plausible scale
-    are not judged. Empty: every one judged is determined and within its plausible size."""
+    are not judged. Empty: every one judged is determined and within its plausible size.
+    partners=False: "partner" '' and "r2" 0.0 (no Jacobian, no regression), for a caller
+    that reads which parameters and why only."""
     model = fit.model
     names, units = model.param_names(), model.param_units()
     scales = plausible_scales(model)
@@ -149,9 +151,12 @@ def determination(fit, new: list, ctx, ratio: float = DETERMINED_RATIO) -> list[
         why = undetermined(v, sd, s, ratio)
         if why is None:
             continue
-        if A is None:
-            A = model.jacobian(fit.theta, ctx).detach().reshape(-1, len(names))
-        partner, r2 = collinear_with(A, i, names, fit.report.free)
+        if not partners:
+            partner, r2 = "", 0.0
+        else:
+            if A is None:
+                A = model.jacobian(fit.theta, ctx).detach().reshape(-1, len(names))
+            partner, r2 = collinear_with(A, i, names, fit.report.free)
         out.append({"name": n, "value": v, "sd": sd, "scale": s, "unit": units[i], "why": why,
                     "partner": partner, "r2": r2})
     return out

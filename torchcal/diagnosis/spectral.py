@@ -128,6 +128,15 @@ def _pinv_parts(X: np.ndarray):
     return Q @ u[:, keep], vt[keep].T / s[keep]
 
 
+def _pair_grams(D: np.ndarray) -> np.ndarray:
+    """(K, 2, 2) the Gram matrix of each pair of columns of D (T, K, 2): sum over t of
+    D[t, k, a] D[t, k, b] (einsum "tka,tkb->kab", by three column products: several
+    times faster than numpy's einsum on these shapes)."""
+    d0, d1 = D[..., 0], D[..., 1]
+    g00, g01, g11 = (d0 * d0).sum(0), (d0 * d1).sum(0), (d1 * d1).sum(0)
+    return np.stack([np.stack([g00, g01], -1), np.stack([g01, g11], -1)], -2)
+
+
 def held_out_sums(r: np.ndarray, X: np.ndarray, C: np.ndarray, rows: np.ndarray):
     """Held-out sums of squares of r on X alone (float) and on [X, pair k] for every pair
     of columns of C (K,), over the folds `rows` (3N,) (fold of each stacked row)."""
@@ -135,13 +144,14 @@ def held_out_sums(r: np.ndarray, X: np.ndarray, C: np.ndarray, rows: np.ndarray)
     base, per = 0.0, np.zeros(K)
     for f in np.unique(rows):
         t, v = rows != f, rows == f
-        U, M = _pinv_parts(X[t])
-        a, P = M @ (U.T @ r[t]), M @ (U.T @ C[t])  # X coefficients of r and of each column
-        eT, DT = r[t] - X[t] @ a, (C[t] - X[t] @ P).reshape(-1, K, 2)
-        G = np.einsum("tka,tkb->kab", DT, DT) + 1e-12 * np.eye(2)
+        Xt, Ct, rt, Xv = X[t], C[t], r[t], X[v]  # each row selection once
+        U, M = _pinv_parts(Xt)
+        a, P = M @ (U.T @ rt), M @ (U.T @ Ct)  # X coefficients of r and of each column
+        eT, DT = rt - Xt @ a, (Ct - Xt @ P).reshape(-1, K, 2)
+        G = _pair_grams(DT) + 1e-12 * np.eye(2)
         beta = np.linalg.solve(G, np.einsum("tka,t->ka", DT, eT)[..., None])[..., 0]  # (K, 2)
-        eV, DV = r[v] - X[v] @ a, (C[v] - X[v] @ P).reshape(-1, K, 2)
-        pred = np.einsum("vka,ka->vk", DV, beta)
+        eV, DV = r[v] - Xv @ a, (C[v] - Xv @ P).reshape(-1, K, 2)
+        pred = DV[..., 0] * beta[:, 0] + DV[..., 1] * beta[:, 1]  # (V, K)
         base += float(eV @ eV)
         per += (eV @ eV) - 2 * (eV @ pred) + (pred * pred).sum(0)
     return base, per

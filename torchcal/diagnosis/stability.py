@@ -166,7 +166,7 @@ def determined_names(full, ctx) -> list:
     """The parameters of the fitted model `full` its data determine (`determination`'s rule:
     posterior sd below half the plausible size, or no plausible size), context ctx."""
     names = full.model.param_names()
-    return [n for n in names if n not in {d["name"] for d in determination(full, names, ctx)}]
+    return [n for n in names if n not in {d["name"] for d in determination(full, names, ctx, partners=False)}]
 
 
 def extrapolated(full, m, ctx, half: np.ndarray, *, sigma_mm: float, sigma_deg: float, determined=None):
@@ -179,7 +179,8 @@ def extrapolated(full, m, ctx, half: np.ndarray, *, sigma_mm: float, sigma_deg: 
     determined = determined_names(full, ctx) if determined is None else determined
     try:
         err = held_out_errors(full, m, ctx, half, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
-                              accept=lambda res: all(d["why"] != "prior" for d in determination(res, determined, ctx)))
+                              accept=lambda res: all(d["why"] != "prior"
+                                                     for d in determination(res, determined, ctx, partners=False)))
     except InputError:
         return None
     return None if err is None else (per_pose(m, err), float(np.sqrt(err.mean())))

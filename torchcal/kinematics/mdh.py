@@ -114,6 +114,16 @@ def fk_frames(q, chain: Chain, params=None) -> torch.Tensor:
     return torch.stack(frames, dim=-3)
 
 
+def fk_rotation(q, chain: Chain, params=None) -> torch.Tensor:
+    """TCP rotation, world <- TCP: q (..., n) rad / mm, params (..., n, 5) or None ->
+    (..., 3, 3), the rotation block of `fk_pose` (the same numbers), from a walk of the
+    link axes without their origins."""
+    if not chain.plain_tool:
+        return fk_pose(q, chain, params)[..., :3, :3]
+    *_, (X, Y, Z, _) = _walk(q, chain, params, with_origins=False)
+    return torch.stack(torch.broadcast_tensors(X, Y, Z), dim=-1)
+
+
 def fk_pose(q, chain: Chain, params=None) -> torch.Tensor:
     """TCP pose, world <- TCP. q (..., n) rad / mm, params (..., n, 5) or None -> (..., 4, 4) mm."""
     *_, (X, Y, Z, o) = _walk(q, chain, params)  # the flange, from the base
@@ -434,7 +444,7 @@ class ChainJacobians(NamedTuple):
     wparams: torch.Tensor
 
 
-def _walk(q, chain: Chain, params=None):
+def _walk(q, chain: Chain, params=None, with_origins: bool = True):
     """The frames of the chain as axis vectors, from its base through every link.
 
     q (..., n) rad / mm, params (..., n, 5) or None -> (zs, origins, xs, ys, ends, (X, Y, Z, o)):
@@ -444,6 +454,8 @@ def _walk(q, chain: Chain, params=None):
     tool not applied). Link i maps the frame by A_i = Rz(theta) Rx(alpha) Ry(beta) with
     translation [a ct, a st, d] (`link_transforms`), one fused op per product term: on
     a CPU several times faster than products of stacked 4 x 4 matrices.
+    with_origins=False: the axes only (a rotation needs no origin): origins and ends
+    stay empty, the last origin is None.
     """
     table = chain.table
     n = table.shape[0]
@@ -456,7 +468,8 @@ def _walk(q, chain: Chain, params=None):
     ct, st = torch.cos(theta).unsqueeze(-1), torch.sin(theta).unsqueeze(-1)
     ca, sa = torch.cos(alpha).unsqueeze(-1), torch.sin(alpha).unsqueeze(-1)
     cb, sb = torch.cos(beta).unsqueeze(-1), torch.sin(beta).unsqueeze(-1)
-    tx, ty, tz = a.unsqueeze(-1) * ct, a.unsqueeze(-1) * st, d.unsqueeze(-1)
+    if with_origins:
+        tx, ty, tz = a.unsqueeze(-1) * ct, a.unsqueeze(-1) * st, d.unsqueeze(-1)
     base = chain.base.to(theta)
     X, Y, Z, o = base[:3, 0], base[:3, 1], base[:3, 2], base[:3, 3]
     zs, origins, xs, ys, ends = [], [], [], [], []
@@ -467,13 +480,14 @@ def _walk(q, chain: Chain, params=None):
         y_mid = y_rz * ci + Z * si  # R Rz Rx(alpha) e_y
         z_mid = Z * ci - y_rz * si  # R Rz Rx(alpha) e_z
         zs.append(Z)
-        origins.append(o)
         xs.append(x_mid)
         ys.append(y_mid)
-        o = X * tx[..., i, :] + Y * ty[..., i, :] + Z * tz[..., i, :] + o
-        ends.append(o)
+        if with_origins:
+            origins.append(o)
+            o = X * tx[..., i, :] + Y * ty[..., i, :] + Z * tz[..., i, :] + o
+            ends.append(o)
         X, Y, Z = x_mid * cbi - z_mid * sbi, y_mid, x_mid * sbi + z_mid * cbi
-    return zs, origins, xs, ys, ends, (X, Y, Z, o)
+    return zs, origins, xs, ys, ends, (X, Y, Z, o if with_origins else None)
 
 
 def chain_jacobians(q, chain: Chain, params=None, *, tool_point=None) -> ChainJacobians:

@@ -11,7 +11,13 @@ import numpy as np
 import pytest
 import torch
 
-from torchcal.calibration.plausibility import DETERMINED_RATIO, collinear_with, set_by_prior, undetermined
+import torchcal
+from torchcal.calibration.fit import fit
+from torchcal.calibration.model import CalibrationModel
+from torchcal.calibration.plausibility import (DETERMINED_RATIO, collinear_with, determination, set_by_prior,
+                                               undetermined)
+from torchcal.effects import context_of
+from torchcal.simulation.virtual_robot import VirtualRobot, random_poses
 
 
 def test_half_the_scale_separates_measured_from_set_by_the_prior():
@@ -103,3 +109,24 @@ def test_exact_dependencies_among_the_others_give_the_regressions_partner():
         j, r2 = _by_regressions(M, 0, free)
         got = collinear_with(torch.from_numpy(M), 0, [f"p{k}" for k in range(30)], torch.from_numpy(free))
         assert got == (f"p{j}", r2), (trial, got, j)
+
+
+# -- determination(..., partners=False) --------------------------------------------------
+
+ROBOT = torchcal.robot("kr1000titan")
+
+
+def test_without_partners_the_same_parameters_and_reasons():
+    g = torch.Generator().manual_seed(5)
+    q = random_poses(ROBOT, 80, g)
+    q[:, 0] = torch.deg2rad(torch.rand(80, generator=g, dtype=q.dtype) * 4 - 2)  # joint 1 within +-2 deg
+    m = VirtualRobot(ROBOT, [], seed=5).measure(q, noise_mm=0.02)
+    ctx = context_of(ROBOT, m)
+    model = CalibrationModel(ROBOT, ["gear_periodic:1"])
+    res = fit(model, ctx, m.xyz, pose=m.pose)
+    names = model.param_names()
+    full, bare = determination(res, names, ctx), determination(res, names, ctx, partners=False)
+    assert full and any(d["partner"] for d in full)  # the harmonics of a narrow joint are not determined
+    assert [(d["name"], d["why"], d["value"], d["sd"]) for d in bare] == \
+        [(d["name"], d["why"], d["value"], d["sd"]) for d in full]
+    assert all(d["partner"] == "" and d["r2"] == 0.0 for d in bare)

@@ -10,6 +10,7 @@ from torch.testing import assert_close
 
 from torchcal.rotations import (fixed_xyz_to_matrix, kabsch, matrix_to_fixed_xyz, matrix_to_rotvec,
                                 procrustes_rotation, rotvec_to_matrix, skew, so3_error)
+from torchcal.rotations import _unit_skews
 
 ANGLES = torch.tensor([[0.3, -0.7, 2.1], [0.0, 0.0, 0.0], [-2.5, 1.2, -0.4], [1.0, np.pi / 2 - 1e-3, 0.2]],
                       dtype=torch.float64)
@@ -57,3 +58,14 @@ def test_skew_is_the_cross_product():
     assert torch.allclose((S @ x[..., None])[..., 0], torch.linalg.cross(w, x), atol=1e-14)
     assert torch.equal(S, -S.transpose(-1, -2))
     assert torch.allclose(skew(w[0, 0]) @ x[0, 0], torch.linalg.cross(w[0, 0], x[0, 0]), atol=1e-14)  # one vector
+
+
+# -- _unit_skews -------------------------------------------------------------------------
+
+def test_unit_skews_are_the_cross_products_of_the_axes():
+    E = _unit_skews(torch.float64, torch.device("cpu"))
+    x = torch.tensor([0.3, -1.2, 2.5], dtype=torch.float64)
+    eye = torch.eye(3, dtype=torch.float64)
+    for k in range(3):
+        torch.testing.assert_close(E[k] @ x, torch.linalg.cross(eye[k], x), rtol=0, atol=0)
+    assert _unit_skews(torch.float32, torch.device("cpu")).dtype == torch.float32

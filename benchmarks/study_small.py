@@ -27,7 +27,13 @@ worse than fit by RMS, and the worst relative loss (discover / fit - 1). The JSO
 range (`Evaluation.outside_range`), each accepted step of discover (candidate, p-value,
 refit CV RMS before and after within the training poses), the residual-stage test.
 
-    TORCHCAL_THREADS=1 nice -n 5 python benchmarks/study_small.py [--series b c d] [--sizes 30 60] [--seeds 0 1 2] [--json OUT]
+--nested (a diagnostic): where discover added an effect, the same comparison one level down,
+inside the fold's training poses: 5 pose-grouped folds of them (`fold_of_pose(pose, seed)`),
+`fit` and `discover` run on four and the fifth predicted, so discover's whole selection
+(order search, pre-screen, refit tests) happens on poses the comparison does not use; the
+pooled held-out RMS of each.
+
+    TORCHCAL_THREADS=1 nice -n 5 python benchmarks/study_small.py [--series b c d] [--sizes 30 60] [--seeds 0 1 2] [--nested] [--json OUT]
 """
 
 from __future__ import annotations
@@ -84,7 +90,31 @@ def held_out(fm, test) -> dict:
     return {"rms_mm": e.rms_mm, "max_mm": e.max_mm, "outside_range": e.outside_range}
 
 
-def one_fold(robot, ms, fold: np.ndarray, k: int) -> dict:
+def nested(robot, train, seed: int) -> dict:
+    """The discover-vs-fit comparison one level down, on folds that chose nothing: the
+    training poses cut into 5 pose-grouped folds (`fold_of_pose(pose, seed)`), on each
+    the other four run through `fit` and `discover` (all of discover's selection inside
+    them) and the held-out fold predicted; pooled held-out RMS (mm) of each, and the
+    effects each inner discover added."""
+    import torchcal
+    from torchcal.folds import fold_of_pose
+
+    inner = fold_of_pose(train.pose, seed, FOLDS)
+    sq = {"fit": [], "discover": []}
+    added = []
+    for f in range(FOLDS):
+        tr, te = train.subset(torch.from_numpy(inner != f)), train.subset(torch.from_numpy(inner == f))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            d = torchcal.discover(robot, tr, START)
+            for a, fm in (("fit", torchcal.fit(robot, tr, START)), ("discover", d.fit)):
+                sq[a].append(torchcal.evaluate(fm, te).residuals_mm.pow(2).sum(-1))
+        added.append([e for e in d.final_effects if e not in START])
+    rms = {a: float(torch.cat(v).mean().sqrt()) for a, v in sq.items()}
+    return {"fit_rms_mm": rms["fit"], "discover_rms_mm": rms["discover"], "added": added}
+
+
+def one_fold(robot, ms, fold: np.ndarray, k: int, seed: int = 0, with_nested: bool = False) -> dict:
     import torchcal
 
     train, test = ms.subset(torch.from_numpy(fold != k)), ms.subset(torch.from_numpy(fold == k))
@@ -97,7 +127,8 @@ def one_fold(robot, ms, fold: np.ndarray, k: int) -> dict:
         d = torchcal.discover(robot, train, START, residual_model="kernel")
     disc_cpu = time.process_time() - t0
     plain = dataclasses.replace(d.fit, residual_model=None)
-    return {"fold": k, "train_poses": int(np.unique(train.pose.numpy()).size),
+    added = list(d.final_effects) != list(START)
+    return {"nested": nested(robot, train, seed) if with_nested and added else None,"fold": k, "train_poses": int(np.unique(train.pose.numpy()).size),
             "test_poses": int(np.unique(test.pose.numpy()).size),
             "fit": held_out(f, test), "discover": held_out(plain, test),
             "discover_stage": held_out(d.fit, test),
@@ -125,6 +156,9 @@ def main(argv=None):
     ap.add_argument("--sizes", nargs="+", type=int, default=[30, 60])
     ap.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--nested", action="store_true",
+                    help="where discover added an effect, also compare discover with fit by a 5-fold CV "
+                         "inside the training poses with discover run inside each fold (a diagnostic)")
     args = ap.parse_args(argv)
 
     from torchcal.folds import fold_of_pose
@@ -141,7 +175,7 @@ def main(argv=None):
                 ms = subset_poses(m, size, seed)
                 fold = fold_of_pose(ms.pose, seed, FOLDS)
                 for k in range(FOLDS):
-                    r = {"series": s, "size": size, "seed": seed, **one_fold(robot, ms, fold, k)}
+                    r = {"series": s, "size": size, "seed": seed, **one_fold(robot, ms, fold, k, seed, args.nested)}
                     rows.append(r)
                     acc = ", ".join(f"{x['candidate']} (p {x['p_value']:.3g}, gain {100 * x['gain']:.1f} %)"
                                     for x in r["steps"]) or "-"
@@ -151,6 +185,10 @@ def main(argv=None):
                           f"outside range {r['fit']['outside_range']}; accepted {acc}; "
                           f"stage {'in' if r['stage_test'] and r['stage_test']['applied'] else 'out'}; "
                           f"discover {r['discover_cpu_s']:.1f} s CPU", flush=True)
+                    if r["nested"]:
+                        n = r["nested"]
+                        print(f"    nested within the training poses: fit {n['fit_rms_mm']:.4f} discover "
+                              f"{n['discover_rms_mm']:.4f} mm; inner discovers added {n['added']}", flush=True)
             results += rows
             table.append({"series": s, "size": size, **summary(rows)})
     print("\nseries size folds | mean held-out RMS mm: fit  discover  +stage | discover worse (worst) | +stage worse (worst)")

@@ -100,3 +100,24 @@ def test_targets_beyond_reach_get_one_start_only(monkeypatch):
     monkeypatch.setattr(comp, "compensate", stop_at_a_retry)
     with pytest.raises(Retried):  # without `once` the far rows are retried
         comp.nominal_start(model, model.zeros(), t)
+
+
+def test_the_api_gives_far_targets_one_start_as_the_command_line(model, monkeypatch):
+    """`torchcal.compensate` seeds as `torchcal compensate` does: the rows `check_targets`
+    finds beyond the reach go to `nominal_start` as `once` (before, the API retried them
+    from every start); with check=False nothing is found and nothing is passed."""
+    from torchcal.calibration import compensate as comp
+
+    d, _, q, xyz = model
+    t = xyz[:3].clone()
+    t[1] += torch.tensor([9000.0, 0.0, 0.0], dtype=t.dtype)
+    temp = torch.full((3,), 25.0, dtype=t.dtype)  # the model has thermal_expansion
+    seen = []
+    start = comp.nominal_start
+    monkeypatch.setattr(comp, "nominal_start", lambda *a, **kw: seen.append(list(kw.get("once", ()))) or start(*a, **kw))
+    with pytest.warns(UserWarning, match="beyond the reach"):
+        res = torchcal.compensate(d / "model.json", t, temp_c=temp)
+    assert seen == [[1]] and not bool(res.converged[1]) and bool(res.converged[0]) and bool(res.converged[2])
+    seen.clear()
+    torchcal.compensate(d / "model.json", t, temp_c=temp, check=False)
+    assert seen == [[]]

@@ -283,8 +283,8 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
     assigned to its zones). targets: in the model's measuring
     frame. q0: (M, n) rad starting commands, default
     `torchcal.calibration.compensate.nominal_start` (the nominal inverse in the measuring
-    frame from the nearest calibration pose, as the command line seeds it; a target it
-    does not reach is still tried and ends not converged). tol_mm,
+    frame from the nearest calibration pose, as the command line seeds it; a target
+    beyond the reach, `check`, is tried from its nearest pose only and ends not converged). tol_mm,
     max_iter, max_step_rad: the Newton solve (`torchcal.calibration.compensate.compensate`);
     payload_kg, temp_c: (M,) conditions of the moves, for load and temperature effects. Returns a
     `Compensation`; converged solutions outside the model's calibrated joint range are

@@ -344,8 +344,9 @@ def compensate_fitted(fitted, targets, q0=None, *, tol_mm: float = 1e-6, max_ite
     """Corrected joint commands (M, n) rad for targets (M, 3) mm in the measuring frame of a
     fitted model: a `FitResult` (of a `ZonedFit` each target is assigned to its zone).
 
-    q0: (M, n) rad starting commands, default `nominal_start`. check: refuse targets inside
-    the robot's base (metres read as mm), warn about those beyond its reach
+    q0: (M, n) rad starting commands, default `nominal_start` (a target beyond the reach
+    from its nearest calibration pose only, as ``torchcal compensate``). check: refuse
+    targets inside the robot's base (metres read as mm), warn about those beyond its reach
     (`torchcal.calibration.mismatch.check_targets`). A residual stage is inverted with the
     model (`with_stage`). Converged commands outside the calibrated range are counted
     (``outside_range``) and named in one `CalibratedRangeWarning` (at `stacklevel`, counted
@@ -357,10 +358,9 @@ def compensate_fitted(fitted, targets, q0=None, *, tol_mm: float = 1e-6, max_ite
     t = torch.as_tensor(targets, dtype=robot.dtype, device=robot.device)
     if t.ndim != 2 or t.shape[-1] != 3:
         raise InputError(f"targets: expected (M, 3) mm, got shape {tuple(t.shape)}")
-    if check:
-        check_targets(cm, theta, t)
+    far = check_targets(cm, theta, t) if check else []
     if q0 is None:
-        q0 = nominal_start(cm, theta, t, poses=fitted.seed_poses, q_range=q_range).q
+        q0 = nominal_start(cm, theta, t, poses=fitted.seed_poses, q_range=q_range, once=far).q
     zone = fitted.assign(t) - 1  # row of zone_theta
     theta = fitted.zone_theta
     options = dict(tol_mm=tol_mm, max_iter=max_iter, max_step_rad=max_step_rad, payload_kg=payload_kg,

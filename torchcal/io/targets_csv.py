@@ -11,6 +11,7 @@ Q.csv of ``torchcal compensate``: `compensation_csv`.
 from __future__ import annotations
 
 import csv
+import io as _io
 import math
 from pathlib import Path
 
@@ -29,13 +30,31 @@ def read_targets(path, n: int, length_unit: str = "mm", angle_unit: str = "deg",
     prismatic: optional (n,) bool; those seed columns are lengths in `length_unit`, the
     others angles in `angle_unit`."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise InputError(f"{path}: targets file does not exist")
-    with open(path, newline="") as fh:
-        rows = list(csv.reader(fh))
-    if not rows:
+    if not path.is_file():
+        raise InputError(f"{path}: targets file is not a regular file")
+    try:  # a UTF-8 byte order mark (Excel) is accepted, as in the measurement CSV
+        text = path.read_bytes().decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not a UTF-8 text file (byte {exc.start}); "
+                         f"expected a CSV x,y,z[,q1..q{n}]") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the targets file: {exc.strerror or exc}") from None
+    try:
+        rows = list(csv.reader(_io.StringIO(text, newline=None), strict=True))
+    except csv.Error as exc:
+        raise InputError(f"{path}: not valid CSV: {exc}") from None
+    h0 = 0  # blank lines before the header are skipped
+    while h0 < len(rows) and all(not c.strip() for c in rows[h0]):
+        h0 += 1
+    if h0 == len(rows):
         raise InputError(f"{path}: empty file; expected a header x,y,z[,q1..q{n}]")
-    header = [h.strip() for h in rows[0]]
+    header = [h.strip() for h in rows[h0]]
+    for i, h in enumerate(header):
+        if h in header[:i]:
+            raise InputError(f"{path}: column {h!r}: duplicated header column "
+                             f"(columns {header.index(h) + 1} and {i + 1})")
     qcols = [f"q{k}" for k in range(1, n + 1)]
     for c in ("x", "y", "z"):
         if c not in header:
@@ -53,7 +72,7 @@ def read_targets(path, n: int, length_unit: str = "mm", angle_unit: str = "deg",
     slides = [False] * n if prismatic is None else [bool(p) for p in prismatic]
     idx = {h: i for i, h in enumerate(header)}
     xyz, qs = [], []
-    for line, row in enumerate(rows[1:], start=2):
+    for line, row in enumerate(rows[h0 + 1:], start=h0 + 2):
         if not row or all(not c.strip() for c in row):
             continue
         if len(row) != len(header):

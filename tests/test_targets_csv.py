@@ -1,0 +1,48 @@
+"""The compensation targets CSV (`torchcal.io.targets_csv.read_targets`): what a
+spreadsheet writes is read as the measurement CSV is (byte order mark, blank lines), and
+every malformed file is one InputError naming the file and what is wrong, never a
+UnicodeDecodeError / csv.Error, nor a silently chosen column."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from torchcal.errors import InputError
+from torchcal.io.targets_csv import read_targets
+
+
+def _write(tmp_path, data: bytes, name="t.csv"):
+    p = tmp_path / name
+    p.write_bytes(data)
+    return p
+
+
+@pytest.mark.parametrize("data", [
+    b"\xef\xbb\xbfx,y,z\n400,100,500\n-300,20,600\n",   # Excel's UTF-8 byte order mark
+    b"\n\nx,y,z\n400,100,500\n\n-300,20,600\n",          # blank lines before the header
+    b"x,y,z\r\n400,100,500\r\n-300,20,600\r\n",           # CRLF
+])
+def test_spreadsheet_variants_read_as_the_plain_file(tmp_path, data):
+    t, seeds, _ = read_targets(_write(tmp_path, data), 6)
+    assert seeds is None
+    assert torch.equal(t, torch.tensor([[400.0, 100, 500], [-300, 20, 600]], dtype=torch.float64))
+
+
+@pytest.mark.parametrize("data, match", [
+    (b"x,y,z,x\n400,100,500,0\n", r"t\.csv: column 'x': duplicated header column \(columns 1 and 4\)"),
+    (b"x,y,z\n400,100,500\xff\n", r"t\.csv: not a UTF-8 text file \(byte 17\)"),
+    (b'x,y,z\n"400,100,500\n', r"t\.csv: not valid CSV"),
+    (b"\n \n", r"t\.csv: empty file"),
+    (b"\nx,y,z\n400,100,500\n\n1,2,a\n", r"t\.csv: line 5, column z: expected a number \(mm\), got 'a'"),
+])
+def test_malformed_targets_one_inputerror(tmp_path, data, match):
+    with pytest.raises(InputError, match=match):
+        read_targets(_write(tmp_path, data), 6)
+
+
+def test_a_folder_is_not_called_missing(tmp_path):
+    with pytest.raises(InputError, match="targets file is not a regular file"):
+        read_targets(tmp_path, 6)
+    with pytest.raises(InputError, match="targets file does not exist"):
+        read_targets(tmp_path / "none.csv", 6)

@@ -60,3 +60,16 @@ def test_evaluate_compensate_and_errors(kr, data):
         torchcal.fit(kr, [1, 2])
     with pytest.raises(torchcal.InputError, match="model: expected a FitResult"):
         torchcal.evaluate(kr, m)
+
+
+def test_discover_refuses_a_transfer_session_of_another_robot(kr, data, tmp_path):
+    """The other session is held to the check the data get: the positions of another arm
+    (the UR5e's nominal geometry at KR 1000 poses, metres off) are one InputError naming
+    its file before any search, not a transfer figure of metres that vetoes every step."""
+    m, _ = data
+    ur = CalibrationModel(torchcal.robot("ur5e"))
+    q = random_poses(kr, 40, 6)
+    xyz = ur.predict(torch.zeros(ur.n_params, dtype=torch.float64), make_context(ur.robot, q))
+    write_measurements(tmp_path / "ur5e.csv", Measurements(torch.arange(40), q, xyz))
+    with pytest.raises(torchcal.InputError, match=r"ur5e\.csv: cannot come from kr1000titan"):
+        torchcal.discover("kr1000titan", m, transfer=tmp_path / "ur5e.csv", max_rounds=0)

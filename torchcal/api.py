@@ -233,8 +233,8 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     """Add the accepted missing effect each round (`torchcal.diagnosis.diagnose.discover`),
     for at most max_rounds rounds; folds, seed, alpha, sigma_mm, sigma_deg as in `diagnose`
     (None: the defaults of `torchcal.diagnosis`). Data the nominal robot cannot explain,
-    or that need a measuring frame the effects lack, are refused as by `diagnose`.
-    transfer: measurements of another session (Measurements or CSV path) as a check: a
+    or that need a measuring frame the effects lack, are refused as by `diagnose`, in
+    `measurements` and in `transfer` alike. transfer: measurements of another session (Measurements or CSV path) as a check: a
     step is kept only when it lowers that session's error beyond chance after registration on
     its first `transfer_poses` poses (`torchcal.diagnosis.transfer`). residual_model:
     'kernel' adds the residual stage to the final model when its held-out test passes, as
@@ -247,6 +247,8 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     m = _measurements(measurements, model.robot)
     check_robot_data_of(CalibrationModel.for_measurements(model.robot, model.specs(), m), m)
     other = None if transfer is None else _measurements(transfer, model.robot)
+    if other is not None:  # the other session's data are held to the same check (another robot, units)
+        check_robot_data_of(CalibrationModel.for_measurements(model.robot, model.specs(), other), other)
     check = None if other is None else TransferCheck(other, transfer_poses, other.source or "the other session")
     with threads.for_work(_work(model, m)):
         res = run(model.robot, m, model.specs(), folds=folds, seed=seed, sigma_mm=sigma_mm, sigma_deg=sigma_deg,

@@ -241,6 +241,20 @@ def test_robust_choice(work, capsys):
          "--robust", created=[out])
 
 
+@pytest.mark.parametrize("seed", ["-1", "4294967296", "99999999999999999999", "1.5"])
+@pytest.mark.parametrize("command", ["simulate", "plan", "split"])
+def test_seed_out_of_range_names_the_option(work, capsys, command, seed):
+    """A negative seed was refused by numpy deep inside split / plan without naming --seed
+    (and accepted by simulate); a seed beyond 64 bits gave 'Overflow when unpacking long
+    long'. Every --seed is one argparse line naming the option and the range."""
+    out = work / f"seed-{command}.csv"
+    argv = {"simulate": ["simulate", "--robot", ROBOT, "--n", "5", "--out", out],
+            "plan": ["plan", "--robot", ROBOT, "--n", "10", "--out", out],
+            "split": ["split", work / "good.csv", "--fraction", "0.5", "--out", out, work / "seed-val.csv"]}[command]
+    _bad(capsys, [*argv, "--seed", seed], "argument --seed", "0..4294967295", repr(seed),
+         created=[out, work / "seed-val.csv"])
+
+
 # --------------------------------------------------------------------------------------
 # model files
 # --------------------------------------------------------------------------------------

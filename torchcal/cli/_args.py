@@ -25,6 +25,13 @@ def positive_int(text: str) -> int:
     return _number(text, int, lambda v: v >= 1, "a positive integer")
 
 
+def seed_int(text: str) -> int:
+    """A --seed: an integer 0 .. 2**32 - 1. numpy refuses a negative seed and torch one
+    beyond 64 bits; the seeds derived from it (e.g. seed * 1_000_003 + 17 in
+    `torchcal.simulation.virtual_robot`) stay within 64 bits for 32-bit seeds."""
+    return _number(text, int, lambda v: 0 <= v < 2 ** 32, "an integer seed 0..4294967295")
+
+
 def positive_float(text: str) -> float:
     return _number(text, float, lambda v: v > 0, "a positive number")
 
@@ -47,7 +54,7 @@ def add_force(p):
 def add_cv(p):
     """--folds and --seed of the cross-validated commands (diagnose, discover)."""
     p.add_argument("--folds", type=positive_int, default=5, help="cross-validation folds (default 5)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the fold assignment")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the fold assignment")
 
 
 def add_effects_module(p):

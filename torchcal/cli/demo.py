@@ -15,14 +15,14 @@ from __future__ import annotations
 
 import sys
 
-from torchcal.cli._args import add_device, add_force, add_viz, check_outputs, device_of
+from torchcal.cli._args import add_device, add_force, add_viz, check_outputs, device_of, seed_int
 
 
 def add_parser(sub):
     p = sub.add_parser("demo", help="the paper's whole pipeline on a simulated KR 1000 Titan",
                        description=__doc__.splitlines()[0])
     p.add_argument("--json", help="write the report (JSON) here")
-    p.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of every random draw (default 0)")
     p.add_argument("--seeds", type=int, nargs="?", const=10, default=1, metavar="K",
                    help="run seeds S .. S+K-1 (default: 1 seed; --seeds alone: 10)")
     p.add_argument("--discover-rounds", type=int, default=2, metavar="R",

@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 
 from torchcal.cli._args import add_effects_module, add_force, add_units, check_outputs, read_data, add_robot, robot_inputs
-from torchcal.cli._args import add_device, device_of, nonneg_float, positive_float
+from torchcal.cli._args import add_device, device_of, nonneg_float, positive_float, seed_int
 from torchcal.defaults import MAX_ANGLE_DEG, MAX_LENGTH_MM, SIGMA_DEG, SIGMA_MM
 
 
@@ -34,7 +34,7 @@ def add_parser(sub):
     add_robot(p)
     p.add_argument("--effects", nargs="*", default=[], metavar="SPEC", help="effects, e.g. joint_compliance:2,3; tracker data (in the instrument's frame, a reflector on the flange) need base_frame tool_offset")
     p.add_argument("--robust", choices=["huber", "cauchy"], help="robust loss by IRLS")
-    p.add_argument("--seed", type=int, default=0, help="recorded in the provenance")
+    p.add_argument("--seed", type=seed_int, default=0, help="recorded in the provenance")
     p.add_argument("--sigma-mm", type=positive_float, default=SIGMA_MM,
                    help=f"position uncertainty of one measurement, mm (default {SIGMA_MM})")
     p.add_argument("--sigma-deg", type=positive_float, default=SIGMA_DEG,

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from torchcal.cli._args import add_force, check_outputs
+from torchcal.cli._args import add_force, check_outputs, seed_int
 from torchcal.errors import InputError
 
 NEEDED = ("point", "x", "y", "z", "r_set")
@@ -28,7 +28,7 @@ def add_parser(sub):
                    help="sub-zones per level, comma separated (paper: 3,2,3,2), or 'auto' (default)")
     p.add_argument("--zone-range", default="2,3", metavar="LO,HI",
                    help="sub-zone counts tried per level with --zones auto, best Xie-Beni (default 2,3)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the FCM random starts (default 0)")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the FCM random starts (default 0)")
     p.add_argument("--restarts", type=int, default=5, help="FCM random starts, best kept (default 5)")
     p.add_argument("--m", type=float, default=2.0, help="FCM fuzzifier m > 1 (default 2)")
     p.add_argument("--r-weight", type=float, default=1.0,

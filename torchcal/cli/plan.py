@@ -10,7 +10,7 @@ against random plans of the same size from the same candidates."""
 
 from __future__ import annotations
 
-from torchcal.cli._args import add_force, add_robot, check_outputs, nonneg_float, plot_outputs, positive_int, robot_inputs
+from torchcal.cli._args import add_force, add_robot, check_outputs, nonneg_float, plot_outputs, positive_int, robot_inputs, seed_int
 
 PNGS = ("plan_poses.png", "plan_criterion.png")  # in the --plots folder
 
@@ -22,7 +22,7 @@ def add_parser(sub):
     p.add_argument("--n", type=positive_int, required=True, help="number of poses N to choose")
     p.add_argument("--candidates", type=positive_int, default=10_000, help="candidate poses M (default 10000)")
     p.add_argument("--criterion", choices=["D", "O1", "E"], default="D", help="design criterion (default D)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the candidates and random plans")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the candidates and random plans")
     p.add_argument("--payload", type=nonneg_float, help="payload kg at which load-driven effects are "
                    "evaluated (default: the rated payload)")
     p.add_argument("--temp", type=float, default=20.0, help="temperature deg C for thermal effects (default 20)")

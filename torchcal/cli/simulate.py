@@ -24,7 +24,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from torchcal.cli._args import (add_effects_module, add_force, check_outputs, positive_int, nonneg_float, add_robot,
+from torchcal.cli._args import (seed_int, add_effects_module, add_force, check_outputs, positive_int, nonneg_float, add_robot,
                                 robot_inputs)
 
 
@@ -39,9 +39,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    help="measurements per pose K (default 1)")
     p.add_argument("--noise", type=nonneg_float, default=0.02,
                    help="measurement noise, mm (1 sigma per axis; default 0.02)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the simulated robot and, without "
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the simulated robot and, without "
                    "--pose-seed, of the poses and the session (default 0)")
-    p.add_argument("--pose-seed", type=int, default=None, metavar="P",
+    p.add_argument("--pose-seed", type=seed_int, default=None, metavar="P",
                    help="seed of the poses and the measurement session (default: --seed); another P: "
                         "fresh poses of the same robot")
     p.add_argument("--out", required=True, help="output measurement CSV")

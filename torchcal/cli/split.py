@@ -12,7 +12,7 @@ every q column is an angle)."""
 
 from __future__ import annotations
 
-from torchcal.cli._args import add_force, add_robot, add_units, check_outputs, load_robot, read_data, units
+from torchcal.cli._args import add_force, add_robot, add_units, check_outputs, load_robot, read_data, units, seed_int
 
 
 def add_parser(sub):
@@ -21,7 +21,7 @@ def add_parser(sub):
     p.add_argument("data", help="measurement CSV of one session")
     p.add_argument("--fraction", type=float, default=0.6, help="share of poses for training, in (0, 1) "
                                                                  "(default 0.6)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the permutation of poses (default 0)")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the permutation of poses (default 0)")
     p.add_argument("--out", nargs=2, required=True, metavar=("TRAIN.csv", "VAL.csv"), help="the two files to write")
     add_robot(p, required=False, what="the robot (for prismatic joints' units and the unit check; optional)")
     add_units(p)

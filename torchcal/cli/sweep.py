@@ -30,7 +30,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from torchcal.cli._args import add_device, add_force, check_outputs, device_of, positive_int, positive_float, add_robot
+from torchcal.cli._args import add_device, add_force, check_outputs, device_of, positive_int, positive_float, add_robot, seed_int
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -42,7 +42,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    help="clearance states M per point (default 300)")
     p.add_argument("--allowed", type=positive_float, default=2.5,
                    help="allowed distance error D in mm: R_set against [0, D] (default 2.5)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the Latin hypercube and the states")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the Latin hypercube and the states")
     p.add_argument("--clearance", metavar="FILE.json",
                    help="joint-clearance model {radii_mm, clearance_mm, bearing_length_mm} (mm); "
                         "default: the robot file's \"clearance\" section, or Table 2 for kr1000titan")

@@ -255,6 +255,20 @@ def test_seed_out_of_range_names_the_option(work, capsys, command, seed):
          created=[out, work / "seed-val.csv"])
 
 
+def test_joined_files_warn_in_one_line(work, capsys):
+    """Two sessions joined with restarting pose ids: the reader's PoseIdWarning is one
+    'torchcal: warning:' line on stderr (not Python's two-line warning), and split goes on."""
+    lines = _lines(work)
+    again = _cells(lines[1])
+    again[1] = repr(float(again[1]) + 5.0)  # the first pose's id, q1 5 degrees away
+    p = _write(work, "joined.csv", "\n".join(lines + [",".join(again)]) + "\n")
+    outs = [work / "joined-a.csv", work / "joined-b.csv"]
+    assert main(["split", str(p), "--fraction", "0.5", "--out", *map(str, outs)]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith(f"torchcal: warning: {p}: 1 row(s) repeat a pose id at other joint "
+                                               f"values (first: line {len(lines) + 1}, pose id "), err
+
+
 # --------------------------------------------------------------------------------------
 # model files
 # --------------------------------------------------------------------------------------

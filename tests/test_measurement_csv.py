@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 
 from torchcal.errors import InputError
 from torchcal.measurements import Measurements
-from torchcal.io.measurement_csv import JointLimitWarning, format_measurements, read_measurements, write_measurements
+from torchcal.io.measurement_csv import (JointLimitWarning, PoseIdWarning, format_measurements, read_measurements,
+                                         write_measurements)
 from torchcal.io.robot_file import robot
 
 HEADER6 = "pose,q1,q2,q3,q4,q5,q6,x,y,z"
@@ -196,8 +197,8 @@ def test_joint_count_vs_robot(tmp_path):
 
 def test_joint_limits_warn_or_fail(tmp_path):
     # kr1000titan q2 limits are -130..17.5 deg: 20 is outside, 17.5 (the limit) is inside
-    p = _write(tmp_path, HEADER6 + "\n" + ROW6 + "\n" + ROW6.replace("-20", "17.5") + "\n"
-               + ROW6.replace("-20", "20") + "\n")
+    p = _write(tmp_path, HEADER6 + "\n" + ROW6 + "\n" + "1" + ROW6.replace("-20", "17.5")[1:] + "\n"
+               + "2" + ROW6.replace("-20", "20")[1:] + "\n")  # three poses, three ids
     with pytest.warns(JointLimitWarning, match=r"data\.csv: 1 row\(s\) outside the joint limits of "
                                                r"robot kr1000titan: line 4 q2=20 deg \(limits -130\.\.17\.5\)"):
         m = read_measurements(p, robot=robot("kr1000titan"))
@@ -207,6 +208,26 @@ def test_joint_limits_warn_or_fail(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         read_measurements(p)  # no robot, no limits to check
+
+
+def test_pose_id_repeated_at_other_joint_values_warns(tmp_path):
+    """Two files joined with restarting pose ids: rows of one id at other joint values are
+    no repeats of one pose, yet folds, split and the noise floor would take them as one.
+    A PoseIdWarning names the first such row; true repeats (the same values, or measured
+    angles a few thousandths of a degree apart) read silently."""
+    other = "0,11,-20,30,0,45,90,1500.5,-2.25,1800"  # pose id 0 again, q1 11 instead of 10
+    p = _write(tmp_path, HEADER6 + "\n" + ROW6 + "\n1" + ROW6[1:] + "\n" + other + "\n")
+    with pytest.warns(PoseIdWarning, match=r"data\.csv: 1 row\(s\) repeat a pose id at other joint values "
+                                           r"\(first: line 4, pose id 0, q1=11 degrees, on line 2 10\)"):
+        assert len(read_measurements(p)) == 3
+    jitter = ROW6.replace(",10,", ",10.003,")
+    q = _write(tmp_path, HEADER6 + "\n" + ROW6 + "\n" + ROW6 + "\n" + jitter + "\n", "repeats.csv")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert read_measurements(q).pose.tolist() == [0, 0, 0]
+    rad = _write(tmp_path, HEADER6 + "\n" + ROW6 + "\n" + other.replace("0,11,", "0,10.01,") + "\n", "rad.csv")
+    with pytest.warns(PoseIdWarning, match=r"q1=10\.01 rad, on line 2 10\)"):  # 0.01 rad > 0.1 deg
+        read_measurements(rad, angle_unit="rad")
 
 
 # -- property-based ---------------------------------------------------------------------

@@ -227,10 +227,10 @@ def read_data(path, robot, args=None, check: bool = True):
     metres read as mm and radians read as degrees with one line naming the fix.
     """
     from torchcal.calibration.mismatch import check_units
-    from torchcal.io.measurement_csv import JointLimitWarning, read_measurements
+    from torchcal.io.measurement_csv import FILE_WARNINGS, read_measurements
 
     u = units(args)
-    with warnings_to_stderr(JointLimitWarning):
+    with warnings_to_stderr(*FILE_WARNINGS):
         m = read_measurements(path, robot=robot, **u)
         if check:
             check_units(m, robot, where=str(path), **u)

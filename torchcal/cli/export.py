@@ -56,13 +56,13 @@ def add_parser(sub):
 def run(args) -> int:
     from torchcal.api import export
     from torchcal.cli._args import units, warnings_to_stderr
-    from torchcal.io.measurement_csv import JointLimitWarning
+    from torchcal.io.measurement_csv import FILE_WARNINGS
 
     outs = [("--robot-file", args.robot_file), ("--urdf", args.urdf), ("--table", args.table)]
     if not any(p for _, p in outs):
         raise InputError("export: give at least one of --robot-file, --urdf, --table")
     check_outputs(outs, args.force, inputs=[args.model, args.data])
-    with warnings_to_stderr(JointLimitWarning):
+    with warnings_to_stderr(*FILE_WARNINGS):
         res = export(args.model, robot_file=args.robot_file, urdf=args.urdf, table=args.table, data=args.data,
                      force=args.force, **units(args))
     d = res.to_dict()

@@ -12,7 +12,8 @@ every q column is an angle)."""
 
 from __future__ import annotations
 
-from torchcal.cli._args import add_force, add_robot, add_units, check_outputs, load_robot, read_data, units, seed_int
+from torchcal.cli._args import (add_force, add_robot, add_units, check_outputs, load_robot, read_data, units,
+                                seed_int, warnings_to_stderr)
 
 
 def add_parser(sub):
@@ -32,7 +33,7 @@ def add_parser(sub):
 
 def run(args) -> int:
     from torchcal.errors import InputError
-    from torchcal.io.measurement_csv import read_measurements, write_measurements
+    from torchcal.io.measurement_csv import FILE_WARNINGS, read_measurements, write_measurements
     from torchcal.measurements import split_by_pose
 
     if not 0.0 < args.fraction < 1.0:
@@ -40,7 +41,11 @@ def run(args) -> int:
     train_path, val_path = args.out
     check_outputs([("--out TRAIN", train_path), ("--out VAL", val_path)], args.force, inputs=[args.data])
     robot = load_robot(args.robot)
-    m = read_data(args.data, robot, args) if robot is not None else read_measurements(args.data, **units(args))
+    if robot is not None:
+        m = read_data(args.data, robot, args)
+    else:
+        with warnings_to_stderr(*FILE_WARNINGS):
+            m = read_measurements(args.data, **units(args))
     is_train = split_by_pose(m.pose, args.fraction, args.seed)
     train, val = m.subset(is_train), m.subset(~is_train)
     for path, part in ((train_path, train), (val_path, val)):

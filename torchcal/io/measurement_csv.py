@@ -177,7 +177,10 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
 
     Angles outside `robot.limits` (when `robot` is given) raise a `JointLimitWarning`
     naming the rows and joints, since real robots are often measured slightly outside
-    nominal limits; ``strict_limits=True`` makes it an InputError instead.
+    nominal limits; ``strict_limits=True`` makes it an InputError instead. Rows of one
+    pose id whose joint values differ by more than `REPEAT_TOL` (0.1 deg; 0.1 mm for a
+    prismatic joint) raise a `PoseIdWarning` naming the first: they are no repeats of
+    one commanded pose (two files joined with restarting ids).
 
     Every problem raises InputError with one line naming the file, the place
     ("line L (data row R)": L counts file lines from 1 with the header as line 1,
@@ -270,6 +273,7 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
                 _fail(path, f"{_where(line, row, c)}: payload must be >= 0 kg, got {_show(fields[cols[c]])}")
             extra[c][r] = v
 
+    _check_repeats(path, pose, q_deg, [line for line, _ in rows], au, lu, robot, length_unit)
     to_rad = torch.deg2rad if angle_unit == "deg" else (lambda t: t)
 
     def joints(values):  # (N, n) rad; a prismatic joint's column is a length: mm inside
@@ -302,6 +306,46 @@ def as_measurements(measurements, robot, length_unit: str = "mm", angle_unit: st
     if isinstance(measurements, (str, Path)):
         return read_measurements(measurements, robot=robot, length_unit=length_unit, angle_unit=angle_unit)
     raise InputError(f"measurements: expected Measurements or a CSV path, got {type(measurements).__name__}")
+
+
+#: rows of one pose id repeat one commanded pose: their joint values may differ by at most
+#: this, in degrees (mm for a prismatic joint), e.g. measured rather than commanded angles
+REPEAT_TOL = 0.1
+
+
+class PoseIdWarning(UserWarning):
+    """Rows of one pose id at different joint values (`read_measurements`)."""
+
+
+#: the warnings of reading a measurement CSV, which the command line writes as one line each
+FILE_WARNINGS = (JointLimitWarning, PoseIdWarning)
+
+
+def _check_repeats(path, pose: list[int], q: list[list[float]], lines: list[int], au: str, lu: str,
+                   robot, length_unit: str) -> None:
+    """Warn (PoseIdWarning, one line) when rows' joint values q (file units) differ by more
+    than REPEAT_TOL from the first row of their pose id (two sessions joined with
+    restarting ids, a mistyped id): such rows are no repeats of one pose, yet folds, split
+    and the noise floor from repeats take them as one."""
+    n = len(q[0])
+    slide = [False] * n if robot is None else [bool(v) for v in robot.prismatic.cpu().tolist()]
+    tol = [REPEAT_TOL / LENGTH_UNITS[length_unit] if sl else
+           (REPEAT_TOL if au == "degrees" else math.radians(REPEAT_TOL)) for sl in slide]
+    first: dict[int, int] = {}
+    bad = []  # (row, first row of its id, joint)
+    for r, p in enumerate(pose):
+        f = first.setdefault(p, r)
+        j = next((j for j in range(n) if abs(q[r][j] - q[f][j]) > tol[j]), None)
+        if j is not None:
+            bad.append((r, f, j))
+    if not bad:
+        return
+    r, f, j = bad[0]
+    unit = lu if slide[j] else au
+    warnings.warn(f"{path}: {len(bad)} row(s) repeat a pose id at other joint values (first: line {lines[r]}, "
+                  f"pose id {pose[r]}, q{j + 1}={q[r][j]:.6g} {unit}, on line {lines[f]} {q[f][j]:.6g}); "
+                  f"rows of one pose id are taken as repeats of one commanded pose (folds, split, noise "
+                  f"floor): give each pose its own id (two files joined?)", PoseIdWarning, stacklevel=3)
 
 
 def _check_limits(path, m: Measurements, robot, lines: list[int], strict: bool) -> None:

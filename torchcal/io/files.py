@@ -33,7 +33,8 @@ def same_file(a, b) -> bool:
 def check_output(path, force: bool = False, inputs=()) -> Path:
     """The overwrite rule (library and command line alike): `path` must not be one of
     `inputs` (`same_file`; `force` does not change that), must not exist unless `force`
-    (OutputExistsError), must not be a folder, its folder must exist and take a new file
+    (OutputExistsError), must not be a folder nor another non-regular file (a device such as
+    /dev/null, a pipe: the rename would replace it, `force` or not), its folder must exist and take a new file
     (tried: a temporary file is created and removed there), all before any work.
     Returns `path` as a Path."""
     path = Path(path)
@@ -44,6 +45,8 @@ def check_output(path, force: bool = False, inputs=()) -> Path:
         raise OutputExistsError(f"{path}: output exists")
     if path.is_dir():
         raise InputError(f"{path}: is a folder, expected a file name")
+    if path.exists() and not path.is_file():  # the rename would replace a device node or a pipe
+        raise InputError(f"{path}: not a regular file (a device, pipe or socket), expected a file name")
     if not path.parent.exists():
         raise InputError(f"{path}: folder {path.parent} does not exist")
     try:

@@ -376,6 +376,18 @@ def test_plots_names_a_file(work, capsys, command):
     _bad(capsys, argv, "--plots", "folder", created=[out], untouched=[work / "good.csv"])
 
 
+@pytest.mark.parametrize("command", ["evaluate", "plan"])
+def test_plots_folder_that_cannot_be_made(work, capsys, command):
+    """A --plots folder the system will not create (here below a file) was an
+    '[Errno 20] Not a directory' line without the option; now it names --plots, before any work."""
+    plots = work / "good.csv" / "plots"
+    out = work / f"plots-made-{command}.json"
+    argv = (["plan", "--robot", ROBOT, "--n", "10", "--out", out] if command == "plan"
+            else _cmd(command, work / "good.csv", work, out))
+    _bad(capsys, argv + ["--plots", plots], str(plots), "--plots: cannot create the folder", created=[out],
+         untouched=[work / "good.csv"])
+
+
 def test_diagnose_model_and_effects_both(work, capsys):
     out = work / "both.json"
     _bad(capsys, ["diagnose", work / "good.csv", "--robot", ROBOT, "--model", work / "model.json",

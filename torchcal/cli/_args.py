@@ -170,6 +170,19 @@ def check_folder(opt: str, path) -> None:
         raise InputError(f"{path}: {opt} expects a folder, but this is a file")
 
 
+def make_folder(opt: str, path) -> None:
+    """Create the output folder `path` of option `opt` (and its parents) when missing;
+    InputError (one line naming the option) when the system refuses."""
+    from pathlib import Path
+
+    from torchcal.errors import InputError
+
+    try:
+        Path(path).mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{path}: {opt}: cannot create the folder: {(exc.strerror or str(exc)).lower()}") from None
+
+
 def plot_outputs(folder, names) -> list:
     """[("--plots", folder/name)...] for `check_outputs`, to check the PNGs a ``--plots``
     folder will get before any work ([] without --plots); creates the folder when missing
@@ -179,7 +192,7 @@ def plot_outputs(folder, names) -> list:
     if folder is None:
         return []
     check_folder("--plots", folder)
-    Path(folder).mkdir(parents=True, exist_ok=True)
+    make_folder("--plots", folder)
     return [("--plots", Path(folder) / n) for n in names]
 
 

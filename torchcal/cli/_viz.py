@@ -49,15 +49,15 @@ def check_outputs(args, command: str) -> tuple[Path | None, list[Path]]:
     folder. Returns (rrd path or None, PNG paths, empty without --plots); calling it twice is harmless. Raises
     InputError (one line) as `torchcal.cli._args.check_outputs` does, and when
     --plots names a file."""
-    from torchcal.cli._args import check_folder
+    from torchcal.cli._args import check_folder, make_folder
     from torchcal.cli._args import check_outputs as check_files
 
     rrd = Path(args.rrd) if getattr(args, "rrd", None) else None
     plots = getattr(args, "plots", None)
     check_folder("--plots", plots)
     pngs = [Path(plots) / name for name in PLOTS[command]] if plots else []
-    if plots and not Path(plots).exists():
-        Path(plots).mkdir(parents=True)
+    if plots:
+        make_folder("--plots", plots)
     check_files([("--rrd", rrd)] + [("--plots", p) for p in pngs], bool(getattr(args, "force", False)),
                 inputs=list(_inputs(args)))
     return rrd, pngs

@@ -73,3 +73,14 @@ def test_discover_refuses_a_transfer_session_of_another_robot(kr, data, tmp_path
     write_measurements(tmp_path / "ur5e.csv", Measurements(torch.arange(40), q, xyz))
     with pytest.raises(torchcal.InputError, match=r"ur5e\.csv: cannot come from kr1000titan"):
         torchcal.discover("kr1000titan", m, transfer=tmp_path / "ur5e.csv", max_rounds=0)
+
+
+def test_discover_refuses_a_transfer_session_without_the_datas_temp_c(data, tmp_path):
+    """Data with temp_c make thermal_expansion a candidate, and every candidate is scored on
+    the transfer session: one without temp_c was a TypeError traceback mid-search, now
+    an InputError naming the transfer file and the column, before any search."""
+    m, _ = data
+    warm = Measurements(m.pose, m.q, m.xyz, temp_c=torch.full((len(m),), 25.0, dtype=torch.float64))
+    write_measurements(tmp_path / "cold.csv", m)
+    with pytest.raises(torchcal.InputError, match=r"cold\.csv: the transfer session has no temp_c column"):
+        torchcal.discover("kr1000titan", warm, transfer=tmp_path / "cold.csv", max_rounds=1)

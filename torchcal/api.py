@@ -247,6 +247,10 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     m = _measurements(measurements, model.robot)
     check_robot_data_of(CalibrationModel.for_measurements(model.robot, model.specs(), m), m)
     other = None if transfer is None else _measurements(transfer, model.robot)
+    if other is not None and m.temp_c is not None and other.temp_c is None:  # else a traceback mid-search
+        raise InputError(f"{other.source or 'transfer'}: the transfer session has no temp_c column, which "
+                         f"{m.source or 'the data'} have: thermal_expansion, a candidate on those data, is "
+                         f"scored on both sessions; add temp_c (degC) to it or drop the column from both")
     if other is not None:  # the other session's data are held to the same check (another robot, units)
         check_robot_data_of(CalibrationModel.for_measurements(model.robot, model.specs(), other), other)
     check = None if other is None else TransferCheck(other, transfer_poses, other.source or "the other session")

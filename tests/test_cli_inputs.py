@@ -269,6 +269,15 @@ def test_joined_files_warn_in_one_line(work, capsys):
                                                f"values (first: line {len(lines) + 1}, pose id "), err
 
 
+@pytest.mark.parametrize("command", ["diagnose", "discover"])
+def test_one_fold_is_refused_by_the_option(work, capsys, command):
+    """--folds 1 holds no pose out: it was 'error: Singular matrix' from deep inside the
+    cross-validation; now the option's own line, before any work."""
+    out = work / f"folds-{command}.json"
+    _bad(capsys, _cmd(command, work / "good.csv", work, out) + ["--folds", "1"], "argument --folds",
+         "integer >= 2", "'1'", created=[out])
+
+
 # --------------------------------------------------------------------------------------
 # model files
 # --------------------------------------------------------------------------------------

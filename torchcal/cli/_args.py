@@ -32,6 +32,11 @@ def seed_int(text: str) -> int:
     return _number(text, int, lambda v: 0 <= v < 2 ** 32, "an integer seed 0..4294967295")
 
 
+def fold_count(text: str) -> int:
+    """--folds: an integer >= 2 (one fold leaves no pose to hold out)."""
+    return _number(text, int, lambda v: v >= 2, "an integer >= 2 (one fold holds nothing out)")
+
+
 def positive_float(text: str) -> float:
     return _number(text, float, lambda v: v > 0, "a positive number")
 
@@ -53,7 +58,7 @@ def add_force(p):
 
 def add_cv(p):
     """--folds and --seed of the cross-validated commands (diagnose, discover)."""
-    p.add_argument("--folds", type=positive_int, default=5, help="cross-validation folds (default 5)")
+    p.add_argument("--folds", type=fold_count, default=5, help="cross-validation folds (default 5)")
     p.add_argument("--seed", type=seed_int, default=0, help="seed of the fold assignment")
 
 

@@ -217,8 +217,12 @@ def test_pose_intervals_groups_repeats(kr):
     with pytest.raises(InputError, match="at least 3 repetitions"):
         pose_intervals(m, min_repeats=3)
     bad = Measurements(pose, q[[2, 0, 1, 1, 2, 1]], xyz)
-    with pytest.raises(InputError, match="rows of pose 0 have different joint angles"):
+    with pytest.raises(InputError, match="^measurements: rows of pose 0 have different joint angles"):
         pose_intervals(bad)
+    # a file's rows: the message names the file (calibrate DATA printed 'measurements:')
+    named = Measurements(pose, q[[2, 0, 1, 0, 2, 1]], xyz, source="series.csv")
+    with pytest.raises(InputError, match=r"^series\.csv: pose 2 has 2 row\(s\); interval identification needs at least 3"):
+        pose_intervals(named, min_repeats=3)
 
 
 def test_too_few_poses_is_an_error(kr):

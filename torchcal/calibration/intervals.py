@@ -136,12 +136,12 @@ def pose_intervals(meas, min_repeats: int = 1) -> PoseIntervals:
     q = meas.q[rows0]
     if len(meas) and (meas.q - q[inv]).abs().max() > 1e-9:
         bad = int(((meas.q - q[inv]).abs().amax(-1) > 1e-9).nonzero()[0])
-        raise InputError(f"measurements: rows of pose {int(pose[bad])} have different joint "
+        raise InputError(f"{meas.source or 'measurements'}: rows of pose {int(pose[bad])} have different joint "
                          f"angles; repeated measurements of one pose must share q1..qN")
     count = torch.bincount(inv, minlength=m)
     if (count < min_repeats).any():
         k = int((count < min_repeats).nonzero()[0])
-        raise InputError(f"measurements: pose {ids[k]} has {int(count[k])} row(s); interval "
+        raise InputError(f"{meas.source or 'measurements'}: pose {ids[k]} has {int(count[k])} row(s); interval "
                          f"identification needs at least {min_repeats} repetitions per pose")
     xyz = meas.xyz
     idx = inv.to(xyz.device)[:, None].expand(-1, 3)

@@ -297,3 +297,16 @@ def test_a_file_of_the_older_interval_format_still_loads(tmp_path):
     again = torchcal.load(tmp_path / "again.json")
     assert json.loads((tmp_path / "again.json").read_text())["format"] == modelfile.FORMAT
     assert float((again.predict(make_context(res.model.robot, q)) - pred).abs().max()) <= 1e-9
+
+
+def test_effects_that_are_not_a_list_are_one_clear_error(session, tmp_path):
+    """A hand-edited ``"effects": "base_frame"`` is named as a bad field (a string was read
+    letter by letter: "unknown effect 'b'")."""
+    from torchcal.errors import InputError
+
+    d = json.loads(session[2].read_text())
+    d["effects"] = "base_frame"
+    (tmp_path / "bad.json").write_text(json.dumps(d))
+    with pytest.raises(InputError, match=r"bad.json: model file is missing or has a bad field: 'effects' must be a "
+                                         r"list of effect names, got str"):
+        torchcal.load(tmp_path / "bad.json")

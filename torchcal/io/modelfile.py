@@ -249,6 +249,8 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
         return res
     try:
         effects, params = obj["effects"], obj["parameters"]
+        if not isinstance(effects, list):  # a string would be read letter by letter ("unknown effect 'b'")
+            raise TypeError(f"'effects' must be a list of effect names, got {type(effects).__name__}")
         values = [float(p["value"]) for p in params]
         stds = [float(p.get("std", 0.0)) for p in params]
         identified = [bool(p.get("identified", True)) for p in params]

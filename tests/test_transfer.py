@@ -317,6 +317,8 @@ def test_part_rule_on_figures_made_in_numpy():
             return fig(sq[fit.key])
 
     class Session:  # the fitting session: a refit is named by its spec
+        current = None  # the union is not re-tested within the session
+
         def step_fit(self, spec, hold):
             return SimpleNamespace(key=spec)
 
@@ -353,6 +355,29 @@ def test_part_rule_on_figures_made_in_numpy():
     (landed, _), rec = check.choose(fig(e0), steps[:1], Session())
     assert landed is None and rec["kept"] is None and rec["tried"][0]["landed"] is None
     assert "  gear_periodic:1,2,3 refused: no joint's part lowers it on its own" in describe_verdict(rec)
+    # the union lowers the check's error but not this session's refit CV error against the
+    # current model (the session's own rule, `Within.decide`): nothing of the step lands;
+    # with a gain in the session too, it lands
+    from torchcal.diagnosis.transfer import Within
+
+    sq["gear_periodic:1,3"], sq["gear_periodic:2"] = 1.2 * whole, 0.92 * e0
+    here = {"gear_periodic:2": e0 + 1e-4}  # the session's per-pose refit CV figures of the union
+
+    class Strict(Session):
+        current = SimpleNamespace(cv_rms_mm=float(np.sqrt(e0.mean())), cv=SimpleNamespace(sq=e0))
+        decide = Within.decide
+
+        def scored(self, f, spec, prior_held):
+            x = here[spec]
+            return SimpleNamespace(spec=spec, cv_rms_mm=float(np.sqrt(x.mean())), cv=SimpleNamespace(sq=x))
+
+    (landed, after), rec = check.choose(fig(e0), steps, Strict())
+    t = rec["tried"][0]
+    assert t["refused"] and t["landed"]["refused"] and rec["kept"] == "gear_periodic:4" and landed is steps[1]
+    assert "within the session: refit cv" in t["landed"]["reason"] and "no gain (>=)" in t["landed"]["reason"]
+    here["gear_periodic:2"] = 0.8 * e0
+    (landed, after), rec = check.choose(fig(e0), steps, Strict())
+    assert rec["kept"] == landed.spec == "gear_periodic:2" and not rec["tried"][0]["landed"]["refused"]
 
 
 def test_a_fit_term_the_check_kept_is_said_to_carry():

@@ -245,7 +245,7 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
         if transfer is not None:  # a step must lower the other session's error (transfer.py)
             passed = sorted([s for s in d.step.refits if s.accepted or s.passed] if i < max_rounds else [],
                             key=lambda s: not s.accepted)  # the step's verdict first, then rank order
-            within = Within(base, m, ctx, fold_of_pose(m.pose, seed, folds), sigma_mm, sigma_deg)
+            within = Within(base, m, ctx, fold_of_pose(m.pose, seed, folds), sigma_mm, sigma_deg, current=cur)
             (acc, after), history[-1]["transfer"] = transfer.choose(t_now, passed, within)
             t_now = t_now if acc is None else after
         if acc is None or i == max_rounds:

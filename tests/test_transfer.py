@@ -193,7 +193,8 @@ def test_a_term_neutral_on_the_check_is_refused_and_a_robot_term_is_kept():
     assert kept is cands[1] and after.rms_mm == rob_u.rms_mm and rec["kept"] == "gear_periodic:2"
     # steps on one joint: with the fitting session given (the per-part check's input) the
     # same decision, the same record, no part figures
-    (kept_w, after_w), rec_w = check_u.choose(cur_u, cands, Within(start, a, ctx, fold_of_pose(a.pose, 0, 5)))
+    (kept_w, after_w), rec_w = check_u.choose(cur_u, cands, Within(Scored([], "", start.rms_mm, 0.0, start), a, ctx,
+                                                                      fold_of_pose(a.pose, 0, 5)))
     assert kept_w is kept and after_w.rms_mm == after.rms_mm and rec_w == rec
     assert all("parts" not in t for t in rec["tried"])
     first, second = rec["tried"]
@@ -317,7 +318,8 @@ def test_part_rule_on_figures_made_in_numpy():
             return fig(sq[fit.key])
 
     class Session:  # the fitting session: a refit is named by its spec
-        current = None  # the union is not re-tested within the session
+        def decide(self, cand, n_tests):  # the union meets the session's rule (tested below, `Strict`)
+            return True, 0.0, ""
 
         def step_fit(self, spec, hold):
             return SimpleNamespace(key=spec)

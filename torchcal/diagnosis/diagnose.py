@@ -23,9 +23,10 @@ step is kept only when it lowers the error on another session's held-out poses b
 chance, and a step on several joints only with the joints whose part does so on its own
 (the union of those parts refitted lands; what the round's transfer record names as kept
 is what the next round's model holds); the next candidate that met the rule is tried
-instead, and a round whose candidates are all refused ends the discovery. Round i is `diagnose` with budget
-alpha / 2^i, whose pre-screen spends half of it, so all the pre-screen tests of all rounds keep the family-wise error below alpha; the
-refit tests are a second condition.
+instead, and a round whose candidates are all refused ends the discovery. Round i is
+`diagnose` with budget alpha / 2^i, whose pre-screen spends half of it, so all the
+pre-screen tests of all rounds keep the family-wise error below alpha; the refit tests
+are a second condition.
 Everything is deterministic for a given seed (fold assignment).
 """
 
@@ -245,7 +246,7 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
         if transfer is not None:  # a step must lower the other session's error (transfer.py)
             passed = sorted([s for s in d.step.refits if s.accepted or s.passed] if i < max_rounds else [],
                             key=lambda s: not s.accepted)  # the step's verdict first, then rank order
-            within = Within(base, m, ctx, fold_of_pose(m.pose, seed, folds), sigma_mm, sigma_deg, current=cur)
+            within = Within(cur, m, ctx, fold_of_pose(m.pose, seed, folds), sigma_mm, sigma_deg)
             (acc, after), history[-1]["transfer"] = transfer.choose(t_now, passed, within)
             t_now = t_now if acc is None else after
         if acc is None or i == max_rounds:

@@ -230,7 +230,7 @@ class TransferCheck:
         keep, p, why = self._decide(current, after, n_steps)
         rec["landed"] = {"effect": union, "after_mm": after.rms_mm, "refused": not keep, "p_value": p, "reason": why}
         scored = within.scored(f, union, s.prior_held) if keep else None
-        if keep and within.current is not None:  # the union is a new model here too: the session's rule
+        if keep:  # the union is a new model here too: the session's rule
             ok, _, why_in = within.decide(scored, n_steps)
             if not ok:
                 keep = False
@@ -242,17 +242,17 @@ class TransferCheck:
 @dataclass(frozen=True)
 class Within:
     """The session `discover` fits, for the per-part refits of a step on several joints:
-    the current model's fit `base` (`FitResult`), measurements m, context ctx, folds (N,)
+    the current model `current` (`Scored`: its fit, the base of every refit, and its refit
+    CV, what the union of kept parts must beat), measurements m, context ctx, folds (N,)
     int (the refit CV's folds by pose), sigma_mm / sigma_deg (`fit`'s orientation
     weighting)."""
 
-    base: FitResult
+    current: Scored
     m: Measurements
     ctx: Context
     folds: np.ndarray
     sigma_mm: float = SIGMA_MM
     sigma_deg: float = SIGMA_DEG
-    current: Scored | None = None  # the current model with its refit CV (None: the union is not re-tested)
 
     def decide(self, cand: Scored, n_tests: int):
         """(keep, p, reason) of `cand` against the current model by the session's own
@@ -264,7 +264,7 @@ class Within:
     def step_fit(self, spec: str, hold) -> FitResult:
         """The current model + the step `spec` fitted on the session as `discover` fits a
         step (`candidate_fit`), the parameters named in `hold` held."""
-        return candidate_fit(self.base, spec, self.m, self.ctx, sigma_mm=self.sigma_mm, sigma_deg=self.sigma_deg,
+        return candidate_fit(self.current.fit, spec, self.m, self.ctx, sigma_mm=self.sigma_mm, sigma_deg=self.sigma_deg,
                              hold=hold)
 
     def scored(self, f: FitResult, spec: str, prior_held) -> Scored:

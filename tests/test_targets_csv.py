@@ -32,7 +32,7 @@ def test_spreadsheet_variants_read_as_the_plain_file(tmp_path, data):
 @pytest.mark.parametrize("data, match", [
     (b"x,y,z,x\n400,100,500,0\n", r"t\.csv: column 'x': duplicated header column \(columns 1 and 4\)"),
     (b"x,y,z\n400,100,500\xff\n", r"t\.csv: not a UTF-8 text file \(byte 17\)"),
-    (b'x,y,z\n"400,100,500\n', r"t\.csv: not valid CSV"),
+    (b'x,y,z\n"400,100,500\n', r"t\.csv: line 2: not valid CSV"),
     (b"\n \n", r"t\.csv: empty file"),
     (b"\nx,y,z\n400,100,500\n\n1,2,a\n", r"t\.csv: line 5, column z: expected a number \(mm\), got 'a'"),
 ])

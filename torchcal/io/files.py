@@ -9,6 +9,8 @@ every message names the user's path, never the temporary one or a bare errno.
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import os
 import tempfile
@@ -16,6 +18,33 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from torchcal.errors import InputError, OutputExistsError
+
+
+def csv_rows(path, what: str, expected: str) -> list[tuple[int, list[str]]]:
+    """Every row of the CSV text file `path` as (file line number, fields), blank rows
+    included: UTF-8, a byte order mark (spreadsheets write one) dropped, any newline
+    convention. `what` names the file in messages ("measurement file"), `expected` says
+    what its CSV holds. One InputError naming `path` when the file is missing, not a
+    regular file, not UTF-8, unreadable or not valid CSV (with the line)."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: {what} does not exist")
+    if not path.is_file():
+        raise InputError(f"{path}: {what} is not a regular file")
+    try:
+        text = path.read_bytes().decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not a UTF-8 text file (byte {exc.start}); expected a CSV {expected}") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the {what}: {exc.strerror or exc}") from None
+    reader = csv.reader(io.StringIO(text, newline=None), strict=True)
+    rows = []
+    try:
+        for fields in reader:
+            rows.append((reader.line_num, fields))
+    except csv.Error as exc:
+        raise InputError(f"{path}: line {reader.line_num}: not valid CSV: {exc}") from None
+    return rows
 
 
 def same_file(a, b) -> bool:

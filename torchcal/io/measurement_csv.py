@@ -17,8 +17,6 @@ column. Joint angles outside the robot's limits warn (`JointLimitWarning`) unles
 
 from __future__ import annotations
 
-import csv
-import io as _io
 import math
 import numbers
 import re
@@ -28,7 +26,7 @@ from pathlib import Path
 import torch
 
 from torchcal.errors import InputError
-from torchcal.io.files import atomic_write
+from torchcal.io.files import atomic_write, csv_rows
 from torchcal.measurements import _OPTIONAL, Measurements
 
 
@@ -205,32 +203,18 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
             raise InputError(f"read_measurements: n_joints={n_joints} disagrees with robot "
                              f"{robot_name} ({robot.n} joints)")
         n_joints = robot.n
-    if not path.exists():
-        _fail(path, "measurement file does not exist")
-    if not path.is_file():
-        _fail(path, "measurement file is not a regular file")
-    try:
-        text = path.read_bytes().decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        _fail(path, f"not a UTF-8 text file (byte {exc.start}); expected a CSV {_LAYOUT}")
-    except OSError as exc:
-        _fail(path, f"cannot read the measurement file: {exc.strerror or exc}")
-    if not text.strip():
+    header, cols, n = None, None, None
+    rows: list[tuple[int, list[str]]] = []
+    for line, fields in csv_rows(path, "measurement file", _LAYOUT):
+        if not fields or all(not f.strip() for f in fields) and len(fields) == 1:
+            continue  # blank line
+        if header is None:
+            header = [f.strip() for f in fields]
+            cols, n = _parse_header(path, header, n_joints, robot_name)
+            continue
+        rows.append((line, fields))
+    if header is None:
         _fail(path, f"empty file; expected a header line {_LAYOUT} and data rows")
-    reader = csv.reader(_io.StringIO(text, newline=None), strict=True)
-    try:
-        header, cols, n = None, None, None
-        rows: list[tuple[int, list[str]]] = []
-        for fields in reader:
-            if not fields or all(not f.strip() for f in fields) and len(fields) == 1:
-                continue  # blank line
-            if header is None:
-                header = [f.strip() for f in fields]
-                cols, n = _parse_header(path, header, n_joints, robot_name)
-                continue
-            rows.append((reader.line_num, fields))
-    except csv.Error as exc:
-        _fail(path, f"line {reader.line_num}: not valid CSV: {exc}")
     if not rows:
         _fail(path, "has a header but no data rows")
 

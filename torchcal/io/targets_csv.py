@@ -10,14 +10,13 @@ Q.csv of ``torchcal compensate``: `compensation_csv`.
 
 from __future__ import annotations
 
-import csv
-import io as _io
 import math
 from pathlib import Path
 
 import torch
 
 from torchcal.errors import InputError
+from torchcal.io.files import csv_rows
 from torchcal.io.measurement_csv import LENGTH_UNITS
 
 __all__ = ["read_targets", "compensation_csv"]
@@ -30,27 +29,11 @@ def read_targets(path, n: int, length_unit: str = "mm", angle_unit: str = "deg",
     prismatic: optional (n,) bool; those seed columns are lengths in `length_unit`, the
     others angles in `angle_unit`."""
     path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: targets file does not exist")
-    if not path.is_file():
-        raise InputError(f"{path}: targets file is not a regular file")
-    try:  # a UTF-8 byte order mark (Excel) is accepted, as in the measurement CSV
-        text = path.read_bytes().decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise InputError(f"{path}: not a UTF-8 text file (byte {exc.start}); "
-                         f"expected a CSV x,y,z[,q1..q{n}]") from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read the targets file: {exc.strerror or exc}") from None
-    try:
-        rows = list(csv.reader(_io.StringIO(text, newline=None), strict=True))
-    except csv.Error as exc:
-        raise InputError(f"{path}: not valid CSV: {exc}") from None
-    h0 = 0  # blank lines before the header are skipped
-    while h0 < len(rows) and all(not c.strip() for c in rows[h0]):
-        h0 += 1
-    if h0 == len(rows):
+    rows = [(line, row) for line, row in csv_rows(path, "targets file", f"x,y,z[,q1..q{n}]")
+            if row and any(c.strip() for c in row)]  # blank lines are skipped
+    if not rows:
         raise InputError(f"{path}: empty file; expected a header x,y,z[,q1..q{n}]")
-    header = [h.strip() for h in rows[h0]]
+    header = [h.strip() for h in rows[0][1]]
     for i, h in enumerate(header):
         if h in header[:i]:
             raise InputError(f"{path}: column {h!r}: duplicated header column "
@@ -72,9 +55,7 @@ def read_targets(path, n: int, length_unit: str = "mm", angle_unit: str = "deg",
     slides = [False] * n if prismatic is None else [bool(p) for p in prismatic]
     idx = {h: i for i, h in enumerate(header)}
     xyz, qs = [], []
-    for line, row in enumerate(rows[h0 + 1:], start=h0 + 2):
-        if not row or all(not c.strip() for c in row):
-            continue
+    for line, row in rows[1:]:
         if len(row) != len(header):
             raise InputError(f"{path}: line {line}: expected {len(header)} columns, got {len(row)}")
 

@@ -367,7 +367,8 @@ def test_csv_round_trip(kr, tmp_path):
     r = sweep(kr, n_points=12, n_samples=20, seed=0)
     path = tmp_path / "sweep.csv"
     write_sweep(r, path)
-    header = path.read_text().splitlines()[0]
+    record, header = path.read_text().splitlines()[:2]  # the robot it was made for, then the columns
+    assert record.startswith("# torchcal-sweep/2 {") and '"name":"kr1000titan"' in record
     assert header == ("point,q1,q2,q3,q4,q5,q6,x,y,z,ex_lo,ex_hi,ey_lo,ey_hi,ez_lo,ez_hi,"
                       "dist_lo,dist_hi,eta,r_set")
     back = read_sweep(path)
@@ -424,7 +425,7 @@ def test_cli_runs_and_refuses_to_overwrite(tmp_path, capsys):
     captured = capsys.readouterr()
     assert "R_set min" in captured.out and "R_set = 1 at" in captured.out
     assert captured.err == ""
-    assert len(out.read_text().splitlines()) == 16
+    assert len(out.read_text().splitlines()) == 17  # the robot record, the header, 15 rows
     first = out.read_text()
     assert cli.main(argv) == 2
     err = capsys.readouterr().err

@@ -266,7 +266,10 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
               damping="gcv_shared"):
     """Interval calibration, global or per zone (`torchcal.calibration.zone_calibration.calibrate`).
 
-    partition: a `Partition`, a PARTITION.json path or None. Returns the global interval
+    partition: a `Partition`, a PARTITION.json path or None. A path is read for the model's
+    robot: a partition made for another robot (or other joint limits) is refused
+    (InputError), one without a record read with an `UnrecordedRobotWarning`
+    (`torchcal.io.partition_file.load_partition`). Returns the global interval
     fit (a `FitResult` with ``radius``), with a partition a `ZonedFit` (the global fit and
     one fit per zone); `save` writes it as the MODEL.json of ``torchcal calibrate``.
     """
@@ -275,7 +278,7 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
     model = _model(robot_or_model, effects)
     if isinstance(partition, (str, Path)):
         from torchcal.io.partition_file import load_partition
-        partition = load_partition(partition)
+        partition = load_partition(partition, model.robot)
     m = _measurements(measurements, model.robot)
     with threads.for_work(_work(model, m)):
         return run(model, m, partition, zone_method, damping)

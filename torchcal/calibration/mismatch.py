@@ -312,6 +312,36 @@ def check_same_robot(model_robot, robot, where: str, what: str = "the given robo
                      f"geometry; refusing to apply a model to another robot")
 
 
+def robot_differences(there, here, atol: float = 1e-9) -> list[str]:
+    """What differs between the robot `there` (the one a file was made for) and `here`
+    (the one given): joint count, joint types, MD-H table, base, tool or joint limits,
+    each as a short phrase ("joint 2 limits -185..185 deg in the file, -170..170 deg given");
+    [] when they agree up to `atol` (mm, rad: a robot read back from a file). Names,
+    payload, gravity and the clearance model are not compared."""
+    if there.n != here.n:
+        return [f"{there.n} joints in the file, {here.n} given"]
+    a, b = there.to("cpu", torch.float64), here.to("cpu", torch.float64)
+    kinds = lambda r, j: "prismatic" if bool(r.prismatic[j]) else "revolute"  # noqa: E731
+    types = [j for j in range(a.n) if bool(a.prismatic[j]) != bool(b.prismatic[j])]
+    if types:
+        j = types[0]
+        return [f"joint {j + 1} {kinds(a, j)} in the file, {kinds(b, j)} given"]
+    out = []
+    rows = [j for j in range(a.n) if not torch.allclose(a.table[j], b.table[j], rtol=0, atol=atol)]
+    if rows:
+        out.append(f"the MD-H table differs at joint(s) {', '.join(str(j + 1) for j in rows)}")
+    out += [f"the {t} differs" for t in ("base", "tool")
+            if not torch.allclose(getattr(a, t), getattr(b, t), rtol=0, atol=atol)]
+    lim = [j for j in range(a.n) if not torch.allclose(a.limits[j], b.limits[j], rtol=0, atol=atol)]
+    if lim:
+        j, unit = lim[0], a.joint_units()[lim[0]]
+        user = lambda r: [v if unit == "mm" else math.degrees(v) for v in r.limits[j].tolist()]  # noqa: E731
+        (lo, hi), (lo2, hi2) = user(a), user(b)
+        more = f" (and {len(lim) - 1} more joint(s))" if len(lim) > 1 else ""
+        out.append(f"joint {j + 1} limits {lo:g}..{hi:g} {unit} in the file, {lo2:g}..{hi2:g} {unit} given{more}")
+    return out
+
+
 def link_reach_mm(table: torch.Tensor, prismatic: torch.Tensor, limits: torch.Tensor) -> float:
     """Sum over joints of sqrt(d^2 + a^2) plus each prismatic joint's largest |limit|, mm;
     table (n, 5) [theta, d, a, alpha, beta], limits (n, 2)."""

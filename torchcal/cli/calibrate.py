@@ -14,6 +14,10 @@ propagated through the linearised solution map (torchcal.calibration.intervals).
   a zone without poses keeps the global parameters. ``--zone-method independent``: each
   zone on its own from nominal (the paper's eq. 29 literally; every zone needs more
   equations than identifiable parameters).
+  The partition must be made for --robot: its record of the robot (name, fingerprint of
+  the nominal kinematics and joint limits) is checked, and a partition of another robot,
+  or of other joint limits, is refused with one line naming what differs; a partition
+  file of an older torchcal (no record) is used with a warning that it was not checked.
 
 MODEL.json: the file of ``torchcal fit`` (`torchcal.io.modelfile`; the global fit, each
 parameter with its interval) plus, with ``--partition``, the partition and each zone's
@@ -22,7 +26,8 @@ parameters and intervals; read by ``torchcal compensate``, ``evaluate``, ``expor
 
 from __future__ import annotations
 
-from torchcal.cli._args import add_effects_module, add_force, add_robot, add_units, check_outputs, nonneg_float, read_data
+from torchcal.cli._args import (add_effects_module, add_force, add_robot, add_units, check_outputs, nonneg_float,
+                                read_data, warnings_to_stderr)
 
 
 def _damping(text: str):
@@ -59,13 +64,14 @@ def add_parser(sub):
 def run(args) -> int:
     import torchcal
     from torchcal.io.partition_file import load_partition
-    from torchcal.io.robot_file import robot as make_robot
+    from torchcal.io.robot_file import UnrecordedRobotWarning, robot as make_robot
     from torchcal.effects.spec import parse_specs
 
     check_outputs([("--out", args.out)], args.force, inputs=[args.data, args.partition])
     robot = make_robot(args.robot)
     specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
-    part = load_partition(args.partition) if args.partition else None
+    with warnings_to_stderr(UnrecordedRobotWarning):  # a partition file without a record
+        part = load_partition(args.partition, robot) if args.partition else None
     meas = read_data(args.data, robot, args)
     res = torchcal.calibrate(robot, meas, specs, partition=part, zone_method=args.zone_method, damping=args.damping)
     torchcal.save(res, args.out, source=args.data, partition_source=args.partition, force=args.force)

@@ -6,11 +6,14 @@
 Reads the sweep CSV written by `torchcal sweep` (columns point,q1..qn,x,y,z,ex_lo,ex_hi,
 ey_lo,ey_hi,ez_lo,ez_hi,dist_lo,dist_hi,eta,r_set; only point, x, y, z (mm) and r_set are
 used, other columns are ignored), writes the partition JSON (`torchcal.io.partition_file`)
-and prints one line per zone.
+and prints one line per zone. The partition records the robot its sweep was made for (the
+sweep's first line, copied), which `torchcal calibrate` checks against its --robot; a sweep
+CSV of an older torchcal records none: a warning says so, and the partition records none.
 """
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from torchcal.cli._args import add_force, check_outputs, seed_int
@@ -77,7 +80,7 @@ def _range(text):
 
 def run(args) -> int:
     from torchcal.io.partition_file import save_partition
-    from torchcal.io.sweep_csv import read_sweep
+    from torchcal.io.sweep_csv import read_sweep, sweep_record
     from torchcal.partition.zones import partition_workspace
 
     levels = _levels(args.levels)
@@ -85,11 +88,15 @@ def run(args) -> int:
     zone_range = _range(args.zone_range)
     check_outputs([("--out", args.out)], args.force, inputs=[args.sweep])
     out = Path(args.out)
+    record = sweep_record(args.sweep)  # the robot it was made for, copied into the partition
     sw = read_sweep(args.sweep)  # errors name the file, row and column
+    if record is None:
+        print(f"torchcal: warning: {args.sweep}: records no robot (a sweep CSV of an older torchcal): the "
+              f"partition records none either, and calibrate cannot check it against its --robot", file=sys.stderr)
     ids, pos, r = sw.point, sw.positions, sw.r_set
     part = partition_workspace(pos, r, levels, zones, m=args.m, r_weight=args.r_weight, seed=args.seed,
                                restarts=args.restarts, zone_range=zone_range, point_ids=ids)
-    save_partition(part, out, force=args.force, inputs=[args.sweep])
+    save_partition(part, out, force=args.force, inputs=[args.sweep], made_for=record)
     print(f"{args.sweep}: {pos.shape[0]} points -> {part.n_levels} levels, {part.n_zones} zones -> {out}")
     print(f"{'zone':>4} {'level':>5} {'points':>6} {'R_set min':>9} {'mean':>7} {'max':>7} "
           f"{'centre x mm':>12} {'y mm':>10} {'z mm':>10}")

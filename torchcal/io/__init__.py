@@ -17,9 +17,10 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "torchcal.io.modelfile": ["file_sha256", "load_covariance"],
     "torchcal.io.plan_csv": ["plan_csv"],
     "torchcal.io.partition_file": ["load_partition", "partition_from_dict", "partition_from_json",
-                                   "partition_to_dict", "partition_to_json", "save_partition"],
+                                   "partition_record", "partition_to_dict", "partition_to_json", "save_partition"],
     "torchcal.io.sweep_blocks": ["BlockFolder"],
     "torchcal.io.targets_csv": ["compensation_csv", "read_targets"],
     "torchcal.io.truth_file": ["truth_to_dict"],
-    "torchcal.io.sweep_csv": ["read_sweep", "sweep_columns", "sweep_csv_rows", "sweep_csv_text", "write_sweep"],
+    "torchcal.io.sweep_csv": ["read_sweep", "sweep_columns", "sweep_csv_rows", "sweep_csv_text", "sweep_head",
+                              "sweep_record", "write_sweep"],
 })

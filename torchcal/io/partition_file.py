@@ -1,7 +1,8 @@
 """PARTITION.json: a `torchcal.partition.zones.Partition` on disk (JSON, never pickle).
 
-    {"format": "torchcal.partition", "version": 1, "units", "features": ["x", "y", "z", "r_set"],
-     "m", "r_weight", "knn_neighbors", "options",
+    {"format": "torchcal.partition", "version": 2,
+     "made_for": {"name", "fingerprint", "nominal_robot"} | null,
+     "units", "features": ["x", "y", "z", "r_set"], "m", "r_weight", "knn_neighbors", "options",
      "levels": [{"level", "center_r_set", "zones", "feature_mean", "feature_std"}...],
      "zones": [{"zone", "level", "points", "r_set_min", "r_set_mean", "r_set_max", "center_x_mm",
                 "center_y_mm", "center_z_mm", "level_center_r_set", "center_features"}...],
@@ -9,6 +10,15 @@
 
 Positions in mm, R_set in 0..1; floats are written exactly (shortest repr). Unknown or
 missing keys are errors (InputError naming the file and the key).
+
+``made_for`` records the robot the partition (its sweep) was made for
+(`torchcal.io.robot_file.robot_record`: name, SHA-256 fingerprint of the nominal kinematics
+and joint limits, the robot-file dict); null where unknown (a partition of a sweep CSV of an
+older torchcal; the partition a MODEL.json embeds, whose own robot is the model's). Given the
+robot it is for, `load_partition` / `partition_from_dict` refuse a partition made for
+another (`torchcal.io.robot_file.check_record`: one InputError line naming the file, both
+robots and what differs) and read one without a record with one `UnrecordedRobotWarning`.
+Files of version 1 (no ``made_for``) read as records of no robot.
 """
 
 from __future__ import annotations
@@ -19,17 +29,25 @@ import torch
 
 from torchcal.errors import InputError
 from torchcal.io.files import dumps_json, read_json, write_json
+from torchcal.io.robot_file import check_record, record_from_dict, robot_record
 from torchcal.partition.zones import Partition
+from torchcal.robots.robot import Robot
 
-__all__ = ["FORMAT", "VERSION", "partition_to_dict", "partition_from_dict", "partition_to_json",
+__all__ = ["FORMAT", "VERSION", "partition_to_dict", "partition_from_dict", "partition_record", "partition_to_json",
            "partition_from_json", "save_partition", "load_partition"]
 
 FORMAT = "torchcal.partition"
-VERSION = 1
+VERSION = 2
+VERSIONS = (1, 2)  # read; version 1: no "made_for"
 
 
-def partition_to_dict(part: Partition) -> dict:
-    """A `Partition` as a JSON-ready dict (see `partition_from_dict`); floats are written exactly (shortest repr)."""
+def partition_to_dict(part: Partition, made_for: Robot | dict | None = None) -> dict:
+    """A `Partition` as a JSON-ready dict (see `partition_from_dict`); floats are written exactly (shortest repr).
+
+    made_for: the `Robot` the partition was made for, or a robot record as a sweep CSV
+    holds it (`torchcal.io.sweep_csv.sweep_record`, copied as it is); None: unknown (null)."""
+    record = robot_record(made_for) if isinstance(made_for, Robot) else \
+        None if made_for is None else record_from_dict(made_for, "made_for")
     summ = part.summary()
     levels = [{
         "level": lev, "center_r_set": float(part.level_centers[lev - 1]),
@@ -39,7 +57,7 @@ def partition_to_dict(part: Partition) -> dict:
     } for lev in range(1, part.n_levels + 1)]
     zones = [dict(s, center_features=part.zone_centers[s["zone"] - 1].tolist()) for s in summ]
     return {
-        "format": FORMAT, "version": VERSION,
+        "format": FORMAT, "version": VERSION, "made_for": record,
         "units": {"positions": "mm", "r_set": "1 (set reliability, 0..1)"},
         "features": ["x", "y", "z", "r_set"],
         "m": part.m, "r_weight": part.r_weight, "knn_neighbors": part.knn_neighbors,
@@ -54,19 +72,37 @@ def partition_to_dict(part: Partition) -> dict:
     }
 
 
-def partition_to_json(part: Partition) -> str:
+def partition_to_json(part: Partition, made_for: Robot | dict | None = None) -> str:
     """Deterministic JSON text of `partition_to_dict`."""
-    return dumps_json(partition_to_dict(part))
+    return dumps_json(partition_to_dict(part, made_for))
 
 
-def partition_from_dict(obj: dict, where: str = "partition") -> Partition:
-    """Rebuild a `Partition` from `partition_to_dict` output; unknown or missing keys are errors."""
+def partition_record(obj: dict, where: str = "partition") -> dict | None:
+    """The robot record of a partition dict (`partition_to_dict`), checked; None for a
+    file of version 1 or ``"made_for": null``. InputError for another format or version."""
+    if not isinstance(obj, dict):
+        raise InputError(f"{where}: expected a JSON object, got {type(obj).__name__}")
+    if obj.get("format") != FORMAT or obj.get("version") not in VERSIONS:
+        raise InputError(f"{where}: expected format {FORMAT!r} version {VERSION} (or {VERSIONS[0]}), "
+                         f"got {obj.get('format')!r} version {obj.get('version')!r}")
+    if obj["version"] == 1:
+        return None
+    if "made_for" not in obj:
+        raise InputError(f"{where}: missing key 'made_for' (the robot it was made for, or null)")
+    return None if obj["made_for"] is None else record_from_dict(obj["made_for"], f"{where}: made_for")
+
+
+def partition_from_dict(obj: dict, where: str = "partition", robot: Robot | None = None) -> Partition:
+    """Rebuild a `Partition` from `partition_to_dict` output; unknown or missing keys are errors.
+
+    robot: the `Robot` it is for (module doc): a partition made for another is refused,
+    one without a record read with one `UnrecordedRobotWarning`; None: not checked."""
+    record = partition_record(obj, where)
     top = {"format", "version", "units", "features", "m", "r_weight", "knn_neighbors",
-           "options", "levels", "zones", "points"}
+           "options", "levels", "zones", "points"} | ({"made_for"} if obj["version"] >= 2 else set())
     _keys(obj, top, where)
-    if obj["format"] != FORMAT or obj["version"] != VERSION:
-        raise InputError(f"{where}: expected format {FORMAT!r} version {VERSION}, "
-                         f"got {obj['format']!r} version {obj['version']!r}")
+    if robot is not None:
+        check_record(record, robot, where, "sweep and partition")
     try:
         levels = sorted(obj["levels"], key=lambda r: r["level"])
         for i, r in enumerate(levels):
@@ -100,25 +136,27 @@ def partition_from_dict(obj: dict, where: str = "partition") -> Partition:
     return part
 
 
-def partition_from_json(text: str, where: str = "partition JSON") -> Partition:
-    """Rebuild from `partition_to_json` text."""
+def partition_from_json(text: str, where: str = "partition JSON", robot: Robot | None = None) -> Partition:
+    """Rebuild from `partition_to_json` text (robot: as for `partition_from_dict`)."""
     try:
         obj = json.loads(text)
     except json.JSONDecodeError as exc:
         raise InputError(f"{where}: not valid JSON: {exc}") from None
     if not isinstance(obj, dict):
         raise InputError(f"{where}: expected a JSON object")
-    return partition_from_dict(obj, where)
+    return partition_from_dict(obj, where, robot)
 
 
-def save_partition(part: Partition, path, force: bool = False, inputs=()):
-    """Write the JSON file atomically (see `torchcal.io.files.write_json`)."""
-    return write_json(path, partition_to_dict(part), force=force, inputs=inputs)
+def save_partition(part: Partition, path, force: bool = False, inputs=(), made_for: Robot | dict | None = None):
+    """Write the JSON file atomically (see `torchcal.io.files.write_json`); made_for: the
+    robot it was made for, or the record of its sweep (`partition_to_dict`)."""
+    return write_json(path, partition_to_dict(part, made_for), force=force, inputs=inputs)
 
 
-def load_partition(path) -> Partition:
-    """Read a partition JSON file."""
-    return partition_from_dict(read_json(path, "partition JSON"), str(path))
+def load_partition(path, robot: Robot | None = None) -> Partition:
+    """Read a partition JSON file; robot: the `Robot` it is for, checked against the file's
+    record (`partition_from_dict`)."""
+    return partition_from_dict(read_json(path, "partition JSON"), str(path), robot)
 
 
 def _keys(obj, expected: set, where: str) -> None:

@@ -22,17 +22,31 @@ MD-H link transform A_i = Rz(theta) Tz(d) Tx(a) Rx(alpha) Ry(beta). A revolute j
 Unknown keys are errors (a typo must not be ignored); every error is one line naming the
 file and the key. Provenance and notes are free: the keys "notes" and "source" and any key
 that starts with "x_" (at the top level and in a joint) are accepted and ignored.
+
+The robot a sweep CSV or a partition file was made for (`robot_record`, docs/formats.md):
+
+    {"name": NAME, "fingerprint": SHA-256 hex, "nominal_robot": {ROBOT FILE}}
+
+``fingerprint`` (`robot_fingerprint`) is the SHA-256 of the float64 bytes of the MD-H
+table (rad, mm), the joint limits, the base, the tool and the joint types, the identity
+of the nominal kinematics and joint limits (the sweep's partial-output manifest uses the
+same); ``nominal_robot`` the robot-file dict (degrees, mm), as MODEL.json embeds it, less
+its "clearance" section (the clearance model is the sweep's own input).
+`check_record` holds a record against the robot a command is given.
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
+import re
+import warnings
 from pathlib import Path
 
 import torch
 
 from torchcal.errors import InputError
-from torchcal.calibration.mismatch import check_same_robot  # noqa: F401 (modelfile reads it here)
+from torchcal.calibration.mismatch import check_same_robot, robot_differences  # noqa: F401 (modelfile reads it here)
 from torchcal.robots.robot import Robot
 
 JOINT_KEYS = {"type", "theta_offset_deg", "d_mm", "a_mm", "alpha_deg", "beta_deg", "lower", "upper"}
@@ -229,3 +243,69 @@ def robot(name) -> Robot:
         return load_robot_file(name)
     raise InputError(f"unknown robot {str(name)!r}; expected one of {', '.join(sorted(PRESETS))} "
                      f"or the path of a robot file (.json)")
+
+
+class UnrecordedRobotWarning(UserWarning):
+    """A sweep or partition file that records no robot (written before torchcal recorded
+    it): it reads as before, but whether it was made for the given robot is not checked."""
+
+
+RECORD_KEYS = {"name", "fingerprint", "nominal_robot"}
+
+
+def robot_fingerprint(robot: Robot) -> str:
+    """SHA-256 hex digest of the robot's nominal kinematics and joint limits: the float64
+    bytes (CPU) of the table (n, 5), limits (n, 2), base, tool and joint types (0 / 1)."""
+    r = robot.to("cpu", torch.float64)
+    h = hashlib.sha256()
+    for t in (r.table, r.limits, r.base, r.tool, r.prismatic):
+        h.update(t.detach().to("cpu", torch.float64).contiguous().numpy().tobytes())
+    return h.hexdigest()
+
+
+def robot_record(robot: Robot) -> dict:
+    """The record of the robot a file is made for (module doc): name, fingerprint and
+    the robot-file dict."""
+    nominal = robot_to_dict(robot)
+    nominal.pop("clearance", None)  # the sweep's clearance model is its own input (a robot file's or --clearance)
+    return {"name": robot.name, "fingerprint": robot_fingerprint(robot), "nominal_robot": nominal}
+
+
+def record_from_dict(obj, where: str) -> dict:
+    """A robot record read from a file, checked (keys, name, a SHA-256 hex fingerprint,
+    a valid robot-file dict; `where` names the file and key in the one-line InputError)."""
+    if not isinstance(obj, dict):
+        raise InputError(f"{where}: expected an object {{name, fingerprint, nominal_robot}}, "
+                         f"got {type(obj).__name__}")
+    missing, extra = RECORD_KEYS - obj.keys(), obj.keys() - RECORD_KEYS
+    if missing or extra:
+        raise InputError(f"{where}: missing keys {sorted(missing)}, unknown keys {sorted(extra)}")
+    if not isinstance(obj["name"], str) or not obj["name"].strip():
+        raise InputError(f"{where}: name: expected a non-empty string, got {obj['name']!r}")
+    if not isinstance(obj["fingerprint"], str) or not re.fullmatch(r"[0-9a-f]{64}", obj["fingerprint"]):
+        raise InputError(f"{where}: fingerprint: expected a SHA-256 digest (64 hex digits), got {obj['fingerprint']!r}")
+    robot_from_dict(obj["nominal_robot"], f"{where}: nominal_robot")
+    return obj
+
+
+def check_record(record: dict | None, robot: Robot, where: str, what: str) -> None:
+    """Refuse a file made for another robot: `record` (`record_from_dict`, None for a file
+    written before records existed: one `UnrecordedRobotWarning`) against the given
+    `robot`. The same fingerprint, or the same joint count, types, MD-H table, base, tool
+    and joint limits up to 1e-9 (a robot read back from a file), pass; a name alone does
+    not matter. Otherwise one InputError line: `where` (the file), both robots with their
+    fingerprints, what differs (`torchcal.calibration.mismatch.robot_differences`) and
+    `what` to make again ("sweep", "sweep and partition")."""
+    if record is None:
+        warnings.warn(f"{where}: records no robot (written before torchcal recorded it): could not check that "
+                      f"it was made for robot {robot.name!r}", UnrecordedRobotWarning, stacklevel=3)
+        return
+    mine = robot_fingerprint(robot)
+    if record["fingerprint"] == mine:
+        return
+    diff = robot_differences(robot_from_dict(record["nominal_robot"], f"{where}: nominal_robot"), robot)
+    if not diff:
+        return
+    raise InputError(f"{where}: made for robot {record['name']!r} (fingerprint {record['fingerprint'][:12]}), "
+                     f"not {robot.name!r} (fingerprint {mine[:12]}): {'; '.join(diff)}; make the {what} again "
+                     f"for this robot")

@@ -1,11 +1,19 @@
-"""The sweep CSV of ``torchcal sweep`` (docs/formats.md), one row per workspace point:
+"""The sweep CSV of ``torchcal sweep`` (docs/formats.md), one row per workspace point,
+after one line recording the robot it was made for:
 
+    # torchcal-sweep/2 {"made_for": {"name", "fingerprint", "nominal_robot"}}
     point,q1..qN,x,y,z,ex_lo,ex_hi,ey_lo,ey_hi,ez_lo,ez_hi,dist_lo,dist_hi,eta,r_set
 
-q in degrees (mm for a prismatic joint), positions and errors in mm; floats are written
-exactly (shortest repr). `write_sweep` writes a `torchcal.reliability.sweep.SweepResult`
-atomically (`torchcal.io.files.atomic_write`); `read_sweep` reads one back (the linearised
-bounds, allowed_mm and n_samples are not stored: None). Every bad file gives one
+The first line is `RECORD` and one line of JSON: the robot record of
+`torchcal.io.robot_file.robot_record` (name, SHA-256 fingerprint of the nominal kinematics
+and joint limits, the robot-file dict). q in degrees (mm for a prismatic joint),
+positions and errors in mm; floats are written exactly (shortest repr). `write_sweep`
+writes a `torchcal.reliability.sweep.SweepResult` atomically
+(`torchcal.io.files.atomic_write`), the record line when its ``robot`` is known;
+`read_sweep` reads one back (the linearised bounds, allowed_mm and n_samples are not
+stored: None), and refuses, given a robot, a sweep made for another
+(`torchcal.io.robot_file.check_record`). A file of an older torchcal (no record line)
+still reads: with a robot given, one `UnrecordedRobotWarning`. Every bad file gives one
 InputError naming the file, row (file line) and column.
 """
 
@@ -13,6 +21,7 @@ from __future__ import annotations
 
 import csv
 import io as _io
+import json
 import math
 from pathlib import Path
 
@@ -21,9 +30,14 @@ import torch
 
 from torchcal.errors import InputError
 from torchcal.io.files import atomic_write
+from torchcal.io.robot_file import check_record, record_from_dict, robot_from_dict, robot_record
 from torchcal.reliability.sweep import SweepResult
 
-__all__ = ["sweep_columns", "sweep_csv_text", "sweep_csv_rows", "write_sweep", "read_sweep"]
+__all__ = ["sweep_columns", "sweep_head", "sweep_csv_text", "sweep_csv_rows", "write_sweep", "read_sweep",
+           "sweep_record"]
+
+#: the start of the sweep CSV's first line, the robot record (then one line of JSON)
+RECORD = "# torchcal-sweep/2 "
 
 
 def sweep_columns(n: int) -> list[str]:
@@ -32,9 +46,20 @@ def sweep_columns(n: int) -> list[str]:
             "ey_hi", "ez_lo", "ez_hi", "dist_lo", "dist_hi", "eta", "r_set"])
 
 
+def sweep_head(n: int, robot=None) -> str:
+    """The lines before the rows of a sweep CSV for n joints: the record of `robot` (when
+    given, module doc) and the column header."""
+    head = ",".join(sweep_columns(n)) + "\n"
+    if robot is None:
+        return head
+    record = json.dumps({"made_for": robot_record(robot)}, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return RECORD + record + "\n" + head
+
+
 def sweep_csv_text(result: SweepResult) -> str:
-    """The CSV text of a sweep: q in degrees (mm for a prismatic joint), mm."""
-    return ",".join(sweep_columns(result.q.shape[1])) + "\n" + sweep_csv_rows(result)
+    """The CSV text of a sweep: its robot's record (when known), the header, the rows; q in
+    degrees (mm for a prismatic joint), mm."""
+    return sweep_head(result.q.shape[1], result.robot) + sweep_csv_rows(result)
 
 
 def sweep_csv_rows(result: SweepResult) -> str:
@@ -58,33 +83,54 @@ def write_sweep(result: SweepResult, path, force: bool = False) -> Path:
     return atomic_write(path, sweep_csv_text(result), force=force)
 
 
-def read_sweep(path, device=None, prismatic=None) -> SweepResult:
-    """Read a sweep CSV into a `SweepResult` (linearised bounds, allowed_mm, n_samples: None).
+def read_sweep(path, device=None, prismatic=None, robot=None) -> SweepResult:
+    """Read a sweep CSV into a `SweepResult` (linearised bounds, allowed_mm, n_samples: None;
+    ``robot``: the robot of its record, None for a file without one).
 
-    prismatic: optional (n,) bool, joints whose q column is mm (kept), not degrees.
+    prismatic: optional (n,) bool, joints whose q column is mm (kept), not degrees;
+        default: those of the recorded robot (or of `robot` for a file without a record).
+    robot: optional `Robot` the sweep is for: a sweep made for another robot (another
+        fingerprint, and another joint count, types, MD-H table, base, tool or joint limits)
+        is refused (`torchcal.io.robot_file.check_record`); a file without a record reads,
+        with one `UnrecordedRobotWarning`.
 
-    One InputError naming the file, row (file line) and column for a bad header, a
-    ragged row, a non-numeric or non-finite value, or an R_set outside [0, 1].
+    One InputError naming the file, row (file line) and column for a bad record line, a
+    bad header, a ragged row, a non-numeric or non-finite value, or an R_set outside [0, 1].
     """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: sweep CSV does not exist")
     try:
         with open(path, newline="") as fh:
+            first = fh.readline()
+            record = _record(first, path) if first.startswith("#") else None
+            if record is None:
+                fh.seek(0)
             rows = list(csv.reader(fh))
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: not a text CSV file ({exc})") from None
     except csv.Error as exc:
         raise InputError(f"{path}: malformed CSV: {exc}") from None
+    top = 1 if record is None else 2  # the file line of the header
     if not rows:
-        raise InputError(f"{path}: empty file, expected a sweep CSV header")
+        raise InputError(f"{path}: {'empty file' if record is None else 'only the robot record'}, "
+                         f"expected a sweep CSV header")
     header = [h.strip() for h in rows[0]]
     n = len([h for h in header if len(h) > 1 and h[0] == "q" and h[1:].isdigit()])
     expected = sweep_columns(n)
     if n == 0 or header != expected:
-        raise InputError(f"{path}: header must be {','.join(expected if n else ['point', 'q1', '...'])}, "
-                         f"got {','.join(header)}")
-    rows = [(line, row) for line, row in enumerate(rows[1:], start=2)
+        raise InputError(f"{path}: {'' if top == 1 else f'line {top}: '}header must be "
+                         f"{','.join(expected if n else ['point', 'q1', '...'])}, got {','.join(header)}")
+    made = None if record is None else robot_from_dict(record["nominal_robot"], f"{path}: line 1: nominal_robot")
+    if made is not None and made.n != n:
+        raise InputError(f"{path}: line 1 records robot {record['name']!r} with {made.n} joints, "
+                         f"but the header has {n} joint columns (q1..q{n})")
+    if robot is not None:
+        check_record(record, robot, str(path), "sweep")
+    source = made if made is not None else robot
+    if prismatic is None and source is not None:
+        prismatic = source.prismatic.cpu()
+    rows = [(line, row) for line, row in enumerate(rows[1:], start=top + 1)
             if row and any(c.strip() for c in row)]  # blank lines are skipped
     if not rows:
         raise InputError(f"{path}: no data rows")
@@ -116,4 +162,33 @@ def read_sweep(path, device=None, prismatic=None) -> SweepResult:
     return SweepResult(q=q, positions=t[:, k:k + 3], err_lower=e[..., 0].contiguous(),
                        err_upper=e[..., 1].contiguous(), dist_lower=t[:, k + 9], dist_upper=t[:, k + 10],
                        eta=t[:, k + 11], r_set=t[:, k + 12], point=torch.from_numpy(ids).to(device),
-                       prismatic=prismatic)
+                       prismatic=prismatic, robot=made)
+
+
+def sweep_record(path) -> dict | None:
+    """The robot record of the sweep CSV at `path` (its first line, module doc), None for
+    a file of an older torchcal (no record line). One InputError naming the file for a
+    missing file or a bad record line."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: sweep CSV does not exist")
+    try:
+        with open(path, newline="") as fh:
+            first = fh.readline()
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not a text CSV file ({exc})") from None
+    return _record(first, path) if first.startswith("#") else None
+
+
+def _record(line: str, path) -> dict:
+    """The robot record of a sweep CSV's first line `line` (which starts with '#')."""
+    if not line.startswith(RECORD):
+        raise InputError(f"{path}: line 1: expected the robot record ({RECORD.strip()} {{...}}) or the header "
+                         f"point,q1,..., got {line.strip()[:40]!r}")
+    try:
+        obj = json.loads(line[len(RECORD):])
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: line 1: the robot record is not valid JSON ({exc}); write the sweep again") from None
+    if not isinstance(obj, dict) or set(obj) != {"made_for"}:
+        raise InputError(f"{path}: line 1: expected the robot record {{\"made_for\": {{...}}}}")
+    return record_from_dict(obj["made_for"], f"{path}: line 1: made_for")

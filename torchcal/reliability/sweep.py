@@ -53,7 +53,7 @@ import sys
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 import torch
@@ -127,6 +127,8 @@ class SweepResult:
         point: (N,) int64 point ids (None: the row index 0..N-1, as the CSV writes them).
         prismatic: (n,) bool prismatic joints, whose q is mm (in the CSV too), not an
             angle (None: all revolute).
+        robot: the nominal `Robot` swept (as `sweep` was given it), which the sweep CSV
+            records (`torchcal.io.sweep_csv`); None where unknown.
     """
 
     q: torch.Tensor
@@ -146,6 +148,7 @@ class SweepResult:
     eta_axis: torch.Tensor | None = None
     point: torch.Tensor | None = None
     prismatic: torch.Tensor | None = None
+    robot: object = None
 
     def __len__(self) -> int:
         return self.q.shape[0]
@@ -392,7 +395,7 @@ def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_m
                 parts.append(_sweep_points(rb, qb, deviations, dev_box, include_nominal=include_nominal,
                                            linear=linear, allowed_mm=allowed_mm, allowed_axis_mm=allowed_axis_mm,
                                            chunk=chunk, threads=threads, bar=bar))
-    return parts[0] if len(parts) == 1 else _concat(parts)
+    return replace(parts[0] if len(parts) == 1 else _concat(parts), robot=robot)
 
 
 def _check_count(v, what: str) -> None:

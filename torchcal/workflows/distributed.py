@@ -35,8 +35,9 @@ from tqdm import tqdm
 from torchcal import threads as policy
 from torchcal.errors import InputError
 from torchcal.io.files import check_output
+from torchcal.io.robot_file import robot_fingerprint
 from torchcal.io.sweep_blocks import BlockFolder
-from torchcal.io.sweep_csv import sweep_columns, sweep_csv_rows
+from torchcal.io.sweep_csv import sweep_csv_rows, sweep_head
 from torchcal.reliability.interval import Interval
 from torchcal.robots.workspace import Workspace
 from torchcal.reliability.sweep import (DEFAULT_CHUNK, DEFAULT_CHUNK_GPU, SweepResult, _check_allowed,
@@ -114,10 +115,9 @@ class SweepPlan:
 
     def manifest(self) -> dict:
         """What the sweep computes: a rerun takes up a partial output only if this matches."""
-        r = self.robot.to("cpu", torch.float64)
-        robot = _digest([r.table, r.limits, r.base, r.tool, r.prismatic])
         states = _digest([self.deviations, self.dev_box.lower, self.dev_box.upper])
-        return {"format": "torchcal sweep blocks 1", "robot": r.name, "robot_parameters_sha256": robot,
+        return {"format": "torchcal sweep blocks 1", "robot": self.robot.name,
+                "robot_parameters_sha256": robot_fingerprint(self.robot),
                 "clearance_states_sha256": states, "points": self.n_points, "samples": self.n_samples,
                 "allowed_mm": self.allowed_mm, "seed": self.seed, "block": self.block,
                 "workspace": asdict(self.workspace or Workspace())}
@@ -312,7 +312,7 @@ def run_sweep(plan: SweepPlan, out, *, client=None, threads: int | None = None, 
         else:
             _run_on(client, plan, missing, write)
     summary = summary_of(acc)
-    folder.assemble(",".join(sweep_columns(plan.robot.n)) + "\n", plan.n_blocks)
+    folder.assemble(sweep_head(plan.robot.n, plan.robot), plan.n_blocks)
     return summary
 
 

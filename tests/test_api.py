@@ -84,3 +84,21 @@ def test_discover_refuses_a_transfer_session_without_the_datas_temp_c(data, tmp_
     write_measurements(tmp_path / "cold.csv", m)
     with pytest.raises(torchcal.InputError, match=r"cold\.csv: the transfer session has no temp_c column"):
         torchcal.discover("kr1000titan", warm, transfer=tmp_path / "cold.csv", max_rounds=1)
+
+
+def test_calibrate_refuses_a_partition_file_of_another_robot(kr, data, tmp_path):
+    """`torchcal.calibrate(robot, data, partition=PATH)` reads the partition for its robot:
+    another robot's is one InputError naming the file, the robot's own is used."""
+    from torchcal.io.partition_file import save_partition
+    from torchcal.partition.zones import partition_workspace
+    from torchcal.reliability.sweep import sweep
+
+    m, _ = data
+    m = Measurements(m.pose.repeat(2), m.q.repeat(2, 1), m.xyz.repeat(2, 1))  # two (noise-free) repeats a pose
+    sw = sweep(kr, random_poses(kr, 40, 9), n_samples=20)
+    path = tmp_path / "zones.json"
+    save_partition(partition_workspace(sw.positions, sw.r_set, 2, [1, 1], seed=0), path, made_for=sw.robot)
+    with pytest.raises(torchcal.InputError, match=rf"^{path}: made for robot 'kr1000titan' .*, not 'ur5e' "):
+        torchcal.calibrate("ur5e", m, partition=path)
+    res = torchcal.calibrate(kr, m, partition=path)
+    assert len(res.zones) == 2

@@ -440,3 +440,74 @@ def test_zones_numbered_alike_by_partition_and_interval_model(paper_partition, k
     ids = im.assign(probe)
     assert torch.equal(ids, p.assign(probe)) and int(ids.min()) >= 1 and int(ids.max()) <= Z
     assert im.zone_theta[ids - 1, 0].tolist() == ids.double().tolist()
+
+
+# ------------------------------------------------------------------ the robot it was made for
+def test_partition_file_records_and_checks_its_robot(paper_partition, tmp_path):
+    """PARTITION.json version 2 records the robot (`made_for`); `load_partition(robot=)`
+    refuses another robot or other joint limits with one line naming the file and what
+    differs, reads a file of version 1 (no record) with one warning, and reads its
+    partition unchanged."""
+    import dataclasses
+    import warnings
+
+    import torchcal
+    from torchcal.io.robot_file import UnrecordedRobotWarning, robot_fingerprint
+
+    kr, ur = torchcal.robot("kr1000titan"), torchcal.robot("ur5e")
+    path = tmp_path / "zones.json"
+    save_partition(paper_partition, path, made_for=kr)
+    obj = json.loads(path.read_text())
+    assert obj["version"] == 2 and obj["made_for"]["name"] == "kr1000titan"
+    assert obj["made_for"]["fingerprint"] == robot_fingerprint(kr)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        back = load_partition(path, kr)
+    assert partition_to_json(back) == partition_to_json(paper_partition)
+    with pytest.raises(InputError) as e:
+        load_partition(path, ur)
+    assert str(e.value).startswith(f"{path}: made for robot 'kr1000titan' (fingerprint {robot_fingerprint(kr)[:12]}), "
+                                   f"not 'ur5e' (fingerprint {robot_fingerprint(ur)[:12]}): the MD-H table differs")
+    assert str(e.value).endswith("; make the sweep and partition again for this robot")
+    assert "\n" not in str(e.value)
+    lim = kr.limits.clone()
+    lim[4, 0] += 0.1
+    with pytest.raises(InputError, match=r"not 'kr1000titan' .*: joint 5 limits .* deg in the file, .* deg given;"):
+        load_partition(path, dataclasses.replace(kr, limits=lim))
+    # a file of version 1 (no record): reads, with one warning when checked against a robot
+    old = dict(obj, version=1)
+    del old["made_for"]
+    (tmp_path / "old.json").write_text(json.dumps(old))
+    with pytest.warns(UnrecordedRobotWarning, match=r"old\.json: records no robot .* robot 'ur5e'$"):
+        back = load_partition(tmp_path / "old.json", ur)
+    assert partition_to_json(back) == partition_to_json(paper_partition)
+    assert json.loads(partition_to_json(back))["made_for"] is None
+    # version 2 without its record, or version 3: errors, not a silent read
+    del obj["made_for"]
+    with pytest.raises(InputError, match=r"zones: missing key 'made_for'"):
+        partition_from_dict(obj, "zones")
+    with pytest.raises(InputError, match=r"expected format 'torchcal.partition' version 2 \(or 1\), got .* version 3"):
+        partition_from_dict(dict(obj, version=3, made_for=None), "zones")
+
+
+def test_cli_partition_copies_the_sweeps_record(tmp_path, capsys):
+    """`torchcal partition` of a sweep of `torchcal sweep` records that sweep's robot (the
+    same record); of an older sweep CSV (no record line), one warning and no record."""
+    import torchcal
+    from torchcal.io.sweep_csv import sweep_record, write_sweep
+    from torchcal.reliability.sweep import sweep
+    from torchcal.robots.workspace import sample_workspace
+
+    kr = torchcal.robot("kr1000titan")
+    s = tmp_path / "sweep.csv"
+    write_sweep(sweep(kr, sample_workspace(kr, 40, seed=6), n_samples=30), s)
+    argv = ["partition", str(s), "--levels", "2", "--zones", "2,1", "--out", str(tmp_path / "p.json")]
+    assert cli.main(argv) == 0
+    assert capsys.readouterr().err == ""
+    assert json.loads((tmp_path / "p.json").read_text())["made_for"] == sweep_record(s)
+    old = tmp_path / "old.csv"
+    old.write_text("".join(s.read_text().splitlines(keepends=True)[1:]))
+    assert cli.main(argv[:1] + [str(old)] + argv[2:-1] + [str(tmp_path / "p_old.json")]) == 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"torchcal: warning: {old}: records no robot")
+    assert json.loads((tmp_path / "p_old.json").read_text())["made_for"] is None

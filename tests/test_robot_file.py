@@ -105,3 +105,83 @@ def test_write_is_atomic_and_refuses_overwrite(tmp_path):
     with pytest.raises(InputError, match="output exists"):
         write_robot_file(p, torchcal.robot("puma560"))
     assert load_robot_file(p).name == "ur5e"
+
+
+# -- the record of the robot a sweep or partition file was made for ---------------------------
+def test_fingerprint_is_the_sweep_manifests_and_tells_robots_apart():
+    """One fingerprint: the digest the partial-sweep manifest records (its bytes: table,
+    limits, base, tool, joint types as float64), which changes with each of them."""
+    import dataclasses
+    import hashlib
+
+    from torchcal.io.robot_file import robot_fingerprint
+    from torchcal.workflows.distributed import plan_sweep
+
+    kr = torchcal.robot("kr1000titan")
+    h = hashlib.sha256()
+    for t in (kr.table, kr.limits, kr.base, kr.tool, kr.prismatic):
+        h.update(t.to(torch.float64).numpy().tobytes())
+    assert robot_fingerprint(kr) == h.hexdigest()
+    assert plan_sweep(kr, n_points=3, n_samples=2).manifest()["robot_parameters_sha256"] == h.hexdigest()
+    lim = kr.limits.clone()
+    lim[2, 1] -= 1e-3
+    tool = kr.tool.clone()
+    tool[2, 3] += 1.0
+    others = [dataclasses.replace(kr, limits=lim), dataclasses.replace(kr, tool=tool), torchcal.robot("ur5e")]
+    assert len({robot_fingerprint(r) for r in [kr, *others]}) == 4
+    assert robot_fingerprint(dataclasses.replace(kr, name="titan_cell_3")) == h.hexdigest()  # names do not count
+
+
+def _not_exact_degrees() -> float:
+    """A value in degrees that does not come back bit for bit through radians -> degrees -> radians."""
+    return next(d / 1000 for d in range(1, 100000)
+                if math.radians(math.degrees(math.radians(d / 1000))) != math.radians(d / 1000))
+
+
+def test_check_record_passes_the_same_robot_and_names_what_differs():
+    from torchcal.io.robot_file import (UnrecordedRobotWarning, check_record, record_from_dict, robot_fingerprint,
+                                        robot_record)
+
+    arm = robot_from_dict({**ARM7, "joints": [{**ARM7["joints"][0], "theta_offset_deg": _not_exact_degrees()},
+                                              *ARM7["joints"][1:]]})
+    record = record_from_dict(json.loads(json.dumps(robot_record(arm))), "f.json: made_for")
+    assert record["name"] == "arm7" and record["fingerprint"] == robot_fingerprint(arm)
+    check_record(record, arm, "f.json", "sweep")  # the same robot
+    back = robot_from_dict(record["nominal_robot"])  # the same robot read back from a file: not bit for bit
+    assert robot_fingerprint(back) != record["fingerprint"] and back.same_geometry(arm)
+    check_record(record, back, "f.json", "sweep")
+    # another robot: one line naming the file, both robots and fingerprints, what differs
+    with pytest.raises(InputError) as e:
+        check_record(record, torchcal.robot("ur5e"), "f.json", "sweep")
+    msg = str(e.value)
+    assert msg == (f"f.json: made for robot 'arm7' (fingerprint {record['fingerprint'][:12]}), not 'ur5e' "
+                   f"(fingerprint {robot_fingerprint(torchcal.robot('ur5e'))[:12]}): 7 joints in the file, 6 given; "
+                   f"make the sweep again for this robot")
+    # the same robot with other joint limits, or another tool
+    joints = [dict(j) for j in ARM7["joints"]]
+    joints[0]["theta_offset_deg"] = _not_exact_degrees()
+    joints[3]["lower"] = -110
+    with pytest.raises(InputError, match=r"^f\.json: made for robot 'arm7' \(fingerprint [0-9a-f]{12}\), not 'arm7' "
+                                         r"\(fingerprint [0-9a-f]{12}\): joint 4 limits -120\.\.120 deg in the file, "
+                                         r"-110\.\.120 deg given; make the sweep again for this robot$"):
+        check_record(record, robot_from_dict({**ARM7, "joints": joints}), "f.json", "sweep")
+    joints[3]["lower"] = -120
+    with pytest.raises(InputError, match=r": the tool differs; make"):
+        check_record(record, robot_from_dict({**ARM7, "joints": joints, "tool": torch.eye(4).tolist()}), "f.json",
+                     "sweep")
+    with pytest.warns(UnrecordedRobotWarning, match=r"^f\.json: records no robot .* robot 'arm7'$"):
+        check_record(None, arm, "f.json", "sweep")
+
+
+@pytest.mark.parametrize("edit, match", [
+    (lambda r: {**r, "fingerprint": "ab12"}, r"made_for: fingerprint: expected a SHA-256 digest"),
+    (lambda r: {k: v for k, v in r.items() if k != "name"}, r"made_for: missing keys \['name'\]"),
+    (lambda r: {**r, "nominal_robot": {**r["nominal_robot"], "joints": []}},
+     r"made_for: nominal_robot: joints: expected a non-empty list"),
+    (lambda r: ["arm7"], r"made_for: expected an object \{name, fingerprint, nominal_robot\}, got list"),
+])
+def test_a_bad_record_is_one_line(edit, match):
+    from torchcal.io.robot_file import record_from_dict, robot_record
+
+    with pytest.raises(InputError, match=match):
+        record_from_dict(edit(robot_record(robot_from_dict(ARM7))), "f.json: made_for")

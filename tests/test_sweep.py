@@ -28,7 +28,7 @@ from torchcal.kinematics import mdh as K
 from torchcal.kinematics.chain import Chain
 from torchcal.errors import InputError
 from torchcal.reliability.interval import Interval
-from torchcal.io.sweep_csv import read_sweep, write_sweep
+from torchcal.io.sweep_csv import read_sweep, sweep_columns, write_sweep
 from torchcal.reliability.sweep import linear_bounds, sweep
 from torchcal.robots.workspace import Workspace, sample_workspace
 from torchcal.reliability.uncertainty import (KR1000_BEARING_LENGTH_MM, KR1000_CLEARANCE_MM, KR1000_LIMITS_MM,
@@ -437,3 +437,71 @@ def test_cli_runs_and_refuses_to_overwrite(tmp_path, capsys):
     err = capsys.readouterr().err
     assert _one_line(err) and "no default clearance model" in err
     assert not math.isnan(read_sweep(out).r_set.sum().item())
+
+
+# -- the robot a sweep CSV was made for -------------------------------------------------------
+def test_read_sweep_checks_the_robot_it_was_made_for(kr, tmp_path):
+    """The first line records the robot; `read_sweep(robot=...)` refuses another robot or
+    other joint limits with one line, reads the file of an older torchcal (no record) with
+    one warning, and a record line that is not one is an error naming line 1."""
+    import dataclasses
+    import warnings
+
+    from torchcal.io.robot_file import UnrecordedRobotWarning, robot_fingerprint
+    from torchcal.io.sweep_csv import sweep_record
+
+    r = sweep(kr, n_points=6, n_samples=10, seed=2)
+    assert r.robot is kr
+    path = tmp_path / "sweep.csv"
+    write_sweep(r, path)
+    assert sweep_record(path)["fingerprint"] == robot_fingerprint(kr)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        back = read_sweep(path, robot=kr)  # the same robot: no warning
+    assert back.robot.same_geometry(kr) and back.robot.name == "kr1000titan"
+    assert torch.equal(back.positions, r.positions)
+    with pytest.raises(InputError, match=rf"^{path}: made for robot 'kr1000titan' \(fingerprint [0-9a-f]{{12}}\), "
+                                         r"not 'ur5e' \(fingerprint [0-9a-f]{12}\): the MD-H table differs at joint"):
+        read_sweep(path, robot=torchcal.robot("ur5e"))
+    lim = kr.limits.clone()
+    lim[0] = torch.deg2rad(torch.tensor([-170.0, 170.0], dtype=torch.float64))
+    with pytest.raises(InputError, match=r"not 'kr1000titan' .*: joint 1 limits -150\.\.150 deg in the file, "
+                                         r"-170\.\.170 deg given; make the sweep again for this robot$"):
+        read_sweep(path, robot=dataclasses.replace(kr, limits=lim))
+    # the file of an older torchcal: the same rows without the record line
+    old = tmp_path / "old.csv"
+    old.write_text("".join(path.read_text().splitlines(keepends=True)[1:]))
+    assert sweep_record(old) is None
+    with pytest.warns(UnrecordedRobotWarning, match=rf"^{old}: records no robot .*robot 'ur5e'$"):
+        back = read_sweep(old, robot=torchcal.robot("ur5e"))
+    assert back.robot is None and torch.equal(back.positions, r.positions)
+    # a record line that lost its JSON, or is some other comment
+    lines = path.read_text().splitlines(keepends=True)
+    bad = tmp_path / "bad.csv"
+    bad.write_text(lines[0][:200] + "\n" + "".join(lines[1:]))
+    with pytest.raises(InputError, match=rf"^{bad}: line 1: the robot record is not valid JSON"):
+        read_sweep(bad)
+    bad.write_text("# my notes\n" + "".join(lines[1:]))
+    with pytest.raises(InputError, match=rf"^{bad}: line 1: expected the robot record \(# torchcal-sweep/2 "):
+        read_sweep(bad)
+    bad.write_text(lines[0] + ",".join(sweep_columns(5)) + "\n")
+    with pytest.raises(InputError, match=rf"^{bad}: line 1 records robot 'kr1000titan' with 6 joints, but the header "
+                                         r"has 5 joint columns"):
+        read_sweep(bad)
+
+
+def test_the_record_gives_a_prismatic_joints_unit(tmp_path):
+    """A sweep of a robot with a prismatic joint reads back its q in mm without being told."""
+    from pathlib import Path
+
+    scara = torchcal.robot(str(Path(__file__).resolve().parents[1] / "examples" / "scara.json"))
+    from torchcal.robots.poses import random_poses
+
+    q = random_poses(scara, 5, seed=1)
+    r = sweep(scara, q, n_samples=10, seed=2, deviations=1e-2 * torch.randn(3, scara.n, 5, dtype=torch.float64,
+                                                              generator=torch.Generator().manual_seed(3)))
+    path = tmp_path / "s.csv"
+    write_sweep(r, path)
+    back = read_sweep(path)
+    assert back.prismatic.tolist() == scara.prismatic.tolist()
+    torch.testing.assert_close(back.q, r.q, rtol=1e-12, atol=1e-12)

@@ -1,0 +1,97 @@
+"""`torchcal calibrate --partition`: the partition must be made for the given robot.
+
+A partition (and the sweep it was made from) records the robot it was made for; calibrate
+refuses another robot's, or one of other joint limits, with one line (exit 2, nothing
+written), takes the same robot from another file, and reads a partition file of an older
+torchcal (no record) with one warning and the same result as a recorded one."""
+
+import json
+
+import pytest
+
+import torchcal
+from torchcal import cli
+from torchcal.io.robot_file import robot_fingerprint, robot_to_dict
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    """A sweep and partition of the KR 1000 Titan (`torchcal partition`), and repeated
+    measurements of it and of a UR5e (virtual robots with a base frame)."""
+    from torchcal.io.measurement_csv import write_measurements
+    from torchcal.io.sweep_csv import write_sweep
+    from torchcal.reliability.sweep import sweep
+    from torchcal.robots.workspace import sample_workspace
+    from torchcal.simulation.virtual_robot import VirtualRobot
+
+    d = tmp_path_factory.mktemp("calibrate")
+    kr = torchcal.robot("kr1000titan")
+    write_sweep(sweep(kr, sample_workspace(kr, 60, seed=6), n_samples=50), d / "sweep.csv")
+    assert cli.main(["partition", str(d / "sweep.csv"), "--levels", "2", "--zones", "2,1",
+                     "--out", str(d / "part.json")]) == 0
+    for name, seed in (("kr1000titan", 4), ("ur5e", 5)):
+        r = torchcal.robot(name)
+        vr = VirtualRobot(r, ["base_frame"], seed=seed)
+        write_measurements(d / f"{name}.csv", vr.measure(sample_workspace(r, 30, seed=seed + 1), repeats=3,
+                                                         noise_mm=0.01))
+    return d
+
+
+def _calibrate(d, data, robot, partition, out):
+    return cli.main(["calibrate", str(d / data), "--robot", str(robot), "--effects", "base_frame",
+                     "--partition", str(partition), "--out", str(out)])
+
+
+def test_a_partition_of_another_robot_is_refused(session, capsys):
+    d = session
+    out = d / "ur5e_zones.json"
+    assert _calibrate(d, "ur5e.csv", "ur5e", d / "part.json", out) == 2
+    err = capsys.readouterr().err
+    kr, ur = (robot_fingerprint(torchcal.robot(n)) for n in ("kr1000titan", "ur5e"))
+    assert err.count("\n") == 1 and err.startswith(
+        f"torchcal calibrate: error: {d / 'part.json'}: made for robot 'kr1000titan' (fingerprint {kr[:12]}), "
+        f"not 'ur5e' (fingerprint {ur[:12]}): the MD-H table differs at joint(s) ")
+    assert err.endswith("; make the sweep and partition again for this robot\n")
+    assert not out.exists()
+
+
+def test_the_same_robot_with_other_joint_limits_is_refused(session, capsys):
+    d = session
+    robot = robot_to_dict(torchcal.robot("kr1000titan"))
+    robot["joints"][0]["lower"], robot["joints"][0]["upper"] = -170.0, 170.0
+    (d / "kr_wide.json").write_text(json.dumps(robot))
+    out = d / "wide_zones.json"
+    assert _calibrate(d, "kr1000titan.csv", d / "kr_wide.json", d / "part.json", out) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert err.startswith(f"torchcal calibrate: error: {d / 'part.json'}: made for robot 'kr1000titan' ")
+    assert "not 'kr1000titan' (fingerprint " in err
+    assert ": joint 1 limits -150..150 deg in the file, -170..170 deg given; make the sweep and partition" in err
+    assert not out.exists()
+
+
+def test_a_matching_partition_and_an_old_one_give_the_same_model(session, capsys):
+    """The recorded partition with the robot it was made for (as a preset, and as a robot
+    file of another name), and the same partition as a file of an older torchcal (version
+    1, no record: one warning), give the same model and the same printed table."""
+    d = session
+    runs = {}
+    robot_file = dict(robot_to_dict(torchcal.robot("kr1000titan")), name="titan_cell_3")
+    (d / "titan.json").write_text(json.dumps(robot_file))
+    old = json.loads((d / "part.json").read_text())
+    assert old.pop("made_for")["name"] == "kr1000titan"
+    (d / "part_v1.json").write_text(json.dumps(dict(old, version=1)))
+    for key, robot, part in (("preset", "kr1000titan", "part.json"), ("file", d / "titan.json", "part.json"),
+                             ("old", "kr1000titan", "part_v1.json")):
+        out = d / f"zones_{key}.json"
+        assert _calibrate(d, "kr1000titan.csv", robot, d / part, out) == 0
+        cap = capsys.readouterr()
+        model = json.loads(out.read_text())
+        model["provenance"].pop("partition")
+        del model["nominal_robot"]["name"], model["robot"]
+        runs[key] = (model, cap.out.replace(str(out), "OUT").replace("titan_cell_3", "kr1000titan"), cap.err)
+    assert runs["preset"][2] == runs["file"][2] == ""
+    assert runs["old"][2] == (f"torchcal: warning: {d / 'part_v1.json'}: records no robot (written before torchcal "
+                              f"recorded it): could not check that it was made for robot 'kr1000titan'\n")
+    assert runs["preset"][:2] == runs["file"][:2] == runs["old"][:2]
+    assert len(runs["old"][0]["zones"]) == 3 and "zone level poses" in runs["old"][1]

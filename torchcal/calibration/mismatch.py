@@ -41,6 +41,11 @@ cause is named (a frame the model lacks, gross outlier rows, a mirrored frame, r
 joint columns, another robot or units); a fitted RMS beyond GROSS_MM (the robust fit's
 outliers left out) is no calibration (docs/registration.md).
 
+Robots (`check_same_robot`, `robot_differences`): a model applied to another robot, and a
+sweep or partition file made for another robot than the one given (another joint count,
+joint types, MD-H table, base, tool or joint limits; `torchcal.io.robot_file.check_record`
+reads the file's record and names the differences in its one line).
+
 Units (before any fit, `check_units`). Measurements are compared with the nominal model at
 the same joint angles by a registration-invariant spread: the RMS distance of the points
 to their centroid, ``s = sqrt(mean |p - mean(p)|^2)`` (a rigid change of frame leaves it

@@ -10,9 +10,12 @@ kr1000titan preset only) docs/paper.md Table 2; both take {"radii_mm": [2n],
 revolute and prismatic joints (q in mm in the CSV for a prismatic joint).
 
 
+    # torchcal-sweep/2 {"made_for": {"name", "fingerprint", "nominal_robot"}}
     point,q1..qN,x,y,z,ex_lo,ex_hi,ey_lo,ey_hi,ez_lo,ez_hi,dist_lo,dist_hi,eta,r_set
 
-``point`` is the 0-based row index, q in degrees (mm: prismatic), x y z the nominal TCP position (mm),
+The first line records the robot the sweep was made for (`torchcal.io.robot_file.robot_record`:
+its name and the fingerprint of its nominal kinematics and joint limits, docs/formats.md),
+which `torchcal partition` copies and `torchcal calibrate` checks. ``point`` is the 0-based row index, q in degrees (mm: prismatic), x y z the nominal TCP position (mm),
 e* the error interval per axis and dist_* the distance-error interval (mm), eta (eq. 23)
 and r_set (eq. 24) against the allowed distance error [0, --allowed] mm. Prints a short
 summary (R_set min / median / max, share of points with R_set = 1) on stdout.

@@ -91,7 +91,7 @@ def test_a_matching_partition_and_an_old_one_give_the_same_model(session, capsys
         del model["nominal_robot"]["name"], model["robot"]
         runs[key] = (model, cap.out.replace(str(out), "OUT").replace("titan_cell_3", "kr1000titan"), cap.err)
     assert runs["preset"][2] == runs["file"][2] == ""
-    assert runs["old"][2] == (f"torchcal: warning: {d / 'part_v1.json'}: records no robot (written before torchcal "
-                              f"recorded it): could not check that it was made for robot 'kr1000titan'\n")
+    assert runs["old"][2] == (f"torchcal: warning: {d / 'part_v1.json'}: records no robot (a file of an older "
+                              f"torchcal, or made from one): could not check that it was made for robot 'kr1000titan'\n")
     assert runs["preset"][:2] == runs["file"][:2] == runs["old"][:2]
     assert len(runs["old"][0]["zones"]) == 3 and "zone level poses" in runs["old"][1]

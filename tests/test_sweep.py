@@ -505,3 +505,17 @@ def test_the_record_gives_a_prismatic_joints_unit(tmp_path):
     back = read_sweep(path)
     assert back.prismatic.tolist() == scara.prismatic.tolist()
     torch.testing.assert_close(back.q, r.q, rtol=1e-12, atol=1e-12)
+
+
+def test_a_record_line_saved_back_by_a_spreadsheet_is_named(kr, tmp_path):
+    """A spreadsheet splits the record line at its commas and saves it back quoted: one
+    line saying so, not a header error quoting the whole record."""
+    import csv
+
+    path, bad = tmp_path / "sweep.csv", tmp_path / "saved.csv"
+    write_sweep(sweep(kr, n_points=4, n_samples=10, seed=2), path)
+    with open(path, newline="") as src, open(bad, "w", newline="") as dst:
+        csv.writer(dst).writerows(csv.reader(src))
+    assert bad.read_text().startswith('"# torchcal-sweep/2 {""made_for""')
+    with pytest.raises(InputError, match=rf"^{bad}: line 1: the robot record was saved back as quoted CSV cells"):
+        read_sweep(bad)

@@ -297,8 +297,8 @@ def check_record(record: dict | None, robot: Robot, where: str, what: str) -> No
     fingerprints, what differs (`torchcal.calibration.mismatch.robot_differences`) and
     `what` to make again ("sweep", "sweep and partition")."""
     if record is None:
-        warnings.warn(f"{where}: records no robot (written before torchcal recorded it): could not check that "
-                      f"it was made for robot {robot.name!r}", UnrecordedRobotWarning, stacklevel=3)
+        warnings.warn(f"{where}: records no robot (a file of an older torchcal, or made from one): could not check "
+                      f"that it was made for robot {robot.name!r}", UnrecordedRobotWarning, stacklevel=3)
         return
     mine = robot_fingerprint(robot)
     if record["fingerprint"] == mine:

@@ -103,7 +103,7 @@ def read_sweep(path, device=None, prismatic=None, robot=None) -> SweepResult:
     try:
         with open(path, newline="") as fh:
             first = fh.readline()
-            record = _record(first, path) if first.startswith("#") else None
+            record = _record(first, path) if first.startswith(("#", '"#')) else None
             if record is None:
                 fh.seek(0)
             rows = list(csv.reader(fh))
@@ -177,11 +177,16 @@ def sweep_record(path) -> dict | None:
             first = fh.readline()
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: not a text CSV file ({exc})") from None
-    return _record(first, path) if first.startswith("#") else None
+    return _record(first, path) if first.startswith(("#", '"#')) else None
 
 
 def _record(line: str, path) -> dict:
-    """The robot record of a sweep CSV's first line `line` (which starts with '#')."""
+    """The robot record of a sweep CSV's first line `line` (which starts with '#', or '"#':
+    the line as a spreadsheet saves it back, split at its commas into quoted cells)."""
+    if line.startswith('"#'):
+        raise InputError(f"{path}: line 1: the robot record was saved back as quoted CSV cells (by a spreadsheet?); "
+                         f"put back the line as torchcal sweep wrote it ({RECORD.strip()} {{...}}), or write the "
+                         f"sweep again")
     if not line.startswith(RECORD):
         raise InputError(f"{path}: line 1: expected the robot record ({RECORD.strip()} {{...}}) or the header "
                          f"point,q1,..., got {line.strip()[:40]!r}")

@@ -310,3 +310,28 @@ def test_effects_that_are_not_a_list_are_one_clear_error(session, tmp_path):
     with pytest.raises(InputError, match=r"bad.json: model file is missing or has a bad field: 'effects' must be a "
                                          r"list of effect names, got str"):
         torchcal.load(tmp_path / "bad.json")
+
+
+@pytest.mark.parametrize("key, value, must", [
+    ("value", float("nan"), r"parameter dalpha1: 'value' must be finite, got nan"),  # was a traceback in evaluate
+    ("value", "0.01", r"parameter dalpha1: 'value' must be a number, got '0.01' \(str\)"),
+    ("value", None, r"parameter dalpha1: 'value' must be a number, got None"),
+    ("std", "abc", r"parameter dalpha1: 'std' must be a number, got 'abc'"),
+    ("value", 1e30, r"parameter dalpha1 = 1e\+30 deg is beyond any robot or set-up \(\|value\| <= 360 deg\)"),
+    ("value", 500.0, r"parameter dalpha1 = 500 deg is beyond"),
+])
+def test_a_hand_edited_parameter_is_one_line_naming_it(session, tmp_path, key, value, must):
+    """A parameter's value or std that is no finite number, or a size no robot or set-up has
+    (modelfile.MAX_FILE_SIZE), is one InputError naming the file and the parameter: a NaN
+    value gave an SVD traceback in evaluate, 1e30 deg was read as 'data of another robot'."""
+    from torchcal.errors import InputError
+
+    d = json.loads(session[2].read_text())
+    i = next(k for k, p in enumerate(d["parameters"]) if p["name"] == "dalpha1")
+    d["parameters"][i][key] = value
+    (tmp_path / "edited.json").write_text(json.dumps(d))
+    with pytest.raises(InputError, match=r"edited.json: " + must):
+        torchcal.load(tmp_path / "edited.json")
+    d["parameters"][i][key] = 359.0 if key == "value" else 0.5  # inside the bounds: loads
+    (tmp_path / "edited.json").write_text(json.dumps(d))
+    assert torchcal.load(tmp_path / "edited.json").theta.isfinite().all()

@@ -251,11 +251,13 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
         effects, params = obj["effects"], obj["parameters"]
         if not isinstance(effects, list):  # a string would be read letter by letter ("unknown effect 'b'")
             raise TypeError(f"'effects' must be a list of effect names, got {type(effects).__name__}")
-        values = [float(p["value"]) for p in params]
-        stds = [float(p.get("std", 0.0)) for p in params]
+        values = [_number(p, "value", i, path) for i, p in enumerate(params)]
+        stds = [_number(p, "std", i, path, 0.0) for i, p in enumerate(params)]
         identified = [bool(p.get("identified", True)) for p in params]
         names = [p["name"] for p in params]
         file_unit_names = [p.get("unit") for p in params]
+    except InputError:
+        raise
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise InputError(f"{path}: model file is missing or has a bad field: {exc}") from None
     nominal = model_robot(obj, str(path))
@@ -277,6 +279,7 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
                if u != e and not _old_label(n, u, e)]
         if bad:
             raise InputError(f"{path}: parameter unit(s) not those of {FORMAT}: {', '.join(bad[:3])}")
+        _check_sizes(names, values, file_unit_names, path)
         theta, std = theta / k, std / k
     where = str(path)
     fit = _block(obj, "fit", where)
@@ -319,6 +322,42 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
         return res
     zones = [_zone_from_dict(z, res, file_units(model)[1], where) for z in _list(obj, "zones", where)]
     return _zoned(res, zones, obj, _block(obj, "partition", where), str(obj.get("zone_method", "damped")), where)
+
+
+def _number(p: dict, key: str, i: int, where, default=None) -> float:
+    """Parameter `i`'s `key` ("value", "std") as a float: a finite JSON number (a string, a
+    null, NaN or infinity, e.g. of a file edited by hand, is one InputError naming the
+    parameter). `default` when the key is absent (None: the key is required)."""
+    if not isinstance(p, dict):
+        raise InputError(f"{where}: parameters[{i}]: expected an object with name, value, unit, std, "
+                         f"got {type(p).__name__}")
+    name = p.get("name", f"#{i + 1}")
+    if key not in p and default is not None:
+        return default
+    v = p.get(key)
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        got = "no value" if key not in p else f"{v!r} ({type(v).__name__})"
+        raise InputError(f"{where}: parameter {name}: {key!r} must be a number, got {got}")
+    if not math.isfinite(v):
+        raise InputError(f"{where}: parameter {name}: {key!r} must be finite, got {v!r}")
+    return float(v)
+
+
+# Beyond these sizes (file units) a parameter is no deviation of a robot or its set-up:
+# no joint, frame or harmonic term is off by more than a full turn, and no laser tracker
+# measures 100 m away (the base frame's translation is the largest length a model holds).
+MAX_FILE_SIZE = {"deg": 360.0, "mm": 1e5}
+
+
+def _check_sizes(names, values, units, where) -> None:
+    """InputError naming the first parameter beyond MAX_FILE_SIZE for its unit: a model file
+    edited by hand or corrupted (a fit never ends there: the prior holds every parameter near
+    its plausible size, docs/effects.md)."""
+    for n, v, u in zip(names, values, units):
+        lim = MAX_FILE_SIZE.get(u)
+        if lim is not None and abs(v) > lim:
+            raise InputError(f"{where}: parameter {n} = {v:.6g} {u} is beyond any robot or set-up "
+                             f"(|value| <= {lim:g} {u}): the file was edited or corrupted; refit the model")
 
 
 def _zoned(glob: FitResult, zones: list, obj: dict, partition: dict, method: str, where: str) -> ZonedFit:

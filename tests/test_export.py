@@ -138,3 +138,23 @@ def test_unwritable_output_is_found_before_the_work_with_the_users_path(fitted, 
     cap = capsys.readouterr()
     assert cap.out == "" and len(cap.err.splitlines()) == 1  # nothing ran: no refit line
     assert f"{out}: cannot write in folder /proc" in cap.err and ".tmp" not in cap.err and "Errno" not in cap.err
+
+
+def test_export_never_writes_over_the_nominal_robot_file(fitted, tmp_path, capsys):
+    """--robot-file naming the robot file the model was fitted with (a model does not record
+    its path) is refused, --force or not, in one line, the file left as it was (it was
+    replaced by the calibrated robot: the UR10 example's ur10.json); a file of a former
+    export is still replaced with --force."""
+    from torchcal.io.robot_file import robot_to_dict
+
+    nominal = tmp_path / "ur5e.json"
+    nominal.write_text(json.dumps(robot_to_dict(torchcal.robot("ur5e")), indent=1))
+    before = nominal.read_bytes()
+    capsys.readouterr()
+    assert main(["export", str(fitted / "m.json"), "--robot-file", str(nominal), "--force"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and f"{nominal}: --robot-file names a robot file of the nominal ur5e" in err
+    assert nominal.read_bytes() == before
+    former = tmp_path / "cal.json"
+    assert main(["export", str(fitted / "m.json"), "--robot-file", str(former)]) == 0
+    assert main(["export", str(fitted / "m.json"), "--robot-file", str(former), "--force"]) == 0

@@ -26,7 +26,8 @@ worse and that by how much cannot be told without data.
 The model's first parameter set is exported (zone 1 of an interval model).
 
 No output replaces an input, ``--force`` included: the model, ``--data``, and what the
-model records it came from (its data, the URDF its robot was imported from). Every
+model records it came from (its data, the URDF its robot was imported from), and a
+``--robot-file`` that holds the model's nominal robot (the robot file it was fitted with). Every
 output's folder is tried before the work; one "wrote PATH" line per file written.
 """
 

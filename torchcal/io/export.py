@@ -70,6 +70,28 @@ def sources(im) -> list:
     return [p for p in out + [urdf and urdf.get("path")] if p]
 
 
+def not_the_nominal_robot(path, nominal: Robot) -> None:
+    """InputError when `path` is an existing robot file of the model's nominal robot (the
+    same joints, MD-H table, base, tool and limits, `robot_differences`): the robot file the
+    model was fitted with. Writing the calibrated robot over it, ``--force`` or not, would
+    lose the nominal, and every later fit with it would start from the calibrated geometry
+    (a model does not record that file's path). Any other file, a robot file of a former
+    export included, is left to `check_output`."""
+    from torchcal.calibration.mismatch import robot_differences
+    from torchcal.io.robot_file import load_robot_file
+
+    if not Path(path).is_file():
+        return
+    try:
+        there = load_robot_file(path)
+    except InputError:  # not a robot file
+        return
+    if not robot_differences(there, nominal):
+        raise InputError(f"{path}: --robot-file names a robot file of the nominal {nominal.name}, the robot the "
+                         f"model was fitted with; refusing to write the calibrated robot over it, --force or not "
+                         f"(give another file name)")
+
+
 def export(im, *, robot_file=None, urdf=None, table=None, data=None, length_unit: str = "mm",
            angle_unit: str = "deg", force: bool = False, inputs=()) -> Export:
     """Export the fitted model `im` (of a `ZonedFit` the global fit) as the
@@ -92,6 +114,8 @@ def export(im, *, robot_file=None, urdf=None, table=None, data=None, length_unit
     for p in outs.values():
         if p is not None:
             check_output(p, force=force, inputs=inputs)
+    if robot_file is not None:
+        not_the_nominal_robot(robot_file, im.model.robot)
     cm, theta = im.model, im.theta
     cal, rest = calibrated_robot(cm, theta)
     refit, rows = None, None

@@ -121,3 +121,42 @@ def test_the_api_gives_far_targets_one_start_as_the_command_line(model, monkeypa
     seen.clear()
     torchcal.compensate(d / "model.json", t, temp_c=temp, check=False)
     assert seen == [[]]
+
+
+def test_seeds_in_radians_in_the_degree_columns_are_refused(model, capsys):
+    """Seeds q1..qN written in radians under degrees (every seed within +-2 pi 'deg', the
+    model there a median > SEED_MM from the targets) are one line naming --angle-unit rad
+    and nothing is written: they converged, exit 0, in another arm configuration than the
+    seeds'. The same file with --angle-unit rad compensates."""
+    d, _, q, xyz = model
+    t = _targets(d / "rad.csv", q, xyz)
+    lines = t.read_text().splitlines()
+    cells = [ln.split(",") for ln in lines[1:]]
+    for c in cells:
+        c[3:9] = [repr(float(v) * torch.pi / 180) for v in c[3:9]]  # the radians, in the degree columns
+    t.write_text("\n".join([lines[0]] + [",".join(c) for c in cells]) + "\n")
+    capsys.readouterr()
+    assert main(["compensate", str(t), "--model", str(d / "model.json"), "--out", str(d / "o_rad.csv")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "look like radians read as degrees; pass --angle-unit rad" in err
+    assert not (d / "o_rad.csv").exists()
+    assert main(["compensate", str(t), "--model", str(d / "model.json"), "--out", str(d / "o_rad.csv"),
+                 "--angle-unit", "rad"]) == 0
+
+
+def test_a_seed_far_from_its_target_is_named(model, capsys):
+    """A seed whose model point lies more than SEED_MM from its target (here the next
+    target's seed) is one warning line naming its row; the command goes on."""
+    d, _, q, xyz = model
+    t = _targets(d / "swapped_seed.csv", q, xyz)
+    lines = t.read_text().splitlines()
+    a, b = lines[1].split(","), lines[2].split(",")
+    a[3:9], b[3:9] = b[3:9], a[3:9]
+    t.write_text("\n".join([lines[0], ",".join(a), ",".join(b), lines[3]]) + "\n")
+    far = float((xyz[0] - xyz[1]).norm())
+    assert far > 100.0  # the poses' points lie apart (random_poses seed 8)
+    capsys.readouterr()
+    assert main(["compensate", str(t), "--model", str(d / "model.json"), "--out", str(d / "o_sw.csv")]) in (0, 1)
+    err = capsys.readouterr().err
+    warn = [ln for ln in err.splitlines() if "seed(s) lie more than 100 mm from their targets" in ln]
+    assert len(warn) == 1 and "2 seed(s)" in warn[0] and "row(s) 1, 2;" in warn[0]

@@ -449,7 +449,7 @@ def compensate_targets(im, targets, *, frame: str = "measuring", seeds=None, pay
     ``beyond_reach``; `where` names the targets in messages."""
     import warnings
 
-    from torchcal.calibration.mismatch import MismatchWarning, check_target_conditions, check_targets
+    from torchcal.calibration.mismatch import MismatchWarning, check_seeds, check_target_conditions, check_targets
 
     if frame not in FRAMES:
         raise InputError(f"frame: expected one of {', '.join(FRAMES)}, got {frame!r}")
@@ -465,8 +465,14 @@ def compensate_targets(im, targets, *, frame: str = "measuring", seeds=None, pay
     with warnings.catch_warnings():  # metres read as mm: refused; beyond the reach: listed
         warnings.simplefilter("ignore", MismatchWarning)
         far = check_targets(im.model, im.theta, t, where=where)
-    q0 = nominal_start(im.model, im.theta, t, poses=im.seed_poses, q_range=im.q_range, once=far).q if seeds is None else \
-        rob.q_from_user(torch.as_tensor(seeds))
+    if seeds is None:
+        q0 = nominal_start(im.model, im.theta, t, poses=im.seed_poses, q_range=im.q_range, once=far).q
+    else:  # seeds are the targets' nominal commands: radians in degrees refused, far ones named
+        q0 = rob.q_from_user(torch.as_tensor(seeds))
+        at = predict_rows(im.model, im.theta.to(t).expand(len(t), -1), q0.to(t),
+                          payload_kg=None if payload_kg is None else torch.as_tensor(payload_kg).to(t),
+                          temp_c=None if temp_c is None else torch.as_tensor(temp_c).to(t))
+        check_seeds(at, t, q0, rob, where, skip=far)
     comp = compensate_fitted(im, t, q0, check=False, payload_kg=payload_kg, temp_c=temp_c, stacklevel=stacklevel + 1)
     from torchcal.calibration.zone_calibration import ZonedFit
 

@@ -35,6 +35,11 @@ base, or whose median distance from the origin of the measuring frame (the instr
 below R / 20: metres read as mm (a refusal); targets beyond 1.05 R cannot be reached (a warning
 naming them; compensate reports them as not converged).
 
+Seeds of targets (`check_seeds`): the model at each seed should lie on its target (a seed
+is the target's nominal command); seeds within +-2 pi "degrees" a median beyond SEED_MM =
+100 mm from their targets are radians read as degrees (a refusal), other seeds beyond
+SEED_MM are named in a warning.
+
 Before and after a fit (`check_robot_data`, `check_fitted`): the nominal robot with its
 measuring frame and tool offset fitted must come within GROSS_MM of the data, else the
 cause is named (a frame the model lacks, gross outlier rows, a mirrored frame, reversed
@@ -94,6 +99,7 @@ TARGET_RATIO = 20.0
 REACH_MARGIN = 1.05
 MIN_REACH_MM = 50.0
 WORKSPACE_POSES = 2000
+SEED_MM = 100.0  # a seed whose model point lies farther from its target is no nominal command of it
 RATIO_LIMIT = 20.0
 RAD_RATIO = 2.0
 
@@ -304,6 +310,41 @@ def check_targets(model, theta: torch.Tensor, targets: torch.Tensor, where: str 
         warnings.warn(f"{where}: {len(far)} target(s) lie beyond the reach of {model.robot.name} ({reach:.4g} mm "
                       f"from the base; up to {float(dist.max()):.4g} mm): row(s) {rows}; another robot, "
                       "another frame (targets are in the model's frame) or units?", MismatchWarning, stacklevel=2)
+    return far
+
+
+def check_seeds(seed_points: torch.Tensor, targets: torch.Tensor, q0: torch.Tensor, robot,
+                where: str = "targets", skip=()) -> list[int]:
+    """Compensation seeds against their targets: a seed (the ``q1..qN`` of a targets file)
+    is normally the nominal command of its target, where the model lies within the robot's
+    absolute accuracy (a few mm) of it; the solve starts there and stays in its arm
+    configuration.
+
+    seed_points: (M, 3) mm, the model at the seeds q0 (M, n) rad / mm; targets (M, 3) mm in
+    the same frame. InputError when every revolute seed lies within +-2 pi "degrees" and
+    the median distance from seed point to target exceeds SEED_MM = 100 mm: radians in a
+    degree column (the solve would converge from near-zero angles, in another arm
+    configuration; fix angle_unit='rad'). A real set of seeds that only moves a few degrees
+    sits on its targets and passes. Otherwise a `MismatchWarning` names the targets whose
+    seed point lies beyond SEED_MM (the solution may lie in another arm configuration than
+    the seed's); rows in `skip` (0-based: targets beyond the reach, named already) are not.
+    Returns the named 0-based rows."""
+    d = (seed_points.detach().to("cpu", torch.float64) - targets.detach().to("cpu", torch.float64)).norm(dim=-1)
+    if d.numel() == 0:
+        return []
+    rev = ~robot.prismatic.cpu()
+    q = q0.detach().to("cpu", torch.float64)[..., rev]
+    med = float(d.median())
+    if q.numel() and math.degrees(float(q.abs().max())) <= 2 * math.pi + 1e-9 and med > SEED_MM:
+        raise InputError(f"{where}: every seed angle lies within +-{math.degrees(float(q.abs().max())):.4g} deg and "
+                         f"the model at the seeds lies a median {med:.4g} mm from the targets: the seeds q1..q{robot.n} "
+                         "look like radians read as degrees", fix=("angle_unit", "rad"))
+    far = [i for i in (d > SEED_MM).nonzero().flatten().tolist() if i not in set(skip)]
+    if far:
+        rows = ", ".join(str(i + 1) for i in far[:10]) + (" ..." if len(far) > 10 else "")
+        warnings.warn(f"{where}: {len(far)} seed(s) lie more than {SEED_MM:g} mm from their targets (the model at "
+                      f"the seed; up to {float(d.max()):.4g} mm): row(s) {rows}; a seed is the target's nominal "
+                      "command: the solution may lie in another arm configuration", MismatchWarning, stacklevel=2)
     return far
 
 

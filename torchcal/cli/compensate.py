@@ -4,7 +4,9 @@ that make the calibrated model reach each target (torchcal.api.compensate_target
 TARGETS.csv: header ``x,y,z`` (mm; --length-unit m for metres) and optionally ``q1..qN``
 (degrees, mm for a prismatic joint; --angle-unit rad, --length-unit m), ``payload_kg`` and
 ``temp_c`` (the conditions of each move, needed by load- and temperature-dependent
-effects): the seed of each target, normally the command that nominally reaches it.
+effects): the seed of each target, normally the command that nominally reaches it (a
+seed whose model point lies more than 100 mm from its target is named in a warning; seeds
+that look like radians read as degrees are refused).
 Without seeds the nominal inverse (nominal geometry in the model's fitted frame) is
 solved first, each target starting from the nearest of the calibration poses the model
 keeps (the arm configuration it was calibrated in; the next nearest when the solution
@@ -62,7 +64,9 @@ def run(args) -> int:
     from torchcal.io.targets_csv import compensation_csv
 
     check_outputs([("--out", args.out)], args.force, inputs=[args.targets, args.model])
-    with warnings_to_stderr(CalibratedRangeWarning):  # converged outside the calibrated range: one line
+    from torchcal.calibration.mismatch import MismatchWarning
+
+    with warnings_to_stderr(CalibratedRangeWarning, MismatchWarning):  # outside the calibrated range, far seeds
         res = compensate_targets(args.model, args.targets, frame=args.frame, robot=load_robot(args.robot),
                                  **units(args))
     atomic_write(args.out, compensation_csv(res), force=args.force, inputs=[args.targets, args.model])

@@ -153,7 +153,7 @@ def test_export_never_writes_over_the_nominal_robot_file(fitted, tmp_path, capsy
     capsys.readouterr()
     assert main(["export", str(fitted / "m.json"), "--robot-file", str(nominal), "--force"]) == 2
     err = capsys.readouterr().err
-    assert len(err.splitlines()) == 1 and f"{nominal}: --robot-file names a robot file of the nominal ur5e" in err
+    assert len(err.splitlines()) == 1 and f"{nominal}: holds the nominal ur5e, the robot the model was fitted with" in err
     assert nominal.read_bytes() == before
     former = tmp_path / "cal.json"
     assert main(["export", str(fitted / "m.json"), "--robot-file", str(former)]) == 0

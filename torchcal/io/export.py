@@ -87,9 +87,8 @@ def not_the_nominal_robot(path, nominal: Robot) -> None:
     except InputError:  # not a robot file
         return
     if not robot_differences(there, nominal):
-        raise InputError(f"{path}: --robot-file names a robot file of the nominal {nominal.name}, the robot the "
-                         f"model was fitted with; refusing to write the calibrated robot over it, --force or not "
-                         f"(give another file name)")
+        raise InputError(f"{path}: holds the nominal {nominal.name}, the robot the model was fitted with; "
+                         f"refusing to write the calibrated robot over it, replace or not (give another file name)")
 
 
 def export(im, *, robot_file=None, urdf=None, table=None, data=None, length_unit: str = "mm",

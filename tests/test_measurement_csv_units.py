@@ -142,3 +142,17 @@ def test_bad_new_columns_one_line_exit_2(tmp_path, capsys, header, row, match):
     assert main(["fit", str(f), "--robot", "ur5e", "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert match in err and len(err.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_inches_are_named_as_inches(files, capsys):
+    """Positions in inches (spread 1/25.4 of the nominal's) are named as inches, not as
+    metres with a --length-unit m that would make them 1000 times worse."""
+    lines = (files / "mm.csv").read_text().splitlines()
+    rows = [r.split(",") for r in lines[1:]]
+    inches = [r[:7] + [repr(float(v) / 25.4) for v in r[7:10]] + r[10:] for r in rows]
+    (files / "in.csv").write_text("\n".join([lines[0]] + [",".join(r) for r in inches]) + "\n")
+    capsys.readouterr()
+    code, out = _fit(files, "in")
+    err = capsys.readouterr().err
+    assert code == 2 and not out.exists() and len(err.strip().splitlines()) == 1
+    assert "look like inches read as mm; convert them to mm (x 25.4)" in err and "--length-unit" not in err

@@ -77,7 +77,7 @@ def test_moved_frame_points_at_register(ur10):
 
 def test_units_hint_from_the_spread(ur10):
     _, _, fitted, val = ur10
-    with pytest.raises(InputError, match="metres read as mm"):
+    with pytest.raises(InputError, match="points at mm read as metres"):  # numbers 1000x too large
         torchcal.evaluate(fitted, dataclasses.replace(val, xyz=val.xyz * 1000))
 
 
@@ -163,3 +163,13 @@ def test_cli_diagnose_refuses_another_robot(tmp_path, capsys):
                "--json", str(tmp_path / "d.json")])
     err = capsys.readouterr().err
     assert rc == 2 and "cannot come from" in err and err.count("\n") == 1 and not (tmp_path / "d.json").exists()
+
+
+@pytest.mark.parametrize("k, cause", [(1e-3, "metres read as mm"), (1000.0, "mm read as metres"),
+                                      (1 / 25.4, "inches read as mm")])
+def test_units_hint_names_the_direction(k, cause):
+    """Measured numbers k times the model's: 1/1000 are metres read as mm, 1000 mm read as
+    metres, 1/25.4 inches (the hint had metres and mm the wrong way round)."""
+    p = torch.randn(50, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64) * 500
+    r = check_points(p, p * k, training_rms_mm=0.1)
+    assert r.verdict == "mismatch" and f"points at {cause}" in r.message

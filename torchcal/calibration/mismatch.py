@@ -59,7 +59,8 @@ robot the ratio ``s_measured / s_nominal`` is 1 within a few percent (a differen
 point moves it by tens of percent at most); a unit mistake moves it by about 1000.
 
 - ratio < 1/20 with ``length_unit='mm'``: positions look like metres read as mm
-  (fix: ``length_unit='m'``); ratio > 20 with ``length_unit='m'``: mm read as metres
+  (fix: ``length_unit='m'``), or inches read as mm when the ratio is 1/25.4 within 10 %
+  (no unit option: convert the file); ratio > 20 with ``length_unit='m'``: mm read as metres
   (fix: ``length_unit='mm'``). Any other ratio outside [1/20, 20] is refused too, naming
   the spreads (wrong unit or wrong robot).
 - ``angle_unit='deg'`` and every joint angle within +-2 pi (6.283 "degrees") while the
@@ -102,6 +103,7 @@ WORKSPACE_POSES = 2000
 SEED_MM = 100.0  # a seed whose model point lies farther from its target is no nominal command of it
 RATIO_LIMIT = 20.0
 RAD_RATIO = 2.0
+INCH_MM = 25.4
 
 
 class MismatchWarning(UserWarning):
@@ -176,6 +178,9 @@ def check_units(m, robot, length_unit: str = "mm", angle_unit: str = "deg", wher
                          f"{spreads}: the joint angles look like radians read as degrees",
                          fix=("angle_unit", "rad"))
     if ratio < 1 / RATIO_LIMIT:
+        if length_unit == "mm" and abs(math.log(ratio * INCH_MM)) < math.log(1.1):
+            raise InputError(f"{pre}{spreads} ({1 / ratio:.4g} times less): the positions look like inches "
+                             f"read as mm; convert them to mm (x {INCH_MM:g})")
         if length_unit == "mm":
             raise InputError(f"{pre}{spreads} ({1 / ratio:.4g} times less): the positions look like "
                              "metres read as mm", fix=("length_unit", "m"))
@@ -189,7 +194,9 @@ def check_units(m, robot, length_unit: str = "mm", angle_unit: str = "deg", wher
 
 
 def _units_hint(ratio: float) -> str:
-    for f, what in ((1000.0, "metres read as mm (length unit m)"), (1e-3, "mm read as metres"),
+    # ratio = measured / modelled spread: numbers 1000 times too small are metres read as mm
+    for f, what in ((1e-3, "metres read as mm (length unit m)"), (1000.0, "mm read as metres (length unit mm)"),
+                    (1 / INCH_MM, "inches read as mm"),
                     (math.degrees(1.0), "radians read as degrees (angle unit rad)")):
         if abs(math.log(ratio / f)) < math.log(1.5):
             return f"; the spread ratio {ratio:.4g} points at {what}"

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
 import warnings
 from pathlib import Path
 
@@ -173,3 +174,27 @@ def test_units_hint_names_the_direction(k, cause):
     p = torch.randn(50, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64) * 500
     r = check_points(p, p * k, training_rms_mm=0.1)
     assert r.verdict == "mismatch" and f"points at {cause}" in r.message
+
+
+def test_rows_outside_the_calibrated_range_are_named_as_the_cause():
+    """UR10 series D: its first 200 rows keep joint 6 within -90.2 .. -89.7 deg, so a model
+    fitted on them leaves the tool offset undetermined; on the next 200 rows (joint 6 over
+    +-90 deg) it is off by hundreds of mm, yet by its training error on the rows inside its
+    calibrated range. The refusal names the calibrated range, not 'another robot or units'."""
+    from torchcal.io.measurement_csv import read_measurements
+
+    rob = torchcal.robot(UR10)
+    m = read_measurements(UR10.parent / "series_d.csv", robot=rob)
+    fitted = torchcal.fit(rob, m.subset(slice(0, 200)), ["base_frame", "tool_offset"])
+    val = m.subset(slice(200, 400))
+    with pytest.raises(InputError) as exc:
+        torchcal.evaluate(fitted, val)
+    msg = str(exc.value)
+    assert "rows inside its calibrated joint range" in msg and "joint 6: " in msg, msg
+    assert "another robot or units (length" not in msg and "`torchcal register`" not in msg
+    rms_in = float(re.search(r"but by ([0-9.]+) mm", msg).group(1))
+    assert rms_in < 3 * fitted.training_rms_mm  # the rows inside agree with the model
+    with pytest.raises(InputError, match="another robot or units"):  # another robot stays another robot
+        torchcal.evaluate(fitted, dataclasses.replace(val, xyz=titan_data().xyz[:1].expand(200, 3) +
+                                                      torch.randn(200, 3, dtype=torch.float64,
+                                                                  generator=torch.Generator().manual_seed(1)) * 300))

@@ -69,7 +69,7 @@ def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     ctx = context_of(cm.robot, m)
     cm.check_context(ctx)
     theta = fm.theta.to(m.xyz)
-    enforce(check_measurements(cm, theta, m, fm.training_rms_mm))  # another robot, frame, units
+    enforce(check_measurements(cm, theta, m, fm.training_rms_mm, q_range=fm.q_range))  # another robot, frame, units
     stage = fm.residual_model
     err = m.xyz - fm.predict(ctx)  # (N, 3) mm (each row in its zone); minus the residual stage's correction
     if stage is not None:

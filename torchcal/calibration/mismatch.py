@@ -239,16 +239,42 @@ def check_points(predicted: torch.Tensor, measured: torch.Tensor, training_rms_m
 
 
 def check_measurements(model, theta: torch.Tensor, m, training_rms_mm: float | None = None,
-                       what: str | None = None) -> Mismatch:
-    """`check_points` of a `CalibrationModel` at theta (P,) on `Measurements` m."""
+                       what: str | None = None, q_range: torch.Tensor | None = None) -> Mismatch:
+    """`check_points` of a `CalibrationModel` at theta (P,) on `Measurements` m.
+
+    q_range: the model's calibrated joint range (2, n) rad / mm, or None. When the data are
+    off (a verdict) but its rows inside that range agree with the model (at least 3 of
+    them, RMS within the bound B), the rows outside it are the cause: the model
+    extrapolates badly there (a joint that barely moved in the calibration data leaves
+    the tool offset or its link undetermined), and the line says so instead of naming
+    another robot, units or a moved frame (the verdict, and so the refusal, stays)."""
+    import dataclasses
+
+    from torchcal.calibration.joint_range import outside_range
     from torchcal.effects import context_of
 
     ctx = context_of(model.robot, m)
     model.check_context(ctx)
     with torch.no_grad():
         pred = model.predict(theta.to(m.xyz), ctx)
-    return check_points(pred, m.xyz, training_rms_mm, what or (m.source or "data"),
-                        f"the model of {model.robot.name}")
+    name = f"the model of {model.robot.name}"
+    res = check_points(pred, m.xyz, training_rms_mm, what or (m.source or "data"), name)
+    if res.verdict is None or q_range is None:
+        return res
+    out = outside_range(m.q, q_range.to(m.q), model.robot.prismatic).any(dim=-1).cpu()  # (N,)
+    inside = ~out
+    if int(inside.sum()) < 3 or not bool(out.any()):
+        return res
+    d = (m.xyz - pred).detach().to("cpu", torch.float64).norm(dim=-1)
+    rms_in = _rms(d[inside])
+    if rms_in > res.bound_mm:
+        return res
+    _, joints = range_warning(m.q, q_range.to(m.q), model.robot, None, max_joints=model.robot.n)
+    msg = (f"{what or (m.source or 'data')}: {name} is off by rms {res.rms_mm:.4g} mm, but by {rms_in:.4g} mm on "
+           f"the {int(inside.sum())} of {len(m)} rows inside its calibrated joint range; the {int(out.sum())} "
+           f"outside it ({joints}) are where it fails: it extrapolates badly beyond the joint values it was "
+           f"fitted on; fit it on data that cover them (not another robot, units or a moved measuring frame)")
+    return dataclasses.replace(res, message=msg, fix=None)
 
 
 def enforce(result: Mismatch, refuse_frame: bool = True, refuse_mismatch: bool = True) -> Mismatch:
@@ -583,7 +609,8 @@ def check_diagnosis_data(robot_or_model, model, m):
     from torchcal.calibration.model import CalibrationModel
 
     if isinstance(robot_or_model, FitResult):
-        res = check_measurements(model, robot_or_model.theta, m, robot_or_model.training_rms_mm)
+        res = check_measurements(model, robot_or_model.theta, m, robot_or_model.training_rms_mm,
+                                 q_range=robot_or_model.q_range)
         return enforce(res, refuse_frame=False, refuse_mismatch=True)
     return check_robot_data_of(CalibrationModel.for_measurements(model.robot, model.specs(), m), m)
 
@@ -605,13 +632,13 @@ def check_target_conditions(model, targets: torch.Tensor, payload_kg=None, temp_
                              f"in the targets, which they lack") from None
 
 
-def range_warning(q: torch.Tensor, q_range: torch.Tensor | None, robot, what: str = "rows",
+def range_warning(q: torch.Tensor, q_range: torch.Tensor | None, robot, what: str | None = "rows",
                   max_joints: int = 3) -> tuple[int, str | None]:
     """(number of rows of q (N, n) rad / mm outside q_range, one-line message or None).
 
     q_range None (a model file written before torchcal recorded it): (0, None). The
     message names each offending joint (up to `max_joints`) with its farthest value and
-    the calibrated range, in deg (mm for a prismatic joint)."""
+    the calibrated range, in deg (mm for a prismatic joint); `what` None: those joints alone."""
     from torchcal.calibration.joint_range import outside_range
 
     if q_range is None or q.shape[0] == 0:
@@ -630,6 +657,8 @@ def range_warning(q: torch.Tensor, q_range: torch.Tensor | None, robot, what: st
     parts = [f"joint {j + 1}: {qu[int(worst[j]), j].item():.1f} {units[j]}, calibrated "
              f"{ru[0, j].item():.1f} .. {ru[1, j].item():.1f} {units[j]}" for j in joints[:max_joints]]
     more = f"; and {len(joints) - max_joints} more joint(s)" if len(joints) > max_joints else ""
+    if what is None:  # the joints alone
+        return rows, f"{'; '.join(parts)}{more}"
     msg = (f"{rows} of {q.shape[0]} {what} lie outside the calibrated joint range "
            f"({'; '.join(parts)}{more}); the model extrapolates there")
     return rows, msg

@@ -44,7 +44,7 @@ def register_model(fitted, robot, m, *, tool: bool = False, stacklevel: int = 1)
         raise InputError(f"{m.source or 'measurements'}: registration needs at least 3 rows, got {len(m)}")
     res = reregister(cm, theta.to(m.xyz), ctx, m.xyz, tool=tool, pose=m.pose, covariance=cov,
                      identified=identified, q_range=q_range)
-    enforce(check_measurements(res.model, res.theta, m, train))  # still off: another robot, units
+    enforce(check_measurements(res.model, res.theta, m, train, q_range=q_range))  # still off: another robot, units
     far = far_from_training(res.rms_mm, train)
     if far is not None:
         warnings.warn(far, TransferWarning, stacklevel=stacklevel + 1)

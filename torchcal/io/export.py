@@ -121,7 +121,7 @@ def export(im, *, robot_file=None, urdf=None, table=None, data=None, length_unit
     if data is not None and rest:  # data only matter when the model has effects the robot cannot hold
         m = as_measurements(data, cm.robot, length_unit, angle_unit)
         check_units(m, cm.robot, length_unit=length_unit, angle_unit=angle_unit, where=m.source or "data")
-        enforce(check_measurements(cm, theta.to(m.xyz), m, im.training_rms_mm))
+        enforce(check_measurements(cm, theta.to(m.xyz), m, im.training_rms_mm, q_range=im.q_range))
         rows, refit = len(m), refit_geometry(cm, theta, m, identified=im.report.free)
         cm, theta = refit.fit.model, refit.fit.theta
         cal, rest = calibrated_robot(cm, theta)[0], []

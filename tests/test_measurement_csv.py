@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from torchcal.errors import InputError
 from torchcal.measurements import Measurements
-from torchcal.io.measurement_csv import (JointLimitWarning, PoseIdWarning, format_measurements, read_measurements,
+from torchcal.io.measurement_csv import (CopiedRowWarning, JointLimitWarning, PoseIdWarning, format_measurements, read_measurements,
                                          write_measurements)
 from torchcal.io.robot_file import robot
 
@@ -221,13 +221,30 @@ def test_pose_id_repeated_at_other_joint_values_warns(tmp_path):
                                            r"\(first: line 4, pose id 0, q1=11 degrees, on line 2 10\)"):
         assert len(read_measurements(p)) == 3
     jitter = ROW6.replace(",10,", ",10.003,")
-    q = _write(tmp_path, HEADER6 + "\n" + ROW6 + "\n" + ROW6 + "\n" + jitter + "\n", "repeats.csv")
+    noisy = ROW6.replace(",1500.5,", ",1500.51,")  # a repeat: the same joints, x by the tracker's noise
+    q = _write(tmp_path, HEADER6 + "\n" + ROW6 + "\n" + noisy + "\n" + jitter + "\n", "repeats.csv")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert read_measurements(q).pose.tolist() == [0, 0, 0]
     rad = _write(tmp_path, HEADER6 + "\n" + ROW6 + "\n" + other.replace("0,11,", "0,10.01,") + "\n", "rad.csv")
     with pytest.warns(PoseIdWarning, match=r"q1=10\.01 rad, on line 2 10\)"):  # 0.01 rad > 0.1 deg
         read_measurements(rad, angle_unit="rad")
+
+
+def test_rows_copied_to_every_digit_warn(tmp_path):
+    """A block pasted twice (joints and x, y, z equal to every written digit, the point id
+    too) is one CopiedRowWarning naming the first copy: the copies were read silently as
+    repeats (a noise floor of 0 from them, their rows weighed twice). A repeat that differs
+    by the tracker's noise, or a copy at another point id, reads silently."""
+    other = "1,11,-20,30,0,45,90,1600.5,-2.25,1800"
+    p = _write(tmp_path, HEADER6 + "\n" + ROW6 + "\n" + other + "\n" + ROW6 + "\n" + other + "\n")
+    with pytest.warns(CopiedRowWarning, match=r"data\.csv: 2 of 4 row\(s\) copy an earlier row's joint values and "
+                                              r"x,y,z to every digit \(first: line 4 = line 2\)"):
+        assert len(read_measurements(p)) == 4
+    points = _write(tmp_path, HEADER6 + ",point\n" + ROW6 + ",1\n" + ROW6 + ",2\n", "points.csv")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert read_measurements(points).point.tolist() == [1, 2]
 
 
 # -- property-based ---------------------------------------------------------------------

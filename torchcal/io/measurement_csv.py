@@ -258,6 +258,7 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
             extra[c][r] = v
 
     _check_repeats(path, pose, q_deg, [line for line, _ in rows], au, lu, robot, length_unit)
+    _check_copies(path, q_deg, xyz, point if has_point else None, [line for line, _ in rows])
     to_rad = torch.deg2rad if angle_unit == "deg" else (lambda t: t)
 
     def joints(values):  # (N, n) rad; a prismatic joint's column is a length: mm inside
@@ -301,8 +302,34 @@ class PoseIdWarning(UserWarning):
     """Rows of one pose id at different joint values (`read_measurements`)."""
 
 
+class CopiedRowWarning(UserWarning):
+    """Rows that copy an earlier row's joint values and x, y, z exactly (`read_measurements`)."""
+
+
 #: the warnings of reading a measurement CSV, which the command line writes as one line each
-FILE_WARNINGS = (JointLimitWarning, PoseIdWarning)
+FILE_WARNINGS = (JointLimitWarning, PoseIdWarning, CopiedRowWarning)
+
+
+def _check_copies(path, q: list[list[float]], xyz: list[list[float]], point, lines: list[int]) -> None:
+    """Warn (CopiedRowWarning, one line) when rows repeat an earlier row's joint values and
+    measured x, y, z exactly, to every written digit (and its point id): a repeated
+    measurement differs by the instrument's noise (hundredths of a mm), a copy does not. A
+    block pasted twice, a file joined with itself: the copies are taken as repeats (folds,
+    a noise floor of 0 from them) and double the weight of their rows."""
+    seen: dict[tuple, int] = {}
+    copies = []  # (row, the row it copies)
+    for r in range(len(q)):
+        key = (*q[r], *xyz[r], point[r] if point is not None else 0)
+        f = seen.setdefault(key, r)
+        if f != r:
+            copies.append((r, f))
+    if not copies:
+        return
+    r, f = copies[0]
+    warnings.warn(f"{path}: {len(copies)} of {len(q)} row(s) copy an earlier row's joint values and x,y,z to "
+                  f"every digit (first: line {lines[r]} = line {lines[f]}); repeated measurements differ by the "
+                  f"instrument's noise: a block pasted twice? copies count as repeats and double their weight",
+                  CopiedRowWarning, stacklevel=3)
 
 
 def _check_repeats(path, pose: list[int], q: list[list[float]], lines: list[int], au: str, lu: str,

@@ -102,3 +102,17 @@ def test_calibrate_refuses_a_partition_file_of_another_robot(kr, data, tmp_path)
         torchcal.calibrate("ur5e", m, partition=path)
     res = torchcal.calibrate(kr, m, partition=path)
     assert len(res.zones) == 2
+
+
+def test_a_model_path_of_any_name_is_read_and_named(tmp_path):
+    """compensate / evaluate given a model path that does not end in .json (the data file
+    by mistake) name the file and what it is; compensate said 'model: expected a FitResult
+    (a fitted model) or a MODEL.json path, got str'."""
+    from torchcal.errors import InputError
+
+    data = tmp_path / "data.csv"
+    data.write_text("pose,q1,q2,q3,q4,q5,q6,x,y,z\n0,0,0,0,0,0,0,1,2,3\n")
+    with pytest.raises(InputError, match=r"data\.csv: not a valid model file: a CSV table"):
+        torchcal.compensate(data, torch.zeros(1, 3, dtype=torch.float64) + 500.0)
+    with pytest.raises(InputError, match=r"data\.csv: not a valid model file: a CSV table"):
+        torchcal.evaluate(data, data)

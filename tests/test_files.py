@@ -25,3 +25,32 @@ def test_a_named_pipe_is_not_replaced_even_with_force(tmp_path):
     assert check_output(plain, force=True) == plain
     atomic_write(plain, "new", force=True)
     assert plain.read_text() == "new"
+
+
+@pytest.mark.parametrize("text, must", [
+    ("pose,q1,q2,x,y,z\n0,1,2,3,4,5\n", r"m\.json: not a valid model file: a CSV table \(first line 'pose,q1,q2,x,y,z'\), "
+                                         r"not JSON"),
+    ("\ufeffx,y,z\n1,2,3\n", r"a CSV table \(first line 'x,y,z'\)"),
+    ("", r"m\.json: not a valid model file: the file is empty"),
+    ("  \n", r"the file is empty"),
+    ('{"a":\n', r"not a valid model file: Expecting value: line 2"),  # broken JSON: the parser's place
+])
+def test_read_json_names_a_csv_or_an_empty_file(tmp_path, text, must):
+    """A CSV given where a JSON file belongs (the data as --model or --robot) or an empty
+    file is named as such, not as 'Expecting value: line 1 column 1 (char 0)'."""
+    from torchcal.io.files import read_json
+
+    p = tmp_path / "m.json"
+    p.write_text(text, encoding="utf-8")
+    with pytest.raises(InputError, match=must):
+        read_json(p, "model file")
+
+
+def test_read_json_reads_a_byte_order_mark_and_windows_line_ends(tmp_path):
+    """A JSON file saved by a Windows editor (UTF-8 with a byte order mark, CRLF line ends)
+    reads as its content ('Unexpected UTF-8 BOM' before)."""
+    from torchcal.io.files import read_json
+
+    p = tmp_path / "m.json"
+    p.write_bytes('\ufeff{\r\n  "format": "x",\r\n  "n": 3\r\n}\r\n'.encode("utf-8"))
+    assert read_json(p, "model file") == {"format": "x", "n": 3}

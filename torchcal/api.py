@@ -79,7 +79,7 @@ def _fitted(model) -> FitResult:
     loaded into one (`torchcal.io.modelfile.load`)."""
     if isinstance(model, FitResult):
         return model
-    if isinstance(model, (str, Path)) and str(model).endswith(".json"):
+    if isinstance(model, (str, Path)):  # whatever its name: the reader says what the file is
         return load(model)
     raise InputError(f"model: expected a FitResult (a fitted model) or a MODEL.json path, "
                      f"got {type(model).__name__}")

@@ -138,8 +138,15 @@ def read_json(path, what: str = "JSON file") -> dict:
     if not path.is_file():
         raise InputError(f"{path}: {what} does not exist")
     try:
-        obj = json.loads(path.read_text())
+        text = path.read_text(encoding="utf-8-sig")  # a byte order mark (Windows editors) is no content
+        obj = json.loads(text)
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        first = text.split("\n", 1)[0].strip() if isinstance(exc, json.JSONDecodeError) else ""
+        if isinstance(exc, json.JSONDecodeError) and not text.strip():
+            raise InputError(f"{path}: not a valid {what}: the file is empty") from None
+        if "," in first and first[:1] not in "{[":  # a measurement or targets table given as the JSON
+            raise InputError(f"{path}: not a valid {what}: a CSV table (first line {first[:60]!r}), "
+                             f"not JSON") from None
         raise InputError(f"{path}: not a valid {what}: {exc}") from None
     if not isinstance(obj, dict):
         raise InputError(f"{path}: expected a JSON object in the {what}")

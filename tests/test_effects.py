@@ -19,6 +19,7 @@ import pytest
 import torch
 from torch.testing import assert_close
 
+import torchcal
 from torchcal.effects import REGISTRY, build, make_context
 from torchcal.effects.context import approach_directions
 from torchcal.effects.joint_clearance import load_directions
@@ -366,3 +367,20 @@ def test_a_periodic_basis_kept_per_context_follows_the_context_and_pickles(kr):
         model.predict(p, cg).sum().backward()
     back = pickle.loads(pickle.dumps(model))
     assert torch.equal(back.predict(p, cb), fresh[1])
+
+
+def test_a_single_tool_offset_refuses_data_of_several_points():
+    """A model fitted on one reflector (one tool offset) given data of several point ids was
+    applied silently, every reflector predicted with the one offset (evaluate, register);
+    it is one InputError naming the ids. One id, or no point column, passes."""
+    from torchcal.calibration.model import CalibrationModel
+    from torchcal.effects import make_context
+    from torchcal.errors import InputError
+
+    robot = torchcal.robot("ur5e")
+    model = CalibrationModel(robot, ["base_frame", "tool_offset"])  # one offset
+    q = torch.zeros(4, robot.n, dtype=torch.float64)
+    with pytest.raises(InputError, match=r"the data have 2 point ids \(1, 2\), but the model has one tool offset"):
+        model.check_context(make_context(robot, q, point=torch.tensor([1, 1, 2, 2])))
+    model.check_context(make_context(robot, q, point=torch.tensor([3, 3, 3, 3])))
+    model.check_context(make_context(robot, q))

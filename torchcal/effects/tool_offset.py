@@ -37,7 +37,16 @@ class ToolOffset(Effect):
         return None
 
     def check_context(self, ctx):
+        """InputError for data whose point ids this effect has no offset for: with one offset
+        per point, an id not among them; with a single offset (a model fitted on one point),
+        data of several ids (several reflectors would share it: each off by its distance)."""
         if not self.points:
+            ids = [] if ctx.point is None else sorted(set(ctx.point.tolist()))
+            if len(ids) > 1:
+                shown = ", ".join(map(str, ids[:6])) + (" ..." if len(ids) > 6 else "")
+                raise InputError(f"the data have {len(ids)} point ids ({shown}), but the model has one tool offset "
+                                 "(fitted on one point): each reflector needs its own; fit a model on data of "
+                                 "these points")
             return
         if ctx.point is None:
             raise InputError(f"the model has one tool offset per measured point ({len(self.points)} "

@@ -279,7 +279,7 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
                if u != e and not _old_label(n, u, e)]
         if bad:
             raise InputError(f"{path}: parameter unit(s) not those of {FORMAT}: {', '.join(bad[:3])}")
-        _check_sizes(names, values, file_unit_names, path)
+        _check_sizes(model, values, file_unit_names, path)
         theta, std = theta / k, std / k
     where = str(path)
     fit = _block(obj, "fit", where)
@@ -343,21 +343,27 @@ def _number(p: dict, key: str, i: int, where, default=None) -> float:
     return float(v)
 
 
-# Beyond these sizes (file units) a parameter is no deviation of a robot or its set-up:
-# no joint, frame or harmonic term is off by more than a full turn, and no laser tracker
-# measures 100 m away (the base frame's translation is the largest length a model holds).
+# Beyond these sizes (file units) a parameter held by the plausibility prior is no deviation
+# of a robot: no joint, link or harmonic term is off by more than a full turn or 100 m.
 MAX_FILE_SIZE = {"deg": 360.0, "mm": 1e5}
 
 
-def _check_sizes(names, values, units, where) -> None:
+def _check_sizes(model: CalibrationModel, values, units, where) -> None:
     """InputError naming the first parameter beyond MAX_FILE_SIZE for its unit: a model file
-    edited by hand or corrupted (a fit never ends there: the prior holds every parameter near
-    its plausible size, docs/effects.md)."""
+    edited by hand or corrupted (a fit never ends there: the prior holds such a parameter near
+    its plausible size, docs/effects.md). Parameters without a prior (the measuring frame,
+    "any pose", and the tool offset, "whatever the user mounted") are not bounded: data in
+    a site frame far from the robot fit to a base frame that far."""
+    names = model.param_names()
+    free = set()
+    for e, sl in zip(model.effects, model.slices[1:]):
+        if e.plausible_max() is None:
+            free.update(names[sl])
     for n, v, u in zip(names, values, units):
         lim = MAX_FILE_SIZE.get(u)
-        if lim is not None and abs(v) > lim:
-            raise InputError(f"{where}: parameter {n} = {v:.6g} {u} is beyond any robot or set-up "
-                             f"(|value| <= {lim:g} {u}): the file was edited or corrupted; refit the model")
+        if lim is not None and n not in free and abs(v) > lim:
+            raise InputError(f"{where}: parameter {n} = {v:.6g} {u} is beyond any robot (|value| <= {lim:g} {u}): "
+                             f"the file was edited or corrupted; refit the model")
 
 
 def _zoned(glob: FitResult, zones: list, obj: dict, partition: dict, method: str, where: str) -> ZonedFit:

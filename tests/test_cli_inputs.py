@@ -255,6 +255,15 @@ def test_seed_out_of_range_names_the_option(work, capsys, command, seed):
          created=[out, work / "seed-val.csv"])
 
 
+@pytest.mark.parametrize("option, value", [("--temp", "nan"), ("--floor", "nan"), ("--column-height", "inf")])
+def test_plan_numbers_must_be_finite(work, capsys, option, value):
+    """plan --temp nan gave a traceback ('cannot reshape tensor of 0 elements'), --floor nan
+    'workspace filter too strict': every such option is one argparse line naming it."""
+    out = work / "finite-plan.csv"
+    _bad(capsys, ["plan", "--robot", ROBOT, "--effects", "thermal_expansion", "--n", "10", "--out", out,
+                  option, value], f"argument {option}", "a finite number", repr(value), created=[out])
+
+
 def test_joined_files_warn_in_one_line(work, capsys):
     """Two sessions joined with restarting pose ids: the reader's PoseIdWarning is one
     'torchcal: warning:' line on stderr (not Python's two-line warning), and split goes on."""

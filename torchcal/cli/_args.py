@@ -45,6 +45,12 @@ def nonneg_float(text: str) -> float:
     return _number(text, float, lambda v: v >= 0, "a number >= 0")
 
 
+def finite_float(text: str) -> float:
+    """Any finite number (a temperature, a height): 'nan' and 'inf' are refused by the option
+    (a NaN temperature gave a traceback in plan, a NaN floor 'workspace filter too strict')."""
+    return _number(text, float, lambda v: True, "a finite number")
+
+
 FORCE_HINT = "pass --force to replace it"
 
 #: the preset robots' names, for option help built without importing torch

@@ -11,7 +11,7 @@ model leaves out (unmodelled effects add to it)."""
 
 from __future__ import annotations
 
-from torchcal.cli._args import add_force, check_outputs, nonneg_float, plot_outputs, positive_int, seed_int
+from torchcal.cli._args import finite_float, add_force, check_outputs, nonneg_float, plot_outputs, positive_int, seed_int
 
 PNGS = ("accuracy_map.png", "accuracy_hist.png")  # in the --plots folder
 
@@ -23,7 +23,7 @@ def add_parser(sub):
     p.add_argument("--n", type=positive_int, default=2000, help="workspace poses N (default 2000)")
     p.add_argument("--seed", type=seed_int, default=0, help="seed of the workspace sample")
     p.add_argument("--payload", type=nonneg_float, help="payload kg for load-driven effects (default: rated / 2)")
-    p.add_argument("--temp", type=float, default=20.0, help="temperature deg C for thermal effects (default 20)")
+    p.add_argument("--temp", type=finite_float, default=20.0, help="temperature deg C for thermal effects (default 20)")
     p.add_argument("--plots", help="write PNG figures into this folder")
     p.add_argument("--rrd", help="write a rerun recording (.rrd) here")
     add_force(p)

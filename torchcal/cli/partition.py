@@ -16,7 +16,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from torchcal.cli._args import add_force, check_outputs, seed_int
+from torchcal.cli._args import finite_float, add_force, check_outputs, seed_int
 from torchcal.errors import InputError
 
 NEEDED = ("point", "x", "y", "z", "r_set")
@@ -33,8 +33,8 @@ def add_parser(sub):
                    help="sub-zone counts tried per level with --zones auto, best Xie-Beni (default 2,3)")
     p.add_argument("--seed", type=seed_int, default=0, help="seed of the FCM random starts (default 0)")
     p.add_argument("--restarts", type=int, default=5, help="FCM random starts, best kept (default 5)")
-    p.add_argument("--m", type=float, default=2.0, help="FCM fuzzifier m > 1 (default 2)")
-    p.add_argument("--r-weight", type=float, default=1.0,
+    p.add_argument("--m", type=finite_float, default=2.0, help="FCM fuzzifier m > 1 (default 2)")
+    p.add_argument("--r-weight", type=finite_float, default=1.0,
                    help="weight of standardised R_set against standardised x, y, z in the sub-zones (default 1)")
     p.add_argument("--out", required=True, metavar="PARTITION.json", help="output partition JSON")
     add_force(p)

@@ -10,7 +10,7 @@ against random plans of the same size from the same candidates."""
 
 from __future__ import annotations
 
-from torchcal.cli._args import add_force, add_robot, check_outputs, nonneg_float, plot_outputs, positive_int, robot_inputs, seed_int
+from torchcal.cli._args import finite_float, add_force, add_robot, check_outputs, nonneg_float, plot_outputs, positive_int, robot_inputs, seed_int
 
 PNGS = ("plan_poses.png", "plan_criterion.png")  # in the --plots folder
 
@@ -25,11 +25,11 @@ def add_parser(sub):
     p.add_argument("--seed", type=seed_int, default=0, help="seed of the candidates and random plans")
     p.add_argument("--payload", type=nonneg_float, help="payload kg at which load-driven effects are "
                    "evaluated (default: the rated payload)")
-    p.add_argument("--temp", type=float, default=20.0, help="temperature deg C for thermal effects (default 20)")
-    p.add_argument("--floor", type=float, default=0.0, help="workspace: TCP z above this, mm (default 0)")
+    p.add_argument("--temp", type=finite_float, default=20.0, help="temperature deg C for thermal effects (default 20)")
+    p.add_argument("--floor", type=finite_float, default=0.0, help="workspace: TCP z above this, mm (default 0)")
     p.add_argument("--column-radius", type=nonneg_float, default=350.0, help="workspace: keep-out radius "
                    "about joint 1, mm (default 350)")
-    p.add_argument("--column-height", type=float, default=1100.0, help="workspace: keep-out height, mm (default 1100)")
+    p.add_argument("--column-height", type=finite_float, default=1100.0, help="workspace: keep-out height, mm (default 1100)")
     p.add_argument("--reach", type=nonneg_float, default=0.95, help="workspace: share of full stretch (default 0.95)")
     p.add_argument("--random-plans", type=positive_int, default=20, help="random plans to compare with (default 20)")
     p.add_argument("--out", required=True, help="plan CSV to write")

@@ -137,3 +137,30 @@ def test_cli_register(ur10, tmp_path, capsys):
     assert "implausible" not in out.out + out.err
     nom = read_json(tmp_path / "nom.json")
     assert nom["effects"] == ["base_frame"] and nom["fit"]["n"] == 30
+
+
+def test_a_registration_that_leaves_the_frame_undetermined_warns():
+    """UR10 series D: a model of its odd rows registered with the tool on 100 even rows where
+    joint 6 stands still put the frame 69 mm off (rms 0.36 mm on those rows, 45 mm on the
+    session, exit 0, no word); the frame's own uncertainty over the model's calibration poses is far above 3x
+    its training rms: one TransferWarning. On the 316 even rows, or without --tool on the
+    100, it stays quiet."""
+    import warnings
+
+    from torchcal.calibration.registration import TransferWarning, frame_uncertainty
+    from torchcal.io.measurement_csv import read_measurements
+
+    rob = torchcal.robot(UR10)
+    m = read_measurements(UR10.parent / "series_d.csv", robot=rob)
+    fitted = torchcal.fit(rob, m.subset(slice(1, None, 2)), ["base_frame", "tool_offset"])
+    even = m.subset(slice(0, None, 2))
+    still = even.subset(slice(0, 100))
+    assert float(still.q[:, 5].max() - still.q[:, 5].min()) < math.radians(1.0)  # joint 6 still
+    with pytest.warns(TransferWarning, match=r"the registration on 100 rows leaves the measuring frame and tool "
+                                             r"offset undetermined: .* uncertain by up to [0-9.]+ mm"):
+        loose = torchcal.register(fitted, still, tool=True)
+    assert float(frame_uncertainty(loose, fitted.seed_poses, tool=True).max()) > 3 * fitted.training_rms_mm
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", TransferWarning)
+        torchcal.register(fitted, even, tool=True)
+        torchcal.register(fitted, still)

@@ -24,8 +24,8 @@ def register_model(fitted, robot, m, *, tool: bool = False, stacklevel: int = 1)
     import dataclasses
     import warnings
 
-    from torchcal.calibration.joint_range import joint_range
-    from torchcal.calibration.registration import TransferWarning, far_from_training, reregister
+    from torchcal.calibration.joint_range import joint_range, seed_poses
+    from torchcal.calibration.registration import TransferWarning, far_from_training, reregister, undetermined_frame
     from torchcal.calibration.mismatch import check_measurements, enforce
     from torchcal.calibration.model import CalibrationModel
     from torchcal.effects import context_of
@@ -48,6 +48,10 @@ def register_model(fitted, robot, m, *, tool: bool = False, stacklevel: int = 1)
     far = far_from_training(res.rms_mm, train)
     if far is not None:
         warnings.warn(far, TransferWarning, stacklevel=stacklevel + 1)
+    poses = fitted.seed_poses if fitted is not None and fitted.seed_poses is not None else seed_poses(m.q)
+    loose = undetermined_frame(res, poses, train, tool)
+    if loose is not None:
+        warnings.warn(loose, TransferWarning, stacklevel=stacklevel + 1)
     if fitted is None:
         return res
     f = fitted

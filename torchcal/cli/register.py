@@ -14,7 +14,9 @@ block: {"input", "input_sha256", "model", "n", "rms_before_mm", "closed_form_rms
 nominal robot in its best frame (a baseline before any calibration); its calibrated range
 is that of DATA. Data that no frame brings near the model are refused (another robot,
 units; docs/registration.md). A registered rms above 3x the model's training rms is one
-warning line on stderr (exit 0): the model does not carry over to this session.
+warning line on stderr (exit 0): the model does not carry over to this session; so is a
+frame the rows leave undetermined (its own 1-sigma at the model's calibration poses above
+3x the training rms: few poses, or a joint that barely moves).
 """
 
 from __future__ import annotations

@@ -170,7 +170,11 @@ def _held_out(rep: CalibrationReport, fitted, m, effects: set, tolerance_mm) -> 
     zone = fitted.assign(robot.fk(m.q)) if isinstance(fitted, ZonedFit) else None
     if "base_frame" in effects:  # the data are in the instrument's frame: the nominal robot in its best frame
         tool = "tool_offset" in effects
-        err0 = api.evaluate(api.register(robot, m, tool=tool), m).residuals_mm
+        from torchcal.calibration.registration import TransferWarning
+
+        with warnings.catch_warnings():  # the baseline is judged on these rows only
+            warnings.simplefilter("ignore", TransferWarning)
+            err0 = api.evaluate(api.register(robot, m, tool=tool), m).residuals_mm
         rep.before_model = "nominal robot, base frame" + (" and tool offset" if tool else "") + " fitted on these rows"
     else:  # the data are in the robot's base frame, as the model assumes
         err0 = (m.xyz - robot.fk(m.q)).detach()

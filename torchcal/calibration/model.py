@@ -50,6 +50,7 @@ class CalibrationModel:
         """The model of `effects` for the data `m` (`Measurements`): with several `point`
         ids, one tool offset per point (InputError when `effects` lacks tool_offset), so
         that fit, diagnose and discover start from the same model."""
+        from torchcal.calibration.mismatch import check_row_order
         from torchcal.errors import InputError
 
         specs = [str(s) for s in effects]
@@ -57,6 +58,7 @@ class CalibrationModel:
         if points is not None and len(points) > 1 and not any(s.split(":")[0] == "tool_offset" for s in specs):
             raise InputError(f"{m.source or 'measurements'}: {len(points)} measured points per pose (point column) "
                              "need one tool offset each: add tool_offset to the effects")
+        check_row_order(m, specs)  # backlash on rows sorted after the session: one warning
         return cls(robot, specs, points=points)
 
     @property

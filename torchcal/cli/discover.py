@@ -79,7 +79,9 @@ def run(args) -> int:
     from torchcal.cli._progress import progress
     from torchcal.diagnosis.spectral import NarrowRangeWarning
 
-    with warnings_to_stderr(NarrowRangeWarning), progress("discover", f"searching effects on {len(m)} rows"):
+    from torchcal.calibration.mismatch import RowOrderWarning
+
+    with warnings_to_stderr(NarrowRangeWarning, RowOrderWarning), progress("discover", f"searching effects on {len(m)} rows"):
         res = api.discover(robot, m, args.effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,
                            sigma_deg=args.sigma_deg, transfer=other, transfer_poses=args.transfer_poses,
                            residual_model=args.residual_model)

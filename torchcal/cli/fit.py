@@ -67,10 +67,14 @@ def fit_file(args):
     robot = make_robot(args.robot).to(device)
     specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
     m = read_data(args.data, robot, args).to(device)  # the unit check that torchcal.fit repeats, before any warning line
-    return m, fit(robot, m, specs, robust=args.robust, sigma_mm=args.sigma_mm, sigma_deg=args.sigma_deg,
-                  max_length_mm=args.max_deviation_mm or None,  # 0 drops that prior only
-                  max_angle_deg=args.max_deviation_deg or None,
-                  residual_model=getattr(args, "residual_model", None), **units(args))
+    from torchcal.calibration.mismatch import RowOrderWarning
+    from torchcal.cli._args import warnings_to_stderr
+
+    with warnings_to_stderr(RowOrderWarning):  # backlash on rows sorted after the session: one line
+        return m, fit(robot, m, specs, robust=args.robust, sigma_mm=args.sigma_mm, sigma_deg=args.sigma_deg,
+                      max_length_mm=args.max_deviation_mm or None,  # 0 drops that prior only
+                      max_angle_deg=args.max_deviation_deg or None,
+                      residual_model=getattr(args, "residual_model", None), **units(args))
 
 
 def plausibility_line(res) -> str | None:

@@ -233,3 +233,29 @@ def test_backlash_on_rows_sorted_after_the_session_warns(tmp_path, capsys):
                  "backlash:2", "--out", str(tmp_path / "m.json")]) == 0
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 1 and err[0].startswith("torchcal: warning: ") and "step down" in err[0], err
+
+
+@pytest.mark.parametrize("mix, phrase", [
+    (lambda q: q[:, [0, 2, 1, 3, 4, 5]], "the joint columns q2 and q3 swapped"),
+    (lambda q: torch.cat([q[:, :1], -q[:, 1:2], q[:, 2:]], 1),
+     r"the joint column q2 negated \(another sign convention\)"),
+    (lambda q: torch.cat([q[:, :1], torch.deg2rad(q[:, 1:2]), q[:, 2:]], 1),  # radians under degrees
+     r"the joint column q2 in radians \(read as degrees\)"),
+])
+def test_one_joint_column_mixed_up_is_named(mix, phrase):
+    """UR10 series D with two joint columns swapped, one negated, or one in radians under
+    degrees was refused as 'another robot or units'; fit (the nominal robot in its best
+    frame) and evaluate (a fitted model) name the column. Another robot stays another
+    robot (test_another_robot_is_refused_by_evaluate_and_diagnose)."""
+    from torchcal.io.measurement_csv import read_measurements
+
+    rob = torchcal.robot(UR10)
+    m = read_measurements(UR10.parent / "series_d.csv", robot=rob)
+    fitted = torchcal.fit(rob, m.subset(slice(1, None, 2)), ["base_frame", "tool_offset"])
+    bad = dataclasses.replace(m.subset(slice(0, None, 2)), q_prev=None)
+    bad = dataclasses.replace(bad, q=mix(bad.q), q_prev=None)
+    with pytest.raises(InputError, match=r"cannot come from ur10 as given: .* but within 10 mm with " + phrase +
+                                         r": check the joint columns"):
+        torchcal.fit(rob, bad, ["base_frame", "tool_offset"])
+    with pytest.raises(InputError, match=r"cannot come from the model of ur10 as given: .* with " + phrase):
+        torchcal.evaluate(fitted, bad)

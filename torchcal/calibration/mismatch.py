@@ -263,7 +263,20 @@ def check_measurements(model, theta: torch.Tensor, m, training_rms_mm: float | N
         pred = model.predict(theta.to(m.xyz), ctx)
     name = f"the model of {model.robot.name}"
     res = check_points(pred, m.xyz, training_rms_mm, what or (m.source or "data"), name)
-    if res.verdict is None or q_range is None:
+    if res.verdict is None:
+        return res
+    if res.verdict == "mismatch":  # this robot with one joint column mixed up?
+        def fits(mm):
+            c = context_of(model.robot, mm)
+            with torch.no_grad():
+                return _rms((model.predict(theta.to(mm.xyz), c) - mm.xyz).norm(dim=-1)) <= res.bound_mm
+
+        hint = column_hint(m, model.robot, fits)
+        if hint is not None:
+            return dataclasses.replace(res, fix=None, message=(
+                f"{what or (m.source or 'data')}: cannot come from {name} as given: rms {res.rms_mm:.4g} mm, but "
+                f"within {res.bound_mm:.3g} mm with the joint {hint}: check the joint columns"))
+    if q_range is None:
         return res
     out = outside_range(m.q, q_range.to(m.q), model.robot.prismatic).any(dim=-1).cpu()  # (N,)
     inside = ~out
@@ -374,8 +387,8 @@ def check_seeds(seed_points: torch.Tensor, targets: torch.Tensor, q0: torch.Tens
     med = float(d.median())
     if q.numel() and math.degrees(float(q.abs().max())) <= 2 * math.pi + 1e-9 and med > SEED_MM:
         raise InputError(f"{where}: every seed angle lies within +-{math.degrees(float(q.abs().max())):.4g} deg and "
-                         f"the model at the seeds lies a median {med:.4g} mm from the targets: the seeds q1..q{robot.n} "
-                         "look like radians read as degrees", fix=("angle_unit", "rad"))
+                         f"the model at the seeds lies a median {med:.4g} mm from the targets: the seeds "
+                         f"q1..q{robot.n} look like radians read as degrees", fix=("angle_unit", "rad"))
     far = [i for i in (d > SEED_MM).nonzero().flatten().tolist() if i not in set(skip)]
     if far:
         rows = ", ".join(str(i + 1) for i in far[:10]) + (" ..." if len(far) > 10 else "")
@@ -531,6 +544,56 @@ def _quick_fit(model, ctx, xyz: torch.Tensor) -> bool:
     return _rms((p - xyz).norm(dim=-1)) <= GROSS_MM
 
 
+def column_mistakes(m, robot):
+    """Yield (phrase, Measurements) for each one-column mistake in the joint values of `m`
+    (q (N, n) rad / mm): two adjacent q columns swapped, one revolute column in radians
+    read as degrees, one column negated (another sign convention). The rows' predecessors
+    follow the changed q (their row order)."""
+    import dataclasses
+
+    def changed(q):
+        return dataclasses.replace(m, q=q, q_prev=None)
+
+    n = robot.n
+    for j in range(n - 1):
+        q = m.q.clone()
+        q[:, [j, j + 1]] = q[:, [j + 1, j]]
+        yield f"columns q{j + 1} and q{j + 2} swapped", changed(q)
+    rev = (~robot.prismatic.cpu()).tolist()
+    for j in range(n):
+        if rev[j]:
+            q = m.q.clone()
+            q[:, j] = q[:, j] * (180.0 / math.pi)
+            yield f"column q{j + 1} in radians (read as degrees)", changed(q)
+    for j in range(n):
+        q = m.q.clone()
+        q[:, j] = -q[:, j]
+        yield f"column q{j + 1} negated (another sign convention)", changed(q)
+
+
+HINT_ROWS = 60  # rows (evenly spread over the file) that judge a one-column mistake
+
+
+def column_hint(m, robot, fits, score=None, tries: int = 2) -> str | None:
+    """The first `column_mistakes` phrase whose corrected data `fits` (a predicate on
+    `Measurements`) accepts, else None: data refused as another robot that are this robot's
+    with one joint column mixed up. Judged on HINT_ROWS rows spread over the file. With
+    `score` (a cheap float of `Measurements`, lower is closer) only the `tries` best-scored
+    mistakes go to `fits` (an expensive predicate: the refusal stays quick)."""
+    if len(m) > HINT_ROWS:
+        m = m.subset(torch.linspace(0, len(m) - 1, HINT_ROWS).round().long())
+    cands = list(column_mistakes(m, robot))
+    if score is not None:
+        cands = sorted(cands, key=lambda c: score(c[1]))[:tries]
+    for phrase, fixed in cands:
+        try:
+            if fits(fixed):
+                return phrase
+        except InputError:
+            continue
+    return None
+
+
 def _fits(model, m) -> bool:
     try:
         return _rms((_registered(model, m) - m.xyz).norm(dim=-1)) <= GROSS_MM
@@ -614,6 +677,19 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
     if model.robot.n > 1 and _fits(model, dataclasses.replace(m, q=m.q.flip(-1))):
         return result("reversed", f"{what}: the joint columns are in reverse order: rms {reg:.4g} mm as given "
                       f"but within {GROSS_MM:g} mm with q{model.robot.n} .. q1 read as q1 .. q{model.robot.n}")
+    def kabsch_rms(mm):  # the nominal robot rigidly moved onto the data: no solve
+        from torchcal.calibration.registration import kabsch
+
+        with torch.no_grad():
+            p = model.predict(model.zeros().to(mm.xyz), context_of(model.robot, mm))
+        R, t = kabsch(p, mm.xyz)
+        return _rms((p @ R.T + t - mm.xyz).norm(dim=-1))
+
+    hint = column_hint(m, model.robot, lambda mm: _fits(model, mm), score=kabsch_rms)
+    if hint is not None:
+        return result("mismatch", f"{what}: cannot come from {name} as given: rms {reg:.4g} mm with the best measuring "
+                      f"frame and tool offset, but within {GROSS_MM:g} mm with the joint {hint}: check the "
+                      "joint columns")
     s_x, s_p = spread_mm(m.xyz), spread_mm(pred)
     return result("mismatch", f"{what}: cannot come from {name}: rms {reg:.4g} mm with the best measuring frame "
                   f"and tool offset, point spread {s_x:.4g} mm measured vs {s_p:.4g} mm modelled; likely causes: "

@@ -3,6 +3,8 @@ torch and BLAS thread for the session)."""
 
 import torchcal  # first: sets OMP_WAIT_POLICY=PASSIVE before torch loads (torchcal.threads)
 
+import gc
+
 import pytest
 import torch
 
@@ -14,6 +16,17 @@ from torchcal import threads
 # load: `diagnose` of an 80-row 7-joint session 0.9-1.0 s on one thread, 6.9-23.7 s on
 # two). Tests that exercise threads set them themselves.
 threads.apply()  # torch and numpy's / scipy's BLAS on one intra-op thread
+
+# What the imports made lives until the process ends: frozen (gc.freeze), the cyclic
+# collector's full collections, the ones at exit included, no longer scan it again, as
+# `torchcal.cli.import_torch` does for a command. Here, once torch is loaded (every process:
+# the xdist controller too), and again once the test modules are collected.
+gc.freeze()
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_collection_finish(session):
+    gc.freeze()
 
 
 @pytest.hookimpl(tryfirst=True)

@@ -3,17 +3,38 @@ torch and BLAS thread for the session)."""
 
 import torchcal  # first: sets OMP_WAIT_POLICY=PASSIVE before torch loads (torchcal.threads)
 
+import gc
+
 import pytest
-import torch
 
 from torchcal import threads
 
-# The suite's tensors are small: by the policy's size rule (torchcal.threads.threads_for)
-# none of them earns a second thread, and on a machine whose cores are busy with other work
-# a second one stalls at its barriers (measured on the 2-core development machine under
-# load: `diagnose` of an 80-row 7-joint session 0.9-1.0 s on one thread, 6.9-23.7 s on
-# two). Tests that exercise threads set them themselves.
-threads.apply()  # torch and numpy's / scipy's BLAS on one intra-op thread
+
+def _runs_tests(config) -> bool:
+    """False only in pytest-xdist's controller (-n N): it hands the tests to its workers and
+    needs no torch (whose import is about 1 s of CPU there, and more at its exit)."""
+    return hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None)
+
+
+def pytest_configure(config):
+    if not _runs_tests(config):
+        return
+    # The suite's tensors are small: by the policy's size rule (torchcal.threads.threads_for)
+    # none of them earns a second thread, and on a machine whose cores are busy with other
+    # work a second one stalls at its barriers (measured on the 2-core development machine
+    # under load: `diagnose` of an 80-row 7-joint session 0.9-1.0 s on one thread, 6.9-23.7 s
+    # on two). Tests that exercise threads set them themselves.
+    threads.apply()  # torch and numpy's / scipy's BLAS on one intra-op thread
+    # What the imports made lives until the process ends: frozen (gc.freeze), the cyclic
+    # collector's full collections, the ones at exit included, no longer scan it again, as
+    # `torchcal.cli.import_torch` does for a command. Here once torch is loaded, and again
+    # once the test modules are collected (below).
+    gc.freeze()
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_collection_finish(session):
+    gc.freeze()
 
 
 @pytest.hookimpl(tryfirst=True)

@@ -7,6 +7,11 @@ Data: 240 training + 120 held-out poses, 0.02 mm noise, effects of 0.3 mm RMS at
 simulator (tests/npsim.py: gravity deflection from link masses, lost motion, gear
 harmonics, a moved base) the "real" robot is that, not torchcal's effect classes; the
 other effects come from the project's simulator.
+
+The verdict tests call `diagnose(..., report_rest=False)`: the probe of what remains
+(`torchcal.diagnosis.unexplained`, two thirds of a diagnose on these 240 rows) runs after the
+verdict and changes none of it; it has its own tests (test_unexplained.py), and
+`test_diagnose_reports_where_it_fails` keeps the default.
 """
 
 import math
@@ -53,7 +58,7 @@ def held_out_rms(specs, m) -> float:
 @pytest.mark.parametrize("spec", ["base_frame", "joint_compliance:2", "gear_periodic:1", "backlash:3"])
 def test_hidden_physics_simulated_in_numpy_is_named_and_refit_reaches_noise(spec):
     m = numpy_session([spec])
-    d = diagnose(ROBOT, m.subset(TRAIN))
+    d = diagnose(ROBOT, m.subset(TRAIN), report_rest=False)
     assert d.verdict is not None, [c.to_dict() for c in d.candidates[:3]]
     assert d.verdict.spec == spec
     before = held_out_rms([], m)
@@ -65,7 +70,7 @@ def test_hidden_physics_simulated_in_numpy_is_named_and_refit_reaches_noise(spec
 @pytest.mark.parametrize("spec", ["encoder_scale:2", "thermal_expansion", "joint_clearance:2"])
 def test_hidden_effect_is_named_and_refit_reaches_noise(spec):
     vr, m = session([spec])
-    d = diagnose(ROBOT, m.subset(TRAIN))
+    d = diagnose(ROBOT, m.subset(TRAIN), report_rest=False)
     assert d.verdict is not None, [c.to_dict() for c in d.candidates[:3]]
     assert d.verdict.spec == spec
     floor = NOISE * math.sqrt(3)
@@ -96,7 +101,7 @@ def test_compliance_of_two_joints_is_explained_to_the_noise():
 
 def test_geometric_only_data_give_no_verdict():
     _, m = session([])
-    d = diagnose(ROBOT, m.subset(TRAIN))
+    d = diagnose(ROBOT, m.subset(TRAIN), report_rest=False)
     assert d.verdict is None
     assert not any(c.significant for c in d.candidates)
     assert d.baseline_fit.rms_mm < 2 * NOISE * math.sqrt(3)
@@ -132,7 +137,7 @@ def test_simpler_effect_is_named_when_a_richer_one_fits_no_better():
     four harmonics (8 parameters): the one-parameter effect is the verdict."""
     vr = VirtualRobot(ROBOT, ["encoder_scale:3"], seed=12)
     m = vr.measure(random_poses(ROBOT, 240, torch.Generator().manual_seed(19)), noise_mm=NOISE)
-    d = diagnose(ROBOT, m)
+    d = diagnose(ROBOT, m, report_rest=False)
     best = max((c for c in d.candidates if c.significant), key=lambda c: c.score)
     assert best.spec == "gear_periodic:3"  # the richer term scores a hair higher here
     assert d.verdict.spec == "encoder_scale:3"
@@ -154,7 +159,7 @@ def test_random_clearance_from_another_generator_is_named(joint):
     g = torch.Generator().manual_seed(100)
     xyz = ROBOT.fk(q, geo + cm.sample(ROBOT, 240, seed=g)) \
         + NOISE * torch.randn(240, 3, generator=g, dtype=torch.float64)
-    d = diagnose(ROBOT, Measurements(torch.arange(240), q, xyz))
+    d = diagnose(ROBOT, Measurements(torch.arange(240), q, xyz), report_rest=False)
     assert d.verdict is not None and d.verdict.spec == f"joint_clearance:{joint}"
 
 
@@ -171,7 +176,7 @@ def test_structure_a_deterministic_effect_predicts_is_not_called_random():
     dq[:, 0] = 1.5e-4 * torch.sin(5 * q[:, 0] + 0.7)
     g = torch.Generator().manual_seed(9)
     xyz = ROBOT.fk(q + dq, geo) + NOISE * torch.randn(240, 3, generator=g, dtype=torch.float64)
-    d = diagnose(ROBOT, Measurements(torch.arange(240), q, xyz))
+    d = diagnose(ROBOT, Measurements(torch.arange(240), q, xyz), report_rest=False)
     assert d.verdict.spec == "joint_periodic:1@5" and d.verdict.deterministic
     assert any(c.effect == "joint_clearance" and c.significant and not c.deterministic for c in d.candidates)
 

@@ -176,7 +176,7 @@ def test_diagnose_fits_orientation_exactly_as_fit_does():
     m = read_measurements(EXAMPLES / "series_d.csv", robot=robot).subset(slice(0, 60))
     assert m.rotation is not None
     ref = torchcal.fit(robot, m, ["base_frame", "tool_offset"])
-    d = diagnose(robot, m, ["base_frame", "tool_offset"], refits=0)
+    d = diagnose(robot, m, ["base_frame", "tool_offset"], refits=0, report_rest=False)  # no probe of the rest: not asked
     got = d.baseline_fit
     assert got.orientation is not None and ref.orientation is not None
     assert torch.allclose(got.theta, ref.theta, atol=1e-10)
@@ -192,7 +192,7 @@ def test_prescreen_significance_is_bonferroni_over_its_candidates(seed141):
     gain rule put candidates between the corrected and the uncorrected level."""
     alpha = 0.5
     _, m = seed141
-    d = diagnose(ROBOT, m, alpha=alpha, min_gain=0.0, refits=0)
+    d = diagnose(ROBOT, m, alpha=alpha, min_gain=0.0, refits=0, report_rest=False)  # the pre-screen only
     first = [c for c in d.candidates if len(c.joints) <= 1]  # the forward-selected one is a later family
     level = alpha / 4 / len(first)
     window = [c for c in first if c.k and c.cv_gain >= 0 and level <= c.p_value < alpha / 4]

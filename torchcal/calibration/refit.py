@@ -65,6 +65,8 @@ MAX_CHORD = 20
 APPROX_TOL = 1e-3
 #: every candidate counts as identifiable, without the pivoting, above this many RANK_TOL (`_identified`)
 SAFE_RANK = 10.0
+#: true Jacobians per solve at most (then the caller's LM fit: a problem on which the chord crawls)
+MAX_JACOBIANS = 4
 #: a phase whose steps shrink by less than this factor does not contract: the LM fit instead
 MAX_RATE = 0.5
 
@@ -155,27 +157,21 @@ def _metric(G: torch.Tensor, pf: torch.Tensor) -> _Metric:
 
 
 def _chord(rows: Rows, J: torch.Tensor, metric: _Metric, free: torch.Tensor, x: torch.Tensor,
-           lower: torch.Tensor | None, tol: float | None = None,
-           bound: float | None = None) -> tuple[torch.Tensor, int, float]:
-    """(x (P,), iterations, the last rate): chord iterations ``x <- x - A^-1 (J^T r(x) + Pp x)`` from x,
-    J (n, k, P) a Jacobian of the rows (its fixed point: where J^T r + Pp x = 0), A of
-    `metric` (it sets the rate only), moving `free` (P,) only (module doc, 2. and 3.).
-
-    tol None: to the fixed point, until a step, or the rest of the geometric series its
-    rate predicts (size * rate / (1 - rate), rate the ratio of the last two steps), is at
-    most STEP_TOL of the residual norm. tol given (an approximate Jacobian, whose fixed
-    point a later phase corrects): until a step is at most tol times the first. bound: the
-    rate of the approximate phase before (a Jacobian evaluated farther from the solution
-    than J: its rate bounds J's, to first order), the rate of a first step, which may then
-    be the last."""
+           lower: torch.Tensor | None, approx: bool = True) -> tuple[torch.Tensor, int, bool]:
+    """(x (P,), iterations, certified): chord iterations ``x <- x - A^-1 (J^T r(x) + Pp x)``
+    from x with the fixed Jacobian J (n, k, P) of the rows (A of `metric`: it sets the rate
+    only), moving `free` (P,) only, until a step is at most APPROX_TOL of the first (J's
+    fixed point reached as far as it is worth: a later Jacobian corrects it) or at most
+    STEP_TOL of the residual norm; certified: that happened on the first step, i.e. J's
+    Gauss-Newton step at x was already negligible (module doc, 3.). approx False: on to
+    STEP_TOL of the residual norm (J's own fixed point)."""
     Jt = J.reshape(-1, J.shape[-1]).T  # a view: J^T r on all columns, then the free ones
     A, L, p2 = metric.A, metric.L, metric.p2
-    first, last = math.inf, math.inf if bound is None else 0.0
+    first = last = math.inf
     for it in range(1, MAX_CHORD + 1):
         r = rows.residual(x).reshape(-1)
         xf = x[free]
-        g = (Jt @ r)[free] + p2 * xf
-        step = -torch.cholesky_solve(g[:, None], L)[:, 0]
+        step = -torch.cholesky_solve(((Jt @ r)[free] + p2 * xf)[:, None], L)[:, 0]
         size = float(step @ (A @ step)) ** 0.5
         norm = float(r @ r + p2 @ (xf * xf)) ** 0.5
         if not (math.isfinite(size) and math.isfinite(norm)):
@@ -184,17 +180,34 @@ def _chord(rows: Rows, J: torch.Tensor, metric: _Metric, free: torch.Tensor, x: 
         x[free] = xf + step
         if lower is not None and bool((x < lower).any()):
             raise _NoChord("a step crosses a lower bound")
-        first = size if it == 1 else first
-        rate = size / last if it > 1 or bound is None else bound  # 0 on a first step without a bound
-        if size <= STEP_TOL * norm:  # at the tolerance (or rounding) in any phase
-            return x, it, rate
-        if rate > MAX_RATE:
+        if size <= STEP_TOL * norm:
+            return x, it, it == 1
+        if size > MAX_RATE * last:
             raise _NoChord("chord iterations do not contract")
-        if (it > 1 or bound is not None) and (size <= tol * first if tol is not None
-                                              else size * rate / (1 - rate) <= STEP_TOL * norm):
-            return x, it, rate
+        first = size if it == 1 else first
+        if approx and size <= APPROX_TOL * first:
+            return x, it, False
         last = size
     raise _NoChord("chord iterations did not converge")
+
+
+def _solve(rows: Rows, J: torch.Tensor, metric: _Metric, free: torch.Tensor, x: torch.Tensor,
+           lower: torch.Tensor | None, certify: bool = True) -> tuple[torch.Tensor, torch.Tensor, int]:
+    """(x (P,), the rows' Jacobian at the last point it was evaluated, iterations): the
+    stationary point of the rows plus the prior from x, by chord iterations with J (a
+    Jacobian evaluated elsewhere), then with the true Jacobian at the point reached, again
+    and again, until that Jacobian's first step is at most STEP_TOL of the residual norm
+    (module doc, 2. and 3.); at most MAX_JACOBIANS of them. certify False: one true
+    Jacobian, its chord to its fixed point (the first solve of a fit with orientations,
+    whose solution sets only the tool rotation of the second, module doc)."""
+    x, its, _ = _chord(rows, J, metric, free, x, lower)
+    for _ in range(MAX_JACOBIANS):
+        J = rows.jacobian(x)
+        x, k, certified = _chord(rows, J, metric, free, x, lower, approx=certify)
+        its += k
+        if certified or not certify:
+            return x, J, its
+    raise _NoChord("no Jacobian certified a stationary point")
 
 
 def refit(full: FitResult, sh: Shared, m, ctx, train: torch.Tensor, *, sigma_mm: float, sigma_deg: float,
@@ -233,19 +246,14 @@ def refit(full: FitResult, sh: Shared, m, ctx, train: torch.Tensor, *, sigma_mm:
     try:
         # one factorisation serves every phase: A sets the rate, not the result
         metric = _metric(G[keep][:, keep], pf[free])
-        x, its, rate = _chord(rows, J0, metric, free, theta, lower, APPROX_TOL)
-        J = rows.jacobian(x)  # true Jacobians: their chords' fixed points are the stationary points
-        x, k, _ = _chord(rows, J, metric, free, x, lower, bound=rate)
-        its += k
+        x, J, its = _solve(rows, J0, metric, free, theta, lower, certify=rows.rotation is None)
         if rows.rotation is not None:  # the tool-rotation step, then the second solve
             rows = rows.with_tool_rotation(x)
-            x, k, rate = _chord(rows, J, metric, free, x, lower, APPROX_TOL)
-            J = rows.jacobian(x)
-            x, k2, _ = _chord(rows, J, metric, free, x, lower, bound=rate)
-            its += k + k2
+            x, J, k = _solve(rows, J, metric, free, x, lower)
+            its += k
     except _NoChord:
         return None
     s = Solved(x[None], torch.ones(n, dtype=x.dtype, device=x.device), its, "converged")
     return fitted(rows, x, report, s, scales=scales, rho=rho, pose=m.pose[train], posterior=posterior,
                   max_length_mm=lim.get("max_length_mm"), max_angle_deg=lim.get("max_angle_deg"),
-                  sigma_mm=sigma_mm, sigma_deg=sigma_deg)
+                  sigma_mm=sigma_mm, sigma_deg=sigma_deg, jacobian=J if posterior else None)

@@ -6,40 +6,50 @@ on the fold's training rows, started at the full-data fit theta*, with its ident
 set and prior rho kept: the identifiability of the training rows at theta*, one LM solve
 to convergence and, with measured orientations, the tool-rotation step (Procrustes at
 theta*, a solve, Procrustes again at its solution, a second solve). It takes 6-12 LM
-iterations, each a Jacobian of the training rows. Here the same fit takes about two
-Jacobians' worth of work:
+iterations, each a Jacobian of the training rows. `refit` computes the same fit with
+fewer Jacobians:
 
 1. One Jacobian of all rows at theta* (`Shared`: positions, and with orientations the
-   angular velocities and orientations of the same chain walk). A fold's rows at theta*
-   are rows of it (the orientation rows rebuilt with the fold's own tool rotation),
-   which gives its identifiability exactly as the fit's.
-2. Chord (simplified Newton) iterations with that Jacobian J0: ``x <- x - A^-1 g(x)``,
-   ``A = J0^T J0 + Pp`` (Pp the prior rows' information, factored once),
-   ``g(x) = J0^T r(x) + Pp x`` with r the residual of the training rows at x: a forward
-   kinematics per iteration, no Jacobian. They converge linearly at the rate
-   ``|A^-1 (J(x) - J0)^T J|``, 1e-4 - 3e-3 on the UR10 sessions, to the point where
-   ``J0^T r + Pp x = 0``, which is not quite the fit's stationary point ``J(x)^T r + Pp x
-   = 0``: with orientations this is done for the first solve (X at theta*) and the
-   second (X at its solution).
-3. One Jacobian of the training rows at that point, and chord iterations with it: their
-   fixed point is the stationary point up to the rate times the last correction, far
-   below the tolerance (`STEP_TOL`).
+   angular velocities and orientations of the same chain walk), shared by all folds. A
+   fold's rows at theta* are rows of it (the orientation rows rebuilt with the fold's
+   own tool rotation): its identifiability (every candidate kept when the unit columns'
+   smallest singular value is at least SAFE_RANK x RANK_TOL, else `identifiability`
+   itself) and the normal matrix ``A = J0^T J0 + Pp`` (Pp the prior rows' information),
+   factored once per fold.
+2. Chord (simplified Newton) iterations ``x <- x - A^-1 (J^T r(x) + Pp x)`` with a fixed
+   Jacobian J: one forward kinematics of the training rows per iteration, no Jacobian.
+   They converge linearly (rate ``|A^-1 J^T (J - J(x))|``, 1e-5 - 3e-3 on the UR10
+   series C folds) to the point where ``J^T r + Pp x = 0``, which is the fit's
+   stationary point only when J is the Jacobian there. A phase stops when a step is at
+   most APPROX_TOL of its first (or at most STEP_TOL of the residual norm).
+3. Then the true Jacobian of the training rows at the point reached, and chord
+   iterations with it, again, until a freshly evaluated Jacobian's first step is at most
+   STEP_TOL (1e-9) of the residual norm ``sqrt(|r|^2 + |Pp^1/2 x|^2)``, in the metric of
+   A (the change the step makes to the rows, prior rows included): the Gauss-Newton step
+   at the result, with its own Jacobian, is negligible, which certifies a stationary
+   point of the same objective as the LM's, closer to it than the LM's stopping rule
+   leaves the LM (a relative cost change below 1e-12 allows a last step of up to 1e-6
+   of the residual norm). Typically two Jacobians per solve.
+   With orientations, the first solve (whose solution sets only the second's tool
+   rotation) takes one true Jacobian and its chord to that Jacobian's fixed point.
 
-Every phase stops when a step's length in the metric of A (the change it makes to the
-rows, prior rows included) is at most STEP_TOL of the rows' residual norm
-``sqrt(|r|^2 + |Pp^1/2 x|^2)``: the refit then predicts every training row within about
-1e-9 mm of the exact stationary point, closer than the LM's own stopping rule (a
-relative cost change below 1e-12) leaves it. Measured against `fit` (the LM) on UR10
-series C's final model (73 parameters, positions and orientations, the prior): the
-held-out positions of the 5 folds agree to 6e-8 mm, those of the split halves
-(`torchcal.diagnosis.stability`, which extrapolate up to 3 mm) to 5e-6 mm, the LM's
-stopping error; tests/test_refit.py asserts 1e-6 mm on a simulated case.
+Measured against `fit` (the LM) on UR10 series C's final model of `discover` (73
+parameters, positions and orientations, the prior): the held-out positions of the 5
+folds agree to 4e-8 mm, those of the stability check's split halves (which extrapolate
+up to 3 mm) to 6.3e-7 mm, the LM's own stopping error; the posterior sd (the halves) to
+3e-7 relative; tests/test_refit.py asserts 1e-6 mm (and 1e-5 relative sd) on series C's
+training split. A fold refit takes 2-3 Jacobians of the training rows and 8-12 forward
+kinematics instead of 8-14 of each: the refit CV of that model 2.2x faster, the split
+halves (with their posterior) 1.6-2.1x.
 
 `refit` returns None where this does not apply, and the caller fits with the LM: a
-plausibility prior whose rho the refit would estimate itself (a full fit without
-plausible limits), a robust or damped full fit, a step that would cross a lower bound
-(backlash >= 0), a chord phase that does not contract (rate above 0.5) or does not meet
-its tolerance within MAX_CHORD iterations, or a non-finite value.
+prior whose rho the refit would estimate itself (a full fit without plausible limits),
+a robust or damped full fit, a step that would cross a lower bound (backlash >= 0), a
+chord that contracts slowly (a step above MAX_RATE of the one before: a nearly flat
+direction, where Gauss-Newton itself converges slowly; on series D's training split the
+folds move tool_z by 10 mm, and every fold is the LM's, found on the first fold's first
+phase, about a tenth of an LM fold fit), more than MAX_CHORD iterations in a phase or
+MAX_JACOBIANS Jacobians in a solve, or a non-finite value.
 """
 
 from __future__ import annotations
@@ -58,7 +68,7 @@ from torchcal.calibration.rows import Rows, orientation_weight, so3_error_jacobi
 from torchcal.rotations import procrustes_rotation
 
 #: a chord phase stops at a step whose length (metric of A) is at most this share of the residual norm
-STEP_TOL = 1e-10
+STEP_TOL = 1e-9
 #: chord iterations per phase at most (then the caller's LM fit)
 MAX_CHORD = 20
 #: an approximate phase (the shared Jacobian) stops at a step this share of its first
@@ -66,9 +76,9 @@ APPROX_TOL = 1e-3
 #: every candidate counts as identifiable, without the pivoting, above this many RANK_TOL (`_identified`)
 SAFE_RANK = 10.0
 #: true Jacobians per solve at most (then the caller's LM fit: a problem on which the chord crawls)
-MAX_JACOBIANS = 4
+MAX_JACOBIANS = 3
 #: a phase whose steps shrink by less than this factor does not contract: the LM fit instead
-MAX_RATE = 0.5
+MAX_RATE = 0.05
 
 
 @dataclass(frozen=True)

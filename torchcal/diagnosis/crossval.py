@@ -66,17 +66,19 @@ def fold_refits(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: 
     from it (`torchcal.calibration.refit`: the same fit to within 1e-9 mm of the
     stationary point, at about two Jacobians' cost instead of one per LM iteration);
     where that does not apply (a robust or damped fit, a fit without its prior's rho, a
-    bound reached, no contraction) a fold is fitted by `fold_fit` itself."""
+    bound reached, no contraction) a fold, and every later fold of the same fit, is
+    fitted by `fold_fit` itself."""
     from torchcal.calibration import refit as rf
 
-    sh = None
+    sh, chord = None, rf.applies(full)
     for f in np.unique(folds):
         test = torch.from_numpy(folds == f)
         res = None
-        if rf.applies(full):
+        if chord:
             sh = rf.shared(full, ctx, m.rotation is not None) if sh is None else sh
             res = rf.refit(full, sh, m, ctx, ~test, sigma_mm=sigma_mm, sigma_deg=sigma_deg, posterior=posterior)
-        if res is None:
+        if res is None:  # and the other folds of this fit by the LM too: they share its conditioning
+            chord = False
             res = fold_fit(full, m, ctx, ~test, sigma_mm=sigma_mm, sigma_deg=sigma_deg, posterior=posterior)
         yield test, res
 

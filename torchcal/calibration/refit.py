@@ -76,9 +76,9 @@ APPROX_TOL = 1e-3
 #: every candidate counts as identifiable, without the pivoting, above this many RANK_TOL (`_identified`)
 SAFE_RANK = 10.0
 #: true Jacobians per solve at most (then the caller's LM fit: a problem on which the chord crawls)
-MAX_JACOBIANS = 3
+MAX_JACOBIANS = 5
 #: a phase whose steps shrink by less than this factor does not contract: the LM fit instead
-MAX_RATE = 0.05
+MAX_RATE = 0.2
 
 
 @dataclass(frozen=True)
@@ -128,11 +128,18 @@ class _NoChord(Exception):
 @dataclass(frozen=True)
 class _Metric:
     """The chord iterations' fixed matrix: A = J0^T J0 + Pp on the free columns (F, F),
-    its Cholesky factor L, the prior's information p2 (F,) = pf^2 on them."""
+    d (F,) the square roots of its diagonal, L the Cholesky factor of D^-1 A D^-1 (D =
+    diag(d): unit diagonal, so columns in mm and in rad do not spoil the factorisation),
+    the prior's information p2 (F,) = pf^2 on them."""
 
     A: torch.Tensor
+    d: torch.Tensor
     L: torch.Tensor
     p2: torch.Tensor
+
+    def solve(self, g: torch.Tensor) -> torch.Tensor:
+        """A^-1 g (F,)."""
+        return torch.cholesky_solve((g / self.d)[:, None], self.L)[:, 0] / self.d
 
 
 def _identified(G: torch.Tensor, cand: torch.Tensor, names, n_rows: int) -> Identifiability | None:
@@ -160,10 +167,11 @@ def _metric(G: torch.Tensor, pf: torch.Tensor) -> _Metric:
     columns, prior factors pf (F,) on them."""
     p2 = pf ** 2
     A = G + torch.diag(p2)
-    L, info = torch.linalg.cholesky_ex(A)
+    d = A.diagonal().clamp_min(1e-300).sqrt()
+    L, info = torch.linalg.cholesky_ex(A / d[:, None] / d[None])
     if int(info):
         raise _NoChord("normal matrix not positive definite")
-    return _Metric(A, L, p2)
+    return _Metric(A, d, L, p2)
 
 
 def _chord(rows: Rows, J: torch.Tensor, metric: _Metric, free: torch.Tensor, x: torch.Tensor,
@@ -176,12 +184,12 @@ def _chord(rows: Rows, J: torch.Tensor, metric: _Metric, free: torch.Tensor, x: 
     Gauss-Newton step at x was already negligible (module doc, 3.). approx False: on to
     STEP_TOL of the residual norm (J's own fixed point)."""
     Jt = J.reshape(-1, J.shape[-1]).T  # a view: J^T r on all columns, then the free ones
-    A, L, p2 = metric.A, metric.L, metric.p2
+    A, p2 = metric.A, metric.p2
     first = last = math.inf
     for it in range(1, MAX_CHORD + 1):
         r = rows.residual(x).reshape(-1)
         xf = x[free]
-        step = -torch.cholesky_solve(((Jt @ r)[free] + p2 * xf)[:, None], L)[:, 0]
+        step = -metric.solve((Jt @ r)[free] + p2 * xf)
         size = float(step @ (A @ step)) ** 0.5
         norm = float(r @ r + p2 @ (xf * xf)) ** 0.5
         if not (math.isfinite(size) and math.isfinite(norm)):

@@ -142,7 +142,7 @@ class _Metric:
         return torch.cholesky_solve((g / self.d)[:, None], self.L)[:, 0] / self.d
 
 
-def _identified(G: torch.Tensor, cand: torch.Tensor, names, n_rows: int) -> Identifiability | None:
+def _identified(G: torch.Tensor, cand: torch.Tensor, n_rows: int) -> Identifiability | None:
     """The identifiability report of rows whose Jacobian has the Gram matrix G (C, C) on
     the candidate columns cand (P,) bool, when every candidate is identifiable beyond
     doubt: no column below `identifiability`'s live threshold and the smallest singular
@@ -253,7 +253,7 @@ def refit(full: FitResult, sh: Shared, m, ctx, train: torch.Tensor, *, sigma_mm:
     Jc = J0.reshape(-1, J0.shape[-1])[:, cand]
     G = Jc.T @ Jc
     n = rows.xyz.shape[0]
-    report = _identified(G, cand, model.param_names(), n)
+    report = _identified(G, cand, n)
     if report is None:
         report = identifiability(J0, model.param_names(), cand, RANK_TOL, first=~torch.isfinite(scales))
     check_enough_rows(report, rows.k * n, model, ct, cand, RANK_TOL)

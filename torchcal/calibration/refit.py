@@ -45,11 +45,14 @@ halves (with their posterior) 1.6-2.1x.
 `refit` returns None where this does not apply, and the caller fits with the LM: a
 prior whose rho the refit would estimate itself (a full fit without plausible limits),
 a robust or damped full fit, a step that would cross a lower bound (backlash >= 0), a
-chord that contracts slowly (a step above MAX_RATE of the one before: a nearly flat
-direction, where Gauss-Newton itself converges slowly; on series D's training split the
-folds move tool_z by 10 mm, and every fold is the LM's, found on the first fold's first
-phase, about a tenth of an LM fold fit), more than MAX_CHORD iterations in a phase or
-MAX_JACOBIANS Jacobians in a solve, or a non-finite value.
+chord that contracts slowly (a step above MAX_RATE of the one before), Jacobians whose
+first steps shrink by less than MAX_GN_RATE per Jacobian (a large residual along a
+nearly flat direction, where Gauss-Newton itself converges slowly: on series D's
+training split the folds move tool_z by 10 mm, and every fold is the LM's), more than
+MAX_CHORD iterations in a phase or MAX_JACOBIANS Jacobians in a solve, or a non-finite
+value. A fit whose first fold falls back has its later folds, and later calls' folds,
+fitted by the LM at once (`torchcal.diagnosis.crossval.fold_refits`): on series D the
+attempts cost 2 % of `discover`.
 """
 
 from __future__ import annotations
@@ -77,6 +80,10 @@ APPROX_TOL = 1e-3
 SAFE_RANK = 10.0
 #: true Jacobians per solve at most (then the caller's LM fit: a problem on which the chord crawls)
 MAX_JACOBIANS = 5
+#: a fresh Jacobian's first step above this share of the previous one's: the LM fit instead
+#: (measured: at most 0.017 where the chord certified, the README loop and series C; 0.13-0.27
+#: on series D's folds, which never certified)
+MAX_GN_RATE = 0.1
 #: a phase whose steps shrink by less than this factor does not contract: the LM fit instead
 MAX_RATE = 0.2
 
@@ -175,8 +182,8 @@ def _metric(G: torch.Tensor, pf: torch.Tensor) -> _Metric:
 
 
 def _chord(rows: Rows, J: torch.Tensor, metric: _Metric, free: torch.Tensor, x: torch.Tensor,
-           lower: torch.Tensor | None, approx: bool = True) -> tuple[torch.Tensor, int, bool]:
-    """(x (P,), iterations, certified): chord iterations ``x <- x - A^-1 (J^T r(x) + Pp x)``
+           lower: torch.Tensor | None, approx: bool = True) -> tuple[torch.Tensor, int, bool, float]:
+    """(x (P,), iterations, certified, the first step's length): chord iterations ``x <- x - A^-1 (J^T r(x) + Pp x)``
     from x with the fixed Jacobian J (n, k, P) of the rows (A of `metric`: it sets the rate
     only), moving `free` (P,) only, until a step is at most APPROX_TOL of the first (J's
     fixed point reached as far as it is worth: a later Jacobian corrects it) or at most
@@ -198,13 +205,13 @@ def _chord(rows: Rows, J: torch.Tensor, metric: _Metric, free: torch.Tensor, x: 
         x[free] = xf + step
         if lower is not None and bool((x < lower).any()):
             raise _NoChord("a step crosses a lower bound")
+        first = size if it == 1 else first
         if size <= STEP_TOL * norm:
-            return x, it, it == 1
+            return x, it, it == 1, first
         if size > MAX_RATE * last:
             raise _NoChord("chord iterations do not contract")
-        first = size if it == 1 else first
         if approx and size <= APPROX_TOL * first:
-            return x, it, False
+            return x, it, False, first
         last = size
     raise _NoChord("chord iterations did not converge")
 
@@ -215,16 +222,21 @@ def _solve(rows: Rows, J: torch.Tensor, metric: _Metric, free: torch.Tensor, x: 
     stationary point of the rows plus the prior from x, by chord iterations with J (a
     Jacobian evaluated elsewhere), then with the true Jacobian at the point reached, again
     and again, until that Jacobian's first step is at most STEP_TOL of the residual norm
-    (module doc, 2. and 3.); at most MAX_JACOBIANS of them. certify False: one true
-    Jacobian, its chord to its fixed point (the first solve of a fit with orientations,
+    (module doc, 2. and 3.); at most MAX_JACOBIANS of them, each one's first step at most
+    MAX_GN_RATE of the one before (else Gauss-Newton converges slowly: the LM instead).
+    certify False: one true Jacobian, its chord to its fixed point (the first solve of a fit with orientations,
     whose solution sets only the tool rotation of the second, module doc)."""
-    x, its, _ = _chord(rows, J, metric, free, x, lower)
+    x, its, _, _ = _chord(rows, J, metric, free, x, lower)
+    before = math.inf
     for _ in range(MAX_JACOBIANS):
         J = rows.jacobian(x)
-        x, k, certified = _chord(rows, J, metric, free, x, lower, approx=certify)
+        x, k, certified, first = _chord(rows, J, metric, free, x, lower, approx=certify)
         its += k
         if certified or not certify:
             return x, J, its
+        if first > MAX_GN_RATE * before:  # Gauss-Newton itself converges slowly here
+            raise _NoChord("successive Jacobians' first steps shrink slowly")
+        before = first
     raise _NoChord("no Jacobian certified a stationary point")
 
 

@@ -360,8 +360,8 @@ def fitted(rows: Rows, theta: torch.Tensor, report: Identifiability, s: Solved, 
            damping: float = 0.0, jacobian: torch.Tensor | None = None) -> FitResult:
     """The `FitResult` of a solution theta (P,) of the rows `rows` (its tool rotation the
     one solved with): the residuals, the posterior (unless `posterior` is False) from the
-    rows' Jacobian at theta (`jacobian` (N, k, P) when the caller has it, else evaluated
-    here), the prior's rho (None: no prior) and the damping rows `damp` counted as prior
+    rows' Jacobian at theta (`jacobian` (N, k, P) when the caller has it, at theta or a
+    negligible step from it, else evaluated here), the prior's rho (None: no prior) and the damping rows `damp` counted as prior
     information; report: the identifiability of the fit (``report.free`` moved); s: its
     last `Solved`; scales (P,) the plausible scales; the rest `fit`'s options, kept."""
     from torchcal.calibration.plausibility import beyond_plausible, set_by_prior

@@ -31,7 +31,9 @@ fewer Jacobians:
    leaves the LM (a relative cost change below 1e-12 allows a last step of up to 1e-6
    of the residual norm). Typically two Jacobians per solve.
    With orientations, the first solve (whose solution sets only the second's tool
-   rotation) takes one true Jacobian and its chord to that Jacobian's fixed point.
+   rotation) takes one true Jacobian and its chord to that Jacobian's fixed point. The
+   posterior (split halves) is computed from the Jacobian that certified the solution,
+   evaluated one negligible step before it (the LM fit evaluates one more).
 
 Measured against `fit` (the LM) on UR10 series C's final model of `discover` (73
 parameters, positions and orientations, the prior): the held-out positions of the 5

@@ -41,8 +41,9 @@ folds agree to 4e-8 mm, those of the stability check's split halves (which extra
 up to 3 mm) to 6.3e-7 mm, the LM's own stopping error; the posterior sd (the halves) to
 3e-7 relative; tests/test_refit.py asserts 1e-6 mm (and 1e-5 relative sd) on series C's
 training split. A fold refit takes 2-3 Jacobians of the training rows and 8-12 forward
-kinematics instead of 8-14 of each: the refit CV of that model 2.2x faster, the split
-halves (with their posterior) 1.6-2.1x.
+kinematics instead of 8-14 of each: the refit CV of that model 2.3x faster, the split
+halves (with their posterior) 1.8-2.8x (cProfile of `discover` on that split: the fold
+refits 2.2x, docs/performance.md).
 
 `refit` returns None where this does not apply, and the caller fits with the LM: a
 prior whose rho the refit would estimate itself (a full fit without plausible limits),

@@ -291,7 +291,7 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, *, theta0=None
     posterior=False skips the covariance (std NaN, covariance None, set_by_prior empty):
     for the fold refits of a cross-validation, which use theta only.
     """
-    from torchcal.calibration.plausibility import beyond_plausible, plausible_scales, set_by_prior
+    from torchcal.calibration.plausibility import plausible_scales
 
     model.check_context(ctx)
     cold = theta0 is None  # a start at nominal / registration, possibly far from the fit
@@ -348,7 +348,26 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, *, theta0=None
         rho = new
         s = solve(rows, x, free_now, prior_factors(rho, scales), **options)
         x = s.x
-    theta = x[0]
+    return fitted(rows, x[0], report, s, scales=scales, rho=rho if has_prior else None, damp=damp, pose=pose,
+                  robust=robust, posterior=posterior, registration=reg_info, max_length_mm=max_length_mm,
+                  max_angle_deg=max_angle_deg, sigma_mm=sigma_mm, sigma_deg=sigma_deg, damping=damping)
+
+
+def fitted(rows: Rows, theta: torch.Tensor, report: Identifiability, s: Solved, *, scales: torch.Tensor,
+           rho: float | None, damp: torch.Tensor | None = None, pose=None, robust: str | None = None,
+           posterior: bool = True, registration: dict | None = None, max_length_mm: float | None = MAX_LENGTH_MM,
+           max_angle_deg: float | None = MAX_ANGLE_DEG, sigma_mm: float = SIGMA_MM, sigma_deg: float = SIGMA_DEG,
+           damping: float = 0.0, jacobian: torch.Tensor | None = None) -> FitResult:
+    """The `FitResult` of a solution theta (P,) of the rows `rows` (its tool rotation the
+    one solved with): the residuals, the posterior (unless `posterior` is False) from the
+    rows' Jacobian at theta (`jacobian` (N, k, P) when the caller has it, at theta or a
+    negligible step from it, else evaluated here), the prior's rho (None: no prior) and the damping rows `damp` counted as prior
+    information; report: the identifiability of the fit (``report.free`` moved); s: its
+    last `Solved`; scales (P,) the plausible scales; the rest `fit`'s options, kept."""
+    from torchcal.calibration.plausibility import beyond_plausible, set_by_prior
+
+    model, ctx, free_now = rows.model, rows.ctx, report.free
+    has_prior = rho is not None
     r = rows.residual(theta).detach()
     resid_pos = -r[:, :3]
     prior_rows = prior_factors(rho, scales) if has_prior and math.isfinite(rho) else None  # posterior
@@ -356,22 +375,24 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, *, theta0=None
         prior_rows = damp if prior_rows is None else (prior_rows ** 2 + damp ** 2).sqrt()
     if not posterior:
         covariance = None
-    elif rotation is None:
-        covariance = parameter_covariance(model.jacobian(theta, ctx), resid_pos, free_now, pose=pose,
-                                          weights=s.weights if robust else None, prior=prior_rows)
+    elif rows.rotation is None:
+        covariance = parameter_covariance(model.jacobian(theta, ctx) if jacobian is None else jacobian, resid_pos,
+                                          free_now, pose=pose, weights=s.weights if robust else None,
+                                          prior=prior_rows)
     else:  # rows of 6 residuals: row-wise estimate s^2 (J^T W J)^-1
-        covariance = row_covariance(rows.jacobian(theta).reshape(-1, theta.shape[0]), r.reshape(-1), free_now,
+        J = rows.jacobian(theta) if jacobian is None else jacobian
+        covariance = row_covariance(J.reshape(-1, theta.shape[0]), r.reshape(-1), free_now,
                                     weights=s.weights.repeat_interleave(rows.k), prior=prior_rows)
     std = torch.full_like(theta, math.nan).detach() if covariance is None else covariance.std
     orient = None
-    if rotation is not None:
+    if rows.rotation is not None:
         rot_res = r[:, 3:] / rows.w_rot  # (N, 3) rad, model vs measured
         orient = {"sigma_mm": sigma_mm, "sigma_deg": sigma_deg, "weight_mm_per_rad": rows.w_rot,
                   "tool_rotation": rows.tool_R,
                   "rms_deg": math.degrees(float(rot_res.norm(dim=-1).pow(2).mean().sqrt()))}
     return FitResult(model, theta.detach(), std, resid_pos, s.weights, report, s.n_iter,
                      torch.nonzero(s.weights < 0.1).flatten().tolist() if robust else [], covariance,
-                     status=s.status, registration=reg_info,
+                     status=s.status, registration=registration,
                      implausible=beyond_plausible(model, theta, free_now, scales.cpu()) if has_prior else [],
                      orientation=orient,
                      plausible_limits=None if not has_prior else

@@ -118,15 +118,20 @@ def identifiability(J: torch.Tensor, names, candidate_free, rank_tol: float = RA
     else:
         rank, s = 0, torch.ones(1, dtype=torch.float64)
     held = [names[i] for i in cand.tolist() if not free[i]]
+    return Identifiability(free, held, rank, float(s[0] / s[-1]), observability(s, n_rows), n_rows)
+
+
+def observability(s: torch.Tensor, n_rows: int) -> dict:
+    """O1..O5 of the singular values s (descending, > 0) of the scaled identifiable
+    columns of a Jacobian of n_rows poses."""
     m = max(n_rows, 1)
-    obs = {
+    return {
         "O1": float(s.log().mean().exp() / math.sqrt(m)),
         "O2": float(s[-1] / s[0]),
         "O3": float(s[-1]),
         "O4": float(s[-1] ** 2 / s[0]),
         "O5": float(1.0 / (1.0 / s).sum()),
     }
-    return Identifiability(free, held, rank, float(s[0] / s[-1]), obs, n_rows)
 
 
 def generic_rank(model, ctx, cand, rank_tol: float = RANK_TOL) -> int:

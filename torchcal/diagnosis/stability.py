@@ -9,8 +9,10 @@ carried to a part of the workspace it has not seen it gains nothing, or loses.
 The test, for an effect e of a fitted model (`FitResult` ``full``): for each joint angle
 q_j that varies, the poses are split at the median of q_j into two halves (a pose's rows
 together). The model is refitted on one half and predicts the other, both ways (a
-two-fold refit CV whose folds are the halves, `extrapolated`), with e and without it (the
-model without e fitted on all rows first, from ``full``). A split is used only where
+two-fold refit CV whose folds are the halves, `extrapolated`: fold refits of
+`torchcal.diagnosis.crossval.fold_refits`, from the shared Jacobian of
+`torchcal.calibration.refit` where it applies), with e and without it (the model without
+e fitted on all rows first, from ``full``). A split is used only where
 each half determines what the full data determine (every parameter whose posterior sd
 is below half its plausible size on all rows stays so on each half, the rule of
 `torchcal.calibration.plausibility.determination`): fitted on half of a joint's range,

@@ -1,0 +1,153 @@
+"""Fold refits from the shared Jacobian (torchcal.calibration.refit) against the LM fold
+refit they replace (`crossval.fold_fit`, `fit` on the training rows from the full fit).
+
+The agreement asked: held-out predicted positions within 1e-6 mm (the LM's own stopping
+rule leaves its fold refits within about that of the stationary point on extrapolating
+split halves); a wrong algebra (the fold's rows kept, the prior counted twice) moves them
+by far more (kept rows > 1e-3 mm, a doubled prior 5e-5 mm here), which the mutation
+checks below show on the same data."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import torchcal
+import torchcal.calibration.refit as rf
+from torchcal.calibration.fit import fit
+from torchcal.calibration.model import CalibrationModel
+from torchcal.calibration.prior import prior_factors
+from torchcal.diagnosis.crossval import fold_fit, fold_refits, held_out_errors
+from torchcal.diagnosis.stability import halves
+from torchcal.effects import context_of
+from torchcal.folds import fold_of_pose
+from torchcal.io.measurement_csv import read_measurements
+from torchcal.measurements import Measurements, split_by_pose
+from torchcal.robots.poses import random_poses
+
+from npsim import physics_session
+
+UR10 = Path(__file__).resolve().parents[1] / "examples" / "ur10"
+TOL_MM = 1e-6
+
+
+def _split(series):
+    """(robot, the training split (60 % of the poses, seed 0) of UR10 series `series`, its context)."""
+    robot = torchcal.robot(UR10 / "ur10.json")
+    m = read_measurements(UR10 / f"series_{series}.csv", robot=robot)
+    m = m.subset(split_by_pose(m.pose, 0.6, 0))
+    return robot, m, context_of(robot, m)
+
+
+@pytest.fixture(scope="module")
+def ur10_c():
+    """UR10 series C's training split (positions and orientations), fitted with base_frame,
+    tool_offset and joint_periodic:2@20+29 (nonlinear; the prior holds the periodic terms
+    and the MD-H deviations)."""
+    robot, m, ctx = _split("c")
+    model = CalibrationModel.for_measurements(robot, ["base_frame", "tool_offset", "joint_periodic:2@20+29"], m)
+    full = fit(model, ctx, m.xyz, pose=m.pose, rotation=m.rotation)
+    assert full.plausible_limits is not None and m.rotation is not None
+    return full, m, ctx
+
+
+def _predicted(full, res, ctx, test):
+    with torch.no_grad():
+        return full.model.predict(res.theta, ctx.subset(test))
+
+
+def _compare(full, m, ctx, folds, posterior):
+    """Largest held-out position difference (mm) and largest relative std difference of
+    the shared refits against the LM fold fits, over the folds; asserts the shared path ran."""
+    sh = rf.shared(full, ctx, m.rotation is not None)
+    worst = worst_sd = 0.0
+    for f in np.unique(folds):
+        test = torch.from_numpy(folds == f)
+        new = rf.refit(full, sh, m, ctx, ~test, sigma_mm=0.01, sigma_deg=0.01, posterior=posterior)
+        assert new is not None  # the chord refit applied (no LM fallback)
+        old = fold_fit(full, m, ctx, ~test, sigma_mm=0.01, sigma_deg=0.01, posterior=posterior)
+        assert torch.equal(new.report.free, old.report.free)
+        moved = (_predicted(full, new, ctx, test) - _predicted(full, old, ctx, test)).norm(dim=-1)
+        worst = max(worst, float(moved.max()))
+        assert torch.allclose(new.residuals, old.residuals, atol=TOL_MM, rtol=0)
+        if posterior:
+            fr = new.report.free
+            worst_sd = max(worst_sd, float(((new.std[fr] - old.std[fr]).abs() / old.std[fr]).max()))
+    return worst, worst_sd
+
+
+def test_shared_refit_equals_the_lm_fold_refit_with_orientations_and_the_prior(ur10_c):
+    full, m, ctx = ur10_c
+    worst, _ = _compare(full, m, ctx, fold_of_pose(m.pose, 0, 5), posterior=False)
+    assert worst <= TOL_MM, worst
+
+
+def test_shared_refit_equals_the_lm_on_split_halves_with_the_posterior(ur10_c):
+    """The stability check's halves (half the rows removed, predictions extrapolated) and
+    the posterior its determination rule reads."""
+    full, m, ctx = ur10_c
+    for name, half in list(halves(m).items())[:3]:
+        worst, worst_sd = _compare(full, m, ctx, half, posterior=True)
+        assert worst <= TOL_MM and worst_sd <= 1e-5, (name, worst, worst_sd)
+
+
+def test_mutations_of_the_algebra_move_the_predictions_far_beyond_the_tolerance(ur10_c, monkeypatch):
+    """The fold's rows kept in the fit, or the prior counted twice: the comparison above
+    would fail by orders of magnitude."""
+    full, m, ctx = ur10_c
+    folds = fold_of_pose(m.pose, 0, 5)
+    test = torch.from_numpy(folds == 0)
+    sh = rf.shared(full, ctx, True)
+    ref = _predicted(full, fold_fit(full, m, ctx, ~test, sigma_mm=0.01, sigma_deg=0.01), ctx, test)
+    kept = rf.refit(full, sh, m, ctx, torch.ones_like(test), sigma_mm=0.01, sigma_deg=0.01)
+    assert float((_predicted(full, kept, ctx, test) - ref).norm(dim=-1).max()) > 1e3 * TOL_MM
+    # the prior rows' information rho^2 / s^2 counted twice
+    monkeypatch.setattr(rf, "prior_factors", lambda rho, s: math.sqrt(2) * prior_factors(rho, s))
+    twice = rf.refit(full, sh, m, ctx, ~test, sigma_mm=0.01, sigma_deg=0.01)
+    assert float((_predicted(full, twice, ctx, test) - ref).norm(dim=-1).max()) > 10 * TOL_MM
+
+
+def test_positions_only_refit_cv_equals_the_lm_fold_refits():
+    """A simulated session (plain-numpy physics: gear error on joint 2, a moved base),
+    positions only: held_out_errors through the shared refits against the LM's."""
+    robot = torchcal.robot("kr1000titan")
+    q = random_poses(robot, 80, torch.Generator().manual_seed(5)).numpy()
+    xyz, _ = physics_session(robot, q, 5, ["gear_periodic:2", "base_frame"])
+    m = Measurements(pose=torch.arange(80), q=torch.from_numpy(q), xyz=torch.from_numpy(xyz))
+    ctx = context_of(robot, m)
+    model = CalibrationModel.for_measurements(robot, ["base_frame", "gear_periodic:2"], m)
+    full = fit(model, ctx, m.xyz, pose=m.pose)
+    folds = fold_of_pose(m.pose, 0, 5)
+    worst, _ = _compare(full, m, ctx, folds, posterior=False)
+    assert worst <= TOL_MM, worst
+    new = held_out_errors(full, m, ctx, folds, sigma_mm=0.01, sigma_deg=0.01)
+    old = np.zeros(len(m))
+    for f in range(5):
+        test = torch.from_numpy(folds == f)
+        res = fold_fit(full, m, ctx, ~test, sigma_mm=0.01, sigma_deg=0.01)
+        old[test.numpy()] = (model.predict(res.theta, ctx.subset(test)) - m.xyz[test]).pow(2).sum(-1).numpy()
+    assert new == pytest.approx(old, abs=1e-9)
+
+
+@pytest.mark.parametrize("case", ["robust", "crawls"])
+def test_where_the_chord_does_not_apply_the_lm_refits(case):
+    """Where the chord refit does not apply, fold_refits gives fold_fit's result exactly:
+    a robust full fit; gear_periodic:2 on series D (its training split), whose tool_z the folds move by 10 mm
+    along a nearly flat direction (the chord crawls and hands over to the LM)."""
+    robot, m, ctx = _split("d")
+    if case == "robust":
+        model = CalibrationModel.for_measurements(robot, ["base_frame", "tool_offset"], m)
+        full = fit(model, ctx, m.xyz, pose=m.pose, robust="huber")
+        assert not rf.applies(full)
+    else:
+        model = CalibrationModel.for_measurements(robot, ["base_frame", "tool_offset", "gear_periodic:2"], m)
+        full = fit(model, ctx, m.xyz, pose=m.pose, rotation=m.rotation)
+        sh = rf.shared(full, ctx, True)
+        assert rf.refit(full, sh, m, ctx, torch.from_numpy(fold_of_pose(m.pose, 0, 3) != 0),
+                        sigma_mm=0.01, sigma_deg=0.01) is None
+    folds = fold_of_pose(m.pose, 0, 3)
+    for test, res in fold_refits(full, m, ctx, folds, sigma_mm=0.01, sigma_deg=0.01, posterior=False):
+        ref = fold_fit(full, m, ctx, ~test, sigma_mm=0.01, sigma_deg=0.01, posterior=False)
+        assert torch.equal(res.theta, ref.theta)

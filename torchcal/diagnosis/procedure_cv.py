@@ -46,24 +46,39 @@ from torchcal.effects.spec import format_spec, parse_spec, parse_specs
 from torchcal.errors import InputError
 
 
-def candidate_fold_specs(spec: str, current_fit, ctx, folds: np.ndarray) -> dict | None:
-    """{fold: the candidate's spec in that fold or None (no order found on any joint)} for a
-    searched candidate `spec` (``joint_periodic:...``), the search re-run per fold on the
-    current full fit's residual and free columns (`fold_orders`); None for a candidate
-    without a search (its spec is the same in every fold)."""
-    model = current_fit.model
-    s = parse_spec(spec, model.robot.n)
-    if s.name != "joint_periodic":
-        return None
-    theta = current_fit.theta
-    r = current_fit.residuals.reshape(-1).numpy(force=True)
-    A = model.jacobian(theta, ctx).reshape(-1, model.n_params)[:, current_fit.report.free].numpy(force=True)
-    per_joint = {j: fold_orders(model.robot, model, theta, ctx, r, A, folds, j) for j in s.joints}
-    out = {}
-    for f in (int(x) for x in np.unique(folds)):
-        kept = [(j, per_joint[j][f]) for j in s.joints if per_joint[j][f]]
-        out[f] = format_spec(s.name, tuple(j for j, _ in kept), tuple(ks for _, ks in kept)) if kept else None
-    return out
+class FoldSearches:
+    """The spectral search re-run per fold for one step (`fold_orders`), on the current full
+    fit's residual r (3N,) and free columns A (3N, p) (what the pre-screen searched), each
+    joint's searches run once for all the step's candidates that hold that joint."""
+
+    def __init__(self, current_fit, ctx, folds: np.ndarray):
+        self.fit, self.ctx, self.folds = current_fit, ctx, np.asarray(folds)
+        self._ra, self._orders = None, {}
+
+    def orders(self, joint: int) -> dict:
+        """{fold: the orders of `joint` found without that fold's rows}."""
+        if joint not in self._orders:
+            model, theta = self.fit.model, self.fit.theta
+            if self._ra is None:
+                r = self.fit.residuals.reshape(-1).numpy(force=True)
+                A = model.jacobian(theta, self.ctx).reshape(-1, model.n_params)[:, self.fit.report.free]
+                self._ra = r, A.numpy(force=True)
+            self._orders[joint] = fold_orders(model.robot, model, theta, self.ctx, *self._ra, self.folds, joint)
+        return self._orders[joint]
+
+    def specs(self, spec: str) -> dict | None:
+        """{fold: the candidate's spec in that fold, or None where no joint has an order} for a
+        searched candidate `spec` (``joint_periodic:...``); None for a candidate without a
+        search (its spec is the same in every fold)."""
+        s = parse_spec(spec, self.fit.model.robot.n)
+        if s.name != "joint_periodic":
+            return None
+        per_joint = {j: self.orders(j) for j in s.joints}
+        out = {}
+        for f in (int(x) for x in np.unique(self.folds)):
+            kept = [(j, per_joint[j][f]) for j in s.joints if per_joint[j][f]]
+            out[f] = format_spec(s.name, tuple(j for j, _ in kept), tuple(ks for _, ks in kept)) if kept else None
+        return out
 
 
 def fold_start(f, current_fit, specs: list, m):
@@ -87,13 +102,15 @@ def fold_start(f, current_fit, specs: list, m):
                                report=report, covariance=None, implausible=[], set_by_prior=[])
 
 
-def procedure_cv(current, f, spec: str, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: float):
+def procedure_cv(current, f, spec: str, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: float,
+                 searches: FoldSearches | None = None):
     """(RefitCV, fold_specs) of the candidate `spec` (fitted on all rows: f) on top of the
     current model `current` (`Scored`; its ``fold_specs`` and per-pose held-out errors
     ``cv.sq``), folds (N,) by pose (module doc). fold_specs: {fold: effects of the fold's
     model} when a fold's model differs from f's, else None. Without a search and without
-    the current model's fold models: `refit_cv` itself."""
-    cand = candidate_fold_specs(spec, current.fit, ctx, folds)
+    the current model's fold models: `refit_cv` itself. searches: the step's `FoldSearches`
+    on current.fit (made here when None)."""
+    cand = (searches or FoldSearches(current.fit, ctx, folds)).specs(spec)
     n = f.model.robot.n
     full = [str(s) for s in parse_specs(f.model.specs(), n)]
     labels = [int(x) for x in np.unique(folds)]

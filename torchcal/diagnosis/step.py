@@ -8,7 +8,10 @@ candidate, reports
 - rms_mm: the full fit's training distance RMS (the candidate's model refitted from the
   current fit, its new parameters starting at zero);
 - cv_rms_mm: the pose-grouped K-fold CV of that model refitted on the other folds
-  (`torchcal.diagnosis.crossval.refit_cv`), on the same folds for all;
+  (`torchcal.diagnosis.crossval.refit_cv`), on the same folds for all; for a searched
+  candidate (`joint_periodic`), and for any candidate on top of a model so scored, the CV
+  of the whole procedure: each fold refits the orders its training poses' own search
+  finds (`torchcal.diagnosis.procedure_cv`);
 - p-value, accepted and a reason (`torchcal.diagnosis.selection.refit_decision`);
 - held: parameters the identifiability analysis held (unidentifiable), beyond: those that
   ended beyond their plausible size (`torchcal.calibration.plausibility`).
@@ -34,7 +37,7 @@ from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult, fit
 from torchcal.calibration.model import CalibrationModel
 from torchcal.calibration.plausibility import determination, determination_words
 from torchcal.diagnosis.crossval import RefitCV, refit_cv
-from torchcal.diagnosis.procedure_cv import procedure_cv
+from torchcal.diagnosis.procedure_cv import FoldSearches, procedure_cv
 from torchcal.diagnosis.selection import ALPHA, MIN_GAIN, not_better, refit_decision
 from torchcal.effects.spec import parse_specs
 from torchcal.errors import InputError
@@ -168,10 +171,12 @@ def score_step(current: Scored, candidates: list, m, ctx, folds: np.ndarray, *, 
     cross-validate it on the folds (N,) and decide (module doc; level alpha over the
     candidates refitted)."""
     refits = []
+    searches = FoldSearches(current.fit, ctx, folds)  # each joint's fold searches once for the step
 
     def decide(c, random_only, hold=()):
         f = candidate_fit(current.fit, c.spec, m, ctx, sigma_mm=sigma_mm, sigma_deg=sigma_deg, hold=hold)
-        cv, fold_specs = procedure_cv(current, f, c.spec, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
+        cv, fold_specs = procedure_cv(current, f, c.spec, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
+                                      searches=searches)
         ok, p, why = refit_decision(current.cv_rms_mm, current.cv.sq, cv.cv_rms_mm, cv.sq,
                                     n_refits=len(candidates), alpha=alpha, min_gain=min_gain,
                                     random_only=random_only)

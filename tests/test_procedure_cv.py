@@ -111,3 +111,21 @@ def test_fold_search_ignores_what_the_base_columns_explain():
     got = fold_orders(UR10, model, theta, ctx, r, A, folds, 2)
     assert all(got.values())  # non-vacuous: every fold finds orders
     assert fold_orders(UR10, model, theta, ctx, r + A @ delta, A, folds, 2) == got
+
+
+def test_a_step_after_a_searched_one_is_scored_on_its_fold_models():
+    """The next round's candidate is refitted in each fold on top of that fold's model of
+    the accepted periodic step (its own orders there), not of the full-data orders."""
+    from torchcal.diagnosis.step import Scored
+    from torchcal.effects.spec import parse_specs
+
+    m = _session(100, 1, HIDDEN)
+    ctx, current, folds, r, A = _setup(m)
+    acc = score_step(current, _candidates(ctx, current, folds, r, A, [2]), m, ctx, folds, **OPTS).accepted
+    assert acc is not None and acc.fold_specs is not None  # some fold found other orders
+    nxt = Scored(acc.effects, "", acc.rms_mm, acc.cv_rms_mm, acc.fit, acc.cv, fold_specs=acc.fold_specs)
+    cand = Candidate("encoder_scale", (1,), 0.0, 0.0, 1.0, 0.0, 1, True, deterministic=True)
+    s = score_step(nxt, [cand], m, ctx, folds, **OPTS).refits[0]
+    want = {fo: [str(x) for x in parse_specs(v + ["encoder_scale:1"], 6)] for fo, v in acc.fold_specs.items()}
+    assert s.fold_specs == want
+    assert s.fold_specs != {fo: s.effects for fo in want}

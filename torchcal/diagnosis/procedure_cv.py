@@ -114,11 +114,12 @@ def procedure_cv(current, f, spec: str, m, ctx, folds: np.ndarray, *, sigma_mm: 
     n = f.model.robot.n
     full = [str(s) for s in parse_specs(f.model.specs(), n)]
     labels = [int(x) for x in np.unique(folds)]
+    base = {fo: list(current.fit.model.specs() if current.fold_specs is None else current.fold_specs[fo])
+            for fo in labels}  # the current model's fold models
     fold_specs = {}  # fold -> the fold model's effects, None: the current model's fold refit
     for fo in labels:
-        base = list(current.fit.model.specs() if current.fold_specs is None else current.fold_specs[fo])
         add = spec if cand is None else cand[fo]
-        fold_specs[fo] = None if add is None else [str(s) for s in parse_specs(base + [add], n)]
+        fold_specs[fo] = None if add is None else [str(s) for s in parse_specs(base[fo] + [add], n)]
     if all(s == full for s in fold_specs.values()):  # every fold's model is f's: today's refit CV
         return refit_cv(f, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg), None
     _, pose_of_row = np.unique(m.pose.cpu().numpy(), return_inverse=True)
@@ -128,7 +129,7 @@ def procedure_cv(current, f, spec: str, m, ctx, folds: np.ndarray, *, sigma_mm: 
         poses = np.unique(pose_of_row[test])
         if fold_specs[fo] is None:  # no order in this fold: the current model's prediction
             sq[poses] = current.cv.sq[poses]
-            fold_specs[fo] = list(current.fit.model.specs() if current.fold_specs is None else current.fold_specs[fo])
+            fold_specs[fo] = base[fo]
             continue
         start = f if fold_specs[fo] == full else fold_start(f, current.fit, fold_specs[fo], m)
         t = torch.from_numpy(test)

@@ -21,7 +21,7 @@ from test_joint_periodic import HIDDEN, UR10, _session
 from torchcal.calibration.model import CalibrationModel
 from torchcal.diagnosis.candidates import Candidate
 from torchcal.diagnosis.crossval import refit_cv
-from torchcal.diagnosis.selection import MIN_GAIN
+from torchcal.diagnosis.selection import MIN_GAIN, REFIT_ALPHA
 from torchcal.diagnosis.spectral import fold_orders, propose_orders
 from torchcal.diagnosis.step import candidate_fit, fit_options, score_current, score_step
 from torchcal.calibration.fit import fit
@@ -30,6 +30,7 @@ from torchcal.folds import fold_of_pose
 
 START = ["base_frame", "tool_offset"]
 OPTS = {"sigma_mm": 0.01, "sigma_deg": 0.01}
+STEP = {**OPTS, "alpha": REFIT_ALPHA}  # the level `diagnose` gives the refit tests
 
 
 def _setup(m):
@@ -67,7 +68,7 @@ def test_orders_found_where_there_is_no_periodic_error_are_not_credited_with_the
         cands = _candidates(ctx, current, folds, r, A, [1, 3, 4, 5, 6])
         if not cands:
             continue
-        step = score_step(current, cands, m, ctx, folds, **OPTS)
+        step = score_step(current, cands, m, ctx, folds, **STEP)
         for s in step.refits:
             honest_gain.append(1 - s.cv_rms_mm / current.cv_rms_mm)
             plain_gain.append(1 - refit_cv(s.fit, m, ctx, folds, **OPTS).cv_rms_mm / current.cv_rms_mm)
@@ -90,7 +91,7 @@ def test_the_hidden_periodic_error_is_accepted_and_on_enough_poses_scored_as_bef
         ctx, current, folds, r, A = _setup(m)
         cands = _candidates(ctx, current, folds, r, A, [2])
         assert [c.spec for c in cands] in (["joint_periodic:2@17+31"], ["joint_periodic:2@31+17"])
-        step = score_step(current, cands, m, ctx, folds, **OPTS)
+        step = score_step(current, cands, m, ctx, folds, **STEP)
         s = step.accepted
         assert s is not None and s.effects[-1] == "joint_periodic:2@17+31", step.lines()
         assert 1 - s.cv_rms_mm / current.cv_rms_mm > 0.6
@@ -121,11 +122,11 @@ def test_a_step_after_a_searched_one_is_scored_on_its_fold_models():
 
     m = _session(100, 1, HIDDEN)
     ctx, current, folds, r, A = _setup(m)
-    acc = score_step(current, _candidates(ctx, current, folds, r, A, [2]), m, ctx, folds, **OPTS).accepted
+    acc = score_step(current, _candidates(ctx, current, folds, r, A, [2]), m, ctx, folds, **STEP).accepted
     assert acc is not None and acc.fold_specs is not None  # some fold found other orders
     nxt = Scored(acc.effects, "", acc.rms_mm, acc.cv_rms_mm, acc.fit, acc.cv, fold_specs=acc.fold_specs)
     cand = Candidate("encoder_scale", (1,), 0.0, 0.0, 1.0, 0.0, 1, True, deterministic=True)
-    s = score_step(nxt, [cand], m, ctx, folds, **OPTS).refits[0]
+    s = score_step(nxt, [cand], m, ctx, folds, **STEP).refits[0]
     want = {fo: [str(x) for x in parse_specs(v + ["encoder_scale:1"], 6)] for fo, v in acc.fold_specs.items()}
     assert s.fold_specs == want
     assert s.fold_specs != {fo: s.effects for fo in want}

@@ -252,7 +252,7 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
         if acc is None or i == max_rounds:
             break
         base, current = acc.fit, Scored(acc.effects, "", acc.rms_mm, acc.cv_rms_mm, acc.fit, acc.cv,
-                                        prior_held=d.step.current.prior_held + acc.prior_held)
+                                        prior_held=d.step.current.prior_held + acc.prior_held, fold_specs=acc.fold_specs)
     added = [e for e in base.model.specs() if e not in specs]  # physics or absorption (stability.py)
     return Discovery(history, base.model.specs(), base, diagnoses, unexplained(robot, m, base.residuals, seed=seed),
                      absorbing(base, added, m, ctx, sigma_mm=sigma_mm, sigma_deg=sigma_deg))

@@ -243,21 +243,70 @@ def search_orders(r: np.ndarray, A: np.ndarray, C: np.ndarray, grid, folds: np.n
     return chosen, path, ps
 
 
+def grid_columns(robot, model, theta, ctx, joint: int, grid) -> np.ndarray:
+    """(3N, 2K) the columns sin(k q_J) t_J, cos(k q_J) t_J of `joint_periodic:joint` at the
+    orders `grid` (K,), the derivative of the effect at zero on `model` at theta (step 1)."""
+    from torchcal.diagnosis.candidates import all_candidate_columns
+
+    key = ("joint_periodic", (joint,))
+    return all_candidate_columns(robot, model, theta, ctx, [key], {key: (tuple(grid),)})[key]
+
+
+def fold_orders(robot, model, theta, ctx, r: np.ndarray, A: np.ndarray, folds: np.ndarray, joint: int,
+                **kw) -> dict:
+    """{fold: orders} per fold of folds (N,): the orders of `joint_periodic:joint` that the
+    same search (`propose_orders`: alpha, order limits, determination) finds on the OTHER
+    folds' rows alone, for the refit CV of a searched candidate
+    (`torchcal.diagnosis.procedure_cv`), so that the fold that tests the orders took no
+    part in choosing them.
+
+    Restricted to the training rows T of fold f: the residual r (3N,) and base columns A
+    (3N, p) of the current full fit (not refitted on T), the order limits of T's own
+    measured range (the procedure run on T: its range and spacing are what T resolves),
+    and as inner folds T's own fold labels (K - 1 inner folds). The held-out rows enter r
+    only through the full fit's parameters: refitted on T, r_T would change by A_T delta
+    (first order, delta the parameter change), a vector in span(A_T); every figure of the
+    search (held-out sums over inner folds, F-test, determination) regresses on A
+    restricted to the rows it uses, so it is unchanged by adding A_T delta to r_T: the
+    leak is zero to first order (only the curvature of the model, and the columns taken
+    at the full fit, carry the held-out rows). A fold whose rows resolve no order gives
+    () without a warning (`propose_orders` warns for the data as a whole)."""
+    q = ctx.q[:, joint - 1].detach().cpu().numpy()
+    folds = np.asarray(folds)
+    labels = [int(f) for f in np.unique(folds)]
+    lims = {f: order_limits(q[folds != f]) for f in labels}
+    used = [lim for lim in lims.values() if not lim.empty]
+    if not used:
+        return {f: () for f in labels}
+    lo, hi = min(lim.k_min for lim in used), max(lim.k_max for lim in used)
+    C = grid_columns(robot, model, theta, ctx, joint, range(lo, hi + 1))  # every fold's grid at once
+    kw.setdefault("scale", MAX_AMPLITUDE_ARCSEC * ARCSEC)
+    out = {}
+    for f in labels:
+        lim = lims[f]
+        if lim.empty:
+            out[f] = ()
+            continue
+        grid = tuple(range(lim.k_min, lim.k_max + 1))
+        cols = np.arange(2 * (lim.k_min - lo), 2 * (lim.k_max - lo + 1))
+        t3 = np.repeat(folds != f, 3)
+        idx, _, _ = search_orders(r[t3], A[t3], C[t3][:, cols], grid, folds[folds != f], **kw)
+        out[f] = tuple(grid[i] for i in idx)
+    return out
+
+
 def propose_orders(robot, model, theta, ctx, r: np.ndarray, A: np.ndarray, folds: np.ndarray, joint: int,
                    **kw) -> Search:
     """The orders of `joint_periodic:joint` that the residual r (3N,) of `model` at theta
     (base columns A (3N, p), folds (N,) by pose) shows; module doc. Warns when the joint's
     measured range resolves no order."""
-    from torchcal.diagnosis.candidates import all_candidate_columns
-
     q = ctx.q[:, joint - 1].detach().cpu().numpy()
     lim = order_limits(q)
     if lim.empty:
         warnings.warn(f"joint_periodic: {lim.text(joint)}", NarrowRangeWarning, stacklevel=2)
         return Search(joint, (), (), [], [], lim)
     grid = tuple(range(lim.k_min, lim.k_max + 1))
-    key = ("joint_periodic", (joint,))
-    C = all_candidate_columns(robot, model, theta, ctx, [key], {key: (grid,)})[key]
+    C = grid_columns(robot, model, theta, ctx, joint, grid)
     kw.setdefault("scale", MAX_AMPLITUDE_ARCSEC * ARCSEC)  # the effect's plausible size (rad)
     idx, path, ps = search_orders(r, A, C, grid, folds, **kw)
     amps = ()

@@ -8,7 +8,10 @@ candidate, reports
 - rms_mm: the full fit's training distance RMS (the candidate's model refitted from the
   current fit, its new parameters starting at zero);
 - cv_rms_mm: the pose-grouped K-fold CV of that model refitted on the other folds
-  (`torchcal.diagnosis.crossval.refit_cv`), on the same folds for all;
+  (`torchcal.diagnosis.crossval.refit_cv`), on the same folds for all; for a searched
+  candidate (`joint_periodic`), and for any candidate on top of a model so scored, the CV
+  of the whole procedure: each fold refits the orders its training poses' own search
+  finds (`torchcal.diagnosis.procedure_cv`);
 - p-value, accepted and a reason (`torchcal.diagnosis.selection.refit_decision`);
 - held: parameters the identifiability analysis held (unidentifiable), beyond: those that
   ended beyond their plausible size (`torchcal.calibration.plausibility`).
@@ -34,6 +37,7 @@ from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult, fit
 from torchcal.calibration.model import CalibrationModel
 from torchcal.calibration.plausibility import determination, determination_words
 from torchcal.diagnosis.crossval import RefitCV, refit_cv
+from torchcal.diagnosis.procedure_cv import FoldSearches, procedure_cv
 from torchcal.diagnosis.selection import ALPHA, MIN_GAIN, not_better, refit_decision
 from torchcal.effects.spec import parse_specs
 from torchcal.errors import InputError
@@ -58,6 +62,7 @@ class Scored:
     random_only: bool = False  # significant in the pre-screen by its random part only
     k: int = 0  # new identified parameters (beyond the current model's)
     prior_held: list = field(default_factory=list)  # held at nominal: the prior alone set them
+    fold_specs: dict | None = None  # fold -> the effects of that fold's model in cv, when not all `effects`
 
     @property
     def held(self) -> list:
@@ -70,6 +75,8 @@ class Scored:
     def to_dict(self) -> dict:
         out = {"effects": list(self.effects), "rms_mm": self.rms_mm, "cv_rms_mm": self.cv_rms_mm,
                "held": self.held, "held_set_by_prior": list(self.prior_held), "beyond_plausible": self.beyond}
+        if self.fold_specs is not None:
+            out["fold_effects"] = {str(k): list(v) for k, v in self.fold_specs.items()}
         if self.spec:
             out.update(candidate=self.spec, p_value=self.p_value, passed=self.passed, accepted=self.accepted,
                        reason=self.reason)
@@ -164,10 +171,12 @@ def score_step(current: Scored, candidates: list, m, ctx, folds: np.ndarray, *, 
     cross-validate it on the folds (N,) and decide (module doc; level alpha over the
     candidates refitted)."""
     refits = []
+    searches = FoldSearches(current.fit, ctx, folds)  # each joint's fold searches once for the step
 
     def decide(c, random_only, hold=()):
         f = candidate_fit(current.fit, c.spec, m, ctx, sigma_mm=sigma_mm, sigma_deg=sigma_deg, hold=hold)
-        cv = refit_cv(f, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg)
+        cv, fold_specs = procedure_cv(current, f, c.spec, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
+                                      searches=searches)
         ok, p, why = refit_decision(current.cv_rms_mm, current.cv.sq, cv.cv_rms_mm, cv.sq,
                                     n_refits=len(candidates), alpha=alpha, min_gain=min_gain,
                                     random_only=random_only)
@@ -175,17 +184,17 @@ def score_step(current: Scored, candidates: list, m, ctx, folds: np.ndarray, *, 
             ok, why = False, f"fold refit impossible: {cv.error}"
         new = [n for n in f.model.param_names() if n not in current.fit.model.param_names()]
         bad = determination(f, new, ctx) if ok else []
-        return f, cv, ok, p, why, new, bad
+        return f, cv, ok, p, why, new, bad, fold_specs
 
     for c in candidates:
         random_only = c.significant and not c.deterministic
         try:
-            f, cv, ok, p, why, new, bad = decide(c, random_only)
+            f, cv, ok, p, why, new, bad, fold_specs = decide(c, random_only)
             prior_set, held_now = [d["name"] for d in bad if d["why"] == "prior"], []
             if bad and len(prior_set) == len(bad) and len(prior_set) < len([n for n in new if n not in f.report.held]):
                 # some of its parameters only the prior sets (e.g. low harmonics collinear with
                 # a joint offset): held at nominal, the rest refitted and judged once more
-                f, cv, ok, p, why, new, bad = decide(c, random_only, prior_set)
+                f, cv, ok, p, why, new, bad, fold_specs = decide(c, random_only, prior_set)
                 why, held_now = why + f"; held at nominal, the prior alone set them: {', '.join(prior_set)}", prior_set
         except InputError as e:
             refits.append(Scored(current.effects + [c.spec], c.spec, float("inf"), float("inf"),
@@ -197,7 +206,7 @@ def score_step(current: Scored, candidates: list, m, ctx, folds: np.ndarray, *, 
             ok, why = False, f"not determined: none of its parameters is identifiable from these poses ({why})"
         k = sum(1 for n in new if n not in f.report.held)
         refits.append(Scored(f.model.specs(), c.spec, f.rms_mm, cv.cv_rms_mm, f, cv, p, False, why, ok, random_only, k,
-                             held_now))
+                             held_now, fold_specs))
     best = choose(refits)
     if best is not None:
         best.accepted = True

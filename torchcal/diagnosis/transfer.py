@@ -73,7 +73,8 @@ import torch
 
 from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult
 from torchcal.calibration.registration import reregister
-from torchcal.diagnosis.crossval import per_pose, refit_cv
+from torchcal.diagnosis.crossval import per_pose
+from torchcal.diagnosis.procedure_cv import procedure_cv
 from torchcal.diagnosis.selection import MIN_GAIN, REFIT_ALPHA, refit_decision
 from torchcal.diagnosis.stability import part_specs, restricted
 from torchcal.diagnosis.step import Scored, candidate_fit
@@ -271,11 +272,12 @@ class Within:
         """The step `spec` (fitted: f) as the next round's current model: with its refit CV
         on the session's folds; prior_held: the names the prior alone set in the step it
         was cut from (those f still has)."""
-        cv = refit_cv(f, self.m, self.ctx, self.folds, sigma_mm=self.sigma_mm, sigma_deg=self.sigma_deg)
+        cv, fold_specs = procedure_cv(self.current, f, spec, self.m, self.ctx, self.folds, sigma_mm=self.sigma_mm,
+                                      sigma_deg=self.sigma_deg)  # as the step's own refit CV (procedure_cv.py)
         names = f.model.param_names()
         return Scored(f.model.specs(), spec, f.rms_mm, cv.cv_rms_mm, f, cv, accepted=True, passed=True,
                       reason="the joints whose part lowers the other session's error",
-                      prior_held=[n for n in prior_held if n in names])
+                      prior_held=[n for n in prior_held if n in names], fold_specs=fold_specs)
 
 
 def describe_verdict(v: dict) -> list[str]:

@@ -6,9 +6,11 @@ RBF kernel ``k(x, x') = exp(-|x - x'|^2 / (2 l^2))`` on variable features (`vari
 dual weights ``alpha = (K + lam I)^-1 Y`` (`fit_dual`), inputs and hyper-parameters chosen
 by forward selection with pose-grouped block cross-validation (`choose`); all ridges of one
 kernel from one eigendecomposition, held-out block residuals by the block leave-out
-identity ``[(A^-1)_BB]^-1 (A^-1 R)_B`` (`block_cv`, `block_cv_eig`); the kernel of one
-variable is low-rank and `kernel_factor` gives its eigenpairs without an N x N
-eigendecomposition (the method is described in full in `torchcal.diagnosis.probe`).
+identity ``[(A^-1)_BB]^-1 (A^-1 R)_B`` (`block_cv`, `block_cv_eig`; the blocks of one size
+in one batched solve); the kernel of one variable is low-rank and `kernel_factors` gives
+its eigenpairs at every length scale without an N x N eigendecomposition, and a block of
+more rows than the rank p is predicted from p x p systems (ridge regression on the
+factor) instead (the method is described in full in `torchcal.diagnosis.probe`).
 Shapes: rows first, float64; Y (N, k) targets (mm for residuals).
 """
 
@@ -80,9 +82,11 @@ def block_cv(K: torch.Tensor, Y: torch.Tensor, blocks: list, ridges=RIDGES):
 def block_cv_eig(w: torch.Tensor, V: torch.Tensor, Y: torch.Tensor, blocks: list, ridges=RIDGES):
     """`block_cv` of the kernel ``K = V diag(w) V^T``: V (N, p) orthonormal columns, w (p,);
     p < N: the other N - p eigenvalues are zero (a low-rank kernel, `kernel_factor`), so
-    ``A^-1 = V diag(1 / (w + lam) - 1 / lam) V^T + I / lam``."""
+    ``A^-1 = V diag(1 / (w + lam) - 1 / lam) V^T + I / lam``. Blocks of b > p rows are
+    predicted by ridge regression on the features instead (`_held_out_primal`: p x p
+    systems, the same predictions)."""
     lam = torch.as_tensor(ridges, dtype=V.dtype)
-    w = w.clamp_min(0.0)[None, :]
+    w = w.clamp_min(0.0)
     thin = V.shape[1] < V.shape[0]
     d = -w / (lam[:, None] * (w + lam[:, None])) if thin else 1.0 / (w + lam[:, None])  # (R, p)
     alpha = (V[None] * d[:, None, :]) @ (V.T @ Y)  # (R, N, k) = A^-1 Y
@@ -90,12 +94,30 @@ def block_cv_eig(w: torch.Tensor, V: torch.Tensor, Y: torch.Tensor, blocks: list
         alpha = alpha + Y[None] / lam[:, None, None]
     pred = torch.empty_like(alpha)
     for idx in _same_size(blocks):  # (G, b): one batched solve for all blocks of b rows
+        if thin and V.shape[1] < idx.shape[1]:
+            pred[:, idx] = _held_out_primal(V * w.sqrt(), Y, idx, lam)
+            continue
         VB = V[idx]  # (G, b, p)
         QBB = (VB[None] * d[:, None, None, :]) @ VB.transpose(-1, -2)  # (R, G, b, b) = (A^-1)_BB
         if thin:
             QBB.diagonal(dim1=-2, dim2=-1).add_((1.0 / lam)[:, None, None])
         pred[:, idx] = Y[idx][None] - torch.linalg.solve(QBB, alpha[:, idx])
     return pred, alpha
+
+
+def _held_out_primal(Phi: torch.Tensor, Y: torch.Tensor, idx: torch.Tensor, lam: torch.Tensor) -> torch.Tensor:
+    """(R, G, b, k) predictions of the blocks idx (G, b) of the N rows, each from the other
+    rows T, by ridge regression on features Phi (N, p) (the kernel ``Phi Phi^T``):
+    ``Phi_B (Phi_T^T Phi_T + lam I)^-1 Phi_T^T Y_T``, one batched (R, G, p, p) solve; Y (N, k),
+    lam (R,)."""
+    G, N = len(idx), Phi.shape[0]
+    other = torch.ones(G, N, dtype=torch.bool)
+    other[torch.arange(G)[:, None], idx] = False
+    T = torch.arange(N).expand(G, N)[other].reshape(G, -1)  # (G, N - b) the other rows
+    gram = Phi[T].transpose(-1, -2) @ Phi[T]  # (G, p, p)
+    h = Phi[T].transpose(-1, -2) @ Y[T]  # (G, p, k)
+    A = gram[None] + lam[:, None, None, None] * torch.eye(Phi.shape[1], dtype=Phi.dtype)  # (R, G, p, p)
+    return Phi[idx][None] @ torch.linalg.solve(A, h[None].expand(len(lam), -1, -1, -1))
 
 
 def _same_size(blocks: list) -> list:

@@ -4,7 +4,9 @@ as an earlier revision of `torchcal.kernel_ridge` (the machinery it runs on).
 The probe's inputs (variables, residuals, pose ids) are taken from real calls: the probe
 that `diagnose` runs on 240 rows of a plain-numpy simulated session (tests/npsim.py, the
 KR 1000 Titan, a hidden ``gear_periodic:1``, 0.02 mm noise; ``--seeds`` sessions, one per
-seed) and, unless --skip-ur10, the probe that `discover` runs on UR10 series C's training
+seed), probes drawn in numpy with something to learn (``drawn_probe``; ``--drawn`` seeds,
+240 rows: the choice nested in the folds; 900 rows: chosen once on a subsample) and,
+unless --skip-ur10, the probe that `discover` runs on UR10 series C's training
 split (60/40 by pose, seed 0, ``base_frame tool_offset``; 1 664 rows). Each probe then runs
 with the baseline's kernel_ridge (``git show BASELINE:torchcal/kernel_ridge.py``, loaded as
 a module and swapped into the probe) and with the working tree's, alternating, --repeats
@@ -14,7 +16,7 @@ ratio, and the equality of the results: the chosen inputs, length scale and ridg
 (learnable_rms_mm, p_value, relevance), of every choice's CV error and of the held-out
 prediction. The residual stage's `choose` (joint angles only) is compared the same way.
 
-    python benchmarks/bench_probe.py [--baseline ef4d0da] [--repeats 5] [--seeds 0 1 2] [--skip-ur10]
+    python benchmarks/bench_probe.py [--baseline ef4d0da] [--repeats 5] [--seeds 3] [--drawn 0 1 2] [--skip-ur10]
 """
 
 from __future__ import annotations
@@ -81,6 +83,23 @@ def numpy_session_probe(seed: int) -> tuple:
     xyz, payload = physics_session(robot, q.numpy(), seed, ["gear_periodic:1"], noise_mm=0.02)
     m = Measurements(torch.arange(240), q, torch.from_numpy(xyz), torch.from_numpy(payload))
     return captured_probe(lambda: diagnose(robot, m))
+
+
+def drawn_probe(seed: int, rows: int) -> tuple:
+    """Probe inputs drawn in numpy (no robot), with something to learn: six joint angles
+    uniform in +-pi, their approach signs, a payload; residual 0.05 sin(2 q2) along x,
+    0.03 cos(q5) payload / 10 kg along y, 0.03 mm x approach_q3 along z, and 0.03 mm noise
+    per axis; one row per pose."""
+    g = np.random.default_rng(seed)
+    q = g.uniform(-np.pi, np.pi, size=(rows, 6))
+    values = {f"q{j + 1}": q[:, j] for j in range(6)}
+    values |= {f"approach_q{j + 1}": np.sign(g.normal(size=rows)) for j in range(6)}
+    values["payload_kg"] = g.uniform(0.0, 10.0, rows)
+    r = 0.03 * g.normal(size=(rows, 3))
+    r[:, 0] += 0.05 * np.sin(2 * q[:, 1])
+    r[:, 1] += 0.03 * np.cos(q[:, 4]) * values["payload_kg"] / 10.0
+    r[:, 2] += 0.03 * values["approach_q3"]
+    return (values, r, np.arange(rows)), {"seed": seed}
 
 
 def ur10_probe() -> tuple:
@@ -159,7 +178,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--baseline", default="ef4d0da", help="git revision of the kernel_ridge to compare with")
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--seeds", type=int, nargs="+", default=[3])
+    ap.add_argument("--seeds", type=int, nargs="*", default=[3])
+    ap.add_argument("--drawn", type=int, nargs="*", default=[0, 1, 2],
+                    help="seeds of the numpy-drawn probes with something to learn (240 and 900 rows each)")
     ap.add_argument("--skip-ur10", action="store_true")
     args = ap.parse_args()
     torch.set_num_threads(1)
@@ -167,6 +188,9 @@ def main() -> None:
 
     old_kr = baseline_module(args.baseline)
     cases = {f"diagnose, numpy session seed {s} (240 rows)": numpy_session_probe(s) for s in args.seeds}
+    for s in args.drawn:
+        for rows in (240, 900):
+            cases[f"numpy draws with something to learn, seed {s} ({rows} rows)"] = drawn_probe(s, rows)
     if not args.skip_ur10:
         cases["discover, UR10 C training split (1664 rows)"] = ur10_probe()
     print(f"load {tuple(round(x, 2) for x in os.getloadavg())}; one torch thread; baseline {args.baseline}; "

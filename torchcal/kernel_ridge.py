@@ -6,13 +6,17 @@ RBF kernel ``k(x, x') = exp(-|x - x'|^2 / (2 l^2))`` on variable features (`vari
 dual weights ``alpha = (K + lam I)^-1 Y`` (`fit_dual`), inputs and hyper-parameters chosen
 by forward selection with pose-grouped block cross-validation (`choose`); all ridges of one
 kernel from one eigendecomposition, held-out block residuals by the block leave-out
-identity ``[(A^-1)_BB]^-1 (A^-1 R)_B`` (`block_cv`, `block_cv_eig`); the kernel of one
-variable is low-rank and `kernel_factor` gives its eigenpairs without an N x N
-eigendecomposition (the method is described in full in `torchcal.diagnosis.probe`).
+identity ``[(A^-1)_BB]^-1 (A^-1 R)_B`` (`block_cv`, `block_cv_eig`; the blocks of one size
+in one batched solve); the kernel of one variable is low-rank and `kernel_factors` gives
+its eigenpairs at every length scale without an N x N eigendecomposition, and a block of
+more rows than the rank p is predicted from p x p systems (ridge regression on the
+factor) instead (the method is described in full in `torchcal.diagnosis.probe`).
 Shapes: rows first, float64; Y (N, k) targets (mm for residuals).
 """
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 import torch
@@ -55,9 +59,14 @@ def _sqdist(A: torch.Tensor, B: torch.Tensor) -> torch.Tensor:
     return torch.cdist(A, B, compute_mode="donot_use_mm_for_euclid_dist").pow(2)
 
 
+def _gauss(D: torch.Tensor, length_scale: float) -> torch.Tensor:
+    """The RBF kernel exp(-D / (2 l^2)) of squared distances D (any shape)."""
+    return torch.exp(-D / (2.0 * length_scale ** 2))
+
+
 def rbf(A: torch.Tensor, B: torch.Tensor, length_scale: float) -> torch.Tensor:
     """(M, N) RBF kernel exp(-|a - b|^2 / (2 l^2)) of rows A (M, d), B (N, d)."""
-    return torch.exp(-_sqdist(A, B) / (2.0 * length_scale ** 2))
+    return _gauss(_sqdist(A, B), length_scale)
 
 
 def block_cv(K: torch.Tensor, Y: torch.Tensor, blocks: list, ridges=RIDGES):
@@ -73,22 +82,48 @@ def block_cv(K: torch.Tensor, Y: torch.Tensor, blocks: list, ridges=RIDGES):
 def block_cv_eig(w: torch.Tensor, V: torch.Tensor, Y: torch.Tensor, blocks: list, ridges=RIDGES):
     """`block_cv` of the kernel ``K = V diag(w) V^T``: V (N, p) orthonormal columns, w (p,);
     p < N: the other N - p eigenvalues are zero (a low-rank kernel, `kernel_factor`), so
-    ``A^-1 = V diag(1 / (w + lam) - 1 / lam) V^T + I / lam``."""
+    ``A^-1 = V diag(1 / (w + lam) - 1 / lam) V^T + I / lam``. Blocks of b > p rows are
+    predicted by ridge regression on the features instead (`_held_out_primal`: p x p
+    systems, the same predictions)."""
     lam = torch.as_tensor(ridges, dtype=V.dtype)
-    w = w.clamp_min(0.0)[None, :]
+    w = w.clamp_min(0.0)
     thin = V.shape[1] < V.shape[0]
     d = -w / (lam[:, None] * (w + lam[:, None])) if thin else 1.0 / (w + lam[:, None])  # (R, p)
     alpha = (V[None] * d[:, None, :]) @ (V.T @ Y)  # (R, N, k) = A^-1 Y
     if thin:
         alpha = alpha + Y[None] / lam[:, None, None]
     pred = torch.empty_like(alpha)
-    for B in blocks:
-        VB = V[B]  # (b, p)
-        QBB = (VB[None] * d[:, None, :]) @ VB.T  # (R, b, b) = (A^-1)_BB
+    for idx in _same_size(blocks):  # (G, b): one batched solve for all blocks of b rows
+        if thin and V.shape[1] < idx.shape[1]:
+            pred[:, idx] = _held_out_primal(V * w.sqrt(), Y, idx, lam)
+            continue
+        VB = V[idx]  # (G, b, p)
+        QBB = (VB[None] * d[:, None, None, :]) @ VB.transpose(-1, -2)  # (R, G, b, b) = (A^-1)_BB
         if thin:
-            QBB = QBB + torch.diag_embed((1.0 / lam)[:, None].expand(-1, len(B)))
-        pred[:, B] = Y[B][None] - torch.linalg.solve(QBB, alpha[:, B])
+            QBB.diagonal(dim1=-2, dim2=-1).add_((1.0 / lam)[:, None, None])
+        pred[:, idx] = Y[idx][None] - torch.linalg.solve(QBB, alpha[:, idx])
     return pred, alpha
+
+
+def _held_out_primal(Phi: torch.Tensor, Y: torch.Tensor, idx: torch.Tensor, lam: torch.Tensor) -> torch.Tensor:
+    """(R, G, b, k) predictions of the blocks idx (G, b) of the N rows, each from the other
+    rows T, by ridge regression on features Phi (N, p) (the kernel ``Phi Phi^T``):
+    ``Phi_B (Phi_T^T Phi_T + lam I)^-1 Phi_T^T Y_T``, one batched (R, G, p, p) solve; Y (N, k),
+    lam (R,)."""
+    G, N = len(idx), Phi.shape[0]
+    other = torch.ones(G, N, dtype=torch.bool)
+    other[torch.arange(G)[:, None], idx] = False
+    T = torch.arange(N).expand(G, N)[other].reshape(G, -1)  # (G, N - b) the other rows
+    gram = Phi[T].transpose(-1, -2) @ Phi[T]  # (G, p, p)
+    h = Phi[T].transpose(-1, -2) @ Y[T]  # (G, p, k)
+    A = gram[None] + lam[:, None, None, None] * torch.eye(Phi.shape[1], dtype=Phi.dtype)  # (R, G, p, p)
+    return Phi[idx][None] @ torch.linalg.solve(A, h[None].expand(len(lam), -1, -1, -1))
+
+
+def _same_size(blocks: list) -> list:
+    """The blocks (index tensors) stacked by size: [(G, b) long tensor], one per size b."""
+    sizes = sorted({len(B) for B in blocks})
+    return [torch.stack([B for B in blocks if len(B) == b]) for b in sizes]
 
 
 #: a kernel factor keeps the terms down to this share of the kernel's diagonal.
@@ -97,9 +132,10 @@ FACTOR_TOL = 1e-12
 FACTOR_VALUES = 64
 
 
-def kernel_factor(x: torch.Tensor, length_scale: float, angle: bool):
-    """(w (p,), V (N, p)): the nonzero eigenpairs of the RBF kernel of one variable's
-    inputs x (N, d), found without an N x N eigendecomposition, or None (no such way).
+def kernel_factors(x: torch.Tensor, length_scales, angle: bool) -> list:
+    """[(w (p,), V (N, p)) or None for each length scale]: the nonzero eigenpairs of the RBF
+    kernel of one variable's inputs x (N, d), found without an N x N eigendecomposition, or
+    None (no such way).
 
     - at most FACTOR_VALUES distinct rows u: ``K = E C E^T`` with E (N, u) the rows'
       indicators and C (u, u) the kernel of the distinct rows (exact);
@@ -108,25 +144,46 @@ def kernel_factor(x: torch.Tensor, length_scale: float, angle: bool):
       e^(-1/l^2)`` (the von Mises series), features ``sqrt(c_n) (cos n q, sin n q)``,
       truncated where c_n < FACTOR_TOL c_0 (the dropped terms sum to about that share of
       the diagonal, 1).
-    The eigenpairs come from a thin SVD of the (N, p) factor, p << N."""
-    import scipy.special
-
+    The eigenpairs come from a thin SVD of the (N, p) factor, p << N. The distinct rows
+    (and the angles) do not depend on the length scale: they are found once."""
     uniq, inv = torch.unique(x, dim=0, return_inverse=True)
     if len(uniq) <= FACTOR_VALUES:
-        c, U = torch.linalg.eigh(rbf(uniq, uniq, length_scale))
-        F = U[inv] * c.clamp_min(0.0).sqrt()
+        D = _sqdist(uniq, uniq)  # (u, u)
+        factors = []
+        for ell in length_scales:
+            c, U = torch.linalg.eigh(_gauss(D, ell))
+            factors.append(U[inv] * c.clamp_min(0.0).sqrt())
     elif angle:
-        kappa = 1.0 / length_scale ** 2
-        n = np.arange(0, 4 * int(np.sqrt(kappa) * 8 + 8))
-        c = scipy.special.ive(n, kappa) * np.where(n > 0, 2.0, 1.0)
-        n = n[c >= FACTOR_TOL * c[0]]
-        if 2 * len(n) - 1 >= x.shape[0]:
-            return None
-        q = torch.atan2(x[:, 0], x[:, 1])[:, None] * torch.from_numpy(n[1:].astype(np.float64))
-        sq = torch.from_numpy(np.sqrt(c[n]))
-        F = torch.cat([sq[:1].expand(len(x), 1), torch.cos(q) * sq[1:], torch.sin(q) * sq[1:]], -1)
+        q = torch.atan2(x[:, 0], x[:, 1])[:, None]  # (N, 1) rad
+        factors = [_von_mises_features(q, ell) for ell in length_scales]
     else:
+        return [None] * len(length_scales)
+    return [None if F is None else _eigenpairs(F) for F in factors]
+
+
+def kernel_factor(x: torch.Tensor, length_scale: float, angle: bool):
+    """`kernel_factors` at one length scale: (w (p,), V (N, p)) or None."""
+    return kernel_factors(x, (length_scale,), angle)[0]
+
+
+def _von_mises_features(q: torch.Tensor, length_scale: float):
+    """(N, p) features ``sqrt(c_n) (1, cos n q, sin n q)`` of the angle kernel (`kernel_factors`)
+    of angles q (N, 1) rad, or None when p would not be below N."""
+    import scipy.special
+
+    kappa = 1.0 / length_scale ** 2
+    n = np.arange(0, 4 * int(np.sqrt(kappa) * 8 + 8))
+    c = scipy.special.ive(n, kappa) * np.where(n > 0, 2.0, 1.0)
+    n = n[c >= FACTOR_TOL * c[0]]
+    if 2 * len(n) - 1 >= q.shape[0]:
         return None
+    nq = q * torch.from_numpy(n[1:].astype(np.float64))  # (N, len(n) - 1)
+    sq = torch.from_numpy(np.sqrt(c[n]))
+    return torch.cat([sq[:1].expand(len(q), 1), torch.cos(nq) * sq[1:], torch.sin(nq) * sq[1:]], -1)
+
+
+def _eigenpairs(F: torch.Tensor):
+    """(w (p,), V (N, p)): the nonzero eigenpairs of ``F F^T`` of a factor F (N, p), thin SVD."""
     U, S, _ = torch.linalg.svd(F, full_matrices=False)
     keep = S > S.amax() * 1e-10 if len(S) else S > 0
     return S[keep] ** 2, U[:, keep]
@@ -159,15 +216,15 @@ def choose(feats: dict, candidates: list, Y: torch.Tensor, fold: np.ndarray, row
     fr = fold[rows]
     blocks = [torch.from_numpy(np.flatnonzero(fr == g)) for g in np.unique(fr)]
     x = {k: torch.from_numpy(feats[k])[R] for k in candidates}
-    d2 = {k: _sqdist(v, v) for k, v in x.items()}
+    d2 = functools.cache(lambda k: _sqdist(x[k], x[k]))  # (n, n) squared distances of variable k
 
     def score(names, scales):
-        D = sum(d2[k] for k in names)
+        factors = (kernel_factors(x[names[0]], scales, feats[names[0]].shape[1] == 2) if len(names) == 1
+                   else [None] * len(scales))
+        D = sum(d2(k) for k in names) if any(f is None for f in factors) else None  # (n, n)
         out = None
-        for ell in scales:
-            factor = kernel_factor(x[names[0]], ell, feats[names[0]].shape[1] == 2) if len(names) == 1 else None
-            pred, _ = (block_cv_eig(*factor, Yr, blocks) if factor is not None else
-                       block_cv(torch.exp(-D / (2.0 * ell ** 2)), Yr, blocks))
+        for ell, factor in zip(scales, factors):
+            pred, _ = block_cv_eig(*factor, Yr, blocks) if factor is not None else block_cv(_gauss(D, ell), Yr, blocks)
             mse = (pred - Yr[None]).pow(2).sum(-1).mean(-1)
             i = int(mse.argmin())
             if out is None or float(mse[i]) < out[0]:

@@ -21,8 +21,9 @@ poses (`Probe.tested`), which the choice never saw. All ridges of one (inputs, l
 training set) come from one eigendecomposition K = V diag(w) V^T: the held-out residual
 of a block B of rows is exactly ``[(A^-1)_BB]^-1 (A^-1 R)_B`` with A = K + lam I (the
 block leave-out identity of Gaussian-process regression), A^-1 = V diag(1 / (w + lam)) V^T.
-The kernel of one variable is low-rank, and `kernel_factor` gives its nonzero eigenpairs
-without an N x N eigendecomposition.
+The kernel of one variable is low-rank, and `kernel_factors` gives its nonzero eigenpairs
+without an N x N eigendecomposition; a block of more rows than their number p is
+predicted by ridge regression on them (p x p systems, the same prediction).
 
 Figures:
 - learnable_rms_mm: ``sqrt(rms^2 - mean_i g_i)``, g_i = |r_i|^2 - |r_i - r_hat_i|^2 the

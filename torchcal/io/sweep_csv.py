@@ -98,14 +98,11 @@ def read_sweep(path, device=None, prismatic=None, robot=None) -> SweepResult:
     bad header, a ragged row, a non-numeric or non-finite value, or an R_set outside [0, 1].
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: sweep CSV does not exist")
+    record = sweep_record(path)
     try:
         with open(path, newline="") as fh:
-            first = fh.readline()
-            record = _record(first, path) if first.startswith(("#", '"#')) else None
-            if record is None:
-                fh.seek(0)
+            if record is not None:
+                fh.readline()  # the record line, read by sweep_record
             rows = list(csv.reader(fh))
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: not a text CSV file ({exc})") from None

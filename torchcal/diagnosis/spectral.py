@@ -130,10 +130,11 @@ def _pinv_parts(X: np.ndarray):
 
 def _pair_grams(D: np.ndarray) -> np.ndarray:
     """(K, 2, 2) the Gram matrix of each pair of columns of D (T, K, 2): sum over t of
-    D[t, k, a] D[t, k, b] (einsum "tka,tkb->kab", by three column products: several
-    times faster than numpy's einsum on these shapes)."""
+    D[t, k, a] D[t, k, b] (einsum "tka,tkb->kab", as three einsums "tk,tk->k" of column
+    pairs: several times faster than the one einsum, 2.5x faster than the products summed,
+    with no (T, K) temporaries)."""
     d0, d1 = D[..., 0], D[..., 1]
-    g00, g01, g11 = (d0 * d0).sum(0), (d0 * d1).sum(0), (d1 * d1).sum(0)
+    g00, g01, g11 = (np.einsum("tk,tk->k", a, b) for a, b in ((d0, d0), (d0, d1), (d1, d1)))
     return np.stack([np.stack([g00, g01], -1), np.stack([g01, g11], -1)], -2)
 
 
@@ -197,7 +198,8 @@ class _Projected:
         return out
 
     def extended(self, pair: np.ndarray) -> "_Projected":
-        """The same with the columns pair (3N, 2) added to X (`_extend_basis`)."""
+        """The same with the columns pair (3N, 2) added to X (`_extend_basis`). DT and DV
+        are updated in place (shared with the result: this one is not used after)."""
         t, v = self.t, ~self.t
         Q, QV, R = _extend_basis(self.BT, self.BV, self.R, pair[t], pair[v])
         a = Q.T @ self.eT
@@ -205,7 +207,9 @@ class _Projected:
                          self.eT - Q @ a, self.eV - QV @ a)
         if self.DT is not None:
             P = Q.T @ self.DT
-            out.DT, out.DV = self.DT - Q @ P, self.DV - QV @ P
+            self.DT -= Q @ P
+            self.DV -= QV @ P
+            out.DT, out.DV = self.DT, self.DV
         return out
 
     def sums(self):
@@ -214,10 +218,11 @@ class _Projected:
         K = self.DT.shape[1] // 2
         DT, DV = self.DT.reshape(-1, K, 2), self.DV.reshape(-1, K, 2)
         G = _pair_grams(DT) + 1e-12 * np.eye(2)
-        beta = np.linalg.solve(G, np.einsum("tka,t->ka", DT, self.eT)[..., None])[..., 0]  # (K, 2)
+        b = (self.eT @ self.DT).reshape(K, 2, 1)  # D^T e of each pair
+        beta = np.linalg.solve(G, b)[..., 0]  # (K, 2)
         pred = DV[..., 0] * beta[:, 0] + DV[..., 1] * beta[:, 1]  # (V, K)
         eV = self.eV
-        return float(eV @ eV), (eV @ eV) - 2 * (eV @ pred) + (pred * pred).sum(0)
+        return float(eV @ eV), (eV @ eV) - 2 * (eV @ pred) + np.einsum("vk,vk->k", pred, pred)
 
 
 def held_out_sums(r: np.ndarray, X: np.ndarray, C: np.ndarray, rows: np.ndarray):

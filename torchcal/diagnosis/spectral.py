@@ -170,8 +170,9 @@ class _Projected:
 
     BT (T, m), BV (V, m): X's orthonormal training basis and its held-out combinations
     (`_extend_basis`); R (m, p) = BT^T X_T; eT (T,), eV (V,): r minus its fit on X (the
-    fit's coefficients from the training rows); DT (T, 2K), DV (V, 2K): the same for each
-    column of C (None when not needed)."""
+    fit's coefficients from the training rows). With C (None when not needed): Ct (T, 2K)
+    C's training rows; of D = C minus its fit on X, G (K, 2, 2) the Gram matrix of each
+    pair's training rows, b (K, 2) their products with eT, DV (V, 2K) the held-out rows."""
 
     t: np.ndarray
     BT: np.ndarray
@@ -179,7 +180,9 @@ class _Projected:
     R: np.ndarray
     eT: np.ndarray
     eV: np.ndarray
-    DT: np.ndarray | None = None
+    Ct: np.ndarray | None = None
+    G: np.ndarray | None = None
+    b: np.ndarray | None = None
     DV: np.ndarray | None = None
 
     @classmethod
@@ -194,32 +197,35 @@ class _Projected:
         if C is not None:
             Ct = C[t]
             P = BT.T @ Ct
-            out.DT, out.DV = Ct - BT @ P, C[v] - BV @ P
+            DT = Ct - BT @ P
+            out.Ct, out.DV = Ct, C[v] - BV @ P
+            out.G, out.b = _pair_grams(DT.reshape(len(DT), -1, 2)), (out.eT @ DT).reshape(-1, 2)
         return out
 
     def extended(self, pair: np.ndarray) -> "_Projected":
-        """The same with the columns pair (3N, 2) added to X (`_extend_basis`). DT and DV
-        are updated in place (shared with the result: this one is not used after)."""
+        """The same with the columns pair (3N, 2) added to X (`_extend_basis`). The new
+        directions Q (T, k) are orthonormal and orthogonal to BT, so with P = Q^T Ct
+        (= Q^T D) and a = Q^T eT: D_T - Q P, eT - Q a, and the pairs' G - P^T P, b - P^T a
+        (no pass over D's training rows)."""
         t, v = self.t, ~self.t
         Q, QV, R = _extend_basis(self.BT, self.BV, self.R, pair[t], pair[v])
         a = Q.T @ self.eT
         out = _Projected(t, np.hstack([self.BT, Q]), np.hstack([self.BV, QV]), R,
                          self.eT - Q @ a, self.eV - QV @ a)
-        if self.DT is not None:
-            P = Q.T @ self.DT
-            self.DT -= Q @ P
-            self.DV -= QV @ P
-            out.DT, out.DV = self.DT, self.DV
+        if self.Ct is not None:
+            P = Q.T @ self.Ct  # (k, 2K)
+            Pk = P.reshape(len(P), -1, 2)
+            out.Ct, out.DV = self.Ct, self.DV - QV @ P
+            out.G = self.G - np.einsum("jka,jkb->kab", Pk, Pk)
+            out.b = self.b - np.einsum("jka,j->ka", Pk, a)
         return out
 
     def sums(self):
         """Held-out sum of squares of r on X alone (float) and on [X, pair k] for every
         pair of C's columns (K,), the pair's coefficients fitted on the training rows."""
-        K = self.DT.shape[1] // 2
-        DT, DV = self.DT.reshape(-1, K, 2), self.DV.reshape(-1, K, 2)
-        G = _pair_grams(DT) + 1e-12 * np.eye(2)
-        b = (self.eT @ self.DT).reshape(K, 2, 1)  # D^T e of each pair
-        beta = np.linalg.solve(G, b)[..., 0]  # (K, 2)
+        K = len(self.G)
+        DV = self.DV.reshape(-1, K, 2)
+        beta = np.linalg.solve(self.G + 1e-12 * np.eye(2), self.b[..., None])[..., 0]  # (K, 2)
         pred = DV[..., 0] * beta[:, 0] + DV[..., 1] * beta[:, 1]  # (V, K)
         eV = self.eV
         return float(eV @ eV), (eV @ eV) - 2 * (eV @ pred) + np.einsum("vk,vk->k", pred, pred)

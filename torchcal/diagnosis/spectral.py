@@ -12,6 +12,8 @@ range resolves and keeps those that predict held-out poses (`search_orders`):
    the residual r on the other folds and predicted on the held-out one. With X's training
    pseudo-inverse applied to r and to all of C at once, each order's fit is a batched 2x2
    solve; the held-out sums of squares of all K orders come from a few matrix products.
+   As X grows by the pair chosen, each fold's basis of X and the projections are
+   updated by the pair's new directions (`_extend_basis`, `_Projected`), not recomputed.
 3. The order with the smallest held-out sum of squares is added when it cuts the held-out
    RMS by at least `MIN_ORDER_GAIN` and its F-test on all training rows (2 new columns
    beyond X) passes ``alpha / K`` (Bonferroni over the grid); repeat from 2 with it in X,

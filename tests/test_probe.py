@@ -26,7 +26,7 @@ def test_kernel_factor_gives_the_held_out_predictions_of_the_full_kernel(name):
     Y = torch.from_numpy(g.normal(size=(n, 3)))
     blocks = blocks_of(n)
     for ell in KR.LENGTH_SCALES:
-        w, V = KR.kernel_factor(x, ell, angle=name == "q1")
+        w, V = KR.kernel_factors(x, (ell,), angle=name == "q1")[0]
         assert V.shape[1] < n  # low rank: no N x N eigendecomposition
         K = KR.rbf(x, x, ell).numpy()
         np.testing.assert_allclose((V * w) @ V.T, K, atol=1e-9)
@@ -44,7 +44,7 @@ def test_kernel_factor_gives_the_held_out_predictions_of_the_full_kernel(name):
 
 def test_kernel_factor_declines_a_continuous_non_angle_variable():
     x = torch.from_numpy(np.random.default_rng(3).normal(size=(200, 1)))
-    assert KR.kernel_factor(x, 0.4, angle=False) is None
+    assert KR.kernel_factors(x, (0.4,), angle=False)[0] is None
 
 
 @pytest.fixture(scope="module")

@@ -81,7 +81,7 @@ def block_cv(K: torch.Tensor, Y: torch.Tensor, blocks: list, ridges=RIDGES):
 
 def block_cv_eig(w: torch.Tensor, V: torch.Tensor, Y: torch.Tensor, blocks: list, ridges=RIDGES):
     """`block_cv` of the kernel ``K = V diag(w) V^T``: V (N, p) orthonormal columns, w (p,);
-    p < N: the other N - p eigenvalues are zero (a low-rank kernel, `kernel_factor`), so
+    p < N: the other N - p eigenvalues are zero (a low-rank kernel, `kernel_factors`), so
     ``A^-1 = V diag(1 / (w + lam) - 1 / lam) V^T + I / lam``. Blocks of b > p rows are
     predicted by ridge regression on the features instead (`_held_out_primal`: p x p
     systems, the same predictions)."""
@@ -159,11 +159,6 @@ def kernel_factors(x: torch.Tensor, length_scales, angle: bool) -> list:
     else:
         return [None] * len(length_scales)
     return [None if F is None else _eigenpairs(F) for F in factors]
-
-
-def kernel_factor(x: torch.Tensor, length_scale: float, angle: bool):
-    """`kernel_factors` at one length scale: (w (p,), V (N, p)) or None."""
-    return kernel_factors(x, (length_scale,), angle)[0]
 
 
 def _von_mises_features(q: torch.Tensor, length_scale: float):

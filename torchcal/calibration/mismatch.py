@@ -135,6 +135,13 @@ class Mismatch:
     fix: tuple | None = None  # (keyword, value) of `InputError.fix`
 
 
+def _listed(values, most: int = 10) -> str:
+    """The first `most` values, comma-separated, with " ..." when there are more (a row or
+    id list in a one-line message)."""
+    values = list(values)
+    return ", ".join(map(str, values[:most])) + (" ..." if len(values) > most else "")
+
+
 def bound_mm(training_rms_mm: float | None) -> float:
     """The plausible error bound B, mm (module docstring)."""
     if training_rms_mm is None or not math.isfinite(training_rms_mm):
@@ -356,7 +363,7 @@ def check_targets(model, theta: torch.Tensor, targets: torch.Tensor, where: str 
                          fix=("length_unit", "m") if metres else None)
     far = (dist > REACH_MARGIN * reach).nonzero().flatten().tolist()
     if far:
-        rows = ", ".join(str(i + 1) for i in far[:10]) + (" ..." if len(far) > 10 else "")
+        rows = _listed(i + 1 for i in far)
         warnings.warn(f"{where}: {len(far)} target(s) lie beyond the reach of {model.robot.name} ({reach:.4g} mm "
                       f"from the base; up to {float(dist.max()):.4g} mm): row(s) {rows}; another robot, "
                       "another frame (targets are in the model's frame) or units?", MismatchWarning, stacklevel=2)
@@ -391,7 +398,7 @@ def check_seeds(seed_points: torch.Tensor, targets: torch.Tensor, q0: torch.Tens
                          f"q1..q{robot.n} look like radians read as degrees", fix=("angle_unit", "rad"))
     far = [i for i in (d > SEED_MM).nonzero().flatten().tolist() if i not in set(skip)]
     if far:
-        rows = ", ".join(str(i + 1) for i in far[:10]) + (" ..." if len(far) > 10 else "")
+        rows = _listed(i + 1 for i in far)
         warnings.warn(f"{where}: {len(far)} seed(s) lie more than {SEED_MM:g} mm from their targets (the model at "
                       f"the seed; up to {float(d.max()):.4g} mm): row(s) {rows}; a seed is the target's nominal "
                       "command: the solution may lie in another arm configuration", MismatchWarning, stacklevel=2)
@@ -663,7 +670,7 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
             if robust:
                 return None
             far = (~keep).nonzero().flatten().tolist()
-            ids = ", ".join(str(int(m.pose[i])) for i in far[:10]) + (" ..." if len(far) > 10 else "")
+            ids = _listed(int(m.pose[i]) for i in far)
             return result("outliers", f"{what}: {n_far} of {n} rows (pose ids {ids}) lie {float(d[~keep].min()):.4g}"
                           f" to {float(d.max()):.4g} mm off the nominal {name} in its best frame while the others "
                           f"agree to rms {inlier_rms:.4g} mm: gross outliers (mis-typed or corrupted rows) would "

@@ -1,16 +1,21 @@
 """Tensor FCM (torchcal.partition.fcm) against scikit-fuzzy's cmeans, same data, same start.
 
     python benchmarks/bench_fcm.py [--n 1000000] [--iters 10] [--eps 0] [--repeats 3] [--threads 2]
+                                   [--baseline OLD_FCM.py]
 
 1e6 points in 1-D and 3-D (4 Gaussian blobs), c = 4, m = 2, float64, the same initial
 memberships for both, a fixed number of iterations for both (eps = 0 / error = 0 never
 stop early); with --eps > 0 both run until their stopping rule ||U(t+1) - U(t)|| < eps
 fires (at most --iters iterations) and both iteration counts are printed (torchcal skips
 the norm while it cannot fire, and with eps = 0 never computes it: --eps 1e-6 times the
-norm too). Both run on the same cores: torch with `torch.set_num_threads(threads)`,
-numpy/BLAS limited to the same count. Prints the median (and min) wall time of `repeats`
-runs, the median CPU seconds of the process (all its threads; on a shared machine the
-figure to compare at 1 thread), iterations per second, the speed ratios by wall and by CPU
+norm too). Both run on the same cores: torchcal with `threads` workers (TORCHCAL_THREADS:
+its chunks on worker threads, one torch thread each), numpy/BLAS limited to the same count.
+With --baseline, a copy of an earlier torchcal/partition/fcm.py (e.g. `git show
+REV:torchcal/partition/fcm.py > /tmp/fcm_old.py`) is timed in the same run, its ops on
+`torch.set_num_threads(threads)` as that code ran them, and compared bit for bit.
+Prints the median (and min) wall time of `repeats` runs (the contenders alternately), the
+median CPU seconds of the process (all its threads; on a shared machine the figure to
+compare at 1 thread), iterations per second, the speed ratios by wall and by CPU
 time, and how far apart the two results are.
 
 Then, for torch on one thread, what bounds an iteration: its CPU time per point (the
@@ -41,13 +46,13 @@ def bytes_per_point(c: int, d: int) -> tuple:
     (bytes through the L2 cache outside the division passes, bytes in the division passes,
     divisions, ops per chunk). The ops on a chunk of n points, each reading and writing
     (c, n) float64 buffers: d = 1: x - v (writes 8c; x itself comes from memory), 1/d^2
-    (division pass: 16c); d > 1: x_1 - v, its square, and per further feature x_k - v and
-    addcmul (8c + 16c + (d-1)(8c + 24c)), 1/d^2 (division pass: 16c); then S = sum over
+    (division pass: 16c); d > 1: (x_1 - v)^2 in one pass, and per further feature x_k - v
+    and addcmul (8c + (d-1)(8c + 24c)), 1/d^2 (division pass: 16c); then S = sum over
     the clusters (8c + 8), 1/S (division pass: 16), the check dot(S, 1/S) (16), u = w/S
     (16c + 8), u^2 (16c), and d + 1 matrix-vector products for eq. 27 (8c + 8 each)."""
-    dist = 8 * c if d == 1 else 24 * c + (d - 1) * 32 * c
+    dist = 8 * c if d == 1 else 8 * c + (d - 1) * 32 * c
     rest = (8 * c + 8) + 16 + (16 * c + 8) + 16 * c + (d + 1) * (8 * c + 8)
-    ops = (2 if d == 1 else 2 * d + 1) + 5 + (d + 1)
+    ops = (2 if d == 1 else 2 * d) + 5 + (d + 1)
     return dist + rest, 16 * c + 16, c + 1, ops
 
 
@@ -81,8 +86,9 @@ def main(argv=None) -> int:
     ap.add_argument("--eps", type=float, default=0.0, help="stopping tolerance, same for both (default 0: run --iters)")
     ap.add_argument("--repeats", type=int, default=3, help="timed runs per method, median reported (default 3)")
     ap.add_argument("--threads", type=int, default=2, help="CPU threads (default 2)")
+    ap.add_argument("--baseline", default=None, help="an earlier fcm.py to time beside (same run)")
     args = ap.parse_args(argv)
-    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "TORCHCAL_THREADS"):
         os.environ[var] = str(args.threads)
 
     import numpy as np
@@ -91,6 +97,15 @@ def main(argv=None) -> int:
 
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
     from torchcal.partition.fcm import fcm
+
+    fcm_base = None
+    if args.baseline:
+        import importlib.util
+
+        spec = importlib.util.spec_from_file_location("fcm_baseline", args.baseline)
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        fcm_base = mod.fcm
 
     torch.set_num_threads(args.threads)
     c, m, K = 4, 2.0, args.iters
@@ -120,6 +135,10 @@ def main(argv=None) -> int:
             res = fcm(xt, c, m=m, eps=args.eps, max_iter=K, init_u=u0t)
             return res.centers.numpy(), res.memberships.numpy(), res.n_iter
 
+        def run_base():
+            res = fcm_base(xt, c, m=m, eps=args.eps, max_iter=K, init_u=u0t)
+            return res.centers.numpy(), res.memberships.numpy(), res.n_iter
+
         if args.threads == 1:
             def run_torch_1():
                 return fcm(xt, c, m=m, eps=0.0, max_iter=1, init_u=u0t)
@@ -137,23 +156,33 @@ def main(argv=None) -> int:
                     ts.append(time.process_time() - c0)
                 cpu[name] = statistics.median(ts)
             bounds.append((d, (cpu["K"] - cpu["1"]) / (KB - 1) / args.n * 1e9))
-        times = {}
+        contenders = [("torchcal.partition.fcm (torch)", run_torch), ("skfuzzy.cluster.cmeans", run_skfuzzy)]
+        if fcm_base is not None:
+            contenders.insert(1, ("baseline", run_base))
+        times = {name: ([], []) for name, _ in contenders}
         out = {}
-        for name, fn in (("torchcal.partition.fcm (torch)", run_torch), ("skfuzzy.cluster.cmeans", run_skfuzzy)):
+        for name, fn in contenders:
             fn()  # warm-up (allocator, threads)
-            ts, cs = [], []
-            for _ in range(args.repeats):
+        for _ in range(args.repeats):  # the contenders alternately, so the load moves them alike
+            for name, fn in contenders:
                 t0, c0 = time.perf_counter(), time.process_time()
                 out[name] = fn()
-                ts.append(time.perf_counter() - t0)
-                cs.append(time.process_time() - c0)
-            times[name] = (statistics.median(ts), min(ts), statistics.median(cs))
+                times[name][0].append(time.perf_counter() - t0)
+                times[name][1].append(time.process_time() - c0)
+        times = {name: (statistics.median(ts), min(ts), statistics.median(cs)) for name, (ts, cs) in times.items()}
         (ct, ut, it_t), (cs, us, it_s) = out["torchcal.partition.fcm (torch)"], out["skfuzzy.cluster.cmeans"]
         agree = f"max|dV| {np.abs(ct - cs).max():.1e}, max|dU| {np.abs(ut - us).max():.1e}, iterations {it_t} / {it_s}"
         n_it = {"torchcal.partition.fcm (torch)": it_t, "skfuzzy.cluster.cmeans": it_s}
+        notes = {"torchcal.partition.fcm (torch)": agree, "skfuzzy.cluster.cmeans": "(reference)"}
+        if fcm_base is not None:
+            cb, ub, it_b = out["baseline"]
+            n_it["baseline"] = it_b
+            same = np.array_equal(cb, ct) and np.array_equal(ub, ut) and it_b == it_t
+            notes["baseline"] = (f"{args.baseline}: " + ("centers, memberships, iterations identical to torchcal's"
+                                 if same else f"differs from torchcal's: max|dU| {np.abs(ub - ut).max():.1e}"))
         ref, _, ref_cpu = times["skfuzzy.cluster.cmeans"]
         for name, (t, tmin, cpu) in times.items():
-            note = agree if name.startswith("torchcal") else "(reference)"
+            note = notes[name]
             print(f"{d:>2} {name:<24} {t:>8.3f} {tmin:>7.3f} {cpu:>7.3f} {n_it[name] / t:>8.1f} {ref / t:>8.1f}x "
                   f"{ref_cpu / cpu:>6.1f}x   {note}")
     if bounds:

@@ -23,7 +23,7 @@ torchcal >= 60 M pairs/s in float64 and >= 100 M/s in float32 on 2 quiet CPU cor
 GPU instead (target 1e9 pairs/s on an H100); without CUDA it says so and exits 0.
 
     python benchmarks/bench_fk.py [--robot kr1000titan] [--params 1000] [--poses 1000]
-                                  [--repeats 5] [--threads 2] [--device cpu|cuda]
+                                  [--repeats 5] [--threads 2] [--device cpu|cuda] [--compare-chunk 65536]
 """
 
 from __future__ import annotations
@@ -63,6 +63,20 @@ TARGET_VS_PK = 50.0
 def _sync(device):
     if device.type == "cuda":
         torch.cuda.synchronize(device)
+
+
+def _timed_pair(fa, fb, repeats, device):
+    """`_timed` of fa and fb, run alternately (after a warm-up of each)."""
+    fa(), fb()
+    ta, tb = [], []
+    for _ in range(repeats):
+        for fn, ts in ((fa, ta), (fb, tb)):
+            _sync(device)
+            t0 = time.perf_counter()
+            fn()
+            _sync(device)
+            ts.append(time.perf_counter() - t0)
+    return tuple((statistics.median(t), min(t), max(t)) for t in (ta, tb))
 
 
 def _timed(fn, repeats, device):
@@ -190,7 +204,11 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=2, help="torch / numpy CPU threads (default 2)")
     ap.add_argument("--device", default="cpu", choices=("cpu", "cuda"), help="torchcal's device")
     ap.add_argument("--chunk", type=int, default=None,
-                    help=f"torchcal chunk in pairs (default {K.DEFAULT_CHUNK} on CPU, 2^24 on CUDA)")
+                    help="torchcal chunk in pairs (default: Robot.fk's, `mdh.chunk_for` the device and dtype; "
+                         "2^24 on CUDA)")
+    ap.add_argument("--compare-chunk", type=int, default=None,
+                    help="also time Robot.fk with this chunk (e.g. 65536, the CPU default before), the two "
+                         "alternately in the same run")
     ap.add_argument("--pk-sets", type=int, default=20,
                     help="parameter sets timed with pytorch-kinematics, then scaled (default 20)")
     ap.add_argument("--numpy-sets", type=int, default=None,
@@ -205,7 +223,7 @@ def main(argv=None) -> int:
     gpu = device.type == "cuda"
     M = args.params or (10000 if gpu else 1000)
     P = args.poses or (10000 if gpu else 1000)
-    chunk = args.chunk or ((1 << 24) if gpu else K.DEFAULT_CHUNK)
+    chunk = args.chunk or ((1 << 24) if gpu else None)  # None: Robot.fk's default per dtype
     pk_sets = min(args.pk_sets, M)
     np_sets = min(args.numpy_sets or max(1, 10 ** 6 // P), M)
     pairs = M * P
@@ -226,7 +244,8 @@ def main(argv=None) -> int:
     print(f"  device: {where}; torch {torch.__version__} with {torch.get_num_threads()} threads, "
           f"pytorch-kinematics {_version('pytorch_kinematics')}, numpy {np.__version__}")
     print(f"  median of {args.repeats} repeats after one warm-up; [slowest .. fastest] in brackets")
-    print(f"  torchcal: Robot.fk(q (P, n), params (M, 1, n, 5)) -> (M, P, 3), chunk {chunk}")
+    print(f"  torchcal: Robot.fk(q (P, n), params (M, 1, n, 5)) -> (M, P, 3), chunk "
+          f"{chunk or 'default (per dtype, below)'}")
     print(f"  pytorch-kinematics cannot batch perturbed link parameters: one chain per parameter set "
           f"(built before timing,\n    not counted), forward_kinematics on all {P} poses per chain; "
           f"{pk_sets} of the {M} sets timed, rate scaled")
@@ -240,10 +259,20 @@ def main(argv=None) -> int:
         q, params = q64.to(device, dtype), p64.to(device, dtype)
 
         # torchcal
-        t_tc = _timed(lambda: r.fk(q, params, chunk=chunk), args.repeats, device)
+        ck = chunk or K.chunk_for(device, dtype)
+        if args.compare_chunk:
+            t_tc, t_cmp = _timed_pair(lambda: r.fk(q, params, chunk=ck),
+                                      lambda: r.fk(q, params, chunk=args.compare_chunk), args.repeats, device)
+        else:
+            t_tc = _timed(lambda: r.fk(q, params, chunk=ck), args.repeats, device)
         target = TARGET_GPU if gpu else TARGETS_CPU[dtype]
-        rate_tc = _line("torchcal Robot.fk", pairs, t_tc, target)
-        out_tc = r.fk(q, params, chunk=chunk)  # (M, P, 3)
+        rate_tc = _line(f"torchcal Robot.fk, chunk {ck}", pairs, t_tc, target)
+        out_tc = r.fk(q, params, chunk=ck)  # (M, P, 3)
+        if args.compare_chunk:
+            same = torch.equal(r.fk(q, params, chunk=args.compare_chunk), out_tc)
+            _line(f"torchcal Robot.fk, chunk {args.compare_chunk}", pairs, t_cmp,
+                  note=f"(alternately; {'the same bits' if same else 'DIFFERENT results'}; "
+                       f"{rate_tc / _rate(pairs, t_cmp[0]):.2f}x)")
 
         # pytorch-kinematics: one chain per parameter set, all poses per call
         t0 = time.perf_counter()
@@ -267,7 +296,7 @@ def main(argv=None) -> int:
         err_np = np.abs(numpy_fk(qn, tn, pn, bn, tooln) - out_tc[:np_sets].cpu().numpy()).max()
 
         if not gpu:
-            print_limits(rate_tc, *kernel_counts(n, robot.chain.plain_base), dtype, args.threads, chunk,
+            print_limits(rate_tc, *kernel_counts(n, robot.chain.plain_base), dtype, args.threads, ck,
                          args.repeats)
         ratio_pk, ratio_np = rate_tc / rate_pk, rate_tc / rate_np
         ok = "met" if ratio_pk >= TARGET_VS_PK else "BELOW TARGET"

@@ -46,6 +46,12 @@ iteration with each chunk checked and, where needed, done the careful way, and l
 iterations stay checked. The sums over the clusters are one batched product with ones
 (one read of the chunk, no fill).
 
+Threads: on a CPU the chunks of a pass go to `torchcal.threads.workers()` Python threads,
+each with its own scratch and one torch thread (as `Robot.fk` and the sweep do), and what
+they add up (the sums of eq. 27, J, the norm of the change) is added by each chunk in turn,
+in chunk order, after the chunks before it: the same operations on the same values as one
+thread, so the results are the same to the bit whatever the number of workers.
+
 Rounding: the results equal eqs. 26-28 to the last bits, not bit for bit any other
 implementation (summation order over chunks and within the matrix-vector products);
 tests/test_partition.py compares memberships, centers and objective with a plain-numpy

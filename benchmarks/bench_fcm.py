@@ -8,11 +8,11 @@ memberships for both, a fixed number of iterations for both (eps = 0 / error = 0
 stop early); with --eps > 0 both run until their stopping rule ||U(t+1) - U(t)|| < eps
 fires (at most --iters iterations) and both iteration counts are printed (torchcal skips
 the norm while it cannot fire, and with eps = 0 never computes it: --eps 1e-6 times the
-norm too). Both run on the same cores: torchcal with `threads` workers (TORCHCAL_THREADS:
-its chunks on worker threads, one torch thread each), numpy/BLAS limited to the same count.
+norm too). Both run on the same cores: torch with `torch.set_num_threads(threads)`,
+numpy/BLAS limited to the same count, OMP_WAIT_POLICY=PASSIVE (torchcal's policy).
 With --baseline, a copy of an earlier torchcal/partition/fcm.py (e.g. `git show
-REV:torchcal/partition/fcm.py > /tmp/fcm_old.py`) is timed in the same run, its ops on
-`torch.set_num_threads(threads)` as that code ran them, and compared bit for bit.
+REV:torchcal/partition/fcm.py > /tmp/fcm_old.py`) is timed in the same run, alternately
+with the current one, and compared with it bit for bit.
 Prints the median (and min) wall time of `repeats` runs (the contenders alternately), the
 median CPU seconds of the process (all its threads; on a shared machine the figure to
 compare at 1 thread), iterations per second, the speed ratios by wall and by CPU
@@ -88,8 +88,9 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=2, help="CPU threads (default 2)")
     ap.add_argument("--baseline", default=None, help="an earlier fcm.py to time beside (same run)")
     args = ap.parse_args(argv)
-    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "TORCHCAL_THREADS"):
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ[var] = str(args.threads)
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # torchcal's policy (torchcal.threads): before torch loads
 
     import numpy as np
     import skfuzzy

@@ -126,39 +126,23 @@ def test_chunking_and_default_start_do_not_change_results():
     torch.testing.assert_close(b.memberships, c.memberships, rtol=0, atol=0)
 
 
-@pytest.mark.parametrize("d, m, eps, restarts", [(1, 2.0, 1e-9, 1), (3, 2.0, 1e-9, 3), (2, 1.7, 0.0, 2)])
-def test_worker_threads_give_the_serial_bits_and_the_formulas(monkeypatch, d, m, eps, restarts):
-    # chunks on worker threads commit their sums in chunk order: the same bits as one
-    # thread (centers, memberships, objective, iterations), and eqs. 26-28 to 1e-12
-    x, _ = blobs(300, [[0.0] * d, [4.0] + [0.0] * (d - 1), [0.0] * (d - 1) + [-5.0]], 0.8, 31)
-    u0 = np.random.default_rng(32).random((restarts, 3, 900))
-    u0 /= u0.sum(axis=1, keepdims=True)
-    runs = {}
-    for workers in ("1", "2", "3"):
-        monkeypatch.setenv("TORCHCAL_THREADS", workers)
-        runs[workers] = fcm(x, 3, m=m, eps=eps, max_iter=40, init_u=u0, restarts=restarts, chunk_size=41)
-    for workers in ("2", "3"):
-        a, b = runs["1"], runs[workers]
-        assert torch.equal(a.memberships, b.memberships) and torch.equal(a.centers, b.centers)
-        assert (a.objective, a.n_iter) == (b.objective, b.n_iter)
-    refs = [numpy_fcm(x, u0[r], m, eps, 40) for r in range(restarts)]
-    v_ref, u_ref, j_ref, it_ref = refs[min(range(restarts), key=lambda r: (refs[r][2], r))]
-    res = runs["2"]
-    assert res.n_iter == it_ref and res.objective == pytest.approx(j_ref, rel=1e-12)
-    np.testing.assert_allclose(res.memberships.numpy(), u_ref, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(res.centers.numpy(), v_ref, rtol=1e-12, atol=1e-12)
+@pytest.mark.parametrize("d", [1, 2, 3])
+def test_squared_distances_are_the_differences_squared_bit_for_bit(d):
+    # the first feature's (x - v)^2 in one pass (mse_loss) gives the bits of x - v times
+    # itself, the further features added by a fused multiply-add: memberships unchanged
+    from torchcal.partition.fcm import _sq_dist
 
-
-def test_worker_threads_raise_the_serial_error(monkeypatch):
-    # a bad column in a later chunk and a negative one after it: the first in chunk order wins
-    x = np.random.default_rng(0).standard_normal((500, 2))
-    u0 = np.random.default_rng(1).random((3, 500))
-    u0[:, 230] = 0.0
-    u0[1, 400] = -1.0
-    for workers in ("1", "2"):
-        monkeypatch.setenv("TORCHCAL_THREADS", workers)
-        with pytest.raises(InputError, match="some point has all memberships 0"):
-            fcm(x, 3, init_u=u0, chunk_size=20)
+    g = torch.Generator().manual_seed(d)
+    x = torch.randn(d, 1000, generator=g, dtype=torch.float64) * 7.0  # (d, N)
+    V = torch.randn(2, 3, d, generator=g, dtype=torch.float64) * 5.0  # (R, c, d)
+    t = x[0] - V[..., 0, None]
+    ref = t * t
+    for k in range(1, d):
+        t = x[k] - V[..., k, None]
+        ref = torch.addcmul(ref, t, t)
+    assert torch.equal(_sq_dist(x.unbind(0), V), ref)
+    np.testing.assert_allclose(ref.numpy(), ((x.T.numpy()[None, None] - V.numpy()[:, :, None]) ** 2).sum(-1),
+                               rtol=1e-14)
 
 
 def test_batched_restarts_keep_the_best_single_run():

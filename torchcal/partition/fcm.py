@@ -46,12 +46,6 @@ iteration with each chunk checked and, where needed, done the careful way, and l
 iterations stay checked. The sums over the clusters are one batched product with ones
 (one read of the chunk, no fill).
 
-Threads: on a CPU the chunks of a pass go to `torchcal.threads.workers()` Python threads,
-each with its own scratch and one torch thread (as `Robot.fk` and the sweep do), and what
-they add up (the sums of eq. 27, J, the norm of the change) is added by each chunk in turn,
-in chunk order, after the chunks before it: the same operations on the same values as one
-thread, so the results are the same to the bit whatever the number of workers.
-
 Rounding: the results equal eqs. 26-28 to the last bits, not bit for bit any other
 implementation (summation order over chunks and within the matrix-vector products);
 tests/test_partition.py compares memberships, centers and objective with a plain-numpy
@@ -63,15 +57,11 @@ Randomness only through an explicit `torch.Generator` seeded with `seed`.
 from __future__ import annotations
 
 import math
-import queue
-import threading
-from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import numpy as np
 import torch
 
-from torchcal import threads
 from torchcal.errors import InputError
 
 __all__ = ["FCMResult", "fcm", "memberships", "objective"]
@@ -212,9 +202,9 @@ def _sq_dist(rows, V: torch.Tensor) -> torch.Tensor:
 def _sq_dist_into(rows, cols, out, tmp):
     """out (R, c, n) = squared distances of a chunk's points (rows) to centers (cols); tmp: scratch like out.
 
-    The first feature's (x - v)^2 is one pass (the elementwise squared difference of
-    `mse_loss`, bit for bit the product of the rounded difference with itself); each further
-    feature adds (x - v)^2 by a fused multiply-add (addcmul)."""
+    The first feature's (x - v)^2 is one pass (`_sq_diff`: bit for bit the rounded
+    difference times itself); each further feature adds (x - v)^2 by a fused multiply-add
+    (addcmul)."""
     _sq_diff(rows[0], cols[0], out)  # (R, c, n)
     for xk, vk in zip(rows[1:], cols[1:]):
         torch.sub(xk, vk, out=tmp)
@@ -224,9 +214,11 @@ def _sq_dist_into(rows, cols, out, tmp):
 
 def _sq_diff(xk: torch.Tensor, vk: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
     """out (R, c, n) = (xk - vk)^2 in one pass: xk (n,) one feature of a chunk's points, vk
-    (R, c, 1) the centers' (aten's unreduced `mse_loss`: (a - b) * (a - b), the value
-    of a subtraction followed by a multiplication)."""
-    return torch._C._nn.mse_loss(xk, vk, 0, out=out)  # reduction 0: none; broadcast, not expanded (1.6x slower)
+    (R, c, 1) the centers'. aten's unreduced `mse_loss` computes (a - b) * (a - b), the
+    value of a subtraction followed by a multiplication (9 us against 14 us for the two
+    ops on 32768 values); its operands broadcast (expanded to the shape of out it ran 1.6x
+    slower)."""
+    return torch._C._nn.mse_loss(xk, vk, 0, out=out)  # reduction 0: none
 
 
 def _u_from_sq_dist_(d2: torch.Tensor, m: float) -> torch.Tensor:
@@ -331,74 +323,13 @@ def _start_u(U0c: torch.Tensor, out: torch.Tensor, Si, ones_c) -> torch.Tensor:
     return torch.div(U0c, S, out=out)
 
 
-def _run_chunks(chunks, work, scratches) -> None:
-    """work(chunk, scratch) for every chunk (as `_chunked`), each returning None or a
-    `commit` callable; the commits run one at a time in chunk order, so whatever they add
-    up (the sums of eq. 27, J, the norm of the change) is summed in the order, and with the
-    bits, of a serial loop. With one scratch (a `_Scratch`) the chunks run one after
-    another on this thread; with k of them on k worker threads with one torch thread
-    each, a chunk holding its scratch until its commit has run (the work itself, every op
-    on the chunk's own values, is the serial one). An exception in a work stops the
-    commits and is raised as a serial loop would raise it (that of the first chunk whose
-    work raised)."""
-    if len(scratches) == 1 or len(chunks) == 1:
-        for chunk in chunks:
-            commit = work(chunk, scratches[0])
-            if commit is not None:
-                commit()
-        return
-    free = queue.SimpleQueue()
-    for sc in scratches:
-        free.put(sc)
-    turn = threading.Condition()
-    state = {"next": 0, "failed": False}
-
-    def one(k):
-        torch.set_num_threads(1)  # this worker's ops on one thread (the setting is per thread)
-        if state["failed"]:
-            return
-        sc = free.get()
-        try:
-            try:
-                commit = work(chunks[k], sc)
-            except BaseException:
-                with turn:
-                    state["failed"] = True
-                    turn.notify_all()
-                raise
-            with turn:
-                turn.wait_for(lambda: state["next"] == k or state["failed"])
-                if state["failed"]:
-                    return
-                try:
-                    if commit is not None:
-                        commit()
-                except BaseException:
-                    state["failed"] = True
-                    raise
-                finally:
-                    state["next"] = k + 1
-                    turn.notify_all()
-        finally:
-            free.put(sc)
-
-    before = torch.get_num_threads()
-    try:
-        with ThreadPoolExecutor(len(scratches)) as pool:
-            for _ in pool.map(one, range(len(chunks))):
-                pass
-    finally:
-        torch.set_num_threads(before)
-
-
-def _pass(chunks, V, V_prev, U0, m, eps, last, scratches, checked, out_u=None):
+def _pass(chunks, V, V_prev, U0, m, eps, last, scratch, checked, out_u=None):
     """One FCM iteration over all points, chunk by chunk; no (c, N) tensor is written.
 
     chunks: as `_chunked`; V (R, c, d) the centers; V_prev (R, c, d) those of the previous
     iteration, or None in the first, where U0 (R, c, N) (the starting memberships, columns
     not yet normalised: `_start_u`) stands for U(V_prev); last: whether this is the last
-    allowed iteration; scratches: `_Scratch`es, one per worker thread (`_run_chunks`;
-    the checked pass uses the first only); checked: every chunk checked on its own
+    allowed iteration; scratch: a `_Scratch`; checked: every chunk checked on its own
     (`_memberships_checked`), else all at once at the end; out_u: None, or (when R = 1 in
     the last allowed iteration) a (c, N) tensor that receives the memberships U(V), and
     then no sums for the next centers are made (acc stays 0).
@@ -407,12 +338,11 @@ def _pass(chunks, V, V_prev, U0, m, eps, last, scratches, checked, out_u=None):
     unchecked and some chunk failed its check (the caller runs the pass again, checked).
 
     The stopping rule ||U(V) - U(V_prev)|| < eps is evaluated exactly, lazily: the squared
-    norm is summed chunk by chunk (in chunk order, by the commits), and once every restart's
-    partial sum has a square root >= eps (the sum only grows) none of them can stop in this
-    iteration, so the chunks that start after that skip the old memberships (recomputed
-    from V_prev: the values the previous iteration had), the norm and J. diff2 is then a
-    partial sum and J incomplete; neither is used. With eps = 0 no restart can stop before
-    max_iter: no norm is computed.
+    norm is summed chunk by chunk, and once every restart's partial sum has a square root
+    >= eps (the sum only grows) none of them can stop in this iteration, so the remaining
+    chunks skip the old memberships (recomputed from V_prev: the values the previous
+    iteration had), the norm and J. diff2 is then a partial sum and J incomplete; neither
+    is used. With eps = 0 no restart can stop before max_iter: no norm is computed.
     """
     R, c, d = V.shape
     Rc = R * c
@@ -423,13 +353,10 @@ def _pass(chunks, V, V_prev, U0, m, eps, last, scratches, checked, out_u=None):
     diff2 = torch.zeros(R, dtype=V.dtype, device=V.device)
     J = torch.zeros(R, dtype=V.dtype, device=V.device)
     checks = []
-    order = {"undecided": eps > 0}  # some restart's ||dU|| may still turn out < eps (in chunk order)
+    undecided = eps > 0  # some restart's ||dU|| may still turn out < eps
     square = m == 2.0
-
-    def work(chunk, scratch):
-        (s, e), rows = chunk
+    for (s, e), rows in chunks:
         w, t, t2, Si, ones_c, ones_n = scratch.views(R, e - s)
-        undecided = order["undecided"]  # as it stands now; it only turns False, in chunk order
         want_j = undecided or last
         u = w if out_u is None else out_u[None, :, s:e]  # where the memberships go
         if checked:
@@ -440,7 +367,8 @@ def _pass(chunks, V, V_prev, U0, m, eps, last, scratches, checked, out_u=None):
             inv = _memberships_unchecked(rows, cols, m, w, t, Si, ones_c, checks,
                                          out=None if out_u is None else u)
             Jc = _j_fast(inv, m) if want_j else None
-        dc = None
+        if Jc is not None:
+            J += Jc
         if undecided:
             if cols_prev is None:
                 _start_u(U0[..., s:e], t2, Si, ones_c)
@@ -448,46 +376,30 @@ def _pass(chunks, V, V_prev, U0, m, eps, last, scratches, checked, out_u=None):
                 _memberships_checked(rows, cols_prev, m, t2, t, Si, ones_c, False)
             else:
                 _memberships_unchecked(rows, cols_prev, m, t2, t, Si, ones_c, checks)
-            dc = _row_dots(torch.sub(t2, u, out=t).view(R, c * (e - s)))
-        um = None
+            diff2 += _row_dots(torch.sub(t2, u, out=t).view(R, c * (e - s)))
+            undecided = any(math.sqrt(v) < eps for v in diff2.tolist())
         if out_u is None:
-            um = (torch.mul(w, w, out=t) if square else torch.pow(w, m, out=t)).view(Rc, e - s)
-
-        def commit():  # in chunk order: the serial loop's sums
-            nonlocal J, diff2
-            if Jc is not None and (order["undecided"] or last):
-                J += Jc
-            if dc is not None and order["undecided"]:
-                diff2 += dc
-                order["undecided"] = any(math.sqrt(v) < eps for v in diff2.tolist())
-            if um is not None:
-                _accumulate(acc_rows, um, rows, ones_n)
-        return commit
-
-    _run_chunks(chunks, work, scratches[:1] if checked else scratches)
+            um = torch.mul(w, w, out=t) if square else torch.pow(w, m, out=t)
+            _accumulate(acc_rows, um.view(Rc, e - s), rows, ones_n)
     if not checked and not bool(torch.isfinite(torch.stack(checks)).all() & torch.isfinite(acc).all()):
         return None
     return diff2, J, acc
 
 
-def _final_memberships(chunks, V, m, scratches, N):
+def _final_memberships(chunks, V, m, scratch, N):
     """Eq. 28 for centers V (1, c, d) over all points -> (c, N), written straight into the
     result (the fast path, checked once at the end; the careful way for a chunk only where
-    some S fails: `_memberships_checked`); scratches as `_pass`."""
+    some S fails: `_memberships_checked`)."""
     c = V.shape[1]
     U = torch.empty(c, N, dtype=V.dtype, device=V.device)
     cols = _columns(V)
     checks = []
-
-    def work(chunk, scratch):
-        (s, e), rows = chunk
+    for (s, e), rows in chunks:
         w, t, _, Si, ones_c, _ = scratch.views(1, e - s)
         _memberships_unchecked(rows, cols, m, w, t, Si, ones_c, checks, out=U[None, :, s:e])
-
-    _run_chunks(chunks, work, scratches)
     if not bool(torch.isfinite(torch.stack(checks)).all()):
         for (s, e), rows in chunks:
-            w, t, _, Si, ones_c, _ = scratches[0].views(1, e - s)
+            w, t, _, Si, ones_c, _ = scratch.views(1, e - s)
             _memberships_checked(rows, cols, m, w, t, Si, ones_c, False)
             U[:, s:e] = w[0]
     return U
@@ -502,8 +414,7 @@ def _iterate(xt, U0, m, eps, max_iter, chunk):
     """
     R, c, N = U0.shape
     chunks = _chunked(xt, chunk)
-    nw = min(threads.workers(), len(chunks)) if xt.device.type == "cpu" else 1
-    scratch = [_Scratch(R, c, chunks[0][0][1], xt.dtype, xt.device) for _ in range(nw)]  # one per worker
+    scratch = _Scratch(R, c, chunks[0][0][1], xt.dtype, xt.device)
     V = _start_centers(chunks, U0, m, scratch)  # (R, c, d)
     d = V.shape[-1]
     V_prev = None
@@ -541,27 +452,21 @@ def _iterate(xt, U0, m, eps, max_iter, chunk):
     return J, _final_memberships(chunks, V_best[None], m, scratch, N), V_best, n_iter
 
 
-def _start_centers(chunks, U0: torch.Tensor, m: float, scratches) -> torch.Tensor:
+def _start_centers(chunks, U0: torch.Tensor, m: float, scratch: _Scratch) -> torch.Tensor:
     """Eq. 27 from the starting memberships: points in chunks (as `_chunked`), U0 (R, c, N)
-    (columns normalised chunk by chunk: `_start_u`) -> centers (R, c, d); scratches as
-    `_pass`. Raises InputError where U0 holds a negative value, NaN or inf (checked chunk
-    by chunk, while it is read)."""
+    (columns normalised chunk by chunk: `_start_u`) -> centers (R, c, d). Raises InputError
+    where U0 holds a negative value, NaN or inf (checked chunk by chunk, while it is read)."""
     d = len(chunks[0][1])
     R, c, _ = U0.shape
     acc = torch.zeros(d + 1, R * c, dtype=U0.dtype, device=U0.device)
-    acc_rows = acc.unbind(0)
-
-    def work(chunk, scratch):
-        (s, e), rows = chunk
+    for (s, e), rows in chunks:
         w, t, _, Si, ones_c, ones = scratch.views(R, e - s)
         lo, hi = torch.aminmax(U0[..., s:e])
         if not bool((lo >= 0) & (hi < math.inf)):
             raise InputError("init_u: expected finite, non-negative memberships")
         u = _start_u(U0[..., s:e], w, Si, ones_c)
-        um = (torch.mul(u, u, out=t) if m == 2.0 else torch.pow(u, m, out=t)).view(R * c, e - s)
-        return lambda: _accumulate(acc_rows, um, rows, ones)  # in chunk order
-
-    _run_chunks(chunks, work, scratches)
+        um = torch.mul(u, u, out=t) if m == 2.0 else torch.pow(u, m, out=t)
+        _accumulate(acc.unbind(0), um.view(R * c, e - s), rows, ones)
     return (acc[:d] / acc[d:]).T.reshape(R, c, d)
 
 

@@ -348,14 +348,15 @@ def _positions_into(pose: _PoseFactors, link: _LinkFactors, chain: Chain, out):
         if i in chain.linear:
             nu[2].add_(pose.q[i])
         u, nu = nu, u
-    rows = out.movedim(-1, 0)  # (3, ...) view
+    rows = out.movedim(-1, 0)  # (3, ...) view, strided: written once, by a copy
+    torch.mul(pose.cs[0], u[0], out=z).addcmul_(pose.sc[0], u[1])  # Rz(q_1) u
     if chain.plain_base:
-        torch.mul(pose.cs[0], u[0], out=rows[:2]).addcmul_(pose.sc[0], u[1])
+        rows[:2].copy_(z)
         rows[2].copy_(u[2])
         return out
-    torch.mul(pose.cs[0], u[0], out=z).addcmul_(pose.sc[0], u[1])  # Rz(q_1) u
     col = [chain.base[:3, c].view((3,) + (1,) * len(shape)) for c in range(4)]  # R_base columns, b
-    torch.mul(col[2], u[2], out=rows).addcmul_(col[0], z[0]).addcmul_(col[1], z[1]).add_(col[3])
+    torch.mul(col[2], u[2], out=nu).addcmul_(col[0], z[0]).addcmul_(col[1], z[1]).add_(col[3])
+    rows.copy_(nu)
     return out
 
 

@@ -329,33 +329,42 @@ def _narrow(x, dim, start, size):
 
 
 def _positions_into(pose: _PoseFactors, link: _LinkFactors, chain: Chain, out):
-    """`positions_into` on precomputed factors whose batch dims align with `out`'s."""
+    """`positions_into` on precomputed factors whose batch dims align with `out`'s.
+
+    The per-joint operands are views made by a few `unbind` calls per chunk, not one
+    indexing call each (an index like ``R[:, 2, i]`` costs a few microseconds of Python,
+    about a third of a 16384-pair chunk's time when every operand was indexed)."""
     n = chain.n
     shape = out.shape[:-1]
-    R, t = link.R, link.t
+    R = [Ri.unbind(1) for Ri in link.R.unbind(2)]  # R[i][k]: column k of R_i, (3, ...)
+    t = link.t.unbind(1)  # t[i]: (3, ...) mm
+    cs, sc = pose.cs.unbind(0), pose.sc.unbind(0)  # per joint (2, ...)
     tp = chain.tool[:3, 3]
     i = n - 1
-    u = R[:, 0, i] * tp[0] + R[:, 1, i] * tp[1] + R[:, 2, i] * tp[2] + t[:, i]  # (3, ...) mm
+    u = R[i][0] * tp[0] + R[i][1] * tp[1] + R[i][2] * tp[2] + t[i]  # (3, ...) mm
     z = torch.empty((2,) + shape, dtype=out.dtype, device=out.device)
+    z0, z1 = z.unbind(0)
     u, nu = (torch.empty((3,) + shape, dtype=out.dtype, device=out.device).copy_(u.expand((3,) + shape)),
              torch.empty((3,) + shape, dtype=out.dtype, device=out.device))
+    ur, nur = u.unbind(0), nu.unbind(0)  # their rows
     if i in chain.linear:
-        u[2].add_(pose.q[i])
+        ur[2].add_(pose.q[i])
     for i in range(n - 2, -1, -1):
-        torch.mul(pose.cs[i + 1], u[0], out=z).addcmul_(pose.sc[i + 1], u[1])  # Rz(q_(i+1)) u, rows 0, 1
-        torch.mul(R[:, 2, i], u[2], out=nu).addcmul_(R[:, 0, i], z[0]).addcmul_(R[:, 1, i], z[1])
-        nu.add_(t[:, i])  # u = R_i z + t_i
+        torch.mul(cs[i + 1], ur[0], out=z).addcmul_(sc[i + 1], ur[1])  # Rz(q_(i+1)) u, rows 0, 1
+        Ri = R[i]
+        torch.mul(Ri[2], ur[2], out=nu).addcmul_(Ri[0], z0).addcmul_(Ri[1], z1)
+        nu.add_(t[i])  # u = R_i z + t_i
         if i in chain.linear:
-            nu[2].add_(pose.q[i])
-        u, nu = nu, u
+            nur[2].add_(pose.q[i])
+        u, nu, ur, nur = nu, u, nur, ur
     rows = out.movedim(-1, 0)  # (3, ...) view, strided: written once, by a copy
-    torch.mul(pose.cs[0], u[0], out=z).addcmul_(pose.sc[0], u[1])  # Rz(q_1) u
+    torch.mul(cs[0], ur[0], out=z).addcmul_(sc[0], ur[1])  # Rz(q_1) u
     if chain.plain_base:
         rows[:2].copy_(z)
-        rows[2].copy_(u[2])
+        rows[2].copy_(ur[2])
         return out
     col = [chain.base[:3, c].view((3,) + (1,) * len(shape)) for c in range(4)]  # R_base columns, b
-    torch.mul(col[2], u[2], out=nu).addcmul_(col[0], z[0]).addcmul_(col[1], z[1]).add_(col[3])
+    torch.mul(col[2], ur[2], out=nu).addcmul_(col[0], z0).addcmul_(col[1], z1).add_(col[3])
     rows.copy_(nu)
     return out
 

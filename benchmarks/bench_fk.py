@@ -17,7 +17,9 @@ its flops per pair at the rate of a float matmul on the same threads, and the el
 limit, its element operations per pair at the rate of one in-place fused op (addcmul_ with a
 broadcast operand, the kernel's commonest op) on chunk-sized buffers, one per worker.
 
-Figures are the median of several repeats (after one warm-up), printed with the targets:
+Figures are the median of several repeats (after one warm-up), printed with the targets
+(for torchcal also the pairs per CPU second of the process, the figure to compare on a
+machine shared with other jobs):
 torchcal >= 60 M pairs/s in float64 and >= 100 M/s in float32 on 2 quiet CPU cores, and
 >= 50x pytorch-kinematics. `--device cuda` times torchcal (and pytorch-kinematics) on a
 GPU instead (target 1e9 pairs/s on an H100); without CUDA it says so and exits 0.
@@ -68,28 +70,22 @@ def _sync(device):
 def _timed_pair(fa, fb, repeats, device):
     """`_timed` of fa and fb, run alternately (after a warm-up of each)."""
     fa(), fb()
-    ta, tb = [], []
+    ta, tb = ([], []), ([], [])
     for _ in range(repeats):
-        for fn, ts in ((fa, ta), (fb, tb)):
+        for fn, (ts, cs) in ((fa, ta), (fb, tb)):
             _sync(device)
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             fn()
             _sync(device)
             ts.append(time.perf_counter() - t0)
-    return tuple((statistics.median(t), min(t), max(t)) for t in (ta, tb))
+            cs.append(time.process_time() - c0)
+    return tuple((statistics.median(t), min(t), max(t), statistics.median(c)) for t, c in (ta, tb))
 
 
 def _timed(fn, repeats, device):
-    """Median, min and max wall time (s) of `fn()` over `repeats` runs after a warm-up."""
-    fn()
-    times = []
-    for _ in range(repeats):
-        _sync(device)
-        t0 = time.perf_counter()
-        fn()
-        _sync(device)
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), min(times), max(times)
+    """Median, min and max wall time (s) of `fn()` over `repeats` runs after a warm-up,
+    and the median CPU time of the process (s, all its threads)."""
+    return _timed_pair(fn, lambda: None, repeats, device)[0]
 
 
 def _md_h_matrix(theta, d, a, alpha, beta):
@@ -183,7 +179,7 @@ def _fmt(rate):
 
 
 def _line(label, pairs, timing, target=None, note=""):
-    med, lo, hi = timing
+    med, lo, hi, _ = timing
     r = _rate(pairs, med)
     spread = f"[{_rate(pairs, hi) / 1e6:.3f} .. {_rate(pairs, lo) / 1e6:.3f}]"
     tgt = ""
@@ -266,13 +262,15 @@ def main(argv=None) -> int:
         else:
             t_tc = _timed(lambda: r.fk(q, params, chunk=ck), args.repeats, device)
         target = TARGET_GPU if gpu else TARGETS_CPU[dtype]
-        rate_tc = _line(f"torchcal Robot.fk, chunk {ck}", pairs, t_tc, target)
+        cpu_note = "" if gpu else f"; {pairs / t_tc[3] / 1e6:.1f} M pairs per CPU second"
+        rate_tc = _line(f"torchcal Robot.fk, chunk {ck}", pairs, t_tc, target, note=cpu_note)
         out_tc = r.fk(q, params, chunk=ck)  # (M, P, 3)
         if args.compare_chunk:
             same = torch.equal(r.fk(q, params, chunk=args.compare_chunk), out_tc)
             _line(f"torchcal Robot.fk, chunk {args.compare_chunk}", pairs, t_cmp,
                   note=f"(alternately; {'the same bits' if same else 'DIFFERENT results'}; "
-                       f"{rate_tc / _rate(pairs, t_cmp[0]):.2f}x)")
+                       f"{rate_tc / _rate(pairs, t_cmp[0]):.2f}x; {pairs / t_cmp[3] / 1e6:.1f} M pairs per CPU "
+                       f"second: {t_cmp[3] / t_tc[3]:.2f}x)")
 
         # pytorch-kinematics: one chain per parameter set, all poses per call
         t0 = time.perf_counter()

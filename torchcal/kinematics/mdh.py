@@ -46,22 +46,23 @@ DEFAULT_CHUNK = 1 << 16
 DEFAULT_CHUNK_GPU = 1 << 22
 
 
-# bytes of the in-place kernel's temporaries per chunk on a CPU (`positions_into`: u and
-# nu, 3 rows each, and z, 2 rows): about half of a core's 2 MiB L2 cache. Measured on the
-# Xeon development machine: float64 FK per CPU second 1.3-1.4x faster with 16384 pairs per
-# chunk (1 MiB) than with 65536 (4 MiB, spilled); float32 alike at 32768 and 65536.
-IN_PLACE_BYTES = 1 << 20
+# pairs per chunk of the in-place kernel `positions_into` on a CPU, by dtype, where it
+# differs from DEFAULT_CHUNK. Its temporaries (u and nu, 3 rows each, and z, 2 rows) at
+# 65536 float64 pairs take 4 MiB and spill a core's 2 MiB L2 on every op; at 16384 they take
+# 1 MiB. Measured on the Xeon development machine (docs/performance.md): float64 FK per CPU
+# second 1.3x faster at 16384 than at 65536 (32768 and 8192 between); float32 keeps 65536
+# (2 MiB; 32768 ran at 0.87-1.07x of it, its ops cost half as much per pair, so the per-op
+# overhead weighs more).
+IN_PLACE_CHUNK = {torch.float64: 1 << 14}
 
 
 def chunk_for(device, dtype=None) -> int:
     """Elements per chunk of the position kernel on `device` (a torch.device or str); with
-    `dtype`, of the in-place kernel `positions_into` on a CPU (`IN_PLACE_BYTES` of
-    temporaries: 16384 float64 pairs, 32768 float32)."""
+    `dtype`, of the in-place kernel `positions_into` (on a CPU: `IN_PLACE_CHUNK`, else
+    DEFAULT_CHUNK)."""
     if torch.device(device).type != "cpu":
         return DEFAULT_CHUNK_GPU
-    if dtype is None:
-        return DEFAULT_CHUNK
-    return IN_PLACE_BYTES // (8 * torch.empty((), dtype=dtype).element_size())
+    return IN_PLACE_CHUNK.get(dtype, DEFAULT_CHUNK)
 
 
 def _effective(table: torch.Tensor, params: torch.Tensor | None):

@@ -384,3 +384,34 @@ def test_a_single_tool_offset_refuses_data_of_several_points():
         model.check_context(make_context(robot, q, point=torch.tensor([1, 1, 2, 2])))
     model.check_context(make_context(robot, q, point=torch.tensor([3, 3, 3, 3])))
     model.check_context(make_context(robot, q))
+
+
+def test_a_base_frame_rotation_kept_per_value_follows_theta_changed_in_place(kr):
+    """`per_value` (the base frame's rotation and its derivative, kept for the last rotation
+    vector): theta changed in place after an evaluation gives the new positions, rotations
+    and Jacobians (those of a model that never cached), forward-mode autodiff through the
+    hook neither uses nor leaves a cached value, and a model that used it pickles without it."""
+    import pickle
+
+    model = CalibrationModel(kr, ["base_frame", "tool_offset"])
+    ctx = make_context(kr, random_poses(kr, 10, 4))
+    theta = model.zeros()
+    theta[5 * kr.n:5 * kr.n + 6] = torch.tensor([10.0, -5.0, 3.0, 0.02, -0.01, 0.3], dtype=theta.dtype)
+
+    def outputs(mod, th):
+        return (mod.predict(th, ctx), mod.predict_rotation(th, ctx)) + tuple(mod.jacobians(th, ctx, rotation=True))
+
+    first = outputs(model, theta)
+    theta[5 * kr.n + 3:5 * kr.n + 6] += torch.tensor([0.05, 0.02, -0.1], dtype=theta.dtype)  # in place
+    moved = outputs(model, theta)
+    fresh = outputs(CalibrationModel(kr, model.specs()), theta)
+    for a, b, c in zip(moved, fresh, first):
+        assert torch.equal(a, b) and not torch.equal(a, c)
+    J = torch.func.jacfwd(lambda t: model.predict(t, ctx))(theta + 1e-3)
+    torch.testing.assert_close(J, CalibrationModel(kr, model.specs()).jacobian(theta + 1e-3, ctx), rtol=0, atol=1e-9)
+    for a, b in zip(outputs(model, theta), fresh):
+        assert torch.equal(a, b)
+    back = pickle.loads(pickle.dumps(model))
+    assert not any(k.startswith("_per_value_") for e in back.effects for k in vars(e))
+    for a, b in zip(outputs(back, theta), fresh):
+        assert torch.equal(a, b)

@@ -174,3 +174,52 @@ def test_robust_solve_is_a_fixed_point_of_its_kernel():
     ref = scipy.optimize.least_squares(f, s.x[0, free].numpy(), method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15).x
     np.testing.assert_allclose(s.x[0, free].numpy(), ref, atol=1e-8)
     assert bool((s.x[0, ~free] == 0).all())
+
+
+def test_the_rank_shortcut_of_a_fold_refit_gives_the_same_fit(narrow, monkeypatch):
+    """`fit(rank_shortcut=True)` (the fold refits of `crossval.fold_fit`): from a warm start
+    whose candidates are identifiable beyond doubt it skips the pivoting and gives the
+    same fit to the bit (theta, free set, nothing held); where they are not (every
+    parameter a candidate, the gauge among them), it pivots as before and holds the same
+    parameters."""
+    import torchcal.calibration.fit as fit_module
+
+    model, ctx, m, res = narrow
+    pivots = []
+    real = fit_module.identifiability
+    monkeypatch.setattr(fit_module, "identifiability", lambda *a, **k: pivots.append(1) or real(*a, **k))
+    train = torch.arange(len(m.xyz)) % 5 != 0
+    sub = ctx.subset(train)
+    rho = res.plausible_limits["prior_sigma_mm"]
+    kw = dict(pose=m.pose[train], register=False, prior_sigma_mm=rho, posterior=False)
+    for cand, doubt in ((model.default_free(), True), (res.report.free, False)):
+        pivots.clear()
+        plain = fit(model, sub, m.xyz[train], theta0=res.theta, free=cand, **kw)
+        assert len(pivots) == 1
+        quick = fit(model, sub, m.xyz[train], theta0=res.theta, free=cand, rank_shortcut=True, **kw)
+        assert torch.equal(quick.theta, plain.theta) and torch.equal(quick.report.free, plain.report.free)
+        assert quick.report.held == plain.report.held
+        assert len(pivots) == (2 if doubt else 1)  # pivoted again only where in doubt
+        assert (quick.report.held != []) == doubt  # all candidates: the gauge and harmonics held
+
+
+def test_the_solvers_jacobian_buffer_is_rewritten_at_every_iteration(narrow):
+    """`solve` writes every LM iteration's Jacobian into one buffer per solve: its solution
+    is, to the bit, the LM's with a freshly allocated Jacobian per iteration (a stale
+    buffer would step along an old Jacobian and stop elsewhere)."""
+    from torchcal.calibration.fit import solve
+    from torchcal.calibration.lm import levenberg_marquardt
+    from torchcal.calibration.prior import prior_factors
+
+    model, ctx, m, res = narrow
+    rows = Rows(model, ctx, m.xyz)
+    prior = prior_factors(res.plausible_limits["prior_sigma_mm"], plausible_scales(model))
+    x0 = model.zeros()[None]
+    s = solve(rows, x0, res.report.free, prior)
+    P = model.n_params
+    ref = levenberg_marquardt(lambda z: torch.cat([rows.residual(z[0]).reshape(-1), prior * z[0]])[None], x0,
+                              free=res.report.free, max_iter=60,
+                              jacobian_fn=lambda z: torch.cat([rows.jacobian(z[0]).reshape(-1, P),
+                                                               torch.diag(prior)])[None])
+    assert s.n_iter == int(ref.n_iter[0]) >= 3
+    assert torch.equal(s.x, ref.x)

@@ -137,3 +137,35 @@ def test_identifiability_keeps_what_the_numpy_rule_keeps(seed):
     assert set(got.held) == {f"p{i}" for i in np.flatnonzero(cand & ~want)}
     s = np.linalg.svd(J[:, want] / np.linalg.norm(J[:, want], axis=0), compute_uv=False)
     assert got.condition == pytest.approx(s[0] / s[-1], rel=1e-6)
+
+
+def test_beyond_doubt_frees_every_candidate_only_where_the_pivoting_would():
+    """`beyond_doubt` (the refits' shortcut): on independent columns the same free set as
+    `identifiability` (every candidate, none held) and its condition number and
+    observability to 1e-7 (the pivoting rounds its unit columns to 1e-10 and scales them
+    by up to 1 + 1e-8); None, so that the caller pivots, for an exactly dependent
+    column and for one whose distance from the others' span is only a few rank_tol."""
+    from torchcal.calibration.identifiability import RANK_TOL, SAFE_RANK, beyond_doubt
+
+    J = _jacobian()
+    A = J.reshape(-1, 5)
+    some = torch.tensor([True, True, True, False, True])  # d = 2 b - c left out: independent
+    Ac = A[:, some]
+    rep, ref = beyond_doubt(Ac.T @ Ac, some, 20), identifiability(J, NAMES, some)
+    assert rep is not None and torch.equal(rep.free, ref.free) and rep.held == ref.held == []
+    assert rep.rank == ref.rank == 4 and rep.n_rows == ref.n_rows
+    assert rep.condition == pytest.approx(ref.condition, rel=1e-7)
+    for k, v in ref.observability.items():
+        assert rep.observability[k] == pytest.approx(v, rel=1e-7), k
+    assert beyond_doubt(A.T @ A, ALL, 20) is None  # d dependent: the pivoting holds it
+    # e close to b: its distance from span(b) (unit columns) a few rank_tol, under SAFE_RANK of them
+    rng = np.random.default_rng(3)
+    near = J.clone()
+    unit_b = near[:, :, 1] / near[:, :, 1].norm()
+    noise = torch.from_numpy(rng.normal(size=(20, 3)))
+    noise = noise - (noise * unit_b).sum() * unit_b
+    near[:, :, 4] = unit_b + 3 * RANK_TOL * noise / noise.norm()
+    B = near.reshape(-1, 5)[:, some]
+    assert beyond_doubt(B.T @ B, some, 20) is None
+    assert identifiability(near, NAMES, some).rank == 4  # kept by the pivoting: above rank_tol, below the margin
+    assert 3 < SAFE_RANK

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import torch
 
 from torchcal.calibration.covariance import ParameterCovariance, parameter_covariance, row_covariance
-from torchcal.calibration.identifiability import (RANK_TOL, Identifiability, check_enough_rows,
+from torchcal.calibration.identifiability import (RANK_TOL, Identifiability, beyond_doubt, check_enough_rows,
                                                   identifiability, recheck)
 from torchcal.calibration.joint_range import joint_range, seed_poses
 from torchcal.calibration.lm import levenberg_marquardt
@@ -212,9 +212,13 @@ def solve(rows: Rows, x: torch.Tensor, free: torch.Tensor, prior: torch.Tensor, 
         extra = [] if damp is None else [damp * (z[0] - theta0)]
         return torch.cat([rows.residual(z[0]).reshape(-1), prior * z[0]] + extra).unsqueeze(0)
 
+    store = []  # the buffer, allocated once per solve: the LM uses a Jacobian within its iteration only
+
     def jac_fn(z):  # one (1, n k + P [+ P], P) buffer: the rows' Jacobian is written into it
         P = z.shape[-1]
-        out = z.new_empty(n * k + (1 if damp is None else 2) * P, P)
+        if not store:
+            store.append(z.new_empty(n * k + (1 if damp is None else 2) * P, P))
+        out = store[0]
         if known is not None and torch.equal(z[0], known[0]):
             out[: n * k] = known[1].reshape(n * k, P)
         else:
@@ -250,7 +254,8 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, *, theta0=None
         sigma_deg: float = SIGMA_DEG, register: bool = True,
         max_length_mm: float | None = MAX_LENGTH_MM,
         max_angle_deg: float | None = MAX_ANGLE_DEG, prior_sigma_mm: float | None = None,
-        prior: bool = True, damping: float = 0.0, posterior: bool = True) -> FitResult:
+        prior: bool = True, damping: float = 0.0, posterior: bool = True,
+        rank_shortcut: bool = False) -> FitResult:
     """Fit model parameters to measured TCP positions xyz (N, 3) mm [and orientations].
 
     pose: (N,) int pose ids; with repeats the standard errors are pose-level
@@ -290,6 +295,13 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, *, theta0=None
 
     posterior=False skips the covariance (std NaN, covariance None, set_by_prior empty):
     for the fold refits of a cross-validation, which use theta only.
+
+    rank_shortcut=True (a warm start theta0): where every candidate is identifiable beyond
+    doubt (`torchcal.calibration.identifiability.beyond_doubt`: the smallest singular value
+    of the unit columns far above rank_tol), the identifiability report comes from the
+    candidate columns' Gram matrix instead of the pivoting: the same free set, the
+    condition number and observability to rounding. For fold refits, whose report serves
+    its free set.
     """
     from torchcal.calibration.plausibility import plausible_scales
 
@@ -304,7 +316,12 @@ def fit(model: CalibrationModel, ctx: Context, xyz: torch.Tensor, *, theta0=None
     J0 = rows.jacobian(theta0)
     scales = plausible_scales(model, max_length_mm, max_angle_deg).to(theta0) if prior else \
         torch.full_like(theta0, math.inf)
-    report = identifiability(J0, names, cand, rank_tol, first=~torch.isfinite(scales))
+    report = None
+    if rank_shortcut and not cold:
+        Jc = J0.reshape(-1, J0.shape[-1])[:, cand.to(J0.device)]
+        report = beyond_doubt(Jc.T @ Jc, cand, xyz.shape[0], rank_tol)
+    if report is None:
+        report = identifiability(J0, names, cand, rank_tol, first=~torch.isfinite(scales))
     # damping rows make up for missing equations (docstring): only "nothing identifiable" is refused then
     check_enough_rows(report, math.inf if damping else rows.k * xyz.shape[0], model, ctx, cand, rank_tol)
 

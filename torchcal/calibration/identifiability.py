@@ -29,6 +29,9 @@ import torch
 from torchcal.errors import InputError
 
 RANK_TOL = 1e-6
+#: every candidate counts as identifiable, without the pivoting, when the smallest singular
+#: value of the unit columns is at least this many rank_tol (`beyond_doubt`)
+SAFE_RANK = 10.0
 RECHECK_TOL = 1e-2  # pivot a parameter held at a cold start needs at the first solution
 
 
@@ -119,6 +122,29 @@ def identifiability(J: torch.Tensor, names, candidate_free, rank_tol: float = RA
         rank, s = 0, torch.ones(1, dtype=torch.float64)
     held = [names[i] for i in cand.tolist() if not free[i]]
     return Identifiability(free, held, rank, float(s[0] / s[-1]), observability(s, n_rows), n_rows)
+
+
+def beyond_doubt(G: torch.Tensor, cand: torch.Tensor, n_rows: int,
+                 rank_tol: float = RANK_TOL) -> Identifiability | None:
+    """The `identifiability` report of rows whose Jacobian has the Gram matrix G (C, C) on
+    the candidate columns cand (P,) bool, when every candidate is identifiable beyond
+    doubt: no column below `identifiability`'s live threshold and the smallest singular
+    value of the unit columns at least SAFE_RANK x rank_tol, so that no pivot of
+    `identifiability` can fall to its threshold (a column's distance from the span of the
+    others is at least that value; its rounding of the unit columns to 1e-10 and its
+    1e-8 tie-breaking scale move singular values far less). Then free = cand, held none
+    (what `identifiability` gives), and the condition and observability from the same
+    singular values (to rounding, not bit for bit). None otherwise: the caller runs
+    `identifiability` itself. An eigendecomposition of G (C, C) instead of a QR of the rows
+    and the pivoting: for refits whose report serves its free set."""
+    d = G.diagonal().clamp_min(0).sqrt()
+    if not d.numel() or bool((d <= 1e-12 * d.max()).any()):
+        return None
+    s = torch.linalg.eigvalsh(G / d[:, None] / d[None]).flip(0).clamp_min(0).sqrt()
+    if float(s[-1]) < SAFE_RANK * rank_tol:
+        return None
+    return Identifiability(cand.clone().cpu(), [], int(cand.sum()), float(s[0] / s[-1]),
+                           observability(s.cpu(), n_rows), n_rows)
 
 
 def observability(s: torch.Tensor, n_rows: int) -> dict:

@@ -13,8 +13,8 @@ fewer Jacobians:
    angular velocities and orientations of the same chain walk), shared by all folds. A
    fold's rows at theta* are rows of it (the orientation rows rebuilt with the fold's
    own tool rotation): its identifiability (every candidate kept when the unit columns'
-   smallest singular value is at least SAFE_RANK x RANK_TOL, else `identifiability`
-   itself) and the normal matrix ``A = J0^T J0 + Pp`` (Pp the prior rows' information),
+   smallest singular value is at least SAFE_RANK x RANK_TOL, `identifiability.beyond_doubt`,
+   else `identifiability` itself) and the normal matrix ``A = J0^T J0 + Pp`` (Pp the prior rows' information),
    factored once per fold.
 2. Chord (simplified Newton) iterations ``x <- x - A^-1 (J^T r(x) + Pp x)`` with a fixed
    Jacobian J: one forward kinematics of the training rows per iteration, no Jacobian.
@@ -66,8 +66,7 @@ from dataclasses import dataclass, replace
 import torch
 
 from torchcal.calibration.fit import FitResult, Solved, fitted
-from torchcal.calibration.identifiability import (RANK_TOL, Identifiability, check_enough_rows, identifiability,
-                                                  observability)
+from torchcal.calibration.identifiability import RANK_TOL, beyond_doubt, check_enough_rows, identifiability
 from torchcal.calibration.plausibility import plausible_scales
 from torchcal.calibration.prior import prior_factors
 from torchcal.calibration.rows import Rows, orientation_weight, so3_error_jacobian
@@ -79,8 +78,6 @@ STEP_TOL = 1e-9
 MAX_CHORD = 20
 #: an approximate phase (the shared Jacobian) stops at a step this share of its first
 APPROX_TOL = 1e-3
-#: every candidate counts as identifiable, without the pivoting, above this many RANK_TOL (`_identified`)
-SAFE_RANK = 10.0
 #: true Jacobians per solve at most (then the caller's LM fit: a problem on which the chord crawls)
 MAX_JACOBIANS = 5
 #: a fresh Jacobian's first step above this share of the previous one's: the LM fit instead
@@ -150,26 +147,6 @@ class _Metric:
     def solve(self, g: torch.Tensor) -> torch.Tensor:
         """A^-1 g (F,)."""
         return torch.cholesky_solve((g / self.d)[:, None], self.L)[:, 0] / self.d
-
-
-def _identified(G: torch.Tensor, cand: torch.Tensor, n_rows: int) -> Identifiability | None:
-    """The identifiability report of rows whose Jacobian has the Gram matrix G (C, C) on
-    the candidate columns cand (P,) bool, when every candidate is identifiable beyond
-    doubt: no column below `identifiability`'s live threshold and the smallest singular
-    value of the unit columns at least SAFE_RANK x RANK_TOL, so that no pivot of
-    `identifiability` can fall to its threshold (a column's distance from the span of the
-    others is at least that value; its rounding of the unit columns to 1e-10 and its
-    1e-8 tie-breaking scale move singular values far less). Then free = cand, held none,
-    and the condition and observability from the same singular values (to rounding).
-    None otherwise: the caller runs `identifiability` itself."""
-    d = G.diagonal().clamp_min(0).sqrt()
-    if not d.numel() or bool((d <= 1e-12 * d.max()).any()):
-        return None
-    s = torch.linalg.eigvalsh(G / d[:, None] / d[None]).flip(0).clamp_min(0).sqrt()
-    if float(s[-1]) < SAFE_RANK * RANK_TOL:
-        return None
-    return Identifiability(cand.clone().cpu(), [], int(cand.sum()), float(s[0] / s[-1]),
-                           observability(s.cpu(), n_rows), n_rows)
 
 
 def _metric(G: torch.Tensor, pf: torch.Tensor) -> _Metric:
@@ -268,7 +245,7 @@ def refit(full: FitResult, sh: Shared, m, ctx, train: torch.Tensor, *, sigma_mm:
     Jc = J0.reshape(-1, J0.shape[-1])[:, cand]
     G = Jc.T @ Jc
     n = rows.xyz.shape[0]
-    report = _identified(G, cand, n)
+    report = beyond_doubt(G, cand, n)
     if report is None:
         report = identifiability(J0, model.param_names(), cand, RANK_TOL, first=~torch.isfinite(scales))
     check_enough_rows(report, rows.k * n, model, ct, cand, RANK_TOL)

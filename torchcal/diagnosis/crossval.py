@@ -49,7 +49,9 @@ def fold_fit(full, m, ctx, train: torch.Tensor, *, sigma_mm: float, sigma_deg: f
     """The fitted model `full` (`FitResult`) refitted on the rows `train` (N,) bool of m:
     from full.theta, with full's identifiable set, plausible scales and prior rho, the
     measured orientations when m has them. InputError when the rows cannot carry it.
-    posterior=False: without the covariance (`fit`'s option; a refit used for its theta only)."""
+    posterior=False: without the covariance (`fit`'s option; a refit used for its theta only).
+    Its identifiability report takes `fit`'s rank_shortcut (the same free set; the caller
+    reads that and theta)."""
     from torchcal.calibration.fit import fit
 
     lim = full.plausible_limits or {}
@@ -57,7 +59,7 @@ def fold_fit(full, m, ctx, train: torch.Tensor, *, sigma_mm: float, sigma_deg: f
                pose=m.pose[train], rotation=None if m.rotation is None else m.rotation[train],
                sigma_mm=sigma_mm, sigma_deg=sigma_deg, register=False, max_iter=REFIT_MAX_ITER,
                max_length_mm=lim.get("max_length_mm"), max_angle_deg=lim.get("max_angle_deg"),
-               prior_sigma_mm=lim.get("prior_sigma_mm"), posterior=posterior)
+               prior_sigma_mm=lim.get("prior_sigma_mm"), posterior=posterior, rank_shortcut=True)
 
 
 def fold_refits(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: float, posterior: bool = True):

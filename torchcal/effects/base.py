@@ -94,8 +94,8 @@ class Effect:
         self.joints = tuple(int(j) for j in joints)  # 1-based, as in specs and reports
 
     def __getstate__(self):
-        """Pickled and copied without the `per_context` caches (weak references)."""
-        return {k: v for k, v in self.__dict__.items() if not k.startswith("_per_context_")}
+        """Pickled and copied without the `per_context` and `per_value` caches."""
+        return {k: v for k, v in self.__dict__.items() if not k.startswith(("_per_context_", "_per_value_"))}
 
     # parameter description ----------------------------------------------------------
     def param_names(self) -> list[str]:
@@ -203,6 +203,31 @@ def per_context(method):
         value = method(self, ctx)
         if not ctx.q.requires_grad:
             self.__dict__[attr] = (weakref.ref(ctx), value)
+        return value
+
+    return cached
+
+
+def per_value(method):
+    """Decorator for an effect's method ``method(self, r) -> tensor`` that depends on the
+    values of a small parameter tensor r only (a rotation from a rotation vector): the
+    value for the last r it was called with is kept, keyed by a copy of r compared value
+    by value (so a theta changed in place is seen), so that the residual and Jacobian
+    evaluations at one theta compute it once. Not kept for an r that requires grad or is
+    wrapped by torch.func (vmap, jvp, jacfwd), which get a fresh value."""
+    attr = f"_per_value_{method.__name__}"
+
+    @functools.wraps(method)
+    def cached(self, r):
+        if r.requires_grad or torch._C._functorch.is_functorch_wrapped_tensor(r):
+            return method(self, r)
+        memo = self.__dict__.get(attr)
+        if memo is not None:
+            key, value = memo
+            if key.shape == r.shape and key.dtype == r.dtype and key.device == r.device and torch.equal(key, r):
+                return value
+        value = method(self, r)
+        self.__dict__[attr] = (r.detach().clone(), value)
         return value
 
     return cached

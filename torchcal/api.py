@@ -269,17 +269,31 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
     partition: a `Partition`, a PARTITION.json path or None. A path is read for the model's
     robot: a partition made for another robot (or other joint limits) is refused
     (InputError), one without a record read with an `UnrecordedRobotWarning`
-    (`torchcal.io.partition_file.load_partition`). Returns the global interval
+    (`torchcal.io.partition_file.load_partition`); a `Partition` is held to the record it
+    was read with (``made_for``), and one without (built in memory, an older file) to its
+    geometry (`torchcal.calibration.mismatch.check_partition`: sweep points beyond the
+    robot's reach, calibration poses far from every sweep point: InputError). Returns the global interval
     fit (a `FitResult` with ``radius``), with a partition a `ZonedFit` (the global fit and
     one fit per zone); `save` writes it as the MODEL.json of ``torchcal calibrate``.
     """
     from torchcal.calibration.zone_calibration import calibrate as run
 
+    from torchcal.partition.zones import Partition
+
     model = _model(robot_or_model, effects)
     if isinstance(partition, (str, Path)):
         from torchcal.io.partition_file import load_partition
         partition = load_partition(partition, model.robot)
+    elif partition is not None and not isinstance(partition, Partition):
+        raise InputError(f"partition: expected a Partition, a PARTITION.json path or None, "
+                         f"got {type(partition).__name__}")
+    elif partition is not None and partition.made_for is not None:  # built from a file: its record
+        from torchcal.io.robot_file import check_record
+        check_record(partition.made_for, model.robot, "partition", "sweep and partition")
     m = _measurements(measurements, model.robot)
+    if partition is not None and partition.made_for is None:  # no record: judged by its geometry
+        from torchcal.calibration.mismatch import check_partition
+        check_partition(partition, model.robot, m.q, "partition")
     with threads.for_work(_work(model, m)):
         return run(model, m, partition, zone_method, damping)
 

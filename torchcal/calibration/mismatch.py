@@ -83,6 +83,13 @@ counted and named in one `CalibratedRangeWarning`: the model extrapolates there.
 
 A robot given with a model (`check_same_robot`) must be the robot it was fitted for.
 
+Partitions that record no robot (`check_partition`: one built in memory, an older file)
+are judged by geometry: their sweep points are the nominal TCP positions of the robot
+they were made for, in its base frame. More than OUTLIER_SHARE = 10 % of them beyond 1.05 R
+(R: the reach, as for targets), or calibration poses whose nominal TCP positions lie a median
+farther from the nearest sweep point than PARTITION_SPACING = 3 times the sweep's own median
+spacing and than R / 20: a partition of another robot (or of another region), refused.
+
 Robot files (`check_robot_lengths`): an arm whose links (sum over joints of
 ``sqrt(d^2 + a^2)``, prismatic strokes included) reach less than MIN_REACH_MM = 50 mm is
 not an industrial arm; its lengths were written in metres.
@@ -108,6 +115,7 @@ SEED_MM = 100.0  # a seed whose model point lies farther from its target is no n
 RATIO_LIMIT = 20.0
 RAD_RATIO = 2.0
 INCH_MM = 25.4
+PARTITION_SPACING = 3.0
 
 
 class MismatchWarning(UserWarning):
@@ -368,6 +376,39 @@ def check_targets(model, theta: torch.Tensor, targets: torch.Tensor, where: str 
                       f"from the base; up to {float(dist.max()):.4g} mm): row(s) {rows}; another robot, "
                       "another frame (targets are in the model's frame) or units?", MismatchWarning, stacklevel=2)
     return far
+
+
+def check_partition(partition, robot, q: torch.Tensor, where: str = "partition") -> None:
+    """Refuse (one InputError line naming `where`) a `torchcal.partition.zones.Partition`
+    that cannot be of `robot` by its geometry (module docstring): sweep points beyond the
+    reach, or calibration poses q (N, n) rad / mm far from every sweep point."""
+    from scipy.spatial import cKDTree
+
+    from torchcal.robots.poses import random_poses
+
+    with torch.no_grad():
+        ws = robot.fk(random_poses(robot, WORKSPACE_POSES, torch.Generator().manual_seed(0)).to(
+            robot.device, robot.dtype)).detach().to("cpu", torch.float64)
+        p = robot.fk(q.to(robot.device, robot.dtype)).detach().to("cpu", torch.float64)  # (N, 3) mm
+    origin = robot.base[:3, 3].detach().to("cpu", torch.float64)
+    reach = float((ws - origin).norm(dim=-1).max())
+    pts = partition.positions.detach().to("cpu", torch.float64)
+    dist = (pts - origin).norm(dim=-1)
+    far = int((dist > REACH_MARGIN * reach).sum())
+    if far > OUTLIER_SHARE * pts.shape[0]:
+        raise InputError(f"{where}: {far} of its {pts.shape[0]} sweep points lie beyond the reach of robot "
+                         f"{robot.name!r} ({reach:.4g} mm from its base; up to {float(dist.max()):.4g} mm): a "
+                         "partition of another robot? make the sweep and partition for this robot")
+    if pts.shape[0] < 2 or p.shape[0] == 0:
+        return
+    tree = cKDTree(pts.numpy())
+    spacing = float(torch.as_tensor(tree.query(pts.numpy(), k=2)[0][:, 1]).median())
+    near = float(torch.as_tensor(tree.query(p.numpy(), k=1)[0]).median())
+    if near > max(PARTITION_SPACING * spacing, reach / TARGET_RATIO):
+        raise InputError(f"{where}: the calibration poses of robot {robot.name!r} lie a median {near:.4g} mm from "
+                         f"the nearest of its sweep points (spaced a median {spacing:.4g} mm apart): a partition "
+                         "of another robot, or of another part of the workspace? make the sweep and partition for "
+                         "this robot")
 
 
 def check_seeds(seed_points: torch.Tensor, targets: torch.Tensor, q0: torch.Tensor, robot,

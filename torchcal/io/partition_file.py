@@ -126,7 +126,7 @@ def partition_from_dict(obj: dict, where: str = "partition", robot: Robot | None
             feature_mean=torch.tensor([r["feature_mean"] for r in levels], dtype=f64).reshape(len(levels), 4),
             feature_std=torch.tensor([r["feature_std"] for r in levels], dtype=f64).reshape(len(levels), 4),
             m=float(obj["m"]), r_weight=float(obj["r_weight"]), knn_neighbors=int(obj["knn_neighbors"]),
-            options=dict(obj["options"]),
+            options=dict(obj["options"]), made_for=record,
         )
     except (TypeError, ValueError, KeyError, RuntimeError) as exc:
         if isinstance(exc, InputError):

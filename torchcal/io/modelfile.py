@@ -310,6 +310,10 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
             iv = torch.tensor([[float(v) for v in p["interval"]] for p in params], dtype=torch.float64)
         except (TypeError, ValueError) as exc:
             raise InputError(f"{path}: bad parameter 'interval': {exc}") from None
+        if iv.shape[1:] != (2,) or not bool(torch.isfinite(iv).all()):
+            raise InputError(f"{path}: parameter 'interval': expected [lower, upper], two finite numbers per "
+                             "parameter (a file edited by hand or corrupted)")
+        _interval_bounds(iv[:, 0], iv[:, 1], "parameters", path)
         radius = (iv[:, 1] - iv[:, 0]) / 2 / (1.0 if obj["format"] == FORMAT_RAD else file_units(model)[1])
     res = FitResult(model, theta, std, None, None, _report(obj, model, identified, where), covariance=
                     _covariance(obj, model, where), registration=obj.get("registration"),
@@ -409,7 +413,20 @@ def _vector(z: dict, key: str, P: int, where: str, dtype=torch.float64) -> torch
         raise InputError(f"{where}: zone {z.get('zone')}: missing or bad {key!r}: {exc}") from None
     if v.shape != (P,):
         raise InputError(f"{where}: zone {z.get('zone')}: {key} has {v.numel()} values, expected {P}")
+    if v.is_floating_point() and not bool(torch.isfinite(v).all()):
+        i = int((~torch.isfinite(v)).nonzero()[0])
+        raise InputError(f"{where}: zone {z.get('zone')}: {key}[{i}] is {float(v[i])}, expected a finite number "
+                         f"(a file edited by hand or corrupted; calibrate again)")
     return v
+
+
+def _interval_bounds(lower: torch.Tensor, upper: torch.Tensor, what: str, where: str) -> None:
+    """InputError naming the first parameter whose interval is inverted (lower > upper)."""
+    bad = (lower > upper).nonzero().flatten()
+    if bad.numel():
+        i = int(bad[0])
+        raise InputError(f"{where}: {what}: parameter {i + 1}: interval lower {float(lower[i]):.6g} > upper "
+                         f"{float(upper[i]):.6g}, expected lower <= upper (a file edited by hand or corrupted)")
 
 
 def _zone_from_dict(z: dict, glob: FitResult, k: torch.Tensor, where: str) -> FitResult:
@@ -417,7 +434,9 @@ def _zone_from_dict(z: dict, glob: FitResult, k: torch.Tensor, where: str) -> Fi
     if not isinstance(z, dict):
         raise InputError(f"{where}: a zone entry is not an object")
     P = glob.model.n_params
-    theta, lower, upper = (_vector(z, key, P, where) / k for key in ("value", "lower", "upper"))
+    theta, lower, upper = (_vector(z, key, P, where) for key in ("value", "lower", "upper"))
+    _interval_bounds(lower, upper, f"zone {z.get('zone')}", where)  # in the file's units
+    theta, lower, upper = theta / k, lower / k, upper / k
     std = _vector(z, "std", P, where) / k
     shared = {"q_range": glob.q_range, "seed_poses": glob.seed_poses, "provenance": glob.provenance}
     return _zone_fit(glob.model, theta, std, (upper - lower) / 2, _vector(z, "identified", P, where, torch.bool),
@@ -445,6 +464,7 @@ def _interval_file(obj: dict, where: str) -> FitResult:
     zones = []
     for z in _list(obj, "zones", where):
         theta, lower, upper = (_vector(z, key, P, where) for key in ("theta", "lower", "upper"))
+        _interval_bounds(lower, upper, f"zone {z.get('zone')}", where)
         zones.append(_zone_fit(model, theta, torch.zeros(P, dtype=torch.float64), (upper - lower) / 2,
                                _vector(z, "free", P, where, torch.bool), z, where, shared))
     if obj.get("partition") is None:

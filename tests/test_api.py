@@ -116,3 +116,31 @@ def test_a_model_path_of_any_name_is_read_and_named(tmp_path):
         torchcal.compensate(data, torch.zeros(1, 3, dtype=torch.float64) + 500.0)
     with pytest.raises(InputError, match=r"data\.csv: not a valid model file: a CSV table"):
         torchcal.evaluate(data, data)
+
+
+def test_compensate_checks_the_callers_seeds(kr, data):
+    """q0 of torchcal.compensate: one seed per target, radians (degrees given as radians
+    refused; before, the solve converged at joint values thousands of degrees off, with a
+    calibrated-range warning only), seeds far from their targets named in one warning."""
+    import warnings
+
+    from torchcal.calibration.mismatch import MismatchWarning
+
+    m, _ = data
+    res = torchcal.fit(kr, m)
+    t, q = m.xyz[:4], m.q[:4]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        good = torchcal.compensate(res, t, q0=q)
+    assert good.converged.all()
+    with pytest.raises(torchcal.InputError, match=r"^q0: seed angles reach [0-9.]+ rad, beyond what a joint can turn "
+                                                  r"\([0-9.]+ rad\): they look like degrees; seeds are in radians"):
+        torchcal.compensate(res, t, q0=torch.rad2deg(q))
+    with pytest.raises(torchcal.InputError, match=r"^q0: expected \(4, 6\) rad, one seed per target, got shape \(3, 6\)"):
+        torchcal.compensate(res, t, q0=q[:3])
+    with pytest.raises(torchcal.InputError, match=r"^q0: expected \(4, 6\) rad, one seed per target, got shape \(6,\)"):
+        torchcal.compensate(res, t, q0=q[0])
+    far = q.clone()
+    far[2] += 0.5
+    with pytest.warns(MismatchWarning, match=r"^q0: 1 seed\(s\) lie more than 100 mm from their targets .* row\(s\) 3;"):
+        torchcal.compensate(res, t, q0=far)

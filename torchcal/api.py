@@ -304,7 +304,9 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
 
     model: a fitted model (`FitResult`, or a MODEL.json path; a `ZonedFit`'s targets are
     assigned to its zones). targets: in the model's measuring
-    frame. q0: (M, n) rad starting commands, default
+    frame. q0: (M, n) rad starting commands (one per target; with `check`, seeds beyond what
+    a joint can turn are refused as degrees, and seeds whose model point lies more than
+    100 mm from their target named in a `MismatchWarning`), default
     `torchcal.calibration.compensate.nominal_start` (the nominal inverse in the measuring
     frame from the nearest calibration pose, as the command line seeds it; a target
     beyond the reach, `check`, is tried from its nearest pose only and ends not converged). tol_mm,

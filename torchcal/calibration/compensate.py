@@ -347,11 +347,13 @@ def compensate_fitted(fitted, targets, q0=None, *, tol_mm: float = 1e-6, max_ite
     q0: (M, n) rad starting commands, default `nominal_start` (a target beyond the reach
     from its nearest calibration pose only, as ``torchcal compensate``). check: refuse
     targets inside the robot's base (metres read as mm), warn about those beyond its reach
-    (`torchcal.calibration.mismatch.check_targets`). A residual stage is inverted with the
+    (`torchcal.calibration.mismatch.check_targets`); refuse seeds q0 of another shape or
+    beyond what a joint can turn (degrees), warn about seeds whose model point lies more
+    than 100 mm from their target (`check_seeds`). A residual stage is inverted with the
     model (`with_stage`). Converged commands outside the calibrated range are counted
     (``outside_range``) and named in one `CalibratedRangeWarning` (at `stacklevel`, counted
     from the caller)."""
-    from torchcal.calibration.mismatch import check_targets, warn_outside_range
+    from torchcal.calibration.mismatch import check_seeds, check_targets, warn_outside_range
 
     cm, theta, q_range, stage = fitted.model, fitted.theta, fitted.q_range, fitted.residual_model
     robot = cm.robot
@@ -361,6 +363,15 @@ def compensate_fitted(fitted, targets, q0=None, *, tol_mm: float = 1e-6, max_ite
     far = check_targets(cm, theta, t) if check else []
     if q0 is None:
         q0 = nominal_start(cm, theta, t, poses=fitted.seed_poses, q_range=q_range, once=far).q
+    elif check:  # the caller's seeds: shape, finite, radians (not degrees), near their targets
+        q0 = robot.check_q(q0, "q0").to(t)
+        if q0.shape != (t.shape[0], robot.n):
+            raise InputError(f"q0: expected ({t.shape[0]}, {robot.n}) rad, one seed per target, "
+                             f"got shape {tuple(q0.shape)}")
+        at = predict_rows(cm, theta.to(t).expand(len(t), -1), q0,
+                          payload_kg=None if payload_kg is None else torch.as_tensor(payload_kg).to(t),
+                          temp_c=None if temp_c is None else torch.as_tensor(temp_c).to(t))
+        check_seeds(at, t, q0, robot, "q0", skip=far, angle_unit="rad")
     zone = fitted.assign(t) - 1  # row of zone_theta
     theta = fitted.zone_theta
     options = dict(tol_mm=tol_mm, max_iter=max_iter, max_step_rad=max_step_rad, payload_kg=payload_kg,

@@ -38,7 +38,9 @@ naming them; compensate reports them as not converged).
 Seeds of targets (`check_seeds`): the model at each seed should lie on its target (a seed
 is the target's nominal command); seeds within +-2 pi "degrees" a median beyond SEED_MM =
 100 mm from their targets are radians read as degrees (a refusal), other seeds beyond
-SEED_MM are named in a warning.
+SEED_MM are named in a warning. Seeds given in radians (the library's ``q0``) beyond
+what a joint can turn (`beyond_turn`: max(2 pi, the widest limit) + 0.01 rad) are degrees
+(a refusal).
 
 Before and after a fit (`check_robot_data`, `check_fitted`): the nominal robot with its
 measuring frame and tool offset fitted must come within GROSS_MM of the data, else the
@@ -173,10 +175,9 @@ def check_units(m, robot, length_unit: str = "mm", angle_unit: str = "deg", wher
     rev = ~robot.prismatic.cpu()  # a prismatic joint's q is a length (mm), never an angle
     q = m.q.detach().to("cpu", torch.float64)[..., rev]
     qmax_file = float(q.abs().max()) if q.numel() else 0.0  # rad inside
-    if angle_unit == "rad" and q.numel():
-        lim = float(robot.limits.detach().cpu()[rev].abs().max())
-        bound = max(2 * math.pi, lim) + 0.01
-        if qmax_file > bound:
+    if angle_unit == "rad":
+        bound = beyond_turn(m.q, robot)
+        if bound is not None:
             raise InputError(f"{pre}joint angles reach {qmax_file:.4g} rad, beyond what a joint can "
                              f"turn ({bound:.3g} rad): they look like degrees read as radians",
                              fix=("angle_unit", "deg"))
@@ -210,6 +211,17 @@ def check_units(m, robot, length_unit: str = "mm", angle_unit: str = "deg", wher
                              "mm read as metres", fix=("length_unit", "mm"))
         raise InputError(f"{pre}{spreads} ({ratio:.4g} times more): wrong unit or wrong robot?")
     return out
+
+
+def beyond_turn(q: torch.Tensor, robot) -> float | None:
+    """The bound max(2 pi, the robot's widest revolute limit) + 0.01 rad when a revolute
+    joint value of q (..., n) rad / mm lies beyond it (degrees taken for radians), else None."""
+    rev = ~robot.prismatic.cpu()
+    a = q.detach().to("cpu", torch.float64)[..., rev]
+    if not a.numel():
+        return None
+    bound = max(2 * math.pi, float(robot.limits.detach().cpu()[rev].abs().max())) + 0.01
+    return bound if float(a.abs().max()) > bound else None
 
 
 def _units_hint(ratio: float) -> str:
@@ -412,7 +424,7 @@ def check_partition(partition, robot, q: torch.Tensor, where: str = "partition")
 
 
 def check_seeds(seed_points: torch.Tensor, targets: torch.Tensor, q0: torch.Tensor, robot,
-                where: str = "targets", skip=()) -> list[int]:
+                where: str = "targets", skip=(), angle_unit: str = "deg") -> list[int]:
     """Compensation seeds against their targets: a seed (the ``q1..qN`` of a targets file)
     is normally the nominal command of its target, where the model lies within the robot's
     absolute accuracy (a few mm) of it; the solve starts there and stays in its arm
@@ -426,14 +438,21 @@ def check_seeds(seed_points: torch.Tensor, targets: torch.Tensor, q0: torch.Tens
     sits on its targets and passes. Otherwise a `MismatchWarning` names the targets whose
     seed point lies beyond SEED_MM (the solution may lie in another arm configuration than
     the seed's); rows in `skip` (0-based: targets beyond the reach, named already) are not.
-    Returns the named 0-based rows."""
+    angle_unit: the unit the seeds were given in: 'deg' (a targets file), or 'rad' (the
+    library's q0), where seeds beyond what a joint can turn (`beyond_turn`) are degrees
+    given as radians (an InputError naming `where`). Returns the named 0-based rows."""
     d = (seed_points.detach().to("cpu", torch.float64) - targets.detach().to("cpu", torch.float64)).norm(dim=-1)
     if d.numel() == 0:
         return []
     rev = ~robot.prismatic.cpu()
     q = q0.detach().to("cpu", torch.float64)[..., rev]
     med = float(d.median())
-    if q.numel() and math.degrees(float(q.abs().max())) <= 2 * math.pi + 1e-9 and med > SEED_MM:
+    bound = beyond_turn(q0, robot) if angle_unit == "rad" else None
+    if bound is not None:
+        raise InputError(f"{where}: seed angles reach {float(q.abs().max()):.4g} rad, beyond what a joint can turn "
+                         f"({bound:.3g} rad): they look like degrees; seeds are in radians (torch.deg2rad)")
+    if angle_unit == "deg" and q.numel() and math.degrees(float(q.abs().max())) <= 2 * math.pi + 1e-9 \
+            and med > SEED_MM:
         raise InputError(f"{where}: every seed angle lies within +-{math.degrees(float(q.abs().max())):.4g} deg and "
                          f"the model at the seeds lies a median {med:.4g} mm from the targets: the seeds "
                          f"q1..q{robot.n} look like radians read as degrees", fix=("angle_unit", "rad"))

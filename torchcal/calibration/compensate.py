@@ -469,13 +469,13 @@ def compensate_targets(im, targets, *, frame: str = "measuring", seeds=None, pay
     if t.ndim != 2 or t.shape[-1] != 3:
         raise InputError(f"targets: expected (M, 3) mm, got shape {tuple(t.shape)}")
     check_target_conditions(im.model, t, payload_kg, temp_c, where)
-    given = t
+    given, o = t, None
     if frame == "base":  # the solve is in the measuring frame, where the model predicts
         R, o = measuring_from_base(im.model, im.theta.to(t))
         t = t @ R.T + o
-    with warnings.catch_warnings():  # metres read as mm: refused; beyond the reach: listed
+    with warnings.catch_warnings():  # metres or inches read as mm: refused; beyond the reach: listed
         warnings.simplefilter("ignore", MismatchWarning)
-        far = check_targets(im.model, im.theta, t, where=where)
+        far = check_targets(im.model, im.theta, t, where=where, about=o)
     if seeds is None:
         q0 = nominal_start(im.model, im.theta, t, poses=im.seed_poses, q_range=im.q_range, once=far).q
     else:  # seeds are the targets' nominal commands: radians in degrees refused, far ones named

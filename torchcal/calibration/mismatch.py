@@ -32,8 +32,13 @@ one. The reach R is their largest distance from the robot base origin (as the mo
 base frame maps it). Targets whose median distance from the base origin is below R / 20 (the
 factor of the unit check, `check_units`) sit inside the robot's
 base, or whose median distance from the origin of the measuring frame (the instrument) is
-below R / 20: metres read as mm (a refusal); targets beyond 1.05 R cannot be reached (a warning
-naming them; compensate reports them as not converged).
+below R / 20: a unit (a refusal); targets beyond 1.05 R cannot be reached (a warning
+naming them; compensate reports them as not converged), unless more than 10 % of them are
+and a unit brings them into the workspace (a refusal). The unit is the first of `MISREAD`
+(metres, inches) whose factor, applied about the origin of the frame the targets were given
+in, puts their median distance from the base within [R / 20, 1.05 R] and at most 10 % of
+them beyond 1.05 R ("they look like inches read as mm; convert them to mm (x 25.4)");
+the words and the factor are those of the measurement unit check (`misread_length`).
 
 Seeds of targets (`check_seeds`): the model at each seed should lie on its target (a seed
 is the target's nominal command); seeds within +-2 pi "degrees" a median beyond SEED_MM =
@@ -120,6 +125,21 @@ INCH_MM = 25.4
 PARTITION_SPACING = 3.0
 
 
+#: the length units that numbers read as mm are mistaken in: factor to mm, the words naming
+#: the mistake, the `InputError.fix` (None: no unit option reads them; convert the file)
+MISREAD = {"metres": (1000.0, "metres read as mm", ("length_unit", "m")),
+           "inches": (INCH_MM, f"inches read as mm; convert them to mm (x {INCH_MM:g})", None)}
+
+
+def misread_length(ratio: float) -> str | None:
+    """The unit (a `MISREAD` key) of numbers read as mm that are `ratio` times the size
+    they should have: 'inches' when 1/25.4 within 10 %, 'metres' at any other ratio below
+    1 / RATIO_LIMIT, else None."""
+    if abs(math.log(ratio * INCH_MM)) < math.log(1.1):
+        return "inches"
+    return "metres" if ratio < 1 / RATIO_LIMIT else None
+
+
 class MismatchWarning(UserWarning):
     """Data or targets that do not fit the model, where the command can still go on."""
 
@@ -198,12 +218,10 @@ def check_units(m, robot, length_unit: str = "mm", angle_unit: str = "deg", wher
                          f"{spreads}: the joint angles look like radians read as degrees",
                          fix=("angle_unit", "rad"))
     if ratio < 1 / RATIO_LIMIT:
-        if length_unit == "mm" and abs(math.log(ratio * INCH_MM)) < math.log(1.1):
-            raise InputError(f"{pre}{spreads} ({1 / ratio:.4g} times less): the positions look like inches "
-                             f"read as mm; convert them to mm (x {INCH_MM:g})")
         if length_unit == "mm":
-            raise InputError(f"{pre}{spreads} ({1 / ratio:.4g} times less): the positions look like "
-                             "metres read as mm", fix=("length_unit", "m"))
+            _, words, fix = MISREAD[misread_length(ratio)]
+            raise InputError(f"{pre}{spreads} ({1 / ratio:.4g} times less): the positions look like {words}",
+                             fix=fix)
         raise InputError(f"{pre}{spreads} ({1 / ratio:.4g} times less): wrong unit or wrong robot?")
     if ratio > RATIO_LIMIT:
         if length_unit == "m":
@@ -359,29 +377,51 @@ def workspace(model, theta: torch.Tensor, seed: int = 0):
     return v, origin
 
 
-def check_targets(model, theta: torch.Tensor, targets: torch.Tensor, where: str = "targets") -> list[int]:
-    """Refuse targets (M, 3) mm that sit inside the robot's base (metres read as mm);
-    warn (`MismatchWarning`) naming targets beyond the reach. Returns the 0-based rows
-    beyond the reach."""
+def _scaled_unit(t: torch.Tensor, origin: torch.Tensor, reach: float, about: torch.Tensor) -> str | None:
+    """The `MISREAD` unit whose factor brings the targets t (M, 3) (numbers read as mm,
+    scaled about `about` (3,), the origin of the frame they were given in, where a file's
+    numbers are zero) into the workspace: median distance from the base origin within [reach / TARGET_RATIO,
+    REACH_MARGIN * reach] and at most OUTLIER_SHARE of them beyond it; the first that does
+    in `MISREAD`'s order (metres: numbers in metres times 25.4 can land in a large arm's
+    workspace near the instrument; inches times 1000 lie 39 times too far), None when none."""
+    for unit, (factor, _, _) in MISREAD.items():
+        d = (about + (t - about) * factor - origin).norm(dim=-1)
+        if reach / TARGET_RATIO <= float(d.median()) <= REACH_MARGIN * reach and \
+                float((d > REACH_MARGIN * reach).double().mean()) <= OUTLIER_SHARE:
+            return unit
+    return None
+
+
+def check_targets(model, theta: torch.Tensor, targets: torch.Tensor, where: str = "targets",
+                  about: torch.Tensor | None = None) -> list[int]:
+    """Refuse targets (M, 3) mm that sit inside the robot's base or around the origin of
+    their frame, and targets mostly beyond the reach that a unit (`MISREAD`: metres,
+    inches) would bring into it (one InputError naming the unit); warn (`MismatchWarning`)
+    naming the other targets beyond the reach. about: (3,) mm, the origin of the frame the
+    targets were given in, in the model's frame (None: the model's own, the measuring frame).
+    Returns the 0-based rows beyond the reach."""
     pts, origin = workspace(model, theta)
     reach = float((pts - origin).norm(dim=-1).max())
     t = targets.detach().to("cpu", torch.float64)
     dist = (t - origin).norm(dim=-1)
     med = float(dist.median())
     med0 = float(t.norm(dim=-1).median())  # around the origin of the model's (measuring) frame
+    unit = _scaled_unit(t, origin, reach, torch.zeros(3, dtype=torch.float64) if about is None else
+                        about.detach().to("cpu", torch.float64))
+    _, words, fix = MISREAD[unit] if unit is not None else (None, "wrong unit or wrong frame?", None)
+    look = f"they look like {words}" if unit is not None else words
     if med0 < reach / TARGET_RATIO and med >= reach / TARGET_RATIO:
-        metres = med0 * 1000 <= float(origin.norm()) + REACH_MARGIN * reach
         raise InputError(f"{where}: the targets lie a median {med0:.4g} mm from the origin of the measuring frame, "
                          f"where no target of {model.robot.name} can be (its base is {float(origin.norm()):.4g} mm "
-                         "away): " + ("they look like metres read as mm" if metres else "wrong unit or wrong frame?"),
-                         fix=("length_unit", "m") if metres else None)
+                         f"away): {look}", fix=fix)
     if med < reach / TARGET_RATIO:
-        metres = med * 1000 <= REACH_MARGIN * reach
         raise InputError(f"{where}: the targets lie a median {med:.4g} mm from the robot base, inside the base of "
-                         f"{model.robot.name} (reach {reach:.4g} mm): "
-                         + ("they look like metres read as mm" if metres else "wrong unit or wrong frame?"),
-                         fix=("length_unit", "m") if metres else None)
+                         f"{model.robot.name} (reach {reach:.4g} mm): {look}", fix=fix)
     far = (dist > REACH_MARGIN * reach).nonzero().flatten().tolist()
+    if len(far) > OUTLIER_SHARE * len(t) and unit is not None:
+        raise InputError(f"{where}: {len(far)} of {len(t)} targets lie beyond the reach of {model.robot.name} "
+                         f"({reach:.4g} mm from its base; a median {med:.4g} mm), and x {MISREAD[unit][0]:g} they "
+                         f"would lie within it: {look}", fix=fix)
     if far:
         rows = _listed(i + 1 for i in far)
         warnings.warn(f"{where}: {len(far)} target(s) lie beyond the reach of {model.robot.name} ({reach:.4g} mm "

@@ -14,7 +14,7 @@ class InputError(ValueError):
     the message ends with ``; pass length_unit='m'`` for library callers, and the command
     line writes its own option instead (``; pass --length-unit m``, `command_line`). A list
     value is one option with several words (``("effects", ["base_frame", "tool_offset"])``
-    -> ``--effects base_frame tool_offset``)."""
+    -> ``--effects base_frame tool_offset``); True is a switch (``("tool", True)`` -> ``--tool``)."""
 
     def __init__(self, message: str = "", *, fix: tuple[str, str] | None = None):
         self.message, self.fix = message, fix
@@ -24,8 +24,11 @@ class InputError(ValueError):
         """The message with the fix as a command-line option (``--length-unit m``)."""
         if self.fix is None:
             return str(self)
+        flag = f"--{self.fix[0].replace('_', '-')}"
+        if self.fix[1] is True:  # a switch (tool=True -> --tool)
+            return f"{self.message}; pass {flag}"
         value = " ".join(self.fix[1]) if isinstance(self.fix[1], (list, tuple)) else self.fix[1]
-        return f"{self.message}; pass --{self.fix[0].replace('_', '-')} {value}"
+        return f"{self.message}; pass {flag} {value}"
 
 
 class OutputExistsError(InputError):

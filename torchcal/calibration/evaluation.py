@@ -10,11 +10,13 @@ the model are refused first (`torchcal.calibration.mismatch.check_measurements`)
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 
 import torch
 
 from torchcal.calibration.fit import FitResult
+from torchcal.errors import InputError
 from torchcal.measurements import Measurements
 
 
@@ -58,14 +60,22 @@ def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     """Errors of the fitted model `fm` on measurements `m` (module doc): InputError for data
     that cannot come from the model (another robot, a moved measuring frame, units); one
     `CalibratedRangeWarning` (at `stacklevel`, counted from the caller) for rows outside
-    the calibrated range."""
+    the calibrated range. Data of a point id the model was not fitted on
+    (`torchcal.calibration.mismatch.point_ids_differ`): InputError for a model with one tool
+    offset per point, else one `PointIdWarning`."""
     from torchcal.calibration.joint_range import outside_range
-    from torchcal.calibration.mismatch import check_measurements, enforce, warn_outside_range
+    from torchcal.calibration.mismatch import (PointIdWarning, check_measurements, enforce, point_ids_differ,
+                                               warn_outside_range)
     from torchcal.effects import context_of
     from torchcal.metrics import error_summary
     from torchcal.rotations import so3_error
 
     cm = fm.model
+    other = point_ids_differ(cm, m)
+    if other is not None and cm.points:  # one tool offset per point: none for this one
+        raise InputError(other)
+    if other is not None:
+        warnings.warn(other, PointIdWarning, stacklevel=stacklevel + 1)
     ctx = context_of(cm.robot, m)
     cm.check_context(ctx)
     theta = fm.theta.to(m.xyz)

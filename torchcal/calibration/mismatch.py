@@ -505,6 +505,26 @@ def check_seeds(seed_points: torch.Tensor, targets: torch.Tensor, q0: torch.Tens
     return far
 
 
+class PointIdWarning(MismatchWarning):
+    """Data of another measured point (reflector) than the one a model was fitted on."""
+
+
+def point_ids_differ(model, m, what: str | None = None) -> str | None:
+    """One line when the `point` ids of measurements m are not among those of the data the
+    `CalibrationModel` was fitted on (``model.point_ids``, recorded in MODEL.json): its
+    tool (the fitted tool offset, or the nominal tool) is that point's, and on another
+    point's data every row is off by the distance between the two. None when they agree,
+    or when the model or the data record no point ids (older files, no point column)."""
+    if not model.point_ids or m.point is None:
+        return None
+    other = sorted(set(m.point.tolist()) - set(model.point_ids))
+    if not other:
+        return None
+    return (f"{what or m.source or 'measurements'}: point id(s) {_listed(other)}, but the model was fitted on the "
+            f"data of point id(s) {_listed(model.point_ids)}: its tool is that point's, so every row of another "
+            "point is off by the distance between the two (another reflector or nest?)")
+
+
 ORDER_SHARE = 0.05  # pose ids stepping down at more than this share of rows: not the order taken
 
 

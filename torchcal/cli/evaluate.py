@@ -44,7 +44,9 @@ def evaluate(fitted, m):
     from torchcal.api import evaluate as run
     from torchcal.calibration.joint_range import CalibratedRangeWarning
 
-    with warnings_to_stderr(CalibratedRangeWarning):
+    from torchcal.calibration.mismatch import PointIdWarning
+
+    with warnings_to_stderr(CalibratedRangeWarning, PointIdWarning):
         return run(fitted, m)
 
 

@@ -11,6 +11,8 @@
                      (per joint min and max of the calibration data's commanded q; up to 32 of
                      its poses, which seed compensate),
      optional: "points": [ID...] (one tool offset per measured point),
+     "point_ids": [ID...] (the point ids of the data it was fitted on, one or several; absent
+                  for data without a point column and in older files: then not checked),
      "base_frame": {"translation_mm", "rotation_fixed_xyz_deg"} (measurement <- robot base),
      "registration": {"rms_before_mm", "rms_after_mm", "translation_mm", "rotation_fixed_xyz_deg",
                       "rotation_angle_deg"} (the closed-form start),
@@ -138,6 +140,8 @@ def to_dict(res: FitResult, source=None, seed: int = 0, pose_ids=None, partition
     extra = {}
     if model.points:
         extra["points"] = list(model.points)
+    if model.point_ids:
+        extra["point_ids"] = list(model.point_ids)
     base = base_frame_summary(model, res.theta)
     if base is not None:
         extra["base_frame"] = base
@@ -266,7 +270,7 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
 
         check_same_robot(nominal, make_robot(robot), str(path))
     try:
-        model = CalibrationModel(nominal, effects, points=obj.get("points"))
+        model = CalibrationModel(nominal, effects, points=_point_ids(obj, str(path)))
     except InputError as exc:  # e.g. a user effect whose --effects-module is missing
         raise InputError(f"{path}: {exc}") from None
     if names != model.param_names():
@@ -326,6 +330,19 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
         return res
     zones = [_zone_from_dict(z, res, file_units(model)[1], where) for z in _list(obj, "zones", where)]
     return _zoned(res, zones, obj, _block(obj, "partition", where), str(obj.get("zone_method", "damped")), where)
+
+
+def _point_ids(obj: dict, where: str) -> list | None:
+    """The point ids of the data the model was fitted on: "point_ids" (one or several), else
+    the older "points" (several, one tool offset each), else None (not recorded)."""
+    ids = obj.get("point_ids", obj.get("points"))
+    if ids is None:
+        return None
+    if not isinstance(ids, list) or not ids or any(isinstance(i, bool) or not isinstance(i, int) for i in ids):
+        raise InputError(f"{where}: 'point_ids': expected a list of integer point ids, got {ids!r}")
+    if "points" in obj and obj["points"] != ids:
+        raise InputError(f"{where}: 'points' {obj['points']!r} and 'point_ids' {ids!r} differ")
+    return ids
 
 
 def _number(p: dict, key: str, i: int, where, default=None) -> float:

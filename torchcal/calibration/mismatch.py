@@ -97,7 +97,9 @@ they were made for, in its base frame. More than OUTLIER_SHARE = 10 % of them be
 farther from the nearest sweep point than PARTITION_SPACING = 3 times the sweep's own median
 spacing and than R / 20: a partition of another robot (or of another region), refused.
 
-Robot files (`check_robot_lengths`): an arm whose links (sum over joints of
+Robot files (`check_robot_angles`): every revolute limit within +-2 pi "degrees", or a
+twist or offset of pi / 2 or pi "degrees" in a file with no angle beyond 2 pi "degrees",
+are radians written where degrees belong. (`check_robot_lengths`): an arm whose links (sum over joints of
 ``sqrt(d^2 + a^2)``, prismatic strokes included) reach less than MIN_REACH_MM = 50 mm is
 not an industrial arm; its lengths were written in metres.
 """
@@ -621,6 +623,30 @@ def check_robot_lengths(table, prismatic, limits, where: str = "robot file") -> 
         raise InputError(f"{where}: the links reach only {reach:.4g} mm in all (sum of sqrt(d_mm^2 + a_mm^2)), less "
                          f"than any industrial arm's {MIN_REACH_MM:g} mm: the lengths look like metres; robot files "
                          "take millimetres (d_mm, a_mm, base, tool, prismatic limits)")
+
+
+def check_robot_angles(table, prismatic, limits, where: str = "robot file") -> None:
+    """InputError for angles a robot file holds in radians where it takes degrees:
+    table (n, 5) [theta, d, a, alpha, beta] rad and limits (n, 2) (rad for a revolute
+    joint) as read from the file's degrees (module docstring). Every revolute joint's
+    limits within +-2 pi "degrees" (an arm whose joints all turn less than 6.3 deg); or a
+    twist alpha or offset theta within 1e-3 of pi / 2 or pi "degrees" while none lies
+    beyond 2 pi "degrees" (90 deg written as 1.5708)."""
+    t = torch.rad2deg(table.detach().to("cpu", torch.float64))
+    rev = ~prismatic.detach().cpu().bool()
+    lim = torch.rad2deg(limits.detach().to("cpu", torch.float64))[rev]
+    if lim.numel() and float(lim.abs().max()) <= 2 * math.pi + 0.01:
+        raise InputError(f"{where}: every revolute joint's limits lie within +-{float(lim.abs().max()):.4g} deg: "
+                         "they look like radians; robot files take degrees (lower, upper)")
+    ang = t[:, [0, 3]]  # theta offsets and twists, deg
+    if float(ang.abs().max()) <= 2 * math.pi + 0.01:
+        near = [(j, k, float(ang[j, c])) for j in range(ang.shape[0]) for c, k in enumerate(("theta_offset_deg",
+                                                                                            "alpha_deg"))
+                if min(abs(abs(float(ang[j, c])) - math.pi / 2), abs(abs(float(ang[j, c])) - math.pi)) < 1e-3]
+        if near:
+            j, k, v = near[0]
+            raise InputError(f"{where}: joints[{j + 1}].{k} = {v:.6g}: pi/2 or pi written in radians (and no angle "
+                             "of the file beyond 6.3 deg); robot files take degrees (e.g. 90, not 1.5708)")
 
 
 OUTLIER_SHARE = 0.1  # at most this share of rows may be gross outliers (the rest must agree)

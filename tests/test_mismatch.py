@@ -259,3 +259,24 @@ def test_one_joint_column_mixed_up_is_named(mix, phrase):
         torchcal.fit(rob, bad, ["base_frame", "tool_offset"])
     with pytest.raises(InputError, match=r"cannot come from the model of ur10 as given: .* with " + phrase):
         torchcal.evaluate(fitted, bad)
+
+
+@pytest.mark.parametrize("lag, words", [(1, "1 row(s) further up"), (-2, "2 row(s) further down")])
+def test_positions_misaligned_with_the_joint_values_are_named(lag, words):
+    """UR10 series D with x, y, z shifted against the joint columns (two logs joined with a
+    row more in one) was refused as 'another robot or units'; fit and evaluate name the
+    misalignment. The rows as taken pass (test_one_joint_column_mixed_up_is_named's fit)."""
+    from torchcal.io.measurement_csv import read_measurements
+
+    rob = torchcal.robot(UR10)
+    m = read_measurements(UR10.parent / "series_d.csv", robot=rob)
+    fitted = torchcal.fit(rob, m.subset(slice(1, None, 2)), ["base_frame", "tool_offset"])
+    val = dataclasses.replace(m.subset(slice(0, 200)), q_prev=None, rxyz=None)
+    rows = torch.arange(max(0, -lag), len(val) - max(0, lag))
+    bad = dataclasses.replace(val.subset(rows), xyz=val.xyz[rows + lag])
+    with pytest.raises(InputError, match=r"cannot come from ur10 as given: .* but within 10 mm with each row's x, y, z "
+                                         rf"taken from {re.escape(words)}: the positions are misaligned"):
+        torchcal.fit(rob, bad, ["base_frame", "tool_offset"])
+    with pytest.raises(InputError, match=r"cannot come from the model of ur10 as given: .* taken from "
+                                         rf"{re.escape(words)}: the positions are misaligned"):
+        torchcal.evaluate(fitted, bad)

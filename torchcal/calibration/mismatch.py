@@ -323,6 +323,13 @@ def check_measurements(model, theta: torch.Tensor, m, training_rms_mm: float | N
             return dataclasses.replace(res, fix=None, message=(
                 f"{what or (m.source or 'data')}: cannot come from {name} as given: rms {res.rms_mm:.4g} mm, but "
                 f"within {res.bound_mm:.3g} mm with the joint {hint}: check the joint columns"))
+        lag = row_lag(m, fits)
+        if lag is not None:
+            return dataclasses.replace(res, fix=None, message=(
+                f"{what or (m.source or 'data')}: cannot come from {name} as given: rms {res.rms_mm:.4g} mm, but "
+                f"within {res.bound_mm:.3g} mm with each row's x, y, z taken from {abs(lag)} row(s) "
+                f"{'further down' if lag > 0 else 'further up'}: the positions are misaligned with the joint "
+                "values (two logs joined with a row more in one); check the rows"))
     if q_range is None:
         return res
     out = outside_range(m.q, q_range.to(m.q), model.robot.prismatic).any(dim=-1).cpu()  # (N,)
@@ -747,6 +754,34 @@ def column_hint(m, robot, fits, score=None, tries: int = 2) -> str | None:
     return None
 
 
+LAGS = (1, -1, 2, -2)  # row offsets between the joint values and the positions that are tried
+
+
+def row_lag(m, fits) -> int | None:
+    """The first offset k of LAGS such that the rows with q of row i and x, y, z (and
+    rx, ry, rz) of row i + k `fits` (a predicate on `Measurements`), else None: positions
+    misaligned with the joint values by k rows over the whole file (a joined log with a
+    row more at its start). Judged on up to HINT_ROWS rows spread over the shifted rows."""
+    import dataclasses
+
+    n = len(m)
+    for k in LAGS:
+        if n - abs(k) < 3 * max(1, abs(k)) or n - abs(k) < 6:
+            continue
+        rows = torch.arange(max(0, -k), n - max(0, k))
+        if rows.numel() > HINT_ROWS:
+            rows = rows[torch.linspace(0, rows.numel() - 1, HINT_ROWS).round().long()]
+        sub = m.subset(rows)
+        moved = dataclasses.replace(sub, xyz=m.xyz[rows + k],
+                                    rxyz=None if m.rxyz is None else m.rxyz[rows + k])
+        try:
+            if fits(moved):
+                return k
+        except InputError:
+            continue
+    return None
+
+
 def _fits(model, m) -> bool:
     try:
         return _rms((_registered(model, m) - m.xyz).norm(dim=-1)) <= GROSS_MM
@@ -838,6 +873,12 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
         R, t = kabsch(p, mm.xyz)
         return _rms((p @ R.T + t - mm.xyz).norm(dim=-1))
 
+    lag = row_lag(m, lambda mm: _fits(model, mm))
+    if lag is not None:
+        return result("mismatch", f"{what}: cannot come from {name} as given: rms {reg:.4g} mm with the best measuring "
+                      f"frame and tool offset, but within {GROSS_MM:g} mm with each row's x, y, z taken from "
+                      f"{abs(lag)} row(s) {'further down' if lag > 0 else 'further up'}: the positions are "
+                      "misaligned with the joint values (two logs joined with a row more in one); check the rows")
     hint = column_hint(m, model.robot, lambda mm: _fits(model, mm), score=kabsch_rms)
     if hint is not None:
         return result("mismatch", f"{what}: cannot come from {name} as given: rms {reg:.4g} mm with the best measuring "

@@ -280,3 +280,19 @@ def test_positions_misaligned_with_the_joint_values_are_named(lag, words):
     with pytest.raises(InputError, match=r"cannot come from the model of ur10 as given: .* taken from "
                                          rf"{re.escape(words)}: the positions are misaligned"):
         torchcal.evaluate(fitted, bad)
+
+
+def test_two_sessions_in_different_frames_joined_are_named(tmp_path):
+    """UR10 series C's first 100 rows and series D's first 60 in one file (pose ids restart
+    at 0; the tracker stood elsewhere) were refused as 'another robot or units'; the line
+    now names the join and the two parts."""
+    c = (UR10.parent / "series_c.csv").read_text().splitlines()
+    d = (UR10.parent / "series_d.csv").read_text().splitlines()
+    assert c[0] == d[0]
+    (tmp_path / "cd.csv").write_text("\n".join(c[:101] + d[1:61]) + "\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the reader's repeated-pose-id line is not the subject
+        with pytest.raises(InputError, match=r"cd.csv: cannot come from ur10 in one measuring frame: .* but rows "
+                                             r"1\.\.100 and 101\.\.160 \(data rows; pose ids restart at 0\) each fit "
+                                             r"within 10 mm in a frame of their own: two sessions joined"):
+            torchcal.fit(UR10, tmp_path / "cd.csv", ["base_frame", "tool_offset"])

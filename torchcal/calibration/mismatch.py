@@ -754,6 +754,32 @@ def column_hint(m, robot, fits, score=None, tries: int = 2) -> str | None:
     return None
 
 
+JOINS = 3  # at most this many pose-id restarts are tried as the joint between two sessions
+
+
+def joined_sessions(m, fits) -> int | None:
+    """The 0-based row r where the pose ids restart (step down) such that rows [0, r) and
+    [r, N) each `fits` (a predicate on `Measurements`, each in a frame of its own): two
+    sessions joined in one file, measured in different instrument frames. Tried at the
+    first JOINS restarts only when the ids step down at most JOINS times (a session with
+    repeats cycles through its poses in random order: no joint to find), each part with at
+    least 6 rows; None otherwise."""
+    pose = m.pose.detach().cpu()
+    down = ((pose[1:] < pose[:-1]).nonzero().flatten() + 1).tolist()
+    if not down or len(down) > JOINS:
+        return None
+    for r in down:
+        if r < 6 or len(m) - r < 6:
+            continue
+        parts = [m.subset(torch.arange(a, b)) for a, b in ((0, r), (r, len(m)))]
+        try:
+            if all(fits(p) for p in parts):
+                return r
+        except InputError:
+            continue
+    return None
+
+
 LAGS = (1, -1, 2, -2)  # row offsets between the joint values and the positions that are tried
 
 
@@ -873,6 +899,13 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
         R, t = kabsch(p, mm.xyz)
         return _rms((p @ R.T + t - mm.xyz).norm(dim=-1))
 
+    join = joined_sessions(m, lambda mm: _fits(model, mm))
+    if join is not None:
+        return result("mismatch", f"{what}: cannot come from {name} in one measuring frame: rms {reg:.4g} mm with the "
+                      f"best frame and tool offset, but rows 1..{join} and {join + 1}..{len(m)} (data rows; pose ids "
+                      f"restart at {int(m.pose[join])}) each fit within {GROSS_MM:g} mm in a frame of their own: two "
+                      "sessions joined, the instrument moved between them; calibrate on one, or register each "
+                      "(torchcal register)")
     lag = row_lag(m, lambda mm: _fits(model, mm))
     if lag is not None:
         return result("mismatch", f"{what}: cannot come from {name} as given: rms {reg:.4g} mm with the best measuring "

@@ -144,3 +144,29 @@ def test_compensate_checks_the_callers_seeds(kr, data):
     far[2] += 0.5
     with pytest.warns(MismatchWarning, match=r"^q0: 1 seed\(s\) lie more than 100 mm from their targets .* row\(s\) 3;"):
         torchcal.compensate(res, t, q0=far)
+
+
+@pytest.mark.parametrize("call, words", [
+    (lambda m, res: torchcal.fit("kr1000titan", m, effects="base_frame tool_offset"),
+     r"^effects: expected a list of effect specs, got the string 'base_frame tool_offset'; "
+     r"pass effects=\['base_frame', 'tool_offset'\]$"),
+    (lambda m, res: torchcal.fit("kr1000titan", m, sigma_mm=-1), r"^sigma_mm: expected a finite number > 0, got -1$"),
+    (lambda m, res: torchcal.diagnose("kr1000titan", m, sigma_deg=float("nan")),
+     r"^sigma_deg: expected a finite number > 0, got nan$"),
+    (lambda m, res: torchcal.compensate(res, torch.zeros(0, 3, dtype=torch.float64)),
+     r"^targets: expected \(M, 3\) mm, M >= 1, got shape \(0, 3\)$"),
+    (lambda m, res: torchcal.compensate(res, m.xyz[:2], tol_mm=-1e-6), r"^tol_mm: expected a finite number > 0"),
+    (lambda m, res: torchcal.compensate(res, m.xyz[:2], max_iter=0), r"^max_iter: expected an integer >= 1, got 0$"),
+    (lambda m, res: torchcal.api.simulate("ur5e", n=0), r"^n: expected an integer >= 1, got 0$"),
+    (lambda m, res: torchcal.api.simulate("ur5e", n=5, repeats=0), r"^repeats: expected an integer >= 1, got 0$"),
+    (lambda m, res: torchcal.api.simulate("ur5e", n=5, noise_mm=-0.02),
+     r"^noise_mm: expected a finite number >= 0, got -0.02$")])
+def test_argument_values_that_cannot_be_right_are_named(kr, data, call, words):
+    """Before: effects as one string read letter by letter ('unknown effect b'); a negative
+    sigma fitted in silence, a NaN one ended 'no parameter is identifiable'; no targets, or
+    simulate n=0, a torch.cat traceback; a negative tolerance, max_iter 0, repeats 0 or a
+    negative noise ran in silence."""
+    m, _ = data
+    res = torchcal.fit(kr, m)
+    with pytest.raises(torchcal.InputError, match=words):
+        call(m, res)

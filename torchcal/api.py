@@ -30,7 +30,7 @@ from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult
 from torchcal.calibration.mismatch import check_diagnosis_data, check_robot_data_of
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.calibration.model import CalibrationModel
-from torchcal.errors import InputError
+from torchcal.errors import InputError, number_argument
 from torchcal.measurements import Measurements
 from torchcal.io.robot_file import robot as make_robot
 from torchcal.robots.robot import Robot
@@ -63,8 +63,24 @@ def _robot(robot_or_model) -> Robot:
                      f"FitResult, got {type(robot_or_model).__name__}")
 
 
+def _specs(effects) -> list:
+    """The effect specs of an `effects` argument: a list (tuple) of specs; a single string
+    is refused (it would be read letter by letter)."""
+    if isinstance(effects, (str, bytes)):
+        raise InputError(f"effects: expected a list of effect specs, got the string {effects!r}; "
+                         f"pass effects={effects.split()!r}")
+    return list(effects)
+
+
+def _sigmas(sigma_mm, sigma_deg) -> None:
+    """The measurement uncertainties that weigh orientation against position: > 0."""
+    number_argument("sigma_mm", sigma_mm, above=0)
+    number_argument("sigma_deg", sigma_deg, above=0)
+
+
 def _model(robot_or_model, effects=()) -> CalibrationModel:
     """A `CalibrationModel`; `effects` only with a robot (a model already has its own)."""
+    effects = _specs(effects)
     if isinstance(robot_or_model, (CalibrationModel, FitResult)):
         model = robot_or_model if isinstance(robot_or_model, CalibrationModel) else robot_or_model.model
         if effects:
@@ -154,6 +170,8 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     from torchcal.effects import context_of
 
     robot = _robot(robot_or_model)
+    effects = _specs(effects)
+    _sigmas(sigma_mm, sigma_deg)
     m = _measurements(measurements, robot, length_unit, angle_unit)
     check_units(m, robot, length_unit=length_unit, angle_unit=angle_unit, where=m.source or "measurements")
     if isinstance(robot_or_model, (CalibrationModel, FitResult)):
@@ -218,6 +236,7 @@ def diagnose(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     (the diagnosis refits the frame)."""
     from torchcal.diagnosis.diagnose import diagnose as run
 
+    _sigmas(sigma_mm, sigma_deg)
     model = _model(robot_or_model, effects)
     m = _measurements(measurements, model.robot)
     check_diagnosis_data(robot_or_model, model, m)
@@ -243,6 +262,7 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     from torchcal.diagnosis.transfer import TransferCheck
     from torchcal.effects import context_of
 
+    _sigmas(sigma_mm, sigma_deg)
     model = _model(robot_or_model, effects)
     m = _measurements(measurements, model.robot)
     check_robot_data_of(CalibrationModel.for_measurements(model.robot, model.specs(), m), m)

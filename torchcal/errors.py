@@ -36,3 +36,21 @@ class OutputExistsError(InputError):
 
     The library's message names the file only; the command line adds its own hint
     (``pass --force``)."""
+
+
+def number_argument(name: str, value, *, integer: bool = False, above=None, at_least=None):
+    """`value` of the library argument `name` when it is a finite number (an integer with
+    `integer`; booleans are not numbers) above `above` / at least `at_least`; else one
+    InputError naming the argument, what was expected and what was given. Returns it as
+    float (int with `integer`)."""
+    import math
+    import numbers
+
+    kind = numbers.Integral if integer else numbers.Real
+    ok = not isinstance(value, bool) and isinstance(value, kind) and math.isfinite(value)
+    ok = ok and (above is None or value > above) and (at_least is None or value >= at_least)
+    if not ok:
+        what = "an integer" if integer else "a finite number"
+        bound = f" > {above}" if above is not None else f" >= {at_least}" if at_least is not None else ""
+        raise InputError(f"{name}: expected {what}{bound}, got {value!r}")
+    return int(value) if integer else float(value)

@@ -44,7 +44,7 @@ import torch
 
 from torchcal.kinematics import mdh as K
 from torchcal.effects.context import Context, approach_directions
-from torchcal.errors import InputError
+from torchcal.errors import InputError, number_argument
 from torchcal.calibration.model import CalibrationModel
 
 __all__ = ["Compensation", "compensate", "predict_rows", "nominal_inverse", "nominal_start", "measuring_from_base",
@@ -358,8 +358,11 @@ def compensate_fitted(fitted, targets, q0=None, *, tol_mm: float = 1e-6, max_ite
     cm, theta, q_range, stage = fitted.model, fitted.theta, fitted.q_range, fitted.residual_model
     robot = cm.robot
     t = torch.as_tensor(targets, dtype=robot.dtype, device=robot.device)
-    if t.ndim != 2 or t.shape[-1] != 3:
-        raise InputError(f"targets: expected (M, 3) mm, got shape {tuple(t.shape)}")
+    if t.ndim != 2 or t.shape[-1] != 3 or t.shape[0] == 0:
+        raise InputError(f"targets: expected (M, 3) mm, M >= 1, got shape {tuple(t.shape)}")
+    number_argument("tol_mm", tol_mm, above=0)
+    number_argument("max_iter", max_iter, integer=True, at_least=1)
+    number_argument("max_step_rad", max_step_rad, above=0)
     far = check_targets(cm, theta, t) if check else []
     if q0 is None:
         q0 = nominal_start(cm, theta, t, poses=fitted.seed_poses, q_range=q_range, once=far).q
@@ -466,8 +469,10 @@ def compensate_targets(im, targets, *, frame: str = "measuring", seeds=None, pay
         raise InputError(f"frame: expected one of {', '.join(FRAMES)}, got {frame!r}")
     rob = im.model.robot
     t = torch.as_tensor(targets, dtype=torch.float64)
-    if t.ndim != 2 or t.shape[-1] != 3:
-        raise InputError(f"targets: expected (M, 3) mm, got shape {tuple(t.shape)}")
+    if t.ndim != 2 or t.shape[-1] != 3 or t.shape[0] == 0:
+        raise InputError(f"targets: expected (M, 3) mm, M >= 1, got shape {tuple(t.shape)}")
+    if not bool(torch.isfinite(t).all()):
+        raise InputError("targets: positions must be finite")
     check_target_conditions(im.model, t, payload_kg, temp_c, where)
     given, o = t, None
     if frame == "base":  # the solve is in the measuring frame, where the model predicts

@@ -203,3 +203,23 @@ def test_targets_in_inches_or_metres_are_named(tracker_model, capsys, frame, uni
     assert err.count("\n") == 1 and err.startswith(f"torchcal compensate: error: {d / f't_{unit}_{frame}.csv'}: ")
     assert err.endswith(words + "\n") and not out.exists()
     assert main([*argv, str(d / f"t_mm_{frame}.csv"), "--out", str(out)]) == 0
+
+
+@pytest.mark.parametrize("given, frame, other", [("base", "measuring", "robot base frame"),
+                                                 ("measuring", "base", "measuring frame")])
+def test_targets_in_the_other_frame_are_named(tracker_model, capsys, given, frame, other):
+    """Base-frame targets given as measuring-frame ones (the default) ended as rows 'beyond
+    the reach' and exit 1 with an output written; now one line naming the frame and the
+    option, exit 2, nothing written."""
+    d, base, tracker = tracker_model
+    xyz = base if given == "base" else tracker
+    path = d / f"frame_{given}.csv"
+    path.write_text("\n".join(["x,y,z"] + [",".join(repr(v) for v in p) for p in xyz.tolist()]) + "\n")
+    out = d / f"q_frame_{given}.csv"
+    capsys.readouterr()
+    assert main(["compensate", str(path), "--model", str(d / "model.json"), "--frame", frame, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"torchcal compensate: error: {path}: as given the targets lie ")
+    assert err.endswith(f"but read in the {other} they would lie within its reach: they look like coordinates in "
+                        f"the {other}; pass --frame {given}\n") and not out.exists()
+    assert main(["compensate", str(path), "--model", str(d / "model.json"), "--frame", given, "--out", str(out)]) == 0

@@ -475,12 +475,16 @@ def compensate_targets(im, targets, *, frame: str = "measuring", seeds=None, pay
         raise InputError("targets: positions must be finite")
     check_target_conditions(im.model, t, payload_kg, temp_c, where)
     given, o = t, None
+    R, o_base = measuring_from_base(im.model, im.theta.to(t))
     if frame == "base":  # the solve is in the measuring frame, where the model predicts
-        R, o = measuring_from_base(im.model, im.theta.to(t))
-        t = t @ R.T + o
-    with warnings.catch_warnings():  # metres or inches read as mm: refused; beyond the reach: listed
+        t, o = t @ R.T + o_base, o_base
+    other = None  # the targets read in the other frame: a frame mix-up is named
+    if any(e.name == "base_frame" for e in im.model.effects):
+        other = (given @ R.T + o_base, "robot base frame", ("frame", "base")) if frame == "measuring" else \
+            (given, "measuring frame", ("frame", "measuring"))
+    with warnings.catch_warnings():  # metres or inches read as mm, the other frame: refused; beyond the reach: listed
         warnings.simplefilter("ignore", MismatchWarning)
-        far = check_targets(im.model, im.theta, t, where=where, about=o)
+        far = check_targets(im.model, im.theta, t, where=where, about=o, other_frame=other)
     if seeds is None:
         q0 = nominal_start(im.model, im.theta, t, poses=im.seed_poses, q_range=im.q_range, once=far).q
     else:  # seeds are the targets' nominal commands: radians in degrees refused, far ones named

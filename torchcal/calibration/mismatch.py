@@ -386,37 +386,53 @@ def workspace(model, theta: torch.Tensor, seed: int = 0):
     return v, origin
 
 
+def _in_workspace(p: torch.Tensor, origin: torch.Tensor, reach: float) -> bool:
+    """Points p (M, 3) mm whose median distance from the base origin lies within
+    [reach / TARGET_RATIO, REACH_MARGIN * reach], at most OUTLIER_SHARE of them beyond it."""
+    d = (p - origin).norm(dim=-1)
+    return reach / TARGET_RATIO <= float(d.median()) <= REACH_MARGIN * reach and \
+        float((d > REACH_MARGIN * reach).double().mean()) <= OUTLIER_SHARE
+
+
 def _scaled_unit(t: torch.Tensor, origin: torch.Tensor, reach: float, about: torch.Tensor) -> str | None:
     """The `MISREAD` unit whose factor brings the targets t (M, 3) (numbers read as mm,
     scaled about `about` (3,), the origin of the frame they were given in, where a file's
-    numbers are zero) into the workspace: median distance from the base origin within [reach / TARGET_RATIO,
-    REACH_MARGIN * reach] and at most OUTLIER_SHARE of them beyond it; the first that does
-    in `MISREAD`'s order (metres: numbers in metres times 25.4 can land in a large arm's
+    numbers are zero) into the workspace (`_in_workspace`); the first that does in
+    `MISREAD`'s order (metres: numbers in metres times 25.4 can land in a large arm's
     workspace near the instrument; inches times 1000 lie 39 times too far), None when none."""
     for unit, (factor, _, _) in MISREAD.items():
-        d = (about + (t - about) * factor - origin).norm(dim=-1)
-        if reach / TARGET_RATIO <= float(d.median()) <= REACH_MARGIN * reach and \
-                float((d > REACH_MARGIN * reach).double().mean()) <= OUTLIER_SHARE:
+        if _in_workspace(about + (t - about) * factor, origin, reach):
             return unit
     return None
 
 
 def check_targets(model, theta: torch.Tensor, targets: torch.Tensor, where: str = "targets",
-                  about: torch.Tensor | None = None) -> list[int]:
+                  about: torch.Tensor | None = None, other_frame: tuple | None = None) -> list[int]:
     """Refuse targets (M, 3) mm that sit inside the robot's base or around the origin of
-    their frame, and targets mostly beyond the reach that a unit (`MISREAD`: metres,
-    inches) would bring into it (one InputError naming the unit); warn (`MismatchWarning`)
-    naming the other targets beyond the reach. about: (3,) mm, the origin of the frame the
-    targets were given in, in the model's frame (None: the model's own, the measuring frame).
-    Returns the 0-based rows beyond the reach."""
+    their frame, and targets mostly beyond the reach, when a unit (`MISREAD`: metres,
+    inches) or else the other frame would bring them into the workspace (one InputError
+    naming it); warn (`MismatchWarning`) naming the other targets beyond the reach. about: (3,)
+    mm, the origin of the frame the targets were given in, in the model's frame (None: the
+    model's own, the measuring frame). other_frame: (points (M, 3) mm, the targets read in
+    the other frame (robot base or measuring) mapped into the model's frame; its name;
+    the `InputError.fix` that reads them so), or None. Returns the 0-based rows beyond
+    the reach."""
     pts, origin = workspace(model, theta)
     reach = float((pts - origin).norm(dim=-1).max())
     t = targets.detach().to("cpu", torch.float64)
     dist = (t - origin).norm(dim=-1)
     med = float(dist.median())
     med0 = float(t.norm(dim=-1).median())  # around the origin of the model's (measuring) frame
+    far = (dist > REACH_MARGIN * reach).nonzero().flatten().tolist()
+    wrong = med < reach / TARGET_RATIO or med0 < reach / TARGET_RATIO or len(far) > OUTLIER_SHARE * len(t)
     unit = _scaled_unit(t, origin, reach, torch.zeros(3, dtype=torch.float64) if about is None else
                         about.detach().to("cpu", torch.float64))
+    if wrong and unit is None and other_frame is not None and \
+            _in_workspace(other_frame[0].detach().to("cpu", torch.float64), origin, reach):
+        raise InputError(f"{where}: as given the targets lie a median {med:.4g} mm from the base of "
+                         f"{model.robot.name} (reach {reach:.4g} mm; {len(far)} of {len(t)} beyond it), but read in "
+                         f"the {other_frame[1]} they would lie within its reach: they look like coordinates in the "
+                         f"{other_frame[1]}", fix=other_frame[2])
     _, words, fix = MISREAD[unit] if unit is not None else (None, "wrong unit or wrong frame?", None)
     look = f"they look like {words}" if unit is not None else words
     if med0 < reach / TARGET_RATIO and med >= reach / TARGET_RATIO:
@@ -426,7 +442,6 @@ def check_targets(model, theta: torch.Tensor, targets: torch.Tensor, where: str 
     if med < reach / TARGET_RATIO:
         raise InputError(f"{where}: the targets lie a median {med:.4g} mm from the robot base, inside the base of "
                          f"{model.robot.name} (reach {reach:.4g} mm): {look}", fix=fix)
-    far = (dist > REACH_MARGIN * reach).nonzero().flatten().tolist()
     if len(far) > OUTLIER_SHARE * len(t) and unit is not None:
         raise InputError(f"{where}: {len(far)} of {len(t)} targets lie beyond the reach of {model.robot.name} "
                          f"({reach:.4g} mm from its base; a median {med:.4g} mm), and x {MISREAD[unit][0]:g} they "

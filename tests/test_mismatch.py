@@ -325,4 +325,6 @@ def test_orientations_in_another_convention_are_named(tmp_path, reading, phrase)
                                          rf"[0-9.]+ deg .*: they look like {phrase}; rx, ry, rz are fixed-axis XYZ"):
         torchcal.fit(UR10, tmp_path / "o.csv", ["base_frame", "tool_offset"])
     (tmp_path / "ok.csv").write_text("\n".join(lines) + "\n")
-    torchcal.fit(UR10, tmp_path / "ok.csv", ["base_frame", "tool_offset"])
+    res = torchcal.fit(UR10, tmp_path / "ok.csv", ["base_frame", "tool_offset"])
+    with pytest.warns(MismatchWarning, match=rf"o.csv: rx, ry, rz disagree .*: they look like {phrase};"):
+        torchcal.evaluate(res, tmp_path / "o.csv")  # positions still agree: the figures, with the warning

@@ -62,10 +62,12 @@ def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     `CalibratedRangeWarning` (at `stacklevel`, counted from the caller) for rows outside
     the calibrated range. Data of a point id the model was not fitted on
     (`torchcal.calibration.mismatch.point_ids_differ`): InputError for a model with one tool
-    offset per point, else one `PointIdWarning`."""
+    offset per point, else one `PointIdWarning`. Orientations (rx, ry, rz) that disagree
+    with the nominal tool (`torchcal.calibration.mismatch.orientation_mismatch`): one
+    `MismatchWarning` naming the reading that fits."""
     from torchcal.calibration.joint_range import outside_range
-    from torchcal.calibration.mismatch import (PointIdWarning, check_measurements, enforce, point_ids_differ,
-                                               warn_outside_range)
+    from torchcal.calibration.mismatch import (MismatchWarning, PointIdWarning, check_measurements, enforce,
+                                               orientation_mismatch, point_ids_differ, warn_outside_range)
     from torchcal.effects import context_of
     from torchcal.metrics import error_summary
     from torchcal.rotations import so3_error
@@ -87,6 +89,9 @@ def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     fig = error_summary(err)
     orient = orient_rows = None
     tool_r = fm.tool_rotation
+    bad_rotations = orientation_mismatch(cm, m)  # rx, ry, rz in another unit or convention
+    if bad_rotations is not None:
+        warnings.warn(bad_rotations, MismatchWarning, stacklevel=stacklevel + 1)
     if m.rxyz is not None and tool_r is not None:
         e = so3_error(cm.predict_rotation(theta, ctx) @ tool_r.to(theta), m.rotation)  # (N, 3) rad
         orient = math.degrees(float(e.norm(dim=-1).pow(2).mean().sqrt()))

@@ -44,9 +44,9 @@ def evaluate(fitted, m):
     from torchcal.api import evaluate as run
     from torchcal.calibration.joint_range import CalibratedRangeWarning
 
-    from torchcal.calibration.mismatch import PointIdWarning
+    from torchcal.calibration.mismatch import MismatchWarning
 
-    with warnings_to_stderr(CalibratedRangeWarning, PointIdWarning):
+    with warnings_to_stderr(CalibratedRangeWarning, MismatchWarning):
         return run(fitted, m)
 
 

@@ -122,6 +122,22 @@ def atomic_open(path, mode: str = "w", force: bool = False, inputs=()):
         raise
 
 
+@contextmanager
+def all_or_none(paths):
+    """Outputs written together (split's two files, export's robot file, URDF and table):
+    when the block raises (an error, a full disk, Ctrl-C), those of `paths` (None skipped)
+    that did not exist before it are removed again, so no half set is left behind; one it
+    replaced (force) keeps what was written."""
+    new = [Path(p) for p in paths if p is not None and not os.path.lexists(p)]
+    try:
+        yield
+    except BaseException:
+        for p in new:
+            if p.is_file():
+                p.unlink()
+        raise
+
+
 def dumps_json(obj) -> str:
     """Deterministic JSON text (sorted keys, fixed float repr) for reports and models."""
     return json.dumps(obj, indent=2, sort_keys=True, allow_nan=False) + "\n"

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import math
+import re
+from pathlib import Path
 
 import pytest
 import torch
@@ -156,3 +158,29 @@ def test_inches_are_named_as_inches(files, capsys):
     err = capsys.readouterr().err
     assert code == 2 and not out.exists() and len(err.strip().splitlines()) == 1
     assert "look like inches read as mm; convert them to mm (x 25.4)" in err and "--length-unit" not in err
+
+
+@pytest.mark.parametrize("convert, words", [
+    (lambda c: c * 1.8 + 32, "they look like degrees Fahrenheit (degC = (F - 32) / 1.8)"),
+    (lambda c: c + 273.15, "they look like kelvin (degC = K - 273.15)")])
+def test_temperatures_in_another_scale_are_named(tmp_path, capsys, convert, words):
+    """temp_c in Fahrenheit or kelvin was read as degC in silence (thermal_expansion's
+    coefficients 1.8x off, the offset from 20 degC moved into the link lengths): one warning
+    line naming the scale; the degC file reads quietly."""
+    import warnings
+
+    from torchcal.io.measurement_csv import TemperatureWarning, read_measurements
+
+    lines = (Path(__file__).resolve().parents[1] / "examples" / "ur10" / "series_c.csv").read_text().splitlines()[:41]
+    col = lines[0].split(",").index("temp_c")
+    rows = [line.split(",") for line in lines[1:]]
+    for r in rows:
+        r[col] = repr(convert(float(r[col])))
+    (tmp_path / "t.csv").write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
+    with pytest.warns(TemperatureWarning, match=r"t.csv: column temp_c: 40 of 40 row\(s\) outside -30..60 degC "
+                                                rf"\(first: line 2, .*\): {re.escape(words)}; temp_c is in degrees"):
+        read_measurements(tmp_path / "t.csv", n_joints=6)
+    (tmp_path / "c.csv").write_text("\n".join(lines) + "\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", TemperatureWarning)
+        read_measurements(tmp_path / "c.csv", n_joints=6)

@@ -259,6 +259,8 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
 
     _check_repeats(path, pose, q_deg, [line for line, _ in rows], au, lu, robot, length_unit)
     _check_copies(path, q_deg, xyz, point if has_point else None, [line for line, _ in rows])
+    if "temp_c" in extra:
+        _check_temperatures(path, extra["temp_c"], [line for line, _ in rows])
     to_rad = torch.deg2rad if angle_unit == "deg" else (lambda t: t)
 
     def joints(values):  # (N, n) rad; a prismatic joint's column is a length: mm inside
@@ -306,8 +308,35 @@ class CopiedRowWarning(UserWarning):
     """Rows that copy an earlier row's joint values and x, y, z exactly (`read_measurements`)."""
 
 
+class TemperatureWarning(UserWarning):
+    """A temp_c column whose values no robot cell has in degrees Celsius (`read_measurements`)."""
+
+
 #: the warnings of reading a measurement CSV, which the command line writes as one line each
-FILE_WARNINGS = (JointLimitWarning, PoseIdWarning, CopiedRowWarning)
+FILE_WARNINGS = (JointLimitWarning, PoseIdWarning, CopiedRowWarning, TemperatureWarning)
+
+#: degC a robot cell works in; temp_c beyond it is named (thermal_expansion reads temp_c - 20)
+CELL_TEMP_C = (-30.0, 60.0)
+
+
+def _check_temperatures(path, temps: list[float], lines: list[int]) -> None:
+    """Warn (TemperatureWarning, one line) when temp_c values lie outside CELL_TEMP_C: a
+    median of 250..350 looks like kelvin, one of 60..130 like degrees Fahrenheit.
+    thermal_expansion fits each link's growth per degree from 20 degC: in another scale its
+    coefficients come out wrong (a factor 1.8 in Fahrenheit) and the reference offset
+    moves into the link lengths."""
+    lo, hi = CELL_TEMP_C
+    out = [r for r, v in enumerate(temps) if not lo <= v <= hi]
+    if not out:
+        return
+    med = sorted(temps)[len(temps) // 2]
+    cause = ("they look like kelvin (degC = K - 273.15)" if 250 <= med <= 350 else
+             "they look like degrees Fahrenheit (degC = (F - 32) / 1.8)" if hi < med <= 130 else
+             "beyond any robot cell's temperature")
+    r = out[0]
+    warnings.warn(f"{path}: column temp_c: {len(out)} of {len(temps)} row(s) outside {lo:g}..{hi:g} degC (first: "
+                  f"line {lines[r]}, {temps[r]:g}; median {med:g}): {cause}; temp_c is in degrees Celsius",
+                  TemperatureWarning, stacklevel=3)
 
 
 def _check_copies(path, q: list[list[float]], xyz: list[list[float]], point, lines: list[int]) -> None:

@@ -169,7 +169,7 @@ def test_temperatures_in_another_scale_are_named(tmp_path, capsys, convert, word
     line naming the scale; the degC file reads quietly."""
     import warnings
 
-    from torchcal.io.measurement_csv import TemperatureWarning, read_measurements
+    from torchcal.io.measurement_csv import ConditionWarning, read_measurements
 
     lines = (Path(__file__).resolve().parents[1] / "examples" / "ur10" / "series_c.csv").read_text().splitlines()[:41]
     col = lines[0].split(",").index("temp_c")
@@ -177,10 +177,29 @@ def test_temperatures_in_another_scale_are_named(tmp_path, capsys, convert, word
     for r in rows:
         r[col] = repr(convert(float(r[col])))
     (tmp_path / "t.csv").write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
-    with pytest.warns(TemperatureWarning, match=r"t.csv: column temp_c: 40 of 40 row\(s\) outside -30..60 degC "
+    with pytest.warns(ConditionWarning, match=r"t.csv: column temp_c: 40 of 40 row\(s\) outside -30..60 degC "
                                                 rf"\(first: line 2, .*\): {re.escape(words)}; temp_c is in degrees"):
         read_measurements(tmp_path / "t.csv", n_joints=6)
     (tmp_path / "c.csv").write_text("\n".join(lines) + "\n")
     with warnings.catch_warnings():
-        warnings.simplefilter("error", TemperatureWarning)
+        warnings.simplefilter("error", ConditionWarning)
         read_measurements(tmp_path / "c.csv", n_joints=6)
+
+
+def test_payloads_in_grams_are_named(tmp_path):
+    """payload_kg in grams (5000 for a 5 kg load on a 10 kg UR10) was read as 5 t in silence,
+    scaling every load-driven effect: one warning line; kg read quietly."""
+    import warnings
+
+    from torchcal.io.measurement_csv import ConditionWarning, read_measurements
+
+    ur10 = torchcal.robot(Path(__file__).resolve().parents[1] / "examples" / "ur10" / "ur10.json")
+    lines = (Path(__file__).resolve().parents[1] / "examples" / "ur10" / "series_c.csv").read_text().splitlines()[:21]
+    for name, kg in (("g.csv", "5000.0"), ("kg.csv", "5.0")):
+        (tmp_path / name).write_text("\n".join([lines[0] + ",payload_kg"] + [f"{r},{kg}" for r in lines[1:]]) + "\n")
+    with pytest.warns(ConditionWarning, match=r"g.csv: column payload_kg: 20 of 20 row\(s\) above 3 times the rated "
+                                              r"payload of ur10 \(10 kg; first: line 2, 5000; up to 5000\): grams read"):
+        read_measurements(tmp_path / "g.csv", robot=ur10)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ConditionWarning)
+        read_measurements(tmp_path / "kg.csv", robot=ur10)

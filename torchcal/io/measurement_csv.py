@@ -261,6 +261,8 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
     _check_copies(path, q_deg, xyz, point if has_point else None, [line for line, _ in rows])
     if "temp_c" in extra:
         _check_temperatures(path, extra["temp_c"], [line for line, _ in rows])
+    if "payload_kg" in extra:
+        _check_payloads(path, extra["payload_kg"], [line for line, _ in rows], robot)
     to_rad = torch.deg2rad if angle_unit == "deg" else (lambda t: t)
 
     def joints(values):  # (N, n) rad; a prismatic joint's column is a length: mm inside
@@ -308,19 +310,40 @@ class CopiedRowWarning(UserWarning):
     """Rows that copy an earlier row's joint values and x, y, z exactly (`read_measurements`)."""
 
 
-class TemperatureWarning(UserWarning):
-    """A temp_c column whose values no robot cell has in degrees Celsius (`read_measurements`)."""
+class ConditionWarning(UserWarning):
+    """A temp_c or payload_kg column whose values look like another unit (`read_measurements`)."""
 
 
 #: the warnings of reading a measurement CSV, which the command line writes as one line each
-FILE_WARNINGS = (JointLimitWarning, PoseIdWarning, CopiedRowWarning, TemperatureWarning)
+FILE_WARNINGS = (JointLimitWarning, PoseIdWarning, CopiedRowWarning, ConditionWarning)
 
 #: degC a robot cell works in; temp_c beyond it is named (thermal_expansion reads temp_c - 20)
 CELL_TEMP_C = (-30.0, 60.0)
 
 
+PAYLOAD_RATIO = 3.0  # payloads beyond this many times the robot's rated payload are named
+
+
+def _check_payloads(path, payloads: list[float], lines: list[int], robot) -> None:
+    """Warn (ConditionWarning, one line) when payload_kg exceeds PAYLOAD_RATIO times the
+    rated payload of `robot` (its robot file's payload_kg; not judged when it has none):
+    grams or pounds read as kg, which scale every load-driven effect (joint_compliance)."""
+    rated = float(getattr(robot, "payload_kg", 0.0) or 0.0) if robot is not None else 0.0
+    if rated <= 0:
+        return
+    out = [r for r, v in enumerate(payloads) if v > PAYLOAD_RATIO * rated]
+    if not out:
+        return
+    top = max(payloads)
+    cause = "grams read as kg?" if top > 100 * rated else "pounds read as kg, or another payload?"
+    r = out[0]
+    warnings.warn(f"{path}: column payload_kg: {len(out)} of {len(payloads)} row(s) above {PAYLOAD_RATIO:g} times "
+                  f"the rated payload of {robot.name} ({rated:g} kg; first: line {lines[r]}, {payloads[r]:g}; up to "
+                  f"{top:g}): {cause} payload_kg is in kg", ConditionWarning, stacklevel=3)
+
+
 def _check_temperatures(path, temps: list[float], lines: list[int]) -> None:
-    """Warn (TemperatureWarning, one line) when temp_c values lie outside CELL_TEMP_C: a
+    """Warn (ConditionWarning, one line) when temp_c values lie outside CELL_TEMP_C: a
     median of 250..350 looks like kelvin, one of 60..130 like degrees Fahrenheit.
     thermal_expansion fits each link's growth per degree from 20 degC: in another scale its
     coefficients come out wrong (a factor 1.8 in Fahrenheit) and the reference offset
@@ -336,7 +359,7 @@ def _check_temperatures(path, temps: list[float], lines: list[int]) -> None:
     r = out[0]
     warnings.warn(f"{path}: column temp_c: {len(out)} of {len(temps)} row(s) outside {lo:g}..{hi:g} degC (first: "
                   f"line {lines[r]}, {temps[r]:g}; median {med:g}): {cause}; temp_c is in degrees Celsius",
-                  TemperatureWarning, stacklevel=3)
+                  ConditionWarning, stacklevel=3)
 
 
 def _check_copies(path, q: list[list[float]], xyz: list[list[float]], point, lines: list[int]) -> None:

@@ -70,10 +70,10 @@ def check_output(path, force: bool = False, inputs=()) -> Path:
     for src in inputs:
         if src is not None and same_file(path, src):
             raise InputError(f"{path}: refusing to write over the input file {src}")
+    if path.is_dir():  # before "output exists": --force would not help
+        raise InputError(f"{path}: is a folder, expected a file name")
     if path.exists() and not force:
         raise OutputExistsError(f"{path}: output exists")
-    if path.is_dir():
-        raise InputError(f"{path}: is a folder, expected a file name")
     if path.exists() and not path.is_file():  # the rename would replace a device node or a pipe
         raise InputError(f"{path}: not a regular file (a device, pipe or socket), expected a file name")
     if not path.parent.exists():

@@ -426,6 +426,7 @@ def test_too_few_poses_says_how_many(work, capsys):
     out = work / "three-model.json"
     msg = _bad(capsys, ["fit", work / "three.csv", "--robot", ROBOT, "--out", out],
                "too few poses", "3 poses", created=[out])
+    assert f"error: {work / 'three.csv'}: too few poses: 3 poses" in msg  # the file named (it was not)
     k = int(re.search(r"(\d+) identifiable parameters", msg).group(1))
     need = int(re.search(r"need at least (\d+) poses", msg).group(1))
     assert k > 9  # the model's count, not the 9 equations of 3 poses

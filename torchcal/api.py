@@ -21,6 +21,7 @@ Example::
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -30,7 +31,7 @@ from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult
 from torchcal.calibration.mismatch import check_diagnosis_data, check_robot_data_of
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.calibration.model import CalibrationModel
-from torchcal.errors import InputError, number_argument
+from torchcal.errors import DataError, InputError, number_argument
 from torchcal.measurements import Measurements
 from torchcal.io.robot_file import robot as make_robot
 from torchcal.robots.robot import Robot
@@ -125,6 +126,15 @@ def save(res: FitResult, path, *, source=None, seed: int = 0, pose_ids=None, for
     return write_json(path, obj, force=force, inputs=[p for p in (source, partition_source) if p is not None])
 
 
+@contextmanager
+def _about(m: Measurements):
+    """A `DataError` raised in the block (too few poses) names the file of `m` first."""
+    try:
+        yield
+    except DataError as exc:
+        raise exc.about(m.source) from None
+
+
 def _measurements(measurements, robot: Robot, length_unit: str = "mm", angle_unit: str = "deg") -> Measurements:
     from torchcal.io.measurement_csv import as_measurements
 
@@ -180,7 +190,7 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
         model = CalibrationModel.for_measurements(robot, effects, m)
     ctx = context_of(model.robot, m)
     model.check_context(ctx)  # a missing column first, in the fit's own words
-    with threads.for_work(_work(model, m)):
+    with threads.for_work(_work(model, m)), _about(m):
         check_robot_data_of(model, m, robust=robust is not None)  # another frame, robot, units, outliers
         res = fit_model(model, ctx, m.xyz, robust=robust, max_iter=max_iter, pose=m.pose, rotation=m.rotation,
                          sigma_mm=sigma_mm, sigma_deg=sigma_deg, max_length_mm=max_length_mm,
@@ -240,7 +250,7 @@ def diagnose(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     model = _model(robot_or_model, effects)
     m = _measurements(measurements, model.robot)
     check_diagnosis_data(robot_or_model, model, m)
-    with threads.for_work(_work(model, m)):
+    with threads.for_work(_work(model, m)), _about(m):
         return run(model.robot, m, model.specs(), folds=folds, seed=seed, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
                    **_set(alpha=alpha, min_gain=min_gain))
 
@@ -274,7 +284,7 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     if other is not None:  # the other session's data are held to the same check (another robot, units)
         check_robot_data_of(CalibrationModel.for_measurements(model.robot, model.specs(), other), other)
     check = None if other is None else TransferCheck(other, transfer_poses, other.source or "the other session")
-    with threads.for_work(_work(model, m)):
+    with threads.for_work(_work(model, m)), _about(m):
         res = run(model.robot, m, model.specs(), folds=folds, seed=seed, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
                   transfer=check, **_set(max_rounds=max_rounds, alpha=alpha))
         if residual_model is not None:
@@ -314,7 +324,7 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
     if partition is not None and partition.made_for is None:  # no record: judged by its geometry
         from torchcal.calibration.mismatch import check_partition
         check_partition(partition, model.robot, m.q, "partition")
-    with threads.for_work(_work(model, m)):
+    with threads.for_work(_work(model, m)), _about(m):
         return run(model, m, partition, zone_method, damping)
 
 
@@ -365,7 +375,9 @@ def register(model, measurements, *, tool: bool = False) -> FitResult:
 
     fm = _fitted(model) if _is_model(model) else None
     robot = fm.model.robot if fm is not None else _robot(model)
-    return register_model(fm, robot, _measurements(measurements, robot), tool=tool, stacklevel=2)
+    m = _measurements(measurements, robot)
+    with _about(m):
+        return register_model(fm, robot, m, tool=tool, stacklevel=2)
 
 
 def _is_model(obj) -> bool:

@@ -54,3 +54,15 @@ def number_argument(name: str, value, *, integer: bool = False, above=None, at_l
         bound = f" > {above}" if above is not None else f" >= {at_least}" if at_least is not None else ""
         raise InputError(f"{name}: expected {what}{bound}, got {value!r}")
     return int(value) if integer else float(value)
+
+
+class DataError(InputError):
+    """An InputError about measurements as a whole (too few poses for the model) raised
+    where their file is not known: the front door (`torchcal.api`) puts the file's name in
+    front (`about`)."""
+
+    def about(self, source) -> "DataError":
+        """The same error naming `source` (a path) first; itself when source is None."""
+        if source is None or self.message.startswith(f"{source}: "):
+            return self
+        return DataError(f"{source}: {self.message}", fix=self.fix)

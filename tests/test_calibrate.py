@@ -141,3 +141,20 @@ def test_a_partition_object_keeps_its_record_and_a_matching_one_passes(session):
         res = torchcal.calibrate("kr1000titan", session / "kr1000titan.csv", ["base_frame"],
                                  partition=_in_memory_partition("kr1000titan", seed=9))
     assert res.partition.n_zones == 3 and sum(res.zone_poses) == 30
+
+
+def test_an_interval_calibration_records_its_point_id(tmp_path):
+    """calibrate of data of one point id records it in MODEL.json, as fit does (before: not
+    recorded, so a model of reflector 4 was used on reflector 5's data in silence)."""
+    import dataclasses
+
+    import torch
+
+    from torchcal.robots.poses import random_poses
+    from torchcal.simulation.virtual_robot import VirtualRobot
+
+    rob = torchcal.robot("ur5e")
+    m = VirtualRobot(rob, ["base_frame"], seed=6).measure(random_poses(rob, 20, 6), repeats=3, seed=7)
+    m = dataclasses.replace(m, point=torch.full((len(m),), 4, dtype=torch.int64))
+    torchcal.save(torchcal.calibrate(rob, m, ["base_frame"]), tmp_path / "m.json")
+    assert json.loads((tmp_path / "m.json").read_text())["point_ids"] == [4]

@@ -321,6 +321,9 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
         from torchcal.io.robot_file import check_record
         check_record(partition.made_for, model.robot, "partition", "sweep and partition")
     m = _measurements(measurements, model.robot)
+    ids = [] if m.point is None else sorted(set(m.point.tolist()))
+    if len(ids) == 1 and not isinstance(robot_or_model, (CalibrationModel, FitResult)):
+        model = CalibrationModel(model.robot, model.specs(), points=ids)  # MODEL.json records the point id
     if partition is not None and partition.made_for is None:  # no record: judged by its geometry
         from torchcal.calibration.mismatch import check_partition
         check_partition(partition, model.robot, m.q, "partition")

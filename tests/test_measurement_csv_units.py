@@ -203,3 +203,20 @@ def test_payloads_in_grams_are_named(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error", ConditionWarning)
         read_measurements(tmp_path / "kg.csv", robot=ur10)
+
+
+def test_a_frozen_reading_is_named(tmp_path):
+    """12 rows repeating one x, y, z at other joint values (a tracker that lost the
+    reflector, a cell filled down) were only 'gross outliers' at the fit: the reader names
+    them in one warning line."""
+    from torchcal.io.measurement_csv import CopiedRowWarning, read_measurements
+
+    lines = (Path(__file__).resolve().parents[1] / "examples" / "ur10" / "series_c.csv").read_text().splitlines()[:61]
+    xi = lines[0].split(",").index("x")
+    rows = [line.split(",") for line in lines[1:]]
+    for r in rows[30:42]:
+        r[xi:xi + 3] = rows[29][xi:xi + 3]
+    (tmp_path / "f.csv").write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
+    with pytest.warns(CopiedRowWarning, match=r"f.csv: 12 of 60 row\(s\) repeat an earlier row's x,y,z to every digit "
+                                              r"at other joint values \(first: line 32, the x,y,z of line 31\)"):
+        read_measurements(tmp_path / "f.csv", n_joints=6)

@@ -362,26 +362,42 @@ def _check_temperatures(path, temps: list[float], lines: list[int]) -> None:
                   ConditionWarning, stacklevel=3)
 
 
+FROZEN_ROWS = 3  # rows repeating an earlier row's x, y, z at other joint values that are named
+
+
 def _check_copies(path, q: list[list[float]], xyz: list[list[float]], point, lines: list[int]) -> None:
     """Warn (CopiedRowWarning, one line) when rows repeat an earlier row's joint values and
     measured x, y, z exactly, to every written digit (and its point id): a repeated
     measurement differs by the instrument's noise (hundredths of a mm), a copy does not. A
     block pasted twice, a file joined with itself: the copies are taken as repeats (folds,
-    a noise floor of 0 from them) and double the weight of their rows."""
+    a noise floor of 0 from them) and double the weight of their rows. One more line when
+    at least FROZEN_ROWS rows repeat an earlier row's x, y, z exactly at other joint values
+    (beyond REPEAT_TOL: not a repeat of its pose): a frozen reading (the instrument lost
+    the reflector) or a cell filled down in a spreadsheet."""
     seen: dict[tuple, int] = {}
-    copies = []  # (row, the row it copies)
+    at: dict[tuple, int] = {}  # x, y, z (and point) -> first row
+    copies, frozen = [], []  # (row, the earlier row it copies / whose x, y, z it repeats at other joint values)
     for r in range(len(q)):
         key = (*q[r], *xyz[r], point[r] if point is not None else 0)
         f = seen.setdefault(key, r)
         if f != r:
             copies.append((r, f))
-    if not copies:
-        return
-    r, f = copies[0]
-    warnings.warn(f"{path}: {len(copies)} of {len(q)} row(s) copy an earlier row's joint values and x,y,z to "
-                  f"every digit (first: line {lines[r]} = line {lines[f]}); repeated measurements differ by the "
-                  f"instrument's noise: a block pasted twice? copies count as repeats and double their weight",
-                  CopiedRowWarning, stacklevel=3)
+            continue
+        g = at.setdefault((*xyz[r], point[r] if point is not None else 0), r)
+        if g != r and max(abs(a - b) for a, b in zip(q[r], q[g])) > REPEAT_TOL:  # not a repeat of that pose
+            frozen.append((r, g))
+    if copies:
+        r, f = copies[0]
+        warnings.warn(f"{path}: {len(copies)} of {len(q)} row(s) copy an earlier row's joint values and x,y,z to "
+                      f"every digit (first: line {lines[r]} = line {lines[f]}); repeated measurements differ by the "
+                      f"instrument's noise: a block pasted twice? copies count as repeats and double their weight",
+                      CopiedRowWarning, stacklevel=3)
+    if len(frozen) >= FROZEN_ROWS:
+        r, f = frozen[0]
+        warnings.warn(f"{path}: {len(frozen)} of {len(q)} row(s) repeat an earlier row's x,y,z to every digit at "
+                      f"other joint values (first: line {lines[r]}, the x,y,z of line {lines[f]}): the instrument's "
+                      "reading froze (a lost reflector) or a value was filled down? those rows measure nothing",
+                      CopiedRowWarning, stacklevel=3)
 
 
 def _check_repeats(path, pose: list[int], q: list[list[float]], lines: list[int], au: str, lu: str,

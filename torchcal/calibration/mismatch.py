@@ -970,12 +970,20 @@ def check_robot_data_of(model, m, robust: bool | None = None):
 ORIENT_DEG = 5.0  # rms angle (deg) between measured and nominal tool orientations beyond which they are not the robot's
 
 
-def _orientation_rms_deg(nominal: torch.Tensor, measured: torch.Tensor, frame: torch.Tensor) -> float:
-    """RMS angle (deg) between measured rotations (N, 3, 3) and the nominal ones (N, 3, 3)
-    seen in the measuring frame `frame` (3, 3), after the best constant tool rotation."""
-    from torchcal.rotations import procrustes_rotation, so3_error
+def _orientation_rms_deg(nominal: torch.Tensor, measured: torch.Tensor, frame: torch.Tensor,
+                         rounds: int = 10) -> float:
+    """RMS angle (deg) between measured rotations Rm (N, 3, 3) and the nominal ones A
+    (N, 3, 3) as F A X, with the measuring-frame rotation F (from `frame` (3, 3), the
+    positions' Kabsch) and the constant tool rotation X refined in turn (Procrustes each,
+    `rounds` times): a large unknown tool offset, which tilts the positions' F, does not
+    count."""
+    from torchcal.rotations import nearest_rotation, procrustes_rotation, so3_error
 
-    a = frame @ nominal
+    F = frame
+    for _ in range(rounds):
+        x = procrustes_rotation(F @ nominal, measured)
+        F = nearest_rotation((measured @ (nominal @ x).transpose(-1, -2)).sum(0))
+    a = F @ nominal
     x = procrustes_rotation(a, measured)
     return math.degrees(_rms(so3_error(a @ x, measured).norm(dim=-1)))
 

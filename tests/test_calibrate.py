@@ -132,6 +132,9 @@ def test_a_partition_object_keeps_its_record_and_a_matching_one_passes(session):
 
     part = load_partition(session / "part.json")
     assert part.made_for["name"] == "kr1000titan"
+    from torchcal.io.partition_file import save_partition
+    save_partition(part, session / "part_again.json")  # saved back: the record stays
+    assert load_partition(session / "part_again.json").made_for == part.made_for
     with pytest.raises(InputError, match=r"^partition: made for robot 'kr1000titan' .*, not 'ur5e' "):
         torchcal.calibrate("ur5e", session / "ur5e.csv", ["base_frame"], partition=part)
     with pytest.raises(InputError, match="partition: expected a Partition, a PARTITION.json path or None, got dict"):

@@ -46,3 +46,14 @@ def test_a_folder_is_not_called_missing(tmp_path):
         read_targets(tmp_path, 6)
     with pytest.raises(InputError, match="targets file does not exist"):
         read_targets(tmp_path / "none.csv", 6)
+
+
+def test_target_temperatures_in_fahrenheit_are_named(tmp_path):
+    """temp_c of targets in Fahrenheit was read as degC in silence (a thermal model then
+    compensates for 50 degrees too warm): one warning line, as for measurements."""
+    from torchcal.io.measurement_csv import ConditionWarning
+
+    (tmp_path / "t.csv").write_text("x,y,z,temp_c\n500,0,600,71.6\n550,10,620,72.5\n")
+    with pytest.warns(ConditionWarning, match=r"t.csv: column temp_c: 2 of 2 row\(s\) outside -30..60 degC \(first: "
+                                              r"line 2, 71.6; median 72.5\): they look like degrees Fahrenheit"):
+        read_targets(tmp_path / "t.csv", 6)

@@ -260,7 +260,7 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
     _check_repeats(path, pose, q_deg, [line for line, _ in rows], au, lu, robot, length_unit)
     _check_copies(path, q_deg, xyz, point if has_point else None, [line for line, _ in rows])
     if "temp_c" in extra:
-        _check_temperatures(path, extra["temp_c"], [line for line, _ in rows])
+        check_temperatures(path, extra["temp_c"], [line for line, _ in rows])
     if "payload_kg" in extra:
         _check_payloads(path, extra["payload_kg"], [line for line, _ in rows], robot)
     to_rad = torch.deg2rad if angle_unit == "deg" else (lambda t: t)
@@ -342,8 +342,9 @@ def _check_payloads(path, payloads: list[float], lines: list[int], robot) -> Non
                   f"{top:g}): {cause} payload_kg is in kg", ConditionWarning, stacklevel=3)
 
 
-def _check_temperatures(path, temps: list[float], lines: list[int]) -> None:
-    """Warn (ConditionWarning, one line) when temp_c values lie outside CELL_TEMP_C: a
+def check_temperatures(path, temps: list[float], lines: list[int]) -> None:
+    """Warn (ConditionWarning, one line) when temp_c values (of a measurement or targets
+    file `path`, `lines` their line numbers) lie outside CELL_TEMP_C: a
     median of 250..350 looks like kelvin, one of 60..130 like degrees Fahrenheit.
     thermal_expansion fits each link's growth per degree from 20 degC: in another scale its
     coefficients come out wrong (a factor 1.8 in Fahrenheit) and the reference offset

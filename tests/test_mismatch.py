@@ -241,6 +241,8 @@ def test_backlash_on_rows_sorted_after_the_session_warns(tmp_path, capsys):
      r"the joint column q2 negated \(another sign convention\)"),
     (lambda q: torch.cat([q[:, :1], torch.deg2rad(q[:, 1:2]), q[:, 2:]], 1),  # radians under degrees
      r"the joint column q2 in radians \(read as degrees\)"),
+    (lambda q: torch.cat([q[:, :1], q[:, 1:2] + math.pi / 2, q[:, 2:]], 1),  # another zero (was "another robot")
+     r"the joint column q2 shifted by -90 deg \(another zero position\)"),
 ])
 def test_one_joint_column_mixed_up_is_named(mix, phrase):
     """UR10 series D with two joint columns swapped, one negated, or one in radians under

@@ -722,8 +722,9 @@ def _quick_fit(model, ctx, xyz: torch.Tensor) -> bool:
 def column_mistakes(m, robot):
     """Yield (phrase, Measurements) for each one-column mistake in the joint values of `m`
     (q (N, n) rad / mm): two adjacent q columns swapped, one revolute column in radians
-    read as degrees, one column negated (another sign convention). The rows' predecessors
-    follow the changed q (their row order)."""
+    read as degrees, one column negated (another sign convention), one revolute column
+    shifted by +-90 or 180 deg (another zero position, e.g. a controller's against the
+    MD-H table's). The rows' predecessors follow the changed q (their row order)."""
     import dataclasses
 
     def changed(q):
@@ -744,6 +745,12 @@ def column_mistakes(m, robot):
         q = m.q.clone()
         q[:, j] = -q[:, j]
         yield f"column q{j + 1} negated (another sign convention)", changed(q)
+    for j in range(n):
+        if rev[j]:
+            for deg in (90, -90, 180):
+                q = m.q.clone()
+                q[:, j] = q[:, j] + math.radians(deg)
+                yield f"column q{j + 1} shifted by {deg:+d} deg (another zero position)", changed(q)
 
 
 HINT_ROWS = 60  # rows (evenly spread over the file) that judge a one-column mistake

@@ -330,3 +330,21 @@ def test_orientations_in_another_convention_are_named(tmp_path, reading, phrase)
     res = torchcal.fit(UR10, tmp_path / "ok.csv", ["base_frame", "tool_offset"])
     with pytest.warns(MismatchWarning, match=rf"o.csv: rx, ry, rz disagree .*: they look like {phrase};"):
         torchcal.evaluate(res, tmp_path / "o.csv")  # positions still agree: the figures, with the warning
+
+
+def test_many_corrupted_rows_are_not_called_a_unit():
+    """40 % of UR10 series C's rows moved 30-80 mm along x were refused as 'data of another
+    robot or units' although the spreads agree: the line now says that no unit explains
+    it, and names corrupted rows beside another robot of that size."""
+    from torchcal.io.measurement_csv import read_measurements
+
+    rob = torchcal.robot(UR10)
+    m = read_measurements(UR10.parent / "series_c.csv", robot=rob).subset(slice(0, 120))
+    g = torch.Generator().manual_seed(0)
+    hit = torch.rand(len(m), generator=g) < 0.4
+    shift = torch.zeros_like(m.xyz)
+    shift[hit, 0] = 30 + 50 * torch.rand(int(hit.sum()), generator=g, dtype=torch.float64)
+    bad = dataclasses.replace(m, xyz=m.xyz + shift, rxyz=None)
+    with pytest.raises(InputError, match=r"cannot come from ur10: .*; likely causes: the spreads agree within 10 %, so "
+                                         r"no unit: data of another robot of that size, or many corrupted rows"):
+        torchcal.fit(rob, bad, ["base_frame", "tool_offset"], robust="huber")

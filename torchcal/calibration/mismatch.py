@@ -940,9 +940,13 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
                       f"frame and tool offset, but within {GROSS_MM:g} mm with the joint {hint}: check the "
                       "joint columns")
     s_x, s_p = spread_mm(m.xyz), spread_mm(pred)
+    causes = "data of another robot or units (length or angle unit)"
+    if abs(math.log(max(s_x, 1e-12) / max(s_p, 1e-12))) < math.log(1.1):  # the same size: no unit mistake
+        causes = ("the spreads agree within 10 %, so no unit: data of another robot of that size, or many "
+                  f"corrupted rows (more than the {OUTLIER_SHARE:.0%} a robust fit sets aside)")
     return result("mismatch", f"{what}: cannot come from {name}: rms {reg:.4g} mm with the best measuring frame "
                   f"and tool offset, point spread {s_x:.4g} mm measured vs {s_p:.4g} mm modelled; likely causes: "
-                  f"data of another robot or units (length or angle unit){_units_hint(s_x / max(s_p, 1e-12))}")
+                  f"{causes}{_units_hint(s_x / max(s_p, 1e-12))}")
 
 def check_fitted(residuals: torch.Tensor, outliers=(), what: str = "data", name: str = "the model") -> str | None:
     """After a fit: None, or one line when its residuals (N, 3) mm, the rows in `outliers`

@@ -49,7 +49,8 @@ def read_targets(path, n: int, length_unit: str = "mm", angle_unit: str = "deg",
     opt = [c for c in ("payload_kg", "temp_c") if c in header]
     unknown = [h for h in header if h not in ("x", "y", "z", "point", "payload_kg", "temp_c", *qcols)]
     if unknown:
-        raise InputError(f"{path}: unknown column(s) {','.join(unknown)}; "
+        what = " (a measurement file? targets are the positions to reach)" if "pose" in unknown else ""
+        raise InputError(f"{path}: unknown column(s) {','.join(unknown)}{what}; "
                          f"expected x,y,z[,q1..q{n}][,payload_kg][,temp_c]")
     extra = {c: [] for c in opt}
     slides = [False] * n if prismatic is None else [bool(p) for p in prismatic]

@@ -116,3 +116,57 @@ def test_a_model_path_of_any_name_is_read_and_named(tmp_path):
         torchcal.compensate(data, torch.zeros(1, 3, dtype=torch.float64) + 500.0)
     with pytest.raises(InputError, match=r"data\.csv: not a valid model file: a CSV table"):
         torchcal.evaluate(data, data)
+
+
+def test_compensate_checks_the_callers_seeds(kr, data):
+    """q0 of torchcal.compensate: one seed per target, radians (degrees given as radians
+    refused; before, the solve converged at joint values thousands of degrees off, with a
+    calibrated-range warning only), seeds far from their targets named in one warning."""
+    import warnings
+
+    from torchcal.calibration.mismatch import MismatchWarning
+
+    m, _ = data
+    res = torchcal.fit(kr, m)
+    t, q = m.xyz[:4], m.q[:4]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        good = torchcal.compensate(res, t, q0=q)
+    assert good.converged.all()
+    with pytest.raises(torchcal.InputError, match=r"^q0: seed angles reach [0-9.]+ rad, beyond what a joint can turn "
+                                                  r"\([0-9.]+ rad\): they look like degrees; seeds are in radians"):
+        torchcal.compensate(res, t, q0=torch.rad2deg(q))
+    with pytest.raises(torchcal.InputError, match=r"^q0: expected \(4, 6\) rad, one seed per target, got shape \(3, 6\)"):
+        torchcal.compensate(res, t, q0=q[:3])
+    with pytest.raises(torchcal.InputError, match=r"^q0: expected \(4, 6\) rad, one seed per target, got shape \(6,\)"):
+        torchcal.compensate(res, t, q0=q[0])
+    far = q.clone()
+    far[2] += 0.5
+    with pytest.warns(MismatchWarning, match=r"^q0: 1 seed\(s\) lie more than 100 mm from their targets .* row\(s\) 3;"):
+        torchcal.compensate(res, t, q0=far)
+
+
+@pytest.mark.parametrize("call, words", [
+    (lambda m, res: torchcal.fit("kr1000titan", m, effects="base_frame tool_offset"),
+     r"^effects: expected a list of effect specs, got the string 'base_frame tool_offset'; "
+     r"pass effects=\['base_frame', 'tool_offset'\]$"),
+    (lambda m, res: torchcal.fit("kr1000titan", m, sigma_mm=-1), r"^sigma_mm: expected a finite number > 0, got -1$"),
+    (lambda m, res: torchcal.diagnose("kr1000titan", m, sigma_deg=float("nan")),
+     r"^sigma_deg: expected a finite number > 0, got nan$"),
+    (lambda m, res: torchcal.compensate(res, torch.zeros(0, 3, dtype=torch.float64)),
+     r"^targets: expected \(M, 3\) mm, M >= 1, got shape \(0, 3\)$"),
+    (lambda m, res: torchcal.compensate(res, m.xyz[:2], tol_mm=-1e-6), r"^tol_mm: expected a finite number > 0"),
+    (lambda m, res: torchcal.compensate(res, m.xyz[:2], max_iter=0), r"^max_iter: expected an integer >= 1, got 0$"),
+    (lambda m, res: torchcal.api.simulate("ur5e", n=0), r"^n: expected an integer >= 1, got 0$"),
+    (lambda m, res: torchcal.api.simulate("ur5e", n=5, repeats=0), r"^repeats: expected an integer >= 1, got 0$"),
+    (lambda m, res: torchcal.api.simulate("ur5e", n=5, noise_mm=-0.02),
+     r"^noise_mm: expected a finite number >= 0, got -0.02$")])
+def test_argument_values_that_cannot_be_right_are_named(kr, data, call, words):
+    """Before: effects as one string read letter by letter ('unknown effect b'); a negative
+    sigma fitted in silence, a NaN one ended 'no parameter is identifiable'; no targets, or
+    simulate n=0, a torch.cat traceback; a negative tolerance, max_iter 0, repeats 0 or a
+    negative noise ran in silence."""
+    m, _ = data
+    res = torchcal.fit(kr, m)
+    with pytest.raises(torchcal.InputError, match=words):
+        call(m, res)

@@ -6,6 +6,8 @@ written), takes the same robot from another file, and reads a partition file of 
 torchcal (no record) with one warning and the same result as a recorded one."""
 
 import json
+import re
+import warnings
 
 import pytest
 
@@ -95,3 +97,67 @@ def test_a_matching_partition_and_an_old_one_give_the_same_model(session, capsys
                               f"torchcal, or made from one): could not check that it was made for robot 'kr1000titan'\n")
     assert runs["preset"][:2] == runs["file"][:2] == runs["old"][:2]
     assert len(runs["old"][0]["zones"]) == 3 and "zone level poses" in runs["old"][1]
+
+
+def _in_memory_partition(robot_name, seed=1):
+    """A partition built in memory (no record) of 40 workspace points of `robot_name`."""
+    import torch
+
+    from torchcal.partition.zones import partition_workspace
+    from torchcal.robots.workspace import sample_workspace
+
+    rob = torchcal.robot(robot_name)
+    r = torch.rand(40, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+    return partition_workspace(rob.fk(sample_workspace(rob, 40, seed=seed)), r, levels=2, zones=[2, 1], seed=0)
+
+
+@pytest.mark.parametrize("part_of, data_of, words", [
+    ("kr1000titan", "ur5e", "partition: 39 of its 40 sweep points lie beyond the reach of robot 'ur5e'"),
+    ("ur5e", "kr1000titan", "partition: the calibration poses of robot 'kr1000titan' lie a median ")])
+def test_a_partition_in_memory_of_another_robot_is_refused(session, part_of, data_of, words):
+    """torchcal.calibrate(partition=Partition) without a record: judged by its geometry
+    (before: zones of another robot's workspace assigned in silence)."""
+    from torchcal.errors import InputError
+
+    with pytest.raises(InputError, match=re.escape(words)) as info:
+        torchcal.calibrate(data_of, session / f"{data_of}.csv", ["base_frame"], partition=_in_memory_partition(part_of))
+    assert "another robot" in str(info.value) and "\n" not in str(info.value)
+
+
+def test_a_partition_object_keeps_its_record_and_a_matching_one_passes(session):
+    """A Partition read from a file carries the file's record (made_for), checked by
+    torchcal.calibrate as the path is; the robot's own partition in memory passes."""
+    from torchcal.errors import InputError
+    from torchcal.io.partition_file import load_partition
+
+    part = load_partition(session / "part.json")
+    assert part.made_for["name"] == "kr1000titan"
+    from torchcal.io.partition_file import save_partition
+    save_partition(part, session / "part_again.json")  # saved back: the record stays
+    assert load_partition(session / "part_again.json").made_for == part.made_for
+    with pytest.raises(InputError, match=r"^partition: made for robot 'kr1000titan' .*, not 'ur5e' "):
+        torchcal.calibrate("ur5e", session / "ur5e.csv", ["base_frame"], partition=part)
+    with pytest.raises(InputError, match="partition: expected a Partition, a PARTITION.json path or None, got dict"):
+        torchcal.calibrate("ur5e", session / "ur5e.csv", ["base_frame"], partition={"zones": 3})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        res = torchcal.calibrate("kr1000titan", session / "kr1000titan.csv", ["base_frame"],
+                                 partition=_in_memory_partition("kr1000titan", seed=9))
+    assert res.partition.n_zones == 3 and sum(res.zone_poses) == 30
+
+
+def test_an_interval_calibration_records_its_point_id(tmp_path):
+    """calibrate of data of one point id records it in MODEL.json, as fit does (before: not
+    recorded, so a model of reflector 4 was used on reflector 5's data in silence)."""
+    import dataclasses
+
+    import torch
+
+    from torchcal.robots.poses import random_poses
+    from torchcal.simulation.virtual_robot import VirtualRobot
+
+    rob = torchcal.robot("ur5e")
+    m = VirtualRobot(rob, ["base_frame"], seed=6).measure(random_poses(rob, 20, 6), repeats=3, seed=7)
+    m = dataclasses.replace(m, point=torch.full((len(m),), 4, dtype=torch.int64))
+    torchcal.save(torchcal.calibrate(rob, m, ["base_frame"]), tmp_path / "m.json")
+    assert json.loads((tmp_path / "m.json").read_text())["point_ids"] == [4]

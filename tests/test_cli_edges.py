@@ -200,3 +200,29 @@ def test_progress_bars_stay_off_when_stderr_is_not_a_terminal(tmp_path, capfd, m
     assert main(["demo"]) == 130
     err = capfd.readouterr().err
     assert "%" not in err and "demo" not in err
+
+
+def test_a_warning_no_command_words_is_still_one_line(tmp_path, capsys):
+    """report --data with rx, ry, rz in radians: evaluate's MismatchWarning, raised inside
+    the report composition, came out as Python's two-line warning, twice; now one
+    'torchcal: warning:' line."""
+    import math
+
+    from torchcal.cli import main
+
+    ur10 = Path(__file__).resolve().parents[1] / "examples" / "ur10"
+    lines = (ur10 / "series_c.csv").read_text().splitlines()[:121]
+    cols = [lines[0].split(",").index(c) for c in ("rx", "ry", "rz")]
+    rows = [line.split(",") for line in lines[1:]]
+    (tmp_path / "c.csv").write_text("\n".join(lines) + "\n")
+    for r in rows:
+        for c in cols:
+            r[c] = repr(math.radians(float(r[c])))
+    (tmp_path / "rad.csv").write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
+    assert main(["fit", str(tmp_path / "c.csv"), "--robot", str(ur10 / "ur10.json"), "--effects", "base_frame",
+                 "tool_offset", "--out", str(tmp_path / "m.json")]) == 0
+    capsys.readouterr()
+    assert main(["report", str(tmp_path / "m.json"), "--data", str(tmp_path / "rad.csv"),
+                 "--out", str(tmp_path / "r.html")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith(f"torchcal: warning: {tmp_path / 'rad.csv'}: rx, ry, rz disagree ")

@@ -16,6 +16,7 @@ import torchcal
 from torchcal.simulation import virtual_robot as sim
 from torchcal.robots.poses import random_poses
 from torchcal.cli import main
+from torchcal.errors import InputError
 from torchcal.measurements import Measurements
 from torchcal.io.measurement_csv import write_measurements
 
@@ -425,6 +426,7 @@ def test_too_few_poses_says_how_many(work, capsys):
     out = work / "three-model.json"
     msg = _bad(capsys, ["fit", work / "three.csv", "--robot", ROBOT, "--out", out],
                "too few poses", "3 poses", created=[out])
+    assert f"error: {work / 'three.csv'}: too few poses: 3 poses" in msg  # the file named (it was not)
     k = int(re.search(r"(\d+) identifiable parameters", msg).group(1))
     need = int(re.search(r"need at least (\d+) poses", msg).group(1))
     assert k > 9  # the model's count, not the 9 equations of 3 poses
@@ -473,3 +475,23 @@ def test_the_same_inputs_and_seed_give_byte_identical_json(work, capsys, command
     capsys.readouterr()
     assert outs[0] == outs[1]
     json.loads(outs[0])
+
+
+@pytest.mark.parametrize("value", ["2", "0", "95", "-0.5"])
+def test_plan_reach_must_be_a_share_of_the_stretch(work, capsys, value):
+    """plan --reach 2 (or 95, a percentage) was taken as 'no limit' in silence, --reach 0
+    ended in 'workspace filter too strict': the option is one line naming the range."""
+    out = work / "reach-plan.csv"
+    _bad(capsys, ["plan", "--robot", ROBOT, "--n", "10", "--out", out, "--reach", value],
+         "argument --reach", "a share in (0, 1] (1: no limit)", repr(value), created=[out])
+
+
+def test_workspace_reach_fraction_outside_a_share_is_refused():
+    from torchcal.robots.workspace import Workspace
+
+    with pytest.raises(InputError, match=r"Workspace: reach_fraction: expected a share of the arm's full stretch in "
+                                         r"\(0, 1\] \(1: no limit\), got 1300"):
+        Workspace(reach_fraction=1300)
+    with pytest.raises(InputError, match=r"Workspace: floor_z_mm: expected a finite number, got nan"):
+        Workspace(floor_z_mm=float("nan"))
+    assert Workspace(reach_fraction=1).reach_fraction == 1

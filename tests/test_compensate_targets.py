@@ -160,3 +160,66 @@ def test_a_seed_far_from_its_target_is_named(model, capsys):
     err = capsys.readouterr().err
     warn = [ln for ln in err.splitlines() if "seed(s) lie more than 100 mm from their targets" in ln]
     assert len(warn) == 1 and "2 seed(s)" in warn[0] and "row(s) 1, 2;" in warn[0]
+
+
+@pytest.fixture(scope="module")
+def tracker_model(tmp_path_factory):
+    """A UR5e fitted with base_frame on noise-free points seen from a tracker 2500 mm away
+    (turned 30 deg about z), and 12 reachable targets: base frame and tracker frame, mm."""
+    import math
+
+    from torchcal.measurements import Measurements
+
+    d = tmp_path_factory.mktemp("tracker")
+    rob = torchcal.robot("ur5e")
+    c, s = math.cos(math.radians(30)), math.sin(math.radians(30))
+    R = torch.tensor([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
+    o = torch.tensor([2500.0, -400.0, 300.0], dtype=torch.float64)
+    q = random_poses(rob, 40, 11)
+    write_measurements(d / "data.csv", Measurements(torch.arange(40), q, rob.fk(q) @ R.T + o))
+    assert main(["fit", str(d / "data.csv"), "--robot", "ur5e", "--effects", "base_frame",
+                 "--out", str(d / "model.json")]) == 0
+    base = rob.fk(random_poses(rob, 12, 12))
+    return d, base, base @ R.T + o
+
+
+@pytest.mark.parametrize("frame", ["measuring", "base"])
+@pytest.mark.parametrize("unit, words", [("in", "they look like inches read as mm; convert them to mm (x 25.4)"),
+                                         ("m", "they look like metres read as mm; pass --length-unit m")])
+def test_targets_in_inches_or_metres_are_named(tracker_model, capsys, frame, unit, words):
+    """Targets in inches ended as 20 'beyond the reach' rows (measuring frame) or 'inside the
+    base ... wrong unit or wrong frame?' (base frame), exit 1 with an output written: now
+    one line naming the unit, exit 2, nothing written; the same targets in mm converge."""
+    d, base, tracker = tracker_model
+    xyz = tracker if frame == "measuring" else base
+    for name, scale in (("mm", 1.0), (unit, 25.4 if unit == "in" else 1000.0)):
+        rows = [",".join(repr(float(v) / scale) for v in p) for p in xyz.tolist()]
+        (d / f"t_{name}_{frame}.csv").write_text("\n".join(["x,y,z"] + rows) + "\n")
+    out = d / f"q_{unit}_{frame}.csv"
+    capsys.readouterr()
+    argv = ["compensate", "--model", str(d / "model.json"), "--frame", frame]
+    assert main([*argv, str(d / f"t_{unit}_{frame}.csv"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"torchcal compensate: error: {d / f't_{unit}_{frame}.csv'}: ")
+    assert err.endswith(words + "\n") and not out.exists()
+    assert main([*argv, str(d / f"t_mm_{frame}.csv"), "--out", str(out)]) == 0
+
+
+@pytest.mark.parametrize("given, frame, other", [("base", "measuring", "robot base frame"),
+                                                 ("measuring", "base", "measuring frame")])
+def test_targets_in_the_other_frame_are_named(tracker_model, capsys, given, frame, other):
+    """Base-frame targets given as measuring-frame ones (the default) ended as rows 'beyond
+    the reach' and exit 1 with an output written; now one line naming the frame and the
+    option, exit 2, nothing written."""
+    d, base, tracker = tracker_model
+    xyz = base if given == "base" else tracker
+    path = d / f"frame_{given}.csv"
+    path.write_text("\n".join(["x,y,z"] + [",".join(repr(v) for v in p) for p in xyz.tolist()]) + "\n")
+    out = d / f"q_frame_{given}.csv"
+    capsys.readouterr()
+    assert main(["compensate", str(path), "--model", str(d / "model.json"), "--frame", frame, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"torchcal compensate: error: {path}: as given the targets lie ")
+    assert err.endswith(f"but read in the {other} they would lie within its reach: they look like coordinates in "
+                        f"the {other}; pass --frame {given}\n") and not out.exists()
+    assert main(["compensate", str(path), "--model", str(d / "model.json"), "--frame", given, "--out", str(out)]) == 0

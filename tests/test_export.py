@@ -158,3 +158,24 @@ def test_export_never_writes_over_the_nominal_robot_file(fitted, tmp_path, capsy
     former = tmp_path / "cal.json"
     assert main(["export", str(fitted / "m.json"), "--robot-file", str(former)]) == 0
     assert main(["export", str(fitted / "m.json"), "--robot-file", str(former), "--force"]) == 0
+
+
+def test_an_interrupted_export_leaves_none_of_its_new_files(fitted, tmp_path, monkeypatch):
+    """Ctrl-C while the URDF is written after the robot file: the robot file used to stay
+    behind alone; now neither is left."""
+    import torchcal.io.files as files
+
+    model = fitted / "m.json"
+
+    real, calls = files.atomic_write, []
+
+    def interrupted(path, *a, **kw):  # the robot file is written, then Ctrl-C at the URDF
+        calls.append(path)
+        if str(path).endswith(".urdf"):
+            raise KeyboardInterrupt
+        return real(path, *a, **kw)
+
+    monkeypatch.setattr(files, "atomic_write", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        torchcal.api.export(model, robot_file=tmp_path / "cal.json", urdf=tmp_path / "cal.urdf")
+    assert len(calls) == 2 and not (tmp_path / "cal.json").exists() and not (tmp_path / "cal.urdf").exists()

@@ -54,3 +54,14 @@ def test_read_json_reads_a_byte_order_mark_and_windows_line_ends(tmp_path):
     p = tmp_path / "m.json"
     p.write_bytes('\ufeff{\r\n  "format": "x",\r\n  "n": 3\r\n}\r\n'.encode("utf-8"))
     assert read_json(p, "model file") == {"format": "x", "n": 3}
+
+
+def test_an_output_that_is_a_folder_is_named_as_one(tmp_path):
+    """torchcal.save(res, FOLDER) said 'output exists' (and --force then 'is a folder')."""
+    from torchcal.errors import InputError, OutputExistsError
+    from torchcal.io.files import check_output
+
+    (tmp_path / "out").mkdir()
+    with pytest.raises(InputError, match=r"out: is a folder, expected a file name$") as info:
+        check_output(tmp_path / "out")
+    assert not isinstance(info.value, OutputExistsError)

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import math
+import re
+from pathlib import Path
 
 import pytest
 import torch
@@ -156,3 +158,65 @@ def test_inches_are_named_as_inches(files, capsys):
     err = capsys.readouterr().err
     assert code == 2 and not out.exists() and len(err.strip().splitlines()) == 1
     assert "look like inches read as mm; convert them to mm (x 25.4)" in err and "--length-unit" not in err
+
+
+@pytest.mark.parametrize("convert, words", [
+    (lambda c: c * 1.8 + 32, "they look like degrees Fahrenheit (degC = (F - 32) / 1.8)"),
+    (lambda c: c + 273.15, "they look like kelvin (degC = K - 273.15)")])
+def test_temperatures_in_another_scale_are_named(tmp_path, capsys, convert, words):
+    """temp_c in Fahrenheit or kelvin was read as degC in silence (thermal_expansion's
+    coefficients 1.8x off, the offset from 20 degC moved into the link lengths): one warning
+    line naming the scale; the degC file reads quietly."""
+    import warnings
+
+    from torchcal.io.measurement_csv import ConditionWarning, read_measurements
+
+    lines = (Path(__file__).resolve().parents[1] / "examples" / "ur10" / "series_c.csv").read_text().splitlines()[:41]
+    col = lines[0].split(",").index("temp_c")
+    rows = [line.split(",") for line in lines[1:]]
+    for r in rows:
+        r[col] = repr(convert(float(r[col])))
+    (tmp_path / "t.csv").write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
+    with pytest.warns(ConditionWarning, match=r"t.csv: column temp_c: 40 of 40 row\(s\) outside -30..60 degC "
+                                                rf"\(first: line 2, .*\): {re.escape(words)}; temp_c is in degrees"):
+        read_measurements(tmp_path / "t.csv", n_joints=6)
+    (tmp_path / "c.csv").write_text("\n".join(lines) + "\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ConditionWarning)
+        read_measurements(tmp_path / "c.csv", n_joints=6)
+
+
+def test_payloads_in_grams_are_named(tmp_path):
+    """payload_kg in grams (5000 for a 5 kg load on a 10 kg UR10) was read as 5 t in silence,
+    scaling every load-driven effect: one warning line; kg read quietly."""
+    import warnings
+
+    from torchcal.io.measurement_csv import ConditionWarning, read_measurements
+
+    ur10 = torchcal.robot(Path(__file__).resolve().parents[1] / "examples" / "ur10" / "ur10.json")
+    lines = (Path(__file__).resolve().parents[1] / "examples" / "ur10" / "series_c.csv").read_text().splitlines()[:21]
+    for name, kg in (("g.csv", "5000.0"), ("kg.csv", "5.0")):
+        (tmp_path / name).write_text("\n".join([lines[0] + ",payload_kg"] + [f"{r},{kg}" for r in lines[1:]]) + "\n")
+    with pytest.warns(ConditionWarning, match=r"g.csv: column payload_kg: 20 of 20 row\(s\) above 3 times the rated "
+                                              r"payload of ur10 \(10 kg; first: line 2, 5000; up to 5000\): grams read"):
+        read_measurements(tmp_path / "g.csv", robot=ur10)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ConditionWarning)
+        read_measurements(tmp_path / "kg.csv", robot=ur10)
+
+
+def test_a_frozen_reading_is_named(tmp_path):
+    """12 rows repeating one x, y, z at other joint values (a tracker that lost the
+    reflector, a cell filled down) were only 'gross outliers' at the fit: the reader names
+    them in one warning line."""
+    from torchcal.io.measurement_csv import CopiedRowWarning, read_measurements
+
+    lines = (Path(__file__).resolve().parents[1] / "examples" / "ur10" / "series_c.csv").read_text().splitlines()[:61]
+    xi = lines[0].split(",").index("x")
+    rows = [line.split(",") for line in lines[1:]]
+    for r in rows[30:42]:
+        r[xi:xi + 3] = rows[29][xi:xi + 3]
+    (tmp_path / "f.csv").write_text("\n".join([lines[0]] + [",".join(r) for r in rows]) + "\n")
+    with pytest.warns(CopiedRowWarning, match=r"f.csv: 12 of 60 row\(s\) repeat an earlier row's x,y,z to every digit "
+                                              r"at other joint values \(first: line 32, the x,y,z of line 31\)"):
+        read_measurements(tmp_path / "f.csv", n_joints=6)

@@ -250,6 +250,33 @@ def test_a_broken_zone_entry_is_one_clear_error(zoned, tmp_path):
         torchcal.load(tmp_path / "bad.json")
 
 
+@pytest.mark.parametrize("key, value, words", [
+    ("value", float("nan"), r"zone 2: value\[0\] is nan, expected a finite number"),
+    ("upper", float("inf"), r"zone 2: upper\[0\] is inf, expected a finite number"),
+    ("lower", 1e9, r"zone 2: parameter 1: interval lower 1e\+09 > upper .*, expected lower <= upper")])
+def test_a_zone_value_that_is_not_finite_or_an_inverted_interval_is_refused(zoned, tmp_path, key, value, words):
+    """Before: NaN or inf zone values loaded in silence (every prediction in that zone NaN)."""
+    from torchcal.errors import InputError
+
+    _, _, out = zoned
+    d = json.loads(out["zones"][2].read_text())
+    d["zones"][1][key][0] = value
+    (tmp_path / "bad.json").write_text(json.dumps(d))
+    with pytest.raises(InputError, match=r"bad.json: " + words):
+        torchcal.load(tmp_path / "bad.json")
+
+
+def test_a_global_interval_that_is_not_finite_is_refused(zoned, tmp_path):
+    from torchcal.errors import InputError
+
+    _, _, out = zoned
+    d = json.loads(out["global"][2].read_text())
+    d["parameters"][2]["interval"][1] = float("nan")
+    (tmp_path / "bad.json").write_text(json.dumps(d))
+    with pytest.raises(InputError, match=r"bad.json: parameter 'interval': expected \[lower, upper\], two finite"):
+        torchcal.load(tmp_path / "bad.json")
+
+
 def test_a_zoned_model_predicts_each_row_with_its_zones_parameters(zoned):
     """evaluate of a ZonedFit = by hand: the partition's zone of each row's nominal TCP
     position, that zone's parameters in the model."""

@@ -4,6 +4,7 @@ does in its own frame; geometry, effects, covariance and calibrated range are ke
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 from pathlib import Path
@@ -14,6 +15,7 @@ import torch
 import torchcal
 from torchcal.calibration.registration import frame_slices
 from torchcal.effects.base_frame import rotvec_to_matrix
+from torchcal.cli import main
 from torchcal.errors import InputError
 from torchcal.io.files import read_json, write_json
 from torchcal.io.measurement_csv import write_measurements
@@ -164,3 +166,77 @@ def test_a_registration_that_leaves_the_frame_undetermined_warns():
         warnings.simplefilter("error", TransferWarning)
         torchcal.register(fitted, even, tool=True)
         torchcal.register(fitted, still)
+
+
+# ----------------------------------------------------------------------------- point ids
+@pytest.fixture(scope="module")
+def two_points(tmp_path_factory):
+    """A UR5e fitted with tool_offset on point 1 (a reflector 60 mm off the flange), and
+    data of point 2 (62 mm) and of point 1 again, as measurement CSVs with a point column."""
+    from torchcal.measurements import Measurements
+
+    d = tmp_path_factory.mktemp("points")
+    rob = torchcal.robot("ur5e")
+    for name, n, seed, z, pid in (("a", 40, 1, 60.0, 1), ("b", 30, 2, 62.0, 2), ("a2", 30, 3, 60.0, 1)):
+        q = random_poses(rob, n, seed)
+        tool = torch.eye(4, dtype=torch.float64)
+        tool[:3, 3] = torch.tensor([0.0, 3.0, z], dtype=torch.float64)
+        xyz = dataclasses.replace(rob, tool=rob.tool @ tool).fk(q)  # the reflector on the flange
+        write_measurements(d / f"{name}.csv", Measurements(torch.arange(n), q, xyz,
+                                                           point=torch.full((n,), pid, dtype=torch.int64)))
+    assert main(["fit", str(d / "a.csv"), "--robot", "ur5e", "--effects", "tool_offset",
+                              "--out", str(d / "a.json")]) == 0
+    return d
+
+
+def test_a_model_records_the_point_ids_it_was_fitted_on(two_points):
+    d = two_points
+    assert read_json(d / "a.json")["point_ids"] == [1]
+    assert torchcal.load(d / "a.json").model.point_ids == (1,)
+    old = read_json(d / "a.json")
+    del old["point_ids"]  # a file of an older torchcal: read as before, nothing to check
+    write_json(d / "old.json", old)
+    with _no_point_warning():
+        torchcal.evaluate(d / "old.json", d / "b.csv")
+
+
+@contextlib.contextmanager
+def _no_point_warning():
+    """A PointIdWarning in the block is an error."""
+    import warnings
+
+    from torchcal.calibration.mismatch import PointIdWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PointIdWarning)
+        yield
+
+
+def test_evaluate_on_another_point_warns_in_one_line(two_points, capsys):
+    """Before: 2 mm rms on point 2's data in silence (the offset between the reflectors)."""
+    d = two_points
+    capsys.readouterr()
+    assert main(["evaluate", str(d / "b.csv"), "--model", str(d / "a.json")]) == 0
+    err = [line for line in capsys.readouterr().err.splitlines() if "point id" in line]
+    assert err == [f"torchcal: warning: {d / 'b.csv'}: point id(s) 2, but the model was fitted on the data of point "
+                   "id(s) 1: its tool is that point's, so every row of another point is off by the distance between "
+                   "the two (another reflector or nest?)"]
+    with _no_point_warning():
+        assert torchcal.evaluate(d / "a.json", d / "a2.csv").rms_mm < 1e-6
+
+
+def test_register_on_another_point_needs_the_tool(two_points, capsys):
+    d = two_points
+    capsys.readouterr()
+    out = d / "r.json"
+    assert main(["register", str(d / "b.csv"), "--model", str(d / "a.json"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"torchcal register: error: {d / 'b.csv'}: point id(s) 2, but ")
+    assert err.endswith("(another reflector or nest?); pass --tool\n") and not out.exists()
+    with pytest.raises(InputError, match=r"point id\(s\) 2, .*; pass tool=True$"):
+        torchcal.register(d / "a.json", d / "b.csv")
+    assert main(["register", str(d / "b.csv"), "--model", str(d / "a.json"), "--tool",
+                              "--out", str(out)]) == 0
+    assert read_json(out)["point_ids"] == [2]
+    with _no_point_warning():
+        assert torchcal.evaluate(out, d / "b.csv").rms_mm < 1e-3

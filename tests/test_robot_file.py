@@ -2,6 +2,7 @@
 
 import json
 import math
+import re
 from pathlib import Path
 
 import pytest
@@ -185,3 +186,20 @@ def test_a_bad_record_is_one_line(edit, match):
 
     with pytest.raises(InputError, match=match):
         record_from_dict(edit(robot_record(robot_from_dict(ARM7))), "f.json: made_for")
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda j: j.update(alpha_deg=math.radians(j["alpha_deg"])),
+     r"joints\[1\]\.alpha_deg = -1\.5708: pi/2 or pi written in radians .*robot files take degrees \(e\.g\. 90"),
+    (lambda j: j.update(lower=math.radians(j["lower"]), upper=math.radians(j["upper"])),
+     r"every revolute joint's limits lie within \+-3\.054 deg: they look like radians; robot files take degrees")])
+def test_angles_in_radians_are_refused(tmp_path, edit, words):
+    """Twists or limits written in radians were read as degrees: a twist of 1.57 deg gave
+    'cannot come from arm7' at the fit; limits of +-3 deg only a warning per data row."""
+    obj = json.loads(json.dumps(ARM7))
+    for j in obj["joints"]:
+        edit(j)
+    (tmp_path / "rad.json").write_text(json.dumps(obj))
+    with pytest.raises(InputError, match=rf"^{re.escape(str(tmp_path / 'rad.json'))}: {words}"):
+        torchcal.robot(tmp_path / "rad.json")
+    torchcal.robot("ur5e"), robot_from_dict(SCARA)  # degrees: fine

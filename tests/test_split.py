@@ -119,3 +119,27 @@ def test_split_refuses_bad_outputs_and_columns(session, tmp_path, capsys):
     assert "--force" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["b.csv", "bad.csv"]
     assert (tmp_path / "b.csv").read_text() == "keep\n"
+
+
+def test_an_interrupted_split_leaves_neither_file(session, tmp_path, capsys, monkeypatch):
+    """Ctrl-C (or a full disk) while the second file is written: the first used to stay
+    behind, and the rerun then needed --force; now neither is left, and the rerun works."""
+    import torchcal.io.measurement_csv as mc
+
+    _, path = session
+    real, calls = mc.write_measurements, []
+
+    def interrupted(p, *a, **kw):
+        calls.append(p)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real(p, *a, **kw)
+
+    monkeypatch.setattr(mc, "write_measurements", interrupted)
+    outs = [str(tmp_path / "a.csv"), str(tmp_path / "b.csv")]
+    assert main(["split", str(path), "--fraction", "0.5", "--out", *outs]) == 130
+    assert len(calls) == 2 and not any(Path(p).exists() for p in outs)
+    assert capsys.readouterr().err == "torchcal: interrupted\n"
+    monkeypatch.setattr(mc, "write_measurements", real)
+    assert main(["split", str(path), "--fraction", "0.5", "--out", *outs]) == 0
+    assert all(Path(p).is_file() for p in outs)

@@ -46,3 +46,21 @@ def test_a_folder_is_not_called_missing(tmp_path):
         read_targets(tmp_path, 6)
     with pytest.raises(InputError, match="targets file does not exist"):
         read_targets(tmp_path / "none.csv", 6)
+
+
+def test_target_temperatures_in_fahrenheit_are_named(tmp_path):
+    """temp_c of targets in Fahrenheit was read as degC in silence (a thermal model then
+    compensates for 50 degrees too warm): one warning line, as for measurements."""
+    from torchcal.io.measurement_csv import ConditionWarning
+
+    (tmp_path / "t.csv").write_text("x,y,z,temp_c\n500,0,600,71.6\n550,10,620,72.5\n")
+    with pytest.warns(ConditionWarning, match=r"t.csv: column temp_c: 2 of 2 row\(s\) outside -30..60 degC \(first: "
+                                              r"line 2, 71.6; median 72.5\): they look like degrees Fahrenheit"):
+        read_targets(tmp_path / "t.csv", 6)
+
+
+def test_a_measurement_file_given_as_targets_is_named(tmp_path):
+    (tmp_path / "m.csv").write_text("pose,q1,q2,q3,q4,q5,q6,x,y,z\n0,1,2,3,4,5,6,500,0,600\n")
+    with pytest.raises(InputError, match=r"m.csv: unknown column\(s\) pose \(a measurement file\? targets are the "
+                                         r"positions to reach\); expected x,y,z"):
+        read_targets(tmp_path / "m.csv", 6)

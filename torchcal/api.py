@@ -21,6 +21,7 @@ Example::
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -30,7 +31,7 @@ from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult
 from torchcal.calibration.mismatch import check_diagnosis_data, check_robot_data_of
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.calibration.model import CalibrationModel
-from torchcal.errors import InputError
+from torchcal.errors import DataError, InputError, number_argument
 from torchcal.measurements import Measurements
 from torchcal.io.robot_file import robot as make_robot
 from torchcal.robots.robot import Robot
@@ -63,8 +64,24 @@ def _robot(robot_or_model) -> Robot:
                      f"FitResult, got {type(robot_or_model).__name__}")
 
 
+def _specs(effects) -> list:
+    """The effect specs of an `effects` argument: a list (tuple) of specs; a single string
+    is refused (it would be read letter by letter)."""
+    if isinstance(effects, (str, bytes)):
+        raise InputError(f"effects: expected a list of effect specs, got the string {effects!r}; "
+                         f"pass effects={effects.split()!r}")
+    return list(effects)
+
+
+def _sigmas(sigma_mm, sigma_deg) -> None:
+    """The measurement uncertainties that weigh orientation against position: > 0."""
+    number_argument("sigma_mm", sigma_mm, above=0)
+    number_argument("sigma_deg", sigma_deg, above=0)
+
+
 def _model(robot_or_model, effects=()) -> CalibrationModel:
     """A `CalibrationModel`; `effects` only with a robot (a model already has its own)."""
+    effects = _specs(effects)
     if isinstance(robot_or_model, (CalibrationModel, FitResult)):
         model = robot_or_model if isinstance(robot_or_model, CalibrationModel) else robot_or_model.model
         if effects:
@@ -107,6 +124,15 @@ def save(res: FitResult, path, *, source=None, seed: int = 0, pose_ids=None, for
 
     obj = to_dict(res, source=source, seed=seed, pose_ids=pose_ids, partition_source=partition_source)
     return write_json(path, obj, force=force, inputs=[p for p in (source, partition_source) if p is not None])
+
+
+@contextmanager
+def _about(m: Measurements):
+    """A `DataError` raised in the block (too few poses) names the file of `m` first."""
+    try:
+        yield
+    except DataError as exc:
+        raise exc.about(m.source) from None
 
 
 def _measurements(measurements, robot: Robot, length_unit: str = "mm", angle_unit: str = "deg") -> Measurements:
@@ -154,6 +180,8 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     from torchcal.effects import context_of
 
     robot = _robot(robot_or_model)
+    effects = _specs(effects)
+    _sigmas(sigma_mm, sigma_deg)
     m = _measurements(measurements, robot, length_unit, angle_unit)
     check_units(m, robot, length_unit=length_unit, angle_unit=angle_unit, where=m.source or "measurements")
     if isinstance(robot_or_model, (CalibrationModel, FitResult)):
@@ -162,7 +190,7 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
         model = CalibrationModel.for_measurements(robot, effects, m)
     ctx = context_of(model.robot, m)
     model.check_context(ctx)  # a missing column first, in the fit's own words
-    with threads.for_work(_work(model, m)):
+    with threads.for_work(_work(model, m)), _about(m):
         check_robot_data_of(model, m, robust=robust is not None)  # another frame, robot, units, outliers
         res = fit_model(model, ctx, m.xyz, robust=robust, max_iter=max_iter, pose=m.pose, rotation=m.rotation,
                          sigma_mm=sigma_mm, sigma_deg=sigma_deg, max_length_mm=max_length_mm,
@@ -218,10 +246,11 @@ def diagnose(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     (the diagnosis refits the frame)."""
     from torchcal.diagnosis.diagnose import diagnose as run
 
+    _sigmas(sigma_mm, sigma_deg)
     model = _model(robot_or_model, effects)
     m = _measurements(measurements, model.robot)
     check_diagnosis_data(robot_or_model, model, m)
-    with threads.for_work(_work(model, m)):
+    with threads.for_work(_work(model, m)), _about(m):
         return run(model.robot, m, model.specs(), folds=folds, seed=seed, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
                    **_set(alpha=alpha, min_gain=min_gain))
 
@@ -243,6 +272,7 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     from torchcal.diagnosis.transfer import TransferCheck
     from torchcal.effects import context_of
 
+    _sigmas(sigma_mm, sigma_deg)
     model = _model(robot_or_model, effects)
     m = _measurements(measurements, model.robot)
     check_robot_data_of(CalibrationModel.for_measurements(model.robot, model.specs(), m), m)
@@ -254,7 +284,7 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     if other is not None:  # the other session's data are held to the same check (another robot, units)
         check_robot_data_of(CalibrationModel.for_measurements(model.robot, model.specs(), other), other)
     check = None if other is None else TransferCheck(other, transfer_poses, other.source or "the other session")
-    with threads.for_work(_work(model, m)):
+    with threads.for_work(_work(model, m)), _about(m):
         res = run(model.robot, m, model.specs(), folds=folds, seed=seed, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
                   transfer=check, **_set(max_rounds=max_rounds, alpha=alpha))
         if residual_model is not None:
@@ -269,18 +299,35 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
     partition: a `Partition`, a PARTITION.json path or None. A path is read for the model's
     robot: a partition made for another robot (or other joint limits) is refused
     (InputError), one without a record read with an `UnrecordedRobotWarning`
-    (`torchcal.io.partition_file.load_partition`). Returns the global interval
+    (`torchcal.io.partition_file.load_partition`); a `Partition` is held to the record it
+    was read with (``made_for``), and one without (built in memory, an older file) to its
+    geometry (`torchcal.calibration.mismatch.check_partition`: sweep points beyond the
+    robot's reach, calibration poses far from every sweep point: InputError). Returns the global interval
     fit (a `FitResult` with ``radius``), with a partition a `ZonedFit` (the global fit and
     one fit per zone); `save` writes it as the MODEL.json of ``torchcal calibrate``.
     """
     from torchcal.calibration.zone_calibration import calibrate as run
 
+    from torchcal.partition.zones import Partition
+
     model = _model(robot_or_model, effects)
     if isinstance(partition, (str, Path)):
         from torchcal.io.partition_file import load_partition
         partition = load_partition(partition, model.robot)
+    elif partition is not None and not isinstance(partition, Partition):
+        raise InputError(f"partition: expected a Partition, a PARTITION.json path or None, "
+                         f"got {type(partition).__name__}")
+    elif partition is not None and partition.made_for is not None:  # built from a file: its record
+        from torchcal.io.robot_file import check_record
+        check_record(partition.made_for, model.robot, "partition", "sweep and partition")
     m = _measurements(measurements, model.robot)
-    with threads.for_work(_work(model, m)):
+    ids = [] if m.point is None else sorted(set(m.point.tolist()))
+    if len(ids) == 1 and not isinstance(robot_or_model, (CalibrationModel, FitResult)):
+        model = CalibrationModel(model.robot, model.specs(), points=ids)  # MODEL.json records the point id
+    if partition is not None and partition.made_for is None:  # no record: judged by its geometry
+        from torchcal.calibration.mismatch import check_partition
+        check_partition(partition, model.robot, m.q, "partition")
+    with threads.for_work(_work(model, m)), _about(m):
         return run(model, m, partition, zone_method, damping)
 
 
@@ -290,7 +337,9 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
 
     model: a fitted model (`FitResult`, or a MODEL.json path; a `ZonedFit`'s targets are
     assigned to its zones). targets: in the model's measuring
-    frame. q0: (M, n) rad starting commands, default
+    frame. q0: (M, n) rad starting commands (one per target; with `check`, seeds beyond what
+    a joint can turn are refused as degrees, and seeds whose model point lies more than
+    100 mm from their target named in a `MismatchWarning`), default
     `torchcal.calibration.compensate.nominal_start` (the nominal inverse in the measuring
     frame from the nearest calibration pose, as the command line seeds it; a target
     beyond the reach, `check`, is tried from its nearest pose only and ends not converged). tol_mm,
@@ -329,7 +378,9 @@ def register(model, measurements, *, tool: bool = False) -> FitResult:
 
     fm = _fitted(model) if _is_model(model) else None
     robot = fm.model.robot if fm is not None else _robot(model)
-    return register_model(fm, robot, _measurements(measurements, robot), tool=tool, stacklevel=2)
+    m = _measurements(measurements, robot)
+    with _about(m):
+        return register_model(fm, robot, m, tool=tool, stacklevel=2)
 
 
 def _is_model(obj) -> bool:

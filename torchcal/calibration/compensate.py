@@ -44,7 +44,7 @@ import torch
 
 from torchcal.kinematics import mdh as K
 from torchcal.effects.context import Context, approach_directions
-from torchcal.errors import InputError
+from torchcal.errors import InputError, number_argument
 from torchcal.calibration.model import CalibrationModel
 
 __all__ = ["Compensation", "compensate", "predict_rows", "nominal_inverse", "nominal_start", "measuring_from_base",
@@ -347,20 +347,34 @@ def compensate_fitted(fitted, targets, q0=None, *, tol_mm: float = 1e-6, max_ite
     q0: (M, n) rad starting commands, default `nominal_start` (a target beyond the reach
     from its nearest calibration pose only, as ``torchcal compensate``). check: refuse
     targets inside the robot's base (metres read as mm), warn about those beyond its reach
-    (`torchcal.calibration.mismatch.check_targets`). A residual stage is inverted with the
+    (`torchcal.calibration.mismatch.check_targets`); refuse seeds q0 of another shape or
+    beyond what a joint can turn (degrees), warn about seeds whose model point lies more
+    than 100 mm from their target (`check_seeds`). A residual stage is inverted with the
     model (`with_stage`). Converged commands outside the calibrated range are counted
     (``outside_range``) and named in one `CalibratedRangeWarning` (at `stacklevel`, counted
     from the caller)."""
-    from torchcal.calibration.mismatch import check_targets, warn_outside_range
+    from torchcal.calibration.mismatch import check_seeds, check_targets, warn_outside_range
 
     cm, theta, q_range, stage = fitted.model, fitted.theta, fitted.q_range, fitted.residual_model
     robot = cm.robot
     t = torch.as_tensor(targets, dtype=robot.dtype, device=robot.device)
-    if t.ndim != 2 or t.shape[-1] != 3:
-        raise InputError(f"targets: expected (M, 3) mm, got shape {tuple(t.shape)}")
+    if t.ndim != 2 or t.shape[-1] != 3 or t.shape[0] == 0:
+        raise InputError(f"targets: expected (M, 3) mm, M >= 1, got shape {tuple(t.shape)}")
+    number_argument("tol_mm", tol_mm, above=0)
+    number_argument("max_iter", max_iter, integer=True, at_least=1)
+    number_argument("max_step_rad", max_step_rad, above=0)
     far = check_targets(cm, theta, t) if check else []
     if q0 is None:
         q0 = nominal_start(cm, theta, t, poses=fitted.seed_poses, q_range=q_range, once=far).q
+    elif check:  # the caller's seeds: shape, finite, radians (not degrees), near their targets
+        q0 = robot.check_q(q0, "q0").to(t)
+        if q0.shape != (t.shape[0], robot.n):
+            raise InputError(f"q0: expected ({t.shape[0]}, {robot.n}) rad, one seed per target, "
+                             f"got shape {tuple(q0.shape)}")
+        at = predict_rows(cm, theta.to(t).expand(len(t), -1), q0,
+                          payload_kg=None if payload_kg is None else torch.as_tensor(payload_kg).to(t),
+                          temp_c=None if temp_c is None else torch.as_tensor(temp_c).to(t))
+        check_seeds(at, t, q0, robot, "q0", skip=far, angle_unit="rad")
     zone = fitted.assign(t) - 1  # row of zone_theta
     theta = fitted.zone_theta
     options = dict(tol_mm=tol_mm, max_iter=max_iter, max_step_rad=max_step_rad, payload_kg=payload_kg,
@@ -455,16 +469,22 @@ def compensate_targets(im, targets, *, frame: str = "measuring", seeds=None, pay
         raise InputError(f"frame: expected one of {', '.join(FRAMES)}, got {frame!r}")
     rob = im.model.robot
     t = torch.as_tensor(targets, dtype=torch.float64)
-    if t.ndim != 2 or t.shape[-1] != 3:
-        raise InputError(f"targets: expected (M, 3) mm, got shape {tuple(t.shape)}")
+    if t.ndim != 2 or t.shape[-1] != 3 or t.shape[0] == 0:
+        raise InputError(f"targets: expected (M, 3) mm, M >= 1, got shape {tuple(t.shape)}")
+    if not bool(torch.isfinite(t).all()):
+        raise InputError("targets: positions must be finite")
     check_target_conditions(im.model, t, payload_kg, temp_c, where)
-    given = t
+    given, o = t, None
+    R, o_base = measuring_from_base(im.model, im.theta.to(t))
     if frame == "base":  # the solve is in the measuring frame, where the model predicts
-        R, o = measuring_from_base(im.model, im.theta.to(t))
-        t = t @ R.T + o
-    with warnings.catch_warnings():  # metres read as mm: refused; beyond the reach: listed
+        t, o = t @ R.T + o_base, o_base
+    other = None  # the targets read in the other frame: a frame mix-up is named
+    if any(e.name == "base_frame" for e in im.model.effects):
+        other = (given @ R.T + o_base, "robot base frame", ("frame", "base")) if frame == "measuring" else \
+            (given, "measuring frame", ("frame", "measuring"))
+    with warnings.catch_warnings():  # metres or inches read as mm, the other frame: refused; beyond the reach: listed
         warnings.simplefilter("ignore", MismatchWarning)
-        far = check_targets(im.model, im.theta, t, where=where)
+        far = check_targets(im.model, im.theta, t, where=where, about=o, other_frame=other)
     if seeds is None:
         q0 = nominal_start(im.model, im.theta, t, poses=im.seed_poses, q_range=im.q_range, once=far).q
     else:  # seeds are the targets' nominal commands: radians in degrees refused, far ones named

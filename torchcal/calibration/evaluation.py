@@ -10,11 +10,13 @@ the model are refused first (`torchcal.calibration.mismatch.check_measurements`)
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 
 import torch
 
 from torchcal.calibration.fit import FitResult
+from torchcal.errors import InputError
 from torchcal.measurements import Measurements
 
 
@@ -58,14 +60,24 @@ def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     """Errors of the fitted model `fm` on measurements `m` (module doc): InputError for data
     that cannot come from the model (another robot, a moved measuring frame, units); one
     `CalibratedRangeWarning` (at `stacklevel`, counted from the caller) for rows outside
-    the calibrated range."""
+    the calibrated range. Data of a point id the model was not fitted on
+    (`torchcal.calibration.mismatch.point_ids_differ`): InputError for a model with one tool
+    offset per point, else one `PointIdWarning`. Orientations (rx, ry, rz) that disagree
+    with the nominal tool (`torchcal.calibration.mismatch.orientation_mismatch`): one
+    `MismatchWarning` naming the reading that fits."""
     from torchcal.calibration.joint_range import outside_range
-    from torchcal.calibration.mismatch import check_measurements, enforce, warn_outside_range
+    from torchcal.calibration.mismatch import (MismatchWarning, PointIdWarning, check_measurements, enforce,
+                                               orientation_mismatch, point_ids_differ, warn_outside_range)
     from torchcal.effects import context_of
     from torchcal.metrics import error_summary
     from torchcal.rotations import so3_error
 
     cm = fm.model
+    other = point_ids_differ(cm, m)
+    if other is not None and cm.points:  # one tool offset per point: none for this one
+        raise InputError(other)
+    if other is not None:
+        warnings.warn(other, PointIdWarning, stacklevel=stacklevel + 1)
     ctx = context_of(cm.robot, m)
     cm.check_context(ctx)
     theta = fm.theta.to(m.xyz)
@@ -77,6 +89,9 @@ def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     fig = error_summary(err)
     orient = orient_rows = None
     tool_r = fm.tool_rotation
+    bad_rotations = orientation_mismatch(cm, m)  # rx, ry, rz in another unit or convention
+    if bad_rotations is not None:
+        warnings.warn(bad_rotations, MismatchWarning, stacklevel=stacklevel + 1)
     if m.rxyz is not None and tool_r is not None:
         e = so3_error(cm.predict_rotation(theta, ctx) @ tool_r.to(theta), m.rotation)  # (N, 3) rad
         orient = math.degrees(float(e.norm(dim=-1).pow(2).mean().sqrt()))

@@ -26,7 +26,7 @@ import math
 
 import torch
 
-from torchcal.errors import InputError
+from torchcal.errors import DataError, InputError
 
 RANK_TOL = 1e-6
 #: every candidate counts as identifiable, without the pivoting, when the smallest singular
@@ -193,9 +193,9 @@ def check_enough_rows(report: Identifiability, n_equations: float, model, ctx, c
     if n_equations <= report.rank:
         kk = generic_rank(model, ctx, cand, rank_tol)
         need = kk // 3 + 1
-        raise InputError(f"too few poses: {n_rows} poses give {3 * n_rows} equations (3 per pose) "
+        raise DataError(f"too few poses: {n_rows} poses give {3 * n_rows} equations (3 per pose) "
                          f"but the model [{', '.join(model.specs()) or 'geometric only'}] has {kk} "
                          f"identifiable parameters (of {n_cand}); need at least {need} poses, "
                          f"in practice {max(2 * need, need + 10)} or more spread over the workspace")
     if n_cand and report.rank == 0:
-        raise InputError("no parameter is identifiable from these poses")
+        raise DataError("no parameter is identifiable from these poses")

@@ -32,13 +32,20 @@ one. The reach R is their largest distance from the robot base origin (as the mo
 base frame maps it). Targets whose median distance from the base origin is below R / 20 (the
 factor of the unit check, `check_units`) sit inside the robot's
 base, or whose median distance from the origin of the measuring frame (the instrument) is
-below R / 20: metres read as mm (a refusal); targets beyond 1.05 R cannot be reached (a warning
-naming them; compensate reports them as not converged).
+below R / 20: a unit (a refusal); targets beyond 1.05 R cannot be reached (a warning
+naming them; compensate reports them as not converged), unless more than 10 % of them are
+and a unit brings them into the workspace (a refusal). The unit is the first of `MISREAD`
+(metres, inches) whose factor, applied about the origin of the frame the targets were given
+in, puts their median distance from the base within [R / 20, 1.05 R] and at most 10 % of
+them beyond 1.05 R ("they look like inches read as mm; convert them to mm (x 25.4)");
+the words and the factor are those of the measurement unit check (`misread_length`).
 
 Seeds of targets (`check_seeds`): the model at each seed should lie on its target (a seed
 is the target's nominal command); seeds within +-2 pi "degrees" a median beyond SEED_MM =
 100 mm from their targets are radians read as degrees (a refusal), other seeds beyond
-SEED_MM are named in a warning.
+SEED_MM are named in a warning. Seeds given in radians (the library's ``q0``) beyond
+what a joint can turn (`beyond_turn`: max(2 pi, the widest limit) + 0.01 rad) are degrees
+(a refusal).
 
 Before and after a fit (`check_robot_data`, `check_fitted`): the nominal robot with its
 measuring frame and tool offset fitted must come within GROSS_MM of the data, else the
@@ -83,7 +90,16 @@ counted and named in one `CalibratedRangeWarning`: the model extrapolates there.
 
 A robot given with a model (`check_same_robot`) must be the robot it was fitted for.
 
-Robot files (`check_robot_lengths`): an arm whose links (sum over joints of
+Partitions that record no robot (`check_partition`: one built in memory, an older file)
+are judged by geometry: their sweep points are the nominal TCP positions of the robot
+they were made for, in its base frame. More than OUTLIER_SHARE = 10 % of them beyond 1.05 R
+(R: the reach, as for targets), or calibration poses whose nominal TCP positions lie a median
+farther from the nearest sweep point than PARTITION_SPACING = 3 times the sweep's own median
+spacing and than R / 20: a partition of another robot (or of another region), refused.
+
+Robot files (`check_robot_angles`): every revolute limit within +-2 pi "degrees", or a
+twist or offset of pi / 2 or pi "degrees" in a file with no angle beyond 2 pi "degrees",
+are radians written where degrees belong. (`check_robot_lengths`): an arm whose links (sum over joints of
 ``sqrt(d^2 + a^2)``, prismatic strokes included) reach less than MIN_REACH_MM = 50 mm is
 not an industrial arm; its lengths were written in metres.
 """
@@ -108,6 +124,22 @@ SEED_MM = 100.0  # a seed whose model point lies farther from its target is no n
 RATIO_LIMIT = 20.0
 RAD_RATIO = 2.0
 INCH_MM = 25.4
+PARTITION_SPACING = 3.0
+
+
+#: the length units that numbers read as mm are mistaken in: factor to mm, the words naming
+#: the mistake, the `InputError.fix` (None: no unit option reads them; convert the file)
+MISREAD = {"metres": (1000.0, "metres read as mm", ("length_unit", "m")),
+           "inches": (INCH_MM, f"inches read as mm; convert them to mm (x {INCH_MM:g})", None)}
+
+
+def misread_length(ratio: float) -> str | None:
+    """The unit (a `MISREAD` key) of numbers read as mm that are `ratio` times the size
+    they should have: 'inches' when 1/25.4 within 10 %, 'metres' at any other ratio below
+    1 / RATIO_LIMIT, else None."""
+    if abs(math.log(ratio * INCH_MM)) < math.log(1.1):
+        return "inches"
+    return "metres" if ratio < 1 / RATIO_LIMIT else None
 
 
 class MismatchWarning(UserWarning):
@@ -165,10 +197,9 @@ def check_units(m, robot, length_unit: str = "mm", angle_unit: str = "deg", wher
     rev = ~robot.prismatic.cpu()  # a prismatic joint's q is a length (mm), never an angle
     q = m.q.detach().to("cpu", torch.float64)[..., rev]
     qmax_file = float(q.abs().max()) if q.numel() else 0.0  # rad inside
-    if angle_unit == "rad" and q.numel():
-        lim = float(robot.limits.detach().cpu()[rev].abs().max())
-        bound = max(2 * math.pi, lim) + 0.01
-        if qmax_file > bound:
+    if angle_unit == "rad":
+        bound = beyond_turn(m.q, robot)
+        if bound is not None:
             raise InputError(f"{pre}joint angles reach {qmax_file:.4g} rad, beyond what a joint can "
                              f"turn ({bound:.3g} rad): they look like degrees read as radians",
                              fix=("angle_unit", "deg"))
@@ -189,12 +220,10 @@ def check_units(m, robot, length_unit: str = "mm", angle_unit: str = "deg", wher
                          f"{spreads}: the joint angles look like radians read as degrees",
                          fix=("angle_unit", "rad"))
     if ratio < 1 / RATIO_LIMIT:
-        if length_unit == "mm" and abs(math.log(ratio * INCH_MM)) < math.log(1.1):
-            raise InputError(f"{pre}{spreads} ({1 / ratio:.4g} times less): the positions look like inches "
-                             f"read as mm; convert them to mm (x {INCH_MM:g})")
         if length_unit == "mm":
-            raise InputError(f"{pre}{spreads} ({1 / ratio:.4g} times less): the positions look like "
-                             "metres read as mm", fix=("length_unit", "m"))
+            _, words, fix = MISREAD[misread_length(ratio)]
+            raise InputError(f"{pre}{spreads} ({1 / ratio:.4g} times less): the positions look like {words}",
+                             fix=fix)
         raise InputError(f"{pre}{spreads} ({1 / ratio:.4g} times less): wrong unit or wrong robot?")
     if ratio > RATIO_LIMIT:
         if length_unit == "m":
@@ -202,6 +231,17 @@ def check_units(m, robot, length_unit: str = "mm", angle_unit: str = "deg", wher
                              "mm read as metres", fix=("length_unit", "mm"))
         raise InputError(f"{pre}{spreads} ({ratio:.4g} times more): wrong unit or wrong robot?")
     return out
+
+
+def beyond_turn(q: torch.Tensor, robot) -> float | None:
+    """The bound max(2 pi, the robot's widest revolute limit) + 0.01 rad when a revolute
+    joint value of q (..., n) rad / mm lies beyond it (degrees taken for radians), else None."""
+    rev = ~robot.prismatic.cpu()
+    a = q.detach().to("cpu", torch.float64)[..., rev]
+    if not a.numel():
+        return None
+    bound = max(2 * math.pi, float(robot.limits.detach().cpu()[rev].abs().max())) + 0.01
+    return bound if float(a.abs().max()) > bound else None
 
 
 def _units_hint(ratio: float) -> str:
@@ -283,6 +323,13 @@ def check_measurements(model, theta: torch.Tensor, m, training_rms_mm: float | N
             return dataclasses.replace(res, fix=None, message=(
                 f"{what or (m.source or 'data')}: cannot come from {name} as given: rms {res.rms_mm:.4g} mm, but "
                 f"within {res.bound_mm:.3g} mm with the joint {hint}: check the joint columns"))
+        lag = row_lag(m, fits)
+        if lag is not None:
+            return dataclasses.replace(res, fix=None, message=(
+                f"{what or (m.source or 'data')}: cannot come from {name} as given: rms {res.rms_mm:.4g} mm, but "
+                f"within {res.bound_mm:.3g} mm with each row's x, y, z taken from {abs(lag)} row(s) "
+                f"{'further down' if lag > 0 else 'further up'}: the positions are misaligned with the joint "
+                "values (two logs joined with a row more in one); check the rows"))
     if q_range is None:
         return res
     out = outside_range(m.q, q_range.to(m.q), model.robot.prismatic).any(dim=-1).cpu()  # (N,)
@@ -339,29 +386,66 @@ def workspace(model, theta: torch.Tensor, seed: int = 0):
     return v, origin
 
 
-def check_targets(model, theta: torch.Tensor, targets: torch.Tensor, where: str = "targets") -> list[int]:
-    """Refuse targets (M, 3) mm that sit inside the robot's base (metres read as mm);
-    warn (`MismatchWarning`) naming targets beyond the reach. Returns the 0-based rows
-    beyond the reach."""
+def _in_workspace(p: torch.Tensor, origin: torch.Tensor, reach: float) -> bool:
+    """Points p (M, 3) mm whose median distance from the base origin lies within
+    [reach / TARGET_RATIO, REACH_MARGIN * reach], at most OUTLIER_SHARE of them beyond it."""
+    d = (p - origin).norm(dim=-1)
+    return reach / TARGET_RATIO <= float(d.median()) <= REACH_MARGIN * reach and \
+        float((d > REACH_MARGIN * reach).double().mean()) <= OUTLIER_SHARE
+
+
+def _scaled_unit(t: torch.Tensor, origin: torch.Tensor, reach: float, about: torch.Tensor) -> str | None:
+    """The `MISREAD` unit whose factor brings the targets t (M, 3) (numbers read as mm,
+    scaled about `about` (3,), the origin of the frame they were given in, where a file's
+    numbers are zero) into the workspace (`_in_workspace`); the first that does in
+    `MISREAD`'s order (metres: numbers in metres times 25.4 can land in a large arm's
+    workspace near the instrument; inches times 1000 lie 39 times too far), None when none."""
+    for unit, (factor, _, _) in MISREAD.items():
+        if _in_workspace(about + (t - about) * factor, origin, reach):
+            return unit
+    return None
+
+
+def check_targets(model, theta: torch.Tensor, targets: torch.Tensor, where: str = "targets",
+                  about: torch.Tensor | None = None, other_frame: tuple | None = None) -> list[int]:
+    """Refuse targets (M, 3) mm that sit inside the robot's base or around the origin of
+    their frame, and targets mostly beyond the reach, when a unit (`MISREAD`: metres,
+    inches) or else the other frame would bring them into the workspace (one InputError
+    naming it); warn (`MismatchWarning`) naming the other targets beyond the reach. about: (3,)
+    mm, the origin of the frame the targets were given in, in the model's frame (None: the
+    model's own, the measuring frame). other_frame: (points (M, 3) mm, the targets read in
+    the other frame (robot base or measuring) mapped into the model's frame; its name;
+    the `InputError.fix` that reads them so), or None. Returns the 0-based rows beyond
+    the reach."""
     pts, origin = workspace(model, theta)
     reach = float((pts - origin).norm(dim=-1).max())
     t = targets.detach().to("cpu", torch.float64)
     dist = (t - origin).norm(dim=-1)
     med = float(dist.median())
     med0 = float(t.norm(dim=-1).median())  # around the origin of the model's (measuring) frame
+    far = (dist > REACH_MARGIN * reach).nonzero().flatten().tolist()
+    wrong = med < reach / TARGET_RATIO or med0 < reach / TARGET_RATIO or len(far) > OUTLIER_SHARE * len(t)
+    unit = _scaled_unit(t, origin, reach, torch.zeros(3, dtype=torch.float64) if about is None else
+                        about.detach().to("cpu", torch.float64))
+    if wrong and unit is None and other_frame is not None and \
+            _in_workspace(other_frame[0].detach().to("cpu", torch.float64), origin, reach):
+        raise InputError(f"{where}: as given the targets lie a median {med:.4g} mm from the base of "
+                         f"{model.robot.name} (reach {reach:.4g} mm; {len(far)} of {len(t)} beyond it), but read in "
+                         f"the {other_frame[1]} they would lie within its reach: they look like coordinates in the "
+                         f"{other_frame[1]}", fix=other_frame[2])
+    _, words, fix = MISREAD[unit] if unit is not None else (None, "wrong unit or wrong frame?", None)
+    look = f"they look like {words}" if unit is not None else words
     if med0 < reach / TARGET_RATIO and med >= reach / TARGET_RATIO:
-        metres = med0 * 1000 <= float(origin.norm()) + REACH_MARGIN * reach
         raise InputError(f"{where}: the targets lie a median {med0:.4g} mm from the origin of the measuring frame, "
                          f"where no target of {model.robot.name} can be (its base is {float(origin.norm()):.4g} mm "
-                         "away): " + ("they look like metres read as mm" if metres else "wrong unit or wrong frame?"),
-                         fix=("length_unit", "m") if metres else None)
+                         f"away): {look}", fix=fix)
     if med < reach / TARGET_RATIO:
-        metres = med * 1000 <= REACH_MARGIN * reach
         raise InputError(f"{where}: the targets lie a median {med:.4g} mm from the robot base, inside the base of "
-                         f"{model.robot.name} (reach {reach:.4g} mm): "
-                         + ("they look like metres read as mm" if metres else "wrong unit or wrong frame?"),
-                         fix=("length_unit", "m") if metres else None)
-    far = (dist > REACH_MARGIN * reach).nonzero().flatten().tolist()
+                         f"{model.robot.name} (reach {reach:.4g} mm): {look}", fix=fix)
+    if len(far) > OUTLIER_SHARE * len(t) and unit is not None:
+        raise InputError(f"{where}: {len(far)} of {len(t)} targets lie beyond the reach of {model.robot.name} "
+                         f"({reach:.4g} mm from its base; a median {med:.4g} mm), and x {MISREAD[unit][0]:g} they "
+                         f"would lie within it: {look}", fix=fix)
     if far:
         rows = _listed(i + 1 for i in far)
         warnings.warn(f"{where}: {len(far)} target(s) lie beyond the reach of {model.robot.name} ({reach:.4g} mm "
@@ -370,8 +454,41 @@ def check_targets(model, theta: torch.Tensor, targets: torch.Tensor, where: str 
     return far
 
 
+def check_partition(partition, robot, q: torch.Tensor, where: str = "partition") -> None:
+    """Refuse (one InputError line naming `where`) a `torchcal.partition.zones.Partition`
+    that cannot be of `robot` by its geometry (module docstring): sweep points beyond the
+    reach, or calibration poses q (N, n) rad / mm far from every sweep point."""
+    from scipy.spatial import cKDTree
+
+    from torchcal.robots.poses import random_poses
+
+    with torch.no_grad():
+        ws = robot.fk(random_poses(robot, WORKSPACE_POSES, torch.Generator().manual_seed(0)).to(
+            robot.device, robot.dtype)).detach().to("cpu", torch.float64)
+        p = robot.fk(q.to(robot.device, robot.dtype)).detach().to("cpu", torch.float64)  # (N, 3) mm
+    origin = robot.base[:3, 3].detach().to("cpu", torch.float64)
+    reach = float((ws - origin).norm(dim=-1).max())
+    pts = partition.positions.detach().to("cpu", torch.float64)
+    dist = (pts - origin).norm(dim=-1)
+    far = int((dist > REACH_MARGIN * reach).sum())
+    if far > OUTLIER_SHARE * pts.shape[0]:
+        raise InputError(f"{where}: {far} of its {pts.shape[0]} sweep points lie beyond the reach of robot "
+                         f"{robot.name!r} ({reach:.4g} mm from its base; up to {float(dist.max()):.4g} mm): a "
+                         "partition of another robot? make the sweep and partition for this robot")
+    if pts.shape[0] < 2 or p.shape[0] == 0:
+        return
+    tree = cKDTree(pts.numpy())
+    spacing = float(torch.as_tensor(tree.query(pts.numpy(), k=2)[0][:, 1]).median())
+    near = float(torch.as_tensor(tree.query(p.numpy(), k=1)[0]).median())
+    if near > max(PARTITION_SPACING * spacing, reach / TARGET_RATIO):
+        raise InputError(f"{where}: the calibration poses of robot {robot.name!r} lie a median {near:.4g} mm from "
+                         f"the nearest of its sweep points (spaced a median {spacing:.4g} mm apart): a partition "
+                         "of another robot, or of another part of the workspace? make the sweep and partition for "
+                         "this robot")
+
+
 def check_seeds(seed_points: torch.Tensor, targets: torch.Tensor, q0: torch.Tensor, robot,
-                where: str = "targets", skip=()) -> list[int]:
+                where: str = "targets", skip=(), angle_unit: str = "deg") -> list[int]:
     """Compensation seeds against their targets: a seed (the ``q1..qN`` of a targets file)
     is normally the nominal command of its target, where the model lies within the robot's
     absolute accuracy (a few mm) of it; the solve starts there and stays in its arm
@@ -385,14 +502,21 @@ def check_seeds(seed_points: torch.Tensor, targets: torch.Tensor, q0: torch.Tens
     sits on its targets and passes. Otherwise a `MismatchWarning` names the targets whose
     seed point lies beyond SEED_MM (the solution may lie in another arm configuration than
     the seed's); rows in `skip` (0-based: targets beyond the reach, named already) are not.
-    Returns the named 0-based rows."""
+    angle_unit: the unit the seeds were given in: 'deg' (a targets file), or 'rad' (the
+    library's q0), where seeds beyond what a joint can turn (`beyond_turn`) are degrees
+    given as radians (an InputError naming `where`). Returns the named 0-based rows."""
     d = (seed_points.detach().to("cpu", torch.float64) - targets.detach().to("cpu", torch.float64)).norm(dim=-1)
     if d.numel() == 0:
         return []
     rev = ~robot.prismatic.cpu()
     q = q0.detach().to("cpu", torch.float64)[..., rev]
     med = float(d.median())
-    if q.numel() and math.degrees(float(q.abs().max())) <= 2 * math.pi + 1e-9 and med > SEED_MM:
+    bound = beyond_turn(q0, robot) if angle_unit == "rad" else None
+    if bound is not None:
+        raise InputError(f"{where}: seed angles reach {float(q.abs().max()):.4g} rad, beyond what a joint can turn "
+                         f"({bound:.3g} rad): they look like degrees; seeds are in radians (torch.deg2rad)")
+    if angle_unit == "deg" and q.numel() and math.degrees(float(q.abs().max())) <= 2 * math.pi + 1e-9 \
+            and med > SEED_MM:
         raise InputError(f"{where}: every seed angle lies within +-{math.degrees(float(q.abs().max())):.4g} deg and "
                          f"the model at the seeds lies a median {med:.4g} mm from the targets: the seeds "
                          f"q1..q{robot.n} look like radians read as degrees", fix=("angle_unit", "rad"))
@@ -403,6 +527,26 @@ def check_seeds(seed_points: torch.Tensor, targets: torch.Tensor, q0: torch.Tens
                       f"the seed; up to {float(d.max()):.4g} mm): row(s) {rows}; a seed is the target's nominal "
                       "command: the solution may lie in another arm configuration", MismatchWarning, stacklevel=2)
     return far
+
+
+class PointIdWarning(MismatchWarning):
+    """Data of another measured point (reflector) than the one a model was fitted on."""
+
+
+def point_ids_differ(model, m, what: str | None = None) -> str | None:
+    """One line when the `point` ids of measurements m are not among those of the data the
+    `CalibrationModel` was fitted on (``model.point_ids``, recorded in MODEL.json): its
+    tool (the fitted tool offset, or the nominal tool) is that point's, and on another
+    point's data every row is off by the distance between the two. None when they agree,
+    or when the model or the data record no point ids (older files, no point column)."""
+    if not model.point_ids or m.point is None:
+        return None
+    other = sorted(set(m.point.tolist()) - set(model.point_ids))
+    if not other:
+        return None
+    return (f"{what or m.source or 'measurements'}: point id(s) {_listed(other)}, but the model was fitted on the "
+            f"data of point id(s) {_listed(model.point_ids)}: its tool is that point's, so every row of another "
+            "point is off by the distance between the two (another reflector or nest?)")
 
 
 ORDER_SHARE = 0.05  # pose ids stepping down at more than this share of rows: not the order taken
@@ -503,6 +647,30 @@ def check_robot_lengths(table, prismatic, limits, where: str = "robot file") -> 
                          "take millimetres (d_mm, a_mm, base, tool, prismatic limits)")
 
 
+def check_robot_angles(table, prismatic, limits, where: str = "robot file") -> None:
+    """InputError for angles a robot file holds in radians where it takes degrees:
+    table (n, 5) [theta, d, a, alpha, beta] rad and limits (n, 2) (rad for a revolute
+    joint) as read from the file's degrees (module docstring). Every revolute joint's
+    limits within +-2 pi "degrees" (an arm whose joints all turn less than 6.3 deg); or a
+    twist alpha or offset theta within 1e-3 of pi / 2 or pi "degrees" while none lies
+    beyond 2 pi "degrees" (90 deg written as 1.5708)."""
+    t = torch.rad2deg(table.detach().to("cpu", torch.float64))
+    rev = ~prismatic.detach().cpu().bool()
+    lim = torch.rad2deg(limits.detach().to("cpu", torch.float64))[rev]
+    if lim.numel() and float(lim.abs().max()) <= 2 * math.pi + 0.01:
+        raise InputError(f"{where}: every revolute joint's limits lie within +-{float(lim.abs().max()):.4g} deg: "
+                         "they look like radians; robot files take degrees (lower, upper)")
+    ang = t[:, [0, 3]]  # theta offsets and twists, deg
+    if float(ang.abs().max()) <= 2 * math.pi + 0.01:
+        near = [(j, k, float(ang[j, c])) for j in range(ang.shape[0]) for c, k in enumerate(("theta_offset_deg",
+                                                                                            "alpha_deg"))
+                if min(abs(abs(float(ang[j, c])) - math.pi / 2), abs(abs(float(ang[j, c])) - math.pi)) < 1e-3]
+        if near:
+            j, k, v = near[0]
+            raise InputError(f"{where}: joints[{j + 1}].{k} = {v:.6g}: pi/2 or pi written in radians (and no angle "
+                             "of the file beyond 6.3 deg); robot files take degrees (e.g. 90, not 1.5708)")
+
+
 OUTLIER_SHARE = 0.1  # at most this share of rows may be gross outliers (the rest must agree)
 
 
@@ -554,8 +722,9 @@ def _quick_fit(model, ctx, xyz: torch.Tensor) -> bool:
 def column_mistakes(m, robot):
     """Yield (phrase, Measurements) for each one-column mistake in the joint values of `m`
     (q (N, n) rad / mm): two adjacent q columns swapped, one revolute column in radians
-    read as degrees, one column negated (another sign convention). The rows' predecessors
-    follow the changed q (their row order)."""
+    read as degrees, one column negated (another sign convention), one revolute column
+    shifted by +-90 or 180 deg (another zero position, e.g. a controller's against the
+    MD-H table's). The rows' predecessors follow the changed q (their row order)."""
     import dataclasses
 
     def changed(q):
@@ -576,6 +745,12 @@ def column_mistakes(m, robot):
         q = m.q.clone()
         q[:, j] = -q[:, j]
         yield f"column q{j + 1} negated (another sign convention)", changed(q)
+    for j in range(n):
+        if rev[j]:
+            for deg in (90, -90, 180):
+                q = m.q.clone()
+                q[:, j] = q[:, j] + math.radians(deg)
+                yield f"column q{j + 1} shifted by {deg:+d} deg (another zero position)", changed(q)
 
 
 HINT_ROWS = 60  # rows (evenly spread over the file) that judge a one-column mistake
@@ -596,6 +771,60 @@ def column_hint(m, robot, fits, score=None, tries: int = 2) -> str | None:
         try:
             if fits(fixed):
                 return phrase
+        except InputError:
+            continue
+    return None
+
+
+JOINS = 3  # at most this many pose-id restarts are tried as the joint between two sessions
+
+
+def joined_sessions(m, fits) -> int | None:
+    """The 0-based row r where the pose ids restart (step down) such that rows [0, r) and
+    [r, N) each `fits` (a predicate on `Measurements`, each in a frame of its own): two
+    sessions joined in one file, measured in different instrument frames. Tried at the
+    first JOINS restarts only when the ids step down at most JOINS times (a session with
+    repeats cycles through its poses in random order: no joint to find), each part with at
+    least 6 rows; None otherwise."""
+    pose = m.pose.detach().cpu()
+    down = ((pose[1:] < pose[:-1]).nonzero().flatten() + 1).tolist()
+    if not down or len(down) > JOINS:
+        return None
+    for r in down:
+        if r < 6 or len(m) - r < 6:
+            continue
+        parts = [m.subset(torch.arange(a, b)) for a, b in ((0, r), (r, len(m)))]
+        try:
+            if all(fits(p) for p in parts):
+                return r
+        except InputError:
+            continue
+    return None
+
+
+LAGS = (1, -1, 2, -2)  # row offsets between the joint values and the positions that are tried
+
+
+def row_lag(m, fits) -> int | None:
+    """The first offset k of LAGS such that the rows with q of row i and x, y, z (and
+    rx, ry, rz) of row i + k `fits` (a predicate on `Measurements`), else None: positions
+    misaligned with the joint values by k rows over the whole file (a joined log with a
+    row more at its start). Judged on up to HINT_ROWS rows spread over the shifted rows."""
+    import dataclasses
+
+    n = len(m)
+    for k in LAGS:
+        if n - abs(k) < 3 * max(1, abs(k)) or n - abs(k) < 6:
+            continue
+        rows = torch.arange(max(0, -k), n - max(0, k))
+        if rows.numel() > HINT_ROWS:
+            rows = rows[torch.linspace(0, rows.numel() - 1, HINT_ROWS).round().long()]
+        sub = m.subset(rows)
+        moved = dataclasses.replace(sub, xyz=m.xyz[rows + k],
+                                    rxyz=None if m.rxyz is None else m.rxyz[rows + k])
+        try:
+            if fits(moved):
+                return k
         except InputError:
             continue
     return None
@@ -692,15 +921,32 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
         R, t = kabsch(p, mm.xyz)
         return _rms((p @ R.T + t - mm.xyz).norm(dim=-1))
 
+    join = joined_sessions(m, lambda mm: _fits(model, mm))
+    if join is not None:
+        return result("mismatch", f"{what}: cannot come from {name} in one measuring frame: rms {reg:.4g} mm with the "
+                      f"best frame and tool offset, but rows 1..{join} and {join + 1}..{len(m)} (data rows; pose ids "
+                      f"restart at {int(m.pose[join])}) each fit within {GROSS_MM:g} mm in a frame of their own: two "
+                      "sessions joined, the instrument moved between them; calibrate on one, or register each "
+                      "(torchcal register)")
+    lag = row_lag(m, lambda mm: _fits(model, mm))
+    if lag is not None:
+        return result("mismatch", f"{what}: cannot come from {name} as given: rms {reg:.4g} mm with the best measuring "
+                      f"frame and tool offset, but within {GROSS_MM:g} mm with each row's x, y, z taken from "
+                      f"{abs(lag)} row(s) {'further down' if lag > 0 else 'further up'}: the positions are "
+                      "misaligned with the joint values (two logs joined with a row more in one); check the rows")
     hint = column_hint(m, model.robot, lambda mm: _fits(model, mm), score=kabsch_rms)
     if hint is not None:
         return result("mismatch", f"{what}: cannot come from {name} as given: rms {reg:.4g} mm with the best measuring "
                       f"frame and tool offset, but within {GROSS_MM:g} mm with the joint {hint}: check the "
                       "joint columns")
     s_x, s_p = spread_mm(m.xyz), spread_mm(pred)
+    causes = "data of another robot or units (length or angle unit)"
+    if abs(math.log(max(s_x, 1e-12) / max(s_p, 1e-12))) < math.log(1.1):  # the same size: no unit mistake
+        causes = ("the spreads agree within 10 %, so no unit: data of another robot of that size, or many "
+                  f"corrupted rows (more than the {OUTLIER_SHARE:.0%} a robust fit sets aside)")
     return result("mismatch", f"{what}: cannot come from {name}: rms {reg:.4g} mm with the best measuring frame "
                   f"and tool offset, point spread {s_x:.4g} mm measured vs {s_p:.4g} mm modelled; likely causes: "
-                  f"data of another robot or units (length or angle unit){_units_hint(s_x / max(s_p, 1e-12))}")
+                  f"{causes}{_units_hint(s_x / max(s_p, 1e-12))}")
 
 def check_fitted(residuals: torch.Tensor, outliers=(), what: str = "data", name: str = "the model") -> str | None:
     """After a fit: None, or one line when its residuals (N, 3) mm, the rows in `outliers`
@@ -721,9 +967,89 @@ def check_robot_data_of(model, m, robust: bool | None = None):
     """Refuse (InputError, one line naming the cause) measurements `m` that the nominal
     robot of `model` cannot explain, or that need a measuring frame the model lacks
     (`check_robot_data`; robust: True when a robust fit follows, False for a fit without,
-    None for a command without a robust loss); fit, diagnose and discover call it."""
+    None for a command without a robust loss), or whose rx, ry, rz do not describe its tool
+    (`orientation_mismatch`); fit, diagnose and discover call it."""
     found = check_robot_data(model, m, robust=robust)
-    return None if found is None else enforce(found)
+    if found is not None:
+        return enforce(found)
+    msg = orientation_mismatch(model, m)
+    if msg is not None:
+        raise InputError(msg)
+    return None
+
+
+ORIENT_DEG = 5.0  # rms angle (deg) between measured and nominal tool orientations beyond which they are not the robot's
+
+
+def _orientation_rms_deg(nominal: torch.Tensor, measured: torch.Tensor, frame: torch.Tensor,
+                         rounds: int = 10) -> float:
+    """RMS angle (deg) between measured rotations Rm (N, 3, 3) and the nominal ones A
+    (N, 3, 3) as F A X, with the measuring-frame rotation F (from `frame` (3, 3), the
+    positions' Kabsch) and the constant tool rotation X refined in turn (Procrustes each,
+    `rounds` times): a large unknown tool offset, which tilts the positions' F, does not
+    count."""
+    from torchcal.rotations import nearest_rotation, procrustes_rotation, so3_error
+
+    F = frame
+    for _ in range(rounds):
+        x = procrustes_rotation(F @ nominal, measured)
+        F = nearest_rotation((measured @ (nominal @ x).transpose(-1, -2)).sum(0))
+    a = F @ nominal
+    x = procrustes_rotation(a, measured)
+    return math.degrees(_rms(so3_error(a @ x, measured).norm(dim=-1)))
+
+
+def orientation_readings(rxyz: torch.Tensor):
+    """Yield (phrase, (N, 3, 3) rotations) for other readings of rx, ry, rz (N, 3) as read
+    (fixed-axis XYZ in degrees, held in rad): radians read as degrees, intrinsic
+    (moving-axis) XYZ angles, a rotation vector (axis-angle, as UR controllers report the
+    TCP pose), each in degrees or in radians read as degrees."""
+    from torchcal.rotations import fixed_xyz_to_matrix, rotvec_to_matrix
+
+    def intrinsic(r):  # R = Rx(rx) Ry(ry) Rz(rz), each factor a fixed-axis rotation about one axis
+        zero = torch.zeros_like(r[:, 0])
+        return (fixed_xyz_to_matrix(torch.stack([r[:, 0], zero, zero], -1))
+                @ fixed_xyz_to_matrix(torch.stack([zero, r[:, 1], zero], -1))
+                @ fixed_xyz_to_matrix(torch.stack([zero, zero, r[:, 2]], -1)))
+
+    for scale, unit in ((1.0, ""), (180.0 / math.pi, " in radians (read as degrees)")):
+        r = rxyz * scale
+        if scale != 1.0:
+            yield f"fixed-axis XYZ angles{unit}", fixed_xyz_to_matrix(r)
+        yield f"intrinsic (moving-axis) XYZ angles{unit}", intrinsic(r)
+        yield f"a rotation vector (axis-angle, as UR controllers report){unit}", \
+            torch.stack([rotvec_to_matrix(v) for v in r])
+
+
+def orientation_mismatch(model, m) -> str | None:
+    """One line when the measured orientations of `m` (rx, ry, rz) cannot be the tool frames
+    of `model`'s nominal robot: the RMS angle between them, after the measuring frame's
+    rotation (Kabsch on the positions, which agree: `check_robot_data`) and the best
+    constant tool rotation (the fit's Procrustes step), beyond ORIENT_DEG = 5 deg (an
+    uncalibrated arm is within a degree or so). The line names the reading that fits
+    (`orientation_readings`), if one does. None for data without rx, ry, rz, fewer than 3
+    rows, or when they agree."""
+    from torchcal.calibration.registration import kabsch
+
+    if m.rxyz is None or len(m) < 3:
+        return None
+    rob = model.robot
+    with torch.no_grad():
+        q = m.q.to(rob.device, rob.dtype)
+        pose = rob.fk_pose(q).detach().to("cpu", torch.float64)  # (N, 4, 4) the nominal tool frames
+    nominal, p = pose[:, :3, :3], pose[:, :3, 3]
+    frame, _ = kabsch(p, m.xyz.detach().to("cpu", torch.float64))
+    measured = m.rotation.detach().to("cpu", torch.float64)
+    rms = _orientation_rms_deg(nominal, measured, frame)
+    if rms <= ORIENT_DEG:
+        return None
+    hint = next((phrase for phrase, R in orientation_readings(m.rxyz.detach().to("cpu", torch.float64))
+                 if _orientation_rms_deg(nominal, R, frame) <= ORIENT_DEG), None)
+    what = m.source or "data"
+    cause = f"they look like {hint}" if hint is not None else "another angle convention or unit?"
+    return (f"{what}: rx, ry, rz disagree with the tool orientation of {rob.name} by rms {rms:.4g} deg after the best "
+            f"measuring-frame and tool rotations (an uncalibrated arm is within a degree or so): {cause}; rx, ry, rz "
+            "are fixed-axis XYZ angles, R = Rz(rz) Ry(ry) Rx(rx), in the angle unit (or drop the three columns)")
 
 
 def check_diagnosis_data(robot_or_model, model, m):

@@ -36,6 +36,8 @@ class CalibrationModel:
         self.robot = robot
         self.effects: list[Effect] = [e if isinstance(e, Effect) else build(e, robot) for e in effects]
         self.points: tuple = ()
+        # the point ids of the data it was made for (one or several; () unknown), recorded in MODEL.json
+        self.point_ids: tuple = () if points is None else tuple(sorted({int(p) for p in points}))
         if points is not None:
             for e in self.effects:
                 if hasattr(e, "set_points"):

@@ -20,13 +20,15 @@ def register_model(fitted, robot, m, *, tool: bool = False, stacklevel: int = 1)
     fitted model keeps its geometry, effects, covariance, calibrated range, settings, tool
     rotation, residual stage and training rms. Data that no frame brings near the model are
     refused (InputError, `torchcal.calibration.mismatch`); an rms above 3x (`far_from_training`) the
-    training rms is a `TransferWarning` (at `stacklevel`, counted from the caller)."""
+    training rms is a `TransferWarning` (at `stacklevel`, counted from the caller). Data of
+    a point id the model was not fitted on (`point_ids_differ`) are refused unless `tool`
+    re-estimates a single tool offset (the model then records their point ids)."""
     import dataclasses
     import warnings
 
     from torchcal.calibration.joint_range import joint_range, seed_poses
     from torchcal.calibration.registration import TransferWarning, far_from_training, reregister, undetermined_frame
-    from torchcal.calibration.mismatch import check_measurements, enforce
+    from torchcal.calibration.mismatch import check_measurements, enforce, point_ids_differ
     from torchcal.calibration.model import CalibrationModel
     from torchcal.effects import context_of
     from torchcal.errors import InputError
@@ -34,6 +36,11 @@ def register_model(fitted, robot, m, *, tool: bool = False, stacklevel: int = 1)
     if fitted is not None:
         cm, theta, train, cov = fitted.model, fitted.theta, fitted.training_rms_mm, fitted.covariance
         identified, q_range = fitted.report.free, fitted.q_range
+        other = point_ids_differ(cm, m)  # another reflector: its tool offset must be estimated again
+        if other is not None and (cm.points or not tool):
+            raise InputError(other, fix=None if cm.points else ("tool", True))
+        if other is not None:  # re-estimated on these data: the model is now theirs
+            cm = CalibrationModel(cm.robot, list(cm.effects), points=sorted(set(m.point.tolist())))
     else:  # registration only: the nominal robot, calibrated on these rows
         cm = CalibrationModel.for_measurements(robot, ["base_frame"] + (["tool_offset"] if tool else []), m)
         theta, identified, q_range = cm.zeros(), torch.zeros(cm.n_params, dtype=torch.bool), joint_range(m.q)

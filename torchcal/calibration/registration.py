@@ -148,7 +148,7 @@ def with_frame(model, theta: torch.Tensor, tool: bool = False):
     add = [n for n in (("base_frame", "tool_offset") if tool else ("base_frame",)) if n not in have]
     if not add:
         return model, theta
-    new = CalibrationModel(model.robot, [*model.effects, *add], points=model.points or None)
+    new = CalibrationModel(model.robot, [*model.effects, *add], points=model.points or model.point_ids or None)
     return new, torch.cat([theta, theta.new_zeros(new.n_params - theta.shape[0])])
 
 

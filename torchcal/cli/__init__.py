@@ -158,11 +158,14 @@ def command_line_message(exc: Exception) -> str:
 
 
 def _run(args) -> int:
-    from torchcal.cli._args import load_effects_modules
+    from torchcal.cli._args import load_effects_modules, warnings_to_stderr
 
     try:
-        load_effects_modules(args)  # before any effect spec or model file is read
-        return int(args.func(args) or 0)
+        # a warning no command turned into its line (a library's, one raised inside a
+        # composition such as report) is still one "torchcal: warning:" line, once
+        with warnings_to_stderr(UserWarning):
+            load_effects_modules(args)  # before any effect spec or model file is read
+            return int(args.func(args) or 0)
     except (InputError, ValueError, FileNotFoundError, FileExistsError, IsADirectoryError) as exc:
         if os.environ.get("TORCHCAL_DEBUG") and not isinstance(exc, InputError):
             raise  # developers: the traceback of a ValueError that is not a user mistake

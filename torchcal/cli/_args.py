@@ -51,6 +51,12 @@ def finite_float(text: str) -> float:
     return _number(text, float, lambda v: True, "a finite number")
 
 
+def share(text: str) -> float:
+    """A share of a whole in (0, 1] (plan --reach: of the arm's full stretch): 0 keeps
+    nothing, and a value above 1 is no share (a length in mm, a percentage)."""
+    return _number(text, float, lambda v: 0 < v <= 1, "a share in (0, 1] (1: no limit)")
+
+
 FORCE_HINT = "pass --force to replace it"
 
 #: the preset robots' names, for option help built without importing torch

@@ -44,7 +44,9 @@ def evaluate(fitted, m):
     from torchcal.api import evaluate as run
     from torchcal.calibration.joint_range import CalibratedRangeWarning
 
-    with warnings_to_stderr(CalibratedRangeWarning):
+    from torchcal.calibration.mismatch import MismatchWarning
+
+    with warnings_to_stderr(CalibratedRangeWarning, MismatchWarning):
         return run(fitted, m)
 
 

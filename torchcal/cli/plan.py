@@ -10,7 +10,7 @@ against random plans of the same size from the same candidates."""
 
 from __future__ import annotations
 
-from torchcal.cli._args import finite_float, add_force, add_robot, check_outputs, nonneg_float, plot_outputs, positive_int, robot_inputs, seed_int
+from torchcal.cli._args import finite_float, add_force, add_robot, check_outputs, nonneg_float, plot_outputs, positive_int, robot_inputs, seed_int, share
 
 PNGS = ("plan_poses.png", "plan_criterion.png")  # in the --plots folder
 
@@ -30,7 +30,8 @@ def add_parser(sub):
     p.add_argument("--column-radius", type=nonneg_float, default=350.0, help="workspace: keep-out radius "
                    "about joint 1, mm (default 350)")
     p.add_argument("--column-height", type=finite_float, default=1100.0, help="workspace: keep-out height, mm (default 1100)")
-    p.add_argument("--reach", type=nonneg_float, default=0.95, help="workspace: share of full stretch (default 0.95)")
+    p.add_argument("--reach", type=share, default=0.95, help="workspace: the TCP within this share of the arm's "
+                   "full stretch from the shoulder, in (0, 1] (default 0.95; 1: no limit)")
     p.add_argument("--random-plans", type=positive_int, default=20, help="random plans to compare with (default 20)")
     p.add_argument("--out", required=True, help="plan CSV to write")
     p.add_argument("--plots", help="write PNG figures into this folder")

@@ -60,8 +60,11 @@ def run(args) -> int:
             res = register(fitted, m, tool=args.tool)
         obj = dict(read_json(args.model, "model file"))
         new = modelfile.to_dict(res)
-        for key in ("effects", "parameters", "covariance", "base_frame"):
-            obj[key] = new[key]
+        for key in ("effects", "parameters", "covariance", "base_frame", "point_ids"):
+            if key in new:
+                obj[key] = new[key]
+            else:
+                obj.pop(key, None)
         what = f"{args.model} ({len(fitted.model.specs())} effects; geometry, effects, covariance and calibrated range kept)"
     else:
         m = read_data(args.data, robot, args)

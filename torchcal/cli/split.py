@@ -33,6 +33,7 @@ def add_parser(sub):
 
 def run(args) -> int:
     from torchcal.errors import InputError
+    from torchcal.io.files import all_or_none
     from torchcal.io.measurement_csv import FILE_WARNINGS, read_measurements, write_measurements
     from torchcal.measurements import split_by_pose
 
@@ -48,8 +49,9 @@ def run(args) -> int:
             m = read_measurements(args.data, **units(args))
     is_train = split_by_pose(m.pose, args.fraction, args.seed)
     train, val = m.subset(is_train), m.subset(~is_train)
-    for path, part in ((train_path, train), (val_path, val)):
-        write_measurements(path, part, force=args.force, inputs=[args.data], robot=robot, approach=True)
+    with all_or_none([train_path, val_path]):  # both files or neither (an error or Ctrl-C between them)
+        for path, part in ((train_path, train), (val_path, val)):
+            write_measurements(path, part, force=args.force, inputs=[args.data], robot=robot, approach=True)
     n_poses = int(m.pose.unique().numel())
     print(f"{args.data}: {n_poses} poses split by pose (fraction {args.fraction}, seed {args.seed}); "
           f"rows keep the approach they had in the whole session (prev_q columns)")

@@ -100,7 +100,7 @@ def export(im, *, robot_file=None, urdf=None, table=None, data=None, length_unit
     the files the model came from (`sources`)."""
     from torchcal.calibration.geometry_only import calibrated_robot, measuring_frames, refit_geometry
     from torchcal.calibration.mismatch import check_measurements, check_units, enforce
-    from torchcal.io.files import atomic_write, check_output
+    from torchcal.io.files import all_or_none, atomic_write, check_output
     from torchcal.io.mdh_table import mdh_table_csv
     from torchcal.io.measurement_csv import as_measurements
     from torchcal.io.robot_file import write_robot_file
@@ -140,11 +140,12 @@ def export(im, *, robot_file=None, urdf=None, table=None, data=None, length_unit
         if W is not None or reflectors:  # the robot file folds the frames in: its URDF chain is another
             urdf_info = None
     cal = dataclasses.replace(cal, urdf=urdf_info)  # the calibrated robot file points at the calibrated URDF
-    if robot_file is not None:
-        write_robot_file(robot_file, cal, effects=rest, force=force, inputs=inputs)
-    if urdf is not None:
-        atomic_write(urdf, urdf_text, force=force, inputs=inputs)
-    if table is not None:
-        atomic_write(table, mdh_table_csv(cal), force=force, inputs=inputs)
+    with all_or_none(outs.values()):  # a failure or Ctrl-C between them leaves none of the new files
+        if robot_file is not None:
+            write_robot_file(robot_file, cal, effects=rest, force=force, inputs=inputs)
+        if urdf is not None:
+            atomic_write(urdf, urdf_text, force=force, inputs=inputs)
+        if table is not None:
+            atomic_write(table, mdh_table_csv(cal), force=force, inputs=inputs)
     return Export(cal, rest, im.residual_model is not None, refit, rows, source,
                   {k: (None if v is None else str(v)) for k, v in outs.items()}, links if urdf else None)

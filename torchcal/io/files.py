@@ -70,10 +70,10 @@ def check_output(path, force: bool = False, inputs=()) -> Path:
     for src in inputs:
         if src is not None and same_file(path, src):
             raise InputError(f"{path}: refusing to write over the input file {src}")
+    if path.is_dir():  # before "output exists": --force would not help
+        raise InputError(f"{path}: is a folder, expected a file name")
     if path.exists() and not force:
         raise OutputExistsError(f"{path}: output exists")
-    if path.is_dir():
-        raise InputError(f"{path}: is a folder, expected a file name")
     if path.exists() and not path.is_file():  # the rename would replace a device node or a pipe
         raise InputError(f"{path}: not a regular file (a device, pipe or socket), expected a file name")
     if not path.parent.exists():
@@ -119,6 +119,22 @@ def atomic_open(path, mode: str = "w", force: bool = False, inputs=()):
             os.unlink(tmp)
         if isinstance(exc, OSError) and not isinstance(exc, InputError):
             raise InputError(f"{path}: cannot write: {(exc.strerror or str(exc)).lower()}") from None
+        raise
+
+
+@contextmanager
+def all_or_none(paths):
+    """Outputs written together (split's two files, export's robot file, URDF and table):
+    when the block raises (an error, a full disk, Ctrl-C), those of `paths` (None skipped)
+    that did not exist before it are removed again, so no half set is left behind; one it
+    replaced (force) keeps what was written."""
+    new = [Path(p) for p in paths if p is not None and not os.path.lexists(p)]
+    try:
+        yield
+    except BaseException:
+        for p in new:
+            if p.is_file():
+                p.unlink()
         raise
 
 

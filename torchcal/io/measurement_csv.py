@@ -259,6 +259,10 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
 
     _check_repeats(path, pose, q_deg, [line for line, _ in rows], au, lu, robot, length_unit)
     _check_copies(path, q_deg, xyz, point if has_point else None, [line for line, _ in rows])
+    if "temp_c" in extra:
+        check_temperatures(path, extra["temp_c"], [line for line, _ in rows])
+    if "payload_kg" in extra:
+        _check_payloads(path, extra["payload_kg"], [line for line, _ in rows], robot)
     to_rad = torch.deg2rad if angle_unit == "deg" else (lambda t: t)
 
     def joints(values):  # (N, n) rad; a prismatic joint's column is a length: mm inside
@@ -306,8 +310,60 @@ class CopiedRowWarning(UserWarning):
     """Rows that copy an earlier row's joint values and x, y, z exactly (`read_measurements`)."""
 
 
+class ConditionWarning(UserWarning):
+    """A temp_c or payload_kg column whose values look like another unit (`read_measurements`)."""
+
+
 #: the warnings of reading a measurement CSV, which the command line writes as one line each
-FILE_WARNINGS = (JointLimitWarning, PoseIdWarning, CopiedRowWarning)
+FILE_WARNINGS = (JointLimitWarning, PoseIdWarning, CopiedRowWarning, ConditionWarning)
+
+#: degC a robot cell works in; temp_c beyond it is named (thermal_expansion reads temp_c - 20)
+CELL_TEMP_C = (-30.0, 60.0)
+
+
+PAYLOAD_RATIO = 3.0  # payloads beyond this many times the robot's rated payload are named
+
+
+def _check_payloads(path, payloads: list[float], lines: list[int], robot) -> None:
+    """Warn (ConditionWarning, one line) when payload_kg exceeds PAYLOAD_RATIO times the
+    rated payload of `robot` (its robot file's payload_kg; not judged when it has none):
+    grams or pounds read as kg, which scale every load-driven effect (joint_compliance)."""
+    rated = float(getattr(robot, "payload_kg", 0.0) or 0.0) if robot is not None else 0.0
+    if rated <= 0:
+        return
+    out = [r for r, v in enumerate(payloads) if v > PAYLOAD_RATIO * rated]
+    if not out:
+        return
+    top = max(payloads)
+    cause = "grams read as kg?" if top > 100 * rated else "pounds read as kg, or another payload?"
+    r = out[0]
+    warnings.warn(f"{path}: column payload_kg: {len(out)} of {len(payloads)} row(s) above {PAYLOAD_RATIO:g} times "
+                  f"the rated payload of {robot.name} ({rated:g} kg; first: line {lines[r]}, {payloads[r]:g}; up to "
+                  f"{top:g}): {cause} payload_kg is in kg", ConditionWarning, stacklevel=3)
+
+
+def check_temperatures(path, temps: list[float], lines: list[int]) -> None:
+    """Warn (ConditionWarning, one line) when temp_c values (of a measurement or targets
+    file `path`, `lines` their line numbers) lie outside CELL_TEMP_C: a
+    median of 250..350 looks like kelvin, one of 60..130 like degrees Fahrenheit.
+    thermal_expansion fits each link's growth per degree from 20 degC: in another scale its
+    coefficients come out wrong (a factor 1.8 in Fahrenheit) and the reference offset
+    moves into the link lengths."""
+    lo, hi = CELL_TEMP_C
+    out = [r for r, v in enumerate(temps) if not lo <= v <= hi]
+    if not out:
+        return
+    med = sorted(temps)[len(temps) // 2]
+    cause = ("they look like kelvin (degC = K - 273.15)" if 250 <= med <= 350 else
+             "they look like degrees Fahrenheit (degC = (F - 32) / 1.8)" if hi < med <= 130 else
+             "beyond any robot cell's temperature")
+    r = out[0]
+    warnings.warn(f"{path}: column temp_c: {len(out)} of {len(temps)} row(s) outside {lo:g}..{hi:g} degC (first: "
+                  f"line {lines[r]}, {temps[r]:g}; median {med:g}): {cause}; temp_c is in degrees Celsius",
+                  ConditionWarning, stacklevel=3)
+
+
+FROZEN_ROWS = 3  # rows repeating an earlier row's x, y, z at other joint values that are named
 
 
 def _check_copies(path, q: list[list[float]], xyz: list[list[float]], point, lines: list[int]) -> None:
@@ -315,21 +371,34 @@ def _check_copies(path, q: list[list[float]], xyz: list[list[float]], point, lin
     measured x, y, z exactly, to every written digit (and its point id): a repeated
     measurement differs by the instrument's noise (hundredths of a mm), a copy does not. A
     block pasted twice, a file joined with itself: the copies are taken as repeats (folds,
-    a noise floor of 0 from them) and double the weight of their rows."""
+    a noise floor of 0 from them) and double the weight of their rows. One more line when
+    at least FROZEN_ROWS rows repeat an earlier row's x, y, z exactly at other joint values
+    (beyond REPEAT_TOL: not a repeat of its pose): a frozen reading (the instrument lost
+    the reflector) or a cell filled down in a spreadsheet."""
     seen: dict[tuple, int] = {}
-    copies = []  # (row, the row it copies)
+    at: dict[tuple, int] = {}  # x, y, z (and point) -> first row
+    copies, frozen = [], []  # (row, the earlier row it copies / whose x, y, z it repeats at other joint values)
     for r in range(len(q)):
         key = (*q[r], *xyz[r], point[r] if point is not None else 0)
         f = seen.setdefault(key, r)
         if f != r:
             copies.append((r, f))
-    if not copies:
-        return
-    r, f = copies[0]
-    warnings.warn(f"{path}: {len(copies)} of {len(q)} row(s) copy an earlier row's joint values and x,y,z to "
-                  f"every digit (first: line {lines[r]} = line {lines[f]}); repeated measurements differ by the "
-                  f"instrument's noise: a block pasted twice? copies count as repeats and double their weight",
-                  CopiedRowWarning, stacklevel=3)
+            continue
+        g = at.setdefault((*xyz[r], point[r] if point is not None else 0), r)
+        if g != r and max(abs(a - b) for a, b in zip(q[r], q[g])) > REPEAT_TOL:  # not a repeat of that pose
+            frozen.append((r, g))
+    if copies:
+        r, f = copies[0]
+        warnings.warn(f"{path}: {len(copies)} of {len(q)} row(s) copy an earlier row's joint values and x,y,z to "
+                      f"every digit (first: line {lines[r]} = line {lines[f]}); repeated measurements differ by the "
+                      f"instrument's noise: a block pasted twice? copies count as repeats and double their weight",
+                      CopiedRowWarning, stacklevel=3)
+    if len(frozen) >= FROZEN_ROWS:
+        r, f = frozen[0]
+        warnings.warn(f"{path}: {len(frozen)} of {len(q)} row(s) repeat an earlier row's x,y,z to every digit at "
+                      f"other joint values (first: line {lines[r]}, the x,y,z of line {lines[f]}): the instrument's "
+                      "reading froze (a lost reflector) or a value was filled down? those rows measure nothing",
+                      CopiedRowWarning, stacklevel=3)
 
 
 def _check_repeats(path, pose: list[int], q: list[list[float]], lines: list[int], au: str, lu: str,

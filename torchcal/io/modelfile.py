@@ -11,6 +11,8 @@
                      (per joint min and max of the calibration data's commanded q; up to 32 of
                      its poses, which seed compensate),
      optional: "points": [ID...] (one tool offset per measured point),
+     "point_ids": [ID...] (the point ids of the data it was fitted on, one or several; absent
+                  for data without a point column and in older files: then not checked),
      "base_frame": {"translation_mm", "rotation_fixed_xyz_deg"} (measurement <- robot base),
      "registration": {"rms_before_mm", "rms_after_mm", "translation_mm", "rotation_fixed_xyz_deg",
                       "rotation_angle_deg"} (the closed-form start),
@@ -138,6 +140,8 @@ def to_dict(res: FitResult, source=None, seed: int = 0, pose_ids=None, partition
     extra = {}
     if model.points:
         extra["points"] = list(model.points)
+    if model.point_ids:
+        extra["point_ids"] = list(model.point_ids)
     base = base_frame_summary(model, res.theta)
     if base is not None:
         extra["base_frame"] = base
@@ -266,7 +270,7 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
 
         check_same_robot(nominal, make_robot(robot), str(path))
     try:
-        model = CalibrationModel(nominal, effects, points=obj.get("points"))
+        model = CalibrationModel(nominal, effects, points=_point_ids(obj, str(path)))
     except InputError as exc:  # e.g. a user effect whose --effects-module is missing
         raise InputError(f"{path}: {exc}") from None
     if names != model.param_names():
@@ -310,6 +314,10 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
             iv = torch.tensor([[float(v) for v in p["interval"]] for p in params], dtype=torch.float64)
         except (TypeError, ValueError) as exc:
             raise InputError(f"{path}: bad parameter 'interval': {exc}") from None
+        if iv.shape[1:] != (2,) or not bool(torch.isfinite(iv).all()):
+            raise InputError(f"{path}: parameter 'interval': expected [lower, upper], two finite numbers per "
+                             "parameter (a file edited by hand or corrupted)")
+        _interval_bounds(iv[:, 0], iv[:, 1], "parameters", path)
         radius = (iv[:, 1] - iv[:, 0]) / 2 / (1.0 if obj["format"] == FORMAT_RAD else file_units(model)[1])
     res = FitResult(model, theta, std, None, None, _report(obj, model, identified, where), covariance=
                     _covariance(obj, model, where), registration=obj.get("registration"),
@@ -322,6 +330,19 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
         return res
     zones = [_zone_from_dict(z, res, file_units(model)[1], where) for z in _list(obj, "zones", where)]
     return _zoned(res, zones, obj, _block(obj, "partition", where), str(obj.get("zone_method", "damped")), where)
+
+
+def _point_ids(obj: dict, where: str) -> list | None:
+    """The point ids of the data the model was fitted on: "point_ids" (one or several), else
+    the older "points" (several, one tool offset each), else None (not recorded)."""
+    ids = obj.get("point_ids", obj.get("points"))
+    if ids is None:
+        return None
+    if not isinstance(ids, list) or not ids or any(isinstance(i, bool) or not isinstance(i, int) for i in ids):
+        raise InputError(f"{where}: 'point_ids': expected a list of integer point ids, got {ids!r}")
+    if "points" in obj and obj["points"] != ids:
+        raise InputError(f"{where}: 'points' {obj['points']!r} and 'point_ids' {ids!r} differ")
+    return ids
 
 
 def _number(p: dict, key: str, i: int, where, default=None) -> float:
@@ -409,7 +430,20 @@ def _vector(z: dict, key: str, P: int, where: str, dtype=torch.float64) -> torch
         raise InputError(f"{where}: zone {z.get('zone')}: missing or bad {key!r}: {exc}") from None
     if v.shape != (P,):
         raise InputError(f"{where}: zone {z.get('zone')}: {key} has {v.numel()} values, expected {P}")
+    if v.is_floating_point() and not bool(torch.isfinite(v).all()):
+        i = int((~torch.isfinite(v)).nonzero()[0])
+        raise InputError(f"{where}: zone {z.get('zone')}: {key}[{i}] is {float(v[i])}, expected a finite number "
+                         f"(a file edited by hand or corrupted; calibrate again)")
     return v
+
+
+def _interval_bounds(lower: torch.Tensor, upper: torch.Tensor, what: str, where: str) -> None:
+    """InputError naming the first parameter whose interval is inverted (lower > upper)."""
+    bad = (lower > upper).nonzero().flatten()
+    if bad.numel():
+        i = int(bad[0])
+        raise InputError(f"{where}: {what}: parameter {i + 1}: interval lower {float(lower[i]):.6g} > upper "
+                         f"{float(upper[i]):.6g}, expected lower <= upper (a file edited by hand or corrupted)")
 
 
 def _zone_from_dict(z: dict, glob: FitResult, k: torch.Tensor, where: str) -> FitResult:
@@ -417,7 +451,9 @@ def _zone_from_dict(z: dict, glob: FitResult, k: torch.Tensor, where: str) -> Fi
     if not isinstance(z, dict):
         raise InputError(f"{where}: a zone entry is not an object")
     P = glob.model.n_params
-    theta, lower, upper = (_vector(z, key, P, where) / k for key in ("value", "lower", "upper"))
+    theta, lower, upper = (_vector(z, key, P, where) for key in ("value", "lower", "upper"))
+    _interval_bounds(lower, upper, f"zone {z.get('zone')}", where)  # in the file's units
+    theta, lower, upper = theta / k, lower / k, upper / k
     std = _vector(z, "std", P, where) / k
     shared = {"q_range": glob.q_range, "seed_poses": glob.seed_poses, "provenance": glob.provenance}
     return _zone_fit(glob.model, theta, std, (upper - lower) / 2, _vector(z, "identified", P, where, torch.bool),
@@ -445,6 +481,7 @@ def _interval_file(obj: dict, where: str) -> FitResult:
     zones = []
     for z in _list(obj, "zones", where):
         theta, lower, upper = (_vector(z, key, P, where) for key in ("theta", "lower", "upper"))
+        _interval_bounds(lower, upper, f"zone {z.get('zone')}", where)
         zones.append(_zone_fit(model, theta, torch.zeros(P, dtype=torch.float64), (upper - lower) / 2,
                                _vector(z, "free", P, where, torch.bool), z, where, shared))
     if obj.get("partition") is None:

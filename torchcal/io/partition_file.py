@@ -126,7 +126,7 @@ def partition_from_dict(obj: dict, where: str = "partition", robot: Robot | None
             feature_mean=torch.tensor([r["feature_mean"] for r in levels], dtype=f64).reshape(len(levels), 4),
             feature_std=torch.tensor([r["feature_std"] for r in levels], dtype=f64).reshape(len(levels), 4),
             m=float(obj["m"]), r_weight=float(obj["r_weight"]), knn_neighbors=int(obj["knn_neighbors"]),
-            options=dict(obj["options"]),
+            options=dict(obj["options"]), made_for=record,
         )
     except (TypeError, ValueError, KeyError, RuntimeError) as exc:
         if isinstance(exc, InputError):
@@ -149,8 +149,10 @@ def partition_from_json(text: str, where: str = "partition JSON", robot: Robot |
 
 def save_partition(part: Partition, path, force: bool = False, inputs=(), made_for: Robot | dict | None = None):
     """Write the JSON file atomically (see `torchcal.io.files.write_json`); made_for: the
-    robot it was made for, or the record of its sweep (`partition_to_dict`)."""
-    return write_json(path, partition_to_dict(part, made_for), force=force, inputs=inputs)
+    robot it was made for, or the record of its sweep (`partition_to_dict`); None: the
+    record the partition was read with (``part.made_for``), if any."""
+    record = made_for if made_for is not None else part.made_for
+    return write_json(path, partition_to_dict(part, record), force=force, inputs=inputs)
 
 
 def load_partition(path, robot: Robot | None = None) -> Partition:

@@ -17,7 +17,7 @@ import torch
 
 from torchcal.errors import InputError
 from torchcal.io.files import csv_rows
-from torchcal.io.measurement_csv import LENGTH_UNITS
+from torchcal.io.measurement_csv import LENGTH_UNITS, check_temperatures
 
 __all__ = ["read_targets", "compensation_csv"]
 
@@ -49,7 +49,8 @@ def read_targets(path, n: int, length_unit: str = "mm", angle_unit: str = "deg",
     opt = [c for c in ("payload_kg", "temp_c") if c in header]
     unknown = [h for h in header if h not in ("x", "y", "z", "point", "payload_kg", "temp_c", *qcols)]
     if unknown:
-        raise InputError(f"{path}: unknown column(s) {','.join(unknown)}; "
+        what = " (a measurement file? targets are the positions to reach)" if "pose" in unknown else ""
+        raise InputError(f"{path}: unknown column(s) {','.join(unknown)}{what}; "
                          f"expected x,y,z[,q1..q{n}][,payload_kg][,temp_c]")
     extra = {c: [] for c in opt}
     slides = [False] * n if prismatic is None else [bool(p) for p in prismatic]
@@ -88,6 +89,8 @@ def read_targets(path, n: int, length_unit: str = "mm", angle_unit: str = "deg",
         if prismatic is not None:  # a slide's seed is a length, never an angle
             pris = torch.as_tensor(prismatic, dtype=torch.bool).cpu()
             seeds = torch.where(pris, torch.tensor(qs, dtype=torch.float64) * LENGTH_UNITS[length_unit], seeds)
+    if "temp_c" in extra:  # kelvin or Fahrenheit: one warning line, as for measurements
+        check_temperatures(path, extra["temp_c"], [line for line, _ in rows[1:]])
     cond = {c: (torch.tensor(extra[c], dtype=torch.float64) if c in extra else None)
             for c in ("payload_kg", "temp_c")}
     return t, seeds, cond

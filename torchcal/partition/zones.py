@@ -71,6 +71,10 @@ class Partition:
         r_weight: weight w of the standardised R_set feature.
         knn_neighbors: k of the k-NN zone assignment.
         options: how it was made (requested levels/zones, ranges, seed, restarts), for the record.
+        made_for: the record of the robot its sweep was made for (a plain dict {name,
+            fingerprint, nominal_robot}, `torchcal.io.robot_file.robot_record`), as a
+            PARTITION.json holds it; None where unknown (a partition built in memory, an
+            older file). `torchcal.calibrate` checks it against the model's robot.
     """
 
     positions: torch.Tensor
@@ -86,6 +90,7 @@ class Partition:
     r_weight: float = 1.0
     knn_neighbors: int = 5
     options: dict = field(default_factory=dict)
+    made_for: dict | None = None
 
     # ------------------------------------------------------------------ derived
     @property

@@ -7,6 +7,8 @@ joint), positions in mm in the robot's base frame.
 
 from __future__ import annotations
 
+import math
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,13 +32,26 @@ class Workspace:
         reach_fraction: the TCP must lie within this fraction of the arm's full stretch
             from the shoulder (origin of frame 1), the stretch taken as the sum over links
             2..n of sqrt(a^2 + d^2) plus the tool offset (an upper bound): it drops the
-            near-singular stretched arm. 1 or more disables it.
+            near-singular stretched arm. 1 disables it; a value outside (0, 1] (a length
+            in mm, a percentage) is an InputError, and so is a non-finite floor, column
+            radius or height.
     """
 
     floor_z_mm: float = 0.0
     column_radius_mm: float = 350.0
     column_height_mm: float = 1100.0
     reach_fraction: float = 0.95
+
+    def __post_init__(self):
+        for name in ("floor_z_mm", "column_radius_mm", "column_height_mm", "reach_fraction"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
+                raise InputError(f"Workspace: {name}: expected a finite number, got {v!r}")
+        if self.column_radius_mm < 0:
+            raise InputError(f"Workspace: column_radius_mm: expected a radius >= 0 mm, got {self.column_radius_mm!r}")
+        if not 0 < self.reach_fraction <= 1:
+            raise InputError(f"Workspace: reach_fraction: expected a share of the arm's full stretch in (0, 1] "
+                             f"(1: no limit), got {self.reach_fraction!r}")
 
     def accept(self, robot, q: torch.Tensor) -> torch.Tensor:
         """(N,) bool for q (N, n) rad."""

@@ -50,8 +50,12 @@ def simulate(robot: Robot, effects=(), *, n: int = 50, repeats: int = 1, noise_m
     pose_seed: seed of the poses and the session (default `seed`; another value gives fresh
     poses of the same virtual robot)."""
     from torchcal.effects.spec import parse_specs
+    from torchcal.errors import number_argument
     from torchcal.simulation.virtual_robot import VirtualRobot, random_poses
 
+    n, repeats = number_argument("n", n, integer=True, at_least=1), number_argument("repeats", repeats, integer=True,
+                                                                                     at_least=1)
+    noise_mm = number_argument("noise_mm", noise_mm, at_least=0)
     specs = [str(s) for s in parse_specs(list(effects), robot.n)] if effects else []
     ps = seed if pose_seed is None else pose_seed
     q = random_poses(robot, n, torch.Generator().manual_seed(ps))

@@ -135,9 +135,26 @@ def test_null_sessions_give_no_verdict(seed, repeats):
     """Only MD-H errors and noise: no step is accepted."""
     vr = VirtualRobot(ROBOT, [], seed=seed)
     m = vr.measure(random_poses(ROBOT, 60, torch.Generator().manual_seed(seed)), repeats=repeats, noise_mm=0.02)
-    res = discover(ROBOT, m)
+    res = discover(ROBOT, m, report_rest=False)
     assert res.final_effects == [], [h["step"] for h in res.history]
     assert len(res.history) == 1
+
+
+def test_without_the_probe_discover_is_the_same_search():
+    """report_rest=False (what the tests that read only the search pass, and the demo)
+    skips the probe of what the final model leaves and nothing else: the same record,
+    `unexplained` None."""
+    import json
+
+    vr = VirtualRobot(ROBOT, [], seed=11)
+    m = vr.measure(random_poses(ROBOT, 30, torch.Generator().manual_seed(11)), noise_mm=0.02)
+    full, bare = discover(ROBOT, m, max_rounds=0), discover(ROBOT, m, max_rounds=0, report_rest=False)
+    assert full.unexplained is not None and bare.unexplained is None
+    a, b = full.to_dict(), bare.to_dict()
+    assert a.pop("unexplained") is not None and b.pop("unexplained") is None
+    assert json.dumps(a, sort_keys=True, default=str) == json.dumps(b, sort_keys=True, default=str)
+    screened = [[c.to_dict() for c in d.diagnoses[0].candidates] for d in (full, bare)]
+    assert screened[0] and json.dumps(screened[0], default=str) == json.dumps(screened[1], default=str)
 
 
 @pytest.fixture(scope="module")

@@ -62,7 +62,7 @@ def test_first_poses_and_bad_counts(sessions):
 
 def test_session_term_is_refused_with_the_other_session_as_check(sessions, tmp_path, capsys):
     robot, a, b = sessions
-    alone = torchcal.discover(robot, a, ["base_frame", "tool_offset"], max_rounds=3)
+    alone = torchcal.discover(robot, a, ["base_frame", "tool_offset"], max_rounds=3, report_rest=False)
     assert "gear_periodic:2" in alone.final_effects  # found within session A
     write_measurements(tmp_path / "a.csv", a)
     write_measurements(tmp_path / "b.csv", b)
@@ -259,7 +259,7 @@ def test_a_step_on_two_joints_keeps_the_robot_joint_and_drops_the_session_joint(
     a = _numpy_session(robot, qa, 51, session_term=True, session_scale=0.5)
     b = _numpy_session(robot, qb, 52, session_term=False)
     start = ["base_frame", "tool_offset"]
-    res = torchcal.discover(robot, a, start, transfer=b, max_rounds=1)
+    res = torchcal.discover(robot, a, start, transfer=b, max_rounds=1, report_rest=False)
     rec = res.history[0]["transfer"]
     t = next(t for t in rec["tried"] if not t["refused"])
     spec = t["effect"]  # the step offered on A

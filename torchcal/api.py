@@ -258,7 +258,7 @@ def diagnose(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
 def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: int = 0,
              max_rounds: int | None = None, alpha: float | None = None, sigma_mm: float = SIGMA_MM,
              sigma_deg: float = SIGMA_DEG, transfer=None, transfer_poses: int = 30,
-             residual_model: str | None = None):
+             residual_model: str | None = None, report_rest: bool = True):
     """Add the accepted missing effect each round (`torchcal.diagnosis.diagnose.discover`),
     for at most max_rounds rounds; folds, seed, alpha, sigma_mm, sigma_deg as in `diagnose`
     (None: the defaults of `torchcal.diagnosis`). Data the nominal robot cannot explain,
@@ -267,7 +267,9 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     step is kept only when it lowers that session's error beyond chance after registration on
     its first `transfer_poses` poses (`torchcal.diagnosis.transfer`). residual_model:
     'kernel' adds the residual stage to the final model when its held-out test passes, as
-    `fit` does (``.fit.residual_test`` holds the figures). Returns a `Discovery`."""
+    `fit` does (``.fit.residual_test`` holds the figures). report_rest=False skips the probe
+    of what the final model leaves (``.unexplained`` None; the search is the same). Returns a
+    `Discovery`."""
     from torchcal.diagnosis.diagnose import discover as run
     from torchcal.diagnosis.transfer import TransferCheck
     from torchcal.effects import context_of
@@ -286,7 +288,7 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     check = None if other is None else TransferCheck(other, transfer_poses, other.source or "the other session")
     with threads.for_work(_work(model, m)), _about(m):
         res = run(model.robot, m, model.specs(), folds=folds, seed=seed, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
-                  transfer=check, **_set(max_rounds=max_rounds, alpha=alpha))
+                  transfer=check, report_rest=report_rest, **_set(max_rounds=max_rounds, alpha=alpha))
         if residual_model is not None:
             _add_stage(res.fit, m, context_of(model.robot, m), residual_model, folds, seed)
     return res

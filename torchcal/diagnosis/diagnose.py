@@ -220,11 +220,13 @@ class Discovery:
 
 def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: int = 0, *,
              max_rounds: int = 6, alpha: float = ALPHA, sigma_mm: float = SIGMA_MM,
-             sigma_deg: float = SIGMA_DEG, transfer=None) -> Discovery:
+             sigma_deg: float = SIGMA_DEG, transfer=None, report_rest: bool = True) -> Discovery:
     """Add the accepted candidate of each step until none is (module doc); at most
     `max_rounds` effects. transfer: a `TransferCheck` or None; with it, history[i]
     ["transfer"] holds the round's `TransferCheck.choose` record (its "kept": the spec
-    that lands, a step or the union of its kept joint parts)."""
+    that lands, a step or the union of its kept joint parts). report_rest: also probe what
+    the final model leaves (`unexplained`, after the search; it changes none of it); False
+    leaves `Discovery.unexplained` None (a caller that reads only the search's result)."""
     specs = [str(s) for s in parse_specs(list(effects), robot.n)] if effects else []
     history, diagnoses = [], []
     ctx = context_of(robot, m)
@@ -254,5 +256,6 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
         base, current = acc.fit, Scored(acc.effects, "", acc.rms_mm, acc.cv_rms_mm, acc.fit, acc.cv,
                                         prior_held=d.step.current.prior_held + acc.prior_held, fold_specs=acc.fold_specs)
     added = [e for e in base.model.specs() if e not in specs]  # physics or absorption (stability.py)
-    return Discovery(history, base.model.specs(), base, diagnoses, unexplained(robot, m, base.residuals, seed=seed),
+    rest = unexplained(robot, m, base.residuals, seed=seed) if report_rest else None
+    return Discovery(history, base.model.specs(), base, diagnoses, rest,
                      absorbing(base, added, m, ctx, sigma_mm=sigma_mm, sigma_deg=sigma_deg))

@@ -400,7 +400,8 @@ def run_pipeline(cfg: DemoConfig | None = None, progress=None, device=None) -> P
     lap("calibrate_geometric")
     say("discover")
     if cfg.discover_rounds > 0:
-        found = discover(r, meas, ["base_frame"], seed=seed, max_rounds=cfg.discover_rounds).final_effects
+        found = discover(r, meas, ["base_frame"], seed=seed, max_rounds=cfg.discover_rounds,
+                         report_rest=False).final_effects  # the effects only: no probe of what remains
     else:
         found = ["base_frame"]
     disc = CalibrationModel(r, found)

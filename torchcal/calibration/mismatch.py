@@ -327,9 +327,7 @@ def check_measurements(model, theta: torch.Tensor, m, training_rms_mm: float | N
         if lag is not None:
             return dataclasses.replace(res, fix=None, message=(
                 f"{what or (m.source or 'data')}: cannot come from {name} as given: rms {res.rms_mm:.4g} mm, but "
-                f"within {res.bound_mm:.3g} mm with each row's x, y, z taken from {abs(lag)} row(s) "
-                f"{'further down' if lag > 0 else 'further up'}: the positions are misaligned with the joint "
-                "values (two logs joined with a row more in one); check the rows"))
+                f"within {res.bound_mm:.3g} mm with {_lag_words(lag)}"))
     if q_range is None:
         return res
     out = outside_range(m.q, q_range.to(m.q), model.robot.prismatic).any(dim=-1).cpu()  # (N,)
@@ -830,6 +828,12 @@ def row_lag(m, fits) -> int | None:
     return None
 
 
+def _lag_words(lag: int) -> str:
+    """The end of the line naming a `row_lag` (rows whose positions are `lag` rows off)."""
+    return (f"each row's x, y, z taken from {abs(lag)} row(s) {'further down' if lag > 0 else 'further up'}: the "
+            "positions are misaligned with the joint values (two logs joined with a row more in one); check the rows")
+
+
 def _fits(model, m) -> bool:
     try:
         return _rms((_registered(model, m) - m.xyz).norm(dim=-1)) <= GROSS_MM
@@ -921,20 +925,21 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
         R, t = kabsch(p, mm.xyz)
         return _rms((p @ R.T + t - mm.xyz).norm(dim=-1))
 
-    join = joined_sessions(m, lambda mm: _fits(model, mm))
+    def fits(mm):  # the nominal robot in a frame of its own: within GROSS_MM
+        return _fits(model, mm)
+
+    join = joined_sessions(m, fits)
     if join is not None:
         return result("mismatch", f"{what}: cannot come from {name} in one measuring frame: rms {reg:.4g} mm with the "
                       f"best frame and tool offset, but rows 1..{join} and {join + 1}..{len(m)} (data rows; pose ids "
                       f"restart at {int(m.pose[join])}) each fit within {GROSS_MM:g} mm in a frame of their own: two "
                       "sessions joined, the instrument moved between them; calibrate on one, or register each "
                       "(torchcal register)")
-    lag = row_lag(m, lambda mm: _fits(model, mm))
+    lag = row_lag(m, fits)
     if lag is not None:
         return result("mismatch", f"{what}: cannot come from {name} as given: rms {reg:.4g} mm with the best measuring "
-                      f"frame and tool offset, but within {GROSS_MM:g} mm with each row's x, y, z taken from "
-                      f"{abs(lag)} row(s) {'further down' if lag > 0 else 'further up'}: the positions are "
-                      "misaligned with the joint values (two logs joined with a row more in one); check the rows")
-    hint = column_hint(m, model.robot, lambda mm: _fits(model, mm), score=kabsch_rms)
+                      f"frame and tool offset, but within {GROSS_MM:g} mm with {_lag_words(lag)}")
+    hint = column_hint(m, model.robot, fits, score=kabsch_rms)
     if hint is not None:
         return result("mismatch", f"{what}: cannot come from {name} as given: rms {reg:.4g} mm with the best measuring "
                       f"frame and tool offset, but within {GROSS_MM:g} mm with the joint {hint}: check the "

@@ -257,12 +257,13 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
                 _fail(path, f"{_where(line, row, c)}: payload must be >= 0 kg, got {_show(fields[cols[c]])}")
             extra[c][r] = v
 
-    _check_repeats(path, pose, q_deg, [line for line, _ in rows], au, lu, robot, length_unit)
-    _check_copies(path, q_deg, xyz, point if has_point else None, [line for line, _ in rows])
+    lines = [line for line, _ in rows]  # the file's line number of each data row
+    _check_repeats(path, pose, q_deg, lines, au, lu, robot, length_unit)
+    _check_copies(path, q_deg, xyz, point if has_point else None, lines)
     if "temp_c" in extra:
-        check_temperatures(path, extra["temp_c"], [line for line, _ in rows])
+        check_temperatures(path, extra["temp_c"], lines)
     if "payload_kg" in extra:
-        _check_payloads(path, extra["payload_kg"], [line for line, _ in rows], robot)
+        _check_payloads(path, extra["payload_kg"], lines, robot)
     to_rad = torch.deg2rad if angle_unit == "deg" else (lambda t: t)
 
     def joints(values):  # (N, n) rad; a prismatic joint's column is a length: mm inside
@@ -283,7 +284,7 @@ def read_measurements(path, n_joints: int | None = None, robot=None,
         q_prev=joints(prev_deg) if has_prev else None,
     )
     if robot is not None:
-        _check_limits(path, m, robot, [line for line, _ in rows], strict_limits)
+        _check_limits(path, m, robot, lines, strict_limits)
     return m
 
 

@@ -154,14 +154,13 @@ def robot_from_dict(obj, where: str = "robot file") -> Robot:
         clearance = clearance_from_dict(obj["clearance"], f"{where}: clearance", len(rows)).to_dict()
     from torchcal.calibration.mismatch import check_robot_angles, check_robot_lengths
 
-    check_robot_lengths(torch.tensor(rows, dtype=torch.float64), torch.tensor(pris),
-                        torch.tensor(limits, dtype=torch.float64), where)  # lengths in metres
-    check_robot_angles(torch.tensor(rows, dtype=torch.float64), torch.tensor(pris),
-                       torch.tensor(limits, dtype=torch.float64), where)  # angles in radians
+    table, lims, prismatic = (torch.tensor(rows, dtype=torch.float64), torch.tensor(limits, dtype=torch.float64),
+                              torch.tensor(pris))
+    check_robot_lengths(table, prismatic, lims, where)  # lengths in metres
+    check_robot_angles(table, prismatic, lims, where)  # angles in radians
     ratio = _gear_ratio(where, obj["gear_ratio"], len(rows)) if "gear_ratio" in obj else None
-    return Robot(name, torch.tensor(rows, dtype=torch.float64), torch.tensor(has_beta),
-                 torch.tensor(limits, dtype=torch.float64), base, tool, payload, gravity,
-                 torch.tensor(pris), None if urdf is None else dict(urdf), clearance, ratio)
+    return Robot(name, table, torch.tensor(has_beta), lims, base, tool, payload, gravity,
+                 prismatic, None if urdf is None else dict(urdf), clearance, ratio)
 
 
 def _gear_ratio(where: str, v, n: int) -> tuple:

@@ -7,14 +7,12 @@ joint), positions in mm in the robot's base frame.
 
 from __future__ import annotations
 
-import math
-import numbers
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from torchcal.errors import InputError
+from torchcal.errors import InputError, number_argument
 from torchcal.kinematics import mdh as K
 
 
@@ -44,9 +42,7 @@ class Workspace:
 
     def __post_init__(self):
         for name in ("floor_z_mm", "column_radius_mm", "column_height_mm", "reach_fraction"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
-                raise InputError(f"Workspace: {name}: expected a finite number, got {v!r}")
+            number_argument(f"Workspace: {name}", getattr(self, name))
         if self.column_radius_mm < 0:
             raise InputError(f"Workspace: column_radius_mm: expected a radius >= 0 mm, got {self.column_radius_mm!r}")
         if not 0 < self.reach_fraction <= 1:

@@ -174,3 +174,53 @@ def test_the_models_own_calibration_positions_are_within_its_reach(cell):
     far[3] += torch.tensor([9000.0, 0.0, 0.0], dtype=far.dtype)
     with pytest.warns(UserWarning, match="row\\(s\\) 4;"):
         assert check_targets(fitted.model, fitted.theta, far) == [3]
+
+
+@pytest.fixture(scope="module")
+def zoned(tmp_path_factory):
+    """A per-zone model (`torchcal calibrate --partition`) of the same cell: 40 poses moved to
+    3 times each, measured by the plain-numpy robot in the tracker frame 3 m away."""
+    from torchcal.io.sweep_csv import write_sweep
+    from torchcal.reliability.sweep import sweep
+    from torchcal.robots.workspace import sample_workspace
+
+    d = tmp_path_factory.mktemp("zoned")
+    write_sweep(sweep(KR, sample_workspace(KR, 60, seed=6), n_samples=50), d / "sweep.csv")
+    assert main(["partition", str(d / "sweep.csv"), "--levels", "2", "--zones", "2,1",
+                 "--out", str(d / "part.json")]) == 0
+    table = KR.table.numpy() + _deviations(KR.n)
+    q = np.repeat(random_poses(KR, 40, 7).numpy(), 3, axis=0)
+    xyz = real_robot(table, q, "measuring") + np.random.default_rng(4).normal(0, 0.01, (len(q), 3))
+    with open(d / "data.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["pose", *(f"q{k}" for k in range(1, 7)), "x", "y", "z"])
+        for i, (qq, p) in enumerate(zip(np.degrees(q), xyz)):
+            w.writerow([i // 3 + 1, *map(repr, qq.tolist()), *map(repr, p.tolist())])
+    assert main(["calibrate", str(d / "data.csv"), "--robot", "kr1000titan", "--effects", "base_frame",
+                 "tool_offset", "--partition", str(d / "part.json"), "--out", str(d / "model.json")]) == 0
+    return d, table
+
+
+def test_a_zoned_model_solves_each_target_in_the_zone_of_its_command(zoned, capsys):
+    """Zones belong to the robot base frame (calibrate assigns each pose by its nominal TCP
+    position); targets are in the tracker frame, 3 m and 30 deg away. Each target must be
+    solved with the parameters of the zone its command lands in, so that the model meets
+    the target at the command and Q.csv names that zone. (Assigned by the targets' tracker
+    coordinates, half the zones were another zone's here.)"""
+    from torchcal.calibration.compensate import approach_directions, _context
+
+    d, table = zoned
+    q_goal = random_poses(KR, 30, 9).numpy()
+    t = _write_targets(d / "targets.csv", real_robot(table, q_goal, "measuring"))
+    assert main(["compensate", str(t), "--model", str(d / "model.json"), "--out", str(d / "q.csv")]) == 0
+    capsys.readouterr()
+    q, rows = _commands(d / "q.csv")
+    model = torchcal.load(d / "model.json")
+    qt = torch.as_tensor(q)
+    zone_of_command = model.partition.assign(KR.fk(qt)).tolist()
+    assert [int(r["zone"]) for r in rows] == zone_of_command
+    assert len(set(zone_of_command)) > 1  # the targets span several zones
+    ok = [r["converged"] == "true" for r in rows]
+    pred = model.predict(_context(model.model, qt, approach_directions(qt), torch.zeros(len(qt)), None)).numpy()
+    goal = real_robot(table, q_goal, "measuring")
+    assert np.linalg.norm(pred - goal, axis=1)[ok].max() < 1e-5

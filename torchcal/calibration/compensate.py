@@ -69,6 +69,8 @@ class Compensation:
         outside_range: number of converged targets whose q lie outside the joint range the model
             was calibrated on (`torchcal.calibration.joint_range`; set by
             `torchcal.compensate`), None when not checked or unknown.
+        zone: (M,) int64 1-based zone whose parameters each target was solved with (set by
+            `compensate_fitted`; 1 for a model without zones), None when not set.
     """
 
     q: torch.Tensor
@@ -79,6 +81,7 @@ class Compensation:
     converged: torch.Tensor
     within_limits: torch.Tensor
     outside_range: int | None = None
+    zone: torch.Tensor | None = None
 
     @property
     def correction_rad(self) -> torch.Tensor:
@@ -342,7 +345,14 @@ def compensate_fitted(fitted, targets, q0=None, *, tol_mm: float = 1e-6, max_ite
                       max_step_rad: float = 0.2, payload_kg=None, temp_c=None, check: bool = True,
                       stacklevel: int = 1) -> Compensation:
     """Corrected joint commands (M, n) rad for targets (M, 3) mm in the measuring frame of a
-    fitted model: a `FitResult` (of a `ZonedFit` each target is assigned to its zone).
+    fitted model: a `FitResult`, or a `ZonedFit`, whose zones are those of the commands: each
+    target is solved with the parameters of the zone of its seed's nominal TCP position
+    (robot base frame, as `calibrate` assigns calibration poses; the targets' own
+    coordinates are in the measuring frame, which a base_frame effect can put metres
+    away), and a target whose solution's nominal TCP position lies in another zone is
+    solved once more, from there, with that zone's parameters (`Compensation.zone`: the
+    zone of the final solve; a target on a boundary keeps that of its second solve), so
+    that `ZonedFit.predict` at the commands meets the targets.
 
     q0: (M, n) rad starting commands, default `nominal_start` (a target beyond the reach
     from its nearest calibration pose only, as ``torchcal compensate``). check: refuse
@@ -375,18 +385,48 @@ def compensate_fitted(fitted, targets, q0=None, *, tol_mm: float = 1e-6, max_ite
                           payload_kg=None if payload_kg is None else torch.as_tensor(payload_kg).to(t),
                           temp_c=None if temp_c is None else torch.as_tensor(temp_c).to(t))
         check_seeds(at, t, q0, robot, "q0", skip=far, angle_unit="rad")
-    zone = fitted.assign(t) - 1  # row of zone_theta
-    theta = fitted.zone_theta
-    options = dict(tol_mm=tol_mm, max_iter=max_iter, max_step_rad=max_step_rad, payload_kg=payload_kg,
-                   temp_c=temp_c)
-    comp = compensate(cm, theta.to(t), t, q0, zone=zone, **options)
-    if stage is not None:
-        comp = with_stage(stage, cm, theta.to(t), t, comp, zone, options)
+    theta = fitted.zone_theta.to(t)
+    cond = {k: None if v is None else torch.as_tensor(v).to(t) for k, v in (("payload_kg", payload_kg),
+                                                                            ("temp_c", temp_c))}
+
+    def solve(rows, start, zone):  # the targets `rows` from `start`, each with its zone's parameters
+        opts = dict(tol_mm=tol_mm, max_iter=max_iter, max_step_rad=max_step_rad,
+                    **{k: None if v is None else v[rows] for k, v in cond.items()})
+        c = compensate(cm, theta, t[rows], start, zone=zone, **opts)
+        return c if stage is None else with_stage(stage, cm, theta, t[rows], c, zone, opts)
+
+    every = torch.arange(t.shape[0], device=t.device)
+    zone = _command_zone(fitted, q0)
+    comp = solve(every, q0, zone)
+    if theta.shape[0] > 1:  # a solution in another zone than its seed's: solved again with that zone's set
+        moved = (_command_zone(fitted, comp.q) != zone).nonzero().flatten()
+        if len(moved):
+            zone[moved] = _command_zone(fitted, comp.q[moved])
+            again = solve(moved, comp.q[moved], zone[moved])
+            comp = replace(comp, **{f: _put(getattr(comp, f), moved, getattr(again, f))
+                                    for f in ("q", "predicted_mm", "residual_mm", "converged", "within_limits")},
+                           iterations=_put(comp.iterations, moved, comp.iterations[moved] + again.iterations))
+    comp = replace(comp, zone=zone + 1)
     if q_range is None:
         return comp
     outside = warn_outside_range(comp.q[comp.converged], q_range, robot, "converged targets", stage,
                                  stacklevel=stacklevel + 1)
     return replace(comp, outside_range=outside)
+
+
+def _command_zone(fitted, q: torch.Tensor) -> torch.Tensor:
+    """(M,) int64 0-based row of `fitted.zone_theta` for commands q (M, n) rad / mm: the zone
+    of their nominal TCP position, as `calibrate` assigns calibration poses and
+    `ZonedFit.predict` rows (robot base frame); 0 for a model without zones."""
+    with torch.no_grad():
+        return (fitted.assign(fitted.model.robot.fk(q)) - 1).to(q.device)
+
+
+def _put(whole: torch.Tensor, rows: torch.Tensor, part: torch.Tensor) -> torch.Tensor:
+    """A copy of `whole` with `part` in `rows` (its first dimension)."""
+    out = whole.clone()
+    out[rows] = part
+    return out
 
 
 @dataclass
@@ -497,5 +537,5 @@ def compensate_targets(im, targets, *, frame: str = "measuring", seeds=None, pay
     from torchcal.calibration.zone_calibration import ZonedFit
 
     method = im.method if isinstance(im, ZonedFit) else ("global" if im.radius is not None else "fit")
-    return TargetCompensation(given, comp, im.assign(t), rob.q_to_user(comp.q), im.zone_theta.shape[0], method,
+    return TargetCompensation(given, comp, comp.zone, rob.q_to_user(comp.q), im.zone_theta.shape[0], method,
                               rob.name, far, frame)

@@ -213,7 +213,7 @@ def test_a_zoned_model_solves_each_target_in_the_zone_of_its_command(zoned, caps
     q_goal = random_poses(KR, 30, 9).numpy()
     t = _write_targets(d / "targets.csv", real_robot(table, q_goal, "measuring"))
     assert main(["compensate", str(t), "--model", str(d / "model.json"), "--out", str(d / "q.csv")]) == 0
-    capsys.readouterr()
+    assert "sweep point" not in capsys.readouterr().err  # every command lands among the sweep's points
     q, rows = _commands(d / "q.csv")
     model = torchcal.load(d / "model.json")
     qt = torch.as_tensor(q)
@@ -224,3 +224,24 @@ def test_a_zoned_model_solves_each_target_in_the_zone_of_its_command(zoned, caps
     pred = model.predict(_context(model.model, qt, approach_directions(qt), torch.zeros(len(qt)), None)).numpy()
     goal = real_robot(table, q_goal, "measuring")
     assert np.linalg.norm(pred - goal, axis=1)[ok].max() < 1e-5
+
+
+def test_commands_far_from_every_sweep_point_are_named():
+    """A sweep of one region (a 5 x 5 x 5 grid, 100 mm apart): positions among its points
+    pass; one 1 m outside it (10 spacings) is named by row with its distance."""
+    import types
+    import warnings
+
+    from torchcal.calibration.mismatch import MismatchWarning, warn_far_from_sweep
+
+    g = torch.arange(5, dtype=torch.float64) * 100.0
+    grid = torch.cartesian_prod(g, g, g) + torch.tensor([1000.0, 0.0, 500.0])
+    part = types.SimpleNamespace(positions=grid)
+    inside = grid[[3, 60, 124]] + 20.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert warn_far_from_sweep(part, inside) == []
+    outside = torch.cat([inside, torch.tensor([[2400.0, 200.0, 700.0]])])
+    with pytest.warns(MismatchWarning, match=r"1 command\(s\) reach nominal TCP positions up to 1000 mm from the "
+                      r"nearest sweep point of the partition \(spaced a median 100 mm apart\): row\(s\) 4; "):
+        assert warn_far_from_sweep(part, outside, "targets") == [3]

@@ -352,7 +352,9 @@ def compensate_fitted(fitted, targets, q0=None, *, tol_mm: float = 1e-6, max_ite
     away), and a target whose solution's nominal TCP position lies in another zone is
     solved once more, from there, with that zone's parameters (`Compensation.zone`: the
     zone of the final solve; a target on a boundary keeps that of its second solve), so
-    that `ZonedFit.predict` at the commands meets the targets.
+    that `ZonedFit.predict` at the commands meets the targets. Commands whose nominal TCP
+    lies far from every sweep point of the partition are named (their zone is
+    extrapolated: `torchcal.calibration.mismatch.warn_far_from_sweep`).
 
     q0: (M, n) rad starting commands, default `nominal_start` (a target beyond the reach
     from its nearest calibration pose only, as ``torchcal compensate``). check: refuse
@@ -363,7 +365,7 @@ def compensate_fitted(fitted, targets, q0=None, *, tol_mm: float = 1e-6, max_ite
     model (`with_stage`). Converged commands outside the calibrated range are counted
     (``outside_range``) and named in one `CalibratedRangeWarning` (at `stacklevel`, counted
     from the caller)."""
-    from torchcal.calibration.mismatch import check_seeds, check_targets, warn_outside_range
+    from torchcal.calibration.mismatch import check_seeds, check_targets, warn_far_from_sweep, warn_outside_range
 
     cm, theta, q_range, stage = fitted.model, fitted.theta, fitted.q_range, fitted.residual_model
     robot = cm.robot
@@ -407,6 +409,9 @@ def compensate_fitted(fitted, targets, q0=None, *, tol_mm: float = 1e-6, max_ite
                                     for f in ("q", "predicted_mm", "residual_mm", "converged", "within_limits")},
                            iterations=_put(comp.iterations, moved, comp.iterations[moved] + again.iterations))
     comp = replace(comp, zone=zone + 1)
+    if getattr(fitted, "partition", None) is not None:
+        with torch.no_grad():
+            warn_far_from_sweep(fitted.partition, robot.fk(comp.q), stacklevel=stacklevel + 1)
     if q_range is None:
         return comp
     outside = warn_outside_range(comp.q[comp.converged], q_range, robot, "converged targets", stage,

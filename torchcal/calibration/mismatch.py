@@ -96,6 +96,8 @@ they were made for, in its base frame. More than OUTLIER_SHARE = 10 % of them be
 (R: the reach, as for targets), or calibration poses whose nominal TCP positions lie a median
 farther from the nearest sweep point than PARTITION_SPACING = 3 times the sweep's own median
 spacing and than R / 20: a partition of another robot (or of another region), refused.
+A compensated command whose nominal TCP lies farther than that spacing rule from every
+sweep point (`warn_far_from_sweep`) takes an extrapolated zone: named in one warning.
 
 Robot files (`check_robot_angles`): every revolute limit within +-2 pi "degrees", or a
 twist or offset of pi / 2 or pi "degrees" in a file with no angle beyond 2 pi "degrees",
@@ -456,8 +458,6 @@ def check_partition(partition, robot, q: torch.Tensor, where: str = "partition")
     """Refuse (one InputError line naming `where`) a `torchcal.partition.zones.Partition`
     that cannot be of `robot` by its geometry (module docstring): sweep points beyond the
     reach, or calibration poses q (N, n) rad / mm far from every sweep point."""
-    from scipy.spatial import cKDTree
-
     from torchcal.robots.poses import random_poses
 
     with torch.no_grad():
@@ -475,14 +475,41 @@ def check_partition(partition, robot, q: torch.Tensor, where: str = "partition")
                          "partition of another robot? make the sweep and partition for this robot")
     if pts.shape[0] < 2 or p.shape[0] == 0:
         return
-    tree = cKDTree(pts.numpy())
-    spacing = float(torch.as_tensor(tree.query(pts.numpy(), k=2)[0][:, 1]).median())
-    near = float(torch.as_tensor(tree.query(p.numpy(), k=1)[0]).median())
+    spacing, near = _sweep_distances(pts, p)
+    near = float(near.median())
     if near > max(PARTITION_SPACING * spacing, reach / TARGET_RATIO):
         raise InputError(f"{where}: the calibration poses of robot {robot.name!r} lie a median {near:.4g} mm from "
                          f"the nearest of its sweep points (spaced a median {spacing:.4g} mm apart): a partition "
                          "of another robot, or of another part of the workspace? make the sweep and partition for "
                          "this robot")
+
+
+def _sweep_distances(sweep: torch.Tensor, points: torch.Tensor) -> tuple[float, torch.Tensor]:
+    """(spacing mm, distances (M,) mm): the median distance between neighbouring sweep
+    points (N, 3) mm (N >= 2), and each of points (M, 3) mm to its nearest sweep point."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(sweep.numpy())
+    spacing = float(torch.as_tensor(tree.query(sweep.numpy(), k=2)[0][:, 1]).median())
+    return spacing, torch.as_tensor(tree.query(points.numpy(), k=1)[0])
+
+
+def warn_far_from_sweep(partition, positions: torch.Tensor, where: str = "targets", stacklevel: int = 2) -> list[int]:
+    """Name (one `MismatchWarning`) the positions (M, 3) mm, robot base frame, that lie
+    farther from the nearest sweep point of `partition` than PARTITION_SPACING times the
+    sweep's median spacing: their zone is the nearest sweep points' zone, an extrapolation
+    (a sweep of another region of the workspace). Returns their 0-based rows."""
+    pts = partition.positions.detach().to("cpu", torch.float64)
+    if pts.shape[0] < 2 or positions.shape[0] == 0:
+        return []
+    spacing, near = _sweep_distances(pts, positions.detach().to("cpu", torch.float64))
+    far = (near > PARTITION_SPACING * spacing).nonzero().flatten().tolist()
+    if far:
+        warnings.warn(f"{where}: {len(far)} command(s) reach nominal TCP positions up to {float(near.max()):.4g} mm "
+                      f"from the nearest sweep point of the partition (spaced a median {spacing:.4g} mm apart): "
+                      f"row(s) {_listed(i + 1 for i in far)}; their zone is extrapolated from the nearest sweep "
+                      "points (sweep the region they lie in)", MismatchWarning, stacklevel=stacklevel + 1)
+    return far
 
 
 def check_seeds(seed_points: torch.Tensor, targets: torch.Tensor, q0: torch.Tensor, robot,

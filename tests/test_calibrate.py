@@ -161,3 +161,29 @@ def test_an_interval_calibration_records_its_point_id(tmp_path):
     m = dataclasses.replace(m, point=torch.full((len(m),), 4, dtype=torch.int64))
     torchcal.save(torchcal.calibrate(rob, m, ["base_frame"]), tmp_path / "m.json")
     assert json.loads((tmp_path / "m.json").read_text())["point_ids"] == [4]
+
+
+@pytest.mark.parametrize("how", ["fit", "calibrate"])
+def test_a_model_refitted_on_another_points_data_records_the_new_id(how):
+    """A fitted model given back to fit / calibrate with the data of another point id is
+    refitted for that point: the result records (and checks against) the new id, so the
+    model of reflector 5 is not called the model of reflector 4 (before: the old id was
+    kept, and evaluating the refit on reflector 5's own data warned of another point)."""
+    import dataclasses
+
+    import torch
+
+    from torchcal.robots.poses import random_poses
+    from torchcal.simulation.virtual_robot import VirtualRobot
+
+    rob = torchcal.robot("ur5e")
+    m = VirtualRobot(rob, ["base_frame"], seed=6).measure(random_poses(rob, 20, 6), repeats=3, seed=7)
+    on = {p: dataclasses.replace(m, point=torch.full((len(m),), p, dtype=torch.int64)) for p in (4, 5)}
+    run = getattr(torchcal, how)
+    first = run(rob, on[4], ["base_frame"])
+    again = run(first, on[5])
+    assert first.model.point_ids == (4,) and again.model.point_ids == (5,)
+    assert torch.allclose(again.theta, first.theta, atol=1e-9)  # the same data otherwise: the same fit
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        torchcal.evaluate(again, on[5])

@@ -91,6 +91,17 @@ def _model(robot_or_model, effects=()) -> CalibrationModel:
     return CalibrationModel(_robot(robot_or_model), [str(s) for s in effects])
 
 
+def _for_data(model: CalibrationModel, m) -> CalibrationModel:
+    """`model` for the data `m` (`Measurements`): as it is, or, where `m`'s point ids are
+    not those the model was made for, its effects rebuilt for `m`'s ids
+    (`CalibrationModel.for_measurements`), so that a fitted model refitted on another
+    point's data records (and checks against) the ids it was fitted on."""
+    ids = () if m.point is None else tuple(sorted(set(m.point.tolist())))
+    if not ids or ids == model.point_ids:
+        return model
+    return CalibrationModel.for_measurements(model.robot, model.specs(), m)
+
+
 def _fitted(model) -> FitResult:
     """The fitted model: a `FitResult` (a `ZonedFit` too) as it is, a MODEL.json path
     loaded into one (`torchcal.io.modelfile.load`)."""
@@ -185,7 +196,7 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     m = _measurements(measurements, robot, length_unit, angle_unit)
     check_units(m, robot, length_unit=length_unit, angle_unit=angle_unit, where=m.source or "measurements")
     if isinstance(robot_or_model, (CalibrationModel, FitResult)):
-        model = _model(robot_or_model, effects)
+        model = _for_data(_model(robot_or_model, effects), m)
     else:
         model = CalibrationModel.for_measurements(robot, effects, m)
     ctx = context_of(model.robot, m)
@@ -326,6 +337,8 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
     ids = [] if m.point is None else sorted(set(m.point.tolist()))
     if len(ids) == 1 and not isinstance(robot_or_model, (CalibrationModel, FitResult)):
         model = CalibrationModel(model.robot, model.specs(), points=ids)  # MODEL.json records the point id
+    elif isinstance(robot_or_model, (CalibrationModel, FitResult)):
+        model = _for_data(model, m)
     if partition is not None and partition.made_for is None:  # no record: judged by its geometry
         from torchcal.calibration.mismatch import check_partition
         check_partition(partition, model.robot, m.q, "partition")

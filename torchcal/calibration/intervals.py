@@ -13,8 +13,11 @@ the linearised solution map).
    torchcal (`torchcal.calibration.fit.fit`: Levenberg-Marquardt, eq. 29 with adaptive mu
    starting at 1e-3; here without the plausibility prior and without registration), over
    the parameters the identifiability analysis keeps free (`torchcal.calibration.fit`, done at
-   nominal: structural identifiability); the others are held at the starting point
-   (nominal by default) and reported by name.
+   nominal: structural identifiability, with the gauge `fit` uses: of a base frame and
+   joint 1's dtheta / dd, or a tool offset and the last link's length, the frames are kept
+   and the robot's deviations held, so a tracker's rotation about z and height land in the
+   base frame, not in joint 1); the others are held at the starting point (nominal by
+   default) and reported by name.
 3. **Radius.** Linearising the solution map at ``x_c``, a change ``de`` of the stacked
    errors moves the solution by ``dx = S de`` with
 
@@ -58,6 +61,7 @@ from torchcal.calibration.fit import RANK_TOL, FitResult, Identifiability, fit, 
 from torchcal.calibration.gcv import choose_damping, gcv_damping
 from torchcal.reliability.interval import Interval
 from torchcal.calibration.model import CalibrationModel
+from torchcal.calibration.plausibility import plausible_scales
 
 __all__ = ["PoseIntervals", "pose_intervals", "solution_map", "gcv_damping", "parameter_intervals",
            "identify_intervals", "identify_zones"]
@@ -246,9 +250,10 @@ def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
     cand = model.default_free() if free is None else torch.as_tensor(free, dtype=torch.bool)
     x0 = model.zeros() if theta0 is None else torch.as_tensor(theta0).to(model.zeros())
     names = model.param_names()
+    frames = ~torch.isfinite(plausible_scales(model))  # the gauge of `fit`: frames before joint 1's dtheta, dd
     reports, J0s, r0s = [], [], []
     for z, (ctx, data) in enumerate(pairs):
-        rep = identifiability(model.jacobian(model.zeros(), ctx), names, cand, rank_tol)  # structural: at nominal
+        rep = identifiability(model.jacobian(model.zeros(), ctx), names, cand, rank_tol, first=frames)  # at nominal
         m = len(data)
         if 3 * m <= rep.rank and damping == 0:
             raise InputError(f"zone {z}: {m} poses give {3 * m} equations for "

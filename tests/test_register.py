@@ -240,3 +240,61 @@ def test_register_on_another_point_needs_the_tool(two_points, capsys):
     assert read_json(out)["point_ids"] == [2]
     with _no_point_warning():
         assert torchcal.evaluate(out, d / "b.csv").rms_mm < 1e-3
+
+
+@pytest.fixture(scope="module")
+def zoned(tmp_path_factory):
+    """A per-zone model (`calibrate --partition`, base_frame) of a KR 1000 Titan with a joint
+    compliance it does not hold, and 30 poses of a new set-up: the tracker turned and
+    shifted by TURN, SHIFT (`moved`)."""
+    from torchcal.io.sweep_csv import write_sweep
+    from torchcal.reliability.sweep import sweep
+    from torchcal.robots.workspace import sample_workspace
+
+    d = tmp_path_factory.mktemp("zoned")
+    kr = torchcal.robot("kr1000titan")
+    write_sweep(sweep(kr, sample_workspace(kr, 60, seed=6), n_samples=50), d / "sweep.csv")
+    assert main(["partition", str(d / "sweep.csv"), "--levels", "2", "--zones", "2,1",
+                 "--out", str(d / "part.json")]) == 0
+    real = VirtualRobot(kr, ["base_frame", "joint_compliance:2"], seed=4)
+    write_measurements(d / "old.csv", real.measure(sample_workspace(kr, 40, seed=5), repeats=3, noise_mm=0.01))
+    write_measurements(d / "new.csv", moved(real.measure(sample_workspace(kr, 30, seed=8), noise_mm=0.01)))
+    assert main(["calibrate", str(d / "old.csv"), "--robot", "kr1000titan", "--effects", "base_frame",
+                 "--partition", str(d / "part.json"), "--out", str(d / "zoned.json")]) == 0
+    return d
+
+
+def test_register_moves_every_zone_of_a_per_zone_model(zoned, capsys):
+    """Every zone takes the global frame's rigid change (new <- old), checked against that
+    change computed here from the two global frames: each zone predicts in the new frame
+    what it predicted in the old, moved. Before, the API returned the global fit alone
+    (the zones dropped) and the command kept the zones in the old frame (844 mm on the
+    new set-up)."""
+    from torchcal.calibration.zone_calibration import ZonedFit
+
+    d = zoned
+    old = torchcal.load(d / "zoned.json")
+    assert main(["register", str(d / "new.csv"), "--model", str(d / "zoned.json"), "--out", str(d / "moved.json")]) == 0
+    capsys.readouterr()
+    new = torchcal.load(d / "moved.json")
+    api = torchcal.register(old, d / "new.csv")
+    assert isinstance(new, ZonedFit) and isinstance(api, ZonedFit) and len(new.zones) == len(old.zones) == 3
+    (R0, t0), (R1, t1) = frame(old.model, old.theta), frame(new.model, new.theta)
+    q = random_poses(old.model.robot, 50, 3)
+    for a, b, c in zip(old.zones, new.zones, api.zones):
+        ctx = torchcal.effects.context_of(old.model.robot, torchcal.measurements.Measurements(
+            pose=torch.arange(50), q=q, xyz=torch.zeros(50, 3, dtype=torch.float64)))
+        p_old, p_new = old.model.predict(a.theta, ctx), new.model.predict(b.theta, ctx)
+        expect = (p_old - t0) @ (R1 @ R0.T).T + t1
+        assert (p_new - expect).norm(dim=-1).max() < 1e-6
+        assert torch.allclose(b.theta, c.theta, atol=1e-6)
+    assert torchcal.evaluate(new, d / "new.csv").rms_mm < 1.0  # the joint compliance no zone holds: ~0.15 mm
+
+
+def test_a_per_zone_model_without_a_base_frame_is_refused(zoned):
+    """Its zones have no frame to move: one InputError naming what to calibrate with."""
+    d = zoned
+    bare = torchcal.calibrate("kr1000titan", d / "old.csv", partition=d / "part.json")
+    with pytest.raises(InputError, match=r"^register: a per-zone model needs base_frame among its effects to be "
+                                         r"moved to a new set-up \(its effects: none\); calibrate it with them$"):
+        torchcal.register(bare, d / "new.csv")

@@ -385,7 +385,9 @@ def register(model, measurements, *, tool: bool = False) -> FitResult:
     the best frame), calibrated on these rows. Data that no frame brings near the model
     (another robot, units) are refused (InputError, `torchcal.calibration.mismatch`).
     Returns a `FitResult` whose ``rms_mm`` and ``residuals`` are those on `measurements`
-    and whose ``registration`` records the frame and the rms before and after. An rms
+    and whose ``registration`` records the frame and the rms before and after; for a
+    per-zone model a `ZonedFit` whose zones take the global frame's change
+    (`torchcal.calibration.new_setup.zones_moved`). An rms
     above 3x the model's training rms is a `TransferWarning`
     (`torchcal.calibration.registration.far_from_training`).
     """

@@ -62,7 +62,48 @@ def register_model(fitted, robot, m, *, tool: bool = False, stacklevel: int = 1)
     if fitted is None:
         return res
     f = fitted
-    return dataclasses.replace(res, orientation=f.orientation, robust=f.robust, sigma_mm=f.sigma_mm,
-                               sigma_deg=f.sigma_deg, seed_poses=f.seed_poses, residual_model=f.residual_model,
-                               training=f.training, provenance=f.provenance, set_by_prior=f.set_by_prior,
-                               residual_test=f.residual_test)
+    out = dataclasses.replace(res, orientation=f.orientation, robust=f.robust, sigma_mm=f.sigma_mm,
+                              sigma_deg=f.sigma_deg, seed_poses=f.seed_poses, residual_model=f.residual_model,
+                              training=f.training, provenance=f.provenance, set_by_prior=f.set_by_prior,
+                              residual_test=f.residual_test)
+    return out if not hasattr(f, "zones") else zones_moved(f, out, tool)
+
+
+def zones_moved(zoned, reg, tool: bool):
+    """The `ZonedFit` `zoned` in the set-up of its registered global fit `reg` (a
+    `FitResult` of the same model): every zone's measuring frame takes the global frame's
+    rigid change, new <- old, ``T = B_reg B_old^-1`` (a zone's base frame B_z becomes T B_z:
+    each zone predicts in the new frame exactly what it predicted in the old), and with
+    `tool` every zone's tool offset the global one's change; each zone keeps everything
+    else. A zoned model without a base_frame (or, with `tool`, a tool_offset) effect is
+    refused (InputError): its zones have no frame to move."""
+    import dataclasses
+
+    from torchcal.calibration.registration import frame_slices
+    from torchcal.calibration.zone_calibration import ZonedFit
+    from torchcal.errors import InputError
+    from torchcal.rotations import matrix_to_rotvec, rotvec_to_matrix
+
+    if reg.model.n_params != zoned.model.n_params:
+        need = "base_frame and tool_offset" if tool else "base_frame"
+        raise InputError(f"register: a per-zone model needs {need} among its effects to be moved to a new set-up "
+                         f"(its effects: {', '.join(zoned.model.specs()) or 'none'}); calibrate it with them")
+    base = next(sl for e, sl in zip(reg.model.effects, reg.model.slices[1:]) if e.name == "base_frame")
+    tools = [sl for sl in frame_slices(reg.model, tool) if sl != base]
+
+    def frame(theta):  # (R (3, 3), t (3,) mm): measuring <- robot base
+        return rotvec_to_matrix(theta[base][3:6]), theta[base][:3]
+
+    old = zoned.theta.to(reg.theta)
+    (R0, t0), (R1, t1) = frame(old), frame(reg.theta)
+    RT = R1 @ R0.T
+    tT = t1 - RT @ t0
+    zones = []
+    for z in zoned.zones:
+        th = z.theta.to(reg.theta).clone()
+        Rz, tz = frame(th)
+        th[base] = torch.cat([RT @ tz + tT, matrix_to_rotvec(RT @ Rz)])
+        for sl in tools:
+            th[sl] = th[sl] + reg.theta[sl] - old[sl]
+        zones.append(dataclasses.replace(z, model=reg.model, theta=th))
+    return ZonedFit.of(reg, zones, zoned.partition, zoned.method, zoned.zone_poses)

@@ -60,7 +60,7 @@ def run(args) -> int:
             res = register(fitted, m, tool=args.tool)
         obj = dict(read_json(args.model, "model file"))
         new = modelfile.to_dict(res)
-        for key in ("effects", "parameters", "covariance", "base_frame", "point_ids"):
+        for key in ("effects", "parameters", "covariance", "base_frame", "point_ids", "zones"):
             if key in new:
                 obj[key] = new[key]
             else:

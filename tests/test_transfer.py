@@ -367,8 +367,6 @@ def test_part_rule_on_figures_made_in_numpy():
 
     class Strict(Session):
         current = SimpleNamespace(cv_rms_mm=float(np.sqrt(e0.mean())), cv=SimpleNamespace(sq=e0))
-        m = SimpleNamespace(pose=np.arange(len(e0)))  # one row per pose, the refit CV's 5 folds
-        folds = np.arange(len(e0)) % 5
         decide = Within.decide
 
         def scored(self, f, spec, prior_held):

@@ -21,11 +21,3 @@ def fold_of_pose(pose, seed: int, folds: int = FOLDS) -> np.ndarray:
     pose = pose.cpu().numpy() if hasattr(pose, "cpu") else np.asarray(pose)
     ids, inverse = np.unique(pose, return_inverse=True)
     return (np.random.default_rng(seed).permutation(len(ids)) % folds)[inverse]
-
-
-def fold_per_pose(pose, folds: np.ndarray) -> np.ndarray:
-    """(P,) the fold of each distinct pose id of `pose` (N,) (numpy or torch), ids in
-    sorted order (the order of per-pose CV figures), from the rows' folds (N,)."""
-    pose = pose.cpu().numpy() if hasattr(pose, "cpu") else np.asarray(pose)
-    _, first = np.unique(pose, return_index=True)
-    return np.asarray(folds)[first]

@@ -12,14 +12,14 @@ gain), the pre-screen's verdict first, `REFITS` at most, are refitted in full
 of the whole loop (alpha spending over rounds); the refit checks that the model itself,
 refitted, predicts better: its held-out error must drop beyond chance. Per pose p,
 ``d_p = e0_p - e1_p``, the held-out squared distance error of the current model minus
-the candidate's (both refitted on the same folds); a one-sided test of mean(d) > 0, at
-level ``REFIT_ALPHA / R`` for R candidates refitted (Bonferroni over the refits of one
-step), and a relative held-out RMS gain of at least `MIN_GAIN`. Given the fold of each
-pose, the test is `cv_p_value` (the variance clustered by fold, floored at the pose
-variance, with the Nadeau-Bengio training-overlap term, t with K - 1 degrees of freedom:
-the poses of one fold share its fitted models and the folds' training sets overlap);
-without folds, the paired t-test over poses (`paired_p_value`). A candidate significant in the pre-screen by its random part only (a
-variance term, which no deterministic refit can show) is accepted when its refit CV is
+the candidate's (both refitted on the same folds); a one-sided paired t-test of
+mean(d) > 0 over the poses, at level ``REFIT_ALPHA / R`` for R candidates refitted
+(Bonferroni over the refits of one step), and a relative held-out RMS gain of at least
+`MIN_GAIN`. (`cv_p_value`, the same test with the variance clustered by fold and the
+Nadeau-Bengio training-overlap term, was tried in its place and not kept: it removed
+most real gains with the losses; docs/real-data.md. No decision uses it.) A candidate
+significant in the pre-screen by its random part only (a variance term, which no
+deterministic refit can show) is accepted when its refit CV is
 not worse than the current model's by more than `MIN_GAIN` (its deterministic part may
 cost a little). A candidate that passes must also be determined by the data
 (torchcal.diagnosis.step). Of those that pass, the one with the largest refit gain
@@ -139,13 +139,11 @@ def cv_p_value(base_sq: np.ndarray, cand_sq: np.ndarray, fold: np.ndarray) -> fl
 
 
 def refit_decision(base_cv: float, base_sq: np.ndarray, cv: float, sq: np.ndarray, *, n_refits: int,
-                   alpha: float, min_gain: float = MIN_GAIN, random_only: bool = False,
-                   fold: np.ndarray | None = None) -> tuple[bool, float, str]:
+                   alpha: float, min_gain: float = MIN_GAIN, random_only: bool = False) -> tuple[bool, float, str]:
     """(accepted, p-value, reason) for one refitted candidate (module doc): level
     alpha / n_refits (Bonferroni over the candidates refitted in this step; alpha is
-    `REFIT_ALPHA` in `diagnose`); fold (P,): the CV fold of each pose of base_sq / sq, for
-    `cv_p_value` (None: `paired_p_value`)."""
-    p = paired_p_value(base_sq, sq) if fold is None else cv_p_value(base_sq, sq, fold)
+    `REFIT_ALPHA` in `diagnose`)."""
+    p = paired_p_value(base_sq, sq)
     level = alpha / max(n_refits, 1)
     gain = (base_cv - cv) / max(base_cv, 1e-300)
     figures = f"refit cv {cv:.4f} mm vs {base_cv:.4f} mm"

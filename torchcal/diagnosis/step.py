@@ -12,8 +12,7 @@ candidate, reports
   candidate (`joint_periodic`), and for any candidate on top of a model so scored, the CV
   of the whole procedure: each fold refits the orders its training poses' own search
   finds (`torchcal.diagnosis.procedure_cv`);
-- p-value, accepted and a reason (`torchcal.diagnosis.selection.refit_decision`, its test
-  clustered by the folds: `cv_p_value`);
+- p-value, accepted and a reason (`torchcal.diagnosis.selection.refit_decision`);
 - held: parameters the identifiability analysis held (unidentifiable), beyond: those that
   ended beyond their plausible size (`torchcal.calibration.plausibility`).
 
@@ -41,7 +40,6 @@ from torchcal.diagnosis.crossval import RefitCV, refit_cv
 from torchcal.diagnosis.procedure_cv import FoldSearches, procedure_cv
 from torchcal.diagnosis.selection import ALPHA, MIN_GAIN, not_better, refit_decision
 from torchcal.effects.spec import parse_specs
-from torchcal.folds import fold_per_pose
 from torchcal.errors import InputError
 
 
@@ -174,7 +172,6 @@ def score_step(current: Scored, candidates: list, m, ctx, folds: np.ndarray, *, 
     candidates refitted)."""
     refits = []
     searches = FoldSearches(current.fit, ctx, folds)  # each joint's fold searches once for the step
-    pose_fold = fold_per_pose(m.pose, folds)  # (P,) for the test clustered by fold
 
     def decide(c, random_only, hold=()):
         f = candidate_fit(current.fit, c.spec, m, ctx, sigma_mm=sigma_mm, sigma_deg=sigma_deg, hold=hold)
@@ -182,7 +179,7 @@ def score_step(current: Scored, candidates: list, m, ctx, folds: np.ndarray, *, 
                                       searches=searches)
         ok, p, why = refit_decision(current.cv_rms_mm, current.cv.sq, cv.cv_rms_mm, cv.sq,
                                     n_refits=len(candidates), alpha=alpha, min_gain=min_gain,
-                                    random_only=random_only, fold=pose_fold)
+                                    random_only=random_only)
         if cv.error:
             ok, why = False, f"fold refit impossible: {cv.error}"
         new = [n for n in f.model.param_names() if n not in current.fit.model.param_names()]

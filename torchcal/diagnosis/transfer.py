@@ -81,7 +81,6 @@ from torchcal.diagnosis.step import Scored, candidate_fit
 from torchcal.effects import context_of
 from torchcal.effects.context import Context
 from torchcal.errors import InputError
-from torchcal.folds import fold_per_pose
 from torchcal.measurements import Measurements
 
 
@@ -261,7 +260,7 @@ class Within:
         acceptance rule (`refit_decision` on the refit CV, level REFIT_ALPHA / n_tests)."""
         c = self.current
         return refit_decision(c.cv_rms_mm, c.cv.sq, cand.cv_rms_mm, cand.cv.sq, n_refits=n_tests,
-                              alpha=REFIT_ALPHA, min_gain=MIN_GAIN, fold=fold_per_pose(self.m.pose, self.folds))
+                              alpha=REFIT_ALPHA, min_gain=MIN_GAIN)
 
     def step_fit(self, spec: str, hold) -> FitResult:
         """The current model + the step `spec` fitted on the session as `discover` fits a

@@ -1,8 +1,6 @@
 """discover's acceptance rules as pure functions (torchcal.diagnosis.selection), against
-independent references: scipy's paired t-test, the CV test clustered by fold (tried, not
-used by a decision) against a plain-loop numpy computation, the Bonferroni level, the
-2 % refit-gain floor, the random-only rule, the per-pose 'not better' rule and the
-pre-screen's order."""
+independent references: scipy's paired t-test, the Bonferroni level, the 2 % refit-gain
+floor, the random-only rule, the per-pose 'not better' rule and the pre-screen's order."""
 
 import math
 
@@ -11,9 +9,8 @@ import pytest
 import scipy.stats
 
 from torchcal.diagnosis.candidates import Candidate
-from torchcal.diagnosis.selection import (MIN_GAIN, REFIT_ALPHA, cv_p_value, not_better, paired_p_value, rank,
-                                          refit_decision, select, shortlist)
-from torchcal.folds import fold_of_pose
+from torchcal.diagnosis.selection import (MIN_GAIN, REFIT_ALPHA, not_better, paired_p_value, rank, refit_decision,
+                                          select, shortlist)
 
 
 def _scaled(base, gain):
@@ -44,71 +41,6 @@ def test_paired_p_value_is_scipys_one_sided_paired_t_test(base):
     ref = scipy.stats.ttest_rel(base, cand, alternative="greater").pvalue
     assert paired_p_value(base, cand) == pytest.approx(ref, rel=1e-10)
     assert paired_p_value(cand, base) == pytest.approx(1 - ref, rel=1e-10)
-
-
-def _cv_p_reference(d, fold):
-    """docs/diagnosis.md "Test", written out with loops: CR1 variance by fold, floored at
-    the pose variance, times 1 + K * n_test / n_train, t with K - 1 dof."""
-    labels = sorted(set(fold.tolist()))
-    K, P, m = len(labels), len(d), sum(d) / len(d)
-    sums = [sum(d[i] - m for i in range(P) if fold[i] == k) for k in labels]
-    v_fold = K / (K - 1) * sum(x * x for x in sums) / P ** 2
-    v_pose = sum((x - m) ** 2 for x in d) / (P - 1) / P
-    n_test = P / K
-    v = max(v_fold, v_pose) * (1 + K * n_test / (P - n_test))
-    return scipy.stats.t.sf(m / math.sqrt(v), K - 1)
-
-
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_cv_p_value_matches_a_plain_loop_reference(seed):
-    """Fold sizes as `fold_of_pose` makes them (unequal when K does not divide P), both
-    the clustered and the pose variance the larger in some draws."""
-    rng = np.random.default_rng(seed)
-    P = 23 + 7 * seed
-    fold = fold_of_pose(np.arange(P), seed)
-    base = rng.gamma(2.0, 0.05, size=P)
-    cand = base - rng.normal(0.01, 0.02, size=P) - 0.01 * rng.normal(size=5)[fold]
-    ref = _cv_p_reference((base - cand).tolist(), fold)
-    assert cv_p_value(base, cand, fold) == pytest.approx(ref, rel=1e-10)
-    assert cv_p_value(cand, base, fold) == pytest.approx(1 - ref, rel=1e-10)
-
-
-def test_cv_p_value_equal_folds_is_the_corrected_resampled_t_test():
-    """Equal folds, fold means spread more than the poses: the statistic is Nadeau and
-    Bengio's corrected resampled t over the K fold means, (1/K + 1/(K-1)) var(fold means)."""
-    rng = np.random.default_rng(5)
-    fold = np.repeat(np.arange(5), 12)
-    d = rng.normal(0.0, 0.001, size=60) + np.array([0.03, 0.01, -0.005, 0.02, 0.04])[fold]
-    means = np.array([d[fold == k].mean() for k in range(5)])
-    t = means.mean() / math.sqrt((1 / 5 + 1 / 4) * means.var(ddof=1))
-    assert cv_p_value(d, np.zeros(60), fold) == pytest.approx(scipy.stats.t.sf(t, 4), rel=1e-10)
-
-
-def test_clustered_differences_pass_the_pose_test_and_fail_the_cv_test():
-    """A gain carried by two of five folds (their shared models), the poses within each
-    fold alike: over 60 poses the naive paired t-test sees a clear gain (p < 1e-6); over
-    the folds it is chance at the Bonferroni level of 3 refits, where the rule in use
-    (the pose test) accepts the step."""
-    rng = np.random.default_rng(3)
-    fold = np.repeat(np.arange(5), 12)
-    base = rng.gamma(2.0, 0.05, size=60)
-    d = np.array([0.05, 0.04, 0.0, -0.005, 0.005])[fold] + rng.normal(0.0, 0.005, size=60)
-    cand = base - d
-    level = REFIT_ALPHA / 3
-    assert paired_p_value(base, cand) < 1e-6
-    assert cv_p_value(base, cand, fold) > level
-    cv0, cv1 = math.sqrt(base.mean()), math.sqrt(cand.mean())
-    assert (cv0 - cv1) / cv0 > MIN_GAIN
-    assert refit_decision(cv0, base, cv1, cand, n_refits=3, alpha=REFIT_ALPHA)[0]  # the rule in use
-
-
-def test_a_gain_on_every_fold_passes_the_cv_test(base):
-    """Independent per-pose differences with a clear mean on all folds pass both tests;
-    the CV test is the stricter (its variance is at least 2.25 times the pose one's)."""
-    fold = fold_of_pose(np.arange(base.size), 0)
-    cand = base - np.random.default_rng(4).normal(0.01, 0.01, size=base.size)
-    p_cv = cv_p_value(base, cand, fold)
-    assert paired_p_value(base, cand) < p_cv < REFIT_ALPHA / 3 / 10
 
 
 def test_multiple_testing_correction_splits_alpha_over_the_refits():

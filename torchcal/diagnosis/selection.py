@@ -15,11 +15,8 @@ refitted, predicts better: its held-out error must drop beyond chance. Per pose 
 the candidate's (both refitted on the same folds); a one-sided paired t-test of
 mean(d) > 0 over the poses, at level ``REFIT_ALPHA / R`` for R candidates refitted
 (Bonferroni over the refits of one step), and a relative held-out RMS gain of at least
-`MIN_GAIN`. (`cv_p_value`, the same test with the variance clustered by fold and the
-Nadeau-Bengio training-overlap term, was tried in its place and not kept: it removed
-most real gains with the losses; docs/real-data.md. No decision uses it.) A candidate
-significant in the pre-screen by its random part only (a variance term, which no
-deterministic refit can show) is accepted when its refit CV is
+`MIN_GAIN`. A candidate significant in the pre-screen by its random part only (a
+variance term, which no deterministic refit can show) is accepted when its refit CV is
 not worse than the current model's by more than `MIN_GAIN` (its deterministic part may
 cost a little). A candidate that passes must also be determined by the data
 (torchcal.diagnosis.step). Of those that pass, the one with the largest refit gain
@@ -103,39 +100,6 @@ def paired_p_value(base_sq: np.ndarray, cand_sq: np.ndarray) -> float:
     if se == 0:
         return 0.0 if d.mean() > 0 else 1.0
     return float(scipy.stats.t.sf(d.mean() / se, len(d) - 1))
-
-
-def cv_variance(d: np.ndarray, fold: np.ndarray) -> tuple[float, int]:
-    """(variance of mean(d), degrees of freedom) for per-pose CV differences d (P,) whose
-    poses were held out in folds `fold` (P,) (K >= 2 distinct labels), docs/diagnosis.md
-    "Test": V = max(V_fold, var(d) / P) with V_fold the CR1 cluster-robust variance by
-    fold, ``K / (K - 1) * sum_k (sum_{p in k} (d_p - mean d))^2 / P^2``; times
-    ``1 + K * n_test / n_train = 1 + K / (K - 1)`` (Nadeau and Bengio's corrected
-    resampled variance, ``(1 / K + n_test / n_train) s^2`` with ``s^2 = K V``); K - 1
-    degrees of freedom. Units: those of d squared."""
-    labels, g = np.unique(fold, return_inverse=True)
-    k, n = len(labels), len(d)
-    c = d - d.mean()
-    v_fold = k / (k - 1) * float((np.bincount(g, weights=c) ** 2).sum()) / n ** 2
-    v = max(v_fold, float(c @ c) / (n - 1) / n)
-    return v * (1.0 + k / (k - 1)), k - 1
-
-
-def cv_p_value(base_sq: np.ndarray, cand_sq: np.ndarray, fold: np.ndarray) -> float:
-    """One-sided p-value of mean(base_sq - cand_sq) > 0 for per-pose held-out squared
-    errors (P,) mm^2 of one K-fold CV, `fold` (P,) each pose's fold: t =
-    mean / sqrt(`cv_variance`) against Student's t with K - 1 degrees of freedom. The
-    pose-level test (`paired_p_value`) when fewer than 2 folds; 1.0 when the differences
-    are not finite, 0.0 / 1.0 when they have no spread (positive mean / not)."""
-    d = base_sq - cand_sq
-    if not np.all(np.isfinite(d)) or len(d) < 2:
-        return 1.0
-    if len(np.unique(fold)) < 2:
-        return paired_p_value(base_sq, cand_sq)
-    v, dof = cv_variance(d, np.asarray(fold))
-    if v == 0:
-        return 0.0 if d.mean() > 0 else 1.0
-    return float(scipy.stats.t.sf(d.mean() / np.sqrt(v), dof))
 
 
 def refit_decision(base_cv: float, base_sq: np.ndarray, cv: float, sq: np.ndarray, *, n_refits: int,

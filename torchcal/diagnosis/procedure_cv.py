@@ -39,6 +39,7 @@ import dataclasses
 import numpy as np
 import torch
 
+from torchcal.calibration import refit as rf
 from torchcal.calibration.model import CalibrationModel
 from torchcal.diagnosis.crossval import RefitCV, fold_fit, refit_cv
 from torchcal.diagnosis.spectral import fold_orders
@@ -124,6 +125,7 @@ def procedure_cv(current, f, spec: str, m, ctx, folds: np.ndarray, *, sigma_mm: 
         return refit_cv(f, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg), None
     _, pose_of_row = np.unique(m.pose.cpu().numpy(), return_inverse=True)
     sq = np.zeros(len(current.cv.sq))
+    chord = True
     for fo in labels:
         test = folds == fo
         poses = np.unique(pose_of_row[test])
@@ -134,7 +136,12 @@ def procedure_cv(current, f, spec: str, m, ctx, folds: np.ndarray, *, sigma_mm: 
         start = f if fold_specs[fo] == full else fold_start(f, current.fit, fold_specs[fo], m)
         t = torch.from_numpy(test)
         try:
-            res = fold_fit(start, m, ctx, ~t, sigma_mm=sigma_mm, sigma_deg=sigma_deg, posterior=False)
+            res = None
+            if chord:  # the chord fit from the start's own Jacobian; the LM where it does not apply
+                res = rf.refit_from(start, m, ctx, ~t, sigma_mm=sigma_mm, sigma_deg=sigma_deg, posterior=False)
+                chord = res is not None  # the later folds share its conditioning: the LM at once
+            if res is None:
+                res = fold_fit(start, m, ctx, ~t, sigma_mm=sigma_mm, sigma_deg=sigma_deg, posterior=False)
         except InputError as e:
             return RefitCV(float("inf"), np.full(len(sq), np.inf), str(e)), None
         with torch.no_grad():

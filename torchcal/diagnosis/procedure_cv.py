@@ -41,7 +41,7 @@ import torch
 
 from torchcal.calibration import refit as rf
 from torchcal.calibration.model import CalibrationModel
-from torchcal.diagnosis.crossval import RefitCV, fold_fit, refit_cv
+from torchcal.diagnosis.crossval import RefitCV, fold_fit, lm_only, mark_lm_only, refit_cv
 from torchcal.diagnosis.spectral import fold_orders
 from torchcal.effects.spec import format_spec, parse_spec, parse_specs
 from torchcal.errors import InputError
@@ -125,7 +125,8 @@ def procedure_cv(current, f, spec: str, m, ctx, folds: np.ndarray, *, sigma_mm: 
         return refit_cv(f, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg), None
     _, pose_of_row = np.unique(m.pose.cpu().numpy(), return_inverse=True)
     sq = np.zeros(len(current.cv.sq))
-    chord = True
+    # the chord where the current model's and the candidate's fold refits took it (`crossval.fold_refits`)
+    chord = not (lm_only(current.fit) or lm_only(f))
     for fo in labels:
         test = folds == fo
         poses = np.unique(pose_of_row[test])
@@ -139,7 +140,9 @@ def procedure_cv(current, f, spec: str, m, ctx, folds: np.ndarray, *, sigma_mm: 
             res = None
             if chord:  # the chord fit from the start's own Jacobian; the LM where it does not apply
                 res = rf.refit_from(start, m, ctx, ~t, sigma_mm=sigma_mm, sigma_deg=sigma_deg, posterior=False)
-                chord = res is not None  # the later folds share its conditioning: the LM at once
+                if res is None:  # the later folds, and the next round's on top of f, share its conditioning
+                    chord = False
+                    mark_lm_only(f)
             if res is None:
                 res = fold_fit(start, m, ctx, ~t, sigma_mm=sigma_mm, sigma_deg=sigma_deg, posterior=False)
         except InputError as e:

@@ -19,7 +19,12 @@ orders:
   the folds find the same orders, the figures do not move;
 - a fold whose search finds other orders refits the model with them, from the
   candidate's full fit (parameters matched by name, then the current fit's, new ones at
-  zero), the parameters the candidate's full fit held still held;
+  zero), the parameters the candidate's full fit held still held; fitted, as the fold
+  refits of `refit_cv` are, by chord iterations to a certified stationary point of the
+  same objective (`torchcal.calibration.refit.refit_from`, from the start's own Jacobian
+  of the fold's rows), by the LM where that does not apply (and for the candidate's later
+  folds, and for everything on top of a fit whose refits fell back:
+  `torchcal.diagnosis.crossval.lm_only`);
 - a fold whose search finds no order on any joint is predicted by the current model's
   refit of that fold (no periodic term): its held-out errors are the current model's.
 

@@ -52,7 +52,7 @@ Jacobian replaced by the training rows' own Jacobian at the start (the one `fit`
 identifiability step evaluates there, with the tool rotation solved at the start as `fit`
 solves it): the same identifiability, tool-rotation step and certificate. On UR10 series
 C's `discover` (55 such fold fits) it takes 4.0 Jacobians and 11.5 forward kinematics per
-fold fit where the LM took 8-9 and 11 (83 against 164 ms); the printed figures are the
+fold fit where the LM took 8-9 and 11 (68 against 152 ms CPU, medians); the printed figures are the
 same, the `--json` refit-CV figures within 7e-10 mm (tests/test_refit.py,
 tests/test_procedure_cv.py: 1e-6 mm asserted).
 

@@ -151,3 +151,30 @@ def test_where_the_chord_does_not_apply_the_lm_refits(case):
     for test, res in fold_refits(full, m, ctx, folds, sigma_mm=0.01, sigma_deg=0.01, posterior=False):
         ref = fold_fit(full, m, ctx, ~test, sigma_mm=0.01, sigma_deg=0.01, posterior=False)
         assert torch.equal(res.theta, ref.theta)
+
+
+@pytest.mark.parametrize("specs", [["base_frame", "tool_offset", "joint_periodic:2@20+21+29"],
+                                   ["base_frame", "tool_offset", "joint_periodic:2@20"]])
+def test_refit_from_a_per_fold_start_equals_the_lm_fold_fit(ur10_c, specs):
+    """The per-fold models of the procedure CV (torchcal/diagnosis/procedure_cv.py): the
+    fold's own orders, started from the full fit's values matched by name (an order the
+    full fit lacks at zero), fitted by chord iterations from the start's own Jacobian
+    (`refit_from`) against the LM fold fit from the same start: the same free set, the
+    held-out positions within TOL_MM; the start is far from the fold's fit (the chord had
+    work to do), and the fold's rows left in move the prediction by far more."""
+    from torchcal.diagnosis.procedure_cv import fold_start
+
+    full, m, ctx = ur10_c
+    start = fold_start(full, full, specs, m)
+    folds = fold_of_pose(m.pose, 0, 5)
+    for f in range(3):
+        test = torch.from_numpy(folds == f)
+        new = rf.refit_from(start, m, ctx, ~test, sigma_mm=0.01, sigma_deg=0.01, posterior=False)
+        assert new is not None  # the chord applied
+        old = fold_fit(start, m, ctx, ~test, sigma_mm=0.01, sigma_deg=0.01, posterior=False)
+        assert torch.equal(new.report.free, old.report.free)
+        ref = _predicted(start, old, ctx, test)
+        assert float((_predicted(start, new, ctx, test) - ref).norm(dim=-1).max()) <= TOL_MM
+        assert float((_predicted(start, start, ctx, test) - ref).norm(dim=-1).max()) > 1e-3
+    kept = rf.refit_from(start, m, ctx, torch.ones_like(test), sigma_mm=0.01, sigma_deg=0.01, posterior=False)
+    assert float((_predicted(start, kept, ctx, test) - ref).norm(dim=-1).max()) > 1e3 * TOL_MM

@@ -73,7 +73,7 @@ def fold_refits(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: 
     is fitted by `fold_fit` itself."""
     from torchcal.calibration import refit as rf
 
-    sh, chord = None, rf.applies(full) and _LM_ONLY.get(id(full)) is not full
+    sh, chord = None, rf.applies(full) and not lm_only(full)
     for f in np.unique(folds):
         test = torch.from_numpy(folds == f)
         res = None
@@ -82,7 +82,7 @@ def fold_refits(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: 
             res = rf.refit(full, sh, m, ctx, ~test, sigma_mm=sigma_mm, sigma_deg=sigma_deg, posterior=posterior)
         if res is None:  # and the other folds of this fit by the LM too: they share its conditioning
             if chord:
-                _LM_ONLY[id(full)] = full
+                mark_lm_only(full)
             chord = False
             res = fold_fit(full, m, ctx, ~test, sigma_mm=sigma_mm, sigma_deg=sigma_deg, posterior=posterior)
         yield test, res
@@ -93,6 +93,16 @@ def fold_refits(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: 
 #: stability check refit one model many times), go to the LM at once. A cache of a
 #: decision only: either path gives the same refit to within 1e-6 mm.
 _LM_ONLY: weakref.WeakValueDictionary = weakref.WeakValueDictionary()
+
+
+def lm_only(full) -> bool:
+    """Whether a chord refit of the fitted model `full` fell back to the LM (`_LM_ONLY`)."""
+    return _LM_ONLY.get(id(full)) is full
+
+
+def mark_lm_only(full) -> None:
+    """Remember that a chord refit of `full` fell back to the LM (`_LM_ONLY`)."""
+    _LM_ONLY[id(full)] = full
 
 
 def refit_cv(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: float) -> RefitCV:

@@ -19,7 +19,12 @@ orders:
   the folds find the same orders, the figures do not move;
 - a fold whose search finds other orders refits the model with them, from the
   candidate's full fit (parameters matched by name, then the current fit's, new ones at
-  zero), the parameters the candidate's full fit held still held;
+  zero), the parameters the candidate's full fit held still held; fitted, as the fold
+  refits of `refit_cv` are, by chord iterations to a certified stationary point of the
+  same objective (`torchcal.calibration.refit.refit_from`, from the start's own Jacobian
+  of the fold's rows), by the LM where that does not apply (and for the candidate's later
+  folds, and for everything on top of a fit whose refits fell back:
+  `torchcal.diagnosis.crossval.lm_only`);
 - a fold whose search finds no order on any joint is predicted by the current model's
   refit of that fold (no periodic term): its held-out errors are the current model's.
 
@@ -39,8 +44,9 @@ import dataclasses
 import numpy as np
 import torch
 
+from torchcal.calibration import refit as rf
 from torchcal.calibration.model import CalibrationModel
-from torchcal.diagnosis.crossval import RefitCV, fold_fit, refit_cv
+from torchcal.diagnosis.crossval import RefitCV, fold_fit, lm_only, mark_lm_only, refit_cv
 from torchcal.diagnosis.spectral import fold_orders
 from torchcal.effects.spec import format_spec, parse_spec, parse_specs
 from torchcal.errors import InputError
@@ -124,6 +130,8 @@ def procedure_cv(current, f, spec: str, m, ctx, folds: np.ndarray, *, sigma_mm: 
         return refit_cv(f, m, ctx, folds, sigma_mm=sigma_mm, sigma_deg=sigma_deg), None
     _, pose_of_row = np.unique(m.pose.cpu().numpy(), return_inverse=True)
     sq = np.zeros(len(current.cv.sq))
+    # the chord where the current model's and the candidate's fold refits took it (`crossval.fold_refits`)
+    chord = not (lm_only(current.fit) or lm_only(f))
     for fo in labels:
         test = folds == fo
         poses = np.unique(pose_of_row[test])
@@ -134,7 +142,14 @@ def procedure_cv(current, f, spec: str, m, ctx, folds: np.ndarray, *, sigma_mm: 
         start = f if fold_specs[fo] == full else fold_start(f, current.fit, fold_specs[fo], m)
         t = torch.from_numpy(test)
         try:
-            res = fold_fit(start, m, ctx, ~t, sigma_mm=sigma_mm, sigma_deg=sigma_deg, posterior=False)
+            res = None
+            if chord:  # the chord fit from the start's own Jacobian; the LM where it does not apply
+                res = rf.refit_from(start, m, ctx, ~t, sigma_mm=sigma_mm, sigma_deg=sigma_deg, posterior=False)
+                if res is None:  # the later folds, and the next round's on top of f, share its conditioning
+                    chord = False
+                    mark_lm_only(f)
+            if res is None:
+                res = fold_fit(start, m, ctx, ~t, sigma_mm=sigma_mm, sigma_deg=sigma_deg, posterior=False)
         except InputError as e:
             return RefitCV(float("inf"), np.full(len(sq), np.inf), str(e)), None
         with torch.no_grad():

@@ -89,9 +89,15 @@ def test_restarts_that_stop_at_different_iterations_match_numpy():
     u0 /= u0.sum(axis=1, keepdims=True)
     refs = [numpy_fcm(x, u0[r], 2.0, 1e-8, 300) for r in range(5)]
     assert len({r[3] for r in refs}) > 1  # the batch shrinks as restarts stop
-    best = min(range(5), key=lambda r: (refs[r][2], r))
     res = fcm(x, 4, eps=1e-8, init_u=u0, restarts=5, chunk_size=64)
-    v_ref, u_ref, j_ref, it_ref = refs[best]
+    # restarts that reach the same minimum (here all, clusters permuted) have objectives
+    # equal to rounding, so which one is kept depends on the last bits: the kept one must
+    # reach the lowest objective and be, to 1e-12, numpy's run of one of those restarts
+    j_min = min(r[2] for r in refs)
+    kept = [r for r in range(5) if refs[r][2] <= j_min * (1 + 1e-12) and refs[r][3] == res.n_iter
+            and np.abs(res.memberships.numpy() - refs[r][1]).max() < 1e-12]
+    assert len(kept) == 1
+    v_ref, u_ref, j_ref, it_ref = refs[kept[0]]
     assert res.n_iter == it_ref and res.objective == pytest.approx(j_ref, rel=1e-12)
     np.testing.assert_allclose(res.memberships.numpy(), u_ref, rtol=0, atol=1e-12)
     np.testing.assert_allclose(res.centers.numpy(), v_ref, rtol=1e-12, atol=1e-12)

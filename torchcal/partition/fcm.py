@@ -63,6 +63,7 @@ import numpy as np
 import torch
 
 from torchcal.errors import InputError
+from torchcal.partition import _native
 
 __all__ = ["FCMResult", "fcm", "memberships", "objective"]
 
@@ -417,6 +418,7 @@ def _iterate(xt, U0, m, eps, max_iter, chunk):
     scratch = _Scratch(R, c, chunks[0][0][1], xt.dtype, xt.device)
     V = _start_centers(chunks, U0, m, scratch)  # (R, c, d)
     d = V.shape[-1]
+    fused = _fused_kernel(xt, m, c)
     V_prev = None
     checked = False  # becomes True for good once a pass fails its check
     ids = list(range(R))  # restart id of each row of V
@@ -427,7 +429,12 @@ def _iterate(xt, U0, m, eps, max_iter, chunk):
         last = it == max_iter
         if last and Ra == 1:
             U_last = torch.empty(c, N, dtype=xt.dtype, device=xt.device)
-        out = None if checked else _pass(chunks, V, V_prev, U0, m, eps, last, scratch, False, U_last)
+        if checked:
+            out = None
+        elif fused is not None:
+            out = _fused_pass(fused, xt, V, V_prev, U0 if eps > 0 else None, eps > 0, U_last)
+        else:
+            out = _pass(chunks, V, V_prev, U0, m, eps, last, scratch, False, U_last)
         if out is None:
             checked = True
             out = _pass(chunks, V, V_prev, U0, m, eps, last, scratch, True, U_last)
@@ -449,7 +456,46 @@ def _iterate(xt, U0, m, eps, max_iter, chunk):
     J, _, V_best, n_iter = best
     if U_last is not None and n_iter == max_iter:  # the kept restart is the one U_last is of
         return J, U_last, V_best, n_iter
+    if fused is not None:
+        U = torch.empty(c, N, dtype=xt.dtype, device=xt.device)
+        if _fused_pass(fused, xt, V_best[None], None, None, False, U) is not None:
+            return J, U, V_best, n_iter
     return J, _final_memberships(chunks, V_best[None], m, scratch, N), V_best, n_iter
+
+
+def _fused_kernel(xt: torch.Tensor, m: float, c: int):
+    """The compiled fused iteration (`torchcal.partition._native`) when it applies to points
+    xt (d, N): CPU, float64, m = 2, d and c within the kernel's limits; else None."""
+    if xt.device.type != "cpu" or xt.dtype != torch.float64 or m != 2.0:
+        return None
+    if xt.shape[0] > _native.DMAX or c > _native.CMAX:
+        return None
+    return _native.kernel()
+
+
+def _fused_pass(fn, xt, V, V_prev, U0, want_diff, out_u):
+    """One FCM iteration (m = 2) by the compiled kernel, restart by restart: points xt (d, N)
+    contiguous, centers V (R, c, d), V_prev (R, c, d) or None, U0 (R, c, N) (the starting
+    memberships, columns not normalised) or None; want_diff: sum ||U(V) - U(prev)||^2 (prev:
+    V_prev, else U0); out_u: None or (c, N) (R = 1) that receives U(V), and then no sums for
+    eq. 27 are made. Returns (diff2 (R,), J (R,), acc (d+1, R*c)) as `_pass`, or None when
+    some point failed the kernel's check (S = 0 or inf: a point on two centers, products that
+    under- or overflow) or a sum is not finite: the caller redoes the iteration checked.
+    diff2 is 0 unless want_diff."""
+    R, c, d = V.shape
+    N = xt.shape[1]
+    na = (d + 1) * c
+    out = torch.empty(R, na + 3, dtype=xt.dtype)
+    V = V.contiguous()
+    V_prev = V_prev.contiguous() if (want_diff and V_prev is not None) else None
+    U0 = U0.contiguous() if (want_diff and V_prev is None and U0 is not None) else None
+    for r in range(R):
+        fn(xt.data_ptr(), N, d, c, V[r].data_ptr(), 0 if V_prev is None else V_prev[r].data_ptr(),
+           0 if U0 is None else U0[r].data_ptr(), 0 if out_u is None else out_u.data_ptr(), out[r].data_ptr())
+    if not bool(torch.isfinite(out).all()):
+        return None
+    acc = out[:, :na].view(R, d + 1, c).transpose(0, 1).reshape(d + 1, R * c)
+    return out[:, na + 1], out[:, na], acc
 
 
 def _start_centers(chunks, U0: torch.Tensor, m: float, scratch: _Scratch) -> torch.Tensor:

@@ -207,6 +207,27 @@ def test_fused_kernel_hands_over_where_its_products_overflow(monkeypatch):
     assert res.objective == pytest.approx(j_ref, rel=1e-12)
 
 
+def test_fused_kernel_is_built_once_into_the_cache_and_can_be_turned_off(tmp_path, monkeypatch):
+    import shutil
+
+    if not (shutil.which("cc") or shutil.which("gcc")):
+        pytest.skip("no C compiler here")
+    build = _native.kernel.__wrapped__  # without the per-process cache
+    monkeypatch.setenv("TORCHCAL_CACHE", str(tmp_path))
+    monkeypatch.delenv("CC", raising=False)
+    monkeypatch.delenv("TORCHCAL_FCM_KERNEL", raising=False)
+    assert build() is not None
+    built = list(tmp_path.iterdir())
+    assert len(built) == 1 and built[0].name.startswith("fcm_kernel-") and built[0].suffix == ".so"  # no temporary left
+    stamp = built[0].stat().st_mtime_ns
+    assert build() is not None and list(tmp_path.iterdir()) == built and built[0].stat().st_mtime_ns == stamp
+    monkeypatch.setenv("TORCHCAL_FCM_KERNEL", "torch")
+    assert build() is None
+    monkeypatch.delenv("TORCHCAL_FCM_KERNEL")
+    monkeypatch.setenv("CC", str(tmp_path / "no-such-compiler"))
+    assert build() is None  # the eager kernel runs
+
+
 def test_chunking_and_default_start_do_not_change_results():
     x, _ = blobs(100, [[0, 0], [4, 0], [0, 4]], 0.5, 0)
     a = fcm(x, 3, seed=3, chunk_size=17)

@@ -8,7 +8,8 @@ The shared library is built once per machine with the C compiler found as $CC, `
 of the source, the compiler (path, size and date), the flags and the CPU's feature flags, so that a
 cache shared by different machines never loads code built for another CPU. It is written
 to a temporary name and renamed, so concurrent first uses do not see half a file. About
-2-3 s of CPU, once. TORCHCAL_FCM_KERNEL=torch turns it off (the eager kernel runs).
+2-3 s of CPU, once. TORCHCAL_FCM_KERNEL=torch turns it off (the eager kernel runs); the
+environment is read at a process's first FCM call.
 """
 
 from __future__ import annotations

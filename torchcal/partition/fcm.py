@@ -56,9 +56,9 @@ sums, reading x once and writing nothing but the memberships of the last iterati
 (docs/performance.md: 1.8-3.7 ns per point and iteration in 3-D against about 15 for the
 eager ops). A pass where some point's sum of products is 0 or inf (a point on two centers,
 or products of c - 1 squared distances beyond the float64 range: above about
-1e308^(1/(c-1)), 1e77 at c = 5) fails its check, and that iteration and all later ones run on the eager kernel described above,
-checked. Everything else (GPUs, float32, m != 2, the start, `memberships`, `objective`)
-is the eager kernel.
+1e308^(1/(c-1)), 1e77 at c = 5) fails its check, and that iteration and all later ones
+run on the eager kernel described above, checked. Everything else (GPUs, float32,
+m != 2, the start, `memberships`, `objective`) is the eager kernel.
 
 Rounding: the results equal eqs. 26-28 to the last bits, not bit for bit any other
 implementation (summation order over chunks and within the matrix-vector products; the

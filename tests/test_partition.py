@@ -356,7 +356,7 @@ def test_planted_blobs_are_recovered(centers):
     (dict(x=np.arange(5.0), c=2, init_u=[[1, 1, 1, 1, 1], [0, 0, float("nan"), 0, 0]]), r"init_u: expected finite, non-negative"),
     (dict(x=np.arange(5.0), c=2, init_u=[[1, 0, 1, 1, 1], [1, 0, 0, 0, 0]]), r"init_u: some point has all memberships 0"),
 ])
-def test_fcm_errors(kwargs, match):
+def test_fcm_errors(kwargs, match, kernel):
     with pytest.raises(ValueError, match=match) as info:
         fcm(**kwargs)
     assert isinstance(info.value, InputError)

@@ -1,5 +1,5 @@
-"""The fused FCM iteration of fcm_kernel.c, compiled on this machine at first use and loaded
-with ctypes; `kernel()` is None where that is not possible or not wanted, and fcm.py then
+"""The fused FCM iteration and start of fcm_kernel.c, compiled on this machine at first use
+and loaded with ctypes; `kernel()` is None where that is not possible or not wanted, and fcm.py then
 runs its eager torch kernel (the reference, and the path for GPUs, float32 and m != 2).
 
 The shared library is built once per machine with the C compiler found as $CC, `cc` or
@@ -61,8 +61,8 @@ def _build(cc: str, flags: list, out: Path) -> None:
 
 @functools.lru_cache(maxsize=1)
 def kernel():
-    """The loaded `fcm_pass_m2` (ctypes function), or None: turned off, no compiler, a failed
-    build or load. Built and loaded at most once per process."""
+    """The loaded library (ctypes; its `fcm_pass_m2` and `fcm_start_m2`), or None: turned
+    off, no compiler, a failed build or load. Built and loaded at most once per process."""
     if os.environ.get("TORCHCAL_FCM_KERNEL", "").lower() == "torch":
         return None
     cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
@@ -81,8 +81,8 @@ def kernel():
         lib = ctypes.CDLL(str(path))
     except (OSError, subprocess.SubprocessError):
         return None
-    fn = lib.fcm_pass_m2
-    P = ctypes.c_void_p
-    fn.argtypes = [P, ctypes.c_long, ctypes.c_int, ctypes.c_int, P, P, P, P, P]
-    fn.restype = ctypes.c_int
-    return fn
+    P, i = ctypes.c_void_p, ctypes.c_int
+    lib.fcm_pass_m2.argtypes = [P, ctypes.c_long, i, i, P, P, P, P, P]
+    lib.fcm_start_m2.argtypes = [P, ctypes.c_long, i, i, P, P]
+    lib.fcm_pass_m2.restype = lib.fcm_start_m2.restype = i
+    return lib

@@ -83,6 +83,9 @@ from torchcal.partition import _native
 
 __all__ = ["FCMResult", "fcm", "memberships", "objective"]
 
+_BAD_START = "init_u: expected finite, non-negative memberships"
+_ZERO_COLUMN = "init_u: some point has all memberships 0; expected each column to sum > 0"
+
 
 class FCMResult(NamedTuple):
     """Result of `fcm`.
@@ -336,7 +339,7 @@ def _start_u(U0c: torch.Tensor, out: torch.Tensor, Si, ones_c) -> torch.Tensor:
     column that sums to 0."""
     S = torch.bmm(ones_c, U0c, out=Si[0])  # (R, 1, n) column sums
     if not bool(S.amin() > 0):
-        raise InputError("init_u: some point has all memberships 0; expected each column to sum > 0")
+        raise InputError(_ZERO_COLUMN)
     return torch.div(U0c, S, out=out)
 
 
@@ -432,9 +435,11 @@ def _iterate(xt, U0, m, eps, max_iter, chunk):
     R, c, N = U0.shape
     chunks = _chunked(xt, chunk)
     scratch = _Scratch(R, c, chunks[0][0][1], xt.dtype, xt.device)
-    V = _start_centers(chunks, U0, m, scratch)  # (R, c, d)
-    d = V.shape[-1]
     fused = _fused_kernel(xt, m, c)
+    V = None if fused is None else _fused_start(fused, xt, U0)
+    if V is None:
+        V = _start_centers(chunks, U0, m, scratch)  # (R, c, d)
+    d = V.shape[-1]
     V_prev = None
     checked = False  # becomes True for good once a pass fails its check
     ids = list(range(R))  # restart id of each row of V
@@ -480,8 +485,9 @@ def _iterate(xt, U0, m, eps, max_iter, chunk):
 
 
 def _fused_kernel(xt: torch.Tensor, m: float, c: int):
-    """The compiled fused iteration (`torchcal.partition._native`) when it applies to points
-    xt (d, N): CPU, float64, m = 2, d and c within the kernel's limits; else None."""
+    """The compiled fused kernels (`torchcal.partition._native`: a ctypes library) when they
+    apply to points xt (d, N): CPU, float64, m = 2, d and c within the kernel's limits;
+    else None."""
     if xt.device.type != "cpu" or xt.dtype != torch.float64 or m != 2.0:
         return None
     if xt.shape[0] > _native.DMAX or c > _native.CMAX:
@@ -489,12 +495,34 @@ def _fused_kernel(xt: torch.Tensor, m: float, c: int):
     return _native.kernel()
 
 
-def _fused_pass(fn, xt, V, V_prev, U0, want_diff, out_u):
-    """One FCM iteration (m = 2) by the compiled kernel, restart by restart: points xt (d, N)
-    contiguous, centers V (R, c, d), V_prev (R, c, d) or None, U0 (R, c, N) (the starting
-    memberships, columns not normalised) or None; want_diff: sum ||U(V) - U(prev)||^2 (prev:
-    V_prev, else U0); out_u: None or (c, N) (R = 1) that receives U(V), and then no sums for
-    eq. 27 are made. Returns (diff2 (R,), J (R,), acc (d+1, R*c)) as `_pass`, or None when
+def _fused_start(lib, xt, U0) -> torch.Tensor | None:
+    """Eq. 27 from the starting memberships U0 (R, c, N) (columns not normalised) by the
+    compiled kernel (`fcm_start_m2`): points xt (d, N) contiguous -> centers (R, c, d), or
+    None where a sum is not finite (the caller then starts the eager way). Raises InputError
+    as `_start_centers` for a negative, NaN or inf value (first) or a column that sums to 0."""
+    R, c, N = U0.shape
+    d = xt.shape[0]
+    na = (d + 1) * c
+    U0 = U0.contiguous()
+    out = torch.empty(R, na + 2, dtype=xt.dtype)
+    for r in range(R):
+        lib.fcm_start_m2(xt.data_ptr(), N, d, c, U0[r].data_ptr(), out[r].data_ptr())
+    if bool((out[:, na] > 0).any()):
+        raise InputError(_BAD_START)
+    if bool((out[:, na + 1] > 0).any()):
+        raise InputError(_ZERO_COLUMN)
+    acc = out[:, :na].view(R, d + 1, c)
+    if not bool(torch.isfinite(acc).all()):
+        return None
+    return (acc[:, :d] / acc[:, d:]).transpose(1, 2).contiguous()  # (R, c, d)
+
+
+def _fused_pass(lib, xt, V, V_prev, U0, want_diff, out_u):
+    """One FCM iteration (m = 2) by the compiled kernel (`fcm_pass_m2`), restart by restart:
+    points xt (d, N) contiguous, centers V (R, c, d), V_prev (R, c, d) or None, U0 (R, c, N)
+    (the starting memberships, columns not normalised) or None; want_diff: sum
+    ||U(V) - U(prev)||^2 (prev: V_prev, else U0); out_u: None or (c, N) (R = 1) that
+    receives U(V), and then no sums for eq. 27 are made. Returns (diff2 (R,), J (R,), acc (d+1, R*c)) as `_pass`, or None when
     some point failed the kernel's check (S = 0 or inf: a point on two centers, products that
     under- or overflow) or a sum is not finite: the caller redoes the iteration checked.
     diff2 is 0 unless want_diff."""
@@ -506,8 +534,9 @@ def _fused_pass(fn, xt, V, V_prev, U0, want_diff, out_u):
     V_prev = V_prev.contiguous() if (want_diff and V_prev is not None) else None
     U0 = U0.contiguous() if (want_diff and V_prev is None and U0 is not None) else None
     for r in range(R):
-        fn(xt.data_ptr(), N, d, c, V[r].data_ptr(), 0 if V_prev is None else V_prev[r].data_ptr(),
-           0 if U0 is None else U0[r].data_ptr(), 0 if out_u is None else out_u.data_ptr(), out[r].data_ptr())
+        lib.fcm_pass_m2(xt.data_ptr(), N, d, c, V[r].data_ptr(), 0 if V_prev is None else V_prev[r].data_ptr(),
+                        0 if U0 is None else U0[r].data_ptr(), 0 if out_u is None else out_u.data_ptr(),
+                        out[r].data_ptr())
     if not bool(torch.isfinite(out).all()):
         return None
     acc = out[:, :na].view(R, d + 1, c).transpose(0, 1).reshape(d + 1, R * c)
@@ -525,7 +554,7 @@ def _start_centers(chunks, U0: torch.Tensor, m: float, scratch: _Scratch) -> tor
         w, t, _, Si, ones_c, ones = scratch.views(R, e - s)
         lo, hi = torch.aminmax(U0[..., s:e])
         if not bool((lo >= 0) & (hi < math.inf)):
-            raise InputError("init_u: expected finite, non-negative memberships")
+            raise InputError(_BAD_START)
         u = _start_u(U0[..., s:e], w, Si, ones_c)
         um = torch.mul(u, u, out=t) if m == 2.0 else torch.pow(u, m, out=t)
         _accumulate(acc.unbind(0), um.view(R * c, e - s), rows, ones)

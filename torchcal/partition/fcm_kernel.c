@@ -215,3 +215,64 @@ int fcm_pass_m2(const double *xt, long N, int d, int c, const double *V, const d
         pass_any(xt, N, d, c, V, Vp, U0, U, out);
     return 0;
 }
+
+/* The first centers (eq. 27, m = 2) from starting memberships U0 (c, N) (columns not
+ * normalised): out[k c + i] = sum_j u_ij^2 x_kj (k < d), out[d c + i] = sum_j u_ij^2 with
+ * u_ij = U0_ij / sum_l U0_lj, summed as in pass_body; out[(d+1) c] = the number of values of
+ * U0 that are negative, NaN or inf, out[(d+1) c + 1] the number of columns whose sum is not
+ * > 0 (the sums are then meaningless). Returns 0, or -1 when d or c is beyond DMAX or CMAX. */
+int fcm_start_m2(const double *restrict xt, long N, int d, int c, const double *restrict U0,
+                 double *restrict out)
+{
+    if (d < 1 || d > DMAX || c < 2 || c > CMAX)
+        return -1;
+    const int na = (d + 1) * c;
+    v8 tot[(DMAX + 1) * CMAX], blk[(DMAX + 1) * CMAX];
+    v8 bad = {0}, zero = {0};
+    for (int q = 0; q < na; q++)
+        tot[q] = (v8){0};
+    for (long b = 0; b < N; b += BLOCK) {
+        long e = b + BLOCK < N ? b + BLOCK : N;
+        for (int q = 0; q < na; q++)
+            blk[q] = (v8){0};
+        for (long j = b; j < e; j += 8) {
+            int n = e - j < 8 ? (int)(e - j) : 8;
+            v8 x[DMAX], u[CMAX], s = {0}, mask = (v8){0} + 1.0;
+            for (int l = n; l < 8; l++)
+                mask[l] = 0.0;
+            for (int k = 0; k < d; k++)
+                x[k] = n == 8 ? *(const v8u *)(xt + k * N + j) : load_tail(xt + k * N + j, n);
+            for (int i = 0; i < c; i++) {
+                u[i] = n == 8 ? *(const v8u *)(U0 + i * N + j) : load_tail(U0 + i * N + j, n);
+                /* 1 where the value is not in [0, inf): negative, NaN or inf */
+                bad += mask * (1.0 + __builtin_convertvector((u[i] >= 0.0) & (u[i] < __builtin_inf()), v8));
+                s += u[i];
+            }
+            zero += mask * (1.0 + __builtin_convertvector(s > 0.0, v8));
+            v8 is = 1.0 / s;
+            for (int i = 0; i < c; i++) {
+                v8 u2 = u[i] * is;
+                u2 = u2 * u2 * mask;
+                for (int k = 0; k < d; k++)
+                    blk[k * c + i] += u2 * x[k];
+                blk[d * c + i] += u2;
+            }
+        }
+        for (int q = 0; q < na; q++)
+            tot[q] += blk[q];
+    }
+    for (int q = 0; q < na; q++) {
+        double t = 0.0;
+        for (int l = 0; l < 8; l++)
+            t += tot[q][l];
+        out[q] = t;
+    }
+    double nb = 0.0, nz = 0.0;
+    for (int l = 0; l < 8; l++) {
+        nb += bad[l];
+        nz += zero[l];
+    }
+    out[na] = nb;
+    out[na + 1] = nz;
+    return 0;
+}

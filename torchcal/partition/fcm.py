@@ -53,12 +53,12 @@ points the squared distances, eq. 28 as the product form u_i = q_i / sum_l q_l w
 q_i = prod_{k != i} d_k^2 (one division per point; a point on one center gets u = 1 there
 exactly), eq. 26, the norm against the previous memberships when eps > 0, and eq. 27's
 sums, reading x once and writing nothing but the memberships of the last iteration
-(docs/performance.md: 1.8-3.7 ns per point and iteration in 3-D against about 15 for the
-eager ops). A pass where some point's sum of products is 0 or inf (a point on two centers,
+(docs/performance.md: 1.8-4.9 ns per point and iteration in 3-D against about 15 for the
+eager ops); the first centers from the starting memberships are one such pass too. A pass where some point's sum of products is 0 or inf (a point on two centers,
 or products of c - 1 squared distances beyond the float64 range: above about
 1e308^(1/(c-1)), 1e77 at c = 5) fails its check, and that iteration and all later ones
 run on the eager kernel described above, checked. Everything else (GPUs, float32,
-m != 2, the start, `memberships`, `objective`) is the eager kernel.
+m != 2, `memberships`, `objective`) is the eager kernel.
 
 Rounding: the results equal eqs. 26-28 to the last bits, not bit for bit any other
 implementation (summation order over chunks and within the matrix-vector products; the

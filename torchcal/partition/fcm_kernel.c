@@ -1,4 +1,5 @@
-/* One fused iteration of fuzzy c-means with m = 2 over all points, for torchcal.partition.fcm
+/* One fused iteration of fuzzy c-means with m = 2 over all points (fcm_pass_m2), and the
+ * first centers from starting memberships (fcm_start_m2), for torchcal.partition.fcm
  * (docs/paper.md eqs. 26-28). Compiled on the user's machine at first use and loaded with
  * ctypes by torchcal/partition/_native.py; the eager torch kernel of fcm.py is the reference
  * and the fallback.
@@ -22,8 +23,8 @@ typedef double v8u __attribute__((vector_size(64), aligned(8)));
 
 enum { DMAX = 8, CMAX = 16, BLOCK = 4096 };
 
-/* Memberships of eight points x[0..d-1] from centers V (c, d): u[0..c-1]; returns via *S
- * and *J the sum of the products and prod_i d2_i / S. */
+/* Memberships of eight points x[0..d-1] from centers V (c, d): u[0..c-1]; *chk = S * (1/S)
+ * (NaN or inf where S is 0 or inf), *J = prod_i d2_i / S (their part of eq. 26). */
 static inline __attribute__((always_inline)) void
 memberships8(const v8 *x, const double *restrict V, int d, int c, v8 *u, v8 *chk, v8 *J)
 {

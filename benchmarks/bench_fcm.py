@@ -18,14 +18,18 @@ median CPU seconds of the process (all its threads; on a shared machine the figu
 compare at 1 thread), iterations per second, the speed ratios by wall and by CPU
 time, and how far apart the two results are.
 
-Then, for torch on one thread, what bounds an iteration: its CPU time per point (the
-slope between a 1-iteration and a 10-iteration run at eps = 0, so the start and the final memberships
-are left out) beside a floor built from rates measured in the same run: the bytes one
-iteration moves per point through the L2 cache (eager torch ops, each a pass over the
+Which kernel iterates is printed: the fused one (torchcal/partition/fcm_kernel.c, built
+once per machine at first use: the time `_native.kernel()` took in this run is printed, a
+few ms when already built) or the eager torch one (TORCHCAL_FCM_KERNEL=torch, or no C
+compiler). Then, on one thread, what bounds an iteration: its CPU time per point (the
+slope between a 1-iteration and a 10-iteration run at eps = 0, so the start and the final
+memberships are left out) beside floors from rates measured in the same run. Fused: the
+8 d bytes of x read from memory at the rate of a large sum (the memory-bandwidth bound)
+and its one division per point at the rate of an in-cache reciprocal. Eager: the bytes
+one iteration moves per point through the L2 cache (eager torch ops, each a pass over the
 chunk's (c, n) scratch, `bytes_per_point`) at the rate of an in-cache multiply, its c + 1
-divisions per point at the rate of an in-cache reciprocal, the 8 d bytes of x read from
-memory at the rate of a large sum, and the op dispatches per chunk at the cost of an op
-on one element.
+divisions per point at the rate of an in-cache reciprocal, x from memory, and the op
+dispatches per chunk at the cost of an op on one element.
 
 Timings need cores to themselves: torch's OpenMP threads spin-wait at each op, so on a
 machine shared with other busy jobs (the load average is printed) a descheduled thread
@@ -42,7 +46,7 @@ import time
 
 
 def bytes_per_point(c: int, d: int) -> tuple:
-    """What one iteration of torchcal's FCM (m = 2, eps = 0, float64) moves per point:
+    """What one iteration of torchcal's eager FCM kernel (m = 2, eps = 0, float64) moves per point:
     (bytes through the L2 cache outside the division passes, bytes in the division passes,
     divisions, ops per chunk). The ops on a chunk of n points, each reading and writing
     (c, n) float64 buffers: d = 1: x - v (writes 8c; x itself comes from memory), 1/d^2
@@ -97,7 +101,12 @@ def main(argv=None) -> int:
     import torch
 
     sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+    from torchcal.partition import _native
     from torchcal.partition.fcm import fcm
+
+    t0 = time.perf_counter()
+    fused = _native.kernel() is not None
+    build_s = time.perf_counter() - t0
 
     fcm_base = None
     if args.baseline:
@@ -116,6 +125,8 @@ def main(argv=None) -> int:
           f"{args.threads} threads, median of {args.repeats}; torch {torch.__version__}, "
           f"scikit-fuzzy {getattr(skfuzzy, '__version__', '?')}, numpy {np.__version__}")
     print(f"load average before: {' '.join(f'{v:.2f}' for v in os.getloadavg())} (machine shared with other jobs)")
+    print("kernel: " + (f"fused (fcm_kernel.c; built or loaded in {build_s:.3f} s wall)" if fused else
+                        "eager torch (TORCHCAL_FCM_KERNEL=torch, or no C compiler)"))
     print(f"{'d':>2} {'method':<24} {'time s':>8} {'min s':>7} {'cpu s':>7} {'iter/s':>8} {'speed-up':>9} "
           f"{'by cpu':>7}   agreement")
     rng = np.random.default_rng(0)
@@ -157,7 +168,7 @@ def main(argv=None) -> int:
                     ts.append(time.process_time() - c0)
                 cpu[name] = statistics.median(ts)
             bounds.append((d, (cpu["K"] - cpu["1"]) / (KB - 1) / args.n * 1e9))
-        contenders = [("torchcal.partition.fcm (torch)", run_torch), ("skfuzzy.cluster.cmeans", run_skfuzzy)]
+        contenders = [("torchcal.partition.fcm", run_torch), ("skfuzzy.cluster.cmeans", run_skfuzzy)]
         if fcm_base is not None:
             contenders.insert(1, ("baseline", run_base))
         times = {name: ([], []) for name, _ in contenders}
@@ -171,10 +182,10 @@ def main(argv=None) -> int:
                 times[name][0].append(time.perf_counter() - t0)
                 times[name][1].append(time.process_time() - c0)
         times = {name: (statistics.median(ts), min(ts), statistics.median(cs)) for name, (ts, cs) in times.items()}
-        (ct, ut, it_t), (cs, us, it_s) = out["torchcal.partition.fcm (torch)"], out["skfuzzy.cluster.cmeans"]
+        (ct, ut, it_t), (cs, us, it_s) = out["torchcal.partition.fcm"], out["skfuzzy.cluster.cmeans"]
         agree = f"max|dV| {np.abs(ct - cs).max():.1e}, max|dU| {np.abs(ut - us).max():.1e}, iterations {it_t} / {it_s}"
-        n_it = {"torchcal.partition.fcm (torch)": it_t, "skfuzzy.cluster.cmeans": it_s}
-        notes = {"torchcal.partition.fcm (torch)": agree, "skfuzzy.cluster.cmeans": "(reference)"}
+        n_it = {"torchcal.partition.fcm": it_t, "skfuzzy.cluster.cmeans": it_s}
+        notes = {"torchcal.partition.fcm": agree, "skfuzzy.cluster.cmeans": "(reference)"}
         if fcm_base is not None:
             cb, ub, it_b = out["baseline"]
             n_it["baseline"] = it_b
@@ -189,10 +200,15 @@ def main(argv=None) -> int:
     if bounds:
         r = machine_rates(torch)
         chunk = max(1024, (1 << 15) // c)
-        print(f"one iteration, torch, 1 thread, CPU time per point (runs of 1 and {KB} iterations, eps 0) against the floor "
+        print(f"one iteration, 1 thread, CPU time per point (runs of 1 and {KB} iterations, eps 0) against the floor "
               f"of its passes; rates now: in-cache multiply {r['l2_gbs']:.0f} GB/s, reciprocal {r['div_ns']:.2f} ns, "
               f"memory read {r['mem_gbs']:.1f} GB/s, one op {r['op_us']:.2f} us")
         for d, ns in bounds:
+            if fused:
+                mem, div = 8 * d / r["mem_gbs"], r["div_ns"]
+                print(f"{d:>2} {ns:.2f} ns per point (fused); x from memory {8 * d} B {mem:.2f} ns ({ns / mem:.1f}x), "
+                      f"1 division {div:.2f} ns ({ns / div:.1f}x)")
+                continue
             l2, l2_div, divs, ops = bytes_per_point(c, d)
             parts = {"L2": l2 / r["l2_gbs"], "div": divs * r["div_ns"], "mem": 8 * d / r["mem_gbs"],
                      "ops": ops * r["op_us"] * 1e3 / chunk}

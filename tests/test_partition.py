@@ -4,6 +4,7 @@ and `torchcal partition`."""
 import csv
 import json
 import math
+import sys
 
 import numpy as np
 import pytest
@@ -11,6 +12,7 @@ import torch
 
 from torchcal import cli
 from torchcal.errors import InputError
+from torchcal.partition import _native
 from torchcal.partition.fcm import fcm, memberships, objective
 from torchcal.io.partition_file import (load_partition, partition_from_dict, partition_from_json,
                                         partition_to_json, save_partition)
@@ -27,6 +29,45 @@ def blobs(n_per, centers, std, seed):
     x = np.concatenate([c + std * rng.standard_normal((n_per, centers.shape[1])) for c in centers])
     y = np.repeat(np.arange(len(centers)), n_per)
     return x, y
+
+
+def use_kernel(name, monkeypatch):
+    """Make fcm iterate with one kernel: "fused" (fcm_kernel.c, m = 2, float64, CPU; the test
+    is skipped where no C compiler builds it) or "torch" (the eager one). Returns the list of
+    the fused passes run: True accepted, False failed its check and redone eagerly."""
+    mod = sys.modules["torchcal.partition.fcm"]
+    runs = []
+    if name == "torch":
+        monkeypatch.setattr(mod, "_fused_kernel", lambda *args: None)
+        return runs
+    if _native.kernel() is None:
+        pytest.skip("no C compiler here: the fused FCM kernel is not built")
+    fused_pass = mod._fused_pass
+
+    def spy(*args):
+        out = fused_pass(*args)
+        runs.append(out is not None)
+        return out
+
+    monkeypatch.setattr(mod, "_fused_pass", spy)
+    return runs
+
+
+@pytest.fixture(params=["fused", "torch"])
+def kernel(request, monkeypatch):
+    """(name, fused passes run) for each kernel in turn (`use_kernel`)."""
+    return request.param, use_kernel(request.param, monkeypatch)
+
+
+def ran(kernel) -> bool:
+    """The test ran on the kernel it names: the eager one, or fused passes (all accepted)."""
+    name, runs = kernel
+    return name == "torch" or (len(runs) > 0 and all(runs))
+
+
+def skip_fused_unless_m2(kernel, m):
+    if kernel[0] == "fused" and m != 2.0:
+        pytest.skip("the fused kernel is m = 2 only (other m run the eager one)")
 
 
 # ------------------------------------------------------------------ FCM vs scikit-fuzzy
@@ -69,35 +110,44 @@ def numpy_fcm(x, u0, m, eps, max_iter):
 
 @pytest.mark.parametrize("d, m, eps, chunk", [(1, 2.0, 1e-9, None), (1, 2.0, 1e-9, 37), (3, 2.0, 1e-9, 37),
                                                (2, 1.7, 1e-9, 50), (3, 2.0, 0.0, None), (2, 3.0, 0.0, 37)])
-def test_fcm_matches_the_formulas_in_numpy(d, m, eps, chunk):
+def test_fcm_matches_the_formulas_in_numpy(d, m, eps, chunk, kernel):
     # tight: the kernel's last bits differ from numpy's (summation order, 1/S vs the ratio form)
+    skip_fused_unless_m2(kernel, m)
     x, _ = blobs(150, [[0.0] * d, [4.0] + [0.0] * (d - 1), [0.0] * (d - 1) + [-5.0]], 0.8, 11)
     u0 = np.random.default_rng(12).random((3, 450))
     u0 /= u0.sum(axis=0)
     v_ref, u_ref, j_ref, it_ref = numpy_fcm(x, u0, m, eps, 40)
     assert it_ref < 40 if eps > 0 else it_ref == 40  # converged runs exercise the stopping rule
     res = fcm(x, 3, m=m, eps=eps, max_iter=40, init_u=u0, chunk_size=chunk)
+    assert ran(kernel)
     assert res.n_iter == it_ref
     np.testing.assert_allclose(res.memberships.numpy(), u_ref, rtol=0, atol=1e-12)
     np.testing.assert_allclose(res.centers.numpy(), v_ref, rtol=1e-12, atol=1e-12)
     assert res.objective == pytest.approx(j_ref, rel=1e-12)
 
 
-def test_restarts_that_stop_at_different_iterations_match_numpy():
+def test_restarts_that_stop_at_different_iterations_match_numpy(kernel):
     x, _ = blobs(100, [[0.0, 0.0], [3.0, 0.5], [0.5, 3.5], [4.0, 4.0]], 0.9, 13)
     u0 = np.random.default_rng(14).random((5, 4, 400))
     u0 /= u0.sum(axis=1, keepdims=True)
     refs = [numpy_fcm(x, u0[r], 2.0, 1e-8, 300) for r in range(5)]
     assert len({r[3] for r in refs}) > 1  # the batch shrinks as restarts stop
-    best = min(range(5), key=lambda r: (refs[r][2], r))
     res = fcm(x, 4, eps=1e-8, init_u=u0, restarts=5, chunk_size=64)
-    v_ref, u_ref, j_ref, it_ref = refs[best]
+    assert ran(kernel)
+    # restarts that reach the same minimum (here all, clusters permuted) have objectives
+    # equal to rounding, so which one is kept depends on the last bits: the kept one must
+    # reach the lowest objective and be, to 1e-12, numpy's run of one of those restarts
+    j_min = min(r[2] for r in refs)
+    kept = [r for r in range(5) if refs[r][2] <= j_min * (1 + 1e-12) and refs[r][3] == res.n_iter
+            and np.abs(res.memberships.numpy() - refs[r][1]).max() < 1e-12]
+    assert len(kept) == 1
+    v_ref, u_ref, j_ref, it_ref = refs[kept[0]]
     assert res.n_iter == it_ref and res.objective == pytest.approx(j_ref, rel=1e-12)
     np.testing.assert_allclose(res.memberships.numpy(), u_ref, rtol=0, atol=1e-12)
     np.testing.assert_allclose(res.centers.numpy(), v_ref, rtol=1e-12, atol=1e-12)
 
 
-def test_a_restart_cut_at_max_iter_beside_one_that_stopped_earlier_matches_numpy():
+def test_a_restart_cut_at_max_iter_beside_one_that_stopped_earlier_matches_numpy(kernel):
     # at the last allowed iteration one restart is left: its memberships are written during
     # that pass; the kept one stopped earlier (lower objective), so U is recomputed from it
     x, y = blobs(60, [[0.0], [3.0], [6.0], [20.0]], 1.0, 21)
@@ -110,9 +160,72 @@ def test_a_restart_cut_at_max_iter_beside_one_that_stopped_earlier_matches_numpy
     for init, (v, u, j, it) in ((np.stack([rnd, good]), (v_g, u_g, j_g, it_g)), (rnd, (v_r, u_r, j_r, it_r))):
         res = fcm(x, 3, eps=1e-3, max_iter=it_g + 1, init_u=init, restarts=len(init) if init.ndim == 3 else 1,
                   chunk_size=50)
+        assert ran(kernel)
         assert res.n_iter == it and res.objective == pytest.approx(j, rel=1e-12)
         np.testing.assert_allclose(res.memberships.numpy(), u, rtol=0, atol=1e-12)
         np.testing.assert_allclose(res.centers.numpy(), v, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("d, c, n, eps", [
+    (3, 4, 8205, 0.0),   # two full blocks of 4096 points and a ragged end of 13 (not a multiple of 8)
+    (2, 5, 4103, 1e-9),  # converged: the norm against the start, then against the previous centers
+    (1, 2, 5, 0.0),      # fewer points than one group of eight
+    (4, 7, 1003, 1e-9),  # beyond the specialised d <= 3, c <= 6: the general loop
+])
+def test_fused_kernel_matches_the_formulas_in_numpy(d, c, n, eps, monkeypatch):
+    # the fused kernel's sums per lane, per block of 4096 points and over the blocks, its
+    # ragged ends and product form of eq. 28, against numpy_fcm (independent code)
+    runs = use_kernel("fused", monkeypatch)
+    rng = np.random.default_rng(n)
+    centers = rng.uniform(-6.0, 6.0, (c, d))
+    x = centers[rng.integers(0, c, n)] + rng.standard_normal((n, d))
+    u0 = rng.random((c, n))
+    v_ref, u_ref, j_ref, it_ref = numpy_fcm(x, u0 / u0.sum(axis=0), 2.0, eps, 15 if eps == 0 else 300)
+    assert it_ref < 300
+    res = fcm(x, c, eps=eps, max_iter=15 if eps == 0 else 300, init_u=u0)
+    assert len(runs) == res.n_iter + (eps > 0) and all(runs)  # every iteration (+ U at the end when eps > 0)
+    assert res.n_iter == it_ref
+    np.testing.assert_allclose(res.memberships.numpy(), u_ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(res.centers.numpy(), v_ref, rtol=1e-12, atol=1e-12)
+    assert res.objective == pytest.approx(j_ref, rel=1e-12)
+
+
+def test_fused_kernel_hands_over_where_its_products_overflow(monkeypatch):
+    # at 1e40 the squared distances are ~1e80 and the product form's products of c - 1 = 5 of
+    # them overflow: the fused pass fails its check and the eager kernel redoes the iteration
+    runs = use_kernel("fused", monkeypatch)
+    x, _ = blobs(40, [[0.0, 0.0, 0.0], [3.0, 0.0, 0.0], [0.0, 3.0, 0.0], [0.0, 0.0, 3.0], [3.0, 3.0, 3.0],
+                      [-3.0, 0.0, 3.0]], 0.5, 9)
+    x = x * 1e40
+    u0 = np.random.default_rng(9).random((6, 240))
+    v_ref, u_ref, j_ref, it_ref = numpy_fcm(x, u0 / u0.sum(axis=0), 2.0, 0.0, 8)
+    res = fcm(x, 6, eps=0.0, max_iter=8, init_u=u0)
+    assert runs == [False]  # tried once; later iterations stay on the checked eager path
+    assert res.n_iter == it_ref
+    np.testing.assert_allclose(res.memberships.numpy(), u_ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(res.centers.numpy() / 1e40, v_ref / 1e40, rtol=1e-12, atol=1e-12)
+    assert res.objective == pytest.approx(j_ref, rel=1e-12)
+
+
+def test_fused_kernel_is_built_once_into_the_cache_and_can_be_turned_off(tmp_path, monkeypatch):
+    import shutil
+
+    if not (shutil.which("cc") or shutil.which("gcc")):
+        pytest.skip("no C compiler here")
+    build = _native.kernel.__wrapped__  # without the per-process cache
+    monkeypatch.setenv("TORCHCAL_CACHE", str(tmp_path))
+    monkeypatch.delenv("CC", raising=False)
+    monkeypatch.delenv("TORCHCAL_FCM_KERNEL", raising=False)
+    assert build() is not None
+    built = list(tmp_path.iterdir())
+    assert len(built) == 1 and built[0].name.startswith("fcm_kernel-") and built[0].suffix == ".so"  # no temporary left
+    stamp = built[0].stat().st_mtime_ns
+    assert build() is not None and list(tmp_path.iterdir()) == built and built[0].stat().st_mtime_ns == stamp
+    monkeypatch.setenv("TORCHCAL_FCM_KERNEL", "torch")
+    assert build() is None
+    monkeypatch.delenv("TORCHCAL_FCM_KERNEL")
+    monkeypatch.setenv("CC", str(tmp_path / "no-such-compiler"))
+    assert build() is None  # the eager kernel runs
 
 
 def test_chunking_and_default_start_do_not_change_results():
@@ -243,7 +356,7 @@ def test_planted_blobs_are_recovered(centers):
     (dict(x=np.arange(5.0), c=2, init_u=[[1, 1, 1, 1, 1], [0, 0, float("nan"), 0, 0]]), r"init_u: expected finite, non-negative"),
     (dict(x=np.arange(5.0), c=2, init_u=[[1, 0, 1, 1, 1], [1, 0, 0, 0, 0]]), r"init_u: some point has all memberships 0"),
 ])
-def test_fcm_errors(kwargs, match):
+def test_fcm_errors(kwargs, match, kernel):
     with pytest.raises(ValueError, match=match) as info:
         fcm(**kwargs)
     assert isinstance(info.value, InputError)

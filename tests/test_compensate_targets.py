@@ -225,8 +225,7 @@ def test_targets_in_the_other_frame_are_named(tracker_model, capsys, given, fram
     assert main(["compensate", str(path), "--model", str(d / "model.json"), "--frame", given, "--out", str(out)]) == 0
 
 
-@pytest.mark.parametrize("name", ["ur5e", "puma560"])
-def test_the_stall_stop_leaves_reachable_targets_bit_for_bit_and_stops_far_ones_early(name, monkeypatch):
+def test_the_stall_stop_leaves_reachable_targets_bit_for_bit_and_stops_far_ones_early(monkeypatch):
     """`compensate` stops a row whose residual fell by less than STALL_FRACTION over its last
     STALL_ITERS iterations. Reachable targets started from a poor seed (the middle of the
     joint limits: tens of iterations of short steps) come out bit for bit as with the rule
@@ -236,8 +235,8 @@ def test_the_stall_stop_leaves_reachable_targets_bit_for_bit_and_stops_far_ones_
     from torchcal.calibration import compensate as comp
     from torchcal.calibration.model import CalibrationModel
 
-    rob = torchcal.robot(name)
-    model = CalibrationModel(rob, ["base_frame", "tool_offset"])
+    rob = torchcal.robot("puma560")  # of the presets, the one whose slow rows came nearest the rule
+    model = CalibrationModel(rob)  # MD-H deviations only: the analytic joint Jacobian (the rule is the same)
     theta = (torch.rand(model.n_params, generator=torch.Generator().manual_seed(1), dtype=torch.float64) - 0.5) * 1e-3
     q = random_poses(rob, 60, 7)
     reach = rob.fk(q)

@@ -223,3 +223,34 @@ def test_targets_in_the_other_frame_are_named(tracker_model, capsys, given, fram
     assert err.endswith(f"but read in the {other} they would lie within its reach: they look like coordinates in "
                         f"the {other}; pass --frame {given}\n") and not out.exists()
     assert main(["compensate", str(path), "--model", str(d / "model.json"), "--frame", given, "--out", str(out)]) == 0
+
+
+def test_the_stall_stop_leaves_reachable_targets_bit_for_bit_and_stops_far_ones_early(monkeypatch):
+    """`compensate` stops a row whose residual fell by less than STALL_FRACTION over its last
+    STALL_ITERS iterations. Reachable targets started from a poor seed (the middle of the
+    joint limits: tens of iterations of short steps) come out bit for bit as with the rule
+    off, iteration counts included; targets beyond the reach, started from the pose that
+    reaches nearest them (as `nominal_start` does), stop long before max_iter, their
+    residual within 1e-4 of where all 100 iterations leave it with the rule off."""
+    from torchcal.calibration import compensate as comp
+    from torchcal.calibration.model import CalibrationModel
+
+    rob = torchcal.robot("puma560")  # of the presets, the one whose slow rows came nearest the rule
+    model = CalibrationModel(rob)  # MD-H deviations only: the analytic joint Jacobian (the rule is the same)
+    theta = (torch.rand(model.n_params, generator=torch.Generator().manual_seed(1), dtype=torch.float64) - 0.5) * 1e-3
+    q = random_poses(rob, 60, 7)
+    reach = rob.fk(q)
+    far = reach[:2] / reach[:2].norm(dim=-1, keepdim=True) * 5000.0  # 5 m from the base: beyond the reach
+    t = torch.cat([reach, far])
+    # reachable rows from the middle of the limits; far rows from the pose nearest them (as nominal_start)
+    q0 = torch.cat([rob.limits.mean(-1).expand(len(reach), rob.n), q[:2]])
+    on = comp.compensate(model, theta, t, q0, max_iter=100)
+    monkeypatch.setattr(comp, "STALL_ITERS", 10**9)  # the rule off
+    off = comp.compensate(model, theta, t, q0, max_iter=100)
+    assert off.converged[:60].sum() >= 20 and not off.converged[60:].any()  # a third or more converge in 100
+    done = off.converged
+    assert torch.equal(on.q[done], off.q[done]) and torch.equal(on.iterations[done], off.iterations[done])
+    assert torch.equal(on.converged, off.converged)
+    assert (off.iterations[60:] == 100).all() and (on.iterations[60:] < 60).all()
+    e_on, e_off = on.residual_mm[60:].norm(dim=-1), off.residual_mm[60:].norm(dim=-1)
+    assert ((e_on - e_off) / e_off).abs().max() < 1e-4

@@ -22,7 +22,13 @@ joint space (Levenberg-Marquardt on the joints)
 which keeps the redundant joints (the orientation) at the seed's values to first order.
 lambda is 1e-9 of trace(J J^T) / 3 (just enough to stay regular near a singularity); a
 step that increases the residual is halved (up to 30 times), a step longer than
-`max_step_rad` is shortened. J is the analytic joint Jacobian for geometric-only models
+`max_step_rad` is shortened. A row whose residual fell by less than STALL_FRACTION of
+itself over its last STALL_ITERS iterations stops there, not converged: a target beyond
+the reach (or one the arm cannot get nearer from its configuration) creeps toward the
+stretched arm by about 1e-6 of its residual per iteration, and would otherwise hold the
+whole batch for every one of `max_iter` iterations; a target that converges falls far
+faster (the rule never stops one: `tests/test_compensate_targets.py`). J is the analytic
+joint Jacobian for geometric-only models
 (`torchcal.kinematics.mdh.joint_jacobian` with the zone's deviations) and reverse-mode
 autograd of `CalibrationModel.predict` otherwise. Every target is solved in one batch.
 
@@ -52,6 +58,8 @@ __all__ = ["Compensation", "compensate", "predict_rows", "nominal_inverse", "nom
 
 FRAMES = ("measuring", "base")  # the frames compensate reads targets in
 TRIES = 8  # nearest calibration poses a nominal start tries per target
+STALL_ITERS = 10  # a row stops when over its last STALL_ITERS iterations its residual fell
+STALL_FRACTION = 1e-5  # ... by less than this fraction of itself (`compensate`)
 
 
 @dataclass(frozen=True, eq=False)
@@ -172,11 +180,14 @@ def compensate(model: CalibrationModel, theta, targets, q0, zone=None, tol_mm: f
         q0: (M, n) rad seeds, the nominal inverse of the targets.
         zone: (M,) int row of theta (0-based: zone id - 1) for each target when theta is (Z, P).
         tol_mm: stop when every |target - predicted| <= tol_mm.
-        max_iter: Newton iterations at most.
+        max_iter: Newton iterations at most. A row stops earlier, not converged, when its
+            residual fell by less than STALL_FRACTION of itself over its last STALL_ITERS
+            iterations (a target beyond the reach: it would creep on for all of them).
         max_step_rad: longest joint step per iteration (norm over joints).
         payload_kg, temp_c: (M,) conditions of the moves (for load/thermal effects).
     Returns:
-        `Compensation` (q corrected, predicted residual, convergence).
+        `Compensation` (q corrected, predicted residual, convergence; ``iterations``
+        counts each row's iterations up to its stop).
     """
     robot = model.robot
     q0 = robot.check_q(q0, "q0").to(robot.dtype)
@@ -196,8 +207,10 @@ def compensate(model: CalibrationModel, theta, targets, q0, zone=None, tol_mm: f
     err = r.norm(dim=-1)
     iters = torch.zeros(M, dtype=torch.long, device=q.device)
     eye = torch.eye(3, dtype=q.dtype, device=q.device)
+    history = [err]  # each iteration's residuals, for the stall rule
+    stalled = torch.zeros(M, dtype=torch.bool, device=q.device)
     for _ in range(max_iter):
-        active = err > tol_mm
+        active = (err > tol_mm) & ~stalled
         if not active.any():
             break
         JJt = J @ J.transpose(1, 2)  # (M, 3, 3)
@@ -223,6 +236,9 @@ def compensate(model: CalibrationModel, theta, targets, q0, zone=None, tol_mm: f
         J, p = _joint_jacobian(model, thetas, q, approach, payload_kg, temp_c)
         r = t - p
         err = r.norm(dim=-1)
+        history.append(err)
+        if len(history) > STALL_ITERS:
+            stalled |= active & (history[-1 - STALL_ITERS] - err < STALL_FRACTION * history[-1 - STALL_ITERS])
     return Compensation(q, q0, p, r, iters, err <= tol_mm, robot.within_limits(q))
 
 

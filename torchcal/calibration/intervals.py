@@ -13,11 +13,15 @@ the linearised solution map).
    torchcal (`torchcal.calibration.fit.fit`: Levenberg-Marquardt, eq. 29 with adaptive mu
    starting at 1e-3; here without the plausibility prior and without registration), over
    the parameters the identifiability analysis keeps free (`torchcal.calibration.fit`, done at
-   nominal: structural identifiability, with the gauge `fit` uses: of a base frame and
+   the nominal robot in the starting point's measuring frames (base frame, tool offset):
+   structural identifiability, with the gauge `fit` uses: of a base frame and
    joint 1's dtheta / dd, or a tool offset and the last link's length, the frames are kept
    and the robot's deviations held, so a tracker's rotation about z and height land in the
    base frame, not in joint 1); the others are held at the starting point (nominal by
-   default) and reported by name.
+   default) and reported by name. A cold start without damping is analysed once more at
+   its fitted frames and refitted when they free more (as `fit` rechecks): at a zero tool
+   offset the TCP lies on the last joint's axis and joint 5's da and dalpha move nothing,
+   while with a reflector 290 mm off the flange they do.
 3. **Radius.** Linearising the solution map at ``x_c``, a change ``de`` of the stacked
    errors moves the solution by ``dx = S de`` with
 
@@ -231,8 +235,10 @@ def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
         theta0: (P,) starting point; held parameters stay at its values (default nominal).
 
     Each zone is `fit` on its interval centers from theta0 with the damping, without the
-    plausibility prior and without registration, on the parameters identifiable at nominal
-    (structural identifiability, whatever theta0 is). Returns one `FitResult` per zone, in
+    plausibility prior and without registration, on the parameters identifiable at the
+    nominal robot in theta0's measuring frames (structural identifiability, whatever
+    theta0's robot deviations are; a cold start without damping once more at its fitted
+    frames, module doc). Returns one `FitResult` per zone, in
     order, with ``radius`` (the interval half-widths |S| e_r) and ``damping`` set; its
     ``residuals`` are the interval centers minus the model, one row per pose.
     """
@@ -253,7 +259,7 @@ def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
     frames = ~torch.isfinite(plausible_scales(model))  # the gauge of `fit`: frames before joint 1's dtheta, dd
     reports, J0s, r0s = [], [], []
     for z, (ctx, data) in enumerate(pairs):
-        rep = identifiability(model.jacobian(model.zeros(), ctx), names, cand, rank_tol, first=frames)  # at nominal
+        rep = _structural(model, ctx, x0, cand, frames, rank_tol)
         m = len(data)
         if 3 * m <= rep.rank and damping == 0:
             raise InputError(f"zone {z}: {m} poses give {3 * m} equations for "
@@ -266,8 +272,25 @@ def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
         mus = choose_damping(J0s, r0s, torch.stack([r.free for r in reports]), damping)
     else:
         mus = [float(damping)] * len(pairs)
-    return [_identify(model, ctx, data, rep, x0, mu, rank_tol, max_iter)
+    fits = [_identify(model, ctx, data, rep, x0, mu, rank_tol, max_iter)
             for (ctx, data), rep, mu in zip(pairs, reports, mus)]
+    if theta0 is None and damping == 0 and bool(frames.any()):  # a cold start analysed the frames at zero
+        for k, ((ctx, data), rep, res) in enumerate(zip(pairs, reports, fits)):
+            again = _structural(model, ctx, res.theta, cand, frames, rank_tol)  # at the fitted frames
+            if bool((again.free & ~rep.free).any()) and 3 * len(data) > again.rank:
+                fits[k] = _identify(model, ctx, data, again, res.theta, 0.0, rank_tol, max_iter)
+    return fits
+
+
+def _structural(model, ctx, theta, cand, frames, rank_tol) -> Identifiability:
+    """The structural identifiability of a zone (`identifiability`, the gauge `first` =
+    `frames`): at the nominal robot in the measuring frames of `theta` (P,), its base frame
+    and tool offset. At a zero tool offset the TCP may lie on the last joint's axis, where
+    the second-to-last joint's da and dalpha move nothing; held there, the offset of a
+    reflector 290 mm off the flange carried them and a new reflector (``register --tool``)
+    missed by what they are."""
+    at = torch.where(frames.to(theta.device), theta, model.zeros().to(theta))
+    return identifiability(model.jacobian(at, ctx), model.param_names(), cand, rank_tol, first=frames)
 
 
 def _identify(model, ctx, data: PoseIntervals, structural: Identifiability, x0, mu: float, rank_tol: float,
@@ -275,7 +298,7 @@ def _identify(model, ctx, data: PoseIntervals, structural: Identifiability, x0, 
     """One zone: `fit` on the interval centers, then the interval radii |S| e_r (module doc)."""
     res = fit(model, ctx, data.center.to(x0), theta0=x0, free=structural.free, register=False, prior=False,
               damping=mu, rank_tol=rank_tol, max_iter=max_iter)
-    # the structural analysis (at nominal) is the zone's report; whatever fit held beyond it at theta0 is added
+    # the structural analysis (nominal robot, x0's frames) is the zone's report; whatever fit held beyond it at theta0 is added
     report = structural if not res.report.held else \
         dataclasses.replace(res.report, held=structural.held + res.report.held)
     J = model.jacobian(res.theta, ctx).reshape(3 * len(data), -1)

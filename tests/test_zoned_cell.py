@@ -124,3 +124,32 @@ def test_register_tool_of_a_zoned_model_predicts_the_new_reflector(cell):
     q = random_poses(ROB, 200, 22).numpy()
     err = np.linalg.norm(predicted(torchcal.load(d / "moved.json"), q) - real(q, MOVED), axis=1)
     assert np.sqrt(np.mean(err ** 2)) < 0.03, np.sqrt(np.mean(err ** 2))
+
+
+def _zone_poses(part_path, counts: dict, seed: int) -> np.ndarray:
+    """(K, n) rad poses, counts[z] of them in zone z (1-based), zone of their nominal TCP."""
+    from torchcal.io.partition_file import load_partition
+
+    part = load_partition(part_path, ROB)
+    q = random_poses(ROB, 2000, seed)
+    zone = part.assign(ROB.fk(q)).numpy()
+    return np.concatenate([q.numpy()[zone == z][:k] for z, k in sorted(counts.items())])
+
+
+def test_too_few_poses_name_the_zone_and_the_file(cell, capsys):
+    """`calibrate --zone-method independent` with one pose in zone 3 names zone 3 (it said
+    "zone 2", 0-based: a zone of 20 poses); 2 poses in all name the global calibration (it
+    said "zone 0"). One line naming the file, exit 2, nothing written."""
+    d = cell
+    q = np.repeat(_zone_poses(d / "part.json", {1: 20, 2: 20, 3: 1, 4: 20}, 5), 3, axis=0)
+    xyz = real(q) + np.random.default_rng(1).normal(0, 0.01, (len(q), 3))
+    data = write_data(d / "one_in_3.csv", q, xyz, repeats=3)
+    for path, want in ((data, "zone 3 (independent zone method): 1 pose(s) give 3 equations"),
+                       (write_data(d / "two.csv", q[:6], xyz[:6], repeats=3), "the global calibration: 2 pose(s)")):
+        out = d / f"{path.stem}.json"
+        capsys.readouterr()
+        assert main(["calibrate", str(path), "--robot", str(UR10), "--effects", "base_frame", "tool_offset",
+                     "--partition", str(d / "part.json"), "--zone-method", "independent", "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and f"error: {path}: {want}" in err, err
+        assert not out.exists()

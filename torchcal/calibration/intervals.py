@@ -60,7 +60,7 @@ from dataclasses import dataclass
 import torch
 
 from torchcal.effects.context import Context, make_context
-from torchcal.errors import InputError
+from torchcal.errors import DataError, InputError
 from torchcal.calibration.fit import RANK_TOL, FitResult, Identifiability, fit, identifiability
 from torchcal.calibration.gcv import choose_damping, gcv_damping
 from torchcal.reliability.interval import Interval
@@ -213,7 +213,7 @@ def _check_zone(model, ctx, data, what):
 
 
 def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
-                   rank_tol: float = RANK_TOL, max_iter: int = 100, theta0=None) -> list[FitResult]:
+                   rank_tol: float = RANK_TOL, max_iter: int = 100, theta0=None, labels=None) -> list[FitResult]:
     """Interval identification of several zones, each by the one fit (`torchcal.calibration.fit.fit`).
 
     Args:
@@ -233,6 +233,8 @@ def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
         rank_tol: identifiability threshold (`torchcal.calibration.fit.identifiability`).
         max_iter: LM iterations at most.
         theta0: (P,) starting point; held parameters stay at its values (default nominal).
+        labels: what each zone is called in an error (default "zone 1", "zone 2", ...:
+            the order given; a caller passing a subset names them by the partition's numbers).
 
     Each zone is `fit` on its interval centers from theta0 with the damping, without the
     plausibility prior and without registration, on the parameters identifiable at the
@@ -262,8 +264,9 @@ def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
         rep = _structural(model, ctx, x0, cand, frames, rank_tol)
         m = len(data)
         if 3 * m <= rep.rank and damping == 0:
-            raise InputError(f"zone {z}: {m} poses give {3 * m} equations for "
-                             f"{rep.rank} identifiable parameters; need more poses")
+            what = f"zone {z + 1}" if labels is None else labels[z]
+            raise DataError(f"{what}: {m} pose(s) give {3 * m} equations for {rep.rank} identifiable parameters; "
+                            f"need at least {rep.rank // 3 + 1} poses there")
         reports.append(rep)
         if damping in ("gcv", "gcv_shared"):
             J0s.append(model.jacobian(x0, ctx).reshape(3 * m, -1))

@@ -144,8 +144,8 @@ def test_too_few_poses_name_the_zone_and_the_file(cell, capsys):
     q = np.repeat(_zone_poses(d / "part.json", {1: 20, 2: 20, 3: 1, 4: 20}, 5), 3, axis=0)
     xyz = real(q) + np.random.default_rng(1).normal(0, 0.01, (len(q), 3))
     data = write_data(d / "one_in_3.csv", q, xyz, repeats=3)
-    for path, want in ((data, "zone 3 (independent zone method): 1 pose(s) give 3 equations"),
-                       (write_data(d / "two.csv", q[:6], xyz[:6], repeats=3), "the global calibration: 2 pose(s)")):
+    for path, want in ((data, "zone 3 (independent zone method): too few poses: 1 poses give 3 equations"),
+                       (write_data(d / "two.csv", q[:6], xyz[:6], repeats=3), "the global calibration: too few poses: 2 poses")):
         out = d / f"{path.stem}.json"
         capsys.readouterr()
         assert main(["calibrate", str(path), "--robot", str(UR10), "--effects", "base_frame", "tool_offset",

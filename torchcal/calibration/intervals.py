@@ -62,6 +62,7 @@ import torch
 from torchcal.effects.context import Context, make_context
 from torchcal.errors import DataError, InputError
 from torchcal.calibration.fit import RANK_TOL, FitResult, Identifiability, fit, identifiability
+from torchcal.calibration.identifiability import check_enough_rows
 from torchcal.calibration.gcv import choose_damping, gcv_damping
 from torchcal.reliability.interval import Interval
 from torchcal.calibration.model import CalibrationModel
@@ -263,10 +264,11 @@ def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
     for z, (ctx, data) in enumerate(pairs):
         rep = _structural(model, ctx, x0, cand, frames, rank_tol)
         m = len(data)
-        if 3 * m <= rep.rank and damping == 0:
-            what = f"zone {z + 1}" if labels is None else labels[z]
-            raise DataError(f"{what}: {m} pose(s) give {3 * m} equations for {rep.rank} identifiable parameters; "
-                            f"need at least {rep.rank // 3 + 1} poses there")
+        if 3 * m <= rep.rank and damping == 0:  # the message of `fit` (the model's count at generic poses)
+            try:
+                check_enough_rows(rep, 3 * m, model, ctx, cand, rank_tol)
+            except DataError as exc:
+                raise DataError(f"{f'zone {z + 1}' if labels is None else labels[z]}: {exc.message}") from None
         reports.append(rep)
         if damping in ("gcv", "gcv_shared"):
             J0s.append(model.jacobian(x0, ctx).reshape(3 * m, -1))

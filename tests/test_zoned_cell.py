@@ -153,3 +153,17 @@ def test_too_few_poses_name_the_zone_and_the_file(cell, capsys):
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and f"error: {path}: {want}" in err, err
         assert not out.exists()
+
+
+def test_export_of_a_zoned_model_says_the_global_fit_is_written(cell, capsys):
+    """A robot file holds one parameter set: that of the global calibration, which meets
+    the plain-numpy robot as the model does; the per-zone parameters are not in it, and
+    the command says so (before: nothing; its help said zone 1 was exported)."""
+    d = cell
+    capsys.readouterr()
+    assert main(["export", str(d / "model.json"), "--robot-file", str(d / "cal.json")]) == 0
+    out = capsys.readouterr().out
+    assert "a per-zone model (4 zones)" in out and "its global calibration is exported" in out
+    q = random_poses(ROB, 100, 23).numpy()
+    exported = torchcal.robot(d / "cal.json").fk(torch.as_tensor(q)).numpy()  # base and tool folded in
+    assert np.sqrt(np.mean(np.linalg.norm(exported - real(q), axis=1) ** 2)) < 0.03

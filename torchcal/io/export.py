@@ -40,6 +40,8 @@ class Export:
         written: {"robot_file", "urdf", "table"} paths written (None: not asked).
         urdf_links: {"base_link", "tip_link", "frames"} of the written URDF (its base and
             tool links, the names of its separate measuring frames), None without a URDF.
+        zones: parameter sets of the model (a per-zone model of ``calibrate --partition``:
+            its zones; 1 otherwise); a robot file, URDF or table holds one: the global one.
     """
 
     robot: Robot
@@ -50,10 +52,11 @@ class Export:
     urdf_source: str | None
     written: dict
     urdf_links: dict | None = None
+    zones: int = 1
 
     def to_dict(self) -> dict:
         r = self.refit
-        return {"robot": self.robot.name, "joints": self.robot.n, "written": dict(self.written),
+        return {"robot": self.robot.name, "joints": self.robot.n, "written": dict(self.written), "zones": self.zones,
                 "effects_not_held": [e["spec"] for e in self.effects_not_held],
                 "residual_stage_dropped": self.residual_stage_dropped,
                 "urdf": None if self.urdf_links is None else dict(self.urdf_links, source=self.urdf_source),
@@ -148,4 +151,5 @@ def export(im, *, robot_file=None, urdf=None, table=None, data=None, length_unit
         if table is not None:
             atomic_write(table, mdh_table_csv(cal), force=force, inputs=inputs)
     return Export(cal, rest, im.residual_model is not None, refit, rows, source,
-                  {k: (None if v is None else str(v)) for k, v in outs.items()}, links if urdf else None)
+                  {k: (None if v is None else str(v)) for k, v in outs.items()}, links if urdf else None,
+                  int(im.zone_theta.shape[0]))

@@ -167,3 +167,24 @@ def test_export_of_a_zoned_model_says_the_global_fit_is_written(cell, capsys):
     q = random_poses(ROB, 100, 23).numpy()
     exported = torchcal.robot(d / "cal.json").fk(torch.as_tensor(q)).numpy()  # base and tool folded in
     assert np.sqrt(np.mean(np.linalg.norm(exported - real(q), axis=1) ** 2)) < 0.03
+
+
+def test_the_partition_in_model_json_keeps_its_robot_record(cell, tmp_path):
+    """MODEL.json embeds the partition with the record of the robot its sweep was made for
+    (before: dropped, so the partition of a loaded model passed to `torchcal.calibrate`
+    for the robot with other joint limits was taken: the record that refuses it was gone)."""
+    import json
+
+    from torchcal.io.measurement_csv import read_measurements
+    from torchcal.io.partition_file import load_partition
+
+    d = cell
+    model = torchcal.load(d / "model.json")
+    assert model.partition.made_for == load_partition(d / "part.json", ROB).made_for is not None
+    doc = json.loads(UR10.read_text())
+    doc["joints"][1]["lower"], doc["joints"][1]["upper"] = -180.0, 180.0  # another workspace
+    (tmp_path / "ur10_limits.json").write_text(json.dumps(doc))
+    other = torchcal.robot(tmp_path / "ur10_limits.json")
+    with pytest.raises(torchcal.InputError, match="joint 2 limits -360..360 deg in the file, -180..180 deg given"):
+        torchcal.calibrate(other, read_measurements(d / "train.csv", robot=other), ["base_frame", "tool_offset"],
+                           partition=model.partition)

@@ -183,7 +183,7 @@ def to_dict(res: FitResult, source=None, seed: int = 0, pose_ids=None, partition
         from torchcal.io.partition_file import partition_to_dict
 
         extra["zone_method"] = res.method
-        extra["partition"] = partition_to_dict(res.partition)
+        extra["partition"] = partition_to_dict(res.partition, res.partition.made_for)  # with its robot record
         extra["zones"] = [_zone_to_dict(res, z, k) for z in range(len(res.zones))]
     return {
         "format": FORMAT,

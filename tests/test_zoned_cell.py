@@ -188,3 +188,19 @@ def test_the_partition_in_model_json_keeps_its_robot_record(cell, tmp_path):
     with pytest.raises(torchcal.InputError, match="joint 2 limits -360..360 deg in the file, -180..180 deg given"):
         torchcal.calibrate(other, read_measurements(d / "train.csv", robot=other), ["base_frame", "tool_offset"],
                            partition=model.partition)
+
+
+@pytest.mark.parametrize("effects", [[], ["base_frame"]])
+def test_tracker_data_without_the_measuring_frame_are_refused(cell, capsys, effects):
+    """Tracker data calibrated without base_frame tool_offset: `fit` refuses them; calibrate
+    wrote a model (global rms 3180 mm without a frame; 17 mm without the tool offset, whose
+    commands then missed the plain-numpy robot's targets by 17.5 mm rms) with exit 0. Now
+    fit's one line naming the effects, exit 2, nothing written."""
+    d = cell
+    out = d / f"noframe{len(effects)}.json"
+    capsys.readouterr()
+    code = main(["calibrate", str(d / "train.csv"), "--robot", str(UR10), *(["--effects", *effects] if effects else []),
+                 "--partition", str(d / "part.json"), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "pass --effects base_frame tool_offset" in err, err
+    assert not out.exists()

@@ -309,6 +309,10 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
               damping="gcv_shared"):
     """Interval calibration, global or per zone (`torchcal.calibration.zone_calibration.calibrate`).
 
+    The measurements are checked as `fit` checks them: data that the nominal robot cannot
+    explain, or that need a measuring frame the model lacks (tracker data without
+    base_frame tool_offset), are refused with one InputError line, and so is a global fit
+    still off by more than any calibrated arm.
     partition: a `Partition`, a PARTITION.json path or None. A path is read for the model's
     robot: a partition made for another robot (or other joint limits) is refused
     (InputError), one without a record read with an `UnrecordedRobotWarning`
@@ -342,8 +346,15 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
     if partition is not None and partition.made_for is None:  # no record: judged by its geometry
         from torchcal.calibration.mismatch import check_partition
         check_partition(partition, model.robot, m.q, "partition")
+    from torchcal.calibration.mismatch import check_fitted, check_robot_data_of
+
     with threads.for_work(_work(model, m)), _about(m):
-        return run(model, m, partition, zone_method, damping)
+        check_robot_data_of(model, m)  # another frame (tracker data without base_frame tool_offset), robot, units
+        res = run(model, m, partition, zone_method, damping)
+    gross = check_fitted(res.residuals, (), m.source or "data", model.robot.name)
+    if gross:
+        raise InputError(gross)
+    return res
 
 
 def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int = 30, max_step_rad: float = 0.2,

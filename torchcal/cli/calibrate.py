@@ -19,6 +19,11 @@ propagated through the linearised solution map (torchcal.calibration.intervals).
   or of other joint limits, is refused with one line naming what differs; a partition
   file of an older torchcal (no record) is used with a warning that it was not checked.
 
+Tracker data (in the instrument's frame, a reflector on the flange) need ``--effects
+base_frame tool_offset``; without them the data are refused with that cause, as ``fit``
+refuses them (docs/registration.md), and so is a global fit still off by more than any
+calibrated arm.
+
 MODEL.json: the file of ``torchcal fit`` (`torchcal.io.modelfile`; the global fit, each
 parameter with its interval) plus, with ``--partition``, the partition and each zone's
 parameters and intervals; read by ``torchcal compensate``, ``evaluate``, ``export``, ``report``.

@@ -204,3 +204,20 @@ def test_tracker_data_without_the_measuring_frame_are_refused(cell, capsys, effe
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "pass --effects base_frame tool_offset" in err, err
     assert not out.exists()
+
+
+def test_zones_listed_out_of_order_are_refused(cell, capsys):
+    """Zone entries are applied in the order listed: a MODEL.json whose entries are out of
+    order (zone 2's listed first) was read with zone 2's parameters in zone 1 and zone 1's
+    in zone 2, silently. Now one line naming the order, exit 2, nothing written."""
+    import json
+
+    d = cell
+    doc = json.loads((d / "model.json").read_text())
+    doc["zones"][0], doc["zones"][1] = doc["zones"][1], doc["zones"][0]
+    (d / "swapped.json").write_text(json.dumps(doc))
+    out = d / "swapped_eval.json"
+    capsys.readouterr()
+    assert main(["evaluate", str(d / "train.csv"), "--model", str(d / "swapped.json"), "--json", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "zones listed as [2, 1, 3, 4], expected 1..4 in order" in err and not out.exists()

@@ -12,7 +12,8 @@ the linearised solution map).
    on the interval centers (the mid-range of the repeated measurements) by the one fit of
    torchcal (`torchcal.calibration.fit.fit`: Levenberg-Marquardt, eq. 29 with adaptive mu
    starting at 1e-3; here without the plausibility prior and without registration), over
-   the parameters the identifiability analysis keeps free (`torchcal.calibration.fit`, done at
+   the parameters the identifiability analysis keeps free (a cold start without damping
+   from the closed-form registration of the frame, as `fit` starts; `torchcal.calibration.fit`, done at
    the nominal robot in the starting point's measuring frames (base frame, tool offset):
    structural identifiability, with the gauge `fit` uses: of a base frame and
    joint 1's dtheta / dd, or a tool offset and the last link's length, the frames are kept
@@ -277,14 +278,27 @@ def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
         mus = choose_damping(J0s, r0s, torch.stack([r.free for r in reports]), damping)
     else:
         mus = [float(damping)] * len(pairs)
-    fits = [_identify(model, ctx, data, rep, x0, mu, rank_tol, max_iter)
-            for (ctx, data), rep, mu in zip(pairs, reports, mus)]
+    cold = theta0 is None and damping == 0  # plain least squares from nominal: where it starts is free
+    fits = [_identify(model, ctx, data, rep, _registered(model, ctx, data, x0) if cold else x0, mu, rank_tol,
+                      max_iter) for (ctx, data), rep, mu in zip(pairs, reports, mus)]
     if theta0 is None and damping == 0 and bool(frames.any()):  # a cold start analysed the frames at zero
         for k, ((ctx, data), rep, res) in enumerate(zip(pairs, reports, fits)):
             again = _structural(model, ctx, res.theta, cand, frames, rank_tol)  # at the fitted frames
             if bool((again.free & ~rep.free).any()) and 3 * len(data) > again.rank:
                 fits[k] = _identify(model, ctx, data, again, res.theta, 0.0, rank_tol, max_iter)
     return fits
+
+
+def _registered(model, ctx, data: PoseIntervals, x0: torch.Tensor) -> torch.Tensor:
+    """(P,) x0 with a base_frame at the closed-form registration of the model onto the
+    zone's interval centers (`fit`'s start, `torchcal.calibration.registration.register_frame`),
+    x0 itself without a base_frame or with fewer than 3 poses. From an identity frame, a
+    tracker 2.5 m away and turned stopped one UR5e zone of 10 poses at rms 21 mm."""
+    from torchcal.calibration.registration import register_frame
+
+    if len(data) < 3 or not any(e.name == "base_frame" for e in model.effects):
+        return x0
+    return register_frame(model, ctx, data.center.to(x0), x0)[0]
 
 
 def _structural(model, ctx, theta, cand, frames, rank_tol) -> Identifiability:

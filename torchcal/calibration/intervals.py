@@ -60,7 +60,7 @@ from dataclasses import dataclass
 
 import torch
 
-from torchcal.effects.context import Context, make_context
+from torchcal.effects.context import Context, approach_directions, make_context
 from torchcal.errors import DataError, InputError
 from torchcal.calibration.fit import RANK_TOL, FitResult, Identifiability, fit, identifiability
 from torchcal.calibration.identifiability import check_enough_rows
@@ -86,6 +86,13 @@ class PoseIntervals:
         upper: (m, 3) mm per-axis maximum (`interval` is [lower, upper] as an `Interval`).
         count: (m,) int64 repetitions per pose.
         payload_kg: (m,) or None; temp_c: (m,) or None (first row of each pose).
+        approach: (m, n) +1 / -1 or None: the direction each joint last moved in to reach
+            the pose, from the order of the measurement rows (`approach_directions` over
+            the session, its q_prev when given; the first row of each pose), so that a
+            subset (a zone) keeps the session's directions; None: from the order of the
+            poses (of the subset) as given.
+        mixed: (m,) bool or None: the pose's rows were approached from different
+            directions (an interval of its repeats mixes them).
     """
 
     pose: torch.Tensor
@@ -95,6 +102,8 @@ class PoseIntervals:
     count: torch.Tensor
     payload_kg: torch.Tensor | None = None
     temp_c: torch.Tensor | None = None
+    approach: torch.Tensor | None = None
+    mixed: torch.Tensor | None = None
 
     def __post_init__(self):  # checks lower <= upper once (InputError naming the index)
         object.__setattr__(self, "_interval", Interval(self.lower, self.upper))
@@ -120,18 +129,22 @@ class PoseIntervals:
     def subset(self, index) -> "PoseIntervals":
         pick = lambda t: None if t is None else t[index]  # noqa: E731
         return PoseIntervals(pick(self.pose), pick(self.q), pick(self.lower), pick(self.upper),
-                             pick(self.count), pick(self.payload_kg), pick(self.temp_c))
+                             pick(self.count), pick(self.payload_kg), pick(self.temp_c), pick(self.approach),
+                             pick(self.mixed))
 
     def context(self, robot) -> Context:
-        """Model context with one row per pose (the commanded angles in order)."""
-        return make_context(robot, self.q, self.payload_kg, self.temp_c)
+        """Model context with one row per pose (the commanded angles in order; the approach
+        directions of the rows when recorded)."""
+        ctx = make_context(robot, self.q, self.payload_kg, self.temp_c)
+        return ctx if self.approach is None else dataclasses.replace(ctx, approach=self.approach.to(ctx.q))
 
 
-def pose_intervals(meas, min_repeats: int = 1) -> PoseIntervals:
+def pose_intervals(meas, min_repeats: int = 1, approach: bool = False) -> PoseIntervals:
     """Group a `torchcal.measurements.Measurements` by pose id into per-axis intervals.
 
     Rows of one pose must share their commanded joint angles (within 1e-9 rad); raises
-    InputError otherwise or when a pose has fewer than `min_repeats` rows.
+    InputError otherwise or when a pose has fewer than `min_repeats` rows. approach: record
+    the rows' approach directions (``approach``, ``mixed``; `PoseIntervals`).
     """
     pose = meas.pose
     ids, first = [], {}
@@ -160,8 +173,14 @@ def pose_intervals(meas, min_repeats: int = 1) -> PoseIntervals:
     lo = lo.scatter_reduce(0, idx, xyz, "amin")
     hi = hi.scatter_reduce(0, idx, xyz, "amax")
     pick = lambda t: None if t is None else t[rows0.to(t.device)]  # noqa: E731
+    app = mixed = None
+    if approach:
+        rows = approach_directions(meas.q, meas.q_prev)  # (N, n) in the order measured
+        app = rows[rows0.to(rows.device)]
+        mixed = torch.zeros(m, dtype=torch.bool).index_put_(
+            (inv,), (rows != app[inv.to(rows.device)]).any(-1).cpu(), accumulate=True)
     return PoseIntervals(torch.tensor(ids, dtype=torch.int64), q, lo, hi, count,
-                         pick(meas.payload_kg), pick(meas.temp_c))
+                         pick(meas.payload_kg), pick(meas.temp_c), app, mixed)
 
 
 # ------------------------------------------------------------------ solution map

@@ -128,7 +128,14 @@ def calibrate(model: CalibrationModel, meas, partition=None, zone_method: str = 
 
     from torchcal.calibration.joint_range import joint_range, seed_poses
 
-    data = pose_intervals(meas, min_repeats=2)
+    data = pose_intervals(meas, min_repeats=2, approach=True)  # each pose keeps its rows' approach directions
+    uses = [e.spec() for e in model.effects if e.uses_approach]
+    if uses and bool(data.mixed.any()):
+        k = int(data.mixed.nonzero()[0])
+        raise InputError(f"{meas.source or 'measurements'}: the rows of pose {int(data.pose[k])} (and "
+                         f"{int(data.mixed.sum()) - 1} more) were approached from different directions, which "
+                         f"one interval of a pose's repeats mixes, and {', '.join(uses)} depends on the "
+                         "direction: measure each pose's repeats without moving away, or fit it with fit / discover")
     glob = replace(identify_zones(model, [data], labels=["the global calibration"])[0], q_range=joint_range(meas.q), seed_poses=seed_poses(meas.q))
     if partition is None:
         return glob

@@ -85,7 +85,8 @@ class PoseIntervals:
         lower: (m, 3) mm per-axis minimum of the measured positions.
         upper: (m, 3) mm per-axis maximum (`interval` is [lower, upper] as an `Interval`).
         count: (m,) int64 repetitions per pose.
-        payload_kg: (m,) or None; temp_c: (m,) or None (first row of each pose).
+        payload_kg: (m,) or None; temp_c: (m,) or None (first row of each pose, or the
+            mid-range of its rows: `pose_intervals`).
         approach: (m, n) +1 / -1 or None: the direction each joint last moved in to reach
             the pose, from the order of the measurement rows (`approach_directions` over
             the session, its q_prev when given; the first row of each pose), so that a
@@ -139,12 +140,16 @@ class PoseIntervals:
         return ctx if self.approach is None else dataclasses.replace(ctx, approach=self.approach.to(ctx.q))
 
 
-def pose_intervals(meas, min_repeats: int = 1, approach: bool = False) -> PoseIntervals:
+def pose_intervals(meas, min_repeats: int = 1, rows: bool = False) -> PoseIntervals:
     """Group a `torchcal.measurements.Measurements` by pose id into per-axis intervals.
 
     Rows of one pose must share their commanded joint angles (within 1e-9 rad); raises
-    InputError otherwise or when a pose has fewer than `min_repeats` rows. approach: record
-    the rows' approach directions (``approach``, ``mixed``; `PoseIntervals`).
+    InputError otherwise or when a pose has fewer than `min_repeats` rows. rows: the
+    conditions of the pose's rows, not of its first row: their approach directions in the
+    session (``approach``, ``mixed``; `PoseIntervals`), and payload_kg and temp_c the
+    mid-range of the rows (the interval's centre is the mid-range of the positions, which
+    an effect linear in them, thermal expansion, compliance, takes at their mid-range; a
+    pose visited while the cell warmed spans several degrees).
     """
     pose = meas.pose
     ids, first = [], {}
@@ -174,11 +179,15 @@ def pose_intervals(meas, min_repeats: int = 1, approach: bool = False) -> PoseIn
     hi = hi.scatter_reduce(0, idx, xyz, "amax")
     pick = lambda t: None if t is None else t[rows0.to(t.device)]  # noqa: E731
     app = mixed = None
-    if approach:
-        rows = approach_directions(meas.q, meas.q_prev)  # (N, n) in the order measured
-        app = rows[rows0.to(rows.device)]
+    if rows:
+        mid = lambda t: None if t is None else (  # noqa: E731
+            t.new_full((m,), float("inf")).scatter_reduce(0, inv.to(t.device), t, "amin")
+            + t.new_full((m,), -float("inf")).scatter_reduce(0, inv.to(t.device), t, "amax")) / 2
+        pick = mid
+        d = approach_directions(meas.q, meas.q_prev)  # (N, n) in the order measured
+        app = d[rows0.to(d.device)]
         mixed = torch.zeros(m, dtype=torch.bool).index_put_(
-            (inv,), (rows != app[inv.to(rows.device)]).any(-1).cpu(), accumulate=True)
+            (inv,), (d != app[inv.to(d.device)]).any(-1).cpu(), accumulate=True)
     return PoseIntervals(torch.tensor(ids, dtype=torch.int64), q, lo, hi, count,
                          pick(meas.payload_kg), pick(meas.temp_c), app, mixed)
 

@@ -128,7 +128,7 @@ def calibrate(model: CalibrationModel, meas, partition=None, zone_method: str = 
 
     from torchcal.calibration.joint_range import joint_range, seed_poses
 
-    data = pose_intervals(meas, min_repeats=2, approach=True)  # each pose keeps its rows' approach directions
+    data = pose_intervals(meas, min_repeats=2, rows=True)  # each pose: its rows' directions, temperatures, payloads
     uses = [e.spec() for e in model.effects if e.uses_approach]
     if uses and bool(data.mixed.any()):
         k = int(data.mixed.nonzero()[0])

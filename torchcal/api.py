@@ -495,9 +495,15 @@ def accuracy(model, *, n: int = 2000, seed: int = 0, payload_kg: float | None = 
     model: a MODEL.json path (its stored covariance; InputError when it has none) or a
     `FitResult` (its covariance). payload_kg: default half the rated payload. Returns an
     `Accuracy` whose ``to_dict()`` holds the figures the command prints."""
-    from torchcal.calibration.accuracy import workspace_accuracy
+    import warnings
+
+    from torchcal.calibration.accuracy import ZoneAccuracyWarning, workspace_accuracy, zone_accuracy_note
 
     fm = _fitted(model)
+    note = zone_accuracy_note(fm)  # independent zones: the figures are the global fit's
+    if note is not None:
+        warnings.warn(f"{model if isinstance(model, (str, Path)) else 'model'}: {note}", ZoneAccuracyWarning,
+                      stacklevel=2)
     cm, theta = fm.model, fm.theta
     if isinstance(model, FitResult):
         if model.covariance is None:

@@ -369,3 +369,19 @@ def test_accuracy_of_independent_zones_says_the_figures_are_the_global_fits(tmp_
     err = np.linalg.norm(predicted(torchcal.load(path), q) - real(q, robot=ur5e), axis=1)
     assert np.sqrt(np.mean(err ** 2)) > 2 * median  # the printed figure alone would mislead
     assert cap.err.count("\n") == 1 and "independent zones" in cap.err and "global calibration's" in cap.err
+
+
+def test_export_of_an_older_interval_file_says_zone_1_is_exported(tmp_path, capsys):
+    """tests/data/old_interval_model.json (`torchcal-interval-model/1`) stores no global fit:
+    zone 1 stands in, and that is what the robot file holds (its table is zone 1's); the
+    line says so rather than 'its global calibration'."""
+    old = Path(__file__).resolve().parent / "data" / "old_interval_model.json"
+    capsys.readouterr()
+    assert main(["export", str(old), "--robot-file", str(tmp_path / "cal.json")]) == 0
+    assert "zone 1's parameters are exported" in capsys.readouterr().out
+    model = torchcal.load(old)
+    q = random_poses(model.model.robot, 50, 3)
+    from torchcal.effects import make_context
+
+    zone1 = model.model.predict(model.zones[0].theta, make_context(model.model.robot, q))
+    assert float((torchcal.robot(tmp_path / "cal.json").fk(q) - zone1).norm(dim=-1).max()) < 1e-6

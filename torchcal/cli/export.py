@@ -70,9 +70,10 @@ def run(args) -> int:
                      force=args.force, **units(args))
     d = res.to_dict()
     if d["zones"] > 1:
+        which = ("zone 1's parameters are exported (a file of the older interval-model format stores no global "
+                 "calibration)") if d["zone1"] else "its global calibration is exported"
         print(f"{args.model}: a per-zone model ({d['zones']} zones); a robot file, URDF or MD-H table holds one "
-              f"parameter set: its global calibration is exported, not the zones' own parameters (which "
-              f"evaluate and compensate use)")
+              f"parameter set: {which}, not the zones' own parameters (which evaluate and compensate use)")
     if d["residual_stage_dropped"]:
         print(f"{args.model}: its non-physical residual stage is dropped (a URDF, robot file or table holds only "
               f"the physical model)")

@@ -385,3 +385,25 @@ def test_export_of_an_older_interval_file_says_zone_1_is_exported(tmp_path, caps
 
     zone1 = model.model.predict(model.zones[0].theta, make_context(model.model.robot, q))
     assert float((torchcal.robot(tmp_path / "cal.json").fk(q) - zone1).norm(dim=-1).max()) < 1e-6
+
+
+def test_calibration_poses_outside_the_swept_region_are_named(cell, capsys):
+    """A sweep of a sixth of the workspace (0 < q1 < 60 deg) recorded for this robot:
+    calibrate put the poses elsewhere into the zones of the nearest sweep points without a
+    word (compensate names such commands). Now one warning line naming the rows."""
+    d = cell
+    lines = (d / "sweep.csv").read_text().splitlines()
+    half = lines[:2] + [ln for ln in lines[2:] if 0 < float(ln.split(",")[1]) < 60]
+    (d / "sweep_half.csv").write_text("\n".join(half) + "\n")
+    assert main(["partition", str(d / "sweep_half.csv"), "--levels", "2", "--zones", "2,2",
+                 "--out", str(d / "part_half.json")]) == 0
+    q1 = np.loadtxt(d / "train.csv", delimiter=",", skiprows=1)[:, 1]
+    capsys.readouterr()
+    assert main(["calibrate", str(d / "train.csv"), "--robot", str(UR10), "--effects", "base_frame", "tool_offset",
+                 "--partition", str(d / "part_half.json"), "--out", str(d / "half.json")]) == 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "from the nearest sweep point of the partition" in err, err
+    named = int(err.split(" command(s)")[0].split()[-1])
+    rows = [int(r) for r in err.split("row(s) ")[1].split(";")[0].replace(" ...", "").split(", ")]
+    outside = (q1 <= 0) | (q1 >= 60)
+    assert 0 < named <= int(outside.sum()) and all(outside[r - 1] for r in rows)  # rows of the unswept part

@@ -346,8 +346,11 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
     if partition is not None and partition.made_for is None:  # no record: judged by its geometry
         from torchcal.calibration.mismatch import check_partition
         check_partition(partition, model.robot, m.q, "partition")
-    from torchcal.calibration.mismatch import check_fitted, check_robot_data_of
+    from torchcal.calibration.mismatch import check_fitted
 
+    if partition is not None:  # rows beyond the swept region: their zone is extrapolated (as compensate says)
+        from torchcal.calibration.mismatch import warn_far_from_sweep
+        warn_far_from_sweep(partition, model.robot.fk(m.q).detach(), m.source or "measurements", stacklevel=2)
     with threads.for_work(_work(model, m)), _about(m):
         check_robot_data_of(model, m)  # another frame (tracker data without base_frame tool_offset), robot, units
         res = run(model, m, partition, zone_method, damping)

@@ -78,7 +78,11 @@ def run(args) -> int:
     with warnings_to_stderr(UnrecordedRobotWarning):  # a partition file without a record
         part = load_partition(args.partition, robot) if args.partition else None
     meas = read_data(args.data, robot, args)
-    res = torchcal.calibrate(robot, meas, specs, partition=part, zone_method=args.zone_method, damping=args.damping)
+    from torchcal.calibration.mismatch import MismatchWarning
+
+    with warnings_to_stderr(MismatchWarning):  # rows beyond the swept region
+        res = torchcal.calibrate(robot, meas, specs, partition=part, zone_method=args.zone_method,
+                                 damping=args.damping)
     torchcal.save(res, args.out, source=args.data, partition_source=args.partition, force=args.force)
     rep = res.report
     print(f"calibrate {robot.name} + [{', '.join(res.model.specs()) or 'geometric only'}] on {len(meas)} rows "

@@ -312,7 +312,8 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
     The measurements are checked as `fit` checks them: data that the nominal robot cannot
     explain, or that need a measuring frame the model lacks (tracker data without
     base_frame tool_offset), are refused with one InputError line, and so is a global fit
-    still off by more than any calibrated arm.
+    still off by more than any calibrated arm. Rows whose nominal TCP lies beyond the
+    partition's swept region are named in a `MismatchWarning` (their zone is extrapolated).
     partition: a `Partition`, a PARTITION.json path or None. A path is read for the model's
     robot: a partition made for another robot (or other joint limits) is refused
     (InputError), one without a record read with an `UnrecordedRobotWarning`

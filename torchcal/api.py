@@ -309,6 +309,11 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
               damping="gcv_shared"):
     """Interval calibration, global or per zone (`torchcal.calibration.zone_calibration.calibrate`).
 
+    The measurements are checked as `fit` checks them: data that the nominal robot cannot
+    explain, or that need a measuring frame the model lacks (tracker data without
+    base_frame tool_offset), are refused with one InputError line, and so is a global fit
+    still off by more than any calibrated arm. Rows whose nominal TCP lies beyond the
+    partition's swept region are named in a `MismatchWarning` (their zone is extrapolated).
     partition: a `Partition`, a PARTITION.json path or None. A path is read for the model's
     robot: a partition made for another robot (or other joint limits) is refused
     (InputError), one without a record read with an `UnrecordedRobotWarning`
@@ -342,8 +347,18 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
     if partition is not None and partition.made_for is None:  # no record: judged by its geometry
         from torchcal.calibration.mismatch import check_partition
         check_partition(partition, model.robot, m.q, "partition")
+    from torchcal.calibration.mismatch import check_fitted
+
+    if partition is not None:  # rows beyond the swept region: their zone is extrapolated (as compensate says)
+        from torchcal.calibration.mismatch import warn_far_from_sweep
+        warn_far_from_sweep(partition, model.robot.fk(m.q).detach(), m.source or "measurements", stacklevel=2)
     with threads.for_work(_work(model, m)), _about(m):
-        return run(model, m, partition, zone_method, damping)
+        check_robot_data_of(model, m)  # another frame (tracker data without base_frame tool_offset), robot, units
+        res = run(model, m, partition, zone_method, damping)
+    gross = check_fitted(res.residuals, (), m.source or "data", model.robot.name)
+    if gross:
+        raise InputError(gross)
+    return res
 
 
 def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int = 30, max_step_rad: float = 0.2,
@@ -484,9 +499,15 @@ def accuracy(model, *, n: int = 2000, seed: int = 0, payload_kg: float | None = 
     model: a MODEL.json path (its stored covariance; InputError when it has none) or a
     `FitResult` (its covariance). payload_kg: default half the rated payload. Returns an
     `Accuracy` whose ``to_dict()`` holds the figures the command prints."""
-    from torchcal.calibration.accuracy import workspace_accuracy
+    import warnings
+
+    from torchcal.calibration.accuracy import ZoneAccuracyWarning, workspace_accuracy, zone_accuracy_note
 
     fm = _fitted(model)
+    note = zone_accuracy_note(fm)  # independent zones: the figures are the global fit's
+    if note is not None:
+        warnings.warn(f"{model if isinstance(model, (str, Path)) else 'model'}: {note}", ZoneAccuracyWarning,
+                      stacklevel=2)
     cm, theta = fm.model, fm.theta
     if isinstance(model, FitResult):
         if model.covariance is None:

@@ -67,6 +67,23 @@ class Accuracy:
                 "regions": [{"region": k, "mean_mm": m, "max_mm": x, "points": c} for k, m, x, c in self.regions]}
 
 
+class ZoneAccuracyWarning(UserWarning):
+    """The accuracy of a per-zone model is that of its global calibration's covariance."""
+
+
+def zone_accuracy_note(fitted) -> str | None:
+    """The warning line for the accuracy of a per-zone model `fitted` (a `ZonedFit`) whose
+    zones were fitted each on its own poses (``independent``): its covariance is the global
+    calibration's, its zones are less certain, by how much MODEL.json cannot tell (it stores
+    no zone covariance). None for any other model (damped zones stay near the global fit)."""
+    if getattr(fitted, "method", None) != "independent" or not getattr(fitted, "zones", None):
+        return None
+    return (f"a per-zone model of {len(fitted.zones)} independent zones (poses {', '.join(map(str, fitted.zone_poses))}): "
+            f"these figures are its global calibration's (on all its poses); each zone was fitted on its own poses "
+            f"and is less certain, by an amount its MODEL.json cannot tell (it stores no zone covariance): check "
+            f"the zones on held-out poses (evaluate)")
+
+
 def workspace_accuracy(model, theta: torch.Tensor, cov: torch.Tensor, *, n: int = 2000, seed: int = 0,
                        payload_kg: float | None = None, temp_c: float = 20.0) -> Accuracy:
     """The `Accuracy` of `model` at theta (P,) with covariance cov (P, P) at n workspace poses

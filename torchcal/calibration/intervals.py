@@ -12,12 +12,17 @@ the linearised solution map).
    on the interval centers (the mid-range of the repeated measurements) by the one fit of
    torchcal (`torchcal.calibration.fit.fit`: Levenberg-Marquardt, eq. 29 with adaptive mu
    starting at 1e-3; here without the plausibility prior and without registration), over
-   the parameters the identifiability analysis keeps free (`torchcal.calibration.fit`, done at
-   nominal: structural identifiability, with the gauge `fit` uses: of a base frame and
+   the parameters the identifiability analysis keeps free (a cold start without damping
+   from the closed-form registration of the frame, as `fit` starts; `torchcal.calibration.fit`, done at
+   the nominal robot in the starting point's measuring frames (base frame, tool offset):
+   structural identifiability, with the gauge `fit` uses: of a base frame and
    joint 1's dtheta / dd, or a tool offset and the last link's length, the frames are kept
    and the robot's deviations held, so a tracker's rotation about z and height land in the
    base frame, not in joint 1); the others are held at the starting point (nominal by
-   default) and reported by name.
+   default) and reported by name. A cold start without damping is analysed once more at
+   its fitted frames and refitted when they free more (as `fit` rechecks): at a zero tool
+   offset the TCP lies on the last joint's axis and joint 5's da and dalpha move nothing,
+   while with a reflector 290 mm off the flange they do.
 3. **Radius.** Linearising the solution map at ``x_c``, a change ``de`` of the stacked
    errors moves the solution by ``dx = S de`` with
 
@@ -55,9 +60,10 @@ from dataclasses import dataclass
 
 import torch
 
-from torchcal.effects.context import Context, make_context
-from torchcal.errors import InputError
+from torchcal.effects.context import Context, approach_directions, make_context
+from torchcal.errors import DataError, InputError
 from torchcal.calibration.fit import RANK_TOL, FitResult, Identifiability, fit, identifiability
+from torchcal.calibration.identifiability import check_enough_rows
 from torchcal.calibration.gcv import choose_damping, gcv_damping
 from torchcal.reliability.interval import Interval
 from torchcal.calibration.model import CalibrationModel
@@ -79,7 +85,15 @@ class PoseIntervals:
         lower: (m, 3) mm per-axis minimum of the measured positions.
         upper: (m, 3) mm per-axis maximum (`interval` is [lower, upper] as an `Interval`).
         count: (m,) int64 repetitions per pose.
-        payload_kg: (m,) or None; temp_c: (m,) or None (first row of each pose).
+        payload_kg: (m,) or None; temp_c: (m,) or None (first row of each pose, or the
+            mid-range of its rows: `pose_intervals`).
+        approach: (m, n) +1 / -1 or None: the direction each joint last moved in to reach
+            the pose, from the order of the measurement rows (`approach_directions` over
+            the session, its q_prev when given; the first row of each pose), so that a
+            subset (a zone) keeps the session's directions; None: from the order of the
+            poses (of the subset) as given.
+        mixed: (m,) bool or None: the pose's rows were approached from different
+            directions (an interval of its repeats mixes them).
     """
 
     pose: torch.Tensor
@@ -89,6 +103,8 @@ class PoseIntervals:
     count: torch.Tensor
     payload_kg: torch.Tensor | None = None
     temp_c: torch.Tensor | None = None
+    approach: torch.Tensor | None = None
+    mixed: torch.Tensor | None = None
 
     def __post_init__(self):  # checks lower <= upper once (InputError naming the index)
         object.__setattr__(self, "_interval", Interval(self.lower, self.upper))
@@ -114,18 +130,26 @@ class PoseIntervals:
     def subset(self, index) -> "PoseIntervals":
         pick = lambda t: None if t is None else t[index]  # noqa: E731
         return PoseIntervals(pick(self.pose), pick(self.q), pick(self.lower), pick(self.upper),
-                             pick(self.count), pick(self.payload_kg), pick(self.temp_c))
+                             pick(self.count), pick(self.payload_kg), pick(self.temp_c), pick(self.approach),
+                             pick(self.mixed))
 
     def context(self, robot) -> Context:
-        """Model context with one row per pose (the commanded angles in order)."""
-        return make_context(robot, self.q, self.payload_kg, self.temp_c)
+        """Model context with one row per pose (the commanded angles in order; the approach
+        directions of the rows when recorded)."""
+        ctx = make_context(robot, self.q, self.payload_kg, self.temp_c)
+        return ctx if self.approach is None else dataclasses.replace(ctx, approach=self.approach.to(ctx.q))
 
 
-def pose_intervals(meas, min_repeats: int = 1) -> PoseIntervals:
+def pose_intervals(meas, min_repeats: int = 1, rows: bool = False) -> PoseIntervals:
     """Group a `torchcal.measurements.Measurements` by pose id into per-axis intervals.
 
     Rows of one pose must share their commanded joint angles (within 1e-9 rad); raises
-    InputError otherwise or when a pose has fewer than `min_repeats` rows.
+    InputError otherwise or when a pose has fewer than `min_repeats` rows. rows: the
+    conditions of the pose's rows, not of its first row: their approach directions in the
+    session (``approach``, ``mixed``; `PoseIntervals`), and payload_kg and temp_c the
+    mid-range of the rows (the interval's centre is the mid-range of the positions, which
+    an effect linear in them, thermal expansion, compliance, takes at their mid-range; a
+    pose visited while the cell warmed spans several degrees).
     """
     pose = meas.pose
     ids, first = [], {}
@@ -154,8 +178,18 @@ def pose_intervals(meas, min_repeats: int = 1) -> PoseIntervals:
     lo = lo.scatter_reduce(0, idx, xyz, "amin")
     hi = hi.scatter_reduce(0, idx, xyz, "amax")
     pick = lambda t: None if t is None else t[rows0.to(t.device)]  # noqa: E731
+    app = mixed = None
+    if rows:
+        mid = lambda t: None if t is None else (  # noqa: E731
+            t.new_full((m,), float("inf")).scatter_reduce(0, inv.to(t.device), t, "amin")
+            + t.new_full((m,), -float("inf")).scatter_reduce(0, inv.to(t.device), t, "amax")) / 2
+        pick = mid
+        d = approach_directions(meas.q, meas.q_prev)  # (N, n) in the order measured
+        app = d[rows0.to(d.device)]
+        mixed = torch.zeros(m, dtype=torch.bool).index_put_(
+            (inv,), (d != app[inv.to(d.device)]).any(-1).cpu(), accumulate=True)
     return PoseIntervals(torch.tensor(ids, dtype=torch.int64), q, lo, hi, count,
-                         pick(meas.payload_kg), pick(meas.temp_c))
+                         pick(meas.payload_kg), pick(meas.temp_c), app, mixed)
 
 
 # ------------------------------------------------------------------ solution map
@@ -209,7 +243,7 @@ def _check_zone(model, ctx, data, what):
 
 
 def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
-                   rank_tol: float = RANK_TOL, max_iter: int = 100, theta0=None) -> list[FitResult]:
+                   rank_tol: float = RANK_TOL, max_iter: int = 100, theta0=None, labels=None) -> list[FitResult]:
     """Interval identification of several zones, each by the one fit (`torchcal.calibration.fit.fit`).
 
     Args:
@@ -229,10 +263,14 @@ def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
         rank_tol: identifiability threshold (`torchcal.calibration.fit.identifiability`).
         max_iter: LM iterations at most.
         theta0: (P,) starting point; held parameters stay at its values (default nominal).
+        labels: what each zone is called in an error (default "zone 1", "zone 2", ...:
+            the order given; a caller passing a subset names them by the partition's numbers).
 
     Each zone is `fit` on its interval centers from theta0 with the damping, without the
-    plausibility prior and without registration, on the parameters identifiable at nominal
-    (structural identifiability, whatever theta0 is). Returns one `FitResult` per zone, in
+    plausibility prior and without registration, on the parameters identifiable at the
+    nominal robot in theta0's measuring frames (structural identifiability, whatever
+    theta0's robot deviations are; a cold start without damping once more at its fitted
+    frames, module doc). Returns one `FitResult` per zone, in
     order, with ``radius`` (the interval half-widths |S| e_r) and ``damping`` set; its
     ``residuals`` are the interval centers minus the model, one row per pose.
     """
@@ -253,11 +291,13 @@ def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
     frames = ~torch.isfinite(plausible_scales(model))  # the gauge of `fit`: frames before joint 1's dtheta, dd
     reports, J0s, r0s = [], [], []
     for z, (ctx, data) in enumerate(pairs):
-        rep = identifiability(model.jacobian(model.zeros(), ctx), names, cand, rank_tol, first=frames)  # at nominal
+        rep = _structural(model, ctx, x0, cand, frames, rank_tol)
         m = len(data)
-        if 3 * m <= rep.rank and damping == 0:
-            raise InputError(f"zone {z}: {m} poses give {3 * m} equations for "
-                             f"{rep.rank} identifiable parameters; need more poses")
+        if 3 * m <= rep.rank and damping == 0:  # the message of `fit` (the model's count at generic poses)
+            try:
+                check_enough_rows(rep, 3 * m, model, ctx, cand, rank_tol)
+            except DataError as exc:
+                raise DataError(f"{f'zone {z + 1}' if labels is None else labels[z]}: {exc.message}") from None
         reports.append(rep)
         if damping in ("gcv", "gcv_shared"):
             J0s.append(model.jacobian(x0, ctx).reshape(3 * m, -1))
@@ -266,8 +306,38 @@ def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
         mus = choose_damping(J0s, r0s, torch.stack([r.free for r in reports]), damping)
     else:
         mus = [float(damping)] * len(pairs)
-    return [_identify(model, ctx, data, rep, x0, mu, rank_tol, max_iter)
-            for (ctx, data), rep, mu in zip(pairs, reports, mus)]
+    cold = theta0 is None and damping == 0  # plain least squares from nominal: where it starts is free
+    fits = [_identify(model, ctx, data, rep, _registered(model, ctx, data, x0) if cold else x0, mu, rank_tol,
+                      max_iter) for (ctx, data), rep, mu in zip(pairs, reports, mus)]
+    if theta0 is None and damping == 0 and bool(frames.any()):  # a cold start analysed the frames at zero
+        for k, ((ctx, data), rep, res) in enumerate(zip(pairs, reports, fits)):
+            again = _structural(model, ctx, res.theta, cand, frames, rank_tol)  # at the fitted frames
+            if bool((again.free & ~rep.free).any()) and 3 * len(data) > again.rank:
+                fits[k] = _identify(model, ctx, data, again, res.theta, 0.0, rank_tol, max_iter)
+    return fits
+
+
+def _registered(model, ctx, data: PoseIntervals, x0: torch.Tensor) -> torch.Tensor:
+    """(P,) x0 with a base_frame at the closed-form registration of the model onto the
+    zone's interval centers (`fit`'s start, `torchcal.calibration.registration.register_frame`),
+    x0 itself without a base_frame or with fewer than 3 poses. From an identity frame, a
+    tracker 2.5 m away and turned stopped one UR5e zone of 10 poses at rms 21 mm."""
+    from torchcal.calibration.registration import register_frame
+
+    if len(data) < 3 or not any(e.name == "base_frame" for e in model.effects):
+        return x0
+    return register_frame(model, ctx, data.center.to(x0), x0)[0]
+
+
+def _structural(model, ctx, theta, cand, frames, rank_tol) -> Identifiability:
+    """The structural identifiability of a zone (`identifiability`, the gauge `first` =
+    `frames`): at the nominal robot in the measuring frames of `theta` (P,), its base frame
+    and tool offset. At a zero tool offset the TCP may lie on the last joint's axis, where
+    the second-to-last joint's da and dalpha move nothing; held there, the offset of a
+    reflector 290 mm off the flange carried them and a new reflector (``register --tool``)
+    missed by what they are."""
+    at = torch.where(frames.to(theta.device), theta, model.zeros().to(theta))
+    return identifiability(model.jacobian(at, ctx), model.param_names(), cand, rank_tol, first=frames)
 
 
 def _identify(model, ctx, data: PoseIntervals, structural: Identifiability, x0, mu: float, rank_tol: float,
@@ -275,7 +345,7 @@ def _identify(model, ctx, data: PoseIntervals, structural: Identifiability, x0, 
     """One zone: `fit` on the interval centers, then the interval radii |S| e_r (module doc)."""
     res = fit(model, ctx, data.center.to(x0), theta0=x0, free=structural.free, register=False, prior=False,
               damping=mu, rank_tol=rank_tol, max_iter=max_iter)
-    # the structural analysis (at nominal) is the zone's report; whatever fit held beyond it at theta0 is added
+    # the structural analysis (nominal robot, x0's frames) is the zone's report; whatever fit held beyond it at theta0 is added
     report = structural if not res.report.held else \
         dataclasses.replace(res.report, held=structural.held + res.report.held)
     J = model.jacobian(res.theta, ctx).reshape(3 * len(data), -1)

@@ -102,10 +102,12 @@ def fit_zones(model: CalibrationModel, zones: list[PoseIntervals], glob: FitResu
         empty = [z + 1 for z, d in enumerate(zones) if not len(d)]
         if empty:
             raise InputError(f"zone(s) {empty} have no poses; the independent zone method needs poses in every zone")
-        return identify_zones(model, list(zones), rank_tol=rank_tol)
+        return identify_zones(model, list(zones), rank_tol=rank_tol,
+                              labels=[f"zone {z + 1} (independent zone method)" for z in range(len(zones))])
     if glob is None:
         raise InputError("fit_zones: method 'damped' needs the global fit (glob)")
-    fitted = identify_zones(model, [zones[z] for z in have], theta0=glob.theta, damping=damping, rank_tol=rank_tol)
+    fitted = identify_zones(model, [zones[z] for z in have], theta0=glob.theta, damping=damping, rank_tol=rank_tol,
+                            labels=[f"zone {z + 1}" for z in have])
     by_zone = dict(zip(have, fitted))
     return [by_zone.get(z, glob) for z in range(len(zones))]
 
@@ -126,8 +128,15 @@ def calibrate(model: CalibrationModel, meas, partition=None, zone_method: str = 
 
     from torchcal.calibration.joint_range import joint_range, seed_poses
 
-    data = pose_intervals(meas, min_repeats=2)
-    glob = replace(identify_zones(model, [data])[0], q_range=joint_range(meas.q), seed_poses=seed_poses(meas.q))
+    data = pose_intervals(meas, min_repeats=2, rows=True)  # each pose: its rows' directions, temperatures, payloads
+    uses = [e.spec() for e in model.effects if e.uses_approach]
+    if uses and bool(data.mixed.any()):
+        k = int(data.mixed.nonzero()[0])
+        raise InputError(f"{meas.source or 'measurements'}: the rows of pose {int(data.pose[k])} (and "
+                         f"{int(data.mixed.sum()) - 1} more) were approached from different directions, which "
+                         f"one interval of a pose's repeats mixes, and {', '.join(uses)} depends on the "
+                         "direction: measure each pose's repeats without moving away, or fit it with fit / discover")
+    glob = replace(identify_zones(model, [data], labels=["the global calibration"])[0], q_range=joint_range(meas.q), seed_poses=seed_poses(meas.q))
     if partition is None:
         return glob
     zone = partition.assign(model.robot.fk(data.q)) - 1  # (m,) 0-based

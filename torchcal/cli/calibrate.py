@@ -19,6 +19,11 @@ propagated through the linearised solution map (torchcal.calibration.intervals).
   or of other joint limits, is refused with one line naming what differs; a partition
   file of an older torchcal (no record) is used with a warning that it was not checked.
 
+Tracker data (in the instrument's frame, a reflector on the flange) need ``--effects
+base_frame tool_offset``; without them the data are refused with that cause, as ``fit``
+refuses them (docs/registration.md), and so is a global fit still off by more than any
+calibrated arm.
+
 MODEL.json: the file of ``torchcal fit`` (`torchcal.io.modelfile`; the global fit, each
 parameter with its interval) plus, with ``--partition``, the partition and each zone's
 parameters and intervals; read by ``torchcal compensate``, ``evaluate``, ``export``, ``report``.
@@ -73,7 +78,11 @@ def run(args) -> int:
     with warnings_to_stderr(UnrecordedRobotWarning):  # a partition file without a record
         part = load_partition(args.partition, robot) if args.partition else None
     meas = read_data(args.data, robot, args)
-    res = torchcal.calibrate(robot, meas, specs, partition=part, zone_method=args.zone_method, damping=args.damping)
+    from torchcal.calibration.mismatch import MismatchWarning
+
+    with warnings_to_stderr(MismatchWarning):  # rows beyond the swept region
+        res = torchcal.calibrate(robot, meas, specs, partition=part, zone_method=args.zone_method,
+                                 damping=args.damping)
     torchcal.save(res, args.out, source=args.data, partition_source=args.partition, force=args.force)
     rep = res.report
     print(f"calibrate {robot.name} + [{', '.join(res.model.specs()) or 'geometric only'}] on {len(meas)} rows "

@@ -23,7 +23,9 @@ RMS on DATA of the exported robot alone, of the full model and of the model's ge
 without its effects. Without ``--data`` the effects are listed in the robot file under
 ``"effects"`` with their values and one line says that the exported geometry alone is
 worse and that by how much cannot be told without data.
-The model's first parameter set is exported (zone 1 of an interval model).
+A per-zone model (``calibrate --partition``) has one parameter set per zone, which none
+of these files can hold: its global calibration is exported (zone 1's for a file of the
+older interval-model format, whose global set is zone 1's), and one line says so.
 
 No output replaces an input, ``--force`` included: the model, ``--data``, and what the
 model records it came from (its data, the URDF its robot was imported from), and a
@@ -67,6 +69,11 @@ def run(args) -> int:
         res = export(args.model, robot_file=args.robot_file, urdf=args.urdf, table=args.table, data=args.data,
                      force=args.force, **units(args))
     d = res.to_dict()
+    if d["zones"] > 1:
+        which = ("zone 1's parameters are exported (a file of the older interval-model format stores no global "
+                 "calibration)") if d["zone1"] else "its global calibration is exported"
+        print(f"{args.model}: a per-zone model ({d['zones']} zones); a robot file, URDF or MD-H table holds one "
+              f"parameter set: {which}, not the zones' own parameters (which evaluate and compensate use)")
     if d["residual_stage_dropped"]:
         print(f"{args.model}: its non-physical residual stage is dropped (a URDF, robot file or table holds only "
               f"the physical model)")

@@ -18,6 +18,7 @@ MAX_BACKLASH_DEG = 0.2
 class Backlash(Effect):
     name = "backlash"
     takes_joints = True
+    uses_approach = True
 
     def __init__(self, robot, joints=()):
         super().__init__(robot, joints)

@@ -11,7 +11,9 @@ Writing an effect: subclass `Effect`, set
   MODEL.json; it must not clash with a registered effect;
 - ``takes_joints``: True when the spec lists joints (``self.joints``, 1-based, sorted);
 - ``uses_payload`` / ``uses_temperature``: True when the effect reads ``ctx.payload_kg`` /
-  ``ctx.temp_c``, so a simulated session varies them;
+  ``ctx.temp_c``, so a simulated session varies them; ``uses_approach``: True when it
+  reads ``ctx.approach`` (interval calibration then refuses repeats of a pose approached
+  from different directions);
 - ``param_names()`` / ``param_units()``: one name and one unit string per entry of p
   (names unique within the model, e.g. suffixed with the joint number);
 - ``check_context(ctx)``: raise `torchcal.errors.InputError` when the data lack a column
@@ -88,6 +90,7 @@ class Effect:
     takes_joints: bool = False
     uses_payload: bool = False  # reads ctx.payload_kg: a simulated session varies the payload
     uses_temperature: bool = False  # reads ctx.temp_c: a simulated session drifts the temperature
+    uses_approach: bool = False  # reads ctx.approach: the direction of each move matters (rows' order)
 
     def __init__(self, robot: Robot, joints=()):
         self.robot = robot

@@ -19,6 +19,8 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
+import torch
+
 from torchcal.errors import InputError
 from torchcal.robots.robot import Robot
 
@@ -40,6 +42,10 @@ class Export:
         written: {"robot_file", "urdf", "table"} paths written (None: not asked).
         urdf_links: {"base_link", "tip_link", "frames"} of the written URDF (its base and
             tool links, the names of its separate measuring frames), None without a URDF.
+        zones: parameter sets of the model (a per-zone model of ``calibrate --partition``:
+            its zones; 1 otherwise); a robot file, URDF or table holds one: the global one.
+        zone1: the global parameters are zone 1's, which had poses (a file of the older
+            interval-model format stores no global calibration: zone 1 stands in).
     """
 
     robot: Robot
@@ -50,10 +56,13 @@ class Export:
     urdf_source: str | None
     written: dict
     urdf_links: dict | None = None
+    zones: int = 1
+    zone1: bool = False
 
     def to_dict(self) -> dict:
         r = self.refit
-        return {"robot": self.robot.name, "joints": self.robot.n, "written": dict(self.written),
+        return {"robot": self.robot.name, "joints": self.robot.n, "written": dict(self.written), "zones": self.zones,
+                "zone1": self.zone1,
                 "effects_not_held": [e["spec"] for e in self.effects_not_held],
                 "residual_stage_dropped": self.residual_stage_dropped,
                 "urdf": None if self.urdf_links is None else dict(self.urdf_links, source=self.urdf_source),
@@ -148,4 +157,13 @@ def export(im, *, robot_file=None, urdf=None, table=None, data=None, length_unit
         if table is not None:
             atomic_write(table, mdh_table_csv(cal), force=force, inputs=inputs)
     return Export(cal, rest, im.residual_model is not None, refit, rows, source,
-                  {k: (None if v is None else str(v)) for k, v in outs.items()}, links if urdf else None)
+                  {k: (None if v is None else str(v)) for k, v in outs.items()}, links if urdf else None,
+                  int(im.zone_theta.shape[0]), _zone1_stands_in(im))
+
+
+def _zone1_stands_in(im) -> bool:
+    """The global parameters of a per-zone model are its zone 1's, a zone with poses (fitted
+    on its own, it is not the global fit): a file of the older interval-model format."""
+    zones = getattr(im, "zones", None)
+    return bool(zones) and len(zones) > 1 and bool(im.zone_poses and im.zone_poses[0]) and \
+        bool(torch.equal(im.theta, zones[0].theta))

@@ -183,7 +183,7 @@ def to_dict(res: FitResult, source=None, seed: int = 0, pose_ids=None, partition
         from torchcal.io.partition_file import partition_to_dict
 
         extra["zone_method"] = res.method
-        extra["partition"] = partition_to_dict(res.partition)
+        extra["partition"] = partition_to_dict(res.partition, res.partition.made_for)  # with its robot record
         extra["zones"] = [_zone_to_dict(res, z, k) for z in range(len(res.zones))]
     return {
         "format": FORMAT,
@@ -392,6 +392,17 @@ def _zoned(glob: FitResult, zones: list, obj: dict, partition: dict, method: str
     from torchcal.io.partition_file import partition_from_dict
 
     part = partition_from_dict(partition, f"{where}: partition")
+    listed = [z.get("zone") for z in obj["zones"]]
+    if listed != list(range(1, len(listed) + 1)):  # zone k's parameters apply to the partition's zone k
+        raise InputError(f"{where}: zones listed as {listed[:8]}{' ...' if len(listed) > 8 else ''}, expected "
+                         f"1..{len(listed)} in order (a file edited by hand or corrupted: each entry's parameters "
+                         "would apply to another zone)")
+    levels = [z.get("level") for z in obj["zones"]]
+    if None not in levels and len(levels) == part.n_zones and levels != [int(v) for v in part.zone_level]:
+        k = next(i for i, (a, b) in enumerate(zip(levels, part.zone_level)) if a != int(b))
+        raise InputError(f"{where}: zone {k + 1} is of level {levels[k]} but the embedded partition's zone {k + 1} "
+                         f"of level {int(part.zone_level[k])}: zones and partition do not match (a file edited by "
+                         "hand or corrupted)")
     try:
         return ZonedFit.of(glob, zones, part, method, [int(z.get("poses") or 0) for z in obj["zones"]])
     except InputError as exc:

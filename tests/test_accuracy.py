@@ -95,3 +95,54 @@ def test_no_uncertainty_no_predicted_error():
     assert_close(predicted_sigma(MODEL, MODEL.zeros(), one, q), torch.ones(10, dtype=torch.float64),
                  rtol=1e-12, atol=0)
     assert float(predicted_sigma(MODEL, MODEL.zeros(), -one, q).max()) == 0.0  # a negative variance clamps at 0
+
+
+def _robot_with_base():
+    """ur5e on a mount: the robot file's base (world <- joint-1 frame) turned 40 deg about z
+    and raised 600 mm, 200 mm aside."""
+    import dataclasses
+    B = torch.eye(4, dtype=torch.float64)
+    c, s = np.cos(np.radians(40.0)), np.sin(np.radians(40.0))
+    B[:2, :2] = torch.tensor([[c, -s], [s, c]], dtype=torch.float64)
+    B[:3, 3] = torch.tensor([200.0, -100.0, 600.0], dtype=torch.float64)
+    return dataclasses.replace(ROBOT, base=B)
+
+
+def test_regions_are_named_about_joint_1_not_about_the_tracker():
+    """A tracker 3.6 m away (base_frame, as on the UR10 of examples/ur10) and a robot on a
+    mount: reach is the distance from joint 1's axis and height along it, computed here in
+    numpy from the plain MD-H chain (tests/npsim.py) in the robot's own frame; the model's
+    positions in the tracker's frame name other regions (on the UR10 model of series C, 1351
+    of 2000 poses got another reach or height tertile)."""
+    from scipy.spatial.transform import Rotation
+    from npsim import numpy_fk
+
+    robot = _robot_with_base()
+    model = CalibrationModel(robot, ["base_frame"])
+    theta = model.zeros()
+    names = model.param_names()
+    rotvec = np.array([0.01, -0.02, 0.35])
+    for k, v in zip(("base_tx", "base_ty", "base_tz", "base_rx", "base_ry", "base_rz"),
+                    (500.0, -3500.0, -1200.0, *rotvec)):
+        theta[names.index(k)] = v
+    C = torch.diag(torch.full((model.n_params,), 1e-6, dtype=torch.float64))
+    acc = workspace_accuracy(model, theta, C, n=400, seed=2)
+    world = numpy_fk(robot, acc.q.numpy(), np.zeros((robot.n, 5)))  # the robot file's world frame
+    W = Rotation.from_rotvec(rotvec).as_matrix()
+    assert np.abs(world @ W.T + [500.0, -3500.0, -1200.0] - acc.pos.numpy()).max() < 1e-6  # pos: tracker frame
+    B = robot.base.numpy()
+    local = (world - B[:3, 3]) @ B[:3, :3]  # joint-1 frame: z along joint 1's axis
+    sector = ["front" if abs(v) <= 45 else "left" if 45 < v <= 135 else "right" if -135 <= v < -45 else "back"
+              for v in np.degrees(acc.q[:, 0].numpy())]
+
+    def tert(v, words):
+        lo, hi = np.quantile(v, [1 / 3, 2 / 3])
+        return [words[0] if x < lo else words[1] if x < hi else words[2] for x in v]
+    expected = [f"{s} / {r} / {h}" for s, r, h in zip(sector, tert(np.hypot(local[:, 0], local[:, 1]),
+                                                                   ("near", "mid-reach", "far")),
+                                                      tert(local[:, 2], ("low", "mid-height", "high")))]
+    groups = {}
+    for name, sg in zip(expected, acc.sigma.numpy()):
+        groups.setdefault(name, []).append(sg)
+    table = {k: (np.mean(v), len(v)) for k, v in groups.items() if len(v) >= 5}
+    assert {r[0]: (approx(r[1]), r[3]) for r in acc.regions} == {k: (approx(m), c) for k, (m, c) in table.items()}

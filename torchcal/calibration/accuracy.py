@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import torch
 
-__all__ = ["Accuracy", "predicted_sigma", "region_names", "workspace_accuracy"]
+__all__ = ["Accuracy", "joint1_frame", "predicted_sigma", "region_names", "workspace_accuracy"]
 
 
 def predicted_sigma(model, theta: torch.Tensor, cov: torch.Tensor, q: torch.Tensor, payload_kg=None,
@@ -27,10 +27,22 @@ def predicted_sigma(model, theta: torch.Tensor, cov: torch.Tensor, q: torch.Tens
     return tcp_sigma(model.jacobian(theta, ctx), cov)
 
 
+def joint1_frame(model, theta: torch.Tensor, pos: torch.Tensor) -> torch.Tensor:
+    """(N, 3) mm: the model's positions pos (N, 3) mm (in its measuring frame) in the
+    robot's joint-1 frame (z along joint 1's axis through its origin): undone are the
+    model's base_frame at theta (P,) and the robot file's ``base``."""
+    from torchcal.calibration.compensate import measuring_from_base
+
+    R, t = measuring_from_base(model, theta)
+    B = model.robot.base.to(pos)
+    return ((pos - t) @ R - B[:3, 3]) @ B[:3, :3]
+
+
 def region_names(q: torch.Tensor, pos: torch.Tensor) -> list[str]:
     """'<sector> / <near|mid-reach|far> / <low|mid-height|high>' per pose: the joint-1 angle
     of q (N, n) rad in four sectors (front -45..45 deg, left, back, right), the reach of pos
-    (N, 3) mm from the joint-1 axis and its height, by tertiles of the sample."""
+    (N, 3) mm in the joint-1 frame (`joint1_frame`) from the joint-1 axis and its height
+    along it, by tertiles of the sample."""
     a = torch.rad2deg(q[:, 0])
     sector = ["front" if abs(v) <= 45 else "left" if 45 < v <= 135 else "right" if -135 <= v < -45
               else "back" for v in a.tolist()]
@@ -47,7 +59,7 @@ def region_names(q: torch.Tensor, pos: torch.Tensor) -> list[str]:
 class Accuracy:
     """Predicted accuracy at sampled workspace poses.
 
-    q: (N, n) rad poses; pos: (N, 3) mm model positions; sigma: (N,) mm predicted TCP sigma;
+    q: (N, n) rad poses; pos: (N, 3) mm model positions (its measuring frame); sigma: (N,) mm predicted TCP sigma;
     regions: (region, mean sigma mm, max sigma mm, points) of the regions with >= 5 points,
     worst mean first; seed: the sample's seed; robot, effects: the model's robot name and effect specs."""
 
@@ -82,7 +94,7 @@ def workspace_accuracy(model, theta: torch.Tensor, cov: torch.Tensor, *, n: int 
     sigma = predicted_sigma(model, theta, cov, q, payload, temp)
     pos = model.predict(theta, make_context(robot, q, payload, temp))
     groups = {}
-    for name, s in zip(region_names(q, pos), sigma.tolist()):
+    for name, s in zip(region_names(q, joint1_frame(model, theta, pos)), sigma.tolist()):
         groups.setdefault(name, []).append(s)
     rows = sorted(((sum(v) / len(v), max(v), len(v), k) for k, v in groups.items() if len(v) >= 5), reverse=True)
     return Accuracy(q, pos, sigma, [(k, m, x, c) for m, x, c, k in rows], seed, robot.name, tuple(model.specs()))

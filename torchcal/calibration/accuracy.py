@@ -1,7 +1,8 @@
 """Predicted TCP accuracy of a fitted model over the workspace (``torchcal accuracy``).
 
-At N workspace poses (Latin hypercube inside the joint limits, filtered like the sweep's
-workspace, `torchcal.robots.workspace.sample_workspace`) the parameter covariance C is
+At N workspace poses (Latin hypercube inside the joint range the model was calibrated on,
+or inside the joint limits on request, filtered like the sweep's workspace,
+`torchcal.robots.workspace.sample_workspace`) the parameter covariance C is
 propagated through the position Jacobian J: sigma = sqrt(trace J C J^T), the 1-sigma (RMS)
 length of the 3-D TCP error that the parameter uncertainty leaves, in mm. It covers what
 the fit could not determine, not what the model leaves out.
@@ -13,7 +14,7 @@ from dataclasses import dataclass
 
 import torch
 
-__all__ = ["Accuracy", "joint1_frame", "predicted_sigma", "region_names", "workspace_accuracy"]
+__all__ = ["Accuracy", "calibrated_box", "joint1_frame", "predicted_sigma", "region_names", "workspace_accuracy"]
 
 
 def predicted_sigma(model, theta: torch.Tensor, cov: torch.Tensor, q: torch.Tensor, payload_kg=None,
@@ -61,7 +62,10 @@ class Accuracy:
 
     q: (N, n) rad poses; pos: (N, 3) mm model positions (its measuring frame); sigma: (N,) mm predicted TCP sigma;
     regions: (region, mean sigma mm, max sigma mm, points) of the regions with >= 5 points,
-    worst mean first; seed: the sample's seed; robot, effects: the model's robot name and effect specs."""
+    worst mean first; seed: the sample's seed; robot, effects: the model's robot name and effect specs;
+    q_range: (2, n) rad / mm the joint range the model was calibrated on (None: not recorded);
+    within: "calibrated" (the poses were drawn inside q_range and the joint limits) or "limits";
+    outside: poses beyond q_range (the model extrapolates there; 0 without q_range)."""
 
     q: torch.Tensor
     pos: torch.Tensor
@@ -70,24 +74,57 @@ class Accuracy:
     seed: int
     robot: str = ""
     effects: tuple = ()
+    q_range: torch.Tensor | None = None
+    within: str = "limits"
+    outside: int = 0
 
     def to_dict(self) -> dict:
         med, p95 = torch.quantile(self.sigma, torch.tensor([0.5, 0.95], dtype=self.sigma.dtype)).tolist()
         return {"robot": self.robot, "effects": list(self.effects), "poses": int(self.q.shape[0]), "seed": self.seed,
+                "within": self.within, "outside_calibrated_range": self.outside,
                 "sigma_mm": {"min": float(self.sigma.min()), "median": med, "p95": p95,
                              "max": float(self.sigma.max())},
                 "regions": [{"region": k, "mean_mm": m, "max_mm": x, "points": c} for k, m, x, c in self.regions]}
 
 
+def calibrated_box(robot, q_range: torch.Tensor) -> torch.Tensor:
+    """(n, 2) rad / mm: the joint limits of `robot` narrowed to q_range (2, n), the joint
+    range a model was calibrated on; InputError where the two do not overlap."""
+    from torchcal.errors import InputError
+
+    lim = robot.limits
+    box = torch.stack([torch.maximum(lim[:, 0], q_range[0].to(lim)), torch.minimum(lim[:, 1], q_range[1].to(lim))], 1)
+    if bool((box[:, 0] > box[:, 1]).any()):
+        bad = [i + 1 for i in range(robot.n) if box[i, 0] > box[i, 1]]
+        raise InputError(f"the calibrated joint range lies outside the joint limits at joint(s) "
+                         f"{', '.join(map(str, bad))}")
+    return box
+
+
 def workspace_accuracy(model, theta: torch.Tensor, cov: torch.Tensor, *, n: int = 2000, seed: int = 0,
-                       payload_kg: float | None = None, temp_c: float = 20.0) -> Accuracy:
+                       payload_kg: float | None = None, temp_c: float = 20.0, q_range: torch.Tensor | None = None,
+                       within: str = "calibrated") -> Accuracy:
     """The `Accuracy` of `model` at theta (P,) with covariance cov (P, P) at n workspace poses
-    drawn with `seed`; payload_kg (default: half the rated payload) and temp_c at every pose."""
+    drawn with `seed`; payload_kg (default: half the rated payload) and temp_c at every pose.
+    q_range: (2, n) rad / mm the joint range the model was calibrated on, or None (not
+    recorded). within: "calibrated" draws the poses inside q_range (and the limits), where
+    the prediction holds; "limits" inside the joint limits, counting those beyond q_range
+    (there the model extrapolates). Without q_range the poses come from the limits."""
+    import dataclasses
+
+    from torchcal.calibration.joint_range import outside_range
     from torchcal.effects import make_context
+    from torchcal.errors import InputError
     from torchcal.robots.workspace import sample_workspace
 
+    if within not in ("calibrated", "limits"):
+        raise InputError(f"within: expected 'calibrated' or 'limits', got {within!r}")
     robot = model.robot
-    q = sample_workspace(robot, n, seed=seed)
+    if q_range is None:
+        within = "limits"
+    box = robot if within == "limits" else dataclasses.replace(robot, limits=calibrated_box(robot, q_range))
+    q = sample_workspace(box, n, seed=seed)
+    outside = 0 if q_range is None else int(outside_range(q, q_range, robot.prismatic).any(-1).sum())
     N = q.shape[0]
     payload = torch.full((N,), robot.payload_kg / 2 if payload_kg is None else payload_kg, dtype=torch.float64)
     temp = torch.full((N,), temp_c, dtype=torch.float64)
@@ -97,4 +134,5 @@ def workspace_accuracy(model, theta: torch.Tensor, cov: torch.Tensor, *, n: int 
     for name, s in zip(region_names(q, joint1_frame(model, theta, pos)), sigma.tolist()):
         groups.setdefault(name, []).append(s)
     rows = sorted(((sum(v) / len(v), max(v), len(v), k) for k, v in groups.items() if len(v) >= 5), reverse=True)
-    return Accuracy(q, pos, sigma, [(k, m, x, c) for m, x, c, k in rows], seed, robot.name, tuple(model.specs()))
+    return Accuracy(q, pos, sigma, [(k, m, x, c) for m, x, c, k in rows], seed, robot.name, tuple(model.specs()),
+                    q_range, within, outside)

@@ -118,6 +118,7 @@ def calibration_report(model_path, data=None, *, history_path=None, tolerance_mm
 
     if tolerance_mm is not None and not tolerance_mm > 0:
         raise InputError(f"tolerance_mm: expected a distance > 0 mm, got {tolerance_mm}")
+    from torchcal import api
     from torchcal.io import modelfile
 
     model = read_json(model_path, "model file")
@@ -126,6 +127,7 @@ def calibration_report(model_path, data=None, *, history_path=None, tolerance_mm
     if not str(model.get("format", "")).startswith("torchcal-model/"):
         raise InputError(f"{model_path}: not a MODEL.json of `torchcal fit`, `discover` or `calibrate` "
                          f"(format {model.get('format')!r})")
+    fitted = api.load(model_path)  # the model read as every command reads it: a value NaN, a bad block refused
     history = None
     if history_path is not None:
         history = read_json(history_path, "discover history")
@@ -139,9 +141,6 @@ def calibration_report(model_path, data=None, *, history_path=None, tolerance_mm
                             tolerance_mm=tolerance_mm, history=history)
     if data is None:
         return rep
-    from torchcal import api
-
-    fitted = api.load(model_path)
     m = data if isinstance(data, Measurements) else read_measurements(
         data, robot=fitted.model.robot, length_unit=length_unit, angle_unit=angle_unit)
     source = data if isinstance(data, (str, Path)) else m.source

@@ -264,3 +264,35 @@ def test_real_robot_reaches_targets_with_a_zoned_model(zoned, frame, capsys):
     q, rows = _commands(out)
     assert all(r["converged"] == "true" and r["within_limits"] == "true" for r in rows)
     assert np.linalg.norm(real_robot(table, q, frame) - goal, axis=1).max() < 1.0  # as the fit's test above
+
+
+def _tool_rotation(table, q):
+    """(N, 3, 3) the flange rotation of the true robot at q (N, 6) rad (plain numpy)."""
+    from npsim import numpy_frames
+    return np.array([numpy_frames(KR, qq, table - KR.table.numpy())[-1][:3, :3] for qq in q])
+
+
+def test_without_seeds_the_output_says_the_orientation_is_not_the_users(cell, capsys):
+    """x,y,z fix 3 of the 6 joints: without seeds each command keeps the configuration of
+    the nearest calibration pose, so the true robot reaches the point with another tool
+    orientation than the goal's (178 deg at worst here); with the nominal commands as seeds
+    it keeps the goal's. Only the seeded run may be silent about it."""
+    d, table, q_goal = cell
+    goal = real_robot(table, q_goal, "measuring")
+    runs = {}
+    for seeded in (False, True):
+        t = d / f"targets_seeded_{seeded}.csv"
+        if seeded:
+            t.write_text("x,y,z," + ",".join(f"q{k}" for k in range(1, 7)) + "\n" + "".join(
+                ",".join(repr(float(v)) for v in [*p, *np.degrees(qq)]) + "\n" for p, qq in zip(goal, q_goal)))
+        else:
+            _write_targets(t, goal)
+        capsys.readouterr()
+        assert main(["compensate", str(t), "--model", str(d / "model.json"), "--out", str(d / f"q_s{seeded}.csv"),
+                     "--force"]) == 0
+        q, _ = _commands(d / f"q_s{seeded}.csv")
+        R = _tool_rotation(table, q) @ _tool_rotation(table, q_goal).transpose(0, 2, 1)
+        angle = np.degrees(np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1, 1)))
+        runs[seeded] = (angle.max(), capsys.readouterr().out)
+    assert runs[True][0] < 0.5 and runs[False][0] > 5.0, runs
+    assert "orientation" in runs[False][1] and "orientation" not in runs[True][1]

@@ -10,7 +10,9 @@ that look like radians read as degrees are refused).
 Without seeds the nominal inverse (nominal geometry in the model's fitted frame) is
 solved first, each target starting from the nearest of the calibration poses the model
 keeps (the arm configuration it was calibrated in; the next nearest when the solution
-leaves the joint limits or the calibrated joint range).
+leaves the joint limits or the calibrated joint range). x,y,z fix 3 joints: the others,
+and with them the tool orientation, are those of that pose, and a line says so; with
+seeds they stay at the seed's to first order.
 
 Frames (--frame): ``measuring`` (the default, printed) reads x,y,z in the frame the
 model was fitted in: the laser tracker's when the model has ``base_frame``;
@@ -75,6 +77,10 @@ def run(args) -> int:
           f"parameter set(s) ({d['method']}): "
           f"{len(d['targets']) - len(res.failed)} converged within the joint limits; max predicted residual "
           f"{d['max_residual_mm']:.3g} mm; wrote {args.out}")
+    if not res.seeded and res.q_user.shape[-1] > 3:
+        print(f"{args.targets}: no seeds (q1..qN): x,y,z fix 3 of the {res.q_user.shape[-1]} joints, so each command "
+              f"keeps the arm configuration and tool orientation of the nearest calibration pose, not a chosen "
+              f"one; give each target's nominal command as q1..qN to keep its orientation")
     if res.failed:
         def rows(ix):
             return ", ".join(map(str, ix[:20])) + (" ..." if len(ix) > 20 else "")

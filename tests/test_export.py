@@ -215,3 +215,57 @@ def test_table_says_that_base_and_tool_are_not_in_it(fitted, capsys):
     assert np.linalg.norm(fk(np.eye(4), np.eye(4)) - pred, axis=1).max() > 0.3  # 1.1 mm here, metres on the UR10
     line = next(ln for ln in out.splitlines() if ln.startswith(f"{d / 't.csv'}:"))
     assert "not in it" in line and "base" in line and "tool" in line and "--robot-file" in line
+
+
+def test_export_of_a_model_with_several_reflectors(tmp_path, capsys):
+    """Two reflectors on the flange (the `point` column, one tool offset each), measured
+    on a plain-numpy ur5e: export wrote nothing and ended in a RuntimeError traceback. Now
+    the robot file keeps the nominal tool and lists each reflector's offset (flange frame)
+    under "effects", the URDF has a frame per reflector, and one line says so; each
+    offset on the robot file's chain (FK here in numpy from the JSON) and each URDF frame
+    reach the true reflectors to the fit's accuracy."""
+    import numpy as np
+    from npsim import numpy_fk
+    from torchcal.robots.poses import random_poses
+
+    rob = torchcal.robot("ur5e")
+    rng = np.random.default_rng(2)
+    dev = np.column_stack([rng.uniform(-1, 1, 6) * np.radians(0.05), rng.uniform(-1, 1, (6, 2)) * 0.5,
+                           rng.uniform(-1, 1, 6) * np.radians(0.05), np.zeros(6)])
+    q = random_poses(rob, 60, 3).numpy()
+    pts = {1: [30.0, 0.0, 100.0], 2: [-20.0, 40.0, 80.0]}
+    truth = {}
+    with open(tmp_path / "s.csv", "w") as fh:
+        fh.write("pose," + ",".join(f"q{k}" for k in range(1, 7)) + ",x,y,z,point\n")
+        for pid, off in pts.items():
+            T = np.eye(4)
+            T[:3, 3] = off
+            truth[pid] = lambda qq, T=T: numpy_fk(rob, qq, dev, tool=T)
+            P = truth[pid](q) + rng.normal(0, 0.01, (60, 3))
+            for i, (qq, p) in enumerate(zip(np.degrees(q), P)):
+                fh.write(",".join(map(repr, [i + 1, *qq.tolist(), *p.tolist()])) + f",{pid}\n")
+    assert main(["fit", str(tmp_path / "s.csv"), "--robot", "ur5e", "--effects", "tool_offset",
+                 "--out", str(tmp_path / "m.json")]) == 0
+    capsys.readouterr()
+    assert main(["export", str(tmp_path / "m.json"), "--robot-file", str(tmp_path / "r.json"),
+                 "--urdf", str(tmp_path / "r.urdf")]) == 0
+    out = capsys.readouterr().out
+    assert "2 reflectors" in out and "nominal tool" in out
+    obj = json.loads((tmp_path / "r.json").read_text())
+    listed = next(e for e in obj["effects"] if e["spec"] == "tool_offset")["parameters"]
+    qv = random_poses(rob, 100, 8).numpy()
+    for pid in pts:
+        off = np.array([listed[f"tool_{c}@{pid}"]["value"] for c in "xyz"])
+        tool = np.array(obj["tool"])
+        tool[:3, 3] += off
+        from npsim import _rx, _ry, _rz, _tr
+        P = []
+        for qq in qv:
+            T = np.array(obj["base"])
+            for j, qj in zip(obj["joints"], qq):
+                T = T @ _rz(np.radians(j["theta_offset_deg"]) + qj) @ _tr(0.0, j["d_mm"]) @ _tr(j["a_mm"], 0.0) @ \
+                    _rx(np.radians(j["alpha_deg"])) @ _ry(np.radians(j.get("beta_deg", 0.0)))
+            P.append((T @ tool)[:3, 3])
+        assert np.linalg.norm(np.array(P) - truth[pid](qv), axis=1).max() < 0.1
+        back = robot_from_urdf(tmp_path / "r.urdf", "base_link", f"reflector_{pid}")
+        assert np.linalg.norm(back.fk(torch.from_numpy(qv)).numpy() - truth[pid](qv), axis=1).max() < 0.1

@@ -96,13 +96,24 @@ def measuring_frames(model, theta: torch.Tensor):
     return W, refl
 
 
+def reflector_offsets(model, theta: torch.Tensor) -> list:
+    """[{"spec", "parameters"}]: the tool_offset of a model with several reflectors (one
+    offset per point id, mm in the flange frame, added to the robot's tool translation)
+    at theta (P,), as a robot file lists the effects it does not hold; [] otherwise."""
+    theta = theta.to("cpu", torch.float64)
+    return [{"spec": e.spec(), "parameters": {n: {"value": float(v), "unit": u} for n, v, u in
+                                              zip(e.param_names(), theta[sl].tolist(), e.param_units())}}
+            for e, sl in zip(model.effects, model.slices[1:]) if e.name == "tool_offset" and e.points]
+
+
 def calibrated_robot(model, theta: torch.Tensor, fold: bool = True):
     """(Robot, effects) of a model at theta (P,): the nominal robot (CPU, float64) with the
     MD-H deviations added to its table and, with `fold`, the base_frame effect folded into
     its base and tool_offset into its tool (without: the robot's own base and tool, the
-    measuring frame apart, `measuring_frames`); effects: [{"spec", "parameters": {name:
-    {"value", "unit"}}}] of the model's other effects, which a robot file, a URDF or an
-    MD-H table cannot hold."""
+    measuring frame apart, `measuring_frames`); a tool_offset with one offset per point
+    (several reflectors) is never folded: one tool cannot hold them (`reflector_offsets`).
+    effects: [{"spec", "parameters": {name: {"value", "unit"}}}] of the model's other
+    effects, which a robot file, a URDF or an MD-H table cannot hold."""
     import dataclasses
 
     r = model.robot.to("cpu", torch.float64)
@@ -117,7 +128,8 @@ def calibrated_robot(model, theta: torch.Tensor, fold: bool = True):
         if e.name == "base_frame":
             base = measuring_frames(model, theta)[0] @ base
         elif e.name == "tool_offset":
-            tool[:3, 3] = tool[:3, 3] + p
+            if not e.points:  # one offset; several (one per reflector): reflector_offsets
+                tool[:3, 3] = tool[:3, 3] + p
         else:
             rest.append({"spec": e.spec(), "parameters": {n: {"value": float(v), "unit": u} for n, v, u in
                                                           zip(e.param_names(), p.tolist(), e.param_units())}})

@@ -92,6 +92,12 @@ def run(args) -> int:
         kept = f"the links of {u['source']} with calibrated joint origins" if u["source"] else "a minimal URDF"
         frames = (f"; measuring set-up as separate fixed frames: {', '.join(u['frames'])}" if u["frames"] else "")
         print(f"{args.urdf}: {kept}; the robot's own base {u['base_link']} and tool link {u['tip_link']}{frames}")
+    if d["reflectors"] and (args.robot_file or args.table):
+        ids = ", ".join(map(str, d["reflectors"]))
+        print(f"{args.model}: {len(d['reflectors'])} reflectors (points {ids}), one tool offset each: the robot file "
+              f"and table keep the nominal tool; the offsets (mm, flange frame, added to the tool's translation) are "
+              f"listed under \"effects\" in the robot file" + (" and are frames reflector_ID of the URDF" if args.urdf
+                                                                  else ""))
     if args.table:
         note = table_frames_note(res.robot)
         if note:

@@ -184,3 +184,26 @@ def test_predicted_sigma_is_the_error_where_the_model_was_calibrated(tmp_path, c
     assert (acc.q.numpy() >= q.min(0) - 1e-12).all() and (acc.q.numpy() <= q.max(0) + 1e-12).all()
     assert main(["accuracy", str(tmp_path / "m.json"), "--n", "500", "--range", "limits"]) == 0
     assert "500 of them beyond the joint range the model was calibrated on" in capsys.readouterr().out
+
+
+def test_a_model_with_several_reflectors():
+    """One tool offset per reflector (points 3 and 7): accuracy ended in an AttributeError
+    traceback (no point ids at the workspace poses). Now each pose's sigma is the larger
+    of the two reflectors', each from forward-mode autodiff and numpy."""
+    model = CalibrationModel(ROBOT, ["tool_offset"])
+    model.effects[0].set_points([3, 7])
+    model = CalibrationModel(ROBOT, model.effects)
+    g = torch.Generator().manual_seed(1)
+    A = torch.randn(model.n_params, model.n_params, generator=g, dtype=torch.float64) * 1e-3
+    C = A @ A.T
+    theta = model.zeros()
+    theta[-6:] = torch.tensor([30.0, 0.0, 100.0, -20.0, 40.0, 80.0], dtype=torch.float64)
+    acc = workspace_accuracy(model, theta, C, n=50, seed=3)
+    ref = []
+    for pid in (3, 7):
+        ctx = make_context(ROBOT, acc.q, torch.full((50,), ROBOT.payload_kg / 2, dtype=torch.float64),
+                           torch.full((50,), 20.0, dtype=torch.float64), point=torch.full((50,), pid))
+        J = torch.func.jacfwd(lambda th: model.predict(th, ctx))(theta).numpy()
+        ref.append(np.sqrt([np.trace(Ji @ C.numpy() @ Ji.T) for Ji in J]))
+    assert_close(acc.sigma, torch.from_numpy(np.maximum(*ref)), rtol=1e-9, atol=1e-12)
+    assert acc.points == (3, 7) and np.abs(ref[0] - ref[1]).max() > 1e-4  # the two differ

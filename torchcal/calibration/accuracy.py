@@ -18,13 +18,14 @@ __all__ = ["Accuracy", "calibrated_box", "joint1_frame", "predicted_sigma", "reg
 
 
 def predicted_sigma(model, theta: torch.Tensor, cov: torch.Tensor, q: torch.Tensor, payload_kg=None,
-                    temp_c=None) -> torch.Tensor:
+                    temp_c=None, point=None) -> torch.Tensor:
     """(N,) mm predicted TCP sigma at poses q (N, n) rad of `model` at theta (P,) with the
-    parameter covariance cov (P, P); payload_kg, temp_c: (N,) conditions or None."""
+    parameter covariance cov (P, P); payload_kg, temp_c: (N,) conditions or None; point:
+    (N,) reflector ids for a model with one tool offset per point, else None."""
     from torchcal.calibration.covariance import tcp_sigma
     from torchcal.effects import make_context
 
-    ctx = make_context(model.robot, q, payload_kg, temp_c)
+    ctx = make_context(model.robot, q, payload_kg, temp_c, point=point)
     return tcp_sigma(model.jacobian(theta, ctx), cov)
 
 
@@ -63,6 +64,8 @@ class Accuracy:
     q: (N, n) rad poses; pos: (N, 3) mm model positions (its measuring frame); sigma: (N,) mm predicted TCP sigma;
     regions: (region, mean sigma mm, max sigma mm, points) of the regions with >= 5 points,
     worst mean first; seed: the sample's seed; robot, effects: the model's robot name and effect specs;
+    points: the reflector ids of a model with one tool offset per point (sigma: the largest
+    of theirs at each pose; pos: the first's), else ();
     q_range: (2, n) rad / mm the joint range the model was calibrated on (None: not recorded);
     within: "calibrated" (the poses were drawn inside q_range and the joint limits) or "limits";
     outside: poses beyond q_range (the model extrapolates there; 0 without q_range)."""
@@ -77,6 +80,7 @@ class Accuracy:
     q_range: torch.Tensor | None = None
     within: str = "limits"
     outside: int = 0
+    points: tuple = ()
 
     def to_dict(self) -> dict:
         med, p95 = torch.quantile(self.sigma, torch.tensor([0.5, 0.95], dtype=self.sigma.dtype)).tolist()
@@ -128,11 +132,13 @@ def workspace_accuracy(model, theta: torch.Tensor, cov: torch.Tensor, *, n: int 
     N = q.shape[0]
     payload = torch.full((N,), robot.payload_kg / 2 if payload_kg is None else payload_kg, dtype=torch.float64)
     temp = torch.full((N,), temp_c, dtype=torch.float64)
-    sigma = predicted_sigma(model, theta, cov, q, payload, temp)
-    pos = model.predict(theta, make_context(robot, q, payload, temp))
+    points = next((tuple(e.points) for e in model.effects if e.name == "tool_offset" and e.points), ())
+    ids = [torch.full((N,), p, dtype=torch.int64) for p in points] or [None]  # several reflectors: the worst
+    sigma = torch.stack([predicted_sigma(model, theta, cov, q, payload, temp, point=i) for i in ids]).amax(0)
+    pos = model.predict(theta, make_context(robot, q, payload, temp, point=ids[0]))
     groups = {}
     for name, s in zip(region_names(q, joint1_frame(model, theta, pos)), sigma.tolist()):
         groups.setdefault(name, []).append(s)
     rows = sorted(((sum(v) / len(v), max(v), len(v), k) for k, v in groups.items() if len(v) >= 5), reverse=True)
     return Accuracy(q, pos, sigma, [(k, m, x, c) for m, x, c, k in rows], seed, robot.name, tuple(model.specs()),
-                    q_range, within, outside)
+                    q_range, within, outside, points)

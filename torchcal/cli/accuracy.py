@@ -53,8 +53,10 @@ def run(args) -> int:
     else:
         where = (f"inside the joint limits, {d['outside_calibrated_range']} of them beyond the joint range the "
                  f"model was calibrated on (it extrapolates there)")
+    tcp = (f"predicted sigma of the worst of its {len(acc.points)} reflectors at each pose" if acc.points
+           else "predicted TCP sigma")
     print(f"accuracy of {args.model} ({d['robot']} + [{', '.join(d['effects']) or 'geometric only'}]) "
-          f"at {d['poses']} workspace poses {where}: predicted TCP sigma (1-sigma, 3-D, mm) "
+          f"at {d['poses']} workspace poses {where}: {tcp} (1-sigma, 3-D, mm) "
           f"min {s['min']:.4f}, median {s['median']:.4f}, 95th percentile {s['p95']:.4f}, max {s['max']:.4f}")
     print("worst regions (joint-1 sector / reach / height; mean sigma mm, max, points):")
     for r in d["regions"][:3]:

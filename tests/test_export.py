@@ -269,3 +269,38 @@ def test_export_of_a_model_with_several_reflectors(tmp_path, capsys):
         assert np.linalg.norm(np.array(P) - truth[pid](qv), axis=1).max() < 0.1
         back = robot_from_urdf(tmp_path / "r.urdf", "base_link", f"reflector_{pid}")
         assert np.linalg.norm(back.fk(torch.from_numpy(qv)).numpy() - truth[pid](qv), axis=1).max() < 0.1
+
+
+def test_exported_robot_file_keeps_gravity_where_it_is(tmp_path):
+    """A wall-mounted ur5e (robot file gravity [1, 0, 0] in its base frame) measured in a
+    levelled tracker frame: export folds the measuring frame into the robot file's base, so
+    the file's gravity must turn with it. Gravity torques on the joints (tests/npsim.py, a
+    plain-numpy sum of moments) of the exported robot file must equal the real robot's;
+    the file kept [1, 0, 0], now read in the tracker frame: joint 2's torque then differs
+    by about its own size, and a compliance refit on that file would be wrong."""
+    import dataclasses
+
+    import numpy as np
+    from npsim import gravity_torques
+    from torchcal.robots.poses import random_poses
+
+    ur = torchcal.robot("ur5e")
+    wall = dataclasses.replace(ur, gravity=torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64), name="ur5e_wall")
+    R = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # tracker <- robot base: its x is down
+    q = random_poses(wall, 60, 4).numpy()
+    from npsim import numpy_fk
+    xyz = numpy_fk(wall, q, np.zeros((6, 5))) @ R.T + [1500.0, 200.0, 900.0]
+    with open(tmp_path / "s.csv", "w") as fh:
+        fh.write("pose," + ",".join(f"q{k}" for k in range(1, 7)) + ",x,y,z\n")
+        for i, (qq, p) in enumerate(zip(np.degrees(q), xyz)):
+            fh.write(",".join(map(repr, [i + 1, *qq.tolist(), *p.tolist()])) + "\n")
+    from torchcal.io.robot_file import write_robot_file
+    write_robot_file(tmp_path / "wall.json", wall)
+    assert main(["fit", str(tmp_path / "s.csv"), "--robot", str(tmp_path / "wall.json"), "--effects", "base_frame",
+                 "--out", str(tmp_path / "m.json")]) == 0
+    assert main(["export", str(tmp_path / "m.json"), "--robot-file", str(tmp_path / "cal.json")]) == 0
+    cal = load_robot_file(tmp_path / "cal.json")
+    masses, centres = np.full(6, 3.0), np.tile([0.0, 0.0, 50.0], (6, 1))
+    tau_real = gravity_torques(wall, q[:20], np.zeros((6, 5)), masses, centres, np.zeros(20))
+    tau_file = gravity_torques(cal, q[:20], np.zeros((6, 5)), masses, centres, np.zeros(20))  # its table is calibrated
+    assert np.abs(tau_file - tau_real).max() < 1e-3 * np.abs(tau_real).max(), np.abs(tau_file - tau_real).max()

@@ -17,8 +17,10 @@ seeds they stay at the seed's to first order.
 Frames (--frame): ``measuring`` (the default, printed) reads x,y,z in the frame the
 model was fitted in: the laser tracker's when the model has ``base_frame``;
 ``base`` reads them in the robot base frame (the robot file's base link), mapped to the
-measuring frame with the model's fitted base frame. For a model without ``base_frame``
-the two are the same. Targets around the origin of the frame or inside the robot's base
+measuring frame with the model's fitted base frame, which holds joint 1's zero offset
+and d1 (the data cannot tell them from its rotation about z and z shift): their errors
+move base-frame targets by dtheta1 x reach and dd1, and a line says so. For a model
+without ``base_frame`` the two are the same. Targets around the origin of the frame or inside the robot's base
 (metres read as mm) are refused.
 
 MODEL.json: an interval model of ``torchcal calibrate`` (each target is assigned to a zone
@@ -77,6 +79,10 @@ def run(args) -> int:
           f"parameter set(s) ({d['method']}): "
           f"{len(d['targets']) - len(res.failed)} converged within the joint limits; max predicted residual "
           f"{d['max_residual_mm']:.3g} mm; wrote {args.out}")
+    if args.frame == "base" and res.base_frame_fitted:
+        print("--frame base: the fitted base frame holds joint 1's zero offset and d1 (measurements cannot tell them "
+              "from its rotation about z and its z shift); their errors move base-frame targets, by dtheta1 x reach "
+              "and dd1; measuring-frame targets are free of them")
     if not res.seeded and res.q_user.shape[-1] > 3:
         print(f"{args.targets}: no seeds (q1..qN): x,y,z fix 3 of the {res.q_user.shape[-1]} joints, so each command "
               f"keeps the arm configuration and tool orientation of the nearest calibration pose, not a chosen "

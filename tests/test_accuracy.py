@@ -207,3 +207,24 @@ def test_a_model_with_several_reflectors():
         ref.append(np.sqrt([np.trace(Ji @ C.numpy() @ Ji.T) for Ji in J]))
     assert_close(acc.sigma, torch.from_numpy(np.maximum(*ref)), rtol=1e-9, atol=1e-12)
     assert acc.points == (3, 7) and np.abs(ref[0] - ref[1]).max() > 1e-4  # the two differ
+
+
+def test_a_negative_variance_in_the_model_file_is_refused(tmp_path, capsys):
+    """A variance below zero in MODEL.json's covariance (a hand edit, a broken copy):
+    accuracy printed 'predicted TCP sigma ... min 0.0000, median 0.0000, max 0.0000'
+    (the clamp in the propagation), a perfect robot. Now one line, exit 2."""
+    import json
+
+    from torchcal.cli import main
+
+    assert main(["simulate", "--robot", "ur5e", "--n", "30", "--seed", "4", "--out", str(tmp_path / "s.csv")]) == 0
+    assert main(["fit", str(tmp_path / "s.csv"), "--robot", "ur5e", "--out", str(tmp_path / "m.json")]) == 0
+    obj = json.loads((tmp_path / "m.json").read_text())
+    M = obj["covariance"]["matrix"]
+    for i in range(len(M)):
+        M[i][i] = -abs(M[i][i])
+    (tmp_path / "neg.json").write_text(json.dumps(obj))
+    capsys.readouterr()
+    assert main(["accuracy", str(tmp_path / "neg.json"), "--n", "50"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "negative variance" in err

@@ -95,3 +95,136 @@ def test_no_uncertainty_no_predicted_error():
     assert_close(predicted_sigma(MODEL, MODEL.zeros(), one, q), torch.ones(10, dtype=torch.float64),
                  rtol=1e-12, atol=0)
     assert float(predicted_sigma(MODEL, MODEL.zeros(), -one, q).max()) == 0.0  # a negative variance clamps at 0
+
+
+def _robot_with_base():
+    """ur5e on a mount: the robot file's base (world <- joint-1 frame) turned 40 deg about z
+    and raised 600 mm, 200 mm aside."""
+    import dataclasses
+    B = torch.eye(4, dtype=torch.float64)
+    c, s = np.cos(np.radians(40.0)), np.sin(np.radians(40.0))
+    B[:2, :2] = torch.tensor([[c, -s], [s, c]], dtype=torch.float64)
+    B[:3, 3] = torch.tensor([200.0, -100.0, 600.0], dtype=torch.float64)
+    return dataclasses.replace(ROBOT, base=B)
+
+
+def test_regions_are_named_about_joint_1_not_about_the_tracker():
+    """A tracker 3.6 m away (base_frame, as on the UR10 of examples/ur10) and a robot on a
+    mount: reach is the distance from joint 1's axis and height along it, computed here in
+    numpy from the plain MD-H chain (tests/npsim.py) in the robot's own frame; the model's
+    positions in the tracker's frame name other regions (on the UR10 model of series C, 1351
+    of 2000 poses got another reach or height tertile)."""
+    from scipy.spatial.transform import Rotation
+    from npsim import numpy_fk
+
+    robot = _robot_with_base()
+    model = CalibrationModel(robot, ["base_frame"])
+    theta = model.zeros()
+    names = model.param_names()
+    rotvec = np.array([0.01, -0.02, 0.35])
+    for k, v in zip(("base_tx", "base_ty", "base_tz", "base_rx", "base_ry", "base_rz"),
+                    (500.0, -3500.0, -1200.0, *rotvec)):
+        theta[names.index(k)] = v
+    C = torch.diag(torch.full((model.n_params,), 1e-6, dtype=torch.float64))
+    acc = workspace_accuracy(model, theta, C, n=400, seed=2)
+    world = numpy_fk(robot, acc.q.numpy(), np.zeros((robot.n, 5)))  # the robot file's world frame
+    W = Rotation.from_rotvec(rotvec).as_matrix()
+    assert np.abs(world @ W.T + [500.0, -3500.0, -1200.0] - acc.pos.numpy()).max() < 1e-6  # pos: tracker frame
+    B = robot.base.numpy()
+    local = (world - B[:3, 3]) @ B[:3, :3]  # joint-1 frame: z along joint 1's axis
+    sector = ["front" if abs(v) <= 45 else "left" if 45 < v <= 135 else "right" if -135 <= v < -45 else "back"
+              for v in np.degrees(acc.q[:, 0].numpy())]
+
+    def tert(v, words):
+        lo, hi = np.quantile(v, [1 / 3, 2 / 3])
+        return [words[0] if x < lo else words[1] if x < hi else words[2] for x in v]
+    expected = [f"{s} / {r} / {h}" for s, r, h in zip(sector, tert(np.hypot(local[:, 0], local[:, 1]),
+                                                                   ("near", "mid-reach", "far")),
+                                                      tert(local[:, 2], ("low", "mid-height", "high")))]
+    groups = {}
+    for name, sg in zip(expected, acc.sigma.numpy()):
+        groups.setdefault(name, []).append(sg)
+    table = {k: (np.mean(v), len(v)) for k, v in groups.items() if len(v) >= 5}
+    assert {r[0]: (approx(r[1]), r[3]) for r in acc.regions} == {k: (approx(m), c) for k, (m, c) in table.items()}
+
+
+def test_predicted_sigma_is_the_error_where_the_model_was_calibrated(tmp_path, capsys):
+    """A ur5e calibrated on 60 poses within +-25 deg of one pose (plain-numpy truth, 0.05 mm
+    noise, the model complete): `torchcal accuracy` predicts the error the model makes there,
+    against the true robot at 300 fresh poses of that range. Drawn from the whole +-360 deg
+    joint limits it said median 0.407 mm against a true median 0.027 mm; `--range limits`
+    still gives that, and says that every pose lies beyond the calibrated range."""
+    from npsim import numpy_fk
+    from torchcal.cli import main
+    from torchcal.measurements import Measurements
+
+    n = ROBOT.n
+    rng = np.random.default_rng(7)
+    dev = np.column_stack([rng.uniform(-1, 1, n) * np.radians(0.05), rng.uniform(-1, 1, (n, 2)) * 0.5,
+                           rng.uniform(-1, 1, n) * np.radians(0.05), np.zeros(n)])
+    q0 = np.radians([30.0, -60.0, 80.0, -100.0, -90.0, 20.0])
+
+    def poses(k, seed):
+        return q0 + np.radians(np.random.default_rng(seed).uniform(-25, 25, (k, n)))
+    q = poses(60, 1)
+    m = Measurements(q=torch.from_numpy(q), xyz=torch.from_numpy(numpy_fk(ROBOT, q, dev) + rng.normal(0, 0.05, (60, 3))),
+                     pose=torch.arange(60))
+    torchcal.save(torchcal.fit(ROBOT, m), tmp_path / "m.json")
+    fitted = torchcal.load(tmp_path / "m.json")
+    qt = poses(300, 2)
+    err = np.linalg.norm(fitted.model.predict(fitted.theta, make_context(ROBOT, torch.from_numpy(qt))).numpy()
+                         - numpy_fk(ROBOT, qt, dev), axis=1)
+    capsys.readouterr()
+    assert main(["accuracy", str(tmp_path / "m.json"), "--n", "500"]) == 0
+    line = capsys.readouterr().out.splitlines()[0]
+    median = float(line.split("median ")[1].split(",")[0])
+    assert 0.5 < median / np.median(err) < 2.0, (median, np.median(err))
+    assert "inside the joint range the model was calibrated on" in line
+    acc = torchcal.api.accuracy(tmp_path / "m.json", n=500)
+    assert (acc.q.numpy() >= q.min(0) - 1e-12).all() and (acc.q.numpy() <= q.max(0) + 1e-12).all()
+    assert main(["accuracy", str(tmp_path / "m.json"), "--n", "500", "--range", "limits"]) == 0
+    assert "500 of them beyond the joint range the model was calibrated on" in capsys.readouterr().out
+
+
+def test_a_model_with_several_reflectors():
+    """One tool offset per reflector (points 3 and 7): accuracy ended in an AttributeError
+    traceback (no point ids at the workspace poses). Now each pose's sigma is the larger
+    of the two reflectors', each from forward-mode autodiff and numpy."""
+    model = CalibrationModel(ROBOT, ["tool_offset"])
+    model.effects[0].set_points([3, 7])
+    model = CalibrationModel(ROBOT, model.effects)
+    g = torch.Generator().manual_seed(1)
+    A = torch.randn(model.n_params, model.n_params, generator=g, dtype=torch.float64) * 1e-3
+    C = A @ A.T
+    theta = model.zeros()
+    theta[-6:] = torch.tensor([30.0, 0.0, 100.0, -20.0, 40.0, 80.0], dtype=torch.float64)
+    acc = workspace_accuracy(model, theta, C, n=50, seed=3)
+    ref = []
+    for pid in (3, 7):
+        ctx = make_context(ROBOT, acc.q, torch.full((50,), ROBOT.payload_kg / 2, dtype=torch.float64),
+                           torch.full((50,), 20.0, dtype=torch.float64), point=torch.full((50,), pid))
+        J = torch.func.jacfwd(lambda th: model.predict(th, ctx))(theta).numpy()
+        ref.append(np.sqrt([np.trace(Ji @ C.numpy() @ Ji.T) for Ji in J]))
+    assert_close(acc.sigma, torch.from_numpy(np.maximum(*ref)), rtol=1e-9, atol=1e-12)
+    assert acc.points == (3, 7) and np.abs(ref[0] - ref[1]).max() > 1e-4  # the two differ
+
+
+def test_a_negative_variance_in_the_model_file_is_refused(tmp_path, capsys):
+    """A variance below zero in MODEL.json's covariance (a hand edit, a broken copy):
+    accuracy printed 'predicted TCP sigma ... min 0.0000, median 0.0000, max 0.0000'
+    (the clamp in the propagation), a perfect robot. Now one line, exit 2."""
+    import json
+
+    from torchcal.cli import main
+
+    assert main(["simulate", "--robot", "ur5e", "--n", "30", "--seed", "4", "--out", str(tmp_path / "s.csv")]) == 0
+    assert main(["fit", str(tmp_path / "s.csv"), "--robot", "ur5e", "--out", str(tmp_path / "m.json")]) == 0
+    obj = json.loads((tmp_path / "m.json").read_text())
+    M = obj["covariance"]["matrix"]
+    for i in range(len(M)):
+        M[i][i] = -abs(M[i][i])
+    (tmp_path / "neg.json").write_text(json.dumps(obj))
+    capsys.readouterr()
+    assert main(["accuracy", str(tmp_path / "neg.json"), "--n", "50"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "negative variance" in err

@@ -254,3 +254,23 @@ def test_the_stall_stop_leaves_reachable_targets_bit_for_bit_and_stops_far_ones_
     assert (off.iterations[60:] == 100).all() and (on.iterations[60:] < 60).all()
     e_on, e_off = on.residual_mm[60:].norm(dim=-1), off.residual_mm[60:].norm(dim=-1)
     assert ((e_on - e_off) / e_off).abs().max() < 1e-4
+
+
+def test_compensate_names_the_reflector_a_multi_point_model_lacks(tmp_path, capsys):
+    """Targets carry no point column: a model with one tool offset per reflector cannot
+    tell which reflector a target is for. The refusal said 'needs the model has one tool
+    offset per measured point (2 points) but the data have no point column in the targets,
+    which they lack'; now one line that names the points and what to do."""
+    assert main(["simulate", "--robot", "ur5e", "--n", "20", "--seed", "2", "--out", str(tmp_path / "s.csv")]) == 0
+    rows = (tmp_path / "s.csv").read_text().splitlines()
+    two = [rows[0] + ",point"] + [r + ",1" for r in rows[1:]] + [r + ",2" for r in rows[1:]]
+    (tmp_path / "p.csv").write_text("\n".join(two) + "\n")
+    assert main(["fit", str(tmp_path / "p.csv"), "--robot", "ur5e", "--effects", "tool_offset",
+                 "--out", str(tmp_path / "m.json")]) == 0
+    (tmp_path / "t.csv").write_text("x,y,z\n" + "\n".join(",".join(r.split(",")[7:10]) for r in rows[1:4]) + "\n")
+    capsys.readouterr()
+    code = main(["compensate", str(tmp_path / "t.csv"), "--model", str(tmp_path / "m.json"), "--out",
+                 str(tmp_path / "q.csv")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and not (tmp_path / "q.csv").exists() and len(err.splitlines()) == 1
+    assert "one tool offset per reflector (points 1, 2)" in err and "fitted on the rows of one point" in err

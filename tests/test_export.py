@@ -179,3 +179,128 @@ def test_an_interrupted_export_leaves_none_of_its_new_files(fitted, tmp_path, mo
     with pytest.raises(KeyboardInterrupt):
         torchcal.api.export(model, robot_file=tmp_path / "cal.json", urdf=tmp_path / "cal.urdf")
     assert len(calls) == 2 and not (tmp_path / "cal.json").exists() and not (tmp_path / "cal.urdf").exists()
+
+
+def test_table_says_that_base_and_tool_are_not_in_it(fitted, capsys):
+    """The MD-H table holds the joint rows only. Of a model with a measuring frame and a
+    tool offset its rows alone (plain-numpy MD-H chain, read from the CSV) miss the model
+    (by 1.1 mm here, by metres on the UR10 of examples/ur10, its tracker 3.6 m away); with the base and tool of the exported robot file they reproduce it: export
+    says so when it writes a table without them (it wrote only 'wrote PATH')."""
+    import csv
+
+    import numpy as np
+    from npsim import _rx, _ry, _rz, _tr
+
+    d = fitted
+    capsys.readouterr()
+    assert main(["export", str(d / "m.json"), "--table", str(d / "t.csv"), "--robot-file", str(d / "t.json"),
+                 "--force"]) == 0
+    out = capsys.readouterr().out
+    fm = modelfile.load(d / "m.json")
+    m = read_measurements(d / "s.csv", robot=fm.model.robot)
+    pred = fm.model.predict(fm.theta, make_context(fm.model.robot, m.q, m.payload_kg, m.temp_c)).numpy()
+    rows = list(csv.DictReader(open(d / "t.csv")))
+    obj = json.loads((d / "t.json").read_text())
+
+    def fk(base, tool):
+        out = []
+        for qq in np.degrees(m.q.numpy()):
+            T = np.array(base, dtype=float)
+            for r, qj in zip(rows, qq):
+                T = T @ _rz(np.radians(float(r["theta_offset_deg"]) + qj)) @ _tr(0.0, float(r["d_mm"])) @ \
+                    _tr(float(r["a_mm"]), 0.0) @ _rx(np.radians(float(r["alpha_deg"]))) @ _ry(np.radians(float(r["beta_deg"])))
+            out.append((T @ np.array(tool, dtype=float))[:3, 3])
+        return np.array(out)
+    assert np.linalg.norm(fk(obj["base"], obj["tool"]) - pred, axis=1).max() < 1e-6
+    assert np.linalg.norm(fk(np.eye(4), np.eye(4)) - pred, axis=1).max() > 0.3  # 1.1 mm here, metres on the UR10
+    line = next(ln for ln in out.splitlines() if ln.startswith(f"{d / 't.csv'}:"))
+    assert "not in it" in line and "base" in line and "tool" in line and "--robot-file" in line
+
+
+def test_export_of_a_model_with_several_reflectors(tmp_path, capsys):
+    """Two reflectors on the flange (the `point` column, one tool offset each), measured
+    on a plain-numpy ur5e: export wrote nothing and ended in a RuntimeError traceback. Now
+    the robot file keeps the nominal tool and lists each reflector's offset (flange frame)
+    under "effects", the URDF has a frame per reflector, and one line says so; each
+    offset on the robot file's chain (FK here in numpy from the JSON) and each URDF frame
+    reach the true reflectors to the fit's accuracy."""
+    import numpy as np
+    from npsim import numpy_fk
+    from torchcal.robots.poses import random_poses
+
+    rob = torchcal.robot("ur5e")
+    rng = np.random.default_rng(2)
+    dev = np.column_stack([rng.uniform(-1, 1, 6) * np.radians(0.05), rng.uniform(-1, 1, (6, 2)) * 0.5,
+                           rng.uniform(-1, 1, 6) * np.radians(0.05), np.zeros(6)])
+    q = random_poses(rob, 60, 3).numpy()
+    pts = {1: [30.0, 0.0, 100.0], 2: [-20.0, 40.0, 80.0]}
+    truth = {}
+    with open(tmp_path / "s.csv", "w") as fh:
+        fh.write("pose," + ",".join(f"q{k}" for k in range(1, 7)) + ",x,y,z,point\n")
+        for pid, off in pts.items():
+            T = np.eye(4)
+            T[:3, 3] = off
+            truth[pid] = lambda qq, T=T: numpy_fk(rob, qq, dev, tool=T)
+            P = truth[pid](q) + rng.normal(0, 0.01, (60, 3))
+            for i, (qq, p) in enumerate(zip(np.degrees(q), P)):
+                fh.write(",".join(map(repr, [i + 1, *qq.tolist(), *p.tolist()])) + f",{pid}\n")
+    assert main(["fit", str(tmp_path / "s.csv"), "--robot", "ur5e", "--effects", "tool_offset",
+                 "--out", str(tmp_path / "m.json")]) == 0
+    capsys.readouterr()
+    assert main(["export", str(tmp_path / "m.json"), "--robot-file", str(tmp_path / "r.json"),
+                 "--urdf", str(tmp_path / "r.urdf")]) == 0
+    out = capsys.readouterr().out
+    assert "2 reflectors" in out and "nominal tool" in out
+    obj = json.loads((tmp_path / "r.json").read_text())
+    listed = next(e for e in obj["effects"] if e["spec"] == "tool_offset")["parameters"]
+    qv = random_poses(rob, 100, 8).numpy()
+    for pid in pts:
+        off = np.array([listed[f"tool_{c}@{pid}"]["value"] for c in "xyz"])
+        tool = np.array(obj["tool"])
+        tool[:3, 3] += off
+        from npsim import _rx, _ry, _rz, _tr
+        P = []
+        for qq in qv:
+            T = np.array(obj["base"])
+            for j, qj in zip(obj["joints"], qq):
+                T = T @ _rz(np.radians(j["theta_offset_deg"]) + qj) @ _tr(0.0, j["d_mm"]) @ _tr(j["a_mm"], 0.0) @ \
+                    _rx(np.radians(j["alpha_deg"])) @ _ry(np.radians(j.get("beta_deg", 0.0)))
+            P.append((T @ tool)[:3, 3])
+        assert np.linalg.norm(np.array(P) - truth[pid](qv), axis=1).max() < 0.1
+        back = robot_from_urdf(tmp_path / "r.urdf", "base_link", f"reflector_{pid}")
+        assert np.linalg.norm(back.fk(torch.from_numpy(qv)).numpy() - truth[pid](qv), axis=1).max() < 0.1
+
+
+def test_exported_robot_file_keeps_gravity_where_it_is(tmp_path):
+    """A wall-mounted ur5e (robot file gravity [1, 0, 0] in its base frame) measured in a
+    levelled tracker frame: export folds the measuring frame into the robot file's base, so
+    the file's gravity must turn with it. Gravity torques on the joints (tests/npsim.py, a
+    plain-numpy sum of moments) of the exported robot file must equal the real robot's;
+    the file kept [1, 0, 0], now read in the tracker frame: joint 2's torque then differs
+    by about its own size, and a compliance refit on that file would be wrong."""
+    import dataclasses
+
+    import numpy as np
+    from npsim import gravity_torques
+    from torchcal.robots.poses import random_poses
+
+    ur = torchcal.robot("ur5e")
+    wall = dataclasses.replace(ur, gravity=torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64), name="ur5e_wall")
+    R = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # tracker <- robot base: its x is down
+    q = random_poses(wall, 60, 4).numpy()
+    from npsim import numpy_fk
+    xyz = numpy_fk(wall, q, np.zeros((6, 5))) @ R.T + [1500.0, 200.0, 900.0]
+    with open(tmp_path / "s.csv", "w") as fh:
+        fh.write("pose," + ",".join(f"q{k}" for k in range(1, 7)) + ",x,y,z\n")
+        for i, (qq, p) in enumerate(zip(np.degrees(q), xyz)):
+            fh.write(",".join(map(repr, [i + 1, *qq.tolist(), *p.tolist()])) + "\n")
+    from torchcal.io.robot_file import write_robot_file
+    write_robot_file(tmp_path / "wall.json", wall)
+    assert main(["fit", str(tmp_path / "s.csv"), "--robot", str(tmp_path / "wall.json"), "--effects", "base_frame",
+                 "--out", str(tmp_path / "m.json")]) == 0
+    assert main(["export", str(tmp_path / "m.json"), "--robot-file", str(tmp_path / "cal.json")]) == 0
+    cal = load_robot_file(tmp_path / "cal.json")
+    masses, centres = np.full(6, 3.0), np.tile([0.0, 0.0, 50.0], (6, 1))
+    tau_real = gravity_torques(wall, q[:20], np.zeros((6, 5)), masses, centres, np.zeros(20))
+    tau_file = gravity_torques(cal, q[:20], np.zeros((6, 5)), masses, centres, np.zeros(20))  # its table is calibrated
+    assert np.abs(tau_file - tau_real).max() < 1e-3 * np.abs(tau_real).max(), np.abs(tau_file - tau_real).max()

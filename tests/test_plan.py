@@ -134,3 +134,30 @@ def test_accuracy_cli(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 2 and "covariance" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "b.rrd").exists()
+
+
+def test_plan_keeps_out_of_the_column_about_joint_1_of_a_robot_on_a_moved_base(tmp_path, capsys):
+    """A ur5e whose robot file's base stands 1.7 m from the cell origin (and 400 mm up):
+    planned poses keep the TCP out of the keep-out column about joint 1's axis (350 mm, up to
+    1100 mm above joint 1's frame), checked with the plain-numpy chain of tests/npsim.py.
+    The column was taken about the cell's z axis: 1047 of 2000 workspace poses of this robot
+    lay inside the column about joint 1."""
+    import json
+
+    from npsim import numpy_fk
+
+    base = [[1, 0, 0, 1500.0], [0, 1, 0, 800.0], [0, 0, 1, 400.0], [0, 0, 0, 1]]
+    ur = torchcal.robot("ur5e")
+    joints = [{"type": "revolute", "theta_offset_deg": float(np.degrees(t[0])), "d_mm": float(t[1]),
+               "a_mm": float(t[2]), "alpha_deg": float(np.degrees(t[3])), "lower": float(np.degrees(lo)),
+               "upper": float(np.degrees(hi))} for t, (lo, hi) in zip(ur.table.tolist(), ur.limits.tolist())]
+    (tmp_path / "r.json").write_text(json.dumps({"name": "ur5e_moved", "joints": joints, "base": base}))
+    out = tmp_path / "plan.csv"
+    assert main(["plan", "--robot", str(tmp_path / "r.json"), "--n", "40", "--candidates", "2000",
+                 "--out", str(out)]) == 0
+    rows = list(csv.DictReader(out.open()))
+    robot = torchcal.robot(str(tmp_path / "r.json"))
+    q = np.radians([[float(r[f"q{k}"]) for k in range(1, 7)] for r in rows])
+    local = numpy_fk(robot, q, np.zeros((6, 5))) - np.array(base)[:3, 3]  # base: a pure translation
+    inside = (np.hypot(local[:, 0], local[:, 1]) < 350.0) & (local[:, 2] < 1100.0)
+    assert inside.sum() == 0, inside.sum()

@@ -180,3 +180,27 @@ def test_robot_import_messages_name_the_cause(tmp_path, capsys):
         "cam", "fixed", "shoulder", "camera", "0 0 0.1", "0 0 0") + "</robot>"))
     with pytest.raises(InputError, match="base link 'camera' to tip link 'tool0': 'camera' is not on the way"):
         read_chain(side, "camera", "tool0")
+
+
+def test_a_revolute_joint_without_limits_is_refused(tmp_path, capsys):
+    """The URDF standard requires <limit> on revolute and prismatic joints. A revolute
+    joint without one was imported with -180..180 deg (a UR10's +-360 deg cut in half, and
+    compensate and plan then held the robot to it); a prismatic one was refused. Now both
+    are, in one line naming the joint; a continuous joint still reads as -180..180 deg."""
+    from torchcal.cli import main
+
+    joints = [("j1", "revolute", "base", "l1", "0 0 0.1", "0 0 0"), ("j2", "revolute", "l1", "l2", "0 0 0.3", "0 0 0")]
+    text = _urdf("arm", joints)
+    cut = text.replace('<limit lower="-3.0" upper="3.0" effort="1" velocity="1"/></joint></robot>', "</joint></robot>")
+    assert cut.count("<limit") == 1
+    (tmp_path / "a.urdf").write_text(cut)
+    capsys.readouterr()
+    assert main(["robot", "import", str(tmp_path / "a.urdf"), "--base", "base", "--tip", "l2",
+                 "--out", str(tmp_path / "a.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "'j2'" in err and "<limit" in err and not (tmp_path / "a.json").exists()
+    (tmp_path / "c.urdf").write_text(cut.replace('name="j2" type="revolute"', 'name="j2" type="continuous"'))
+    assert main(["robot", "import", str(tmp_path / "c.urdf"), "--base", "base", "--tip", "l2",
+                 "--out", str(tmp_path / "c.json")]) == 0
+    assert torch.rad2deg(robot_from_urdf(tmp_path / "c.urdf", "base", "l2").limits[1]).tolist() == \
+        pytest.approx([-180.0, 180.0])

@@ -492,9 +492,11 @@ def export(model, *, robot_file=None, urdf=None, table=None, data=None, length_u
                length_unit=length_unit, angle_unit=angle_unit, force=force, inputs=inputs)
 
 
-def accuracy(model, *, n: int = 2000, seed: int = 0, payload_kg: float | None = None, temp_c: float = 20.0):
+def accuracy(model, *, n: int = 2000, seed: int = 0, payload_kg: float | None = None, temp_c: float = 20.0,
+             within: str = "calibrated"):
     """``torchcal accuracy``: the predicted TCP sigma of a fitted model at n workspace poses
-    (`torchcal.calibration.accuracy.workspace_accuracy`).
+    (`torchcal.calibration.accuracy.workspace_accuracy`), drawn inside the joint range it
+    was calibrated on (within="calibrated") or inside the joint limits ("limits").
 
     model: a MODEL.json path (its stored covariance; InputError when it has none) or a
     `FitResult` (its covariance). payload_kg: default half the rated payload. Returns an
@@ -518,7 +520,8 @@ def accuracy(model, *, n: int = 2000, seed: int = 0, payload_kg: float | None = 
         cov = load_covariance(model, cm)
     else:
         raise InputError(f"model: expected a MODEL.json path or a FitResult, got {type(model).__name__}")
-    return workspace_accuracy(cm, theta, cov, n=n, seed=seed, payload_kg=payload_kg, temp_c=temp_c)
+    return workspace_accuracy(cm, theta, cov, n=n, seed=seed, payload_kg=payload_kg, temp_c=temp_c,
+                              q_range=fm.q_range, within=within)
 
 
 def simulate(robot, effects=(), *, n: int = 50, repeats: int = 1, noise_mm: float = 0.02, seed: int = 0,

@@ -291,6 +291,8 @@ def _model(rep) -> str:
     out.append("<h3>Parameters</h3>")
     out.append(f'<p class="note">value: the deviation from nominal (frames: the pose itself), std: its standard '
                f"error, ci95: the 95 % interval, as the model file holds them"
+               + ("; base_rx..base_rz: the rotation vector (axis times angle) of the base frame, not the "
+                  "fixed-XYZ angles given with it above" if any(p["name"] == "base_rx" for p in params) else "")
                + (f"; further labels of the file: {_e(', '.join(extra))}" if extra else "") + ".</p>")
     out.append(_table(["parameter", "value", "unit", "std", "ci95", "status"] + [_e(k) for k in extra], rows,
                       numeric=(1, 3, 4), cls_rows=cls))

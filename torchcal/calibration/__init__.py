@@ -9,7 +9,7 @@ through the module (``torchcal.calibration.fit.fit``) or, with forgiving inputs,
 from torchcal._lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
-    "torchcal.calibration.accuracy": ["Accuracy", "predicted_sigma", "region_names", "workspace_accuracy"],
+    "torchcal.calibration.accuracy": ["Accuracy", "calibrated_box", "joint1_frame", "predicted_sigma", "region_names", "workspace_accuracy"],
     "torchcal.calibration.batched": ["batched_jacobian", "batched_predict"],
     "torchcal.calibration.compensate": ["Compensation", "nominal_inverse", "nominal_start", "predict_rows",
                                         "measuring_from_base", "frame_model", "FRAMES", "with_stage",

@@ -466,6 +466,10 @@ class TargetCompensation:
         robot: the robot's name.
         beyond_reach: 0-based rows of targets beyond the robot's reach (named, not refused).
         frame: the frame the targets were given in, "measuring" or "base".
+        seeded: the commands started from the caller's seeds (else from the nearest
+            calibration pose, whose configuration and tool orientation they keep).
+        base_frame_fitted: the model has a base_frame effect (base-frame targets are mapped
+            with it, and it holds joint 1's zero offset and d1).
     """
 
     targets: torch.Tensor
@@ -477,6 +481,8 @@ class TargetCompensation:
     robot: str
     beyond_reach: list = field(default_factory=list)
     frame: str = "measuring"
+    seeded: bool = False
+    base_frame_fitted: bool = False
 
     @property
     def residual_mm(self) -> torch.Tensor:
@@ -559,4 +565,5 @@ def compensate_targets(im, targets, *, frame: str = "measuring", seeds=None, pay
 
     method = im.method if isinstance(im, ZonedFit) else ("global" if im.radius is not None else "fit")
     return TargetCompensation(given, comp, comp.zone, rob.q_to_user(comp.q), im.zone_theta.shape[0], method,
-                              rob.name, far, frame)
+                              rob.name, far, frame, seeds is not None,
+                              any(e.name == "base_frame" for e in im.model.effects))

@@ -96,29 +96,43 @@ def measuring_frames(model, theta: torch.Tensor):
     return W, refl
 
 
+def reflector_offsets(model, theta: torch.Tensor) -> list:
+    """[{"spec", "parameters"}]: the tool_offset of a model with several reflectors (one
+    offset per point id, mm in the flange frame, added to the robot's tool translation)
+    at theta (P,), as a robot file lists the effects it does not hold; [] otherwise."""
+    theta = theta.to("cpu", torch.float64)
+    return [{"spec": e.spec(), "parameters": {n: {"value": float(v), "unit": u} for n, v, u in
+                                              zip(e.param_names(), theta[sl].tolist(), e.param_units())}}
+            for e, sl in zip(model.effects, model.slices[1:]) if e.name == "tool_offset" and e.points]
+
+
 def calibrated_robot(model, theta: torch.Tensor, fold: bool = True):
     """(Robot, effects) of a model at theta (P,): the nominal robot (CPU, float64) with the
     MD-H deviations added to its table and, with `fold`, the base_frame effect folded into
-    its base and tool_offset into its tool (without: the robot's own base and tool, the
-    measuring frame apart, `measuring_frames`); effects: [{"spec", "parameters": {name:
-    {"value", "unit"}}}] of the model's other effects, which a robot file, a URDF or an
-    MD-H table cannot hold."""
+    its base (its gravity vector turned into the measuring frame with it) and tool_offset
+    into its tool (without: the robot's own base and tool, the
+    measuring frame apart, `measuring_frames`); a tool_offset with one offset per point
+    (several reflectors) is never folded: one tool cannot hold them (`reflector_offsets`).
+    effects: [{"spec", "parameters": {name: {"value", "unit"}}}] of the model's other
+    effects, which a robot file, a URDF or an MD-H table cannot hold."""
     import dataclasses
 
     r = model.robot.to("cpu", torch.float64)
     theta = theta.to("cpu", torch.float64)
     geo = theta[model.slices[0]].reshape(r.n, 5)
-    base, tool = r.base.clone(), r.tool.clone()
+    base, tool, gravity = r.base.clone(), r.tool.clone(), r.gravity.clone()
     rest = []
     for e, sl in zip(model.effects, model.slices[1:]):
         p = theta[sl]
         if e.name in FOLDED and not fold:
             continue
-        if e.name == "base_frame":
-            base = measuring_frames(model, theta)[0] @ base
+        if e.name == "base_frame":  # the world becomes the measuring frame: gravity turns with it
+            W = measuring_frames(model, theta)[0]
+            base, gravity = W @ base, W[:3, :3] @ gravity
         elif e.name == "tool_offset":
-            tool[:3, 3] = tool[:3, 3] + p
+            if not e.points:  # one offset; several (one per reflector): reflector_offsets
+                tool[:3, 3] = tool[:3, 3] + p
         else:
             rest.append({"spec": e.spec(), "parameters": {n: {"value": float(v), "unit": u} for n, v, u in
                                                           zip(e.param_names(), p.tolist(), e.param_units())}})
-    return dataclasses.replace(r, table=r.table + geo, base=base, tool=tool), rest
+    return dataclasses.replace(r, table=r.table + geo, base=base, tool=tool, gravity=gravity), rest

@@ -1110,6 +1110,10 @@ def check_target_conditions(model, targets: torch.Tensor, payload_kg=None, temp_
         try:
             e.check_context(probe)
         except InputError as exc:
+            if e.name == "tool_offset":  # one offset per reflector: which one is each target's?
+                raise InputError(f"{where}: the model has one tool offset per reflector (points "
+                                 f"{', '.join(map(str, e.points))}) and targets name no reflector; compensate "
+                                 f"with a model fitted on the rows of one point") from None
             need = "column temp_c" if e.name == "thermal_expansion" else str(exc)
             raise InputError(f"{where}: the model's effect {e.spec()} needs {need} "
                              f"in the targets, which they lack") from None

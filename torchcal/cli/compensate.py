@@ -10,13 +10,17 @@ that look like radians read as degrees are refused).
 Without seeds the nominal inverse (nominal geometry in the model's fitted frame) is
 solved first, each target starting from the nearest of the calibration poses the model
 keeps (the arm configuration it was calibrated in; the next nearest when the solution
-leaves the joint limits or the calibrated joint range).
+leaves the joint limits or the calibrated joint range). x,y,z fix 3 joints: the others,
+and with them the tool orientation, are those of that pose, and a line says so; with
+seeds they stay at the seed's to first order.
 
 Frames (--frame): ``measuring`` (the default, printed) reads x,y,z in the frame the
 model was fitted in: the laser tracker's when the model has ``base_frame``;
 ``base`` reads them in the robot base frame (the robot file's base link), mapped to the
-measuring frame with the model's fitted base frame. For a model without ``base_frame``
-the two are the same. Targets around the origin of the frame or inside the robot's base
+measuring frame with the model's fitted base frame, which holds joint 1's zero offset
+and d1 (the data cannot tell them from its rotation about z and z shift): their errors
+move base-frame targets by dtheta1 x reach and dd1, and a line says so. For a model
+without ``base_frame`` the two are the same. Targets around the origin of the frame or inside the robot's base
 (metres read as mm) are refused.
 
 MODEL.json: an interval model of ``torchcal calibrate`` (each target is assigned to a zone
@@ -75,6 +79,14 @@ def run(args) -> int:
           f"parameter set(s) ({d['method']}): "
           f"{len(d['targets']) - len(res.failed)} converged within the joint limits; max predicted residual "
           f"{d['max_residual_mm']:.3g} mm; wrote {args.out}")
+    if args.frame == "base" and res.base_frame_fitted:
+        print("--frame base: the fitted base frame holds joint 1's zero offset and d1 (measurements cannot tell them "
+              "from its rotation about z and its z shift); their errors move base-frame targets, by dtheta1 x reach "
+              "and dd1; measuring-frame targets are free of them")
+    if not res.seeded and res.q_user.shape[-1] > 3:
+        print(f"{args.targets}: no seeds (q1..qN): x,y,z fix 3 of the {res.q_user.shape[-1]} joints, so each command "
+              f"keeps the arm configuration and tool orientation of the nearest calibration pose, not a chosen "
+              f"one; give each target's nominal command as q1..qN to keep its orientation")
     if res.failed:
         def rows(ix):
             return ", ".join(map(str, ix[:20])) + (" ..." if len(ix) > 20 else "")

@@ -12,7 +12,11 @@ the calibrated geometry for a controller or a simulator.
   (``torchcal robot import``) keeps that file's links, inertias and visuals: its joint
   origins and axes are rewritten (torchcal.io.urdf.calibrated_urdf); otherwise a
   minimal URDF (links base_link, link1..linkN, tool0; `minimal_urdf`).
-- ``--table``: CSV ``joint,type,theta_offset_deg,d_mm,a_mm,alpha_deg,beta_deg,lower,upper``.
+- ``--table``: CSV ``joint,type,theta_offset_deg,d_mm,a_mm,alpha_deg,beta_deg,lower,upper``:
+  the joint rows only. When the calibrated robot has a base or a tool other than the
+  identity (a measuring frame, a tool offset, the robot file's own), one line says that
+  they are not in the table, with their translations, and that ``--robot-file`` and
+  ``--urdf`` carry them.
 
 Effects a URDF or an MD-H table cannot hold (compliance, backlash, gear, thermal...): the
 model's MD-H deviations were fitted together with them and absorbed part of them, so its
@@ -95,8 +99,36 @@ def run(args) -> int:
         kept = f"the links of {u['source']} with calibrated joint origins" if u["source"] else "a minimal URDF"
         frames = (f"; measuring set-up as separate fixed frames: {', '.join(u['frames'])}" if u["frames"] else "")
         print(f"{args.urdf}: {kept}; the robot's own base {u['base_link']} and tool link {u['tip_link']}{frames}")
+    if d["reflectors"] and (args.robot_file or args.table):
+        ids = ", ".join(map(str, d["reflectors"]))
+        print(f"{args.model}: {len(d['reflectors'])} reflectors (points {ids}), one tool offset each: the robot file "
+              f"and table keep the nominal tool; the offsets (mm, flange frame, added to the tool's translation) are "
+              f"listed under \"effects\" in the robot file" + (" and are frames reflector_ID of the URDF" if args.urdf
+                                                                  else ""))
+    if args.table:
+        note = table_frames_note(res.robot)
+        if note:
+            print(f"{args.table}: {note}")
     print(f"exported {d['robot']} ({d['joints']} joints) from {args.model}")
     for _, p in outs:
         if p:
             print(f"wrote {p}")
     return 0
+
+
+def table_frames_note(robot) -> str | None:
+    """What an MD-H table of `robot` (the calibrated `Robot`) leaves out: its base (world
+    or measuring frame <- joint-1 frame) and tool (flange <- TCP) where not the identity,
+    in words with their translations (mm); None when both are the identity."""
+    import torch
+
+    parts = []
+    for name, T, what in (("base", robot.base, "measuring frame <- joint-1 frame"), ("tool", robot.tool, "flange <- TCP")):
+        if not torch.allclose(T, torch.eye(4, dtype=T.dtype), rtol=0, atol=1e-12):
+            t = ", ".join(f"{v:.3f}" for v in T[:3, 3].tolist())
+            rot = "" if torch.allclose(T[:3, :3], torch.eye(3, dtype=T.dtype), rtol=0, atol=1e-12) else " and a rotation"
+            parts.append(f"the {name} ({what}: translation {t} mm{rot})")
+    if not parts:
+        return None
+    return (f"the joint rows only: {' and '.join(parts)} not in it; --robot-file and --urdf carry them "
+            f"(the table's chain alone gives the flange in the joint-1 frame)")

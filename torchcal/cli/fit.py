@@ -176,7 +176,8 @@ def run(args) -> int:
     if base is not None:
         t, r = base["translation_mm"], base["rotation_fixed_xyz_deg"]
         print(f"base frame (measurement <- robot base): translation [{t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}] mm, "
-              f"rotation fixed-XYZ [{r[0]:.4f}, {r[1]:.4f}, {r[2]:.4f}] deg")
+              f"rotation fixed-XYZ [{r[0]:.4f}, {r[1]:.4f}, {r[2]:.4f}] deg (base_rx..base_rz below: the rotation "
+              f"vector, axis times angle, not these angles)")
     if res.orientation is not None:
         o = res.orientation
         print(f"orientation: rms {o['rms_deg'] * 1000:.4g} mdeg (weight {math.radians(o['weight_mm_per_rad']):.4g} mm/deg "

@@ -29,7 +29,7 @@ def add_parser(sub):
     p.add_argument("--floor", type=finite_float, default=0.0, help="workspace: TCP z above this, mm (default 0)")
     p.add_argument("--column-radius", type=nonneg_float, default=350.0, help="workspace: keep-out radius "
                    "about joint 1, mm (default 350)")
-    p.add_argument("--column-height", type=finite_float, default=1100.0, help="workspace: keep-out height, mm (default 1100)")
+    p.add_argument("--column-height", type=finite_float, default=1100.0, help="workspace: keep-out height above joint 1's frame, mm (default 1100)")
     p.add_argument("--reach", type=share, default=0.95, help="workspace: the TCP within this share of the arm's "
                    "full stretch from the shoulder, in (0, 1] (default 0.95; 1: no limit)")
     p.add_argument("--random-plans", type=positive_int, default=20, help="random plans to compare with (default 20)")

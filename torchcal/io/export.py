@@ -2,7 +2,8 @@
 MD-H table (CSV, `torchcal.io.mdh_table`), and what was written (`Export`).
 
 The MD-H deviations go into the table, base_frame into the base, tool_offset into the tool
-(`torchcal.calibration.geometry_only.calibrated_robot`). Other effects: with data the
+(`torchcal.calibration.geometry_only.calibrated_robot`; with several reflectors, one
+offset each, the tool stays nominal and the robot file lists the offsets under "effects"). Other effects: with data the
 geometry alone is refitted on them (`refit_geometry`) and that geometry exported; without,
 they are listed in the robot file. A robot imported from a URDF keeps that file's links
 (`torchcal.io.urdf.calibrated_urdf`), any other gets `minimal_urdf`; the URDF keeps the
@@ -46,6 +47,9 @@ class Export:
             its zones; 1 otherwise); a robot file, URDF or table holds one: the global one.
         zone1: the global parameters are zone 1's, which had poses (a file of the older
             interval-model format stores no global calibration: zone 1 stands in).
+        reflectors: point ids of a model with several reflectors (one tool offset each):
+            the robot file keeps the nominal tool and lists their offsets under "effects";
+            empty otherwise.
     """
 
     robot: Robot
@@ -58,11 +62,12 @@ class Export:
     urdf_links: dict | None = None
     zones: int = 1
     zone1: bool = False
+    reflectors: tuple = ()
 
     def to_dict(self) -> dict:
         r = self.refit
         return {"robot": self.robot.name, "joints": self.robot.n, "written": dict(self.written), "zones": self.zones,
-                "zone1": self.zone1,
+                "zone1": self.zone1, "reflectors": list(self.reflectors),
                 "effects_not_held": [e["spec"] for e in self.effects_not_held],
                 "residual_stage_dropped": self.residual_stage_dropped,
                 "urdf": None if self.urdf_links is None else dict(self.urdf_links, source=self.urdf_source),
@@ -107,7 +112,7 @@ def export(im, *, robot_file=None, urdf=None, table=None, data=None, length_unit
     `length_unit` / `angle_unit`, read only when the model has effects the exported robot
     cannot hold. inputs: paths never written over (the model's file, the data), beside
     the files the model came from (`sources`)."""
-    from torchcal.calibration.geometry_only import calibrated_robot, measuring_frames, refit_geometry
+    from torchcal.calibration.geometry_only import calibrated_robot, measuring_frames, reflector_offsets, refit_geometry
     from torchcal.calibration.mismatch import check_measurements, check_units, enforce
     from torchcal.io.files import all_or_none, atomic_write, check_output
     from torchcal.io.mdh_table import mdh_table_csv
@@ -150,15 +155,16 @@ def export(im, *, robot_file=None, urdf=None, table=None, data=None, length_unit
             urdf_info = None
     cal = dataclasses.replace(cal, urdf=urdf_info)  # the calibrated robot file points at the calibrated URDF
     with all_or_none(outs.values()):  # a failure or Ctrl-C between them leaves none of the new files
-        if robot_file is not None:
-            write_robot_file(robot_file, cal, effects=rest, force=force, inputs=inputs)
+        if robot_file is not None:  # several reflectors: listed beside the effects it cannot hold
+            write_robot_file(robot_file, cal, effects=rest + reflector_offsets(cm, theta), force=force, inputs=inputs)
         if urdf is not None:
             atomic_write(urdf, urdf_text, force=force, inputs=inputs)
         if table is not None:
             atomic_write(table, mdh_table_csv(cal), force=force, inputs=inputs)
+    points = next((tuple(e.points) for e in cm.effects if e.name == "tool_offset"), ())
     return Export(cal, rest, im.residual_model is not None, refit, rows, source,
                   {k: (None if v is None else str(v)) for k, v in outs.items()}, links if urdf else None,
-                  int(im.zone_theta.shape[0]), _zone1_stands_in(im))
+                  int(im.zone_theta.shape[0]), _zone1_stands_in(im), points)
 
 
 def _zone1_stands_in(im) -> bool:

@@ -578,6 +578,9 @@ def _covariance_matrix(obj: dict, model: CalibrationModel, where: str) -> torch.
                          f"torchcal version)") from None
     if not torch.isfinite(sub).all():
         raise InputError(f"{where}: 'covariance' holds non-finite values")
+    neg = [n for n, v in zip(c["parameters"], sub.diagonal().tolist()) if v < 0]
+    if neg:  # a variance below zero: a broken or hand-edited file (accuracy would print sigma 0)
+        raise InputError(f"{where}: 'covariance' has a negative variance for {', '.join(neg[:5])}")
     if obj["format"] != FORMAT_RAD:  # version 2: file units (degrees) -> radians inside
         k = file_units(model)[1][idx]
         sub = sub / (k[:, None] * k[None, :])

@@ -20,7 +20,8 @@ Conversion (zero configuration, all in the base link's frame, mm):
    and F_i is rebuilt from the row, so the chain is exact whatever the choice.
 4. F_n = F_(n-1) Tz(d_n) with d_n the tip origin's height along joint n's axis; the rest of
    the tip's offset goes into `tool`.
-A continuous joint is revolute with limits -180..180 deg; a prismatic joint's q (mm)
+A continuous joint is revolute with limits -180..180 deg; a revolute or prismatic joint
+without <limit lower upper> is refused (the URDF standard requires it); a prismatic joint's q (mm)
 adds to d.
 
 Export (`minimal_urdf`): one link per MD-H frame, joint i's origin the link transform
@@ -149,9 +150,8 @@ def read_chain(path, base_link: str, tip_link: str) -> list[dict]:
             lower, upper = -math.pi, math.pi
         elif jtype in ("revolute", "prismatic"):
             if lim is None or lim.get("lower") is None or lim.get("upper") is None:
-                if jtype == "prismatic":
-                    raise InputError(f"{where}: a prismatic joint needs <limit lower upper>")
-                lower, upper = -math.pi, math.pi
+                raise InputError(f"{where}: a {jtype} joint needs <limit lower upper> (the URDF standard; a "
+                                 f"joint that turns without end is type continuous, -180..180 deg)")
             else:
                 s = 1000.0 if jtype == "prismatic" else 1.0
                 lower, upper = float(lim.get("lower")) * s, float(lim.get("upper")) * s

@@ -18,13 +18,15 @@ from torchcal.kinematics import mdh as K
 
 @dataclass(frozen=True)
 class Workspace:
-    """Which sampled configurations count as workspace points (base frame, mm).
+    """Which sampled configurations count as workspace points (mm).
 
     Attributes:
-        floor_z_mm: the TCP must lie above the floor, z > floor_z_mm.
+        floor_z_mm: the TCP must lie above the floor, z > floor_z_mm in the robot's world
+            frame (the frame of its ``base``: world <- joint-1 frame).
         column_radius_mm, column_height_mm: keep-out cylinder about the joint-1 axis (the
             base column and turntable): rejected if sqrt(x^2 + y^2) < column_radius_mm
-            and z < column_height_mm. Default 350 mm up to 1100 mm (the shoulder height
+            and z < column_height_mm, x, y, z in the joint-1 frame (the robot's ``base``
+            undone: a robot standing anywhere in the cell keeps its own column). Default 350 mm up to 1100 mm (the shoulder height
             d1 of the KR 1000 Titan); the paper's Table 3 point 6 at radius 387 mm, z 631
             mm is just outside.
         reach_fraction: the TCP must lie within this fraction of the arm's full stretch
@@ -55,8 +57,10 @@ class Workspace:
         p = robot.fk(q)  # (N, 3) TCP
         shoulder = K.fk_positions(q[:, :1], robot.chain.to(q).first(1))
         ok = p[:, 2] > self.floor_z_mm
-        radial = p[:, :2].norm(dim=-1)
-        ok &= ~((radial < self.column_radius_mm) & (p[:, 2] < self.column_height_mm))
+        B = robot.base.to(p)
+        local = (p - B[:3, 3]) @ B[:3, :3]  # joint-1 frame
+        radial = local[:, :2].norm(dim=-1)
+        ok &= ~((radial < self.column_radius_mm) & (local[:, 2] < self.column_height_mm))
         if self.reach_fraction < 1:
             t = robot.table
             # a prismatic joint's d reaches d + its farthest limit

@@ -118,6 +118,7 @@ def calibration_report(model_path, data=None, *, history_path=None, tolerance_mm
 
     if tolerance_mm is not None and not tolerance_mm > 0:
         raise InputError(f"tolerance_mm: expected a distance > 0 mm, got {tolerance_mm}")
+    from torchcal import api
     from torchcal.io import modelfile
 
     model = read_json(model_path, "model file")
@@ -126,6 +127,7 @@ def calibration_report(model_path, data=None, *, history_path=None, tolerance_mm
     if not str(model.get("format", "")).startswith("torchcal-model/"):
         raise InputError(f"{model_path}: not a MODEL.json of `torchcal fit`, `discover` or `calibrate` "
                          f"(format {model.get('format')!r})")
+    fitted = api.load(model_path)  # the model read as every command reads it: a value NaN, a bad block refused
     history = None
     if history_path is not None:
         history = read_json(history_path, "discover history")
@@ -139,9 +141,6 @@ def calibration_report(model_path, data=None, *, history_path=None, tolerance_mm
                             tolerance_mm=tolerance_mm, history=history)
     if data is None:
         return rep
-    from torchcal import api
-
-    fitted = api.load(model_path)
     m = data if isinstance(data, Measurements) else read_measurements(
         data, robot=fitted.model.robot, length_unit=length_unit, angle_unit=angle_unit)
     source = data if isinstance(data, (str, Path)) else m.source
@@ -176,6 +175,11 @@ def _held_out(rep: CalibrationReport, fitted, m, effects: set, tolerance_mm) -> 
             warnings.simplefilter("ignore", TransferWarning)
             err0 = api.evaluate(api.register(robot, m, tool=tool), m).residuals_mm
         rep.before_model = "nominal robot, base frame" + (" and tool offset" if tool else "") + " fitted on these rows"
+    elif "tool_offset" in effects:  # robot base frame, the reflector(s) where the model puts them
+        err0 = _nominal_with_tool(robot, m)
+        rep.before_model = "nominal robot, tool offset" + (" per reflector" if m.point is not None and
+                                                            len(set(m.point.tolist())) > 1 else "") + \
+            " fitted on these rows"
     else:  # the data are in the robot's base frame, as the model assumes
         err0 = (m.xyz - robot.fk(m.q)).detach()
         rep.before_model = "nominal robot (its MD-H table, base and tool as given)"
@@ -191,6 +195,22 @@ def _held_out(rep: CalibrationReport, fitted, m, effects: set, tolerance_mm) -> 
         rep.zones = zone_table(m, err0, err, zone, tolerance_mm)
     if len(m) >= 10:
         rep.unexplained = unexplained(robot, m, err, seed=0)
+
+
+def _nominal_with_tool(robot, m) -> torch.Tensor:
+    """(N, 3) mm measured - model of the nominal robot whose tool offset (one per point id)
+    is fitted alone on the measurements m (robot base frame): the "before" of a model with
+    tool_offset and no base_frame."""
+    from torchcal.calibration.fit import fit
+    from torchcal.calibration.model import CalibrationModel
+    from torchcal.effects import context_of
+
+    cm = CalibrationModel.for_measurements(robot, ["tool_offset"], m)
+    free = torch.zeros(cm.n_params, dtype=torch.bool)
+    free[cm.slices[1]] = True
+    ctx = context_of(robot, m)
+    res = fit(cm, ctx, m.xyz, free=free, pose=m.pose, register=False, prior=False, posterior=False)
+    return (m.xyz - cm.predict(res.theta, ctx)).detach()
 
 
 def zone_table(m, before_mm: torch.Tensor, after_mm: torch.Tensor, zone: torch.Tensor,

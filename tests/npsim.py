@@ -168,3 +168,28 @@ def tracker_session(robot, q, seed, distance_mm=3000.0, reflector_mm=(0.0, 0.0, 
     R = _rz(a)[:3, :3] @ _rx(np.radians(rng.uniform(-3, 3)))[:3, :3]
     t = np.array([distance_mm * np.cos(a), distance_mm * np.sin(a), -500.0])
     return p @ R.T + t + rng.normal(0, noise_mm, p.shape)
+
+
+def reflectors_session(path, robot, n: int, points: dict, seed: int = 2, noise_mm: float = 0.01):
+    """Write a measurement CSV (pose, q1..qN deg, x, y, z, point) of `robot` with MD-H
+    deviations (+-0.05 deg, +-0.5 mm; the generator of `seed`) measured at n random poses
+    (`torchcal.robots.poses.random_poses`, seed 3) at each reflector of `points` {id: (3,) mm
+    offset on the flange}, in the robot's base frame, with noise_mm per axis. Returns (dev
+    (n_joints, 5), q (n, n_joints) rad, {id: measured positions (n, 3) mm})."""
+    from torchcal.robots.poses import random_poses
+
+    rng = np.random.default_rng(seed)
+    nj = robot.n
+    dev = np.column_stack([rng.uniform(-1, 1, nj) * np.radians(0.05), rng.uniform(-1, 1, (nj, 2)) * 0.5,
+                           rng.uniform(-1, 1, nj) * np.radians(0.05), np.zeros(nj)])
+    q = random_poses(robot, n, 3).numpy()
+    meas = {}
+    with open(path, "w") as fh:
+        fh.write("pose," + ",".join(f"q{k}" for k in range(1, nj + 1)) + ",x,y,z,point\n")
+        for pid, off in points.items():
+            T = np.eye(4)
+            T[:3, 3] = off
+            meas[pid] = numpy_fk(robot, q, dev, tool=T) + rng.normal(0, noise_mm, (n, 3))
+            for i, (qq, p) in enumerate(zip(np.degrees(q), meas[pid])):
+                fh.write(",".join(map(repr, [i + 1, *qq.tolist(), *p.tolist()])) + f",{pid}\n")
+    return dev, q, meas

@@ -225,25 +225,17 @@ def test_export_of_a_model_with_several_reflectors(tmp_path, capsys):
     offset on the robot file's chain (FK here in numpy from the JSON) and each URDF frame
     reach the true reflectors to the fit's accuracy."""
     import numpy as np
-    from npsim import numpy_fk
+    from npsim import numpy_fk, reflectors_session
     from torchcal.robots.poses import random_poses
 
     rob = torchcal.robot("ur5e")
-    rng = np.random.default_rng(2)
-    dev = np.column_stack([rng.uniform(-1, 1, 6) * np.radians(0.05), rng.uniform(-1, 1, (6, 2)) * 0.5,
-                           rng.uniform(-1, 1, 6) * np.radians(0.05), np.zeros(6)])
-    q = random_poses(rob, 60, 3).numpy()
     pts = {1: [30.0, 0.0, 100.0], 2: [-20.0, 40.0, 80.0]}
+    dev, q, _ = reflectors_session(tmp_path / "s.csv", rob, 60, pts)
     truth = {}
-    with open(tmp_path / "s.csv", "w") as fh:
-        fh.write("pose," + ",".join(f"q{k}" for k in range(1, 7)) + ",x,y,z,point\n")
-        for pid, off in pts.items():
-            T = np.eye(4)
-            T[:3, 3] = off
-            truth[pid] = lambda qq, T=T: numpy_fk(rob, qq, dev, tool=T)
-            P = truth[pid](q) + rng.normal(0, 0.01, (60, 3))
-            for i, (qq, p) in enumerate(zip(np.degrees(q), P)):
-                fh.write(",".join(map(repr, [i + 1, *qq.tolist(), *p.tolist()])) + f",{pid}\n")
+    for pid, off in pts.items():
+        T = np.eye(4)
+        T[:3, 3] = off
+        truth[pid] = lambda qq, T=T: numpy_fk(rob, qq, dev, tool=T)
     assert main(["fit", str(tmp_path / "s.csv"), "--robot", "ur5e", "--effects", "tool_offset",
                  "--out", str(tmp_path / "m.json")]) == 0
     capsys.readouterr()

@@ -379,26 +379,13 @@ def test_before_of_a_tool_offset_model_fits_the_tool_on_the_nominal_robot(tmp_pa
     on these rows, as a base frame is for tracker data: here a linear least-squares in numpy
     of each reflector's offset on the nominal flange frames."""
     import numpy as np
-    from npsim import numpy_frames, numpy_fk
-    from torchcal.robots.poses import random_poses
+    from npsim import numpy_frames, reflectors_session
 
     import torchcal
 
     rob = torchcal.robot("ur5e")
-    rng = np.random.default_rng(2)
-    dev = np.column_stack([rng.uniform(-1, 1, 6) * np.radians(0.05), rng.uniform(-1, 1, (6, 2)) * 0.5,
-                           rng.uniform(-1, 1, 6) * np.radians(0.05), np.zeros(6)])
-    q = random_poses(rob, 40, 3).numpy()
     pts = {1: [30.0, 0.0, 100.0], 2: [-20.0, 40.0, 80.0]}
-    meas = {}
-    with open(tmp_path / "s.csv", "w") as fh:
-        fh.write("pose," + ",".join(f"q{k}" for k in range(1, 7)) + ",x,y,z,point\n")
-        for pid, off in pts.items():
-            T = np.eye(4)
-            T[:3, 3] = off
-            meas[pid] = numpy_fk(rob, q, dev, tool=T) + rng.normal(0, 0.01, (40, 3))
-            for i, (qq, p) in enumerate(zip(np.degrees(q), meas[pid])):
-                fh.write(",".join(map(repr, [i + 1, *qq.tolist(), *p.tolist()])) + f",{pid}\n")
+    _, q, meas = reflectors_session(tmp_path / "s.csv", rob, 40, pts)
     assert main(["fit", str(tmp_path / "s.csv"), "--robot", "ur5e", "--effects", "tool_offset",
                  "--out", str(tmp_path / "m.json")]) == 0
     assert main(["report", str(tmp_path / "m.json"), "--data", str(tmp_path / "s.csv"), "--out",

@@ -414,12 +414,14 @@ def compensate_fitted(fitted, targets, q0=None, *, tol_mm: float = 1e-6, max_ite
         return c if stage is None else with_stage(stage, cm, theta, t[rows], c, zone, opts)
 
     every = torch.arange(t.shape[0], device=t.device)
-    zone = _command_zone(fitted, q0)
+    zoned = theta.shape[0] > 1
+    zone = _command_zone(fitted, q0) if zoned else torch.zeros(t.shape[0], dtype=torch.long, device=t.device)
     comp = solve(every, q0, zone)
-    if theta.shape[0] > 1:  # a solution in another zone than its seed's: solved again with that zone's set
-        moved = (_command_zone(fitted, comp.q) != zone).nonzero().flatten()
+    if zoned:  # a solution in another zone than its seed's: solved again with that zone's set
+        landed = _command_zone(fitted, comp.q)
+        moved = (landed != zone).nonzero().flatten()
         if len(moved):
-            zone[moved] = _command_zone(fitted, comp.q[moved])
+            zone[moved] = landed[moved]
             again = solve(moved, comp.q[moved], zone[moved])
             comp = replace(comp, **{f: _put(getattr(comp, f), moved, getattr(again, f))
                                     for f in ("q", "predicted_mm", "residual_mm", "converged", "within_limits")},
@@ -438,7 +440,7 @@ def compensate_fitted(fitted, targets, q0=None, *, tol_mm: float = 1e-6, max_ite
 def _command_zone(fitted, q: torch.Tensor) -> torch.Tensor:
     """(M,) int64 0-based row of `fitted.zone_theta` for commands q (M, n) rad / mm: the zone
     of their nominal TCP position, as `calibrate` assigns calibration poses and
-    `ZonedFit.predict` rows (robot base frame); 0 for a model without zones."""
+    `ZonedFit.predict` rows (robot base frame)."""
     with torch.no_grad():
         return (fitted.assign(fitted.model.robot.fk(q)) - 1).to(q.device)
 

@@ -309,7 +309,7 @@ def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
     cold = theta0 is None and damping == 0  # plain least squares from nominal: where it starts is free
     fits = [_identify(model, ctx, data, rep, _registered(model, ctx, data, x0) if cold else x0, mu, rank_tol,
                       max_iter) for (ctx, data), rep, mu in zip(pairs, reports, mus)]
-    if theta0 is None and damping == 0 and bool(frames.any()):  # a cold start analysed the frames at zero
+    if cold and bool(frames.any()):  # a cold start analysed the frames at zero
         for k, ((ctx, data), rep, res) in enumerate(zip(pairs, reports, fits)):
             again = _structural(model, ctx, res.theta, cand, frames, rank_tol)  # at the fitted frames
             if bool((again.free & ~rep.free).any()) and 3 * len(data) > again.rank:

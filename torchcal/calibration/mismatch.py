@@ -96,8 +96,9 @@ they were made for, in its base frame. More than OUTLIER_SHARE = 10 % of them be
 (R: the reach, as for targets), or calibration poses whose nominal TCP positions lie a median
 farther from the nearest sweep point than PARTITION_SPACING = 3 times the sweep's own median
 spacing and than R / 20: a partition of another robot (or of another region), refused.
-A compensated command whose nominal TCP lies farther than that spacing rule from every
-sweep point (`warn_far_from_sweep`) takes an extrapolated zone: named in one warning.
+A calibration row or a compensated command whose nominal TCP lies farther than
+PARTITION_SPACING sweep spacings from every sweep point (`warn_far_from_sweep`) takes an
+extrapolated zone: named in one warning.
 
 Robot files (`check_robot_angles`): every revolute limit within +-2 pi "degrees", or a
 twist or offset of pi / 2 or pi "degrees" in a file with no angle beyond 2 pi "degrees",

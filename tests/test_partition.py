@@ -485,6 +485,30 @@ def test_partition_auto_and_errors():
         partition_workspace(pos, torch.where(r > 0.9, torch.nan, r), 2, "auto")
 
 
+def test_zones_too_small_for_the_sweep_are_refused_or_named():
+    """A requested count above half a level's points is refused; zones left with fewer
+    sweep points than the k-NN vote that assigns poses to zones (5) get one warning, and
+    'auto' never chooses such a split (before: --zones 60,2 on 200 points gave 62 zones, 36
+    of one point, silently; auto on (2, 60) 119 zones, 62 of one point)."""
+    import warnings
+
+    from torchcal.partition.zones import ZoneSizeWarning
+
+    pos, r = synthetic_sweep(200, seed=6)
+    with pytest.raises(ValueError, match=r"zones: level 1 has (\d+) points, too few for 70 sub-zones: a zone "
+                                         r"needs at least 2 sweep points on average, so at most \d+ sub-zone\(s\)"):
+        partition_workspace(pos, r, 2, [70, 2], restarts=1)
+    with pytest.warns(ZoneSizeWarning, match=r"zones: \d+ of 32 zones hold fewer than 5 sweep points \(zone "
+                                             r"\(points\): \d+ \([1-4]\)"):
+        p = partition_workspace(pos, r, 2, [30, 2], restarts=1)
+    assert int((torch.bincount(p.labels)[1:] < 5).sum()) > 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ZoneSizeWarning)
+        p = partition_workspace(pos, r, 2, "auto", zone_range=(2, 60), restarts=1)
+        assert p.n_zones > 2 and int(torch.bincount(p.labels)[1:].min()) >= 5
+        partition_workspace(pos, r, 2, [3, 2], restarts=1)  # zones of tens of points: no word
+
+
 # ------------------------------------------------------------------ command line
 
 def write_sweep_csv(path, pos, r, q_count=6):
@@ -547,6 +571,11 @@ def test_cli_bad_options(tmp_path, capsys):
     write_sweep_csv(sweep, pos, r)
     assert cli.main(["partition", str(sweep), "--levels", "4", "--zones", "3,2", "--out", str(tmp_path / "p.json")]) == 2
     assert "--zones: 2 counts for --levels 4" in capsys.readouterr().err
+    assert cli.main(["partition", str(sweep), "--levels", "2", "--zones", "6,2", "--out", str(tmp_path / "p.json")]) == 2
+    err = capsys.readouterr().err
+    assert err.strip().splitlines()[-1].startswith("torchcal partition: error: zones: level 1 has ")
+    assert "too few for 6 sub-zones" in err and "records no robot" in err  # the sweep of an old torchcal
+    assert not (tmp_path / "p.json").exists()
     assert cli.main(["partition", str(tmp_path / "nope.csv"), "--out", str(tmp_path / "p.json")]) == 2
     assert "sweep CSV does not exist" in capsys.readouterr().err
 
@@ -635,11 +664,11 @@ def test_cli_partition_copies_the_sweeps_record(tmp_path, capsys):
     write_sweep(sweep(kr, sample_workspace(kr, 40, seed=6), n_samples=30), s)
     argv = ["partition", str(s), "--levels", "2", "--zones", "2,1", "--out", str(tmp_path / "p.json")]
     assert cli.main(argv) == 0
-    assert capsys.readouterr().err == ""
+    assert "records no robot" not in capsys.readouterr().err  # (a level of 2 sweep points is named)
     assert json.loads((tmp_path / "p.json").read_text())["made_for"] == sweep_record(s)
     old = tmp_path / "old.csv"
     old.write_text("".join(s.read_text().splitlines(keepends=True)[1:]))
     assert cli.main(argv[:1] + [str(old)] + argv[2:-1] + [str(tmp_path / "p_old.json")]) == 0
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith(f"torchcal: warning: {old}: records no robot")
+    assert err.count("records no robot") == 1 and err.startswith(f"torchcal: warning: {old}: records no robot")
     assert json.loads((tmp_path / "p_old.json").read_text())["made_for"] is None

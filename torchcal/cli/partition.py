@@ -28,7 +28,7 @@ def add_parser(sub):
     p.add_argument("sweep", metavar="SWEEP.csv", help="sweep CSV (point,q1..qn,x,y,z,...,eta,r_set)")
     p.add_argument("--levels", default="4", help="number of R_set levels (>= 2) or 'auto' (default 4)")
     p.add_argument("--zones", default="auto",
-                   help="sub-zones per level, comma separated (paper: 3,2,3,2), or 'auto' (default)")
+                   help="sub-zones per level, comma separated (paper: 3,2,3,2), or 'auto' (default); at most half a level's sweep points")
     p.add_argument("--zone-range", default="2,3", metavar="LO,HI",
                    help="sub-zone counts tried per level with --zones auto, best Xie-Beni (default 2,3)")
     p.add_argument("--seed", type=seed_int, default=0, help="seed of the FCM random starts (default 0)")

@@ -45,11 +45,14 @@ def xie_beni(x, centers, u, m: float = 2.0) -> float:
 
 
 def choose_c(x, c_range=(2, 6), m: float = 2.0, eps: float = 1e-6, max_iter: int = 300,
-             seed: int = 0, restarts: int = 1):
+             seed: int = 0, restarts: int = 1, min_size: int = 0):
     """Pick the number of clusters in c_range (inclusive) with the lowest Xie-Beni index.
 
-    The upper end is clipped to N - 1; ties go to the smaller c.
-    Returns (c, result FCMResult for that c, scores {c: xie_beni}).
+    The upper end is clipped to N - 1; ties go to the smaller c. A c whose hard labels
+    (largest membership) leave a cluster with fewer than `min_size` points is not chosen
+    (its score is still reported).
+    Returns (c, result FCMResult for that c, scores {c: xie_beni}); (None, None, scores)
+    when every c leaves such a cluster.
     """
     x = as_points(x)
     lo, hi = _check_range(c_range, "c_range")
@@ -61,9 +64,11 @@ def choose_c(x, c_range=(2, 6), m: float = 2.0, eps: float = 1e-6, max_iter: int
     for c in range(lo, hi + 1):
         res = fcm(x, c, m=m, eps=eps, max_iter=max_iter, seed=seed, restarts=restarts)
         scores[c] = xie_beni(x, res.centers, res.memberships, m)
+        if min_size and int(torch.bincount(res.memberships.argmax(dim=0), minlength=c).min()) < min_size:
+            continue
         if best is None or scores[c] < scores[best[0]]:
             best = (c, res)
-    return best[0], best[1], scores
+    return (None, None, scores) if best is None else (best[0], best[1], scores)
 
 
 def _check_range(c_range, name):

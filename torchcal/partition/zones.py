@@ -20,7 +20,11 @@ Two levels of FCM (`torchcal.partition.fcm`, m = 2 by default):
 
 Sub-zone counts per level are fixed (e.g. the paper's [3, 2, 3, 2]; 1 means "do not
 split this level") or "auto": per level the c in `zone_range` (default 2..3, clipped to
-n_level - 1) with the lowest Xie-Beni index. `levels` may also be "auto" (c in `level_range` by
+n_level // 2) with the lowest Xie-Beni index, among those whose zones all hold at least
+`knn_neighbors` (5) sweep points (none: the level stays one zone). A fixed count needs at
+least 2 sweep points per zone of its level, else it is refused; zones that end with fewer
+than `knn_neighbors` points get one `ZoneSizeWarning` (the nearest-point vote that assigns
+poses and targets to zones rarely picks them). `levels` may also be "auto" (c in `level_range` by
 Xie-Beni). Zones are numbered 1..Z level by level; within a level by descending mean
 R_set of their points (ties: center x). Zone and level ids are 1-based, as in the paper.
 
@@ -42,6 +46,7 @@ and centers; memberships, summaries and the k-NN classifier are rebuilt on load.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -51,7 +56,12 @@ from torchcal.errors import InputError
 from torchcal.partition.fcm import as_points, fcm, memberships
 from torchcal.partition.validity import _check_range, choose_c
 
-__all__ = ["Partition", "partition_workspace"]
+__all__ = ["Partition", "ZoneSizeWarning", "partition_workspace"]
+
+
+class ZoneSizeWarning(UserWarning):
+    """Zones of a partition with fewer sweep points than its k-NN vote (`knn_neighbors`)."""
+
 
 @dataclass(eq=False)
 class Partition:
@@ -236,8 +246,9 @@ def partition_workspace(positions, r_set, levels=4, zones="auto", *, m: float = 
         r_set: (N,) set reliability per point.
         levels: number of levels L >= 2, or "auto" (Xie-Beni minimum in `level_range`).
         zones: sub-zone counts per level, a sequence of L integers >= 1 (paper: [3, 2, 3, 2]),
-            or "auto" (per level, Xie-Beni minimum in `zone_range`, clipped to n_level - 1
-            and to the number of distinct points; a level where that leaves no c in the
+            or "auto" (per level, Xie-Beni minimum in `zone_range`, clipped to
+            n_level // 2 and to the number of distinct points, among the c whose zones all
+            hold knn_neighbors points; a level where that leaves no c in the
             range stays one zone).
         level_range, zone_range: inclusive (low, high) ranges for "auto" (defaults (2, 6)
             and (2, 3), the paper's counts; on evenly spread points Xie-Beni tends to fall
@@ -253,7 +264,8 @@ def partition_workspace(positions, r_set, levels=4, zones="auto", *, m: float = 
 
     Raises:
         InputError: bad shapes, NaN/inf, R_set with fewer distinct values than levels, a level
-            with too few points for its zones, or an FCM that leaves a level or zone empty.
+            with fewer than 2 points per requested zone, or an FCM that leaves a level or zone
+            empty. ZoneSizeWarning: zones of fewer than knn_neighbors points.
     """
     pos, r = _as_positions_r(positions, r_set)
     N = pos.shape[0]
@@ -315,25 +327,27 @@ def partition_workspace(positions, r_set, levels=4, zones="auto", *, m: float = 
         f_mean.append(mean)
         f_std.append(std)
         if ks is None:  # auto: c in zone_range, below the number of points and of distinct points
-            hi = min(zone_range[1], n_l - 1, int(torch.unique(f, dim=0).shape[0]))
+            hi = min(zone_range[1], n_l // 2, int(torch.unique(f, dim=0).shape[0]))
             k = None if hi >= zone_range[0] else 1
         else:
             k = ks[lev - 1]
-            if k > 1 and k >= n_l:
-                raise InputError(f"zones: level {lev} has {n_l} points, too few for {k} sub-zones "
-                                 f"(expected fewer zones than points)")
+            if k > 1 and 2 * k > n_l:
+                raise InputError(f"zones: level {lev} has {n_l} points, too few for {k} sub-zones: a zone needs "
+                                 f"at least 2 sweep points on average, so at most {max(1, n_l // 2)} sub-zone(s) "
+                                 f"here (expected fewer zones, or a denser sweep)")
             if k > 1 and bool((f == f[0]).all()):
                 raise InputError(f"zones: the {n_l} points of level {lev} share one position and R_set; "
                                  f"no split into {k} sub-zones is possible")
+        sub = None
+        if k is None:  # a c whose FCM leaves a zone below knn_neighbors points is not chosen; none: one zone
+            k, sub, _ = choose_c(f.to(pos.device), (zone_range[0], hi), min_size=knn_neighbors, **kw)
+            k = k or 1
+        elif k > 1:
+            sub = fcm(f.to(pos.device), k, **kw)
         if k == 1:
             sub_labels = torch.zeros(n_l, dtype=torch.int64)
             centers = torch.zeros(1, 4, dtype=torch.float64)
         else:
-            fd = f.to(pos.device)
-            if k is None:
-                k, sub, _ = choose_c(fd, (zone_range[0], hi), **kw)
-            else:
-                sub = fcm(fd, k, **kw)
             centers = sub.centers.cpu()
             sub_labels = sub.memberships.argmax(dim=0).cpu()
         # order sub-zones: descending mean R_set of their points, then center x
@@ -350,6 +364,17 @@ def partition_workspace(positions, r_set, levels=4, zones="auto", *, m: float = 
         labels[idx] = new_id[sub_labels]
         zone_level += [lev] * k
         zone_centers.append(centers[perm])
+
+    sizes = torch.bincount(labels, minlength=len(zone_level) + 1)[1:]
+    small = (sizes < knn_neighbors).nonzero().flatten()
+    if small.numel():
+        z = [f"{int(i) + 1} ({int(sizes[i])})" for i in small[:5]]
+        more = f" and {small.numel() - 5} more" if small.numel() > 5 else ""
+        warnings.warn(ZoneSizeWarning(
+            f"zones: {small.numel()} of {len(zone_level)} zones hold fewer than {knn_neighbors} sweep points "
+            f"(zone (points): {', '.join(z)}{more}): the nearest-point vote that assigns poses and targets to "
+            f"zones rarely picks such a zone, and its calibration rests on few poses; fewer zones, or a denser "
+            f"sweep"), stacklevel=2)
 
     options = {"levels": levels if isinstance(levels, str) else int(levels),
                "zones": zones if isinstance(zones, str) else [int(k) for k in zones],

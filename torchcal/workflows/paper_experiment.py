@@ -158,17 +158,23 @@ def make_partition(sweep: SweepResult, zones_per_level, seed: int, tries: int = 
     level's count is clipped to half its points (at least 1) and the partition says so in
     ``options["zones"]``.
     """
+    import warnings
+
+    from torchcal.partition.zones import ZoneSizeWarning
+
     L = len(zones_per_level)
     ks = [int(z) for z in zones_per_level]
-    for k in range(tries):
-        try:
-            return partition_workspace(sweep.positions, sweep.r_set, levels=L, zones=ks, seed=seed + k)
-        except InputError:
-            pass
-    levels = partition_workspace(sweep.positions, sweep.r_set, levels=L, zones=[1] * L, seed=seed)
-    sizes = [int((levels.point_levels == lev).sum()) for lev in range(1, L + 1)]
-    clipped = [max(1, min(k, n // 2)) for k, n in zip(ks, sizes)]
-    return partition_workspace(sweep.positions, sweep.r_set, levels=L, zones=clipped, seed=seed)
+    with warnings.catch_warnings():  # the paper's small zones: the result's "zones" list their sweep points
+        warnings.simplefilter("ignore", ZoneSizeWarning)
+        for k in range(tries):
+            try:
+                return partition_workspace(sweep.positions, sweep.r_set, levels=L, zones=ks, seed=seed + k)
+            except InputError:
+                pass
+        levels = partition_workspace(sweep.positions, sweep.r_set, levels=L, zones=[1] * L, seed=seed)
+        sizes = [int((levels.point_levels == lev).sum()) for lev in range(1, L + 1)]
+        clipped = [max(1, min(k, n // 2)) for k, n in zip(ks, sizes)]
+        return partition_workspace(sweep.positions, sweep.r_set, levels=L, zones=clipped, seed=seed)
 
 
 def r_set_table(lo: torch.Tensor, hi: torch.Tensor, dist_hi: torch.Tensor, allowed_axis: float,

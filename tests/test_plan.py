@@ -161,3 +161,26 @@ def test_plan_keeps_out_of_the_column_about_joint_1_of_a_robot_on_a_moved_base(t
     local = numpy_fk(robot, q, np.zeros((6, 5))) - np.array(base)[:3, 3]  # base: a pure translation
     inside = (np.hypot(local[:, 0], local[:, 1]) < 350.0) & (local[:, 2] < 1100.0)
     assert inside.sum() == 0, inside.sum()
+
+
+def test_plan_holds_what_the_fit_of_its_poses_holds(tmp_path, capsys):
+    """The held parameters a plan prints are those `fit` holds on data measured at its poses:
+    the same gauge (a frame kept, the robot deviation it cannot be told from held). Before,
+    the plan held the frames' tool_x, tool_z, base_tz, base_rz and printed them as 'not
+    identifiable from any pose', while the fit identifies them and holds dd1, dtheta1,
+    dd6, da6 instead."""
+    import npsim
+    from torchcal.measurements import Measurements
+    from torchcal.planning.plan import plan
+
+    robot = torchcal.robot("ur5e")
+    res = plan(robot, ["base_frame", "tool_offset"], n=30, candidates=2000, seed=3, random_plans=2)
+    xyz = npsim.tracker_session(robot, res.q.numpy(), seed=4, sag_deg=0.0)
+    m = Measurements(torch.arange(30), res.q, torch.as_tensor(xyz))
+    fitted = torchcal.fit(robot, m, ["base_frame", "tool_offset"])
+    assert res.held == fitted.report.held and any(h.startswith("tool_") for h in res.held) is False
+    assert main(["plan", "--robot", "ur5e", "--effects", "base_frame", "tool_offset", "--n", "30", "--candidates",
+                 "2000", "--seed", "3", "--random-plans", "2", "--out", str(tmp_path / "p.csv")]) == 0
+    line = [ln for ln in capsys.readouterr().out.splitlines() if "held at nominal" in ln]
+    assert line == [f"held at nominal (no candidate pose tells them from the parameters kept; fit holds them "
+                    f"too): {', '.join(res.held)}"]

@@ -73,7 +73,8 @@ def run(args) -> int:
         print(f"  {k}            {o['plan']:<11.4g} {o['random_mean']:<12.4g} "
               f"{o['random_min']:.4g}..{o['random_max']:.4g}")
     if d["held"]:
-        print(f"not identifiable from any pose (held at nominal): {', '.join(d['held'])}")
+        print(f"held at nominal (no candidate pose tells them from the parameters kept; fit holds them too): "
+              f"{', '.join(d['held'])}")
     t = d["travel_deg"]
     print(f"joint travel (sum of largest joint move, from home): {t['ordered']:.0f} deg "
           f"ordered vs {t['selection']:.0f} deg in selection order")

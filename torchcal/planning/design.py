@@ -39,8 +39,15 @@ def candidate_jacobian(model: CalibrationModel, q: torch.Tensor, payload_kg=None
 
 
 def scaled_columns(J: torch.Tensor, model: CalibrationModel):
-    """(free (P,) bool identifiable at the candidates, A (M, 3, K) unit-norm columns)."""
-    rep = identifiability(J, model.param_names(), model.default_free())
+    """(free (P,) bool identifiable at the candidates, A (M, 3, K) unit-norm columns).
+
+    The gauge is the fit's (`torchcal.calibration.fit`): of a frame (base frame, tool
+    offset) and the robot deviations it cannot be told apart from, the frame is kept and
+    the deviation held, so the held parameters are those the fit of the measured plan holds."""
+    from torchcal.calibration.plausibility import plausible_scales
+
+    first = ~torch.isfinite(plausible_scales(model))
+    rep = identifiability(J, model.param_names(), model.default_free(), first=first)
     A = J[:, :, rep.free]
     A = A / A.reshape(-1, A.shape[-1]).norm(dim=0).clamp_min(1e-300)
     return rep.free, A

@@ -33,8 +33,9 @@ class MeasurementPlan:
         random_values: criterion of each random plan of N candidates.
         observability: {"O1".."O5": value} of the plan; random_observability: one such dict per
             random plan.
-        n_identifiable: identifiable parameters K; held: names of the parameters no pose
-            determines (held at nominal).
+        n_identifiable: identifiable parameters K; held: names of the parameters no
+            candidate pose tells from those kept (held at nominal; the fit's gauge, so the
+            fit of the measured plan holds the same).
         robot, effects: the robot's name and the model's effect specs.
         A: (M, 3, K) scaled candidate blocks; seed: the seed of the candidates (the random
             plans draw on seed + 1, and `random_curve` continues after them).

@@ -147,6 +147,35 @@ def test_a_partition_object_keeps_its_record_and_a_matching_one_passes(session):
     assert res.partition.n_zones == 3 and sum(res.zone_poses) == 30
 
 
+def test_a_partition_in_memory_builds_its_sweep_tree_once(session, monkeypatch):
+    """The geometry check of a partition without a record and the swept-region warning
+    query one KD-tree of its sweep points (before: each built its own), with the same
+    result as a tree of their own."""
+    import math
+
+    import scipy.spatial
+    import torch
+
+    built = []
+
+    class Counting(scipy.spatial.cKDTree):
+        def __init__(self, data, *a, **k):
+            built.append(len(data))
+            super().__init__(data, *a, **k)
+
+    monkeypatch.setattr(scipy.spatial, "cKDTree", Counting)
+    part = _in_memory_partition("kr1000titan", seed=9)
+    torchcal.calibrate("kr1000titan", session / "kr1000titan.csv", ["base_frame"], partition=part)
+    assert built == [40]
+    q = torch.tensor([[0.1, -0.2, 0.3, 0.0, 0.5, 0.0], [1.0, 0.4, -0.3, 0.2, 0.1, 0.0]], dtype=torch.float64)
+    p = torchcal.robot("kr1000titan").fk(q)
+    spacing, near = part.nearest_sweep(p)
+    d = torch.cdist(part.positions, part.positions) + torch.diag(torch.full((40,), math.inf, dtype=torch.float64))
+    assert spacing == pytest.approx(float(d.min(dim=1).values.median()), rel=1e-12)
+    torch.testing.assert_close(near, torch.cdist(p, part.positions).min(dim=1).values, rtol=1e-12, atol=1e-9)
+    assert built == [40]
+
+
 def test_an_interval_calibration_records_its_point_id(tmp_path):
     """calibrate of data of one point id records it in MODEL.json, as fit does (before: not
     recorded, so a model of reflector 4 was used on reflector 5's data in silence)."""

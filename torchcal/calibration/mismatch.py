@@ -476,23 +476,13 @@ def check_partition(partition, robot, q: torch.Tensor, where: str = "partition")
                          "partition of another robot? make the sweep and partition for this robot")
     if pts.shape[0] < 2 or p.shape[0] == 0:
         return
-    spacing, near = _sweep_distances(pts, p)
+    spacing, near = partition.nearest_sweep(p)
     near = float(near.median())
     if near > max(PARTITION_SPACING * spacing, reach / TARGET_RATIO):
         raise InputError(f"{where}: the calibration poses of robot {robot.name!r} lie a median {near:.4g} mm from "
                          f"the nearest of its sweep points (spaced a median {spacing:.4g} mm apart): a partition "
                          "of another robot, or of another part of the workspace? make the sweep and partition for "
                          "this robot")
-
-
-def _sweep_distances(sweep: torch.Tensor, points: torch.Tensor) -> tuple[float, torch.Tensor]:
-    """(spacing mm, distances (M,) mm): the median distance between neighbouring sweep
-    points (N, 3) mm (N >= 2), and each of points (M, 3) mm to its nearest sweep point."""
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(sweep.numpy())
-    spacing = float(torch.as_tensor(tree.query(sweep.numpy(), k=2)[0][:, 1]).median())
-    return spacing, torch.as_tensor(tree.query(points.numpy(), k=1)[0])
 
 
 def warn_far_from_sweep(partition, positions: torch.Tensor, where: str = "targets", stacklevel: int = 2) -> list[int]:
@@ -503,7 +493,7 @@ def warn_far_from_sweep(partition, positions: torch.Tensor, where: str = "target
     pts = partition.positions.detach().to("cpu", torch.float64)
     if pts.shape[0] < 2 or positions.shape[0] == 0:
         return []
-    spacing, near = _sweep_distances(pts, positions.detach().to("cpu", torch.float64))
+    spacing, near = partition.nearest_sweep(positions)
     far = (near > PARTITION_SPACING * spacing).nonzero().flatten().tolist()
     if far:
         warnings.warn(f"{where}: {len(far)} command(s) reach nominal TCP positions up to {float(near.max()):.4g} mm "

@@ -176,6 +176,21 @@ class Partition:
             self._knn_cache = knn
         return knn
 
+    def nearest_sweep(self, points: torch.Tensor) -> tuple[float, torch.Tensor]:
+        """(spacing mm, distances (M,) mm): the median distance between neighbouring sweep
+        points (needs N >= 2), and each of `points` (M, 3) mm to its nearest sweep point. The
+        KD-tree of the sweep points and the spacing are built once per partition."""
+        cached = getattr(self, "_sweep_tree_cache", None)
+        if cached is None:
+            from scipy.spatial import cKDTree
+
+            pts = self.positions.detach().to("cpu", torch.float64).numpy()
+            tree = cKDTree(pts)
+            cached = (tree, float(torch.as_tensor(tree.query(pts, k=2)[0][:, 1]).median()))
+            self._sweep_tree_cache = cached
+        tree, spacing = cached
+        return spacing, torch.as_tensor(tree.query(points.detach().to("cpu", torch.float64).numpy(), k=1)[0])
+
     def assign(self, points) -> torch.Tensor:
         """Zone ids (M,) int64 of target positions `points` (M, 3) or (3,) mm, not yet measured.
 

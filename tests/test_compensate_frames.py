@@ -229,14 +229,14 @@ def test_a_zoned_model_solves_each_target_in_the_zone_of_its_command(zoned, caps
 def test_commands_far_from_every_sweep_point_are_named():
     """A sweep of one region (a 5 x 5 x 5 grid, 100 mm apart): positions among its points
     pass; one 1 m outside it (10 spacings) is named by row with its distance."""
-    import types
     import warnings
 
     from torchcal.calibration.mismatch import MismatchWarning, warn_far_from_sweep
+    from torchcal.partition.zones import partition_workspace
 
     g = torch.arange(5, dtype=torch.float64) * 100.0
     grid = torch.cartesian_prod(g, g, g) + torch.tensor([1000.0, 0.0, 500.0])
-    part = types.SimpleNamespace(positions=grid)
+    part = partition_workspace(grid, torch.linspace(0.5, 1.0, 125, dtype=torch.float64), 2, [1, 1])
     inside = grid[[3, 60, 124]] + 20.0
     with warnings.catch_warnings():
         warnings.simplefilter("error")

@@ -78,3 +78,33 @@ def test_choose_damping_per_zone_and_shared():
     total = [sum(gcv_by_hat_matrix(Jb, rb, m) for Jb, rb in zones) for m in GCV_GRID]
     shared = choose_damping(J, r, free, "gcv_shared")
     assert shared == [float(GCV_GRID[int(np.argmin(total))])] * 3
+
+
+def test_a_choice_at_the_top_of_the_grid_is_named():
+    """A zone whose errors the parameters do not explain (pure noise: r independent of J)
+    makes GCV choose the grid's largest damping, a bound: one warning names that zone and
+    the bound (before: silently); a zone whose errors J explains is not named, and neither
+    is a choice of 0 (no damping, the end of the range)."""
+    import warnings
+
+    from torchcal.calibration.gcv import DampingWarning
+
+    rng = np.random.default_rng(7)
+    Jn, _ = problem(7)
+    noise = rng.normal(size=Jn.shape[0])
+    Js, rs = problem(8, noise=0.01)
+    J = [torch.from_numpy(Js), torch.from_numpy(Jn)]
+    r = [torch.from_numpy(rs), torch.from_numpy(noise)]
+    free = torch.ones(2, Js.shape[1], dtype=torch.bool)
+    scores = [gcv_by_hat_matrix(Jn, noise, m) for m in GCV_GRID]
+    assert int(np.argmin(scores)) == len(GCV_GRID) - 1  # the plain-numpy GCV: lowest at the top
+    with pytest.warns(DampingWarning) as rec:
+        mus = choose_damping(J, r, free, "gcv", labels=["zone 4", "zone 7"])
+    assert mus[1] == GCV_GRID[-1] and mus[0] < GCV_GRID[-1]
+    assert len(rec) == 1 and str(rec[0].message).startswith(
+        "zone 7: the damping chosen by GCV is 10, the top of its grid (0..10): GCV would damp further")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DampingWarning)
+        assert choose_damping(J[:1], r[:1], free[:1], "gcv") == [mus[0]]
+    with pytest.warns(DampingWarning, match=r"^zone 1: the damping shared by the zones chosen by GCV is 10, the top"):
+        choose_damping(J[1:], r[1:], free[1:], "gcv_shared")

@@ -7,9 +7,15 @@ norms of the Jacobian (scale-invariant damping, as in `torchcal.calibration.inte
 
 from __future__ import annotations
 
+import warnings
+
 import torch
 
-__all__ = ["GCV_GRID", "gcv_damping", "choose_damping"]
+__all__ = ["GCV_GRID", "DampingWarning", "gcv_damping", "choose_damping"]
+
+
+class DampingWarning(UserWarning):
+    """GCV chose the largest damping of its grid: it would damp further (see `choose_damping`)."""
 
 
 #: damping values tried by ``damping="gcv"`` (relative to the squared column norms).
@@ -42,15 +48,35 @@ def gcv_damping(J: torch.Tensor, r: torch.Tensor, free: torch.Tensor, grid=GCV_G
     return float(grid[best]), out
 
 
-def choose_damping(J: torch.Tensor, r: torch.Tensor, free: torch.Tensor, mode: str, grid=GCV_GRID) -> list[float]:
+def choose_damping(J: torch.Tensor, r: torch.Tensor, free: torch.Tensor, mode: str, grid=GCV_GRID,
+                   labels=None) -> list[float]:
     """mu per zone by GCV: J B Jacobians (R_b, P), r B errors (R_b,), free (B, P) bool
     (stacked tensors or sequences: zones may have different numbers of rows).
 
     mode ``"gcv"``: each zone its own grid value; ``"gcv_shared"``: one value for every
     zone, the one with the smallest sum of the zones' GCV. Returns B floats.
+
+    A choice at the top of the grid is a bound, not a minimum: GCV would damp further, the
+    zone's poses barely move its parameters from the start (the global calibration), and
+    the interval is that of the damped solution. One `DampingWarning` names the zones
+    (`labels`, default "zone 1", ...) and the bound. The bottom of the grid, 0 (no
+    damping), is the end of the range, not a cut.
     """
+    labels = [f"zone {b + 1}" for b in range(len(J))] if labels is None else list(labels)
     scores = [gcv_damping(J[b], r[b], free[b], grid) for b in range(len(J))]
     if mode == "gcv":
-        return [sc[0] for sc in scores]
-    tot = [sum(sc[1][i] for sc in scores) for i in range(len(grid))]
-    return [float(grid[min(range(len(tot)), key=tot.__getitem__)])] * len(scores)
+        mus = [sc[0] for sc in scores]
+    else:
+        tot = [sum(sc[1][i] for sc in scores) for i in range(len(grid))]
+        mus = [float(grid[min(range(len(tot)), key=tot.__getitem__)])] * len(scores)
+    top = float(max(grid))
+    at_top = [lab for lab, mu in zip(labels, mus) if mu == top and top > 0]
+    if at_top:
+        which = "the damping shared by the zones" if mode == "gcv_shared" else "the damping"
+        names = ", ".join(at_top[:6]) + (f" and {len(at_top) - 6} more" if len(at_top) > 6 else "")
+        warnings.warn(DampingWarning(
+            f"{names}: {which} chosen by GCV is {top:g}, the top of its grid ({float(min(grid)):g}..{top:g}): GCV "
+            f"would damp further; the poses barely move the parameters from the global calibration (their errors "
+            f"are the global model's, or too few poses to tell), and each interval is the damped solution's"),
+            stacklevel=3)
+    return mus

@@ -303,7 +303,8 @@ def identify_zones(model: CalibrationModel, zones, free=None, damping=0.0,
             J0s.append(model.jacobian(x0, ctx).reshape(3 * m, -1))
             r0s.append((data.center.to(x0) - model.predict(x0, ctx)).reshape(-1))
     if damping in ("gcv", "gcv_shared"):
-        mus = choose_damping(J0s, r0s, torch.stack([r.free for r in reports]), damping)
+        mus = choose_damping(J0s, r0s, torch.stack([r.free for r in reports]), damping,
+                             labels=[f"zone {z + 1}" for z in range(len(pairs))] if labels is None else labels)
     else:
         mus = [float(damping)] * len(pairs)
     cold = theta0 is None and damping == 0  # plain least squares from nominal: where it starts is free

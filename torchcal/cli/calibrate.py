@@ -10,7 +10,9 @@ propagated through the linearised solution map (torchcal.calibration.intervals).
   its nominal TCP position (`Partition.assign`) and each zone gets its own interval
   parameters, all zones in one batched solve. ``--zone-method damped`` (default): a
   global calibration first, then each zone as the damped least-squares solution (eq. 29)
-  towards it, the damping chosen by generalised cross-validation (``--damping``);
+  towards it, the damping chosen by generalised cross-validation (``--damping``; a
+  choice at the top of its grid, 10, is named in one warning line: GCV would damp further,
+  the zones' poses barely move their parameters from the global calibration);
   a zone without poses keeps the global parameters. ``--zone-method independent``: each
   zone on its own from nominal (the paper's eq. 29 literally; every zone needs more
   equations than identifiable parameters).

@@ -120,15 +120,15 @@ def test_urdf_import_prints_nothing_of_the_parser(tmp_path, capfd):
 
 
 def test_simulate_pose_seed_fresh_poses_of_the_same_robot(tmp_path, capsys):
-    def sim(name, *extra):
+    def sim(name, *extra, seed="3"):
         out, truth = tmp_path / f"{name}.csv", tmp_path / f"{name}.json"
-        assert main(["simulate", "--robot", "ur5e", "--effects", "joint_compliance:2", "--n", "15", "--seed", "3",
+        assert main(["simulate", "--robot", "ur5e", "--effects", "joint_compliance:2", "--n", "15", "--seed", seed,
                      *extra, "--out", str(out), "--truth", str(truth)]) == 0
         return out.read_text(), json.loads(truth.read_text())
     a, ta = sim("a")
     b, tb = sim("b", "--pose-seed", "9")
     same, _ = sim("same", "--pose-seed", "3")
-    c, tc = sim("c", "--seed", "4")  # argparse: the last --seed wins: another robot
+    c, tc = sim("c", seed="4")  # another robot
     assert same == a  # --pose-seed = --seed: the file without it, byte for byte
     assert ta["parameters"] == tb["parameters"] != tc["parameters"]  # the same hidden robot
     qa = {line.split(",")[1] for line in a.splitlines()[1:]}
@@ -226,3 +226,36 @@ def test_a_warning_no_command_words_is_still_one_line(tmp_path, capsys):
                  "--out", str(tmp_path / "r.html")]) == 0
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 1 and err[0].startswith(f"torchcal: warning: {tmp_path / 'rad.csv'}: rx, ry, rz disagree ")
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["compensate", "T.csv", "--model", "M.json", "--frame", "base", "--frame", "measuring", "--out", "Q.csv"],
+     "torchcal compensate: error: argument --frame: given twice (base, then measuring); give it once"),
+    (["fit", "D.csv", "--robot", "ur5e", "--effects", "base_frame", "--effects", "tool_offset", "--out", "M.json"],
+     "torchcal fit: error: argument --effects: given twice (base_frame, then tool_offset); give it once"),
+    (["fit", "D.csv", "--robot=ur5e", "--robot", "kr1000titan", "--out", "M.json"],
+     "torchcal fit: error: argument --robot: given twice (ur5e, then kr1000titan); give it once"),
+    (["split", "D.csv", "--fraction", "0.6", "--seed", "0", "--seed", "1", "--out", "A.csv", "B.csv"],
+     "torchcal split: error: argument --seed: given twice (0, then 1); give it once"),
+])
+def test_an_option_given_twice_is_refused(tmp_path, capsys, monkeypatch, argv, words):
+    """argparse keeps the last of a repeated option in silence (`--frame base --frame
+    measuring` compensated in the measuring frame, `--effects base_frame --effects
+    tool_offset` fitted the tool offset alone): one line naming both values, exit 2,
+    nothing read or written."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    assert capsys.readouterr().err == words + "\n"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_switch_given_twice_and_an_appended_option_pass(tmp_path, capsys):
+    """A switch (`--force --force`) changes nothing when repeated, and `--effects-module`
+    is meant to be given once per file: neither is refused."""
+    from torchcal.cli import build_parser
+
+    args = build_parser(("fit",)).parse_args(["fit", "D.csv", "--robot", "ur5e", "--out", "M.json", "--force",
+                                              "--force", "--effects-module", "a.py", "--effects-module", "b.py"])
+    assert args.force is True and args.effects_module == ["a.py", "b.py"]

@@ -48,8 +48,40 @@ BUILTIN_EFFECTS = ("axis_tilt", "backlash", "base_compliance", "base_frame", "cr
                    "thermal_expansion", "tool_offset")
 
 
+#: argparse actions that take an option's value once: a second occurrence would silently
+#: replace the first (``--frame base --frame measuring``), so it is refused (a switch given
+#: twice changes nothing and passes)
+_SINGLE = (argparse._StoreAction,)
+_GIVEN = "_torchcal_given"  # namespace attribute: the options seen so far (removed after parsing)
+
+
+def _once(cls):
+    """A subclass of the action class `cls` whose second occurrence on one command line is an
+    error naming the option and both values."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        given = getattr(namespace, _GIVEN, None)
+        if given is None:
+            given = {}
+            setattr(namespace, _GIVEN, given)
+        if self.dest in given:
+            def shown(v):
+                return " ".join(map(str, v)) if isinstance(v, list) else str(v)
+            raise argparse.ArgumentError(self, f"given twice ({shown(given[self.dest])}, then {shown(values)}); "
+                                               "give it once")
+        given[self.dest] = values
+        cls.__call__(self, parser, namespace, values, option_string)
+
+    return type(f"Once{cls.__name__}", (cls,), {"__call__": __call__})
+
+
 class _Parser(argparse.ArgumentParser):
     command = None  # the sub-command named on the command line (set by `main`)
+
+    def _add_action(self, action):
+        if action.option_strings and isinstance(action, _SINGLE):
+            action.__class__ = _once(type(action))
+        return super()._add_action(action)
 
     def error(self, message):  # one line naming the sub-command, exit 2, as for every other user mistake
         prog = f"torchcal {self.command}" if self.prog == "torchcal" and self.command else self.prog
@@ -107,6 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     first = next((a for a in argv if not a.startswith("-")), None)  # the sub-command, named in argparse errors
     _Parser.command = first if first in COMMANDS else None
     args = build_parser((first,) if first in COMMANDS else ()).parse_args(argv)
+    vars(args).pop(_GIVEN, None)
     import_torch()
     with quiet_broken_pipe():  # `torchcal ... | head` ends quietly
         return _run(args)

@@ -293,9 +293,9 @@ def test_report_on_a_zone_calibration(tmp_path):
                  "--no-progress", "--out", str(d / "sweep.csv")]) == 0
     assert main(["partition", str(d / "sweep.csv"), "--levels", "2", "--zones", "2,1", "--out",
                  str(d / "part.json")]) == 0
-    sim = ["simulate", "--robot", "kr1000titan", "--effects", "joint_compliance:2", "--n", "80", "--repeats", "3",
+    sim = ["simulate", "--robot", "kr1000titan", "--effects", "joint_compliance:2", "--repeats", "3",
            "--noise", "0.02", "--seed", "4"]
-    assert main(sim + ["--out", str(d / "train.csv")]) == 0
+    assert main(sim + ["--n", "80", "--out", str(d / "train.csv")]) == 0
     assert main(sim + ["--pose-seed", "5", "--n", "20", "--out", str(d / "val.csv")]) == 0
     assert main(["calibrate", str(d / "train.csv"), "--robot", "kr1000titan", "--partition", str(d / "part.json"),
                  "--out", str(d / "zones.json")]) == 0

@@ -311,6 +311,31 @@ def test_residual_vs_joints(tmp_path, figure_data, n_joints):
     assert fig.axes[1].get_xlabel() == "q2 (deg)"
 
 
+def test_a_prismatic_joint_is_drawn_in_mm_and_variables_carry_their_units(figure_data):
+    """A prismatic joint's values (mm) are drawn as given and labelled mm (before: times
+    57.3 and labelled deg); temp_c, payload_kg, order and the approach signs carry their
+    units; a held-out R2 that rounds to zero is written 0.00 (before: -0.00)."""
+    _, q, res = figure_data
+    q = q[:, :3].copy()
+    q[:, 2] = np.linspace(100.0, 400.0, len(q))  # a slide, mm
+    fig = figures.residual_vs_joints_figure(q, res, prismatic=[False, False, True])
+    assert [ax.get_xlabel() for ax in fig.axes] == ["q1 (deg)", "q2 (deg)", "q3 (mm)"]
+    x = fig.axes[2].collections[0].get_offsets()[:, 0]
+    assert x.min() >= 100.0 and x.max() <= 400.0
+    np.testing.assert_allclose(fig.axes[0].collections[0].get_offsets()[:, 0].max(), np.degrees(q[:, 0]).max())
+    n = len(q)
+    values = {"q1": q[:, 0], "q3": q[:, 2], "temp_c": np.linspace(20, 25, n), "payload_kg": np.linspace(0, 5, n),
+              "order": np.arange(n, dtype=float), "approach_q1": np.sign(np.sin(np.arange(n)))}
+    strengths = {"q1": 0.2, "q3": 0.1, "temp_c": -0.004, "payload_kg": -0.2, "order": 0.0, "approach_q1": 0.001}
+    fig = figures.residual_vs_variables_figure(values, res, strengths, prismatic=["q3"])
+    got = {ax.get_title(): ax.get_xlabel() for ax in fig.axes if ax.get_visible()}
+    assert got == {"q1  R2 0.20": "q1 (deg)", "q3  R2 0.10": "q3 (mm)", "temp_c  R2 0.00": "temp_c (deg C)",
+                   "order  R2 0.00": "order (row of the file)", "approach_q1  R2 0.00":
+                   "approach_q1 (sign of the move: -1, 0, +1)", "payload_kg  R2 -0.20": "payload_kg (kg)"}
+    q3 = [ax for ax in fig.axes if ax.get_title().startswith("q3")][0]
+    assert q3.lines[0].get_xdata().max() <= 400.0
+
+
 def test_figures_are_deterministic_and_not_overwritten(tmp_path, figure_data):
     d, _, _ = figure_data
     a = figures.rset_histogram(tmp_path / "a.png", d["r_set"])

@@ -198,16 +198,41 @@ def temp_beside(path: Path) -> Path:
     return Path(tmp)
 
 
-def variable_panels(values, residual_mm, strengths, correlates=(), components=None):
+#: the x labels of the recorded variables that are not joints (`torchcal.diagnosis.unexplained.variables`)
+VARIABLE_LABELS = {"temp_c": "temp_c (deg C)", "payload_kg": "payload_kg (kg)", "order": "order (row of the file)"}
+
+
+def r2_text(value: float) -> str:
+    """A held-out R^2 with 2 decimals, without the sign of a value that rounds to zero
+    ("0.00", not "-0.00": no dependence, not a negative one)."""
+    if not np.isfinite(value):
+        return "-"
+    return f"{value:.2f}" if abs(value) >= 0.005 else "0.00"
+
+
+def variable_label(name: str, prismatic=()) -> str:
+    """The axis label of variable `name`: joints ``qJ`` in deg (mm where `name` is in
+    `prismatic`), ``approach_qJ`` / ``approach_prev_qJ`` as the sign of a move, the
+    others with their unit."""
+    if name[:1] == "q" and name[1:].isdigit():
+        return f"{name} ({'mm' if name in prismatic else 'deg'})"
+    if name.startswith("approach_"):
+        return f"{name} (sign of the move: -1, 0, +1)"
+    return VARIABLE_LABELS.get(name, name)
+
+
+def variable_panels(values, residual_mm, strengths, correlates=(), components=None, prismatic=()):
     """The panels of a residual-against-variables plot, shared by the figure and the recording.
 
-    values: {name: (N,) values} (joint angles ``q1..`` in rad); residual_mm: (N, 3) residual
-    vectors or (N,) lengths, mm; strengths: {name: strength}; correlates: the significant
-    names; components: {name: (N,) mm} a signed residual component per variable, drawn
-    instead of the length where given (see `torchcal.diagnosis.dependence`).
+    values: {name: (N,) values} (joint angles ``q1..`` in rad, mm for the joints named in
+    `prismatic`); residual_mm: (N, 3) residual vectors or (N,) lengths, mm; strengths:
+    {name: strength}; correlates: the significant names; components: {name: (N,) mm} a
+    signed residual component per variable, drawn instead of the length where given (see
+    `torchcal.diagnosis.dependence`).
 
-    Returns a list, strongest first, of dicts with name, x (N,) (joint angles in degrees),
-    x_label, y (N,) mm, y_label, strength (nan where none), significant (bool).
+    Returns a list, strongest first, of dicts with name, x (N,) (revolute joint angles in
+    degrees, prismatic joints in mm), x_label, y (N,) mm, y_label, strength (nan where
+    none), significant (bool).
     """
     r = to_numpy(residual_mm, "residual_mm")
     if r.ndim == 2 and r.shape[1] == 3:
@@ -221,9 +246,9 @@ def variable_panels(values, residual_mm, strengths, correlates=(), components=No
     out = []
     for name in names:
         v = vector(values[name], f"values[{name!r}]", len(norm))
-        joint = name[:1] == "q" and name[1:].isdigit()
+        angle = name[:1] == "q" and name[1:].isdigit() and name not in prismatic
         signed = name in components
-        out.append({"name": name, "x": np.degrees(v) if joint else v, "x_label": f"{name} (deg)" if joint else name,
+        out.append({"name": name, "x": np.degrees(v) if angle else v, "x_label": variable_label(name, prismatic),
                     "y": vector(components[name], f"components[{name!r}]", len(norm)) if signed else norm,
                     "y_label": "residual along its fitted dependence (mm)" if signed else "|residual| (mm)",
                     "strength": float(strengths.get(name, np.nan)), "significant": name in correlates})

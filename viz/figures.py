@@ -289,8 +289,8 @@ def error_map_figure(positions_mm, error_mm, *, title: str = "Distance error ove
     ax3.set_box_aspect(None, zoom=0.82)  # room for the z label beside the next panel
     sc = ax3.scatter(pos[order, 0], pos[order, 1], pos[order, 2], c=e[order], cmap=C.ERROR_CMAP, vmin=0.0,
                      vmax=top, s=8, depthshade=False)
-    ax3.set_xlabel("x (mm)")
-    ax3.set_ylabel("y (mm)")
+    ax3.set_xlabel("x (mm)", labelpad=8)
+    ax3.set_ylabel("y (mm)", labelpad=10)
     ax3.set_zlabel("z (mm)", labelpad=8)
     ax3.scatter(pos[worst, 0], pos[worst, 1], pos[worst, 2], s=60, facecolors="none", edgecolors="tab:blue",
                 linewidths=1.0, depthshade=False)
@@ -342,24 +342,24 @@ def error_histogram_figure(before_mm, after_mm, *, tolerance_mm: float | None = 
 # --------------------------------------------------------------------------- residual vs joints
 def residual_vs_joints(path, q_rad, residual_mm, *, joint_names: Sequence[str] | None = None, bins: int = 12,
                        title: str = "Residual against each joint angle", max_points: int | None = MAX_SCATTER,
-                       force: bool = False) -> Path:
+                       prismatic=None, force: bool = False) -> Path:
     """Write `residual_vs_joints_figure` to the PNG `path` (atomically); returns the path."""
     check_output(path, force)  # fail before drawing
     fig = residual_vs_joints_figure(q_rad, residual_mm, joint_names=joint_names, bins=bins, title=title,
-                                    max_points=max_points)
+                                    max_points=max_points, prismatic=prismatic)
     return save_figure(fig, path, force)
 
 
 def residual_vs_joints_figure(q_rad, residual_mm, *, joint_names: Sequence[str] | None = None, bins: int = 12,
                               title: str = "Residual against each joint angle",
-                              max_points: int | None = MAX_SCATTER) -> Figure:
+                              max_points: int | None = MAX_SCATTER, prismatic=None) -> Figure:
     """Residual against each joint angle, one subplot per joint (for ``diagnose``).
 
     A trend here points at a missing joint effect: a slope or bow against q2/q3 at
     compliance, a sinusoid at a periodic gear error, two bands at backlash.
 
     Args:
-        q_rad: (N, n) joint angles, rad (drawn in degrees).
+        q_rad: (N, n) joint angles, rad (drawn in degrees); mm for a prismatic joint.
         residual_mm: (N,) residual length, or (N, 3) residual vector (measured - model), mm.
             Components are drawn as x/y/z dots; the black line is the RMS residual length
             per bin of the joint angle.
@@ -367,6 +367,7 @@ def residual_vs_joints_figure(q_rad, residual_mm, *, joint_names: Sequence[str] 
         bins: number of joint-angle bins for the RMS line.
         title: figure title.
         max_points: draw at most this many dots per subplot (evenly spaced); None: all.
+        prismatic: (n,) bool, the prismatic joints (drawn in mm as given); default none.
 
     Returns the figure (n axes).
     """
@@ -392,7 +393,10 @@ def residual_vs_joints_figure(q_rad, residual_mm, *, joint_names: Sequence[str] 
         raise InputError(f"joint_names: expected {n_j} names (one per joint), got {len(joint_names)}")
     if isinstance(bins, bool) or not isinstance(bins, (int, np.integer)) or bins < 1:
         raise InputError(f"bins: expected a positive integer, got {bins!r}")
-    q_deg = np.degrees(q)
+    slide = np.zeros(n_j, dtype=bool) if prismatic is None else np.asarray(prismatic, dtype=bool).reshape(-1)
+    if slide.shape != (n_j,):
+        raise InputError(f"prismatic: expected {n_j} flags (one per joint), got {slide.shape[0]}")
+    q_deg = np.where(slide, q, np.degrees(q))  # deg; mm for a prismatic joint
     idx = C.subsample(n_pts, max_points)
     ncols = min(3, n_j)
     nrows = -(-n_j // ncols)
@@ -422,7 +426,7 @@ def residual_vs_joints_figure(q_rad, residual_mm, *, joint_names: Sequence[str] 
             ax.plot(centre[ok], np.sqrt(ms[ok] / cnt[ok]), color="black", linewidth=1.8, marker="o",
                     markersize=3, label="RMS |residual| per bin")
         ax.axhline(0.0, color="black", linewidth=0.5)
-        ax.set_xlabel(f"{joint_names[j]} (deg)")
+        ax.set_xlabel(f"{joint_names[j]} ({'mm' if slide[j] else 'deg'})")
         if j % ncols == 0:
             ax.set_ylabel("residual (mm)")
         ax.set_title(f"joint {j + 1}" if joint_names[j] == f"q{j + 1}" else joint_names[j])
@@ -435,32 +439,33 @@ def residual_vs_joints_figure(q_rad, residual_mm, *, joint_names: Sequence[str] 
 
 def residual_vs_variables(path, values, residual_mm, strengths, *, correlates=(), components=None, title: str =
                           "Residual against each variable, strongest dependence first",
-                          max_points: int | None = MAX_SCATTER, force: bool = False) -> Path:
+                          max_points: int | None = MAX_SCATTER, prismatic=(), force: bool = False) -> Path:
     """Write `residual_vs_variables_figure` to the PNG `path` (atomically); returns the path."""
     check_output(path, force)
     fig = residual_vs_variables_figure(values, residual_mm, strengths, correlates=correlates, components=components,
-                                       title=title, max_points=max_points)
+                                       title=title, max_points=max_points, prismatic=prismatic)
     return save_figure(fig, path, force)
 
 
 def residual_vs_variables_figure(values, residual_mm, strengths, *, correlates=(), components=None, title: str =
                                  "Residual against each variable, strongest dependence first",
-                                 max_points: int | None = MAX_SCATTER) -> Figure:
+                                 max_points: int | None = MAX_SCATTER, prismatic=()) -> Figure:
     """Residual against every variable of `torchcal.diagnosis.unexplained` (joint
     angles, temperature, payload, measurement order, approach direction per joint), one
     panel per variable, ordered by strength (held-out R^2), strongest first.
 
     Args:
-        values: {name: (N,) values} (joint angles in rad, drawn in degrees; others as given).
+        values: {name: (N,) values} (joint angles in rad, drawn in degrees; the joints named
+            in `prismatic`, e.g. {"q3"}, and the others as given, with their unit).
         residual_mm: (N, 3) residual vectors (or (N,) lengths), mm.
         strengths: {name: strength}; panels for the names in `values`, by strength descending.
         correlates: names found significant: their panel titles carry "*" and a red frame.
         components: {name: (N,) mm}: the signed residual component drawn for that variable
             instead of the length (see `torchcal.diagnosis.dependence`); the y label says which.
 
-    Returns the figure; its axes are in panel order, each titled "NAME  R2 s".
+    Returns the figure; its axes are in panel order, each titled "NAME  R2 s" (`r2_text`).
     """
-    panels = C.variable_panels(values, residual_mm, strengths, correlates, components)
+    panels = C.variable_panels(values, residual_mm, strengths, correlates, components, prismatic)
     n = len(panels[0]["y"]) if panels else 0
     idx = C.subsample(n, max_points)
     ncols = min(4, max(len(panels), 1))
@@ -472,7 +477,7 @@ def residual_vs_variables_figure(values, residual_mm, strengths, *, correlates=(
         if not p["y_label"].startswith("|"):
             ax.axhline(0.0, color="black", linewidth=0.5)
         mark = p["significant"]
-        ax.set_title(f"{'* ' if mark else ''}{p['name']}  R2 {p['strength']:.2f}",
+        ax.set_title(f"{'* ' if mark else ''}{p['name']}  R2 {C.r2_text(p['strength'])}",
                      color="red" if mark else "black", fontsize=9)
         if mark:
             for sp in ax.spines.values():

@@ -338,7 +338,7 @@ def variable_entity(rank: int, name: str) -> str:
 
 
 def log_residual_vs_variables(rec, values, residual_mm, strengths, *, correlates=(), components=None,
-                              point_radius_ui: float = 2.5) -> list[tuple[str, str]]:
+                              prismatic=(), point_radius_ui: float = 2.5) -> list[tuple[str, str]]:
     """Log the residual against every variable (as `viz.figures.residual_vs_variables`):
     one 2D scatter per variable, strongest dependence first, the significant ones red.
 
@@ -352,6 +352,7 @@ def log_residual_vs_variables(rec, values, residual_mm, strengths, *, correlates
             ``significant``/``*``.
         components: {name: (N,) mm} signed residual component per variable, drawn instead
             of the length where given.
+        prismatic: names of the prismatic joints (``q3``: values in mm, drawn as given).
 
     A rerun 2D view has equal axes and y down, so each scatter is drawn in a box of
     `VARIABLE_BOX` scene units: x = the variable scaled from its minimum (left) to its
@@ -365,7 +366,7 @@ def log_residual_vs_variables(rec, values, residual_mm, strengths, *, correlates
     Returns [(entity, view title)] in rank order (the writer keeps it for the blueprint).
     """
     stream = _stream(rec, "variables")
-    panels = C.variable_panels(values, residual_mm, strengths, correlates, components)
+    panels = C.variable_panels(values, residual_mm, strengths, correlates, components, prismatic)
     W, H = VARIABLE_BOX
     views, table = [], ["| rank | variable | strength (held-out R2) | significant | entity |", "|---|---|---|---|---|"]
     radius = rr.Radius.ui_points(point_radius_ui)
@@ -376,7 +377,7 @@ def log_residual_vs_variables(rec, values, residual_mm, strengths, *, correlates
         span = x1 - x0 if x1 > x0 else 1.0
         ymax = float(np.abs(y).max()) or 1.0
         pos = np.stack([(x - x0) / span * W, -y / ymax * (H / 2)], axis=1)  # y up on screen
-        unit = " deg" if p["x_label"].endswith("(deg)") else ""
+        unit = " deg" if p["x_label"].endswith("(deg)") else " mm" if p["x_label"].endswith("(mm)") else ""
         labels = [f"{p['name']} {xi:.4g}{unit}: {yi:+.4f} mm" for xi, yi in zip(x, y)] \
             if len(x) <= MAX_LABELS else None
         rgb = SIGNIFICANT_RGB if p["significant"] else OTHER_RGB
@@ -390,7 +391,7 @@ def log_residual_vs_variables(rec, values, residual_mm, strengths, *, correlates
         stream.log(f"{base}/axes", rr.Points2D(ends, radii=rr.Radius.ui_points(0.1), colors=OTHER_RGB, labels=[
             f"{p['x_label']} {x0:.4g}", f"{x1:.4g}", f"{what} {ymax:+.3f} mm", f"{-ymax:+.3f} mm"],
             show_labels=True), static=True)
-        title = f"{'* ' if p['significant'] else ''}{p['name']}  R2 {p['strength']:.2f}: {p['y_label']}"
+        title = f"{'* ' if p['significant'] else ''}{p['name']}  R2 {C.r2_text(p['strength'])}: {p['y_label']}"
         views.append((base, title))
         table.append(f"| {k} | {p['name']} | {p['strength']:.3f} | {'yes' if p['significant'] else 'no'} | {base} |")
     stream.log("variables", rr.TextDocument("# Residual against each variable, strongest first\n\n"

@@ -341,6 +341,7 @@ def _accuracy(rep) -> str:
                        "error (the five largest ringed).", "error map over the workspace"))
     out.append(_figure(figures.residual_vs_joints_figure(m.q.detach().cpu().numpy(),
                                                          rep.residuals_after.detach().cpu().numpy(),
+                                                         prismatic=rep.robot.prismatic.cpu().numpy(),
                                                          title="Calibrated model: residual against each joint "
                                                                "angle (held-out rows)"),
                        "Residual of the calibrated model against each joint angle.", "residual against joints"))
@@ -499,6 +500,7 @@ def _learnable(rep) -> str:
                 variables(robot, m), u.residuals, {k: s for k, (s, _) in u.strengths.items()},
                 correlates=[v for v, _ in u.correlates_with],
                 components=signed_components(robot, m, u.residuals),
+                prismatic=[f"q{j + 1}" for j in robot.prismatic.nonzero().flatten().tolist()],
                 title="Held-out residual against each variable, strongest dependence first (* significant)")
             out.append(_figure(fig, "What the calibrated model leaves, against every recorded variable.",
                                "residual against each variable"))

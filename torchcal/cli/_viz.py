@@ -125,7 +125,7 @@ def diagnosis_outputs(args, robot, m, d) -> None:
     if pngs:
         from viz import figures
 
-        figures.residual_vs_joints(pngs[0], _np(m.q), res, force=force,
+        figures.residual_vs_joints(pngs[0], _np(m.q), res, force=force, prismatic=_np(robot.prismatic),
                                    title=f"diagnose: residual of [{_effects_text(d.baseline_effects)}] "
                                          f"against each joint angle")
         _variables_png(pngs[1], robot, m, d.unexplained, force, "diagnose: what the baseline + verdict leave")
@@ -153,7 +153,8 @@ def _variables(robot, m, un) -> dict | None:
     return {"values": variables(robot, m), "residual_mm": un.residuals,
             "strengths": {k: s for k, (s, _) in un.strengths.items()},
             "correlates": [v for v, _ in un.correlates_with],
-            "components": signed_components(robot, m, un.residuals)}
+            "components": signed_components(robot, m, un.residuals),
+            "prismatic": [f"q{j + 1}" for j in robot.prismatic.nonzero().flatten().tolist()]}
 
 
 def _variables_png(path, robot, m, un, force: bool, what: str) -> None:
@@ -217,7 +218,7 @@ def evaluation_outputs(args, model, m, ev) -> None:
         from viz import figures
 
         figures.error_map(pngs[0], xyz, e, force=force, title=f"{what}: distance error over the workspace")
-        figures.residual_vs_joints(pngs[1], _np(m.q), res, force=force,
+        figures.residual_vs_joints(pngs[1], _np(m.q), res, force=force, prismatic=_np(robot.prismatic),
                                    title=f"{what}: residual against each joint angle")
         if un is not None:
             _variables_png(pngs[2], robot, m, un, force, what)
@@ -281,10 +282,10 @@ def discovery_outputs(args, robot, m, res) -> None:
         from viz import figures
 
         q = _np(m.q)
-        figures.residual_vs_joints(pngs[0], q, _np(before.residuals), force=force,
+        figures.residual_vs_joints(pngs[0], q, _np(before.residuals), force=force, prismatic=_np(robot.prismatic),
                                    title=f"discover, before (round 0: {_effects_text(start)}): residual "
                                          f"against each joint angle")
-        figures.residual_vs_joints(pngs[1], q, _np(res.fit.residuals), force=force,
+        figures.residual_vs_joints(pngs[1], q, _np(res.fit.residuals), force=force, prismatic=_np(robot.prismatic),
                                    title=f"discover, after ({_effects_text(res.final_effects)}): residual "
                                          f"against each joint angle")
         _variables_png(pngs[2], robot, m, res.unexplained, force, "discover: what the final model leaves")

@@ -11,6 +11,7 @@ import re
 import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -298,6 +299,34 @@ def test_two_sessions_in_different_frames_joined_are_named(tmp_path):
                                              r"1\.\.100 and 101\.\.160 \(data rows; pose ids restart at 0\) each fit "
                                              r"within 10 mm in a frame of their own: two sessions joined"):
             torchcal.fit(UR10, tmp_path / "cd.csv", ["base_frame", "tool_offset"])
+
+
+@pytest.mark.parametrize("shift", ["reflector", "tracker"])
+def test_a_reflector_or_tracker_changed_midway_is_named(shift):
+    """One session (pose ids 0..79 in order) whose reflector was moved 30 mm on the flange,
+    or whose tracker was moved 40 mm, after row 40, with no new point id: refused before
+    as 'data of another robot of that size, or many corrupted rows'; now the line names
+    the two parts that each fit in a frame and tool of their own, and the change row
+    (plain-numpy robot, npsim)."""
+    import npsim
+    from torchcal.measurements import Measurements
+
+    rob = torchcal.robot("ur5e")
+    q = random_poses(rob, 80, 3).numpy()
+    a = npsim.tracker_session(rob, q[:40], seed=5, reflector_mm=(0.0, 0.0, 100.0), sag_deg=0.0)
+    if shift == "reflector":
+        b = npsim.tracker_session(rob, q[40:], seed=5, reflector_mm=(30.0, 0.0, 100.0), sag_deg=0.0)
+    else:
+        b = npsim.tracker_session(rob, q[40:], seed=5, reflector_mm=(0.0, 0.0, 100.0), sag_deg=0.0) + [40.0, 0, 0]
+    m = Measurements(torch.arange(80), torch.as_tensor(q), torch.as_tensor(np.vstack([a, b])), source="s.csv")
+    with pytest.raises(InputError, match=r"^s.csv: cannot come from ur5e in one measuring frame with one tool: .* "
+                                         r"but rows 1\.\.(\d+) and \d+\.\.80 each fit within 10 mm in a frame and "
+                                         r"with a tool offset of their own: the instrument moved or the reflector "
+                                         r"was changed midway, by data row \d+ \(pose id \d+\) at the latest") as info:
+        torchcal.fit(rob, m, ["base_frame", "tool_offset"])
+    first = int(re.search(r"rows 1\.\.(\d+) and", str(info.value)).group(1))
+    assert 40 <= first <= 50  # the change after row 40; a part may take a few rows past it
+    torchcal.fit(rob, m.subset(torch.arange(40)), ["base_frame", "tool_offset"])  # each part alone: a calibration
 
 
 @pytest.mark.parametrize("reading, phrase", [

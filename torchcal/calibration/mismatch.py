@@ -50,7 +50,8 @@ what a joint can turn (`beyond_turn`: max(2 pi, the widest limit) + 0.01 rad) ar
 Before and after a fit (`check_robot_data`, `check_fitted`): the nominal robot with its
 measuring frame and tool offset fitted must come within GROSS_MM of the data, else the
 cause is named (a frame the model lacks, gross outlier rows, a mirrored frame, reversed
-joint columns, another robot or units); a fitted RMS beyond GROSS_MM (the robust fit's
+joint columns, two sessions joined, the instrument or reflector changed midway through
+one session (`changed_midway`), another robot or units); a fitted RMS beyond GROSS_MM (the robust fit's
 outliers left out) is no calibration (docs/registration.md).
 
 Row order (`check_row_order`): backlash reads each row's approach direction from the row
@@ -818,6 +819,34 @@ def joined_sessions(m, fits) -> int | None:
     return None
 
 
+def changed_midway(m, fits, least: int = 6) -> int | None:
+    """The 0-based row r such that rows [0, r) and [r, N) each `fits` (a predicate on
+    `Measurements`, each part in a measuring frame and with a tool offset of its own) while
+    the whole file does not (the caller's finding): the instrument moved, or the reflector
+    was changed, in the middle of one session without a new point id or restarting pose ids.
+    r is the end of the longest first part that fits, found by bisection (about log2 N
+    fits; a change smaller than GROSS_MM can leave a few rows after it in the first part);
+    None when the first or last `least` rows do not fit on their own, or the rest after r
+    does not fit."""
+    n = len(m)
+    if n < 2 * least:
+        return None
+
+    def ok(a, b):
+        try:
+            return fits(m.subset(torch.arange(a, b)))
+        except InputError:
+            return False
+
+    if not ok(0, least) or not ok(n - least, n):
+        return None
+    lo, hi = least, n  # [0, lo) fits, [0, hi) does not (the whole file was refused)
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (mid, hi) if ok(0, mid) else (lo, mid)
+    return lo if n - lo >= least and ok(lo, n) else None
+
+
 LAGS = (1, -1, 2, -2)  # row offsets between the joint values and the positions that are tried
 
 
@@ -954,6 +983,15 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
                       "sessions joined, the instrument moved between them; calibrate on one, or register each "
                       "(torchcal register)")
     lag = row_lag(m, fits)
+    change = None if lag is not None else changed_midway(m, fits)
+    if change is not None:
+        at = f"data row {change + 1} (pose id {int(m.pose[change])})"
+        return result("mismatch", f"{what}: cannot come from {name} in one measuring frame with one tool: rms "
+                      f"{reg:.4g} mm with the best frame and tool offset, but rows 1..{change} and {change + 1}.."
+                      f"{len(m)} each fit within {GROSS_MM:g} mm in a frame and with a tool offset of their own: the "
+                      f"instrument moved or the reflector was changed midway, by {at} at the latest; give the rows "
+                      "from the change a point id of their own (another reflector), or calibrate on one part and "
+                      "register the other (torchcal register)")
     if lag is not None:
         return result("mismatch", f"{what}: cannot come from {name} as given: rms {reg:.4g} mm with the best measuring "
                       f"frame and tool offset, but within {GROSS_MM:g} mm with {_lag_words(lag)}")

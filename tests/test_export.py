@@ -296,3 +296,27 @@ def test_exported_robot_file_keeps_gravity_where_it_is(tmp_path):
     tau_real = gravity_torques(wall, q[:20], np.zeros((6, 5)), masses, centres, np.zeros(20))
     tau_file = gravity_torques(cal, q[:20], np.zeros((6, 5)), masses, centres, np.zeros(20))  # its table is calibrated
     assert np.abs(tau_file - tau_real).max() < 1e-3 * np.abs(tau_real).max(), np.abs(tau_file - tau_real).max()
+
+
+def test_parameters_beyond_their_plausible_size_are_named_on_export(fitted, tmp_path, capsys):
+    """A MODEL.json whose dtheta2 reads 20 deg and dd3 250 mm (edited by hand; within what
+    the reader refuses as corrupt) was exported into a robot file in silence; now one
+    warning names both with their plausible sizes, and the file is still written (the
+    geometry it holds is checked against the model's: dd3 is there). The fitted model as
+    written exports without a word."""
+    obj = json.loads((fitted / "m.json").read_text())
+    for p in obj["parameters"]:
+        if p["name"] in ("dtheta2", "dd3"):
+            p["value"] = {"dtheta2": 20.0, "dd3": 250.0}[p["name"]]
+    (tmp_path / "bad.json").write_text(json.dumps(obj))
+    capsys.readouterr()
+    assert main(["export", str(tmp_path / "bad.json"), "--robot-file", str(tmp_path / "r.json")]) == 0
+    err = capsys.readouterr().err
+    assert err == (f"torchcal: warning: {tmp_path / 'bad.json'}: exported parameters beyond their plausible size: "
+                   "dtheta2 +20 deg (plausible 1 deg), dd3 +250 mm (plausible 5 mm); the exported robot carries them "
+                   "(a value edited by hand, or a fit that absorbed something else: check before a controller "
+                   "uses it)\n")
+    nominal, cal = torchcal.robot("ur5e"), load_robot_file(tmp_path / "r.json")
+    assert float(cal.table[2, 1] - nominal.table[2, 1]) == pytest.approx(250.0)
+    assert main(["export", str(fitted / "m.json"), "--robot-file", str(tmp_path / "ok.json")]) == 0
+    assert capsys.readouterr().err == ""

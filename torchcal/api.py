@@ -489,7 +489,8 @@ def export(model, *, robot_file=None, urdf=None, table=None, data=None, length_u
 
     inputs = [p for p in (model, data) if isinstance(p, (str, Path))]
     return run(_fitted(model), robot_file=robot_file, urdf=urdf, table=table, data=data,
-               length_unit=length_unit, angle_unit=angle_unit, force=force, inputs=inputs)
+               length_unit=length_unit, angle_unit=angle_unit, force=force, inputs=inputs,
+               where=str(model) if isinstance(model, (str, Path)) else "model")
 
 
 def accuracy(model, *, n: int = 2000, seed: int = 0, payload_kg: float | None = None, temp_c: float = 20.0,

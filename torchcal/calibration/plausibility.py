@@ -67,6 +67,32 @@ def beyond_plausible(model, theta: torch.Tensor, free: torch.Tensor, scales: tor
     return [names[i] for i in bad.nonzero().flatten().tolist()]
 
 
+class PlausibilityWarning(UserWarning):
+    """Parameters beyond their plausible size where they leave torchcal (`export`)."""
+
+
+def beyond_words(model, theta: torch.Tensor, limits: dict | None = None, most: int = 6) -> str | None:
+    """The parameters of `model` whose |theta| (P,) exceeds its plausible size (`plausible_scales`
+    with the limits a fit recorded, `FitResult.plausible_limits`, default the defaults), each
+    as 'dtheta2 +20 deg (plausible 1 deg)' in the file's units (angles in degrees); None when
+    there are none. The first `most` named, then how many more."""
+    lim = limits or {}
+    scales = plausible_scales(model, lim.get("max_length_mm", MAX_LENGTH_MM), lim.get("max_angle_deg", MAX_ANGLE_DEG))
+    th = theta.detach().cpu().to(torch.float64)
+    bad = (th.abs() > scales).nonzero().flatten().tolist()
+    if not bad:
+        return None
+    names, units = model.param_names(), model.param_units()
+    words = []
+    for i in bad[:most]:
+        unit, v, sc = units[i], float(th[i]), float(scales[i])
+        if unit == "rad" or unit.startswith("rad/"):
+            unit, v, sc = "deg" + unit[3:], math.degrees(v), math.degrees(sc)
+        words.append(f"{names[i]} {v:+.4g} {unit} (plausible {sc:.3g} {unit})")
+    more = f" and {len(bad) - most} more" if len(bad) > most else ""
+    return ", ".join(words) + more
+
+
 def set_by_prior(model, std: torch.Tensor, free: torch.Tensor, scales: torch.Tensor,
                  ratio: float = DETERMINED_RATIO) -> list[str]:
     """Names of free parameters with a plausible scale whose posterior sd (P,) (the fit's

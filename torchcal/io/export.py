@@ -17,6 +17,7 @@ file) and written atomically.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -106,14 +107,16 @@ def not_the_nominal_robot(path, nominal: Robot) -> None:
 
 
 def export(im, *, robot_file=None, urdf=None, table=None, data=None, length_unit: str = "mm",
-           angle_unit: str = "deg", force: bool = False, inputs=()) -> Export:
+           angle_unit: str = "deg", force: bool = False, inputs=(), where: str = "model") -> Export:
     """Export the fitted model `im` (of a `ZonedFit` the global fit) as the
-    outputs given (module doc). data: `Measurements` or a measurement CSV path in
+    outputs given (module doc); parameters beyond their plausible size get one
+    `PlausibilityWarning` naming `where` (the model's file). data: `Measurements` or a measurement CSV path in
     `length_unit` / `angle_unit`, read only when the model has effects the exported robot
     cannot hold. inputs: paths never written over (the model's file, the data), beside
     the files the model came from (`sources`)."""
     from torchcal.calibration.geometry_only import calibrated_robot, measuring_frames, reflector_offsets, refit_geometry
     from torchcal.calibration.mismatch import check_measurements, check_units, enforce
+    from torchcal.calibration.plausibility import PlausibilityWarning, beyond_words
     from torchcal.io.files import all_or_none, atomic_write, check_output
     from torchcal.io.mdh_table import mdh_table_csv
     from torchcal.io.measurement_csv import as_measurements
@@ -139,6 +142,12 @@ def export(im, *, robot_file=None, urdf=None, table=None, data=None, length_unit
         rows, refit = len(m), refit_geometry(cm, theta, m, identified=im.report.free)
         cm, theta = refit.fit.model, refit.fit.theta
         cal, rest = calibrated_robot(cm, theta)[0], []
+    beyond = beyond_words(cm, theta, im.plausible_limits)
+    if beyond is not None:  # where the parameters leave torchcal for a controller: said once more
+        warnings.warn(PlausibilityWarning(
+            f"{where}: exported parameters beyond their plausible size: {beyond}; the exported robot carries them "
+            "(a value edited by hand, or a fit that absorbed something else: check before a controller uses it)"),
+            stacklevel=3)
     urdf_text, urdf_info, source, links = None, None, None, None
     if urdf is not None:  # the robot's own base and tool; the measuring set-up as separate frames
         own = calibrated_robot(cm, theta, fold=False)[0]

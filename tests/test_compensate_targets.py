@@ -205,6 +205,30 @@ def test_targets_in_inches_or_metres_are_named(tracker_model, capsys, frame, uni
     assert main([*argv, str(d / f"t_mm_{frame}.csv"), "--out", str(out)]) == 0
 
 
+@pytest.mark.parametrize("frame", ["measuring", "base"])
+def test_targets_in_mm_given_as_metres_are_named(tracker_model, capsys, frame):
+    """Targets in mm with --length-unit m (read 1000 times too far) ended as 'target(s)
+    failed ... beyond the reach ... (--frame base for the other)', exit 1 with an output
+    written; now one line naming the unit and the option, exit 2, nothing written; the
+    same targets in metres with --length-unit m converge."""
+    d, base, tracker = tracker_model
+    xyz = tracker if frame == "measuring" else base
+    (d / f"tm_mm_{frame}.csv").write_text("\n".join(["x,y,z"] + [",".join(repr(float(v)) for v in p)
+                                                               for p in xyz.tolist()]) + "\n")
+    (d / f"tm_m_{frame}.csv").write_text("\n".join(["x,y,z"] + [",".join(repr(float(v) / 1000.0) for v in p)
+                                                              for p in xyz.tolist()]) + "\n")
+    out = d / f"qm_{frame}.csv"
+    argv = ["compensate", "--model", str(d / "model.json"), "--frame", frame, "--length-unit", "m"]
+    capsys.readouterr()
+    assert main([*argv, str(d / f"tm_mm_{frame}.csv"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"torchcal compensate: error: {d / f'tm_mm_{frame}.csv'}: read in "
+                                                   "metres, the targets lie a median ")
+    assert err.endswith("a thousandth of them within its reach: they look like mm read as metres; pass "
+                        "--length-unit mm\n") and not out.exists()
+    assert main([*argv, str(d / f"tm_m_{frame}.csv"), "--out", str(out)]) == 0
+
+
 @pytest.mark.parametrize("given, frame, other", [("base", "measuring", "robot base frame"),
                                                  ("measuring", "base", "measuring frame")])
 def test_targets_in_the_other_frame_are_named(tracker_model, capsys, given, frame, other):

@@ -453,7 +453,8 @@ def compensate_targets(model, targets, *, frame: str = "measuring", robot=None, 
     from torchcal.calibration.compensate import compensate_targets as run
     from torchcal.calibration.mismatch import check_same_robot
 
-    where = str(targets) if isinstance(targets, (str, Path)) else "targets"
+    from_file = isinstance(targets, (str, Path))  # read in length_unit; a tensor is in mm
+    where = str(targets) if from_file else "targets"
     im = _fitted(model)
     rob = im.model.robot
     if robot is not None:
@@ -465,7 +466,7 @@ def compensate_targets(model, targets, *, frame: str = "measuring", robot=None, 
                                             prismatic=rob.prismatic)
         payload_kg, temp_c = cond["payload_kg"], cond["temp_c"]
     return run(im, targets, frame=frame, seeds=seeds, payload_kg=payload_kg, temp_c=temp_c, where=where,
-               stacklevel=2)
+               stacklevel=2, length_unit=length_unit if from_file else "mm")
 
 
 def export(model, *, robot_file=None, urdf=None, table=None, data=None, length_unit: str = "mm",

@@ -521,7 +521,7 @@ class TargetCompensation:
 
 
 def compensate_targets(im, targets, *, frame: str = "measuring", seeds=None, payload_kg=None, temp_c=None,
-                       where: str = "targets", stacklevel: int = 1) -> TargetCompensation:
+                       where: str = "targets", stacklevel: int = 1, length_unit: str = "mm") -> TargetCompensation:
     """``torchcal compensate`` on a fitted model `im` (a `ZonedFit`: each target in its zone):
     targets (M, 3) mm in `frame` ("measuring": the model's measuring frame; "base": the
     robot base frame, mapped to the measuring frame with the fitted base frame of the first
@@ -529,7 +529,8 @@ def compensate_targets(im, targets, *, frame: str = "measuring", seeds=None, pay
     slide), default `nominal_start`; payload_kg, temp_c: (M,) conditions. A model effect
     that needs a condition the targets lack is refused naming it; targets inside the
     robot's base (metres read as mm) are refused, those beyond its reach listed in
-    ``beyond_reach``; `where` names the targets in messages."""
+    ``beyond_reach``; `where` names the targets in messages; length_unit: the unit they
+    were given in before conversion to mm (mm given as metres are refused)."""
     import warnings
 
     from torchcal.calibration.mismatch import MismatchWarning, check_seeds, check_target_conditions, check_targets
@@ -553,7 +554,7 @@ def compensate_targets(im, targets, *, frame: str = "measuring", seeds=None, pay
             (given, "measuring frame", ("frame", "measuring"))
     with warnings.catch_warnings():  # metres or inches read as mm, the other frame: refused; beyond the reach: listed
         warnings.simplefilter("ignore", MismatchWarning)
-        far = check_targets(im.model, im.theta, t, where=where, about=o, other_frame=other)
+        far = check_targets(im.model, im.theta, t, where=where, about=o, other_frame=other, length_unit=length_unit)
     if seeds is None:
         q0 = nominal_start(im.model, im.theta, t, poses=im.seed_poses, q_range=im.q_range, once=far).q
     else:  # seeds are the targets' nominal commands: radians in degrees refused, far ones named

@@ -409,7 +409,8 @@ def _scaled_unit(t: torch.Tensor, origin: torch.Tensor, reach: float, about: tor
 
 
 def check_targets(model, theta: torch.Tensor, targets: torch.Tensor, where: str = "targets",
-                  about: torch.Tensor | None = None, other_frame: tuple | None = None) -> list[int]:
+                  about: torch.Tensor | None = None, other_frame: tuple | None = None,
+                  length_unit: str = "mm") -> list[int]:
     """Refuse targets (M, 3) mm that sit inside the robot's base or around the origin of
     their frame, and targets mostly beyond the reach, when a unit (`MISREAD`: metres,
     inches) or else the other frame would bring them into the workspace (one InputError
@@ -417,8 +418,10 @@ def check_targets(model, theta: torch.Tensor, targets: torch.Tensor, where: str 
     mm, the origin of the frame the targets were given in, in the model's frame (None: the
     model's own, the measuring frame). other_frame: (points (M, 3) mm, the targets read in
     the other frame (robot base or measuring) mapped into the model's frame; its name;
-    the `InputError.fix` that reads them so), or None. Returns the 0-based rows beyond
-    the reach."""
+    the `InputError.fix` that reads them so), or None. length_unit: the unit the targets
+    were given in ('m': read times 1000; targets in mm given so lie 1000 times too far, and
+    are refused when a thousandth of them lies in the workspace). Returns the 0-based rows
+    beyond the reach."""
     pts, origin = workspace(model, theta)
     reach = float((pts - origin).norm(dim=-1).max())
     t = targets.detach().to("cpu", torch.float64)
@@ -427,8 +430,13 @@ def check_targets(model, theta: torch.Tensor, targets: torch.Tensor, where: str 
     med0 = float(t.norm(dim=-1).median())  # around the origin of the model's (measuring) frame
     far = (dist > REACH_MARGIN * reach).nonzero().flatten().tolist()
     wrong = med < reach / TARGET_RATIO or med0 < reach / TARGET_RATIO or len(far) > OUTLIER_SHARE * len(t)
-    unit = _scaled_unit(t, origin, reach, torch.zeros(3, dtype=torch.float64) if about is None else
-                        about.detach().to("cpu", torch.float64))
+    at = torch.zeros(3, dtype=torch.float64) if about is None else about.detach().to("cpu", torch.float64)
+    if wrong and length_unit == "m" and _in_workspace(at + (t - at) / 1000.0, origin, reach):
+        raise InputError(f"{where}: read in metres, the targets lie a median {med:.4g} mm from the base of "
+                         f"{model.robot.name} (reach {reach:.4g} mm; {len(far)} of {len(t)} beyond it), and a "
+                         "thousandth of them within its reach: they look like mm read as metres",
+                         fix=("length_unit", "mm"))
+    unit = _scaled_unit(t, origin, reach, at)
     if wrong and unit is None and other_frame is not None and \
             _in_workspace(other_frame[0].detach().to("cpu", torch.float64), origin, reach):
         raise InputError(f"{where}: as given the targets lie a median {med:.4g} mm from the base of "

@@ -408,3 +408,7 @@ def test_calibration_poses_outside_the_swept_region_are_named(cell, capsys):
     rows = [int(r) for r in err.split("row(s) ")[1].split(";")[0].replace(" ...", "").split(", ")]
     outside = (q1 <= 0) | (q1 >= 60)
     assert 0 < named <= int(outside.sum()) and all(outside[r - 1] for r in rows)  # rows of the unswept part
+    # evaluate of that per-zone model on the same rows names them too (before: in silence)
+    assert main(["evaluate", str(d / "train.csv"), "--model", str(d / "half.json")]) == 0
+    again = [ln for ln in capsys.readouterr().err.splitlines() if "from the nearest sweep point" in ln]
+    assert again == [err]

@@ -64,10 +64,13 @@ def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     (`torchcal.calibration.mismatch.point_ids_differ`): InputError for a model with one tool
     offset per point, else one `PointIdWarning`. Orientations (rx, ry, rz) that disagree
     with the nominal tool (`torchcal.calibration.mismatch.orientation_mismatch`): one
-    `MismatchWarning` naming the reading that fits."""
+    `MismatchWarning` naming the reading that fits. A per-zone model: rows whose nominal TCP
+    lies beyond its partition's swept region (their zone is extrapolated) named in one
+    `MismatchWarning` (`torchcal.calibration.mismatch.warn_far_from_sweep`)."""
     from torchcal.calibration.joint_range import outside_range
     from torchcal.calibration.mismatch import (MismatchWarning, PointIdWarning, check_measurements, enforce,
-                                               orientation_mismatch, point_ids_differ, warn_outside_range)
+                                               orientation_mismatch, point_ids_differ, warn_far_from_sweep,
+                                               warn_outside_range)
     from torchcal.effects import context_of
     from torchcal.metrics import error_summary
     from torchcal.rotations import so3_error
@@ -96,6 +99,9 @@ def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
         e = so3_error(cm.predict_rotation(theta, ctx) @ tool_r.to(theta), m.rotation)  # (N, 3) rad
         orient = math.degrees(float(e.norm(dim=-1).pow(2).mean().sqrt()))
         orient_rows = torch.rad2deg(e.norm(dim=-1)).detach()
+    partition = getattr(fm, "partition", None)  # a per-zone model: rows beyond the swept region, zone extrapolated
+    if partition is not None:
+        warn_far_from_sweep(partition, cm.robot.fk(m.q).detach(), m.source or "data", stacklevel=stacklevel + 1)
     q_range = fm.q_range
     outside = rows_out = None
     if q_range is not None:

@@ -60,10 +60,7 @@ def _once(cls):
     error naming the option and both values."""
 
     def __call__(self, parser, namespace, values, option_string=None):
-        given = getattr(namespace, _GIVEN, None)
-        if given is None:
-            given = {}
-            setattr(namespace, _GIVEN, given)
+        given = vars(namespace).setdefault(_GIVEN, {})
         if self.dest in given:
             def shown(v):
                 return " ".join(map(str, v)) if isinstance(v, list) else str(v)

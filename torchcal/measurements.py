@@ -15,6 +15,49 @@ import torch
 from torchcal.errors import InputError
 from torchcal.rotations import fixed_xyz_to_matrix
 
+#: degC a robot cell works in; temp_c beyond it is named (thermal_expansion reads temp_c - 20)
+CELL_TEMP_C = (-30.0, 60.0)
+PAYLOAD_RATIO = 3.0  # payloads beyond this many times the robot's rated payload are named
+
+
+class ConditionWarning(UserWarning):
+    """A temperature (temp_c) or payload (payload_kg), in a file or given as an option, that
+    looks like another unit (kelvin, Fahrenheit; grams, pounds)."""
+
+
+def temperature_cause(median_c: float) -> str:
+    """Why temperatures of median `median_c` (read as degC, outside CELL_TEMP_C) look wrong:
+    250..350 kelvin, 60..130 degrees Fahrenheit, else beyond any robot cell's."""
+    return ("they look like kelvin (degC = K - 273.15)" if 250 <= median_c <= 350 else
+            "they look like degrees Fahrenheit (degC = (F - 32) / 1.8)" if CELL_TEMP_C[1] < median_c <= 130 else
+            "beyond any robot cell's temperature")
+
+
+def payload_cause(top_kg: float, rated_kg: float) -> str:
+    """Why payloads up to `top_kg` above PAYLOAD_RATIO x the rated payload look wrong."""
+    return "grams read as kg?" if top_kg > 100 * rated_kg else "pounds read as kg, or another payload?"
+
+
+def check_conditions_given(temp_c: float | None = None, payload_kg: float | None = None, robot=None,
+                           what: str = "conditions", stacklevel: int = 2) -> None:
+    """One `ConditionWarning` per condition given as a number (an option, not a file's
+    cells) that looks like another unit: temp_c outside CELL_TEMP_C (degC), payload_kg
+    above PAYLOAD_RATIO times `robot`'s rated payload (not judged without one)."""
+    import warnings
+
+    lo, hi = CELL_TEMP_C
+    if temp_c is not None and not lo <= float(temp_c) <= hi:
+        warnings.warn(ConditionWarning(
+            f"{what}: temperature {float(temp_c):g} degC is outside {lo:g}..{hi:g} degC: "
+            f"{temperature_cause(float(temp_c)).replace('they look', 'it looks')}; the temperature is in degrees "
+            "Celsius"), stacklevel=stacklevel + 1)
+    rated = float(getattr(robot, "payload_kg", 0.0) or 0.0) if robot is not None else 0.0
+    if payload_kg is not None and rated > 0 and float(payload_kg) > PAYLOAD_RATIO * rated:
+        warnings.warn(ConditionWarning(
+            f"{what}: payload {float(payload_kg):g} kg is above {PAYLOAD_RATIO:g} times the rated payload of "
+            f"{robot.name} ({rated:g} kg): {payload_cause(float(payload_kg), rated)} the payload is in kg"),
+            stacklevel=stacklevel + 1)
+
 _OPTIONAL = ("payload_kg", "temp_c")
 
 def _as_float(t, name: str) -> torch.Tensor:

@@ -130,7 +130,9 @@ def workspace_accuracy(model, theta: torch.Tensor, cov: torch.Tensor, *, n: int 
     q_range: (2, n) rad / mm the joint range the model was calibrated on, or None (not
     recorded). within: "calibrated" draws the poses inside q_range (and the limits), where
     the prediction holds; "limits" inside the joint limits, counting those beyond q_range
-    (there the model extrapolates). Without q_range the poses come from the limits."""
+    (there the model extrapolates). Without q_range the poses come from the limits. A
+    temp_c or payload_kg that looks like another unit gets one `ConditionWarning` each
+    (`torchcal.measurements.check_conditions_given`)."""
     import dataclasses
 
     from torchcal.calibration.joint_range import outside_range
@@ -138,9 +140,12 @@ def workspace_accuracy(model, theta: torch.Tensor, cov: torch.Tensor, *, n: int 
     from torchcal.errors import InputError
     from torchcal.robots.workspace import sample_workspace
 
+    from torchcal.measurements import check_conditions_given
+
     if within not in ("calibrated", "limits"):
         raise InputError(f"within: expected 'calibrated' or 'limits', got {within!r}")
     robot = model.robot
+    check_conditions_given(temp_c, payload_kg, robot, "accuracy", stacklevel=3)  # kelvin, grams: one warning each
     if q_range is None:
         within = "limits"
     box = robot if within == "limits" else dataclasses.replace(robot, limits=calibrated_box(robot, q_range))

@@ -27,7 +27,8 @@ import torch
 
 from torchcal.errors import InputError
 from torchcal.io.files import atomic_write, csv_rows
-from torchcal.measurements import _OPTIONAL, Measurements
+from torchcal.measurements import (_OPTIONAL, CELL_TEMP_C, PAYLOAD_RATIO, ConditionWarning, Measurements,  # noqa: F401
+                                   payload_cause, temperature_cause)
 
 
 class JointLimitWarning(UserWarning):
@@ -311,19 +312,8 @@ class CopiedRowWarning(UserWarning):
     """Rows that copy an earlier row's joint values and x, y, z exactly (`read_measurements`)."""
 
 
-class ConditionWarning(UserWarning):
-    """A temp_c or payload_kg column whose values look like another unit (`read_measurements`)."""
-
-
 #: the warnings of reading a measurement CSV, which the command line writes as one line each
 FILE_WARNINGS = (JointLimitWarning, PoseIdWarning, CopiedRowWarning, ConditionWarning)
-
-#: degC a robot cell works in; temp_c beyond it is named (thermal_expansion reads temp_c - 20)
-CELL_TEMP_C = (-30.0, 60.0)
-
-
-PAYLOAD_RATIO = 3.0  # payloads beyond this many times the robot's rated payload are named
-
 
 def _check_payloads(path, payloads: list[float], lines: list[int], robot) -> None:
     """Warn (ConditionWarning, one line) when payload_kg exceeds PAYLOAD_RATIO times the
@@ -336,7 +326,7 @@ def _check_payloads(path, payloads: list[float], lines: list[int], robot) -> Non
     if not out:
         return
     top = max(payloads)
-    cause = "grams read as kg?" if top > 100 * rated else "pounds read as kg, or another payload?"
+    cause = payload_cause(top, rated)
     r = out[0]
     warnings.warn(f"{path}: column payload_kg: {len(out)} of {len(payloads)} row(s) above {PAYLOAD_RATIO:g} times "
                   f"the rated payload of {robot.name} ({rated:g} kg; first: line {lines[r]}, {payloads[r]:g}; up to "
@@ -355,9 +345,7 @@ def check_temperatures(path, temps: list[float], lines: list[int]) -> None:
     if not out:
         return
     med = sorted(temps)[len(temps) // 2]
-    cause = ("they look like kelvin (degC = K - 273.15)" if 250 <= med <= 350 else
-             "they look like degrees Fahrenheit (degC = (F - 32) / 1.8)" if hi < med <= 130 else
-             "beyond any robot cell's temperature")
+    cause = temperature_cause(med)
     r = out[0]
     warnings.warn(f"{path}: column temp_c: {len(out)} of {len(temps)} row(s) outside {lo:g}..{hi:g} degC (first: "
                   f"line {lines[r]}, {temps[r]:g}; median {med:g}): {cause}; temp_c is in degrees Celsius",

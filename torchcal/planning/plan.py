@@ -108,7 +108,8 @@ def plan(robot, effects=(), *, n: int, candidates: int = 10_000, criterion: str 
     `Robot`) with `effects` (specs). criterion: "D", "O1" or "E"; seed: the candidates' and
     the random plans' seed (the random plans draw on seed + 1); payload_kg (default the rated
     payload) and temp_c: the conditions at which load and thermal effects are evaluated;
-    workspace: a `torchcal.robots.workspace.Workspace` (default `Workspace()`). InputError
+    workspace: a `torchcal.robots.workspace.Workspace` (default `Workspace()`); a temp_c or
+    payload_kg that looks like another unit gets one `ConditionWarning` each. InputError
     when n exceeds the candidates or 3 n equations cannot determine the identifiable
     parameters."""
     from torchcal.calibration.model import CalibrationModel
@@ -118,7 +119,10 @@ def plan(robot, effects=(), *, n: int, candidates: int = 10_000, criterion: str 
     from torchcal.robots.workspace import sample_workspace
     from torchcal.robots.robot import preset
 
+    from torchcal.measurements import check_conditions_given
+
     rob = preset(robot)
+    check_conditions_given(temp_c, payload_kg, rob, "plan", stacklevel=2)  # kelvin, grams: one warning each
     specs = [str(s) for s in parse_specs(list(effects), rob.n)] if effects else []
     model = CalibrationModel(rob, specs)
     if n > candidates:

@@ -21,7 +21,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "torchcal.calibration.identifiability": ["Identifiability", "identifiability"],
     "torchcal.calibration.geometry_only": ["FOLDED", "GeometryRefit", "calibrated_robot", "geometry_model",
                                            "refit_geometry"],
-    "torchcal.calibration.gcv": ["GCV_GRID", "choose_damping", "gcv_damping"],
+    "torchcal.calibration.gcv": ["DampingWarning", "GCV_GRID", "choose_damping", "gcv_damping"],
     "torchcal.calibration.intervals": ["PoseIntervals", "identify_intervals", "identify_zones", "parameter_intervals",
                                        "pose_intervals", "solution_map"],
     "torchcal.calibration.joint_range": ["CalibratedRangeWarning", "joint_range", "outside_range"],

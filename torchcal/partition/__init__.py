@@ -6,5 +6,5 @@ from torchcal._lazy import attach
 __getattr__, __dir__, __all__ = attach(__name__, {
     "torchcal.partition.fcm": ["FCMResult", "memberships", "objective"],
     "torchcal.partition.validity": ["choose_c", "partition_coefficient", "partition_entropy", "xie_beni"],
-    "torchcal.partition.zones": ["Partition", "partition_workspace"],
+    "torchcal.partition.zones": ["Partition", "ZoneSizeWarning", "partition_workspace"],
 })

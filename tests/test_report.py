@@ -202,7 +202,7 @@ def test_report_names_the_joints_whose_part_holds_and_lists_the_fit_terms(sessio
     st = {spec: Stability(0.56, "q5", -0.0033, 6, parts={1: ("joint_periodic:1@12+22", bad),
                                                           2: ("joint_periodic:2@20+29", ok)})}
     d = Discovery([], ["base_frame", spec], None, [], stability=st)
-    hist.update(final_effects=d.final_effects, named=d.named, absorbing=d.absorbing,
+    hist.update(named=d.named, absorbing=d.absorbing,  # final_effects stay disc.json's: its own history
                 stability={e: s.to_dict() for e, s in st.items()})
     (session / "hist_s.json").write_text(json.dumps(hist))
     out = session / "labels.html"
@@ -237,6 +237,24 @@ def test_bad_input_one_line_exit_2_nothing_written(session, capsys, args, needle
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and needle in err and "Traceback" not in err
     assert not out.exists()
+
+
+def test_the_history_of_another_model_is_refused(session, capsys):
+    """`report fit.json --history hist.json` (the history of the discover that wrote
+    disc.json, whose effects the fit lacks) was rendered in silence: the report told how
+    effects that are not in the model were found. Now one line naming both files and both
+    effect lists, exit 2, nothing written; the history of the model itself passes."""
+    d = session
+    final = json.loads((d / "hist.json").read_text())["final_effects"]
+    assert final != ["base_frame"]  # discover added an effect the fit lacks
+    out = d / "other.html"
+    assert main(["report", str(d / "fit.json"), "--history", str(d / "hist.json"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err == (f"torchcal report: error: {d / 'hist.json'}: a discover history whose final effects "
+                   f"[{', '.join(final)}] are not those of {d / 'fit.json'} [base_frame]: the history of another "
+                   "model; give the history of the discover that wrote this model\n")
+    assert not out.exists()
+    assert main(["report", str(d / "disc.json"), "--history", str(d / "hist.json"), "--out", str(out)]) == 0
 
 
 # --------------------------------------------------------------------------- in a browser

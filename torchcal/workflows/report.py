@@ -106,6 +106,27 @@ class CalibrationReport:
         return out
 
 
+def check_history_of(history: dict, model, history_path, model_path) -> None:
+    """InputError (one line naming both files) when the discover history's final effects
+    are not the effects of `model` (a `CalibrationModel`; compared as parsed specs, in any
+    order): the history of another model would describe, in the report, a search that did
+    not make it (a history without final effects is not judged)."""
+    from torchcal.effects.spec import parse_specs
+
+    final = history.get("final_effects")
+    if not isinstance(final, list):
+        return
+    try:
+        theirs = sorted(str(e) for e in parse_specs([str(e) for e in final], model.robot.n))
+    except InputError:
+        theirs = sorted(str(e) for e in final)  # not this robot's joints: not the model's either
+    ours = sorted(model.specs())
+    if theirs != ours:
+        raise InputError(f"{history_path}: a discover history whose final effects [{', '.join(map(str, final))}] "
+                         f"are not those of {model_path} [{', '.join(model.specs()) or 'geometric only'}]: the "
+                         "history of another model; give the history of the discover that wrote this model")
+
+
 def calibration_report(model_path, data=None, *, history_path=None, tolerance_mm: float | None = None,
                        length_unit: str = "mm", angle_unit: str = "deg") -> CalibrationReport:
     """The `CalibrationReport` of the MODEL.json at model_path (``torchcal fit`` /
@@ -133,6 +154,7 @@ def calibration_report(model_path, data=None, *, history_path=None, tolerance_mm
         history = read_json(history_path, "discover history")
         if not isinstance(history, dict) or "history" not in history:
             raise InputError(f"{history_path}: not a history JSON of discover (no 'history' key)")
+        check_history_of(history, fitted.model, history_path, model_path)
     files = {"model": file_facts(model_path), "data": None,
              "history": file_facts(history_path) if history_path is not None else None}
     specs = [str(s) for s in model.get("effects", [])]

@@ -239,6 +239,21 @@ def test_bad_input_one_line_exit_2_nothing_written(session, capsys, args, needle
     assert not out.exists()
 
 
+def test_the_training_data_are_refused_as_held_out(session, capsys):
+    """`report disc.json --data train.csv` (the file the model was fitted on) printed its
+    figures as 'held-out rows' and a verdict on them; now one line naming the file and its
+    SHA-256 match, exit 2, nothing written (a copy under another name too: the content counts)."""
+    d = session
+    (d / "train_copy.csv").write_bytes((d / "train.csv").read_bytes())
+    for name in ("train.csv", "train_copy.csv"):
+        out = d / "trained.html"
+        assert main(["report", str(d / "disc.json"), "--data", str(d / name), "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"torchcal report: error: {d / name}: the data the model was fitted on (SHA-256 as "
+                              "its provenance records for ") and err.count("\n") == 1, err
+        assert "give measurements the fit did not see" in err and not out.exists()
+
+
 def test_the_history_of_another_model_is_refused(session, capsys):
     """`report fit.json --history hist.json` (the history of the discover that wrote
     disc.json, whose effects the fit lacks) was rendered in silence: the report told how
@@ -403,10 +418,11 @@ def test_before_of_a_tool_offset_model_fits_the_tool_on_the_nominal_robot(tmp_pa
 
     rob = torchcal.robot("ur5e")
     pts = {1: [30.0, 0.0, 100.0], 2: [-20.0, 40.0, 80.0]}
-    _, q, meas = reflectors_session(tmp_path / "s.csv", rob, 40, pts)
+    reflectors_session(tmp_path / "s.csv", rob, 40, pts)
+    _, q, meas = reflectors_session(tmp_path / "v.csv", rob, 40, pts, seed=5)  # not the training file
     assert main(["fit", str(tmp_path / "s.csv"), "--robot", "ur5e", "--effects", "tool_offset",
                  "--out", str(tmp_path / "m.json")]) == 0
-    assert main(["report", str(tmp_path / "m.json"), "--data", str(tmp_path / "s.csv"), "--out",
+    assert main(["report", str(tmp_path / "m.json"), "--data", str(tmp_path / "v.csv"), "--out",
                  str(tmp_path / "r.html"), "--json", str(tmp_path / "r.json")]) == 0
     before = json.loads((tmp_path / "r.json").read_text())["held_out"]["before"]["rms_mm"]
     F = [numpy_frames(rob, qq, np.zeros((6, 5)))[-1] for qq in q]  # nominal flange frames

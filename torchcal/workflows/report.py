@@ -131,7 +131,8 @@ def calibration_report(model_path, data=None, *, history_path=None, tolerance_mm
                        length_unit: str = "mm", angle_unit: str = "deg") -> CalibrationReport:
     """The `CalibrationReport` of the MODEL.json at model_path (``torchcal fit`` /
     ``discover --out``), on held-out measurements `data` (a CSV path or `Measurements`,
-    optional), with discover's history JSON at history_path (optional) and a distance
+    optional; the model's own training file, by its SHA-256, is refused: the figures are
+    held-out ones), with discover's history JSON at history_path (optional) and a distance
     tolerance in mm (optional, > 0)."""
     from torchcal.io.files import read_json
     from torchcal.io.measurement_csv import read_measurements
@@ -168,6 +169,12 @@ def calibration_report(model_path, data=None, *, history_path=None, tolerance_mm
     source = data if isinstance(data, (str, Path)) else m.source
     if source is not None and Path(source).is_file():
         files["data"] = file_facts(source)
+        trained = (model.get("provenance") or {}).get("input_sha256")
+        if trained is not None and files["data"]["sha256"] == trained:
+            raise InputError(f"{source}: the data the model was fitted on (SHA-256 as its provenance records "
+                             f"for {(model.get('provenance') or {}).get('input')}): the report's accuracy is on "
+                             "held-out poses; give measurements the fit did not see (a split of the session, "
+                             "another session)")
     _held_out(rep, fitted, m, {s.split(":")[0] for s in specs}, tolerance_mm)
     return rep
 

@@ -408,3 +408,29 @@ def test_a_fit_term_the_check_kept_is_said_to_carry():
     d = Discovery([{"transfer": {"kept": "joint_periodic:1@6"}}], ["base_frame", spec], fit, [],
                   stability={spec: st})
     assert "carried" not in d.final_words()
+
+
+def test_a_transfer_session_that_repeats_the_searched_rows_is_refused():
+    """`discover DATA --transfer COPY` (the same rows under another name, or another file
+    with rows pasted from DATA) ran the transfer check on the data searched, which confirms
+    every step; now one line naming how many rows and which, before any search. Another
+    session (plain-numpy tracker, other poses) passes the check."""
+    import npsim
+    from torchcal.errors import InputError
+    from torchcal.measurements import Measurements
+    from torchcal.robots.poses import random_poses
+
+    rob = torchcal.robot("ur5e")
+    q = random_poses(rob, 80, 11)
+    xyz = torch.as_tensor(npsim.tracker_session(rob, q.numpy(), seed=3, sag_deg=0.0))
+    data = Measurements(torch.arange(40), q[:40], xyz[:40], source="d.csv")
+    pasted = Measurements(torch.arange(40), torch.cat([q[40:75], q[:5]]), torch.cat([xyz[40:75], xyz[:5]]),
+                          source="o.csv")
+    with pytest.raises(InputError, match=r"^o.csv: 5 of 40 rows repeat rows of d.csv \(the same joint values and "
+                                         r"x, y, z; data row\(s\) 36, 37, 38, 39, 40\): the transfer check needs "
+                                         r"the measurements of another session"):
+        torchcal.discover(rob, data, ["base_frame", "tool_offset"], transfer=pasted, max_rounds=0)
+    from torchcal.calibration.mismatch import shared_rows
+
+    other = Measurements(torch.arange(40), q[40:], xyz[40:], source="o.csv")
+    assert shared_rows(data, other) == [] and shared_rows(data, data) == list(range(40))

@@ -274,7 +274,8 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     for at most max_rounds rounds; folds, seed, alpha, sigma_mm, sigma_deg as in `diagnose`
     (None: the defaults of `torchcal.diagnosis`). Data the nominal robot cannot explain,
     or that need a measuring frame the effects lack, are refused as by `diagnose`, in
-    `measurements` and in `transfer` alike. transfer: measurements of another session (Measurements or CSV path) as a check: a
+    `measurements` and in `transfer` alike. transfer: measurements of another session (Measurements or CSV path;
+    rows that repeat rows of `measurements` exactly are refused) as a check: a
     step is kept only when it lowers that session's error beyond chance after registration on
     its first `transfer_poses` poses (`torchcal.diagnosis.transfer`). residual_model:
     'kernel' adds the residual stage to the final model when its held-out test passes, as
@@ -295,7 +296,15 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
                          f"{m.source or 'the data'} have: thermal_expansion, a candidate on those data, is "
                          f"scored on both sessions; add temp_c (degC) to it or drop the column from both")
     if other is not None:  # the other session's data are held to the same check (another robot, units)
+        from torchcal.calibration.mismatch import _listed, shared_rows
+
         check_robot_data_of(CalibrationModel.for_measurements(model.robot, model.specs(), other), other)
+        same = shared_rows(m, other)
+        if same:  # the search's own rows would confirm every step it takes
+            raise InputError(f"{other.source or 'transfer'}: {len(same)} of {len(other)} rows repeat rows of "
+                             f"{m.source or 'the data'} (the same joint values and x, y, z; data row(s) "
+                             f"{_listed(i + 1 for i in same)}): the transfer check needs the measurements of "
+                             "another session, not the data searched")
     check = None if other is None else TransferCheck(other, transfer_poses, other.source or "the other session")
     with threads.for_work(_work(model, m)), _about(m):
         res = run(model.robot, m, model.specs(), folds=folds, seed=seed, sigma_mm=sigma_mm, sigma_deg=sigma_deg,

@@ -896,6 +896,14 @@ def _fits(model, m) -> bool:
         return False
 
 
+def shared_rows(a, b) -> list[int]:
+    """0-based rows of the measurements `b` whose joint values and x, y, z equal, to the
+    last bit, those of a row of `a` (the same measurement, copied: two sessions never
+    repeat a reading exactly)."""
+    seen = {tuple(r) for r in torch.cat([a.q, a.xyz], dim=1).detach().cpu().tolist()}
+    return [i for i, r in enumerate(torch.cat([b.q, b.xyz], dim=1).detach().cpu().tolist()) if tuple(r) in seen]
+
+
 def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
     """Can the measurements `m` (`Measurements`) come from `model`'s robot at all? Judged
     before a fit (nominal geometry, every parameter at zero) against GROSS_MM, the

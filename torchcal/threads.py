@@ -75,7 +75,7 @@ def apply_importing() -> None:
     until the process ends, and every full collection after it, the ones at interpreter
     exit included, would scan them again: 0.4-0.5 s of CPU in a `torchcal fit` of 1.3 s
     (docs/performance.md). The start of the command line (`torchcal.cli.main`) and of the
-    demo's seed processes. Only where this call imports torch: a process that already has
+    processes of `torchcal demo` and `torchcal sweep --processes` (their pools' initializer). Only where this call imports torch: a process that already has
     it (the test suite, a program calling `torchcal.cli.main`) keeps its collector as it is."""
     import gc
     import sys

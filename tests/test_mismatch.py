@@ -236,6 +236,17 @@ def test_backlash_on_rows_sorted_after_the_session_warns(tmp_path, capsys):
     assert len(err) == 1 and err[0].startswith("torchcal: warning: ") and "step down" in err[0], err
 
 
+@pytest.fixture(scope="module")
+def series_d():
+    """(UR10, UR10 series D, the model fitted on its odd rows): read by the column and row
+    mix-up tests below (they change copies, never these)."""
+    from torchcal.io.measurement_csv import read_measurements
+
+    rob = torchcal.robot(UR10)
+    m = read_measurements(UR10.parent / "series_d.csv", robot=rob)
+    return rob, m, torchcal.fit(rob, m.subset(slice(1, None, 2)), ["base_frame", "tool_offset"])
+
+
 @pytest.mark.parametrize("mix, phrase", [
     (lambda q: q[:, [0, 2, 1, 3, 4, 5]], "the joint columns q2 and q3 swapped"),
     (lambda q: torch.cat([q[:, :1], -q[:, 1:2], q[:, 2:]], 1),
@@ -245,16 +256,12 @@ def test_backlash_on_rows_sorted_after_the_session_warns(tmp_path, capsys):
     (lambda q: torch.cat([q[:, :1], q[:, 1:2] + math.pi / 2, q[:, 2:]], 1),  # another zero (was "another robot")
      r"the joint column q2 shifted by -90 deg \(another zero position\)"),
 ])
-def test_one_joint_column_mixed_up_is_named(mix, phrase):
+def test_one_joint_column_mixed_up_is_named(series_d, mix, phrase):
     """UR10 series D with two joint columns swapped, one negated, or one in radians under
     degrees was refused as 'another robot or units'; fit (the nominal robot in its best
     frame) and evaluate (a fitted model) name the column. Another robot stays another
     robot (test_another_robot_is_refused_by_evaluate_and_diagnose)."""
-    from torchcal.io.measurement_csv import read_measurements
-
-    rob = torchcal.robot(UR10)
-    m = read_measurements(UR10.parent / "series_d.csv", robot=rob)
-    fitted = torchcal.fit(rob, m.subset(slice(1, None, 2)), ["base_frame", "tool_offset"])
+    rob, m, fitted = series_d
     bad = dataclasses.replace(m.subset(slice(0, None, 2)), q_prev=None)
     bad = dataclasses.replace(bad, q=mix(bad.q), q_prev=None)
     with pytest.raises(InputError, match=r"cannot come from ur10 as given: .* but within 10 mm with " + phrase +
@@ -265,15 +272,11 @@ def test_one_joint_column_mixed_up_is_named(mix, phrase):
 
 
 @pytest.mark.parametrize("lag, words", [(1, "1 row(s) further up"), (-2, "2 row(s) further down")])
-def test_positions_misaligned_with_the_joint_values_are_named(lag, words):
+def test_positions_misaligned_with_the_joint_values_are_named(series_d, lag, words):
     """UR10 series D with x, y, z shifted against the joint columns (two logs joined with a
     row more in one) was refused as 'another robot or units'; fit and evaluate name the
-    misalignment. The rows as taken pass (test_one_joint_column_mixed_up_is_named's fit)."""
-    from torchcal.io.measurement_csv import read_measurements
-
-    rob = torchcal.robot(UR10)
-    m = read_measurements(UR10.parent / "series_d.csv", robot=rob)
-    fitted = torchcal.fit(rob, m.subset(slice(1, None, 2)), ["base_frame", "tool_offset"])
+    misalignment. The rows as taken pass (the `series_d` fixture's fit)."""
+    rob, m, fitted = series_d
     val = dataclasses.replace(m.subset(slice(0, 200)), q_prev=None, rxyz=None)
     rows = torch.arange(max(0, -lag), len(val) - max(0, lag))
     bad = dataclasses.replace(val.subset(rows), xyz=val.xyz[rows + lag])

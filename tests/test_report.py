@@ -282,6 +282,7 @@ window.addEventListener('load', () => {
   const res = performance.getEntriesByType('resource').map(r => r.name);
   const out = document.createElement('pre');
   out.id = 'probe';
+  out.style.display = 'none';  // in the DOM, not on the page: the screenshot and the PDF are the report's
   const loaded = imgs.filter(i => i.complete && i.naturalWidth > 0).length;
   out.textContent = JSON.stringify({imgs: imgs.length, loaded: loaded, requests: res,
                                     text: document.body.innerText.length});
@@ -292,26 +293,24 @@ window.addEventListener('load', () => {
 
 @pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (Debian: apt-get install -y chromium)")
 def test_chromium_renders_every_figure_offline(report, tmp_path):
+    """One headless Chromium run (each start is about 1 s of CPU over its processes) loads
+    the report with a probe script, then dumps the DOM, takes a screenshot and prints a PDF."""
     probe = tmp_path / "probe.html"  # the report plus a probe script (the report itself has none)
     probe.write_text(report.read_text().replace("</body>", PROBE + "</body>"))
-    dom = subprocess.run([CHROMIUM, *NO_NETWORK, "--virtual-time-budget=5000", "--dump-dom", probe.as_uri()],
-                         capture_output=True, text=True, timeout=120).stdout
-    found = re.search(r'<pre id="probe">(.*?)</pre>', dom, re.S)
+    shot, pdf = tmp_path / "shot.png", tmp_path / "report.pdf"
+    dom = subprocess.run([CHROMIUM, *NO_NETWORK, "--virtual-time-budget=5000", "--dump-dom", f"--screenshot={shot}",
+                          "--window-size=1000,1400", "--hide-scrollbars", f"--print-to-pdf={pdf}",
+                          "--no-pdf-header-footer", probe.as_uri()], capture_output=True, text=True, timeout=120).stdout
+    found = re.search(r'<pre id="probe"[^>]*>(.*?)</pre>', dom, re.S)
     assert found, "the probe did not run"
     got = json.loads(found.group(1).replace("&quot;", '"').replace("&amp;", "&"))
     assert got["imgs"] >= 4 and got["loaded"] == got["imgs"]
     assert all(not r.startswith("http") for r in got["requests"]), got["requests"]
     assert got["text"] > 2000
-    shot = tmp_path / "shot.png"
-    subprocess.run([CHROMIUM, *NO_NETWORK, f"--screenshot={shot}", "--window-size=1000,1400", "--hide-scrollbars",
-                    report.as_uri()], capture_output=True, timeout=120)
     from matplotlib.image import imread
 
     px = imread(shot)
     assert px.shape[0] >= 1000 and px[..., :3].std() > 0.05, "a blank page"
-    pdf = tmp_path / "report.pdf"
-    subprocess.run([CHROMIUM, *NO_NETWORK, f"--print-to-pdf={pdf}", "--no-pdf-header-footer", report.as_uri()],
-                   capture_output=True, timeout=120)
     pages = pdf.read_bytes().count(b"/Type /Page") - pdf.read_bytes().count(b"/Type /Pages")
     assert pages >= 6  # the summary, then a page break before each section
 

@@ -62,8 +62,10 @@ def test_first_poses_and_bad_counts(sessions):
 
 def test_session_term_is_refused_with_the_other_session_as_check(sessions, tmp_path, capsys):
     robot, a, b = sessions
-    alone = torchcal.discover(robot, a, ["base_frame", "tool_offset"], max_rounds=3, report_rest=False)
-    assert "gear_periodic:2" in alone.final_effects  # found within session A
+    # found within session A: its first round's pick (rounds 2 and 3 add joint_compliance:2
+    # and link_bending:3 and keep it; one round is 1.9 s of CPU, three 3.8 s)
+    alone = torchcal.discover(robot, a, ["base_frame", "tool_offset"], max_rounds=1, report_rest=False)
+    assert "gear_periodic:2" in alone.final_effects
     write_measurements(tmp_path / "a.csv", a)
     write_measurements(tmp_path / "b.csv", b)
     assert main(["discover", str(tmp_path / "a.csv"), "--robot", "ur5e", "--effects", "base_frame", "tool_offset",

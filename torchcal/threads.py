@@ -69,6 +69,30 @@ def apply() -> None:
     _limits = threadpool_limits(limits=1)
 
 
+def apply_importing() -> None:
+    """`apply`, which imports torch, with the cyclic garbage collector off, then what the
+    import made frozen (`gc.freeze`): torch's import leaves about 170 000 objects that live
+    until the process ends, and every full collection after it, the ones at interpreter
+    exit included, would scan them again: 0.4-0.5 s of CPU in a `torchcal fit` of 1.3 s
+    (docs/performance.md). The start of the command line (`torchcal.cli.main`) and of the
+    processes of `torchcal demo` and `torchcal sweep --processes` (their pools' initializer). Only where this call imports torch: a process that already has
+    it (the test suite, a program calling `torchcal.cli.main`) keeps its collector as it is."""
+    import gc
+    import sys
+
+    if "torch" in sys.modules:
+        apply()
+        return
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        apply()
+    finally:
+        gc.freeze()
+        if enabled:
+            gc.enable()
+
+
 def threads_for(elements: int, available: int) -> int:
     """Threads for a block whose largest tensors hold `elements` elements: one per
     `ELEMENTS_PER_THREAD`, between 1 and `available`."""

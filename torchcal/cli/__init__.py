@@ -9,7 +9,6 @@ This module only composes them and turns user mistakes into one line on stderr
 from __future__ import annotations
 
 import argparse
-import gc
 import importlib
 import os
 import sys
@@ -143,26 +142,10 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def import_torch() -> None:
-    """`torchcal.threads.apply`, which imports torch, with the cyclic garbage collector
-    off, then what the import made frozen (`gc.freeze`): torch's import leaves about
-    170 000 objects that live until the process ends, and every full collection after it,
-    the ones at interpreter exit included, would scan them again: 0.4-0.5 s of CPU in a
-    `torchcal fit` of 1.3 s (docs/performance.md). Only where this call imports torch: a
-    process that already has it (the test suite, a program calling `main`) keeps its
-    collector as it is."""
+    """torch imported with its import's objects frozen: `torchcal.threads.apply_importing`."""
     from torchcal import threads
 
-    if "torch" in sys.modules:
-        threads.apply()
-        return
-    enabled = gc.isenabled()
-    gc.disable()
-    try:
-        threads.apply()
-    finally:
-        gc.freeze()
-        if enabled:
-            gc.enable()
+    threads.apply_importing()
 
 
 def _caused_by(exc: BaseException, kind) -> bool:

@@ -44,12 +44,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.stats
 import torch
 
 from torchcal.folds import fold_of_pose
 from torchcal.kernel_ridge import (MAX_ROWS, MIN_POSES, block_cv, choose, fit_dual, rbf, stack_inputs, subsample,
                                    variable_features)
+from torchcal.statistics import t_sf
 
 #: a variable carries the learnable error when dropping it loses this share of it.
 MIN_RELEVANCE = 0.1
@@ -118,7 +118,7 @@ def probe(values: dict, residuals: np.ndarray, pose: np.ndarray, *, seed: int = 
     learn = float(np.sqrt(max(rms ** 2 - gain_row[tested].mean(), 0.0)))
     gain = np.bincount(pose_idx[tested], weights=gain_row[tested], minlength=P)[np.unique(pose_idx[tested])]
     sd = gain.std(ddof=1) if len(gain) > 1 else 0.0
-    p = 1.0 if sd == 0 else float(scipy.stats.t.sf(gain.mean() / (sd / np.sqrt(len(gain))), len(gain) - 1))
+    p = 1.0 if sd == 0 else t_sf(gain.mean() / (sd / np.sqrt(len(gain))), len(gain) - 1)
     # inputs and hyper-parameters on all rows, and what each input carries at them
     inputs, ell, lam, mse = chosen if split else choose(feats, names, Y, fold, rows)
     Yr = Y[torch.from_numpy(rows)]

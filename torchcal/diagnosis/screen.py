@@ -37,7 +37,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.stats
 
 from torchcal.diagnosis.candidates import Candidate, all_candidate_columns, candidate_specs, random_clearance_basis
 from torchcal.diagnosis.crossval import LinearRefit
@@ -45,6 +44,7 @@ from torchcal.diagnosis.selection import MIN_LL_GAIN, rank, select
 from torchcal.diagnosis.spectral import propose_orders
 from torchcal.diagnosis.variance import fit_variance, variance_loglik
 from torchcal.effects.spec import parse_specs
+from torchcal.statistics import chi2_sf, f_sf
 
 
 @dataclass
@@ -93,7 +93,7 @@ def prescreen(robot, model, specs: list, base_fit, m, ctx, folds_: np.ndarray, *
         if k and kb:
             dof = max(len(lin_.rb) - lin_.Qb.shape[1] - kb, 1)
             F = ((rss0b - rss1b) / kb) / max(rss1b / dof, 1e-300)
-            p_f = float(scipy.stats.f.sf(F, kb, dof))
+            p_f = f_sf(F, kb, dof)
         Bs_all = Bs_in if Bs is None else (Bs if Bs_in is None else np.concatenate([Bs_in, Bs], -1))
         cv, ll = lin_.cross_validate(B, Bs_all)
         ll_rows, sq_rows = lin_.last_ll, lin_.last_sq
@@ -105,7 +105,7 @@ def prescreen(robot, model, specs: list, base_fit, m, ctx, folds_: np.ndarray, *
             e3 = e1b.reshape(-1, 3)
             ll0 = variance_loglik(e3, pose_basis(Bs_in), fit_variance(e3, pose_basis(Bs_in))).sum()
             ll1 = variance_loglik(e3, pose_basis(Bs_all), fit_variance(e3, pose_basis(Bs_all))).sum()
-            p_lr = float(0.5 * scipy.stats.chi2.sf(max(2 * (ll1 - ll0), 0.0), Bs.shape[-1] // 2))
+            p_lr = 0.5 * chi2_sf(max(2 * (ll1 - ll0), 0.0), Bs.shape[-1] // 2)
             significant = significant or (p_lr < level and score >= MIN_LL_GAIN)
         return Candidate(name, joints, float(np.sqrt(max(rss1, 0) / (n_eq / 3))), cv, float(score),
                          min(p_f, p_lr), k + (0 if Bs is None else Bs.shape[-1] // 2),

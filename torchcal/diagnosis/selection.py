@@ -29,9 +29,9 @@ candidate passes (then in shortlist order).
 from __future__ import annotations
 
 import numpy as np
-import scipy.stats
 
 from torchcal.diagnosis.candidates import Candidate
+from torchcal.statistics import t_sf
 
 ALPHA = 1e-3
 MIN_GAIN = 0.02
@@ -99,7 +99,7 @@ def paired_p_value(base_sq: np.ndarray, cand_sq: np.ndarray) -> float:
     se = d.std(ddof=1) / np.sqrt(len(d))
     if se == 0:
         return 0.0 if d.mean() > 0 else 1.0
-    return float(scipy.stats.t.sf(d.mean() / se, len(d) - 1))
+    return t_sf(d.mean() / se, len(d) - 1)
 
 
 def refit_decision(base_cv: float, base_sq: np.ndarray, cv: float, sq: np.ndarray, *, n_refits: int,

@@ -56,11 +56,11 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.stats
 
 from torchcal.calibration.plausibility import undetermined
 from torchcal.diagnosis.crossval import RANK_TOL
 from torchcal.effects.joint_periodic import ARCSEC, MAX_AMPLITUDE_ARCSEC
+from torchcal.statistics import f_sf
 
 MAX_GRID_ORDER = 120  # highest order searched (cycles per joint turn)
 MIN_PERIODS = 2  # periods of the lowest order inside the measured range
@@ -325,7 +325,7 @@ def search_orders(r: np.ndarray, A: np.ndarray, C: np.ndarray, grid, folds: np.n
         if k_new < 1 or dof < 1:
             break
         F = ((e0 @ e0 - e1 @ e1) / k_new) / max(e1 @ e1 / dof, 1e-300)
-        p = float(scipy.stats.f.sf(F, k_new, dof))
+        p = f_sf(F, k_new, dof)
         if p >= level:
             break
         chosen.append(best)

@@ -68,7 +68,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.stats
 import torch
 
 from torchcal.diagnosis.probe import Probe, probe
@@ -76,6 +75,7 @@ from torchcal.folds import fold_of_pose
 from torchcal.kernel_ridge import variable_features
 from torchcal.measurements import Measurements, previous_rows
 from torchcal.robots.robot import Robot
+from torchcal.statistics import t_sf
 
 ALPHA = 1e-3
 MIN_STRENGTH = 0.02
@@ -297,7 +297,7 @@ def _test(name_values: dict, D: torch.Tensor, r: np.ndarray, folds: np.ndarray, 
         strength = 1.0 - float(((r - pred) ** 2).sum()) / total
         c = np.bincount(pose_idx, weights=(r * pred).sum(-1), minlength=P)
         sd = c.std(ddof=1) if P > 1 else 0.0
-        p = 1.0 if sd == 0 else float(scipy.stats.t.sf(c.mean() / (sd / np.sqrt(P)), P - 1))
+        p = 1.0 if sd == 0 else t_sf(c.mean() / (sd / np.sqrt(P)), P - 1)
         out[name] = (strength, p, pred)
     return out
 

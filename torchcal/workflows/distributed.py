@@ -327,7 +327,9 @@ def run_in_processes(plan: SweepPlan, missing: list[int], write, processes: int)
     _check_count(processes, "number of worker processes")
     todo = iter(missing)
     running = {}  # future -> block
-    with ProcessPoolExecutor(min(processes, len(missing)), mp_context=multiprocessing.get_context("spawn")) as pool:
+    # each process imports torch as the command line does (the import's objects frozen)
+    with ProcessPoolExecutor(min(processes, len(missing)), mp_context=multiprocessing.get_context("spawn"),
+                             initializer=policy.apply_importing) as pool:
         def top_up():
             while len(running) < 2 * processes:
                 b = next(todo, None)

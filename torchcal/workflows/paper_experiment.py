@@ -483,7 +483,10 @@ def _seeds_in_processes(cfgs: list, processes: int, progress, device) -> list:
     import pickle
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    with ProcessPoolExecutor(processes, mp_context=multiprocessing.get_context("spawn")) as pool:
+    # each process starts by importing torch as the command line does (its import's
+    # objects frozen: no full collection scans them again, the one at exit included)
+    with ProcessPoolExecutor(processes, mp_context=multiprocessing.get_context("spawn"),
+                             initializer=threads.apply_importing) as pool:
         futures = {pool.submit(_one_seed, c, device): k for k, c in enumerate(cfgs)}
         runs, done = [None] * len(cfgs), 0
         for f in as_completed(futures):

@@ -33,6 +33,7 @@ import numpy as np
 import torch
 
 from torchcal import threads
+from torchcal.kinematics import fk_native
 from torchcal.kinematics.chain import Chain
 
 PARAM_NAMES = ("dtheta", "dd", "da", "dalpha", "dbeta")
@@ -374,11 +375,14 @@ def fk_positions(q, chain: Chain, params=None, *, chunk: int | None = None) -> t
     """TCP positions for every (pose, parameter set) of the broadcast batch.
 
     q (..., n) rad / mm, params (..., n, 5) or None -> (..., 3) mm (`positions`).
-    Work is cut along the largest broadcast batch dim into pieces of about `chunk`
-    evaluations (default `chunk_for` the device and, for the in-place kernel, the dtype),
-    so temporaries stay bounded and on a CPU in its L2 cache; the output
-    is the full (..., 3). Without autograd or vmap on the inputs the chunks run the
-    in-place kernel `positions_into`; with them, `positions`.
+    Without autograd or vmap on the inputs, on a CPU in float64 or float32, the compiled
+    kernel runs (`fk_native`: one pass per pair, all in registers; `chunk` does not apply),
+    where it is built and the batch is a grid it serves (`fk_native.grid`: e.g. q (P, n)
+    with params (M, 1, n, 5), or q and params with the same batch). Otherwise work is cut
+    along the largest broadcast batch dim into pieces of about `chunk` evaluations (default
+    `chunk_for` the device and, for the in-place kernel, the dtype), so temporaries stay
+    bounded and on a CPU in its L2 cache; the output is the full (..., 3). Without autograd
+    or vmap the chunks run the in-place kernel `positions_into`; with them, `positions`.
     """
     table = chain.table
     qb = q.shape[:-1]
@@ -390,6 +394,8 @@ def fk_positions(q, chain: Chain, params=None, *, chunk: int | None = None) -> t
     if (total <= chunk or len(batch) == 0) and not plain:
         return positions(q, chain, params)
     out = torch.empty(*batch, 3, dtype=table.dtype, device=table.device)
+    if plain and _native_positions(q, chain, params, out):
+        return out
     if total <= chunk or len(batch) == 0:
         return positions_into(q, chain, params, out)
     # align leading dims, pick the largest batch dim to cut along
@@ -421,6 +427,55 @@ def fk_positions(q, chain: Chain, params=None, *, chunk: int | None = None) -> t
         return out
     _map_single_threaded(run, starts, workers)
     return out
+
+
+def pose_rows(q, chain: Chain) -> torch.Tensor:
+    """The pose factors of the compiled kernel (`fk_native`): q (Q, n) rad / mm -> (n, 3, Q)
+    [cos q, sin q, q] per joint, contiguous (cos 1 and sin 0 at a prismatic joint)."""
+    qj = q.T
+    qr = qj.masked_fill(chain.prismatic[:, None], 0.0) if chain.linear else qj
+    return torch.stack([torch.cos(qr), torch.sin(qr), qj], dim=1).contiguous()
+
+
+def link_rows(chain: Chain, params) -> torch.Tensor:
+    """The link factors of the compiled kernel (`fk_native`): params (S, n, 5) or None ->
+    (n, 12, S) (S = 1 without params) [rows of R_i, t_i mm] of the chain's table with the
+    deviations (`_link_rotations`), contiguous."""
+    R, t = _link_rotations(chain.table, params)  # each (S, n) or (n,)
+    rows = torch.stack([x for row in R for x in row] + list(t))  # (12, S, n) or (12, n)
+    if rows.ndim == 2:
+        rows = rows[:, None]
+    return rows.permute(2, 0, 1).contiguous()
+
+
+def native_frames(chain: Chain):
+    """(lin (n,) int32: 1 at a prismatic joint, tool point (3,) mm, base (12,) [R_base rows,
+    b mm] or None without a base frame) of `chain` for the compiled kernel, contiguous."""
+    lin = chain.prismatic.to(torch.int32).contiguous()
+    base = None if chain.plain_base else torch.cat([chain.base[:3, :3].reshape(9), chain.base[:3, 3]])
+    return lin, chain.tool[:3, 3].contiguous(), base
+
+
+def _native_positions(q, chain: Chain, params, out) -> bool:
+    """`positions_into` by the compiled kernel (`fk_native`) into out (..., 3) contiguous, on
+    `threads.workers()` threads; False (nothing written) where it does not serve: not built or
+    turned off, not a CPU float64 / float32 tensor, a batch that is no grid."""
+    lib = fk_native.available(out.device, out.dtype)
+    if lib is None or not out.is_contiguous():
+        return False
+    batch = out.shape[:-1]
+    n = chain.n
+    qb = (1,) * (len(batch) + 1 - q.ndim) + tuple(q.shape[:-1])
+    pb = () if params is None else tuple(params.shape[:-2])
+    pb = (1,) * (len(batch) - len(pb)) + pb
+    g = fk_native.grid(batch, qb, pb)
+    if g is None:
+        return False
+    pose = pose_rows(q.reshape(-1, n), chain)
+    link = link_rows(chain, None if params is None else params.reshape(-1, n, 5))
+    lin, tool, base = native_frames(chain)
+    fk_native.fk_positions(lib, pose, link, lin, tool, base, g, out.view(-1, 3), threads.workers())
+    return True
 
 
 def _plain(tensors) -> bool:

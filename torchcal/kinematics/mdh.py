@@ -19,7 +19,10 @@ passes float32. Shapes, batch dims first:
 
 The kernels check nothing: `torchcal.robots.robot.Robot` validates user input once and calls
 them. `fk_positions` chunks its work along the largest broadcast batch dim so that the
-temporaries stay bounded (and cache-sized) whatever the batch.
+temporaries stay bounded (and cache-sized) whatever the batch; without gradients on a CPU it
+runs the compiled kernel of `torchcal.kinematics.fk_native` instead (fk_kernel.c, the
+recursion of `positions_into` in registers; `pose_rows`, `link_rows` and `native_frames`
+make its inputs), and `positions_into` stays the reference and the fallback.
 """
 
 from __future__ import annotations

@@ -435,9 +435,13 @@ def fk_positions(q, chain: Chain, params=None, *, chunk: int | None = None) -> t
 def pose_rows(q, chain: Chain) -> torch.Tensor:
     """The pose factors of the compiled kernel (`fk_native`): q (Q, n) rad / mm -> (n, 3, Q)
     [cos q, sin q, q] per joint, contiguous (cos 1 and sin 0 at a prismatic joint)."""
-    qj = q.T
+    out = torch.empty(q.shape[1], 3, q.shape[0], dtype=q.dtype, device=q.device)
+    c, s, qj = out.unbind(1)  # each (n, Q), rows contiguous
+    qj.copy_(q.T)
     qr = qj.masked_fill(chain.prismatic[:, None], 0.0) if chain.linear else qj
-    return torch.stack([torch.cos(qr), torch.sin(qr), qj], dim=1).contiguous()
+    torch.cos(qr, out=c)
+    torch.sin(qr, out=s)
+    return out
 
 
 def link_rows(chain: Chain, params) -> torch.Tensor:

@@ -9,7 +9,9 @@
  *
  * with R_i = Rz(off_i + dtheta_i) Rx(alpha_i) Ry(beta_i), t_i = Rz(off_i + dtheta_i) [a_i, 0, d_i]
  * (12 numbers per link and parameter set, made by the caller), cos and sin of q per joint and
- * pose (made by the caller), and a prismatic joint's travel added to the z of u.
+ * pose (made by the caller), and a prismatic joint's travel added to the z of u. A row of
+ * R z + t is t + three products (three fused multiply-adds; the eager kernel adds t last), so
+ * the results differ from it in the last bits (1e-12 mm at metres).
  *
  * Layouts (T = double or float; `idx` a pose or a set):
  *   pose (n, 3, Q): [cos q, sin q, travel] of joint i at pose[(3 i + k) Q + idx];
@@ -106,18 +108,18 @@ FK_NAME(chain)(const T *pose, long Q, int qv, const T *link, long S, int sv, int
     int i = n - 1;
     const T *Li = link + (long)i * 12 * S;
     T t0 = tool[0], t1 = tool[1], t2 = tool[2];
-    V u0 = LK(0) * t0 + LK(1) * t1 + LK(2) * t2 + LK(9);
-    V u1 = LK(3) * t0 + LK(4) * t1 + LK(5) * t2 + LK(10);
-    V u2 = LK(6) * t0 + LK(7) * t1 + LK(8) * t2 + LK(11);
+    V u0 = LK(9) + LK(0) * t0 + LK(1) * t1 + LK(2) * t2;
+    V u1 = LK(10) + LK(3) * t0 + LK(4) * t1 + LK(5) * t2;
+    V u2 = LK(11) + LK(6) * t0 + LK(7) * t1 + LK(8) * t2;
     if (lin[i])
         u2 += PS(i, 2);
     for (i = n - 2; i >= 0; i--) {
         V c = PS(i + 1, 0), s = PS(i + 1, 1);
         V z0 = c * u0 - s * u1, z1 = s * u0 + c * u1; /* Rz(q_(i+1)) u */
         Li = link + (long)i * 12 * S;
-        V n0 = LK(2) * u2 + LK(0) * z0 + LK(1) * z1 + LK(9);
-        V n1 = LK(5) * u2 + LK(3) * z0 + LK(4) * z1 + LK(10);
-        V n2 = LK(8) * u2 + LK(6) * z0 + LK(7) * z1 + LK(11);
+        V n0 = LK(9) + LK(2) * u2 + LK(0) * z0 + LK(1) * z1; /* three fused multiply-adds a row */
+        V n1 = LK(10) + LK(5) * u2 + LK(3) * z0 + LK(4) * z1;
+        V n2 = LK(11) + LK(8) * u2 + LK(6) * z0 + LK(7) * z1;
         if (lin[i])
             n2 += PS(i, 2);
         u0 = n0, u1 = n1, u2 = n2;
@@ -128,9 +130,9 @@ FK_NAME(chain)(const T *pose, long Q, int qv, const T *link, long S, int sv, int
         *px = z0, *py = z1, *pz = u2;
         return;
     }
-    *px = base[2] * u2 + base[0] * z0 + base[1] * z1 + base[9];
-    *py = base[5] * u2 + base[3] * z0 + base[4] * z1 + base[10];
-    *pz = base[8] * u2 + base[6] * z0 + base[7] * z1 + base[11];
+    *px = base[9] + base[2] * u2 + base[0] * z0 + base[1] * z1;
+    *py = base[10] + base[5] * u2 + base[3] * z0 + base[4] * z1;
+    *pz = base[11] + base[8] * u2 + base[6] * z0 + base[7] * z1;
 #undef LK
 #undef PS
 }

@@ -20,7 +20,10 @@ the rate of a float matmul on the same threads) and the element-wise limit of th
 kernel (6 fused element-wise torch ops per joint over 13 multiply-adds per pair: its
 element operations per pair at the rate of one in-place fused op, addcmul_ with a broadcast
 operand, the kernel's commonest op, on chunk-sized buffers, one per worker), which the
-compiled kernel, making no element-wise passes, is not held to.
+compiled kernel, making no element-wise passes, is not held to. What bounds the compiled
+kernel: it is also timed alone on one thread (its inputs made before the clock), writing
+all M P pairs to memory and writing an output that stays in cache; alike rates mean it is
+bound by its arithmetic, not by memory.
 
 Threads: `--threads N` sets TORCHCAL_THREADS, the workers `Robot.fk` splits its pairs over
 (`torchcal.threads.workers`); each runs one torch intra-op thread, the thread policy of
@@ -182,6 +185,30 @@ def pk_chain(robot, params, dtype, device):
     return pk.SerialChain(pk.Chain(root, dtype=dtype), "tcp", dtype=dtype).to(dtype=dtype, device=device)
 
 
+def kernel_alone(robot, q, params, repeats):
+    """Pairs per CPU second of the compiled kernel by itself on one thread, q (P, n), params
+    (M, n, 5): on all M sets (the output written to memory) and on the first k sets repeated
+    M / k times, k such that the output (k P pairs) fills at most 1 MiB and stays in cache.
+    Returns the two rates and k."""
+    lib = fk_native.available(q.device, q.dtype)
+    chain = robot.chain
+    lin, tool, base = K.native_frames(chain)
+    pose = K.pose_rows(q, chain)
+    rates = []
+    k = max(1, min(params.shape[0], (1 << 20) // (3 * q.element_size() * q.shape[0])))
+    for sets, times in ((params.shape[0], 1), (k, max(1, params.shape[0] // k))):
+        link = K.link_rows(chain, params[:sets])
+        g = fk_native.grid((sets, q.shape[0]), (1, q.shape[0]), (sets, 1))
+        out = torch.empty(sets * q.shape[0], 3, dtype=q.dtype)
+
+        def run():
+            for _ in range(times):
+                fk_native.fk_positions(lib, pose, link, lin, tool, base, g, out, 1)
+        t = _timed(run, repeats, q.device)
+        rates.append(sets * times * q.shape[0] / t[3])
+    return rates + [k]
+
+
 # -- the kernel's limits ------------------------------------------------------------------
 def kernel_counts(n: int, plain_base: bool) -> tuple[int, int]:
     """(flops, element operations) per pair of `positions_into` for n joints: per joint
@@ -296,6 +323,10 @@ def main(argv=None) -> int:
             err_nat = (r.fk(q, params) - eager()).abs().max().item()
             print(f"  compiled / eager {rate_nat / rate_tc:17.2f} x by the wall, {t_tc[3] / t_nat[3]:.2f} x per CPU "
                   f"second; largest difference {err_nat:.2e} mm")
+            alone, cached, k = kernel_alone(r, q, params[:, 0], args.repeats)
+            print(f"  the compiled kernel alone, one thread (factors made and output allocated before the clock): "
+                  f"{alone / 1e6:.1f} M pairs per CPU second; on {k} sets repeated (an output that stays in "
+                  f"cache): {cached / 1e6:.1f}")
         else:
             t_tc = _timed(eager, args.repeats, device)
             cpu_note = "" if gpu else f"; {pairs / t_tc[3] / 1e6:.1f} M pairs per CPU second"

@@ -17,16 +17,20 @@
  *   pose (n, 3, Q): [cos q, sin q, travel] of joint i at pose[(3 i + k) Q + idx];
  *   link (n, 12, S): [R00 R01 R02 R10 R11 R12 R20 R21 R22 t0 t1 t2] at link[(12 i + k) S + idx];
  *   lin (n) int: 1 at a prismatic joint; tool (3) mm; base (12) [R_base row-major, b] or NULL.
+ * Q and S are row lengths: each row ends in 16 copies of its last value (the caller pads),
+ * so that a vector that starts at a used index never reads past its row.
  *
  * fk_positions_*: the pairs k = a B + b of a grid (A, B), k in [k0, k1), written to
  * out[3 k .. 3 k + 2]; pose index a qa + b qv, set index a sa + b sv (qv, sv: 0 or 1).
- * The inner index b runs over LANES pairs at once (GCC/Clang vector extensions: one 512-bit
- * register, two 256-bit ones), from the poses (qv = 1), the sets (sv = 1) or both.
+ * The inner index b runs over L pairs at once (8 doubles or 16 floats; GCC/Clang vector
+ * extensions: one 512-bit register, two 256-bit ones), from the poses (qv = 1), the sets
+ * (sv = 1) or both; a ragged end (fewer than L pairs) computes L lanes and stores its
+ * pairs. Returns 0, or -1 (nothing done) for n < 1.
  *
- * error_extremes_*: for points a in [a0, a1) (pose index a) and all S sets (set vectors), the
+ * error_extremes_*: for points a in [a0, a1) (pose index a) and the M sets (set vectors), the
  * error e = p - nominal[a] in the joint-1 frame (no base), turned by `rot` (9, row-major) when
  * given; res[8 a ..] = min e (3), max e (3), min |e|^2, max |e|^2 (NaN-free inputs assumed).
- * A ragged end repeats the last lane, which leaves minima and maxima unchanged.
+ * A ragged end reads the padding, the last set repeated: the extremes do not change.
  *
  * The file includes itself once per type (see the end).
  */
@@ -39,15 +43,20 @@ typedef float vf __attribute__((vector_size(64)));
 typedef long long md __attribute__((vector_size(64))); /* their comparison masks */
 typedef int mf __attribute__((vector_size(64)));
 
+#define FK_REP8(x) x, x, x, x, x, x, x, x /* a vector's initialiser: x in every lane */
+#define FK_REP16(x) FK_REP8(x), FK_REP8(x)
+
 #define FK_TYPE double
 #define FK_VEC vd
 #define FK_MASK md
 #define FK_LANES 8
+#define FK_REP FK_REP8
 #define FK_NAME(x) x##_f64
 #include __FILE__
 #undef FK_TYPE
 #undef FK_VEC
 #undef FK_MASK
+#undef FK_REP
 #undef FK_LANES
 #undef FK_NAME
 
@@ -55,6 +64,7 @@ typedef int mf __attribute__((vector_size(64)));
 #define FK_VEC vf
 #define FK_MASK mf
 #define FK_LANES 16
+#define FK_REP FK_REP16
 #define FK_NAME(x) x##_f32
 #include __FILE__
 
@@ -68,27 +78,16 @@ typedef FK_MASK FK_NAME(mask);
 #define MK FK_NAME(mask)
 #define L FK_LANES
 
-/* m values at p (m <= L), the last repeated; all L where m == L. */
-static inline V FK_NAME(load)(const T *p, int m)
+/* L values at p (vec = 1) or *p in every lane (vec = 0). */
+static inline __attribute__((always_inline)) V FK_NAME(get)(const T *p, int vec)
 {
     V v;
-    if (m == L) {
+    if (vec) {
         memcpy(&v, p, sizeof v);
         return v;
     }
-    T t[L];
-    for (int l = 0; l < L; l++)
-        t[l] = p[l < m ? l : m - 1];
-    memcpy(&v, t, sizeof v);
-    return v;
-}
-
-/* *p in every lane (vec = 0) or m values at p (vec = 1). */
-static inline __attribute__((always_inline)) V FK_NAME(get)(const T *p, int vec, int m)
-{
-    if (vec)
-        return FK_NAME(load)(p, m);
-    return (V){0} + *p;
+    T x = *p; /* a broadcast ((V){0} + x would add 0 first: not a no-op, -0 + 0 = +0) */
+    return (V){FK_REP(x)};
 }
 
 /* Lane by lane the smaller (less = 1) or the larger of x and y. */
@@ -98,13 +97,14 @@ static inline V FK_NAME(pick)(V x, V y, int less)
     return (V)(((MK)x & k) | ((MK)y & ~k));
 }
 
-/* The positions of L pairs: pose, link offset to the group's first pose and set. */
+/* The positions of L pairs: pose, link offset to the group's first pose and set; rows Q and
+ * S apart. Inlined where qv and sv are constants (the common grids) and in `grid_any`. */
 static inline __attribute__((always_inline)) void
 FK_NAME(chain)(const T *pose, long Q, int qv, const T *link, long S, int sv, int n, const int *lin,
-               const T *tool, const T *base, int m, V *px, V *py, V *pz)
+               const T *tool, const T *base, V *px, V *py, V *pz)
 {
-#define LK(k) FK_NAME(get)(Li + (long)(k) * S, sv, m)
-#define PS(j, k) FK_NAME(get)(pose + ((long)(j) * 3 + (k)) * Q, qv, m)
+#define LK(k) FK_NAME(get)(Li + (long)(k) * S, sv)
+#define PS(j, k) FK_NAME(get)(pose + ((long)(j) * 3 + (k)) * Q, qv)
     int i = n - 1;
     const T *Li = link + (long)i * 12 * S;
     T t0 = tool[0], t1 = tool[1], t2 = tool[2];
@@ -137,6 +137,19 @@ FK_NAME(chain)(const T *pose, long Q, int qv, const T *link, long S, int sv, int
 #undef PS
 }
 
+/* x, y, z of m pairs stored interleaved at o: o[3 l + c] (lane by lane: as fast as a copy
+ * through the stack, faster than shuffles into three full vectors, measured). */
+static inline __attribute__((always_inline)) void FK_NAME(store)(T *restrict o, V x, V y, V z, int m)
+{
+    for (int l = 0; l < m; l++) {
+        o[3 * l] = x[l];
+        o[3 * l + 1] = y[l];
+        o[3 * l + 2] = z[l];
+    }
+}
+
+/* The pairs [k0, k1) of the grid (see the top); `chain` inlined with qv and sv as given
+ * (constants in the common grids). */
 static inline __attribute__((always_inline)) void
 FK_NAME(grid)(const T *pose, long Q, long qa, int qv, const T *link, long S, long sa, int sv, int n,
               const int *lin, const T *tool, const T *base, long B, long k0, long k1, T *restrict out)
@@ -145,46 +158,49 @@ FK_NAME(grid)(const T *pose, long Q, long qa, int qv, const T *link, long S, lon
     while (k < k1) {
         long a = k / B, b = k - a * B;
         long end = B < b + (k1 - k) ? B : b + (k1 - k);
-        for (; b < end; b += L) {
-            int m = end - b < L ? (int)(end - b) : L;
+        for (; b < end; b += L) { /* a ragged end reads past it (the padding) and stores m pairs */
             V x, y, z;
             FK_NAME(chain)(pose + a * qa + b * qv, Q, qv, link + a * sa + b * sv, S, sv, n, lin, tool, base,
-                           m, &x, &y, &z);
-            T *o = out + (a * B + b) * 3;
-            for (int l = 0; l < m; l++) {
-                o[3 * l] = x[l];
-                o[3 * l + 1] = y[l];
-                o[3 * l + 2] = z[l];
-            }
+                           &x, &y, &z);
+            FK_NAME(store)(out + (a * B + b) * 3, x, y, z, end - b < L ? (int)(end - b) : L);
         }
         k = a * B + end;
     }
 }
 
+/* `grid` with qv and sv read at run time (both 1: poses and sets element by element; both 0). */
+static __attribute__((noinline)) void
+FK_NAME(grid_any)(const T *pose, long Q, long qa, int qv, const T *link, long S, long sa, int sv, int n,
+                  const int *lin, const T *tool, const T *base, long B, long k0, long k1, T *restrict out)
+{
+    FK_NAME(grid)(pose, Q, qa, qv, link, S, sa, sv, n, lin, tool, base, B, k0, k1, out);
+}
+
 int FK_NAME(fk_positions)(const T *pose, long Q, long qa, int qv, const T *link, long S, long sa, int sv, int n,
                           const int *lin, const T *tool, const T *base, long B, long k0, long k1, T *out)
 {
-    if (qv && sv)
-        FK_NAME(grid)(pose, Q, qa, 1, link, S, sa, 1, n, lin, tool, base, B, k0, k1, out);
-    else if (qv)
+    if (n < 1)
+        return -1;
+    if (qv && !sv) /* poses inner: sets x poses */
         FK_NAME(grid)(pose, Q, qa, 1, link, S, sa, 0, n, lin, tool, base, B, k0, k1, out);
-    else if (sv)
+    else if (sv && !qv) /* sets inner: poses x sets */
         FK_NAME(grid)(pose, Q, qa, 0, link, S, sa, 1, n, lin, tool, base, B, k0, k1, out);
     else
-        FK_NAME(grid)(pose, Q, qa, 0, link, S, sa, 0, n, lin, tool, base, B, k0, k1, out);
+        FK_NAME(grid_any)(pose, Q, qa, qv, link, S, sa, sv, n, lin, tool, base, B, k0, k1, out);
     return 0;
 }
 
-int FK_NAME(error_extremes)(const T *pose, long Q, const T *link, long S, int n, const int *lin, const T *tool,
-                            const T *nominal, const T *rot, long a0, long a1, T *res)
+int FK_NAME(error_extremes)(const T *pose, long Q, const T *link, long S, long M, int n, const int *lin,
+                            const T *tool, const T *nominal, const T *rot, long a0, long a1, T *res)
 {
+    if (n < 1)
+        return -1;
     for (long a = a0; a < a1; a++) {
         const T *nom = nominal + 3 * a;
         V lo[3], hi[3], dlo, dhi;
-        for (long b = 0; b < S; b += L) {
-            int m = S - b < L ? (int)(S - b) : L;
+        for (long b = 0; b < M; b += L) { /* a ragged end reads the padding: the last set repeated */
             V e[3];
-            FK_NAME(chain)(pose + a, Q, 0, link + b, S, 1, n, lin, tool, 0, m, &e[0], &e[1], &e[2]);
+            FK_NAME(chain)(pose + a, Q, 0, link + b, S, 1, n, lin, tool, 0, &e[0], &e[1], &e[2]);
             e[0] -= nom[0], e[1] -= nom[1], e[2] -= nom[2];
             if (rot) {
                 V r0 = rot[0] * e[0] + rot[1] * e[1] + rot[2] * e[2];

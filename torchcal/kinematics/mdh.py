@@ -433,25 +433,32 @@ def fk_positions(q, chain: Chain, params=None, *, chunk: int | None = None) -> t
 
 
 def pose_rows(q, chain: Chain) -> torch.Tensor:
-    """The pose factors of the compiled kernel (`fk_native`): q (Q, n) rad / mm -> (n, 3, Q)
-    [cos q, sin q, q] per joint, contiguous (cos 1 and sin 0 at a prismatic joint)."""
-    out = torch.empty(q.shape[1], 3, q.shape[0], dtype=q.dtype, device=q.device)
-    c, s, qj = out.unbind(1)  # each (n, Q), rows contiguous
+    """The pose factors of the compiled kernel (`fk_native`): q (Q, n) rad / mm -> (n, 3,
+    Q + fk_native.PAD) [cos q, sin q, q] per joint (cos 1 and sin 0 at a prismatic joint),
+    each row padded with copies of its last value, contiguous."""
+    Q = q.shape[0]
+    out = torch.empty(q.shape[1], 3, Q + fk_native.PAD, dtype=q.dtype, device=q.device)
+    c, s, qj = out[..., :Q].unbind(1)  # each (n, Q), rows contiguous
     qj.copy_(q.T)
     qr = qj.masked_fill(chain.prismatic[:, None], 0.0) if chain.linear else qj
     torch.cos(qr, out=c)
     torch.sin(qr, out=s)
+    if Q:
+        out[..., Q:] = out[..., Q - 1:Q]
     return out
 
 
 def link_rows(chain: Chain, params) -> torch.Tensor:
     """The link factors of the compiled kernel (`fk_native`): params (S, n, 5) or None ->
-    (n, 12, S) (S = 1 without params) [rows of R_i, t_i mm] of the chain's table with the
-    deviations (`_link_rotations`), contiguous."""
+    (n, 12, S + fk_native.PAD) (S = 1 without params) [rows of R_i, t_i mm] of the chain's
+    table with the deviations (`_link_rotations`), each row padded with copies of its last
+    value, contiguous."""
     R, t = _link_rotations(chain.table, params)  # each (S, n) or (n,)
     rows = torch.stack([x for row in R for x in row] + list(t))  # (12, S, n) or (12, n)
     if rows.ndim == 2:
         rows = rows[:, None]
+    if rows.shape[1]:
+        rows = torch.cat([rows, rows[:, -1:].expand(-1, fk_native.PAD, -1)], dim=1)
     return rows.permute(2, 0, 1).contiguous()
 
 

@@ -27,10 +27,11 @@
  * (sv = 1) or both; a ragged end (fewer than L pairs) computes L lanes and stores its
  * pairs. Returns 0, or -1 (nothing done) for n < 1.
  *
- * error_extremes_*: for points a in [a0, a1) (pose index a) and the M sets (set vectors), the
- * error e = p - nominal[a] in the joint-1 frame (no base), turned by `rot` (9, row-major) when
- * given; res[8 a ..] = min e (3), max e (3), min |e|^2, max |e|^2 (NaN-free inputs assumed).
- * A ragged end reads the padding, the last set repeated: the extremes do not change.
+ * error_extremes_*: for points a in [a0, a1) (pose index a, L points a vector) and the M sets
+ * (one at a time, broadcast), the error e = p - nominal in the joint-1 frame (no base), turned
+ * by `rot` (9, row-major) when given; nominal (3, Q) laid out and padded like a row of pose;
+ * res[8 a ..] = min e (3), max e (3), min |e|^2, max |e|^2 (NaN-free inputs assumed), the
+ * running extremes of each point in its lane (no reduction across lanes).
  *
  * The file includes itself once per type (see the end).
  */
@@ -195,12 +196,13 @@ int FK_NAME(error_extremes)(const T *pose, long Q, const T *link, long S, long M
 {
     if (n < 1)
         return -1;
-    for (long a = a0; a < a1; a++) {
-        const T *nom = nominal + 3 * a;
-        V lo[3], hi[3], dlo, dhi;
-        for (long b = 0; b < M; b += L) { /* a ragged end reads the padding: the last set repeated */
+    for (long a = a0; a < a1; a += L) { /* L points at once, a ragged end reading the padding */
+        V nom[3], lo[3], hi[3], dlo, dhi;
+        for (int c = 0; c < 3; c++)
+            nom[c] = FK_NAME(get)(nominal + c * Q + a, 1);
+        for (long b = 0; b < M; b++) {
             V e[3];
-            FK_NAME(chain)(pose + a, Q, 0, link + b, S, 1, n, lin, tool, 0, &e[0], &e[1], &e[2]);
+            FK_NAME(chain)(pose + a, Q, 1, link + b, S, 0, n, lin, tool, 0, &e[0], &e[1], &e[2]);
             e[0] -= nom[0], e[1] -= nom[1], e[2] -= nom[2];
             if (rot) {
                 V r0 = rot[0] * e[0] + rot[1] * e[1] + rot[2] * e[2];
@@ -222,21 +224,15 @@ int FK_NAME(error_extremes)(const T *pose, long Q, const T *link, long S, long M
             dlo = FK_NAME(pick)(d2, dlo, 1);
             dhi = FK_NAME(pick)(d2, dhi, 0);
         }
-        T r[8];
-        for (int c = 0; c < 3; c++) {
-            r[c] = lo[c][0];
-            r[3 + c] = hi[c][0];
-        }
-        r[6] = dlo[0], r[7] = dhi[0];
-        for (int l = 1; l < L; l++) {
+        int m = a1 - a < L ? (int)(a1 - a) : L;
+        for (int l = 0; l < m; l++) {
+            T *r = res + 8 * (a + l);
             for (int c = 0; c < 3; c++) {
-                r[c] = lo[c][l] < r[c] ? lo[c][l] : r[c];
-                r[3 + c] = hi[c][l] > r[3 + c] ? hi[c][l] : r[3 + c];
+                r[c] = lo[c][l];
+                r[3 + c] = hi[c][l];
             }
-            r[6] = dlo[l] < r[6] ? dlo[l] : r[6];
-            r[7] = dhi[l] > r[7] ? dhi[l] : r[7];
+            r[6] = dlo[l], r[7] = dhi[l];
         }
-        memcpy(res + 8 * a, r, sizeof r);
     }
     return 0;
 }

@@ -120,15 +120,26 @@ def fk_positions(lib, pose, link, lin, tool, base, g: Grid, out, workers: int) -
 
 def error_extremes(lib, pose, link, lin, tool, nominal, rot, a0: int, a1: int, res) -> None:
     """For the points a0 .. a1 - 1 of pose (n, 3, N + PAD) against every set of link
-    (n, 12, M + PAD): res[a] (8,) = min and max of each axis of e = p - nominal[a] (then
+    (n, 12, M + PAD): res[a] (8,) = min and max of each axis of e = p - nominal[:, a] (then
     turned by rot (3, 3) where given) and min and max of |e|^2 over the M sets (mm, mm^2); p
-    in the joint-1 frame. nominal (N, 3) mm, res (N, 8); the rest as `fk_positions`."""
+    in the joint-1 frame. nominal (3, N + PAD) mm, padded like pose (`nominal_rows`), res
+    (N, 8); the rest as `fk_positions`."""
     fn = getattr(lib, f"error_extremes_{_SUFFIX[res.dtype]}")
     n = pose.shape[0]
     if fn(pose.data_ptr(), pose.shape[-1], link.data_ptr(), link.shape[-1], link.shape[-1] - PAD, n,
           lin.data_ptr(), tool.data_ptr(), nominal.data_ptr(), 0 if rot is None else rot.data_ptr(), a0, a1,
           res.data_ptr()):
         raise ValueError(f"fk_kernel.c: no joints (n = {n})")
+
+
+def nominal_rows(nominal) -> torch.Tensor:
+    """nominal (N, 3) mm -> (3, N + PAD) for `error_extremes`, rows padded with their last value."""
+    N = nominal.shape[0]
+    out = torch.empty(3, N + PAD, dtype=nominal.dtype, device=nominal.device)
+    out[:, :N] = nominal.T
+    if N:
+        out[:, N:] = out[:, N - 1:N]
+    return out
 
 
 def _spread(fn, items, workers: int) -> None:

@@ -204,7 +204,8 @@ class SweepResult:
 
 def _envelope(robot, q, dev, include_nominal, chunk, bar, threads):
     """Min / max of e and |e| over the sets, chunk by chunk. q (N, n), dev (M, n, 5).
-    On a CPU where the compiled kernel is built, `_envelope_native` (chunk // M points per call).
+    On a CPU where the compiled kernel is built, `_envelope_native` (about chunk // M points per
+    call, a multiple of 16).
 
     Point chunks are independent: `threads` Python workers take them in turn (each op
     on a chunk of <= 32768 elements runs on one core, so the workers do not fight over
@@ -219,8 +220,9 @@ def _envelope(robot, q, dev, include_nominal, chunk, bar, threads):
     nominal = K.positions(q, chain.local, tool_point=chain.tool[:3, 3])  # (N, 3), joint-1 frame
     lib = fk_native.available(q.device, q.dtype)
     if lib is not None:
-        return _envelope_native(lib, chain, q, dev, nominal, R if rotate else None, include_nominal,
-                                max(1, chunk // M), bar, threads)
+        step = fk_native.PAD * max(1, chunk // M // fk_native.PAD)  # whole vectors of points
+        return _envelope_native(lib, chain, q, dev, nominal, R if rotate else None, include_nominal, step, bar,
+                                threads)
     F = K.outer_factors(chain, dev)
     e_lo = torch.empty(N, 3, dtype=q.dtype, device=q.device)
     e_hi = torch.empty_like(e_lo)
@@ -283,7 +285,7 @@ def _envelope_native(lib, chain, q, dev, nominal, rot, include_nominal, step, ba
     pose, link = K.pose_rows(q, chain), K.link_rows(chain, dev)
     lin, tool, _ = K.native_frames(chain)
     rot = None if rot is None else rot.contiguous()
-    nominal = nominal.contiguous()
+    nominal = fk_native.nominal_rows(nominal)  # (3, N + PAD)
     res = torch.empty(N, 8, dtype=q.dtype)  # min e (3), max e (3), min |e|^2, max |e|^2
 
     def work(a0):

@@ -29,8 +29,9 @@ from torchcal import native
 
 SOURCE = Path(__file__).with_name("fk_kernel.c")
 SWITCH = "TORCHCAL_FK_KERNEL"
-#: pairs per kernel call handed to a worker: about a millisecond of one core's work, large
-#: against the call's overhead (some microseconds), small enough to share the cores evenly
+#: pairs per kernel call handed to a worker: about a quarter of a millisecond of one core's
+#: work in float64, large against the call's overhead (some microseconds), small enough to
+#: share the cores evenly
 PIECE = 1 << 16
 #: values each row of the factors ends in, copies of its last (a vector's lanes at most: the
 #: kernel reads whole vectors and keeps the pairs it needs)

@@ -192,7 +192,7 @@ def kernel_alone(robot, q, params, repeats):
     Returns the two rates and k."""
     lib = fk_native.available(q.device, q.dtype)
     chain = robot.chain
-    lin, tool, base = K.native_frames(chain)
+    lin, base = K.native_frames(chain)
     pose = K.pose_rows(q, chain)
     rates = []
     k = max(1, min(params.shape[0], (1 << 20) // (3 * q.element_size() * q.shape[0])))
@@ -203,7 +203,7 @@ def kernel_alone(robot, q, params, repeats):
 
         def run():
             for _ in range(times):
-                fk_native.fk_positions(lib, pose, link, lin, tool, base, g, out, 1)
+                fk_native.fk_positions(lib, pose, link, lin, base, g, out, 1)
         t = _timed(run, repeats, q.device)
         rates.append(sets * times * q.shape[0] / t[3])
     return rates + [k]

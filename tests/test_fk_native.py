@@ -30,9 +30,9 @@ def calls(monkeypatch):
     seen = []
     run = fk_native.fk_positions
 
-    def spy(lib, pose, link, lin, tool, base, g, out, workers):
+    def spy(lib, pose, link, lin, base, g, out, workers):
         seen.append(g)
-        return run(lib, pose, link, lin, tool, base, g, out, workers)
+        return run(lib, pose, link, lin, base, g, out, workers)
 
     monkeypatch.setattr(fk_native, "fk_positions", spy)
     return seen

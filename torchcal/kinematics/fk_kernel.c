@@ -13,10 +13,15 @@
  * R z + t is t + three products (three fused multiply-adds; the eager kernel adds t last), so
  * the results differ from it in the last bits (1e-12 mm at metres).
  *
+ * The start, u_(n-1) without a prismatic joint's travel, is per set only, so the caller makes
+ * it once per set, as the eager kernel does.
+ *
  * Layouts (T = double or float; `idx` a pose or a set):
  *   pose (n, 3, Q): [cos q, sin q, travel] of joint i at pose[(3 i + k) Q + idx];
- *   link (n, 12, S): [R00 R01 R02 R10 R11 R12 R20 R21 R22 t0 t1 t2] at link[(12 i + k) S + idx];
- *   lin (n) int: 1 at a prismatic joint; tool (3) mm; base (12) [R_base row-major, b] or NULL.
+ *   link (n + 1, 12, S): [R00 R01 R02 R10 R11 R12 R20 R21 R22 t0 t1 t2] of link i at
+ *     link[(12 i + k) S + idx] for i < n - 1 (link n - 1's are not read), then at i = n the
+ *     start u_(n-1) = R_(n-1) tool + t_(n-1) in k = 0, 1, 2 (the rest unused);
+ *   lin (n) int: 1 at a prismatic joint; base (12) [R_base row-major, b] or NULL.
  * Q and S are row lengths: each row ends in 16 copies of its last value (the caller pads),
  * so that a vector that starts at a used index never reads past its row.
  *
@@ -102,16 +107,13 @@ static inline V FK_NAME(pick)(V x, V y, int less)
  * S apart. Inlined where qv and sv are constants (the common grids) and in `grid_any`. */
 static inline __attribute__((always_inline)) void
 FK_NAME(chain)(const T *pose, long Q, int qv, const T *link, long S, int sv, int n, const int *lin,
-               const T *tool, const T *base, V *px, V *py, V *pz)
+               const T *base, V *px, V *py, V *pz)
 {
 #define LK(k) FK_NAME(get)(Li + (long)(k) * S, sv)
 #define PS(j, k) FK_NAME(get)(pose + ((long)(j) * 3 + (k)) * Q, qv)
     int i = n - 1;
-    const T *Li = link + (long)i * 12 * S;
-    T t0 = tool[0], t1 = tool[1], t2 = tool[2];
-    V u0 = LK(9) + LK(0) * t0 + LK(1) * t1 + LK(2) * t2;
-    V u1 = LK(10) + LK(3) * t0 + LK(4) * t1 + LK(5) * t2;
-    V u2 = LK(11) + LK(6) * t0 + LK(7) * t1 + LK(8) * t2;
+    const T *Li = link + (long)n * 12 * S; /* the start */
+    V u0 = LK(0), u1 = LK(1), u2 = LK(2);
     if (lin[i])
         u2 += PS(i, 2);
     for (i = n - 2; i >= 0; i--) {
@@ -153,7 +155,7 @@ static inline __attribute__((always_inline)) void FK_NAME(store)(T *restrict o, 
  * (constants in the common grids). */
 static inline __attribute__((always_inline)) void
 FK_NAME(grid)(const T *pose, long Q, long qa, int qv, const T *link, long S, long sa, int sv, int n,
-              const int *lin, const T *tool, const T *base, long B, long k0, long k1, T *restrict out)
+              const int *lin, const T *base, long B, long k0, long k1, T *restrict out)
 {
     long k = k0;
     while (k < k1) {
@@ -161,7 +163,7 @@ FK_NAME(grid)(const T *pose, long Q, long qa, int qv, const T *link, long S, lon
         long end = B < b + (k1 - k) ? B : b + (k1 - k);
         for (; b < end; b += L) { /* a ragged end reads past it (the padding) and stores m pairs */
             V x, y, z;
-            FK_NAME(chain)(pose + a * qa + b * qv, Q, qv, link + a * sa + b * sv, S, sv, n, lin, tool, base,
+            FK_NAME(chain)(pose + a * qa + b * qv, Q, qv, link + a * sa + b * sv, S, sv, n, lin, base,
                            &x, &y, &z);
             FK_NAME(store)(out + (a * B + b) * 3, x, y, z, end - b < L ? (int)(end - b) : L);
         }
@@ -172,27 +174,27 @@ FK_NAME(grid)(const T *pose, long Q, long qa, int qv, const T *link, long S, lon
 /* `grid` with qv and sv read at run time (both 1: poses and sets element by element; both 0). */
 static __attribute__((noinline)) void
 FK_NAME(grid_any)(const T *pose, long Q, long qa, int qv, const T *link, long S, long sa, int sv, int n,
-                  const int *lin, const T *tool, const T *base, long B, long k0, long k1, T *restrict out)
+                  const int *lin, const T *base, long B, long k0, long k1, T *restrict out)
 {
-    FK_NAME(grid)(pose, Q, qa, qv, link, S, sa, sv, n, lin, tool, base, B, k0, k1, out);
+    FK_NAME(grid)(pose, Q, qa, qv, link, S, sa, sv, n, lin, base, B, k0, k1, out);
 }
 
 int FK_NAME(fk_positions)(const T *pose, long Q, long qa, int qv, const T *link, long S, long sa, int sv, int n,
-                          const int *lin, const T *tool, const T *base, long B, long k0, long k1, T *out)
+                          const int *lin, const T *base, long B, long k0, long k1, T *out)
 {
     if (n < 1)
         return -1;
     if (qv && !sv) /* poses inner: sets x poses */
-        FK_NAME(grid)(pose, Q, qa, 1, link, S, sa, 0, n, lin, tool, base, B, k0, k1, out);
+        FK_NAME(grid)(pose, Q, qa, 1, link, S, sa, 0, n, lin, base, B, k0, k1, out);
     else if (sv && !qv) /* sets inner: poses x sets */
-        FK_NAME(grid)(pose, Q, qa, 0, link, S, sa, 1, n, lin, tool, base, B, k0, k1, out);
+        FK_NAME(grid)(pose, Q, qa, 0, link, S, sa, 1, n, lin, base, B, k0, k1, out);
     else
-        FK_NAME(grid_any)(pose, Q, qa, qv, link, S, sa, sv, n, lin, tool, base, B, k0, k1, out);
+        FK_NAME(grid_any)(pose, Q, qa, qv, link, S, sa, sv, n, lin, base, B, k0, k1, out);
     return 0;
 }
 
 int FK_NAME(error_extremes)(const T *pose, long Q, const T *link, long S, long M, int n, const int *lin,
-                            const T *tool, const T *nominal, const T *rot, long a0, long a1, T *res)
+                            const T *nominal, const T *rot, long a0, long a1, T *res)
 {
     if (n < 1)
         return -1;
@@ -202,7 +204,7 @@ int FK_NAME(error_extremes)(const T *pose, long Q, const T *link, long S, long M
             nom[c] = FK_NAME(get)(nominal + c * Q + a, 1);
         for (long b = 0; b < M; b++) {
             V e[3];
-            FK_NAME(chain)(pose + a, Q, 1, link + b, S, 0, n, lin, tool, 0, &e[0], &e[1], &e[2]);
+            FK_NAME(chain)(pose + a, Q, 1, link + b, S, 0, n, lin, 0, &e[0], &e[1], &e[2]);
             e[0] -= nom[0], e[1] -= nom[1], e[2] -= nom[2];
             if (rot) {
                 V r0 = rot[0] * e[0] + rot[1] * e[1] + rot[2] * e[2];

@@ -50,8 +50,8 @@ def kernel():
     P, i, n = ctypes.c_void_p, ctypes.c_int, ctypes.c_long
     for s in _SUFFIX.values():
         fk, ext = getattr(lib, f"fk_positions_{s}"), getattr(lib, f"error_extremes_{s}")
-        fk.argtypes = [P, n, n, i, P, n, n, i, i, P, P, P, n, n, n, P]
-        ext.argtypes = [P, n, P, n, n, i, P, P, P, P, n, n, P]
+        fk.argtypes = [P, n, n, i, P, n, n, i, i, P, P, n, n, n, P]
+        ext.argtypes = [P, n, P, n, n, i, P, P, P, n, n, P]
         fk.restype = ext.restype = i
     return lib
 
@@ -99,11 +99,11 @@ def grid(batch, q_batch, p_batch) -> Grid | None:
     return None
 
 
-def fk_positions(lib, pose, link, lin, tool, base, g: Grid, out, workers: int) -> torch.Tensor:
+def fk_positions(lib, pose, link, lin, base, g: Grid, out, workers: int) -> torch.Tensor:
     """Positions of the grid `g` into out (A B, 3) contiguous, mm. pose (n, 3, Q + PAD) [cos q,
-    sin q, travel], link (n, 12, S + PAD) [R_i rows, t_i mm] (rows padded with their last
-    value: `torchcal.kinematics.mdh.pose_rows`, `link_rows`), lin (n,) int32 (1: prismatic),
-    tool (3,) mm, base (12,) [R_base rows, b mm] or None, all contiguous in out's dtype;
+    sin q, travel], link (n + 1, 12, S + PAD) [R_i rows, t_i mm; the start] (rows padded with
+    their last value: `torchcal.kinematics.mdh.pose_rows`, `link_rows`), lin (n,) int32 (1:
+    prismatic), base (12,) [R_base rows, b mm] or None, all contiguous in out's dtype;
     `workers` threads take pieces of PIECE pairs in turn."""
     fn = getattr(lib, f"fk_positions_{_SUFFIX[out.dtype]}")
     n = pose.shape[0]
@@ -111,7 +111,7 @@ def fk_positions(lib, pose, link, lin, tool, base, g: Grid, out, workers: int) -
 
     def run(k0):
         if fn(pose.data_ptr(), pose.shape[-1], g.qa, g.qv, link.data_ptr(), link.shape[-1], g.sa, g.sv, n,
-              lin.data_ptr(), tool.data_ptr(), bp, g.B, k0, min(total, k0 + PIECE), out.data_ptr()):
+              lin.data_ptr(), bp, g.B, k0, min(total, k0 + PIECE), out.data_ptr()):
             raise ValueError(f"fk_kernel.c: no joints (n = {n})")
 
     total = g.A * g.B
@@ -119,16 +119,16 @@ def fk_positions(lib, pose, link, lin, tool, base, g: Grid, out, workers: int) -
     return out
 
 
-def error_extremes(lib, pose, link, lin, tool, nominal, rot, a0: int, a1: int, res) -> None:
+def error_extremes(lib, pose, link, lin, nominal, rot, a0: int, a1: int, res) -> None:
     """For the points a0 .. a1 - 1 of pose (n, 3, N + PAD) against every set of link
-    (n, 12, M + PAD): res[a] (8,) = min and max of each axis of e = p - nominal[:, a] (then
+    (n + 1, 12, M + PAD): res[a] (8,) = min and max of each axis of e = p - nominal[:, a] (then
     turned by rot (3, 3) where given) and min and max of |e|^2 over the M sets (mm, mm^2); p
     in the joint-1 frame. nominal (3, N + PAD) mm, padded like pose (`nominal_rows`), res
     (N, 8); the rest as `fk_positions`."""
     fn = getattr(lib, f"error_extremes_{_SUFFIX[res.dtype]}")
     n = pose.shape[0]
     if fn(pose.data_ptr(), pose.shape[-1], link.data_ptr(), link.shape[-1], link.shape[-1] - PAD, n,
-          lin.data_ptr(), tool.data_ptr(), nominal.data_ptr(), 0 if rot is None else rot.data_ptr(), a0, a1,
+          lin.data_ptr(), nominal.data_ptr(), 0 if rot is None else rot.data_ptr(), a0, a1,
           res.data_ptr()):
         raise ValueError(f"fk_kernel.c: no joints (n = {n})")
 

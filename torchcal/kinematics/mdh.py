@@ -450,24 +450,31 @@ def pose_rows(q, chain: Chain) -> torch.Tensor:
 
 def link_rows(chain: Chain, params) -> torch.Tensor:
     """The link factors of the compiled kernel (`fk_native`): params (S, n, 5) or None ->
-    (n, 12, S + fk_native.PAD) (S = 1 without params) [rows of R_i, t_i mm] of the chain's
-    table with the deviations (`_link_rotations`), each row padded with copies of its last
-    value, contiguous."""
+    (n + 1, 12, S + fk_native.PAD) (S = 1 without params): per link the rows of R_i and t_i
+    mm of the chain's table with the deviations (`_link_rotations`), then the start of the
+    recursion u = R_(n-1) tool + t_(n-1) mm (3 of the 12 rows, per set as in
+    `positions_into`); each row padded with copies of its last value, contiguous."""
     R, t = _link_rotations(chain.table, params)  # each (S, n) or (n,)
     rows = torch.stack([x for row in R for x in row] + list(t))  # (12, S, n) or (12, n)
     if rows.ndim == 2:
         rows = rows[:, None]
+    tp = chain.tool[:3, 3]
+    last = rows[..., -1]  # (12, S): link n - 1
+    start = torch.zeros_like(rows[..., :1])  # (12, S, 1)
+    for r in range(3):
+        start[r, :, 0] = last[9 + r] + last[3 * r] * tp[0] + last[3 * r + 1] * tp[1] + last[3 * r + 2] * tp[2]
+    rows = torch.cat([rows, start], dim=2)  # (12, S, n + 1)
     if rows.shape[1]:
         rows = torch.cat([rows, rows[:, -1:].expand(-1, fk_native.PAD, -1)], dim=1)
     return rows.permute(2, 0, 1).contiguous()
 
 
 def native_frames(chain: Chain):
-    """(lin (n,) int32: 1 at a prismatic joint, tool point (3,) mm, base (12,) [R_base rows,
-    b mm] or None without a base frame) of `chain` for the compiled kernel, contiguous."""
+    """(lin (n,) int32: 1 at a prismatic joint, base (12,) [R_base rows, b mm] or None without
+    a base frame) of `chain` for the compiled kernel, contiguous."""
     lin = chain.prismatic.to(torch.int32).contiguous()
     base = None if chain.plain_base else torch.cat([chain.base[:3, :3].reshape(9), chain.base[:3, 3]])
-    return lin, chain.tool[:3, 3].contiguous(), base
+    return lin, base
 
 
 def _native_positions(q, chain: Chain, params, out) -> bool:
@@ -487,8 +494,8 @@ def _native_positions(q, chain: Chain, params, out) -> bool:
         return False
     pose = pose_rows(q.reshape(-1, n), chain)
     link = link_rows(chain, None if params is None else params.reshape(-1, n, 5))
-    lin, tool, base = native_frames(chain)
-    fk_native.fk_positions(lib, pose, link, lin, tool, base, g, out.view(-1, 3), threads.workers())
+    lin, base = native_frames(chain)
+    fk_native.fk_positions(lib, pose, link, lin, base, g, out.view(-1, 3), threads.workers())
     return True
 
 

@@ -283,14 +283,14 @@ def _envelope_native(lib, chain, q, dev, nominal, rot, include_nominal, step, ba
     workers take blocks of `step` points in turn. rot (3, 3) or None: the base rotation."""
     N = q.shape[0]
     pose, link = K.pose_rows(q, chain), K.link_rows(chain, dev)
-    lin, tool, _ = K.native_frames(chain)
+    lin, _ = K.native_frames(chain)
     rot = None if rot is None else rot.contiguous()
     nominal = fk_native.nominal_rows(nominal)  # (3, N + PAD)
     res = torch.empty(N, 8, dtype=q.dtype)  # min e (3), max e (3), min |e|^2, max |e|^2
 
     def work(a0):
         a1 = min(N, a0 + step)
-        fk_native.error_extremes(lib, pose, link, lin, tool, nominal, rot, a0, a1, res)
+        fk_native.error_extremes(lib, pose, link, lin, nominal, rot, a0, a1, res)
         return a1 - a0
 
     for done in _map_chunks(work, range(0, N, step), threads):

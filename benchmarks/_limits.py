@@ -41,11 +41,13 @@ def rates(dtype, threads: int, chunk: int, repeats: int = 5) -> tuple[float, flo
 
 
 def print_limits(rate: float, flops: int, elems: int, dtype, threads: int, chunk: int, repeats: int = 5,
-                 unit: str = "pair") -> None:
-    """Print the compute and element-wise limits of a kernel measured at `rate` evaluations/s."""
+                 unit: str = "pair", label: str = "measured") -> tuple[float, float]:
+    """Print the compute and element-wise limits of a kernel measured at `rate` evaluations/s
+    (named `label`); returns them (evaluations/s)."""
     mm, op = rates(dtype, threads, chunk, repeats)
     lim_c, lim_e = mm / flops, op / elems
     print(f"  limit, compute: {flops} flops per {unit} at the matmul rate {mm / 1e9:.1f} GFLOP/s "
-          f"({threads} threads) = {lim_c / 1e6:.0f} M/s; measured {rate / 1e6:.1f} M/s = {100 * rate / lim_c:.0f} %")
+          f"({threads} threads) = {lim_c / 1e6:.0f} M/s; {label} {rate / 1e6:.1f} M/s = {100 * rate / lim_c:.0f} %")
     print(f"  limit, element-wise: {elems} element ops per {unit} at {op / 1e9:.2f} G/s (one fused op per "
-          f"worker, {threads} workers) = {lim_e / 1e6:.0f} M/s; measured = {100 * rate / lim_e:.0f} %")
+          f"worker, {threads} workers) = {lim_e / 1e6:.0f} M/s; {label} = {100 * rate / lim_e:.0f} %")
+    return lim_c, lim_e

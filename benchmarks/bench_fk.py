@@ -3,7 +3,11 @@
 The sweep of docs/paper.md evaluates every workspace point under many perturbed MD-H tables.
 This script times that workload, in one run on one machine, three ways:
 
-- torchcal: `Robot.fk(q, params)` with q (P, n) and params (M, 1, n, 5) -> (M, P, 3) mm;
+- torchcal: `Robot.fk(q, params)` with q (P, n) and params (M, 1, n, 5) -> (M, P, 3) mm,
+  twice, alternately: the compiled kernel it runs on a CPU (`torchcal.kinematics.fk_native`,
+  fk_kernel.c: one pass per pair, in registers) and the eager torch kernel it runs where
+  that is off (TORCHCAL_FK_KERNEL=torch) or not built, `torchcal.kinematics.mdh.positions_into`;
+  their ratio from the same run;
 - pytorch-kinematics: it cannot batch perturbed link parameters, so one chain per
   parameter set is built before the clock starts (its build time is reported, not
   counted) and `forward_kinematics` is called on all P poses per chain; a subset of the
@@ -11,11 +15,20 @@ This script times that workload, in one run on one machine, three ways:
 - numpy: a plain vectorised implementation, the 4x4 MD-H link matrices of the whole
   (chunked) batch multiplied along the chain with `np.matmul`.
 
-and, in the same run, the limits of the torchcal kernel (`torchcal.kinematics.mdh.positions_into`,
-6 fused element-wise torch ops per joint over 13 multiply-adds per pair): the compute limit,
-its flops per pair at the rate of a float matmul on the same threads, and the element-wise
-limit, its element operations per pair at the rate of one in-place fused op (addcmul_ with a
-broadcast operand, the kernel's commonest op) on chunk-sized buffers, one per worker.
+and, in the same run, the limits: the compute limit (both kernels: their flops per pair at
+the rate of a float matmul on the same threads) and the element-wise limit of the eager
+kernel (6 fused element-wise torch ops per joint over 13 multiply-adds per pair: its
+element operations per pair at the rate of one in-place fused op, addcmul_ with a broadcast
+operand, the kernel's commonest op, on chunk-sized buffers, one per worker), which the
+compiled kernel, making no element-wise passes, is not held to. What bounds the compiled
+kernel: it is also timed alone on one thread (its inputs made before the clock), writing
+all M P pairs to memory and writing an output that stays in cache; alike rates mean it is
+bound by its arithmetic, not by memory.
+
+Threads: `--threads N` sets TORCHCAL_THREADS, the workers `Robot.fk` splits its pairs over
+(`torchcal.threads.workers`); each runs one torch intra-op thread, the thread policy of
+`torchcal.threads.apply` (which sets torch's count to 1 at the first use of torchcal's API:
+the header prints both). numpy runs on one thread, pytorch-kinematics on torch's one.
 
 Figures are the median of several repeats (after one warm-up), printed with the targets
 (for torchcal also the pairs per CPU second of the process, the figure to compare on a
@@ -54,6 +67,8 @@ from pytorch_kinematics import transforms as pk_tf  # noqa: E402
 
 import torchcal  # noqa: E402
 from _limits import print_limits  # noqa: E402
+from torchcal import threads  # noqa: E402
+from torchcal.kinematics import fk_native  # noqa: E402
 from torchcal.kinematics import mdh as K  # noqa: E402
 
 TARGETS_CPU = {torch.float64: 60e6, torch.float32: 100e6}  # pairs/s on 2 quiet CPU cores
@@ -80,6 +95,18 @@ def _timed_pair(fa, fb, repeats, device):
             ts.append(time.perf_counter() - t0)
             cs.append(time.process_time() - c0)
     return tuple((statistics.median(t), min(t), max(t), statistics.median(c)) for t, c in (ta, tb))
+
+
+def _eager(fn):
+    """fn with the compiled FK kernel turned off while it runs (the eager torch kernel)."""
+    def run():
+        available = fk_native.available
+        fk_native.available = lambda *a: None
+        try:
+            return fn()
+        finally:
+            fk_native.available = available
+    return run
 
 
 def _timed(fn, repeats, device):
@@ -156,6 +183,30 @@ def pk_chain(robot, params, dtype, device):
         parent.children = [child]
         parent = child
     return pk.SerialChain(pk.Chain(root, dtype=dtype), "tcp", dtype=dtype).to(dtype=dtype, device=device)
+
+
+def kernel_alone(robot, q, params, repeats):
+    """Pairs per CPU second of the compiled kernel by itself on one thread, q (P, n), params
+    (M, n, 5): on all M sets (the output written to memory) and on the first k sets repeated
+    M / k times, k such that the output (k P pairs) fills at most 1 MiB and stays in cache.
+    Returns the two rates and k."""
+    lib = fk_native.available(q.device, q.dtype)
+    chain = robot.chain
+    lin, base = K.native_frames(chain)
+    pose = K.pose_rows(q, chain)
+    rates = []
+    k = max(1, min(params.shape[0], (1 << 20) // (3 * q.element_size() * q.shape[0])))
+    for sets, times in ((params.shape[0], 1), (k, max(1, params.shape[0] // k))):
+        link = K.link_rows(chain, params[:sets])
+        g = fk_native.grid((sets, q.shape[0]), (1, q.shape[0]), (sets, 1))
+        out = torch.empty(sets * q.shape[0], 3, dtype=q.dtype)
+
+        def run():
+            for _ in range(times):
+                fk_native.fk_positions(lib, pose, link, lin, base, g, out, 1)
+        t = _timed(run, repeats, q.device)
+        rates.append(sets * times * q.shape[0] / t[3])
+    return rates + [k]
 
 
 # -- the kernel's limits ------------------------------------------------------------------
@@ -237,11 +288,16 @@ def main(argv=None) -> int:
              else f"CPU ({platform.processor() or platform.machine()}, {os.cpu_count()} cores visible)")
     print(f"bench_fk: perturbed forward kinematics, {robot.name} (n = {n}), "
           f"{M} parameter sets x {P} poses = {pairs:,} pairs")
-    print(f"  device: {where}; torch {torch.__version__} with {torch.get_num_threads()} threads, "
-          f"pytorch-kinematics {_version('pytorch_kinematics')}, numpy {np.__version__}")
+    native = fk_native.available(device, torch.float64) is not None
+    print(f"  device: {where}; torch {torch.__version__}, pytorch-kinematics {_version('pytorch_kinematics')}, "
+          f"numpy {np.__version__}; load average {os.getloadavg()[0]:.1f} at start")
+    print(f"  threads: Robot.fk splits its pairs over {threads.workers()} workers (--threads, TORCHCAL_THREADS), "
+          f"each on {torch.get_num_threads()} torch intra-op thread (torchcal's policy, torchcal.threads)")
     print(f"  median of {args.repeats} repeats after one warm-up; [slowest .. fastest] in brackets")
-    print(f"  torchcal: Robot.fk(q (P, n), params (M, 1, n, 5)) -> (M, P, 3), chunk "
-          f"{chunk or 'default (per dtype, below)'}")
+    print(f"  torchcal: Robot.fk(q (P, n), params (M, 1, n, 5)) -> (M, P, 3): "
+          + ("the compiled kernel (fk_kernel.c) and the eager torch kernel (positions_into), alternately"
+             if native else "the eager torch kernel only: the compiled one is off or not built here")
+          + (f"; eager chunk {chunk or 'default (per dtype, below)'}" if not gpu else f"; chunk {chunk}"))
     print(f"  pytorch-kinematics cannot batch perturbed link parameters: one chain per parameter set "
           f"(built before timing,\n    not counted), forward_kinematics on all {P} poses per chain; "
           f"{pk_sets} of the {M} sets timed, rate scaled")
@@ -254,23 +310,36 @@ def main(argv=None) -> int:
         r = robot.to(device=device, dtype=dtype)
         q, params = q64.to(device, dtype), p64.to(device, dtype)
 
-        # torchcal
+        # torchcal: the compiled kernel and the eager one, alternately
         ck = chunk or K.chunk_for(device, dtype)
-        if args.compare_chunk:
-            t_tc, t_cmp = _timed_pair(lambda: r.fk(q, params, chunk=ck),
-                                      lambda: r.fk(q, params, chunk=args.compare_chunk), args.repeats, device)
-        else:
-            t_tc = _timed(lambda: r.fk(q, params, chunk=ck), args.repeats, device)
         target = TARGET_GPU if gpu else TARGETS_CPU[dtype]
-        cpu_note = "" if gpu else f"; {pairs / t_tc[3] / 1e6:.1f} M pairs per CPU second"
-        rate_tc = _line(f"torchcal Robot.fk, chunk {ck}", pairs, t_tc, target, note=cpu_note)
+        eager = _eager(lambda: r.fk(q, params, chunk=ck))
+        if native and not gpu:
+            t_nat, t_tc = _timed_pair(lambda: r.fk(q, params), eager, args.repeats, device)
+            rate_nat = _line("torchcal Robot.fk, compiled", pairs, t_nat, target,
+                             note=f"; {pairs / t_nat[3] / 1e6:.1f} M pairs per CPU second")
+            rate_tc = _line(f"torchcal Robot.fk, eager, chunk {ck}", pairs, t_tc,
+                            note=f"{pairs / t_tc[3] / 1e6:.1f} M pairs per CPU second")
+            err_nat = (r.fk(q, params) - eager()).abs().max().item()
+            print(f"  compiled / eager {rate_nat / rate_tc:17.2f} x by the wall, {t_tc[3] / t_nat[3]:.2f} x per CPU "
+                  f"second; largest difference {err_nat:.2e} mm")
+            alone, cached, k = kernel_alone(r, q, params[:, 0], args.repeats)
+            print(f"  the compiled kernel alone, one thread (factors made and output allocated before the clock): "
+                  f"{alone / 1e6:.1f} M pairs per CPU second; on {k} sets repeated (an output that stays in "
+                  f"cache): {cached / 1e6:.1f}")
+        else:
+            t_tc = _timed(eager, args.repeats, device)
+            cpu_note = "" if gpu else f"; {pairs / t_tc[3] / 1e6:.1f} M pairs per CPU second"
+            rate_tc = rate_nat = _line(f"torchcal Robot.fk, eager, chunk {ck}", pairs, t_tc, target, note=cpu_note)
         out_tc = r.fk(q, params, chunk=ck)  # (M, P, 3)
         if args.compare_chunk:
-            same = torch.equal(r.fk(q, params, chunk=args.compare_chunk), out_tc)
-            _line(f"torchcal Robot.fk, chunk {args.compare_chunk}", pairs, t_cmp,
-                  note=f"(alternately; {'the same bits' if same else 'DIFFERENT results'}; "
-                       f"{rate_tc / _rate(pairs, t_cmp[0]):.2f}x; {pairs / t_cmp[3] / 1e6:.1f} M pairs per CPU "
-                       f"second: {t_cmp[3] / t_tc[3]:.2f}x)")
+            e_cmp = _eager(lambda: r.fk(q, params, chunk=args.compare_chunk))
+            t_a, t_cmp = _timed_pair(eager, e_cmp, args.repeats, device)
+            same = torch.equal(e_cmp(), eager())
+            _line(f"torchcal Robot.fk, eager, chunk {args.compare_chunk}", pairs, t_cmp,
+                  note=f"(alternately with chunk {ck}; {'the same bits' if same else 'DIFFERENT results'}; "
+                       f"{t_cmp[0] / t_a[0]:.2f}x its time; {pairs / t_cmp[3] / 1e6:.1f} M pairs per CPU "
+                       f"second: {t_cmp[3] / t_a[3]:.2f}x)")
 
         # pytorch-kinematics: one chain per parameter set, all poses per call
         t0 = time.perf_counter()
@@ -294,9 +363,12 @@ def main(argv=None) -> int:
         err_np = np.abs(numpy_fk(qn, tn, pn, bn, tooln) - out_tc[:np_sets].cpu().numpy()).max()
 
         if not gpu:
-            print_limits(rate_tc, *kernel_counts(n, robot.chain.plain_base), dtype, args.threads, ck,
-                         args.repeats)
-        ratio_pk, ratio_np = rate_tc / rate_pk, rate_tc / rate_np
+            lim_c, _ = print_limits(rate_tc, *kernel_counts(n, robot.chain.plain_base), dtype, args.threads, ck,
+                                    args.repeats, label="eager")
+            if native:
+                print(f"  compiled: {100 * rate_nat / lim_c:.0f} % of the compute limit; it makes no element-wise "
+                      f"passes ({rate_nat / rate_tc:.1f}x the eager kernel)")
+        ratio_pk, ratio_np = rate_nat / rate_pk, rate_nat / rate_np
         ok = "met" if ratio_pk >= TARGET_VS_PK else "BELOW TARGET"
         print(f"  torchcal / pytorch-kinematics   {ratio_pk:10.1f} x    target >= {TARGET_VS_PK:g} x: {ok}")
         print(f"  torchcal / numpy                {ratio_np:10.1f} x")

@@ -5,7 +5,10 @@
     .venv/bin/python benchmarks/bench_sweep.py --distributed [--n 1000000 --m 1000]
 
 Headline: N = 1e5 workspace points x M = 1e3 clearance states of the default KR 1000
-Titan model, on 2 CPU threads (torch.set_num_threads(2) and 2 sweep workers). Then a
+Titan model, on 2 CPU threads (torch.set_num_threads(2) and 2 sweep workers), twice: with
+the compiled envelope kernel (fk_kernel.c, `torchcal.kinematics.fk_native.error_extremes`)
+and with the eager torch kernel (`outer_positions`, TORCHCAL_FK_KERNEL=torch: the code
+before it), one after the other, their ratio and the largest difference of the results. Then a
 scaling table N = 1e3 .. 1e6 at M = 1e3 (at N = 1e6 M = 1e3 is run if the N = 1e5 time
 predicts less than 3 minutes, else M = 1e2, and the table says so). Where a CUDA device
 is visible, the headline sweep also runs on it (`sweep(..., device="cuda")`, after a
@@ -115,6 +118,7 @@ def child(n: int, m: int, threads: int) -> dict:
         "peak_mb": peak, "rss0_mb": rss0, "results_mb": results / 2**20,
         "dense_mb": n * m * 3 * 8 / 2**20,
         "r_set_min": float(r.r_set.min()), "share_r_set_1": float((r.r_set >= 1).double().mean()),
+        "dist_upper": r.dist_upper.tolist() if n <= 100_000 else None,
     }
 
 
@@ -127,8 +131,17 @@ def sweep_counts(n: int) -> tuple[int, int]:
     return 26 * n + 16, 18 * n + 14
 
 
-def run_child(n: int, m: int, threads: int = THREADS) -> dict:
+def compiled_counts(n: int) -> int:
+    """Flops per (point, state) of the compiled envelope kernel for n joints: the recursion
+    of `positions_into` (24 per joint after the last, 6 for the last rotation), the error
+    (3), |e|^2 (5) and the running extremes (8 comparisons)."""
+    return 24 * n - 2
+
+
+def run_child(n: int, m: int, threads: int = THREADS, eager: bool = False) -> dict:
     env = dict(os.environ, OMP_NUM_THREADS=str(threads), MKL_NUM_THREADS=str(threads))
+    if eager:
+        env["TORCHCAL_FK_KERNEL"] = "torch"
     out = subprocess.run([sys.executable, __file__, "--child", str(n), str(m), str(threads)],
                          capture_output=True, text=True, env=env, check=False)
     if out.returncode != 0:
@@ -279,17 +292,27 @@ def main(argv=None) -> int:
         return 0
 
     head = run_child(100_000, 1000)
+    before = run_child(100_000, 1000, eager=True)
+    diff = max(abs(a - b) for a, b in zip(head.pop("dist_upper"), before.pop("dist_upper")))
     print("\nheadline: N = 1e5 points x M = 1e3 clearance states")
-    print(f"  time {head['t_sweep_s']:.1f} s for the sweep (+{head['t_sample_s']:.1f} s sampling), "
-          f"{head['ns_per_eval']:.0f} ns per (point, state)")
+    print(f"  time {head['t_sweep_s']:.2f} s for the sweep (+{head['t_sample_s']:.1f} s sampling), "
+          f"{head['ns_per_eval']:.1f} ns per (point, state), {head['cpu_sweep_s']:.2f} s CPU")
+    print(f"  the eager kernel (TORCHCAL_FK_KERNEL=torch, the code before), just after: {before['t_sweep_s']:.2f} s, "
+          f"{before['ns_per_eval']:.1f} ns per (point, state), {before['cpu_sweep_s']:.2f} s CPU: compiled "
+          f"{before['t_sweep_s'] / head['t_sweep_s']:.2f}x faster by the wall, "
+          f"{before['cpu_sweep_s'] / head['cpu_sweep_s']:.2f}x by CPU; largest dist_upper difference {diff:.2e} mm; "
+          f"load average {os.getloadavg()[0]:.1f}")
     print(f"  memory: {head['rss0_mb']:.0f} MB resident before the sweep (Python, torch, q), the sweep "
           f"adds {head['peak_mb'] - head['rss0_mb']:.0f} MB at its peak (results {head['results_mb']:.0f} MB); "
           f"an N x M x 3 float64 error tensor alone would be {head['dense_mb']:,.0f} MB")
     print(f"  R_set min {head['r_set_min']:.3f}, share of points with R_set = 1: {head['share_r_set_1']:.2f}")
     from _limits import print_limits
     from torchcal.reliability.sweep import DEFAULT_CHUNK
-    print_limits(1e9 / head["ns_per_eval"], *sweep_counts(6), torch.float64, THREADS, DEFAULT_CHUNK,
-                 unit="(point, state)")
+    lim_c, _ = print_limits(1e9 / before["ns_per_eval"], *sweep_counts(6), torch.float64, THREADS, DEFAULT_CHUNK,
+                            unit="(point, state)", label="eager (whole sweep)")
+    lim_n = lim_c * sweep_counts(6)[0] / compiled_counts(6)
+    print(f"  compiled: {compiled_counts(6)} flops per (point, state): compute limit {lim_n / 1e6:.0f} M/s; the whole "
+          f"sweep {1e3 / head['ns_per_eval']:.1f} M/s = {100 * 1e9 / head['ns_per_eval'] / lim_n:.0f} %")
     if torch.cuda.is_available():  # the same sweep on the GPU, next to the CPU figure
         g = gpu_case(100_000, 1000)
         print(f"  GPU ({g['device']}): {g['t_sweep_s']:.2f} s, {g['ns_per_eval']:.2f} ns per (point, state), "

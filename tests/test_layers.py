@@ -251,7 +251,7 @@ def test_library_messages_name_no_command_line_option():
 # the layers of docs/design.md ("Layers"): a unit is a subpackage or a top-level module
 LAYERS = {
     1: ["errors", "rotations", "statistics", "metrics", "threads", "defaults", "_lazy", "folds", "kernel_ridge",
-        "kinematics"],
+        "native", "kinematics"],
     2: ["robots", "measurements"],
     3: ["effects", "reliability", "partition"],
     4: ["calibration"],

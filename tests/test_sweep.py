@@ -519,3 +519,42 @@ def test_a_record_line_saved_back_by_a_spreadsheet_is_named(kr, tmp_path):
     assert bad.read_text().startswith('"# torchcal-sweep/2 {""made_for""')
     with pytest.raises(InputError, match=rf"^{bad}: line 1: the robot record was saved back as quoted CSV cells"):
         read_sweep(bad)
+
+
+@pytest.mark.parametrize("dtype", (torch.float64, torch.float32))
+def test_compiled_envelope_equals_the_eager_one(kr, monkeypatch, dtype):
+    """The envelope by the compiled kernel (fk_kernel.c: `fk_native.error_extremes`) and by the
+    eager torch kernel (`outer_positions`, where the kernel is off), with a rotated base, a tool
+    offset, a prismatic joint, a ragged last vector of sets and several workers."""
+    import dataclasses
+
+    from torchcal.kinematics import fk_native
+    if fk_native.kernel() is None:
+        pytest.skip("no C compiler here: fk_kernel.c is not built")
+    base = torch.eye(4, dtype=torch.float64)
+    base[:3, :3] = torch.linalg.matrix_exp(torch.tensor([[0.0, -0.3, 0.2], [0.3, 0.0, -0.1],
+                                                          [-0.2, 0.1, 0.0]], dtype=torch.float64))
+    base[:3, 3] = torch.tensor([100.0, -50.0, 20.0])
+    tool = torch.eye(4, dtype=torch.float64)
+    tool[:3, 3] = torch.tensor([30.0, -20.0, 250.0])
+    prismatic = torch.zeros(kr.n, dtype=torch.bool)
+    prismatic[2] = True
+    robot = dataclasses.replace(kr, base=base, tool=tool, prismatic=prismatic)
+    q = sample_workspace(kr, 23, seed=8)
+    dev = ClearanceModel.defaults(kr).sample(kr, 37, torch.Generator().manual_seed(0)) * 20  # mm-sized errors
+    runs = []
+    run = fk_native.error_extremes
+    monkeypatch.setattr(fk_native, "error_extremes", lambda *a: runs.append(a[-3:-1]) or run(*a))
+    compiled = sweep(robot, q, deviations=dev, include_nominal=False, chunk=200, threads=2, dtype=dtype)
+    assert sorted(runs) == [(0, 16), (16, 23)]  # 200 // 37 points per call, rounded to a multiple of 16
+    monkeypatch.setattr(fk_native, "available", lambda *a: None)
+    eager = sweep(robot, q, deviations=dev, include_nominal=False, chunk=200, threads=2, dtype=dtype)
+    assert len(runs) == 2
+    tol = 1e-9 if dtype == torch.float64 else 2e-3  # float32: rounding of positions of some 3000 mm
+    assert float(compiled.dist_upper.min()) > 0.5
+    for f in ("err_lower", "err_upper", "dist_lower", "dist_upper"):
+        torch.testing.assert_close(getattr(compiled, f), getattr(eager, f), rtol=0, atol=tol)
+    if dtype == torch.float64:  # and both against Robot.fk's pairs
+        err = robot.fk(q[:, None], dev[None]) - robot.fk(q)[:, None]  # (23, 37, 3)
+        torch.testing.assert_close(compiled.err_lower, err.amin(1), rtol=0, atol=1e-9)
+        torch.testing.assert_close(compiled.dist_upper, err.norm(dim=-1).amax(1), rtol=0, atol=1e-9)

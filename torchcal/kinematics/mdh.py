@@ -19,7 +19,10 @@ passes float32. Shapes, batch dims first:
 
 The kernels check nothing: `torchcal.robots.robot.Robot` validates user input once and calls
 them. `fk_positions` chunks its work along the largest broadcast batch dim so that the
-temporaries stay bounded (and cache-sized) whatever the batch.
+temporaries stay bounded (and cache-sized) whatever the batch; without gradients on a CPU it
+runs the compiled kernel of `torchcal.kinematics.fk_native` instead (fk_kernel.c, the
+recursion of `positions_into` in registers; `pose_rows`, `link_rows` and `native_frames`
+make its inputs), and `positions_into` stays the reference and the fallback.
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ import numpy as np
 import torch
 
 from torchcal import threads
+from torchcal.kinematics import fk_native
 from torchcal.kinematics.chain import Chain
 
 PARAM_NAMES = ("dtheta", "dd", "da", "dalpha", "dbeta")
@@ -374,11 +378,14 @@ def fk_positions(q, chain: Chain, params=None, *, chunk: int | None = None) -> t
     """TCP positions for every (pose, parameter set) of the broadcast batch.
 
     q (..., n) rad / mm, params (..., n, 5) or None -> (..., 3) mm (`positions`).
-    Work is cut along the largest broadcast batch dim into pieces of about `chunk`
-    evaluations (default `chunk_for` the device and, for the in-place kernel, the dtype),
-    so temporaries stay bounded and on a CPU in its L2 cache; the output
-    is the full (..., 3). Without autograd or vmap on the inputs the chunks run the
-    in-place kernel `positions_into`; with them, `positions`.
+    Without autograd or vmap on the inputs, on a CPU in float64 or float32, the compiled
+    kernel runs (`fk_native`: one pass per pair, all in registers; `chunk` does not apply),
+    where it is built and the batch is a grid it serves (`fk_native.grid`: e.g. q (P, n)
+    with params (M, 1, n, 5), or q and params with the same batch). Otherwise work is cut
+    along the largest broadcast batch dim into pieces of about `chunk` evaluations (default
+    `chunk_for` the device and, for the in-place kernel, the dtype), so temporaries stay
+    bounded and on a CPU in its L2 cache; the output is the full (..., 3). Without autograd
+    or vmap the chunks run the in-place kernel `positions_into`; with them, `positions`.
     """
     table = chain.table
     qb = q.shape[:-1]
@@ -390,6 +397,8 @@ def fk_positions(q, chain: Chain, params=None, *, chunk: int | None = None) -> t
     if (total <= chunk or len(batch) == 0) and not plain:
         return positions(q, chain, params)
     out = torch.empty(*batch, 3, dtype=table.dtype, device=table.device)
+    if plain and _native_positions(q, chain, params, out):
+        return out
     if total <= chunk or len(batch) == 0:
         return positions_into(q, chain, params, out)
     # align leading dims, pick the largest batch dim to cut along
@@ -421,6 +430,73 @@ def fk_positions(q, chain: Chain, params=None, *, chunk: int | None = None) -> t
         return out
     _map_single_threaded(run, starts, workers)
     return out
+
+
+def pose_rows(q, chain: Chain) -> torch.Tensor:
+    """The pose factors of the compiled kernel (`fk_native`): q (Q, n) rad / mm -> (n, 3,
+    Q + fk_native.PAD) [cos q, sin q, q] per joint (cos 1 and sin 0 at a prismatic joint),
+    each row padded with copies of its last value, contiguous."""
+    Q = q.shape[0]
+    out = torch.empty(q.shape[1], 3, Q + fk_native.PAD, dtype=q.dtype, device=q.device)
+    c, s, qj = out[..., :Q].unbind(1)  # each (n, Q), rows contiguous
+    qj.copy_(q.T)
+    qr = qj.masked_fill(chain.prismatic[:, None], 0.0) if chain.linear else qj
+    torch.cos(qr, out=c)
+    torch.sin(qr, out=s)
+    if Q:
+        out[..., Q:] = out[..., Q - 1:Q]
+    return out
+
+
+def link_rows(chain: Chain, params) -> torch.Tensor:
+    """The link factors of the compiled kernel (`fk_native`): params (S, n, 5) or None ->
+    (n + 1, 12, S + fk_native.PAD) (S = 1 without params): per link the rows of R_i and t_i
+    mm of the chain's table with the deviations (`_link_rotations`), then the start of the
+    recursion u = R_(n-1) tool + t_(n-1) mm (3 of the 12 rows, per set as in
+    `positions_into`); each row padded with copies of its last value, contiguous."""
+    R, t = _link_rotations(chain.table, params)  # each (S, n) or (n,)
+    rows = torch.stack([x for row in R for x in row] + list(t))  # (12, S, n) or (12, n)
+    if rows.ndim == 2:
+        rows = rows[:, None]
+    tp = chain.tool[:3, 3]
+    last = rows[..., -1]  # (12, S): link n - 1
+    start = torch.zeros_like(rows[..., :1])  # (12, S, 1)
+    for r in range(3):
+        start[r, :, 0] = last[9 + r] + last[3 * r] * tp[0] + last[3 * r + 1] * tp[1] + last[3 * r + 2] * tp[2]
+    rows = torch.cat([rows, start], dim=2)  # (12, S, n + 1)
+    if rows.shape[1]:
+        rows = torch.cat([rows, rows[:, -1:].expand(-1, fk_native.PAD, -1)], dim=1)
+    return rows.permute(2, 0, 1).contiguous()
+
+
+def native_frames(chain: Chain):
+    """(lin (n,) int32: 1 at a prismatic joint, base (12,) [R_base rows, b mm] or None without
+    a base frame) of `chain` for the compiled kernel, contiguous."""
+    lin = chain.prismatic.to(torch.int32).contiguous()
+    base = None if chain.plain_base else torch.cat([chain.base[:3, :3].reshape(9), chain.base[:3, 3]])
+    return lin, base
+
+
+def _native_positions(q, chain: Chain, params, out) -> bool:
+    """`positions_into` by the compiled kernel (`fk_native`) into out (..., 3) contiguous, on
+    `threads.workers()` threads; False (nothing written) where it does not serve: not built or
+    turned off, not a CPU float64 / float32 tensor, a batch that is no grid."""
+    lib = fk_native.available(out.device, out.dtype)
+    if lib is None or not out.is_contiguous():
+        return False
+    batch = out.shape[:-1]
+    n = chain.n
+    qb = (1,) * (len(batch) + 1 - q.ndim) + tuple(q.shape[:-1])
+    pb = () if params is None else tuple(params.shape[:-2])
+    pb = (1,) * (len(batch) - len(pb)) + pb
+    g = fk_native.grid(batch, qb, pb)
+    if g is None:
+        return False
+    pose = pose_rows(q.reshape(-1, n), chain)
+    link = link_rows(chain, None if params is None else params.reshape(-1, n, 5))
+    lin, base = native_frames(chain)
+    fk_native.fk_positions(lib, pose, link, lin, base, g, out.view(-1, 3), threads.workers())
+    return True
 
 
 def _plain(tensors) -> bool:

@@ -19,10 +19,10 @@ def variance_loglik(r3: np.ndarray, Bs: np.ndarray | None, logp: np.ndarray) -> 
     Bs (M, 3, K): TCP displacement per mrad of random tilt; logp = [log sigma^2,
     log tau_1^2, ...]. Bs None: isotropic sigma^2 only.
     """
-    S = np.exp(logp[0]) * np.eye(3)[None].repeat(len(r3), 0)
-    if Bs is not None and Bs.shape[-1]:
-        tau = np.exp(logp[1:]).repeat(Bs.shape[-1] // (len(logp) - 1))
-        S = S + np.einsum("mik,k,mjk->mij", Bs, tau, Bs)
+    if Bs is None or not Bs.shape[-1]:  # S = sigma^2 I: log det S = 3 log sigma^2
+        return -0.5 * (3 * logp[0] + np.einsum("mi,mi->m", r3, r3) / np.exp(logp[0]) + 3 * np.log(2 * np.pi))
+    tau = np.exp(logp[1:]).repeat(Bs.shape[-1] // (len(logp) - 1))
+    S = np.exp(logp[0]) * np.eye(3)[None].repeat(len(r3), 0) + np.einsum("mik,k,mjk->mij", Bs, tau, Bs)
     sign, logdet = np.linalg.slogdet(S)
     quad = np.einsum("mi,mi->m", r3, np.linalg.solve(S, r3[..., None])[..., 0])
     return -0.5 * (logdet + quad + 3 * np.log(2 * np.pi))

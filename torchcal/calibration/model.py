@@ -188,17 +188,24 @@ class CalibrationModel:
         parts = list(zip(self.effects, self.slices[1:]))
         # per hook: the inputs of the chain it adds to, and (slice, value, companion) per effect
         terms = {"joint_offset": [], "geometric_offset": [], "tool_point": [], "chain_scale": []}
+        cols_q = []  # (slice, joint index (k,), values (N, k)): joint offsets one joint per parameter
         for e, sl in parts:
             p = theta[sl]
             for hook, found in terms.items():
                 value = getattr(e, hook)(p, ctx)
-                if value is not None:
+                if value is None:
+                    continue
+                cols = e.joint_offset_columns(p, ctx) if hook == "joint_offset" else None
+                if cols is not None:
+                    cols_q.append((sl, *cols))
+                    found.append((sl, value, None))
+                else:
                     found.append((sl, value, getattr(e, hook + "_jacobian")(p, ctx)))
         q = q + sum(v for _, v, _ in terms["joint_offset"])
         geo = geo + sum(v for _, v, _ in terms["geometric_offset"])  # (N, n, 5) with per-row terms
         tool = tool + sum(v for _, v, _ in terms["tool_point"])
-        d_q, d_geo, d_tool = ([(sl, D) for sl, _, D in terms[h]] for h in ("joint_offset", "geometric_offset",
-                                                                             "tool_point"))
+        d_q, d_geo, d_tool = ([(sl, D) for sl, _, D in terms[h] if D is not None]
+                              for h in ("joint_offset", "geometric_offset", "tool_point"))
         scales = terms["chain_scale"]
         cj = K.chain_jacobians(q, robot.chain.to(theta).local, geo, tool_point=tool)
         N = q.shape[0]
@@ -212,6 +219,10 @@ class CalibrationModel:
             J[..., sl] += cj.dq @ D
             if rotation:
                 W[..., sl] += cj.wq @ D
+        for sl, idx, vals in cols_q:  # cj.dq @ D for the D of `joint_offset_columns`
+            J[..., sl] += cj.dq[:, :, idx] * vals.unsqueeze(1)
+            if rotation:
+                W[..., sl] += cj.wq[:, :, idx] * vals.unsqueeze(1)
         for sl, G in d_geo:  # (N, n, 5, k)
             G = G.reshape(N, 5 * n, -1)
             J[..., sl] += cj.dparams @ G

@@ -220,9 +220,11 @@ class CalibrationModel:
             if rotation:
                 W[..., sl] += cj.wq @ D
         for sl, idx, vals in cols_q:  # cj.dq @ D for the D of `joint_offset_columns`
-            J[..., sl] += cj.dq[:, :, idx] * vals.unsqueeze(1)
-            if rotation:
-                W[..., sl] += cj.wq[:, :, idx] * vals.unsqueeze(1)
+            for j, a, b in _runs(idx):  # a joint's parameters a..b-1: its dq column times their values
+                cols = slice(sl.start + a, sl.start + b)
+                J[..., cols].addcmul_(cj.dq[:, :, j, None], vals[:, None, a:b])  # in place, no temporary
+                if rotation:
+                    W[..., cols].addcmul_(cj.wq[:, :, j, None], vals[:, None, a:b])
         for sl, G in d_geo:  # (N, n, 5, k)
             G = G.reshape(N, 5 * n, -1)
             J[..., sl] += cj.dparams @ G
@@ -284,6 +286,16 @@ class CalibrationModel:
             if w is not None:
                 R = w @ R
         return J, W, R
+
+
+def _runs(idx) -> list:
+    """[(value, start, stop)]: the runs of equal consecutive values of idx (a list of ints)."""
+    out, a = [], 0
+    for i in range(1, len(idx) + 1):
+        if i == len(idx) or idx[i] != idx[a]:
+            out.append((idx[a], a, i))
+            a = i
+    return out
 
 
 def _times_shared(M: torch.Tensor, T: torch.Tensor) -> torch.Tensor:

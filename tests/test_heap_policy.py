@@ -1,6 +1,7 @@
 """`torchcal.threads.heap_policy`: set on glibc, left alone where the user set MALLOC_*."""
 
 import ctypes
+import os
 import sys
 
 import pytest
@@ -23,6 +24,6 @@ def test_environment_wins(monkeypatch):
 
 @pytest.mark.skipif(not _glibc(), reason="glibc only")
 def test_set_on_glibc(monkeypatch):
-    for k in [k for k in list(__import__("os").environ) if k.startswith("MALLOC_")]:
+    for k in [k for k in os.environ if k.startswith("MALLOC_")]:
         monkeypatch.delenv(k)
     assert threads.heap_policy() is True

@@ -163,9 +163,11 @@ class LinearRefit:
         _, self.pose_of_row, self.counts = np.unique(pose, return_inverse=True, return_counts=True)
         self._single = bool((self.counts == 1).all())
         self._e0 = self._e0b = None  # `residual` and `pose_residual` of the base alone, on first use
+        # one row per pose, in pose order: the pose-level problem is the row-level one
+        self.rows_are_poses = self._single and bool((self.pose_of_row == np.arange(len(self.counts))).all())
         self.Ab = self.pose_mean(A)
         self.rb = self.pose_mean(r[:, None])[:, 0]
-        self.Qb = self._new(np.zeros((len(self.rb), 0)), self.Ab, len(self.rb))
+        self.Qb = self.Q if self.rows_are_poses else self._new(np.zeros((len(self.rb), 0)), self.Ab, len(self.rb))
         self._parts = None  # `_fold_parts`, on first use
 
     @property
@@ -204,7 +206,8 @@ class LinearRefit:
 
     def pose_columns(self, C: np.ndarray | None) -> np.ndarray:
         """The same at pose level: an orthonormal basis (3P, kb) of what the pose means of C
-        add beyond span(pose means of A)."""
+        add beyond span(pose means of A). Where `rows_are_poses` it is `new_columns`(C),
+        bit for bit (a caller that has that may take it instead)."""
         return self._new(self.Qb, None if C is None or not C.size else self.pose_mean(C), len(self.rb))
 
     def residual(self, B: np.ndarray) -> np.ndarray:

@@ -225,14 +225,14 @@ class LinearRefit:
         return e - Bb @ (Bb.T @ e) if Bb.size else e.copy()
 
     def _fold_parts(self):
-        """(Q, r, Q^T r, per fold (test (3N,) bool, its torch mask, Q_t, r_t, Q_t^T Q_t,
+        """(Q, r, Q^T r, per fold (test (3N,) bool, its row indices (torch), Q_t, r_t, Q_t^T Q_t,
         Q_t^T r_t)) as torch tensors: what every `cross_validate` call shares, computed once."""
         if self._parts is None:
             Q, r = torch.from_numpy(self.Q), torch.from_numpy(self.r)
             parts = []
             for f in self.folds:
                 test = self.rows == f
-                tt = torch.from_numpy(test)
+                tt = torch.from_numpy(np.flatnonzero(test))  # the rows by index: a gather, not a mask
                 Qt, rt = Q[tt], r[tt]
                 parts.append((test, tt, Qt, rt, Qt.T @ Qt, Qt.T @ rt))
             self._parts = (Q, r, Q.T @ r, parts)

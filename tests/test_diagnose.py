@@ -207,3 +207,26 @@ def test_linear_base_with_a_column_in_the_span_of_the_others_cross_validates_lik
         held[test] = r[test] - A[test] @ coef
     cv, _ = lin.cross_validate(np.zeros((3 * N, 0)), None)
     assert cv == pytest.approx(float(np.sqrt((held.reshape(-1, 3) ** 2).sum(-1).mean())), rel=1e-9)
+
+
+def test_pose_level_test_of_single_row_poses():
+    """One row per pose in pose order: the pose-level basis and residual the pre-screen's
+    F-test takes from the row level are, bit for bit, what the pose means give; rows out of
+    pose order or poses with repeats keep the pose means (and differ from the rows)."""
+    import numpy as np
+
+    from torchcal.diagnosis.crossval import LinearRefit
+
+    rng = np.random.default_rng(3)
+    N = 80
+    A, r, C = rng.normal(size=(3 * N, 6)), rng.normal(size=3 * N), rng.normal(size=(3 * N, 2))
+    folds = rng.integers(0, 5, N)
+    lin = LinearRefit(r, A, folds, np.arange(N) * 2 + 5)
+    assert lin.rows_are_poses
+    Qb = LinearRefit._new(np.zeros((len(lin.rb), 0)), lin.Ab, len(lin.rb))  # the pose means' own basis
+    assert np.array_equal(Qb, lin.Qb)
+    Bb = LinearRefit._new(Qb, lin.pose_mean(C), len(lin.rb))
+    assert np.array_equal(Bb, lin.new_columns(C)) and np.array_equal(lin.pose_residual(Bb), lin.residual(Bb))
+    assert not LinearRefit(r, A, folds, rng.permutation(N)).rows_are_poses
+    repeats = LinearRefit(r, A, folds, np.arange(N) // 2)
+    assert not repeats.rows_are_poses and len(repeats.rb) == 3 * N // 2

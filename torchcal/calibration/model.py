@@ -188,17 +188,24 @@ class CalibrationModel:
         parts = list(zip(self.effects, self.slices[1:]))
         # per hook: the inputs of the chain it adds to, and (slice, value, companion) per effect
         terms = {"joint_offset": [], "geometric_offset": [], "tool_point": [], "chain_scale": []}
+        cols_q = []  # (slice, joint index (k,), values (N, k)): joint offsets one joint per parameter
         for e, sl in parts:
             p = theta[sl]
             for hook, found in terms.items():
                 value = getattr(e, hook)(p, ctx)
-                if value is not None:
+                if value is None:
+                    continue
+                cols = e.joint_offset_columns(p, ctx) if hook == "joint_offset" else None
+                if cols is not None:
+                    cols_q.append((sl, *cols))
+                    found.append((sl, value, None))
+                else:
                     found.append((sl, value, getattr(e, hook + "_jacobian")(p, ctx)))
         q = q + sum(v for _, v, _ in terms["joint_offset"])
         geo = geo + sum(v for _, v, _ in terms["geometric_offset"])  # (N, n, 5) with per-row terms
         tool = tool + sum(v for _, v, _ in terms["tool_point"])
-        d_q, d_geo, d_tool = ([(sl, D) for sl, _, D in terms[h]] for h in ("joint_offset", "geometric_offset",
-                                                                             "tool_point"))
+        d_q, d_geo, d_tool = ([(sl, D) for sl, _, D in terms[h] if D is not None]
+                              for h in ("joint_offset", "geometric_offset", "tool_point"))
         scales = terms["chain_scale"]
         cj = K.chain_jacobians(q, robot.chain.to(theta).local, geo, tool_point=tool)
         N = q.shape[0]
@@ -212,6 +219,12 @@ class CalibrationModel:
             J[..., sl] += cj.dq @ D
             if rotation:
                 W[..., sl] += cj.wq @ D
+        for sl, idx, vals in cols_q:  # cj.dq @ D for the D of `joint_offset_columns`
+            for j, a, b in _runs(idx):  # a joint's parameters a..b-1: its dq column times their values
+                cols = slice(sl.start + a, sl.start + b)
+                J[..., cols].addcmul_(cj.dq[:, :, j, None], vals[:, None, a:b])  # in place, no temporary
+                if rotation:
+                    W[..., cols].addcmul_(cj.wq[:, :, j, None], vals[:, None, a:b])
         for sl, G in d_geo:  # (N, n, 5, k)
             G = G.reshape(N, 5 * n, -1)
             J[..., sl] += cj.dparams @ G
@@ -273,6 +286,16 @@ class CalibrationModel:
             if w is not None:
                 R = w @ R
         return J, W, R
+
+
+def _runs(idx) -> list:
+    """[(value, start, stop)]: the runs of equal consecutive values of idx (a list of ints)."""
+    out, a = [], 0
+    for i in range(1, len(idx) + 1):
+        if i == len(idx) or idx[i] != idx[a]:
+            out.append((idx[a], a, i))
+            a = i
+    return out
 
 
 def _times_shared(M: torch.Tensor, T: torch.Tensor) -> torch.Tensor:

@@ -161,9 +161,13 @@ class LinearRefit:
         self.folds = np.unique(folds)
         pose = np.arange(len(r) // 3) if pose is None else np.asarray(pose)
         _, self.pose_of_row, self.counts = np.unique(pose, return_inverse=True, return_counts=True)
+        self._single = bool((self.counts == 1).all())
+        self._e0 = self._e0b = None  # `residual` and `pose_residual` of the base alone, on first use
+        # one row per pose, in pose order: the pose-level problem is the row-level one
+        self.rows_are_poses = self._single and bool((self.pose_of_row == np.arange(len(self.counts))).all())
         self.Ab = self.pose_mean(A)
         self.rb = self.pose_mean(r[:, None])[:, 0]
-        self.Qb = self._new(np.zeros((len(self.rb), 0)), self.Ab, len(self.rb))
+        self.Qb = self.Q if self.rows_are_poses else self._new(np.zeros((len(self.rb), 0)), self.Ab, len(self.rb))
         self._parts = None  # `_fold_parts`, on first use
 
     @property
@@ -174,6 +178,9 @@ class LinearRefit:
         """Per-pose mean (3P, c) of stacked row values X (3N, c) (x, y, z kept apart)."""
         X3 = X.reshape(-1, 3, X.shape[-1])
         out = np.zeros((self.n_poses, 3, X.shape[-1]))
+        if self._single:  # one row per pose: the means are the rows, reordered
+            out[self.pose_of_row] = X3
+            return out.reshape(-1, X.shape[-1])
         np.add.at(out, self.pose_of_row, X3)
         return (out / self.counts[:, None, None]).reshape(-1, X.shape[-1])
 
@@ -199,28 +206,33 @@ class LinearRefit:
 
     def pose_columns(self, C: np.ndarray | None) -> np.ndarray:
         """The same at pose level: an orthonormal basis (3P, kb) of what the pose means of C
-        add beyond span(pose means of A)."""
+        add beyond span(pose means of A). Where `rows_are_poses` it is `new_columns`(C),
+        bit for bit (a caller that has that may take it instead)."""
         return self._new(self.Qb, None if C is None or not C.size else self.pose_mean(C), len(self.rb))
 
     def residual(self, B: np.ndarray) -> np.ndarray:
         """Residual (3N,) of r on [A B] over all rows (B orthonormal, orthogonal to A)."""
-        e = self.r - self.Q @ (self.Q.T @ self.r)
-        return e - B @ (B.T @ e) if B.size else e
+        if self._e0 is None:
+            self._e0 = self.r - self.Q @ (self.Q.T @ self.r)
+        e = self._e0
+        return e - B @ (B.T @ e) if B.size else e.copy()
 
     def pose_residual(self, Bb: np.ndarray) -> np.ndarray:
         """Residual (3P,) of the pose means of r on [pose means of A, Bb]."""
-        e = self.rb - self.Qb @ (self.Qb.T @ self.rb)
-        return e - Bb @ (Bb.T @ e) if Bb.size else e
+        if self._e0b is None:
+            self._e0b = self.rb - self.Qb @ (self.Qb.T @ self.rb)
+        e = self._e0b
+        return e - Bb @ (Bb.T @ e) if Bb.size else e.copy()
 
     def _fold_parts(self):
-        """(Q, r, Q^T r, per fold (test (3N,) bool, its torch mask, Q_t, r_t, Q_t^T Q_t,
+        """(Q, r, Q^T r, per fold (test (3N,) bool, its row indices (torch), Q_t, r_t, Q_t^T Q_t,
         Q_t^T r_t)) as torch tensors: what every `cross_validate` call shares, computed once."""
         if self._parts is None:
             Q, r = torch.from_numpy(self.Q), torch.from_numpy(self.r)
             parts = []
             for f in self.folds:
                 test = self.rows == f
-                tt = torch.from_numpy(test)
+                tt = torch.from_numpy(np.flatnonzero(test))  # the rows by index: a gather, not a mask
                 Qt, rt = Q[tt], r[tt]
                 parts.append((test, tt, Qt, rt, Qt.T @ Qt, Qt.T @ rt))
             self._parts = (Q, r, Q.T @ r, parts)
@@ -241,11 +253,18 @@ class LinearRefit:
         k = Q.shape[1] + (0 if Bx is None else Bx.shape[1])
         Xr = Qr if Bx is None else torch.cat([Qr, Bx.T @ r])
         eye = torch.eye(k, dtype=r.dtype)
-        train = torch.empty(len(self.folds), len(self.r), dtype=r.dtype)  # (F, 3N): test rows unused
+        random = Bs is not None and Bs.shape[-1] > 0
+        # isotropic: a fold's variance is its training rows' mean square, from the normal
+        # equations (no pass over the training rows); with random terms their rows
+        train = torch.empty(len(self.folds), len(self.r), dtype=r.dtype) if random else None  # (F, 3N)
+        rss = np.empty(len(self.folds))  # isotropic: training residual sum of squares per fold
+        rr = float(r @ r)
         for i, (test, tt, Qt, rt, QtQt, Qtrt) in enumerate(parts):
             if not k:
                 held[test] = self.r[test]
-                train[i] = r
+                if random:
+                    train[i] = r
+                rss[i] = rr - float(rt @ rt)
                 continue
             # the blocks of X_t^T X_t and X_t^T r_t for X = [Q B], the Q blocks cached
             if Bx is None:
@@ -255,17 +274,24 @@ class LinearRefit:
                 QtB = Qt.T @ Bt
                 XtX = torch.cat([torch.cat([QtQt, QtB], 1), torch.cat([QtB.T, Bt.T @ Bt], 1)])
                 Xtr = torch.cat([Qtrt, Bt.T @ rt])
-            coef = torch.linalg.solve(eye - XtX, Xr - Xtr)
+            N_tr, Xr_tr = eye - XtX, Xr - Xtr  # the training rows' normal equations
+            coef = torch.linalg.solve(N_tr, Xr_tr)
             q_, b_ = coef[:Q.shape[1]], coef[Q.shape[1]:]
-            pred_t, pred = Qt @ q_, Q @ q_
+            pred_t = Qt @ q_
             if Bx is not None:
-                pred_t, pred = pred_t + Bt @ b_, pred + Bx @ b_
+                pred_t = pred_t + Bt @ b_
             held[test] = (rt - pred_t).numpy(force=True)
-            train[i] = r - pred
+            if random:
+                train[i] = r - (Q @ q_ if Bx is None else Q @ q_ + Bx @ b_)
+            else:  # |r_T - X_T c|^2 = r_T^T r_T - 2 c^T X_T^T r_T + c^T X_T^T X_T c
+                rss[i] = rr - float(rt @ rt) - 2 * float(coef @ Xr_tr) + float(coef @ (N_tr @ coef))
         # the variance model of every fold from its training rows, in one batched fit
         w = torch.from_numpy(rows3[None] != self.folds[:, None])  # (F, N)
-        logp = fit_variances(train.reshape(len(self.folds), -1, 3),
-                             None if Bs is None or not Bs.shape[-1] else torch.from_numpy(Bs), w).numpy(force=True)
+        if random:
+            logp = fit_variances(train.reshape(len(self.folds), -1, 3), torch.from_numpy(Bs), w).numpy(force=True)
+        else:  # `fit_variances`' closed form: the log mean square of the training rows
+            n_tr = w.sum(-1).clamp_min(1).numpy(force=True)
+            logp = np.log(np.maximum(rss / 3 / n_tr, 1e-300))[:, None]
         for i, f in enumerate(self.folds):
             t3 = rows3 == f
             ll[t3] = variance_loglik(held[self.rows == f].reshape(-1, 3), None if Bs is None else Bs[t3], logp[i])

@@ -85,9 +85,12 @@ def prescreen(robot, model, specs: list, base_fit, m, ctx, folds_: np.ndarray, *
         k = B.shape[1]
         e1 = lin_.residual(B)
         rss1 = float(e1 @ e1)
-        Bb = lin_.pose_columns(C)
+        if lin_.rows_are_poses:  # the pose-level problem is the row-level one: the same numbers
+            Bb, e0b, e1b = B, lin_.residual(np.zeros((len(lin_.r), 0))), e1
+        else:
+            Bb = lin_.pose_columns(C)
+            e0b, e1b = lin_.pose_residual(np.zeros((len(lin_.rb), 0))), lin_.pose_residual(Bb)
         kb = Bb.shape[1]
-        e0b, e1b = lin_.pose_residual(np.zeros((len(lin_.rb), 0))), lin_.pose_residual(Bb)
         rss0b, rss1b = float(e0b @ e0b), float(e1b @ e1b)
         p_f = 1.0
         if k and kb:

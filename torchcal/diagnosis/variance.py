@@ -19,10 +19,10 @@ def variance_loglik(r3: np.ndarray, Bs: np.ndarray | None, logp: np.ndarray) -> 
     Bs (M, 3, K): TCP displacement per mrad of random tilt; logp = [log sigma^2,
     log tau_1^2, ...]. Bs None: isotropic sigma^2 only.
     """
-    S = np.exp(logp[0]) * np.eye(3)[None].repeat(len(r3), 0)
-    if Bs is not None and Bs.shape[-1]:
-        tau = np.exp(logp[1:]).repeat(Bs.shape[-1] // (len(logp) - 1))
-        S = S + np.einsum("mik,k,mjk->mij", Bs, tau, Bs)
+    if Bs is None or not Bs.shape[-1]:  # S = sigma^2 I: log det S = 3 log sigma^2
+        return -0.5 * (3 * logp[0] + np.einsum("mi,mi->m", r3, r3) / np.exp(logp[0]) + 3 * np.log(2 * np.pi))
+    tau = np.exp(logp[1:]).repeat(Bs.shape[-1] // (len(logp) - 1))
+    S = np.exp(logp[0]) * np.eye(3)[None].repeat(len(r3), 0) + np.einsum("mik,k,mjk->mij", Bs, tau, Bs)
     sign, logdet = np.linalg.slogdet(S)
     quad = np.einsum("mi,mi->m", r3, np.linalg.solve(S, r3[..., None])[..., 0])
     return -0.5 * (logdet + quad + 3 * np.log(2 * np.pi))
@@ -88,30 +88,17 @@ def fit_variances(r3: torch.Tensor, Bs: torch.Tensor | None, w: torch.Tensor | N
     x, lo, hi = _variance_start(r3, Bs, w, K)
     if not K:
         return x
-    Bj = Bs.reshape(G, M, 3, K, 2).movedim(-2, -3)  # (G, M, K, 3, 2)
-    D = torch.cat([torch.eye(3, dtype=r3.dtype).expand(G, M, 1, 3, 3), _bmm(Bj, Bj.transpose(-1, -2))], 2)
-
-    def nll(x):
-        W, det = _inv3((D * x.exp()[:, None, :, None, None]).sum(2))  # (G, M, 3, 3), (G, M)
-        quad = (r3 * _mv(W, r3)).sum(-1)
-        val = 0.5 * (w * (torch.log(det.clamp_min(1e-300)) + quad)).sum(-1)
-        return torch.where((det <= 0).any(-1), torch.inf, val), W
-
+    nll, parts = _one_term(r3, Bs, w) if K == 1 else _terms(r3, Bs, w, K)
     f, W = nll(x)
     done = torch.zeros(G, dtype=torch.bool)
     for _ in range(iters):
         v = x.exp()
-        u = _mv(W, r3)  # S^-1 r (G, M, 3)
-        WD = _bmm(W.unsqueeze(2), D)  # (G, M, A, 3, 3)
-        Du = _mv(D, u.unsqueeze(2))  # (G, M, A, 3)
-        T = (WD.unsqueeze(3) * WD.transpose(-1, -2).unsqueeze(2)).sum((-2, -1))  # tr(W D_a W D_b)
-        Q = (Du.unsqueeze(3) * _mv(W.unsqueeze(2), Du).unsqueeze(2)).sum(-1)  # u^T D_a W D_b u
-        gv = 0.5 * (w[..., None] * (torch.diagonal(WD, dim1=-2, dim2=-1).sum(-1) - (Du * u[:, :, None]).sum(-1))).sum(1)
+        gv, Qs, Ts = parts(W)
         vv = v[:, :, None] * v[:, None, :]
         g = v * gv  # gradient in x
-        Hv = 0.5 * (w[..., None, None] * (2 * Q - T)).sum(1)
+        Hv = 0.5 * (2 * Qs - Ts)
         H = vv * Hv + torch.diag_embed(g)
-        F = vv * 0.5 * (w[..., None, None] * T).sum(1)
+        F = vv * 0.5 * Ts
         free = ~(((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0)))  # bounds that hold stay fixed
         keep = free.to(r3.dtype)
         mask, fixed = keep[:, :, None] * keep[:, None, :], torch.diag_embed(1 - keep)
@@ -130,7 +117,7 @@ def fit_variances(r3: torch.Tensor, Bs: torch.Tensor | None, w: torch.Tensor | N
             ft, Wt = nll(xt)
             ok = ~searched & (ft <= f + 1e-4 * (g * (xt - x)).sum(-1))
             x, f = torch.where(ok[:, None], xt, x), torch.where(ok, ft, f)
-            W = torch.where(ok[:, None, None, None], Wt, W)
+            W = torch.where(ok.view(-1, *[1] * (W.dim() - 1)), Wt, W)
             searched = searched | ok
             if k == 0:
                 full = ok  # the full step was taken
@@ -149,9 +136,73 @@ def fit_variances(r3: torch.Tensor, Bs: torch.Tensor | None, w: torch.Tensor | N
             ft, Wt = nll(xt)
             grow = grow & (ft < f)
             x, f = torch.where(grow[:, None], xt, x), torch.where(grow, ft, f)
-            W = torch.where(grow[:, None, None, None], Wt, W)
+            W = torch.where(grow.view(-1, *[1] * (W.dim() - 1)), Wt, W)
             t *= 2
     return x
+
+
+def _terms(r3: torch.Tensor, Bs: torch.Tensor, w: torch.Tensor, K: int):
+    """(nll, parts) of `fit_variances` for K random terms, by the 3 x 3 algebra per row:
+    nll(x) -> (negative log-likelihood (G,), W = S^-1 (G, M, 3, 3)); parts(W) -> (the
+    gradient in the variances v = exp(x) (G, A), and over the rows, weighted, Q_ab =
+    u^T D_a W D_b u and T_ab = tr(W D_a W D_b) (G, A, A)), u = W r, D_0 = I, D_j = B_j B_j^T."""
+    G, M, _ = r3.shape
+    Bj = Bs.reshape(G, M, 3, K, 2).movedim(-2, -3)  # (G, M, K, 3, 2)
+    D = torch.cat([torch.eye(3, dtype=r3.dtype).expand(G, M, 1, 3, 3), _bmm(Bj, Bj.transpose(-1, -2))], 2)
+
+    def nll(x):
+        W, det = _inv3((D * x.exp()[:, None, :, None, None]).sum(2))  # (G, M, 3, 3), (G, M)
+        quad = (r3 * _mv(W, r3)).sum(-1)
+        val = 0.5 * (w * (torch.log(det.clamp_min(1e-300)) + quad)).sum(-1)
+        return torch.where((det <= 0).any(-1), torch.inf, val), W
+
+    def parts(W):
+        u = _mv(W, r3)  # S^-1 r (G, M, 3)
+        WD = _bmm(W.unsqueeze(2), D)  # (G, M, A, 3, 3)
+        Du = _mv(D, u.unsqueeze(2))  # (G, M, A, 3)
+        T = (WD.unsqueeze(3) * WD.transpose(-1, -2).unsqueeze(2)).sum((-2, -1))  # tr(W D_a W D_b)
+        Q = (Du.unsqueeze(3) * _mv(W.unsqueeze(2), Du).unsqueeze(2)).sum(-1)  # u^T D_a W D_b u
+        gv = 0.5 * (w[..., None] * (torch.diagonal(WD, dim1=-2, dim2=-1).sum(-1) - (Du * u[:, :, None]).sum(-1))).sum(1)
+        return gv, (w[..., None, None] * Q).sum(1), (w[..., None, None] * T).sum(1)
+
+    return nll, parts
+
+
+def _one_term(r3: torch.Tensor, Bs: torch.Tensor, w: torch.Tensor):
+    """`_terms` for one random term (K = 1), in each row's eigenbasis of B B^T: with
+    B B^T = U diag(lam) U^T and c = U^T r, S = U diag(e) U^T, e_i = v_0 + v_1 lam_i, so
+    log det S = sum log e_i, r^T S^-1 r = sum c_i^2 / e_i, and with d_0 = 1, d_1 = lam:
+    tr(W D_a) = sum d_a / e, u^T D_a u = sum d_a c^2 / e^2, T_ab = sum d_a d_b / e^2,
+    Q_ab = sum d_a d_b c^2 / e^3 (the same function and derivatives, per row 3 scalars
+    instead of 3 x 3 matrices). The state passed from nll to parts is e (G, M, 3)."""
+    G, M, _ = r3.shape
+    BBt = Bs @ Bs.transpose(-1, -2)  # (G, M, 3, 3) or (M, 3, 3)
+    lam, U = torch.linalg.eigh(BBt)
+    lam = lam.clamp_min(0.0).expand(G, M, 3)
+    c2 = (U.transpose(-1, -2) @ r3.unsqueeze(-1)).squeeze(-1) ** 2  # (G, M, 3)
+    lam2 = lam * lam
+
+    def nll(x):
+        v = x.exp()
+        e = v[:, None, 0:1] + v[:, None, 1:2] * lam  # (G, M, 3)
+        det = e.prod(-1)
+        val = 0.5 * (w * (torch.log(det.clamp_min(1e-300)) + (c2 / e).sum(-1))).sum(-1)
+        return torch.where((det <= 0).any(-1), torch.inf, val), e
+
+    def parts(e):
+        ie = 1.0 / e
+        ie2 = ie * ie
+        g0 = ie - c2 * ie2
+        q0 = c2 * ie2 * ie
+        # per row: [sum g0, sum lam g0, sum ie2, sum lam ie2, sum lam^2 ie2, the same of q0]
+        per = torch.stack([g0.sum(-1), (lam * g0).sum(-1), ie2.sum(-1), (lam * ie2).sum(-1), (lam2 * ie2).sum(-1),
+                           q0.sum(-1), (lam * q0).sum(-1), (lam2 * q0).sum(-1)], -1)  # (G, M, 8)
+        s = (w.unsqueeze(-1) * per).sum(1)  # (G, 8)
+        T = torch.stack([torch.stack([s[:, 2], s[:, 3]], -1), torch.stack([s[:, 3], s[:, 4]], -1)], -2)
+        Q = torch.stack([torch.stack([s[:, 5], s[:, 6]], -1), torch.stack([s[:, 6], s[:, 7]], -1)], -2)
+        return 0.5 * s[:, :2], Q, T
+
+    return nll, parts
 
 
 def fit_variance(r3: np.ndarray, Bs: np.ndarray | None) -> np.ndarray:

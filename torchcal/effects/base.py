@@ -161,6 +161,14 @@ class Effect:
         return None
 
     # derivatives of the hooks w.r.t. p (module docstring); defaults: autodiff of the hook
+    def joint_offset_columns(self, p, ctx):
+        """`joint_offset_jacobian` of an effect whose every parameter moves one joint:
+        (joint index (k,) 0-based, values (N, k)), D[:, joint[c], c] = values[:, c] and 0
+        elsewhere; None (the default): use `joint_offset_jacobian`. Lets the model's
+        Jacobian take the columns as products instead of a batched matrix product with
+        the mostly zero D (the same numbers)."""
+        return None
+
     def joint_offset_jacobian(self, p, ctx):
         """(N, n, k) d joint_offset / d p."""
         return torch.func.jacfwd(lambda t: self.joint_offset(t, ctx))(p)

@@ -56,6 +56,11 @@ class GearPeriodic(Effect):
         coef = p.reshape(len(self.joints), len(self.harmonics), 2)
         return scatter_joints((self._basis(ctx) * coef).sum((-1, -2)), self.joints, ctx.q.shape[1])
 
+    def joint_offset_columns(self, p, ctx):
+        basis = self._basis(ctx).to(p)
+        per = 2 * len(self.harmonics)
+        return [j - 1 for j in self.joints for _ in range(per)], basis.reshape(basis.shape[0], -1)
+
     def joint_offset_jacobian(self, p, ctx):
         basis = self._basis(ctx).to(p)
         return joint_columns(basis.reshape(*basis.shape[:2], -1), self.joints, ctx.q.shape[1])

@@ -84,6 +84,9 @@ class JointPeriodic(Effect):
     def joint_offset(self, p, ctx):
         return (self._basis(ctx).to(p) * p) @ self._place(ctx).to(p)
 
+    def joint_offset_columns(self, p, ctx):
+        return [self.joints[i] - 1 for i in self._slot for _ in range(2)], self._basis(ctx).to(p)
+
     def joint_offset_jacobian(self, p, ctx):
         basis, place = self._basis(ctx).to(p), self._place(ctx).to(p)
         return basis.unsqueeze(1) * place.T.contiguous().unsqueeze(0)  # (N, n, 2m), contiguous

@@ -1,4 +1,4 @@
-"""`torchcal.threads.heap_policy`: set on glibc, left alone where the user set MALLOC_*."""
+"""`torchcal.threads`: the heap policy (`heap_policy`) set on glibc, left alone where the user set MALLOC_*."""
 
 import ctypes
 import os

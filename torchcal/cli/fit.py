@@ -37,8 +37,9 @@ def add_parser(sub):
     p.add_argument("--seed", type=seed_int, default=0, help="recorded in the provenance")
     p.add_argument("--sigma-mm", type=positive_float, default=SIGMA_MM,
                    help=f"position uncertainty of one measurement, mm (default {SIGMA_MM})")
-    p.add_argument("--sigma-deg", type=positive_float, default=SIGMA_DEG,
-                   help=f"orientation uncertainty (rx, ry, rz columns), deg (default {SIGMA_DEG})")
+    p.add_argument("--sigma-deg", type=positive_float, default=None,
+                   help=f"orientation uncertainty (rx, ry, rz columns), deg (default {SIGMA_DEG}; "
+                        f"ignored, with a warning, for data without them)")
     p.add_argument("--max-deviation-mm", type=nonneg_float, default=MAX_LENGTH_MM,
                    help=f"plausible scale of |dd|, |da| (the prior; default {MAX_LENGTH_MM}; 0 = no prior on dd, da)")
     p.add_argument("--max-deviation-deg", type=nonneg_float, default=MAX_ANGLE_DEG,
@@ -59,7 +60,7 @@ def add_parser(sub):
 def fit_file(args):
     """Read, fit (`torchcal.fit`); returns (measurements, FitResult)."""
     from torchcal.api import fit
-    from torchcal.cli._args import units
+    from torchcal.cli._args import sigma_deg, units
     from torchcal.effects.spec import parse_specs
     from torchcal.io.robot_file import robot as make_robot
 
@@ -71,7 +72,7 @@ def fit_file(args):
     from torchcal.cli._args import warnings_to_stderr
 
     with warnings_to_stderr(RowOrderWarning):  # backlash on rows sorted after the session: one line
-        return m, fit(robot, m, specs, robust=args.robust, sigma_mm=args.sigma_mm, sigma_deg=args.sigma_deg,
+        return m, fit(robot, m, specs, robust=args.robust, sigma_mm=args.sigma_mm, sigma_deg=sigma_deg(args, m),
                       max_length_mm=args.max_deviation_mm or None,  # 0 drops that prior only
                       max_angle_deg=args.max_deviation_deg or None,
                       residual_model=getattr(args, "residual_model", None), **units(args))

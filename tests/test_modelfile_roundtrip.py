@@ -65,7 +65,7 @@ def test_every_field_is_filled_by_this_fit(session):
     res, _, _, _ = session
     for f in dataclasses.fields(FitResult):
         # provenance: written by to_dict from its arguments; radius: calibrate's intervals; conditions:
-        # only with an effect that reads temp_c / payload_kg (its round trip: tests/test_condition_range.py)
+        # only with an effect that reads temp_c / payload_kg (its round trip: tests/test_joint_range_conditions.py)
         if f.name not in ("provenance", "radius", "conditions"):
             assert getattr(res, f.name) is not None, f.name
     assert res.robust == "huber" and res.sigma_mm == 0.02 and res.sigma_deg == 0.05

@@ -129,3 +129,14 @@ def test_measurements_built_in_memory_in_kelvin_are_named(fitted):
             torchcal.evaluate(torchcal.fit(rob, kelvin, ["thermal_expansion"]), kelvin.subset(slice(0, 0)))
     msgs = [str(x.message) for x in w if issubclass(x.category, ConditionWarning)]
     assert msgs and "look like kelvin" in msgs[0] and "row 1" in msgs[0], msgs
+
+
+def test_register_keeps_the_fitted_range_not_the_registration_datas(fitted):
+    """A registered model (a new frame on new rows) was still fitted on the old rows'
+    temperatures: it keeps their range (before: the registration rows' range, 30..34 degC)."""
+    rob, _, res = fitted
+    warm = session(rob, 30, 30.0, 34.0, seed=5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        reg = torchcal.register(res, warm)
+    assert reg.conditions == res.conditions

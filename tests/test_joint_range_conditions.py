@@ -140,3 +140,35 @@ def test_register_keeps_the_fitted_range_not_the_registration_datas(fitted):
         warnings.simplefilter("ignore")
         reg = torchcal.register(res, warm)
     assert reg.conditions == res.conditions
+
+
+def test_a_payload_beyond_the_fitted_payloads_is_named():
+    """joint_compliance reads the payload: hidden gravity deflection (tests/npsim.py
+    `physics_session`, payloads 0..rated); rows at twice the rated payload are named."""
+    from npsim import physics_session
+
+    rob = torchcal.robot(ROBOT)
+    q = random_poses(rob, 80, 8)
+    xyz, payload = physics_session(rob, q.numpy(), seed=9, hidden=["joint_compliance:2"])
+    m = Measurements(torch.arange(80), q, torch.from_numpy(xyz), payload_kg=torch.from_numpy(payload))
+    res = torchcal.fit(rob, m, ["joint_compliance:2"])
+    assert res.conditions == {"payload_kg": [float(payload.min()), float(payload.max())]}
+    _, msgs = caught(lambda: torchcal.evaluate(res, m))
+    assert msgs == []
+    heavy = Measurements(m.pose, m.q, m.xyz, payload_kg=torch.full((80,), 2.0 * rob.payload_kg, dtype=torch.float64))
+    _, msgs = caught(lambda: torchcal.evaluate(res, heavy))
+    assert len(msgs) == 1 and msgs[0].startswith("payload of 80 of 80 rows outside the fitted ") and \
+        f"(farthest {2.0 * rob.payload_kg:.4g} kg)" in msgs[0], msgs
+
+
+def test_export_with_data_outside_the_fitted_temperatures_is_named(fitted, tmp_path):
+    """export --data refits the geometry at the data's conditions: rows beyond the fitted
+    temperatures are named (inside: nothing)."""
+    from torchcal.api import export
+
+    rob, train, res = fitted
+    _, msgs = caught(lambda: export(res, table=tmp_path / "a.csv", data=train))
+    assert msgs == []
+    hot = Measurements(train.pose, train.q, train.xyz, temp_c=train.temp_c + 15.0)
+    _, msgs = caught(lambda: export(res, table=tmp_path / "b.csv", data=hot))
+    assert len(msgs) == 1 and msgs[0].startswith("temperature of ") and "80 rows" in msgs[0], msgs

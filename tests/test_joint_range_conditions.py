@@ -86,7 +86,7 @@ def test_compensate_and_accuracy_warn_at_a_temperature_outside(fitted):
     _, msgs = caught(lambda: accuracy(res, n=50, temp_c=22.0))
     assert msgs == []
     _, msgs = caught(lambda: accuracy(res, n=50, temp_c=45.0))
-    assert len(msgs) == 1 and "farthest 45 degC" in msgs[0], msgs
+    assert len(msgs) == 1 and "workspace poses outside the fitted" in msgs[0] and "farthest 45 degC" in msgs[0], msgs
 
 
 def test_model_file_keeps_the_range_and_an_older_file_says_nothing(fitted, tmp_path):

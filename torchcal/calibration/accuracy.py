@@ -137,6 +137,7 @@ def workspace_accuracy(model, theta: torch.Tensor, cov: torch.Tensor, *, n: int 
     import dataclasses
 
     from torchcal.calibration.joint_range import outside_range
+    from torchcal.calibration.mismatch import warn_outside_conditions
     from torchcal.effects import make_context
     from torchcal.errors import InputError
     from torchcal.robots.workspace import sample_workspace
@@ -155,9 +156,7 @@ def workspace_accuracy(model, theta: torch.Tensor, cov: torch.Tensor, *, n: int 
     N = q.shape[0]
     payload = torch.full((N,), robot.payload_kg / 2 if payload_kg is None else payload_kg, dtype=torch.float64)
     temp = torch.full((N,), temp_c, dtype=torch.float64)
-    from torchcal.calibration.mismatch import warn_outside_conditions
-    warn_outside_conditions(conditions, {"temp_c": temp[:1], "payload_kg": payload[:1]}, "accuracy conditions",
-                            stacklevel=2)
+    warn_outside_conditions(conditions, {"temp_c": temp, "payload_kg": payload}, "workspace poses", stacklevel=2)
     points = next((tuple(e.points) for e in model.effects if e.name == "tool_offset" and e.points), ())
     ids = [torch.full((N,), p, dtype=torch.int64) for p in points] or [None]  # several reflectors: the worst
     sigma = torch.stack([predicted_sigma(model, theta, cov, q, payload, temp, point=i) for i in ids]).amax(0)

@@ -60,7 +60,8 @@ def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     """Errors of the fitted model `fm` on measurements `m` (module doc): InputError for data
     that cannot come from the model (another robot, a moved measuring frame, units); one
     `CalibratedRangeWarning` (at `stacklevel`, counted from the caller) for rows outside
-    the calibrated range. Data of a point id the model was not fitted on
+    the calibrated range, one `ConditionRangeWarning` for rows at a temperature / payload
+    outside the range the model was fitted on (`fm.conditions`). Data of a point id the model was not fitted on
     (`torchcal.calibration.mismatch.point_ids_differ`): InputError for a model with one tool
     offset per point, else one `PointIdWarning`. Orientations (rx, ry, rz) that disagree
     with the nominal tool (`torchcal.calibration.mismatch.orientation_mismatch`): one

@@ -193,3 +193,22 @@ def reflectors_session(path, robot, n: int, points: dict, seed: int = 2, noise_m
             for i, (qq, p) in enumerate(zip(np.degrees(q), meas[pid])):
                 fh.write(",".join(map(repr, [i + 1, *qq.tolist(), *p.tolist()])) + f",{pid}\n")
     return dev, q, meas
+
+
+def thermal_session(robot, q, temp_c, seed, coefficient=2e-5, noise_mm=0.02):
+    """A "real" robot whose link lengths grow with temperature, measured at q (N, n) rad
+    and temp_c (N,) degC: every non-zero nominal length L (d, a) becomes
+    L (1 + coefficient (temp_c - 20)) (one coefficient for all, 1/K), plus seeded MD-H
+    deviations (dd, da in +-0.5 mm) and Gaussian noise. Returns xyz (N, 3) mm."""
+    rng = np.random.default_rng(seed)
+    n = robot.n
+    q, temp_c = np.asarray(q, dtype=float), np.asarray(temp_c, dtype=float)
+    dev = np.zeros((n, 5))
+    dev[:, [1, 2]] = rng.uniform(-0.5, 0.5, (n, 2))
+    lengths = robot.table.numpy()[:, 1:3]
+    xyz = np.empty((len(q), 3))
+    for i, (qi, t) in enumerate(zip(q, temp_c)):
+        d = dev.copy()
+        d[:, 1:3] += lengths * coefficient * (t - 20.0)
+        xyz[i] = numpy_fk(robot, qi[None], d)[0]
+    return xyz + rng.normal(0, noise_mm, xyz.shape)

@@ -358,3 +358,21 @@ def test_the_cli_writes_the_apis_model(interval, command):
     for key in cli:
         assert cli[key] == api[key], key
     assert cli["provenance"]["input"] == str(data) and len(cli["provenance"]["input_sha256"]) == 64
+
+
+def test_sigma_deg_on_data_without_orientations_is_named(fitted, capsys):
+    """--sigma-deg weighs rx, ry, rz against positions: on data without those columns it
+    changes nothing, and fit says so in one warning line (none when the option is not given);
+    the model is the one fitted without it."""
+    _, _, data, d = fitted
+    outs = {}
+    for name, extra in (("plain", []), ("given", ["--sigma-deg", "0.5"])):
+        outs[name] = d / f"sigma-{name}.json"
+        assert main(["fit", str(data), "--robot", "ur5e", "--effects", *EFFECTS, *extra,
+                     "--out", str(outs[name]), "--force"]) == 0
+        err = capsys.readouterr().err
+        lines = [ln for ln in err.splitlines() if "--sigma-deg" in ln]
+        assert len(lines) == (1 if extra else 0), err
+    assert lines[0].startswith("torchcal: warning: --sigma-deg 0.5 is ignored") and "rx, ry, rz" in lines[0]
+    theta = [json.loads(outs[k].read_text())["parameters"] for k in ("plain", "given")]
+    assert theta[0] == theta[1]

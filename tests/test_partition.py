@@ -672,3 +672,16 @@ def test_cli_partition_copies_the_sweeps_record(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("records no robot") == 1 and err.startswith(f"torchcal: warning: {old}: records no robot")
     assert json.loads((tmp_path / "p_old.json").read_text())["made_for"] is None
+
+
+@pytest.mark.parametrize("opt, value", [("--m", "1"), ("--m", "0.5"), ("--restarts", "0"), ("--r-weight", "-1")])
+def test_cli_number_errors_name_the_option(tmp_path, capsys, opt, value):
+    """A bad --m / --restarts / --r-weight is named as the command-line option, not as the
+    library argument (m:, restarts:, r_weight:), in one line, writing nothing."""
+    pos, r = synthetic_sweep(20, seed=3)
+    sweep = tmp_path / "sweep.csv"
+    write_sweep_csv(sweep, pos, r)
+    assert cli.main(["partition", str(sweep), opt, value, "--out", str(tmp_path / "p.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"torchcal partition: error: {opt}: "), err
+    assert not (tmp_path / "p.json").exists()

@@ -362,3 +362,20 @@ def test_figure_input_errors(figure_data):
         figures.rset_histogram_figure(d["r_set"], bins=0)
     with pytest.raises(InputError, match="allowed_mm: expected a positive number"):
         figures.error_intervals_figure(d["b_lo"], d["b_hi"], allowed_mm=-1.0)
+
+
+def test_a_bin_of_too_few_rows_draws_no_rms_point():
+    """One row alone in a joint-angle bin (UR10 series C: q2 near -95 deg) is no RMS: the
+    line has no point there (before: a point at that row's residual, 1 mm above the rest)."""
+    rng = np.random.default_rng(4)
+    q = rng.uniform(-1.0, 0.0, (120, 2))
+    q[0, 1] = np.radians(-95.0)  # alone below the others' range (-57..0 deg) of q2
+    res = rng.normal(0.0, 0.05, 120)
+    res[0] = 1.0
+    fig = figures.residual_vs_joints_figure(q, res, bins=12)
+    line = fig.axes[1].get_lines()[0]
+    y = np.asarray(line.get_ydata(), dtype=float)
+    assert np.nanmax(y) < 0.3, y
+    assert np.isfinite(y).sum() >= 6  # the filled bins keep their points
+    x = np.asarray(line.get_xdata(), dtype=float)
+    assert not np.isfinite(y[x < -80]).any()

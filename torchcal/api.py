@@ -532,7 +532,7 @@ def accuracy(model, *, n: int = 2000, seed: int = 0, payload_kg: float | None = 
     else:
         raise InputError(f"model: expected a MODEL.json path or a FitResult, got {type(model).__name__}")
     return workspace_accuracy(cm, theta, cov, n=n, seed=seed, payload_kg=payload_kg, temp_c=temp_c,
-                              q_range=fm.q_range, within=within)
+                              q_range=fm.q_range, within=within, conditions=getattr(fm, "conditions", None))
 
 
 def simulate(robot, effects=(), *, n: int = 50, repeats: int = 1, noise_mm: float = 0.02, seed: int = 0,

@@ -43,6 +43,7 @@ from viz import _common as C
 
 DPI = 110
 MAX_SCATTER = 20_000
+MIN_BIN_POINTS = 5  # a joint-angle bin with fewer rows draws no RMS point (its dots show them)
 """Default cap on points drawn in a scatter (evenly spaced subsample beyond it)."""
 
 
@@ -373,7 +374,8 @@ def residual_vs_joints_figure(q_rad, residual_mm, *, joint_names: Sequence[str] 
             Components are drawn as x/y/z dots; the black line is the RMS residual length
             per bin of the joint angle.
         joint_names: n names; default ``"q1".."qn"``.
-        bins: number of joint-angle bins for the RMS line.
+        bins: number of joint-angle bins for the RMS line; a bin of fewer than MIN_BIN_POINTS
+            rows has no RMS point (the line breaks there; its rows are drawn as dots).
         title: figure title.
         max_points: draw at most this many dots per subplot (evenly spaced); None: all.
         prismatic: (n,) bool, the prismatic joints (drawn in mm as given); default none.
@@ -430,10 +432,11 @@ def residual_vs_joints_figure(q_rad, residual_mm, *, joint_names: Sequence[str] 
             which = np.clip(np.digitize(q_deg[:, j], edges) - 1, 0, bins - 1)
             ms = np.bincount(which, weights=norm ** 2, minlength=bins)
             cnt = np.bincount(which, minlength=bins)
-            ok = cnt > 0
+            ok = cnt >= MIN_BIN_POINTS  # one row is no RMS: the line breaks at thin bins
             centre = (edges[:-1] + edges[1:]) / 2
-            ax.plot(centre[ok], np.sqrt(ms[ok] / cnt[ok]), color="black", linewidth=1.8, marker="o",
-                    markersize=3, label="RMS |residual| per bin")
+            line = np.where(ok, np.sqrt(ms / np.maximum(cnt, 1)), np.nan)
+            ax.plot(centre, line, color="black", linewidth=1.8, marker="o", markersize=3,
+                    label=f"RMS |residual| per bin (of {MIN_BIN_POINTS}+ poses)")
         ax.axhline(0.0, color="black", linewidth=0.5)
         ax.set_xlabel(f"{joint_names[j]} ({'mm' if slide[j] else 'deg'})")
         if j % ncols == 0:

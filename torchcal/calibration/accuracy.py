@@ -124,7 +124,7 @@ def calibrated_box(robot, q_range: torch.Tensor) -> torch.Tensor:
 
 def workspace_accuracy(model, theta: torch.Tensor, cov: torch.Tensor, *, n: int = 2000, seed: int = 0,
                        payload_kg: float | None = None, temp_c: float = 20.0, q_range: torch.Tensor | None = None,
-                       within: str = "calibrated") -> Accuracy:
+                       within: str = "calibrated", conditions: dict | None = None) -> Accuracy:
     """The `Accuracy` of `model` at theta (P,) with covariance cov (P, P) at n workspace poses
     drawn with `seed`; payload_kg (default: half the rated payload) and temp_c at every pose.
     q_range: (2, n) rad / mm the joint range the model was calibrated on, or None (not
@@ -132,10 +132,12 @@ def workspace_accuracy(model, theta: torch.Tensor, cov: torch.Tensor, *, n: int 
     the prediction holds; "limits" inside the joint limits, counting those beyond q_range
     (there the model extrapolates). Without q_range the poses come from the limits. A
     temp_c or payload_kg that looks like another unit gets one `ConditionWarning` each
-    (`torchcal.measurements.check_conditions_given`)."""
+    (`torchcal.measurements.check_conditions_given`); one outside the range `conditions`
+    the model was fitted on (FitResult.conditions) one `ConditionRangeWarning`."""
     import dataclasses
 
     from torchcal.calibration.joint_range import outside_range
+    from torchcal.calibration.mismatch import warn_outside_conditions
     from torchcal.effects import make_context
     from torchcal.errors import InputError
     from torchcal.robots.workspace import sample_workspace
@@ -154,6 +156,7 @@ def workspace_accuracy(model, theta: torch.Tensor, cov: torch.Tensor, *, n: int 
     N = q.shape[0]
     payload = torch.full((N,), robot.payload_kg / 2 if payload_kg is None else payload_kg, dtype=torch.float64)
     temp = torch.full((N,), temp_c, dtype=torch.float64)
+    warn_outside_conditions(conditions, {"temp_c": temp, "payload_kg": payload}, "workspace poses", stacklevel=2)
     points = next((tuple(e.points) for e in model.effects if e.name == "tool_offset" and e.points), ())
     ids = [torch.full((N,), p, dtype=torch.int64) for p in points] or [None]  # several reflectors: the worst
     sigma = torch.stack([predicted_sigma(model, theta, cov, q, payload, temp, point=i) for i in ids]).amax(0)

@@ -380,8 +380,10 @@ def compensate_fitted(fitted, targets, q0=None, *, tol_mm: float = 1e-6, max_ite
     than 100 mm from their target (`check_seeds`). A residual stage is inverted with the
     model (`with_stage`). Converged commands outside the calibrated range are counted
     (``outside_range``) and named in one `CalibratedRangeWarning` (at `stacklevel`, counted
-    from the caller)."""
-    from torchcal.calibration.mismatch import check_seeds, check_targets, warn_far_from_sweep, warn_outside_range
+    from the caller); targets at a temperature / payload outside the range the model was
+    fitted on (``fitted.conditions``) in one `ConditionRangeWarning`."""
+    from torchcal.calibration.mismatch import (check_seeds, check_targets, warn_far_from_sweep, warn_outside_conditions,
+                                               warn_outside_range)
 
     cm, theta, q_range, stage = fitted.model, fitted.theta, fitted.q_range, fitted.residual_model
     robot = cm.robot
@@ -427,6 +429,7 @@ def compensate_fitted(fitted, targets, q0=None, *, tol_mm: float = 1e-6, max_ite
                                     for f in ("q", "predicted_mm", "residual_mm", "converged", "within_limits")},
                            iterations=_put(comp.iterations, moved, comp.iterations[moved] + again.iterations))
     comp = replace(comp, zone=zone + 1)
+    warn_outside_conditions(getattr(fitted, "conditions", None), cond, "targets", stacklevel=stacklevel + 1)
     if getattr(fitted, "partition", None) is not None:
         with torch.no_grad():
             warn_far_from_sweep(fitted.partition, robot.fk(comp.q), stacklevel=stacklevel + 1)

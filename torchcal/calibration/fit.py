@@ -36,7 +36,7 @@ import torch
 from torchcal.calibration.covariance import ParameterCovariance, parameter_covariance, row_covariance
 from torchcal.calibration.identifiability import (RANK_TOL, Identifiability, beyond_doubt, check_enough_rows,
                                                   identifiability, recheck)
-from torchcal.calibration.joint_range import joint_range, seed_poses
+from torchcal.calibration.joint_range import condition_range, joint_range, seed_poses
 from torchcal.calibration.lm import levenberg_marquardt
 from torchcal.calibration.model import CalibrationModel
 from torchcal.calibration.prior import RHO_EXACT, prior_factors, prior_strength, rho_settled
@@ -81,6 +81,8 @@ class FitResult:
     else None. q_range: (2, n) calibrated joint range, the min and max of the data's
     commanded q, rad / mm (`torchcal.calibration.joint_range`; None when unknown);
     seed_poses: (K, n) a few calibration poses that seed compensate (`joint_range.seed_poses`).
+    conditions: {"temp_c": [lo, hi] degC, "payload_kg": [lo, hi] kg} the data spanned of each
+    condition one of the effects reads (`joint_range.condition_range`), None when none (or unknown).
     robust, sigma_mm, sigma_deg: the settings of the fit that made it. residual_model: the
     optional non-physical residual stage (`torchcal.calibration.residual_model`), applied
     by evaluate and compensate. training: {"n", "rms_mm", "max_mm"} of the data the model
@@ -108,6 +110,7 @@ class FitResult:
     plausible_limits: dict | None = None
     q_range: torch.Tensor | None = None  # (2, n) [min; max] commanded q of the data, rad / mm
     seed_poses: torch.Tensor | None = None  # (K, n) calibration poses that seed compensate, rad / mm
+    conditions: dict | None = None  # {"temp_c": [lo, hi], "payload_kg": [lo, hi]} its effects read (joint_range)
     robust: str | None = None
     sigma_mm: float = SIGMA_MM
     sigma_deg: float = SIGMA_DEG
@@ -414,7 +417,8 @@ def fitted(rows: Rows, theta: torch.Tensor, report: Identifiability, s: Solved, 
                      orientation=orient,
                      plausible_limits=None if not has_prior else
                      {"max_length_mm": max_length_mm, "max_angle_deg": max_angle_deg, "prior_sigma_mm": rho},
-                     q_range=joint_range(ctx.q), seed_poses=seed_poses(ctx.q), robust=robust, sigma_mm=sigma_mm,
+                     q_range=joint_range(ctx.q), seed_poses=seed_poses(ctx.q),
+                     conditions=condition_range(model.effects, ctx), robust=robust, sigma_mm=sigma_mm,
                      sigma_deg=sigma_deg, training=training_summary(resid_pos),
                      set_by_prior=set_by_prior(model, std, free_now, scales.cpu()) if has_prior and posterior else [],
                      damping=float(damping))

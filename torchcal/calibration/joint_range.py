@@ -104,3 +104,71 @@ def outside_range(q: torch.Tensor, q_range: torch.Tensor, prismatic: torch.Tenso
     r = q_range.to(q)
     tol = _tolerance(r, prismatic.to(q.device))
     return (q < r[0] - tol) | (q > r[1] + tol)
+
+
+# The conditions an effect reads (docs/effects.md): a model records the range its data
+# spanned of each condition one of its effects reads (`condition_range`); MODEL.json keeps
+# it as ``"calibrated_conditions": {"temp_c": [lo, hi], "payload_kg": [lo, hi]}`` (degC,
+# kg). A row counts as outside when beyond [lo, hi] by more than
+# max(RANGE_TOL_FRACTION * (hi - lo), the floor below).
+#: (name in Measurements / Context, the effect's flag, words, unit, tolerance floor)
+CONDITIONS = (("temp_c", "uses_temperature", "temperature", "degC", 0.5),
+              ("payload_kg", "uses_payload", "payload", "kg", 0.1))
+
+
+class ConditionRangeWarning(UserWarning):
+    """Rows or targets at a temperature or payload outside the range the model was fitted on."""
+
+
+def condition_range(effects, ctx) -> dict | None:
+    """{name: [lo, hi]} (degC, kg) of each condition (CONDITIONS) that one of `effects`
+    reads, over the rows of the Context `ctx` (payload_kg zeros when not measured); None
+    when no effect reads one."""
+    out = {}
+    for name, flag, *_ in CONDITIONS:
+        v = getattr(ctx, name)
+        if v is not None and v.numel() and any(getattr(e, flag, False) for e in effects):
+            out[name] = [float(v.min()), float(v.max())]
+    return out or None
+
+
+def conditions_from_dict(obj, where: str = "model file") -> dict | None:
+    """The "calibrated_conditions" block of a model file (None: absent, a file written
+    before torchcal recorded it); InputError naming `where` when malformed."""
+    if obj is None:
+        return None
+    names = {c[0] for c in CONDITIONS}
+    try:
+        out = {str(k): [float(v[0]), float(v[1])] for k, v in dict(obj).items()}
+    except (TypeError, ValueError, IndexError, KeyError) as exc:
+        raise InputError(f"{where}: bad 'calibrated_conditions': {exc}") from None
+    bad = [k for k, (lo, hi) in out.items() if k not in names or not (math.isfinite(lo) and math.isfinite(hi))
+           or lo > hi]
+    if bad:
+        raise InputError(f"{where}: 'calibrated_conditions': {bad[0]!r} needs to be one of {sorted(names)} "
+                         f"with finite [lo, hi], lo <= hi")
+    return out
+
+
+def conditions_outside(ranges: dict | None, values: dict) -> list[tuple]:
+    """[(words, unit, lo, hi, rows outside, rows, farthest value)] for each recorded
+    condition of `ranges` (`condition_range`) whose `values` ({name: (N,) tensor, a number
+    or None}; payload_kg None reads as 0 kg, as `make_context` does; temp_c None is not
+    judged) leave [lo, hi] by more than the tolerance."""
+    out = []
+    for name, _, words, unit, floor in CONDITIONS:
+        if not ranges or name not in ranges:
+            continue
+        v = values.get(name)
+        if v is None and name == "payload_kg":
+            v = 0.0
+        if v is None:
+            continue
+        v = torch.as_tensor(v, dtype=torch.float64).detach().cpu().reshape(-1)
+        lo, hi = ranges[name]
+        tol = max(RANGE_TOL_FRACTION * (hi - lo), floor)
+        off = (v < lo - tol) | (v > hi + tol)
+        if bool(off.any()):
+            far = torch.where(off, torch.maximum(lo - v, v - hi), torch.full_like(v, -1.0)).argmax()
+            out.append((words, unit, lo, hi, int(off.sum()), v.numel(), float(v[far])))
+    return out

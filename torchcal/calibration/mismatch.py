@@ -1208,3 +1208,21 @@ def warn_outside_range(q: torch.Tensor, q_range, robot, what: str, stage=None, s
     if msg is not None:
         warnings.warn(msg, CalibratedRangeWarning, stacklevel=stacklevel + 1)
     return count
+
+
+def warn_outside_conditions(ranges: dict | None, values: dict, what: str, stacklevel: int = 1) -> int:
+    """Rows (`what`: "rows", "targets", ...) whose temperature or payload `values`
+    ({"temp_c", "payload_kg"}: (N,) tensors, numbers or None) lie outside the range the
+    model was fitted on (`ranges`: FitResult.conditions; None: not recorded, 0); one
+    `ConditionRangeWarning` naming each such condition, its fitted range, how many rows
+    and the farthest value. Returns the most rows outside for one condition."""
+    from torchcal.calibration.joint_range import ConditionRangeWarning, conditions_outside
+
+    found = conditions_outside(ranges, values)
+    if not found:
+        return 0
+    parts = [f"{words} of {n_out} of {n} {what} outside the fitted {lo:.4g} .. {hi:.4g} {unit} (farthest {far:.4g} {unit})"
+             for words, unit, lo, hi, n_out, n, far in found]
+    warnings.warn(f"{'; '.join(parts)}: the model extrapolates its {' and '.join(f[0] for f in found)} "
+                  f"effects there", ConditionRangeWarning, stacklevel=stacklevel + 1)
+    return max(f[4] for f in found)

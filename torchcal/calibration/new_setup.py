@@ -35,7 +35,7 @@ def register_model(fitted, robot, m, *, tool: bool = False, stacklevel: int = 1)
 
     if fitted is not None:
         cm, theta, train, cov = fitted.model, fitted.theta, fitted.training_rms_mm, fitted.covariance
-        identified, q_range = fitted.report.free, fitted.q_range
+        identified, q_range, conditions = fitted.report.free, fitted.q_range, getattr(fitted, "conditions", None)
         other = point_ids_differ(cm, m)  # another reflector: its tool offset must be estimated again
         if other is not None and (cm.points or not tool):
             raise InputError(other, fix=None if cm.points else ("tool", True))
@@ -44,13 +44,14 @@ def register_model(fitted, robot, m, *, tool: bool = False, stacklevel: int = 1)
     else:  # registration only: the nominal robot, calibrated on these rows
         cm = CalibrationModel.for_measurements(robot, ["base_frame"] + (["tool_offset"] if tool else []), m)
         theta, identified, q_range = cm.zeros(), torch.zeros(cm.n_params, dtype=torch.bool), joint_range(m.q)
+        conditions = None  # a frame and a tool offset read no condition
         train, cov = None, None
     ctx = context_of(cm.robot, m)
     cm.check_context(ctx)
     if len(m) < 3:
         raise InputError(f"{m.source or 'measurements'}: registration needs at least 3 rows, got {len(m)}")
     res = reregister(cm, theta.to(m.xyz), ctx, m.xyz, tool=tool, pose=m.pose, covariance=cov,
-                     identified=identified, q_range=q_range)
+                     identified=identified, q_range=q_range, conditions=conditions)
     enforce(check_measurements(res.model, res.theta, m, train, q_range=q_range))  # still off: another robot, units
     far = far_from_training(res.rms_mm, train)
     if far is not None:

@@ -203,3 +203,30 @@ def determination_words(items: list[dict]) -> str:
             head += f"; collinear with {d['partner']} (R^2 {d['r2']:.4f} on the other parameters)"
         parts.append(head)
     return "; ".join(parts)
+
+
+#: a prior costs fit quality visibly when the fit's rms exceeds the rms of the same fit
+#: under the default plausible scales by more than this factor (a weak prior, as meant,
+#: moves the rms by far less: parameters the data determine are left as they are)
+PRIOR_COST_RATIO = 1.1
+
+
+def prior_cost(fit, reference) -> dict:
+    """What tighter plausible scales cost a fit (`FitResult`) against `reference`, the same
+    fit under the default scales (MAX_LENGTH_MM, MAX_ANGLE_DEG): {"rms_mm", "reference_rms_mm",
+    "beyond": {"length" | "angle" | "effects": [names]} the parameters free in both whose
+    reference value lies beyond `fit`'s own scale (dd, da; dtheta, dalpha, dbeta; the
+    effects'), "costly": rms_mm > PRIOR_COST_RATIO * reference_rms_mm and some parameter beyond}."""
+    lim = fit.plausible_limits or {}
+    model = fit.model
+    scales = plausible_scales(model, lim.get("max_length_mm"), lim.get("max_angle_deg"))
+    free = fit.report.free.detach().cpu().bool() & reference.report.free.detach().cpu().bool()
+    theta = reference.theta.detach().cpu().to(torch.float64)
+    names, units, n5 = model.param_names(), model.param_units(), 5 * model.robot.n
+    beyond: dict = {}
+    for i in (free & torch.isfinite(scales) & (theta.abs() > scales)).nonzero().flatten().tolist():
+        group = "effects" if i >= n5 else "length" if units[i] == "mm" else "angle"
+        beyond.setdefault(group, []).append(names[i])
+    rms, ref = float(fit.rms_mm), float(reference.rms_mm)
+    return {"rms_mm": rms, "reference_rms_mm": ref, "beyond": beyond,
+            "costly": bool(beyond) and rms > PRIOR_COST_RATIO * ref}

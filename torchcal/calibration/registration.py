@@ -49,14 +49,20 @@ def far_from_training(rms_mm: float, training_rms_mm: float | None, factor: floa
 def frame_uncertainty(res, poses: torch.Tensor, tool: bool = False) -> torch.Tensor:
     """(K,) mm: 1-sigma of the positions a registered model `res` (of `reregister`) predicts
     at poses (K, n) rad / mm, from the registration's own uncertainty alone (the covariance
-    block of the measuring frame, and the tool offset with `tool`)."""
+    block of the measuring frame, and the tool offset with `tool`). A model with an effect
+    that reads the temperature or payload is evaluated at the middle of the range it was
+    fitted on (`FitResult.conditions`; 20 degC, 0 kg when not recorded)."""
     from torchcal.calibration.accuracy import predicted_sigma
 
     P = res.model.n_params
     fb = torch.cat([torch.arange(sl.start, sl.stop) for sl in frame_slices(res.model, tool)])
     c = torch.zeros(P, P, dtype=torch.float64)
     c[fb[:, None], fb[None, :]] = res.covariance.cov.detach().to("cpu", torch.float64)[fb[:, None], fb[None, :]]
-    return predicted_sigma(res.model, res.theta, c.to(res.theta), poses.to(res.theta)).detach().cpu()
+    at = {k: torch.full((poses.shape[0],), sum(v) / 2, dtype=res.theta.dtype, device=res.theta.device)
+          for k, v in (getattr(res, "conditions", None) or {}).items()}
+    at.setdefault("temp_c", torch.full((poses.shape[0],), 20.0, dtype=res.theta.dtype, device=res.theta.device))
+    return predicted_sigma(res.model, res.theta, c.to(res.theta), poses.to(res.theta), at.get("payload_kg"),
+                           at["temp_c"]).detach().cpu()
 
 
 def undetermined_frame(res, poses: torch.Tensor, training_rms_mm: float | None, tool: bool = False,
@@ -153,7 +159,7 @@ def with_frame(model, theta: torch.Tensor, tool: bool = False):
 
 
 def reregister(model, theta: torch.Tensor, ctx, xyz: torch.Tensor, *, tool: bool = False, pose=None,
-               covariance=None, identified=None, q_range=None):
+               covariance=None, identified=None, q_range=None, conditions=None):
     """Re-estimate only the measuring frame of a fitted model on new measurements.
 
     model, theta (P,): the fitted model; ctx, xyz (N, 3) mm: the new measurements (their
@@ -164,7 +170,8 @@ def reregister(model, theta: torch.Tensor, ctx, xyz: torch.Tensor, *, tool: bool
     replaced by the registration's own estimate (no cross terms: the frame is estimated
     from other data). identified: (P,) bool identified parameters of the model (default:
     nonzero variance, else its default free set). q_range: the calibrated joint range
-    (2, n), kept.
+    (2, n), and conditions: the temperature / payload range the model was fitted on
+    (`FitResult.conditions`), kept (not those of the registration data).
 
     Returns a `FitResult` on the registration data: ``registration`` holds
     "rms_before_mm" (the model as it was), "closed_form_rms_mm", "rms_after_mm" and the
@@ -203,5 +210,6 @@ def reregister(model, theta: torch.Tensor, ctx, xyz: torch.Tensor, *, tool: bool
     info = {"rms_before_mm": before, "closed_form_rms_mm": info["rms_after_mm"], "rms_after_mm": res.rms_mm,
             **base_frame_summary(model, res.theta), "n": int(xyz.shape[0]), "tool": bool(tool)}
     return dataclasses.replace(res, std=cov.std, covariance=cov, report=dataclasses.replace(res.report, free=ident),
-                               registration=info, q_range=q_range, plausible_limits=None, implausible=[])
+                               registration=info, q_range=q_range, conditions=conditions, plausible_limits=None,
+                               implausible=[])
 

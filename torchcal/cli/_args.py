@@ -227,6 +227,18 @@ def units(args) -> dict:
             "angle_unit": getattr(args, "angle_unit", "deg") or "deg"}
 
 
+def sigma_deg(args, m) -> float:
+    """--sigma-deg of `args` (None when not given: SIGMA_DEG) for the measurements `m`; given
+    for data without rx, ry, rz it weighs nothing, and one warning line on stderr says so."""
+    from torchcal.defaults import SIGMA_DEG
+
+    given = getattr(args, "sigma_deg", None)
+    if given is not None and m.rxyz is None:
+        sys.stderr.write(f"torchcal: warning: --sigma-deg {given:g} is ignored: the data have no rx, ry, rz "
+                         f"columns (it weighs measured orientations against positions)\n")
+    return SIGMA_DEG if given is None else given
+
+
 @contextmanager
 def warnings_to_stderr(*categories):
     """Warnings of `categories` raised in the block become one ``torchcal: warning: ...``

@@ -35,8 +35,9 @@ def add_sigmas(p) -> None:
 
     p.add_argument("--sigma-mm", type=positive_float, default=SIGMA_MM,
                    help=f"position uncertainty of one measurement, mm (default {SIGMA_MM}; as in fit)")
-    p.add_argument("--sigma-deg", type=positive_float, default=SIGMA_DEG,
-                   help=f"orientation uncertainty (rx, ry, rz columns), deg (default {SIGMA_DEG}; as in fit)")
+    p.add_argument("--sigma-deg", type=positive_float, default=None,
+                   help=f"orientation uncertainty (rx, ry, rz columns), deg (default {SIGMA_DEG}; as in fit; "
+                        f"ignored, with a warning, for data without them)")
 
 
 def print_table(d) -> None:
@@ -89,7 +90,7 @@ def run(args) -> int:
     effects = fitted.model.specs() if args.model else args.effects or []
     m = read_data(args.data, robot, args)
     from torchcal.calibration.mismatch import MismatchWarning
-    from torchcal.cli._args import warnings_to_stderr
+    from torchcal.cli._args import sigma_deg, warnings_to_stderr
     from torchcal.cli._progress import progress
     from torchcal.diagnosis.spectral import NarrowRangeWarning
     with warnings_to_stderr(MismatchWarning, NarrowRangeWarning):  # the model's own frame and error first, then the nominal robot's
@@ -97,7 +98,7 @@ def run(args) -> int:
             api.check_diagnosis_data(fitted, fitted.model, m)
         with progress("diagnose", f"screening candidate effects on {len(m)} rows"):
             d = api.diagnose(robot, m, effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,
-                             sigma_deg=args.sigma_deg)
+                             sigma_deg=sigma_deg(args, m))
     print_table(d)
     if args.json:
         write_json(args.json, d.to_dict(), force=args.force, inputs=[args.data, args.model])

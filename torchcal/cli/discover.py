@@ -75,7 +75,7 @@ def run(args) -> int:
     if other is not None:
         from torchcal.diagnosis.transfer import TransferCheck
         print(TransferCheck(other, args.transfer_poses, args.transfer).describe())
-    from torchcal.cli._args import warnings_to_stderr
+    from torchcal.cli._args import sigma_deg, warnings_to_stderr
     from torchcal.cli._progress import progress
     from torchcal.diagnosis.spectral import NarrowRangeWarning
 
@@ -83,7 +83,7 @@ def run(args) -> int:
 
     with warnings_to_stderr(NarrowRangeWarning, RowOrderWarning), progress("discover", f"searching effects on {len(m)} rows"):
         res = api.discover(robot, m, args.effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,
-                           sigma_deg=args.sigma_deg, transfer=other, transfer_poses=args.transfer_poses,
+                           sigma_deg=sigma_deg(args, m), transfer=other, transfer_poses=args.transfer_poses,
                            residual_model=args.residual_model)
     for i, (h, d) in enumerate(zip(res.history, res.diagnoses)):
         print(f"round {i}:")

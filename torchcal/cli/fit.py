@@ -21,6 +21,7 @@ outlier rows (then --robust), or a fitted rms beyond 10 mm."""
 from __future__ import annotations
 
 import math
+import sys
 
 from torchcal.cli._args import add_effects_module, add_force, add_units, check_outputs, read_data, add_robot, robot_inputs
 from torchcal.cli._args import add_device, device_of, nonneg_float, positive_float, seed_int
@@ -37,8 +38,9 @@ def add_parser(sub):
     p.add_argument("--seed", type=seed_int, default=0, help="recorded in the provenance")
     p.add_argument("--sigma-mm", type=positive_float, default=SIGMA_MM,
                    help=f"position uncertainty of one measurement, mm (default {SIGMA_MM})")
-    p.add_argument("--sigma-deg", type=positive_float, default=SIGMA_DEG,
-                   help=f"orientation uncertainty (rx, ry, rz columns), deg (default {SIGMA_DEG})")
+    p.add_argument("--sigma-deg", type=positive_float, default=None,
+                   help=f"orientation uncertainty (rx, ry, rz columns), deg (default {SIGMA_DEG}; "
+                        f"ignored, with a warning, for data without them)")
     p.add_argument("--max-deviation-mm", type=nonneg_float, default=MAX_LENGTH_MM,
                    help=f"plausible scale of |dd|, |da| (the prior; default {MAX_LENGTH_MM}; 0 = no prior on dd, da)")
     p.add_argument("--max-deviation-deg", type=nonneg_float, default=MAX_ANGLE_DEG,
@@ -59,7 +61,7 @@ def add_parser(sub):
 def fit_file(args):
     """Read, fit (`torchcal.fit`); returns (measurements, FitResult)."""
     from torchcal.api import fit
-    from torchcal.cli._args import units
+    from torchcal.cli._args import sigma_deg, units
     from torchcal.effects.spec import parse_specs
     from torchcal.io.robot_file import robot as make_robot
 
@@ -70,11 +72,22 @@ def fit_file(args):
     from torchcal.calibration.mismatch import RowOrderWarning
     from torchcal.cli._args import warnings_to_stderr
 
+    opts = dict(robust=args.robust, sigma_mm=args.sigma_mm, sigma_deg=sigma_deg(args, m), **units(args))
     with warnings_to_stderr(RowOrderWarning):  # backlash on rows sorted after the session: one line
-        return m, fit(robot, m, specs, robust=args.robust, sigma_mm=args.sigma_mm, sigma_deg=args.sigma_deg,
-                      max_length_mm=args.max_deviation_mm or None,  # 0 drops that prior only
-                      max_angle_deg=args.max_deviation_deg or None,
-                      residual_model=getattr(args, "residual_model", None), **units(args))
+        res = fit(robot, m, specs, max_length_mm=args.max_deviation_mm or None,  # 0 drops that prior only
+                  max_angle_deg=args.max_deviation_deg or None,
+                  residual_model=getattr(args, "residual_model", None), **opts)
+    tighter = (0 < args.max_deviation_mm < MAX_LENGTH_MM) or (0 < args.max_deviation_deg < MAX_ANGLE_DEG)
+    if tighter:  # what the tighter scales cost: the same fit under the default ones, said in one line
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            reference = fit(robot, m, specs, **opts)
+        line = prior_cost_line(res, reference)
+        if line:
+            sys.stderr.write(line + "\n")
+    return m, res
 
 
 def plausibility_line(res) -> str | None:
@@ -88,6 +101,29 @@ def plausibility_line(res) -> str | None:
     geo = f"{' / '.join(scales)} for MD-H deviations, " if scales else ""
     return (f"beyond plausible size (shrunk by the prior: {geo}the effects' ranges in docs/effects.md): "
             f"{', '.join(res.implausible)}")
+
+
+def prior_cost_line(res, reference) -> str | None:
+    """One warning line when plausible scales tighter than the defaults visibly cost the fit
+    `res` quality against `reference`, the same fit under the default scales
+    (`torchcal.calibration.plausibility.prior_cost`): both rms, the parameters the data
+    put beyond the given scale and the option that sets it; else None."""
+    from torchcal.calibration.plausibility import prior_cost
+
+    cost = prior_cost(res, reference)
+    if not cost["costly"]:
+        return None
+    lim = res.plausible_limits or {}
+    words = {"length": f"--max-deviation-mm {lim.get('max_length_mm'):g}", "angle":
+             f"--max-deviation-deg {lim.get('max_angle_deg'):g}", "effects": "the effects' ranges in docs/effects.md"}
+    held = "; ".join(f"{', '.join(v[:6])}{' ...' if len(v) > 6 else ''} beyond {words[k]}"
+                     for k, v in cost["beyond"].items())
+    opts = " / ".join(o for k, o in (("length", "--max-deviation-mm"), ("angle", "--max-deviation-deg"))
+                      if k in cost["beyond"])
+    fix = f"raise {opts} (0: no prior on them)" if opts else "check the effects and the data"
+    return (f"torchcal: warning: the plausibility prior costs this fit: rms {cost['rms_mm']:.4f} mm, against "
+            f"{cost['reference_rms_mm']:.4f} mm under the default scales ({MAX_LENGTH_MM:g} mm, {MAX_ANGLE_DEG:g} deg); "
+            f"the data put {held}: {fix}")
 
 
 def residual_stage_line(res) -> str:

@@ -78,6 +78,16 @@ def _range(text):
     return lo, hi
 
 
+def _check_numbers(args) -> None:
+    """InputError naming the option (not the library argument) for --m, --restarts, --r-weight."""
+    if not args.m > 1:
+        raise InputError(f"--m: expected a fuzzifier m > 1, got {args.m!r}")
+    if args.restarts < 1:
+        raise InputError(f"--restarts: expected an integer >= 1, got {args.restarts!r}")
+    if not args.r_weight >= 0:
+        raise InputError(f"--r-weight: expected a finite weight >= 0, got {args.r_weight!r}")
+
+
 def run(args) -> int:
     from torchcal.io.partition_file import save_partition
     from torchcal.io.sweep_csv import read_sweep, sweep_record
@@ -86,6 +96,7 @@ def run(args) -> int:
     levels = _levels(args.levels)
     zones = _zones(args.zones, levels)
     zone_range = _range(args.zone_range)
+    _check_numbers(args)
     check_outputs([("--out", args.out)], args.force, inputs=[args.sweep])
     out = Path(args.out)
     record = sweep_record(args.sweep)  # the robot it was made for, copied into the partition

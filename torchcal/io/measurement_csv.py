@@ -293,6 +293,8 @@ def as_measurements(measurements, robot, length_unit: str = "mm", angle_unit: st
     """`Measurements` as they are, or the measurement CSV at a path read for `robot` in
     `length_unit` / `angle_unit` (`read_measurements`); InputError for anything else."""
     if isinstance(measurements, Measurements):
+        if measurements.source is None:  # built in memory: the conditions checked as a file's are on reading
+            check_conditions_of(measurements, robot)
         return measurements
     if isinstance(measurements, (str, Path)):
         return read_measurements(measurements, robot=robot, length_unit=length_unit, angle_unit=angle_unit)
@@ -315,7 +317,19 @@ class CopiedRowWarning(UserWarning):
 #: the warnings of reading a measurement CSV, which the command line writes as one line each
 FILE_WARNINGS = (JointLimitWarning, PoseIdWarning, CopiedRowWarning, ConditionWarning)
 
-def _check_payloads(path, payloads: list[float], lines: list[int], robot) -> None:
+def check_conditions_of(m: Measurements, robot) -> None:
+    """The checks a file's temp_c / payload_kg columns get (`check_temperatures`,
+    `_check_payloads`: kelvin, Fahrenheit, grams, pounds) for measurements built in memory
+    (no source file), naming them "measurements" and their rows 1..N."""
+    where = m.source or "measurements"
+    rows = list(range(1, len(m) + 1))
+    if m.temp_c is not None:
+        check_temperatures(where, m.temp_c.tolist(), rows, at="row")
+    if m.payload_kg is not None:
+        _check_payloads(where, m.payload_kg.tolist(), rows, robot, at="row")
+
+
+def _check_payloads(path, payloads: list[float], lines: list[int], robot, at: str = "line") -> None:
     """Warn (ConditionWarning, one line) when payload_kg exceeds PAYLOAD_RATIO times the
     rated payload of `robot` (its robot file's payload_kg; not judged when it has none):
     grams or pounds read as kg, which scale every load-driven effect (joint_compliance)."""
@@ -329,11 +343,11 @@ def _check_payloads(path, payloads: list[float], lines: list[int], robot) -> Non
     cause = payload_cause(top, rated)
     r = out[0]
     warnings.warn(f"{path}: column payload_kg: {len(out)} of {len(payloads)} row(s) above {PAYLOAD_RATIO:g} times "
-                  f"the rated payload of {robot.name} ({rated:g} kg; first: line {lines[r]}, {payloads[r]:g}; up to "
+                  f"the rated payload of {robot.name} ({rated:g} kg; first: {at} {lines[r]}, {payloads[r]:g}; up to "
                   f"{top:g}): {cause} payload_kg is in kg", ConditionWarning, stacklevel=3)
 
 
-def check_temperatures(path, temps: list[float], lines: list[int]) -> None:
+def check_temperatures(path, temps: list[float], lines: list[int], at: str = "line") -> None:
     """Warn (ConditionWarning, one line) when temp_c values (of a measurement or targets
     file `path`, `lines` their line numbers) lie outside CELL_TEMP_C: a
     median of 250..350 looks like kelvin, one of 60..130 like degrees Fahrenheit.
@@ -348,7 +362,7 @@ def check_temperatures(path, temps: list[float], lines: list[int]) -> None:
     cause = temperature_cause(med)
     r = out[0]
     warnings.warn(f"{path}: column temp_c: {len(out)} of {len(temps)} row(s) outside {lo:g}..{hi:g} degC (first: "
-                  f"line {lines[r]}, {temps[r]:g}; median {med:g}): {cause}; temp_c is in degrees Celsius",
+                  f"{at} {lines[r]}, {temps[r]:g}; median {med:g}): {cause}; temp_c is in degrees Celsius",
                   ConditionWarning, stacklevel=3)
 
 

@@ -58,7 +58,9 @@ no global fit); unknown figures are zero (std) or absent.
 field the file holds: theta, std, covariance, identifiability (``report``; identified and
 held parameters), the fit's settings (robust, sigma_mm, sigma_deg), status, iterations,
 outliers, registration, plausibility (``plausible_limits``, ``implausible``), orientation
-(``tool_rotation`` included), calibrated range (``q_range``), residual stage, training
+(``tool_rotation`` included), calibrated range (``q_range``) and conditions
+(``conditions``, "calibrated_conditions": the temperature / payload range its effects
+were fitted on), residual stage, training
 {n, rms_mm, max_mm} and provenance. What a file does not store is None: ``residuals``
 and ``weights`` (per row), and any block of a file written before it existed
 (``q_range``, ``covariance``, ...). ``to_dict(load(path))`` writes the same blocks back.
@@ -152,6 +154,8 @@ def to_dict(res: FitResult, source=None, seed: int = 0, pose_ids=None, partition
                                  "set_by_prior": list(res.set_by_prior)}
     if res.q_range is not None:
         extra["calibrated_range"] = range_to_dict(res.q_range, model.robot, res.seed_poses)
+    if res.conditions is not None:
+        extra["calibrated_conditions"] = {k: list(v) for k, v in res.conditions.items()}
     if res.orientation is not None:
         o = res.orientation
         extra["orientation"] = {k: o[k] for k in ("sigma_mm", "sigma_deg", "rms_deg")}
@@ -308,6 +312,8 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
         from torchcal.calibration.joint_range import poses_from_dict, range_from_dict
         q_range = range_from_dict(obj["calibrated_range"], nominal, where)
         poses = poses_from_dict(obj["calibrated_range"], nominal, where)
+    from torchcal.calibration.joint_range import conditions_from_dict
+    conditions = conditions_from_dict(obj.get("calibrated_conditions"), where)  # None in older files
     radius = None  # the interval of each parameter, of an interval calibration
     if all("interval" in p for p in params) and params:
         try:
@@ -322,7 +328,7 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
     res = FitResult(model, theta, std, None, None, _report(obj, model, identified, where), covariance=
                     _covariance(obj, model, where), registration=obj.get("registration"),
                     implausible=list(plaus.get("beyond", [])), orientation=_orientation(obj, where),
-                    plausible_limits=limits, q_range=q_range, seed_poses=poses, residual_model=stage, training=training,
+                    plausible_limits=limits, q_range=q_range, seed_poses=poses, conditions=conditions, residual_model=stage, training=training,
                     provenance=obj.get("provenance"), set_by_prior=list(plaus.get("set_by_prior", [])),
                     residual_test=obj.get("residual_test"), radius=radius, damping=float(fit.get("damping", 0.0)),
                     **settings)

@@ -176,10 +176,13 @@ class CalibrationModel:
         `predict_rotation`, measurement frame: d R / d theta_k = [W[..., k]]x R."""
         return self.jacobians(theta, ctx, rotation=True)[1]
 
-    def jacobians(self, theta: torch.Tensor, ctx: Context, *, rotation: bool = False, frame: bool = False):
+    def jacobians(self, theta: torch.Tensor, ctx: Context, *, rotation: bool = False, frame: bool = False,
+                  position: bool = False):
         """(J (N, 3, P) of `jacobian`, W (N, 3, P) of `rotation_jacobian` or None); with
         `frame` also R (N, 3, 3), the orientations of `predict_rotation` (from the same
-        chain walk, so the fit's orientation rows need no second one)."""
+        chain walk, so the fit's orientation rows need no second one); with `position`
+        last the TCP positions (N, 3) mm of `predict` from the same walk (equal to
+        `predict`'s to rounding: another order of the same products)."""
         robot = self.robot
         n, P = robot.n, self.n_params
         geo = theta[self.slices[0]].reshape(n, 5)
@@ -277,7 +280,7 @@ class CalibrationModel:
                     Om = torch.einsum("ijk,lj->kil", dR, Rw)  # dR_k Rw^T, skew (k, 3, 3)
                     W[..., sl] += torch.stack([Om[:, 2, 1], Om[:, 0, 2], Om[:, 1, 0]], dim=0)
         if not frame:
-            return J, W
+            return (J, W, v) if position else (J, W)
         R = cj.rotation @ robot.tool[:3, :3].to(theta)  # predict_rotation's steps
         if not robot.chain.plain_base:
             R = base[:3, :3] @ R
@@ -285,7 +288,7 @@ class CalibrationModel:
             w = world_R[i] if i in world_R else e.world_rotation(theta[sl], ctx)
             if w is not None:
                 R = w @ R
-        return J, W, R
+        return (J, W, R, v) if position else (J, W, R)
 
 
 def _runs(idx) -> list:

@@ -81,14 +81,20 @@ class Rows:
         e = so3_error(self.model.predict_rotation(theta, self.ctx) @ self.tool_R, self.rotation)
         return torch.cat([r, -self.w_rot * e], dim=-1)
 
-    def jacobian(self, theta: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
+    def jacobian(self, theta: torch.Tensor, out: torch.Tensor | None = None, *, residual: bool = False):
         """(N, k, P) d residual / d theta at theta (P,), analytic; written into `out`
-        (N, k, P) when given (a view of the solver's stacked Jacobian: no copy of it)."""
+        (N, k, P) when given (a view of the solver's stacked Jacobian: no copy of it).
+        residual: (J, the `residual` (N, k) at theta) from the same chain walk (equal to
+        `residual`'s to rounding; no second forward pass)."""
         if self.rotation is None:
-            J = self.model.jacobians(theta, self.ctx)[0]
-            return J if out is None else out.copy_(J)
-        J, W, R = self.model.jacobians(theta, self.ctx, rotation=True, frame=True)
+            J, _, v = self.model.jacobians(theta, self.ctx, position=True)
+            J = J if out is None else out.copy_(J)
+            return (J, v - self.xyz) if residual else J
+        J, W, R, v = self.model.jacobians(theta, self.ctx, rotation=True, frame=True, position=True)
         out = J.new_empty(J.shape[0], 6, J.shape[-1]) if out is None else out
         out[:, :3] = J
-        out[:, 3:] = so3_error_jacobian(R @ self.tool_R, self.rotation, W, -self.w_rot)
-        return out
+        Rt = R @ self.tool_R
+        out[:, 3:] = so3_error_jacobian(Rt, self.rotation, W, -self.w_rot)
+        if not residual:
+            return out
+        return out, torch.cat([v - self.xyz, -self.w_rot * so3_error(Rt, self.rotation)], dim=-1)

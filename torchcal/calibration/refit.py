@@ -187,7 +187,7 @@ def _chord(rows: Rows, J: torch.Tensor, metric: _Metric, free: torch.Tensor, x: 
     A, p2 = metric.A, metric.p2
     first = last = math.inf
     for it in range(1, MAX_CHORD + 1):
-        r = (rows.residual(x) if it > 1 or r0 is None else r0).reshape(-1)
+        r = (rows.residual(x, walk_once=True) if it > 1 or r0 is None else r0).reshape(-1)
         xf = x[free]
         step = -metric.solve((Jt @ r)[free] + p2 * xf)
         size = float(step @ (A @ step)) ** 0.5

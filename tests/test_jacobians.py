@@ -242,3 +242,42 @@ def test_model_jacobian_on_device(ur10, device):
     assert_close(W.cpu(), Wc)
     ref = torch.func.jacfwd(lambda t: model.predict(t, ctx))(theta.to(device))
     assert_close(J, ref)
+
+
+def _pose_models(ur10, scara):
+    """(model, ctx, theta): every built-in effect (UR10), a KR 1000 with beta deviations, a
+    prismatic SCARA, a user effect with every hook kind."""
+    kr = torchcal.robot("kr1000titan")
+    yield _all_effects_model(ur10, None), _context(ur10, 25), 0
+    yield CalibrationModel(kr, ["base_frame", "tool_offset", "joint_compliance:2"]), _context(kr, 20), 5
+    yield CalibrationModel(scara, ["base_frame", "tool_offset", "encoder_scale:1,3", "backlash:2"]), _context(scara, 30), 6
+    yield (CalibrationModel(ur10, [build("base_frame", ur10), _UserEffect(ur10), build("tool_offset", ur10)]),
+           _context(ur10, 15), 7)
+
+
+def test_predict_pose_and_the_jacobians_position_are_predicts(ur10, scara):
+    """One walk for positions and orientations (`predict_pose`) and the positions of the
+    Jacobian's walk (`jacobians(position=True)`), against `predict` / `predict_rotation`
+    (two walks, other orders of the products): equal to rounding; and a fit's rows give
+    their residual with the Jacobian (`Rows.jacobian(residual=True)`) and by one walk
+    as `Rows.residual` does by two."""
+    from torchcal.calibration.rows import Rows
+
+    for model, ctx, seed in _pose_models(ur10, scara):
+        theta = _theta(model, seed, 0.05)
+        v, R = model.predict_pose(theta, ctx)
+        assert_close(v, model.predict(theta, ctx))
+        assert_close(R, model.predict_rotation(theta, ctx))
+        J, W, Rf, vj = model.jacobians(theta, ctx, rotation=True, frame=True, position=True)
+        assert_close(vj, model.predict(theta, ctx))
+        for rotation in (None, model.predict_rotation(_theta(model, seed + 1, 0.05), ctx)):
+            xyz = model.predict(_theta(model, seed + 2, 0.05), ctx)
+            rows = Rows(model, ctx, xyz, rotation, 2.0)
+            if rotation is not None:
+                rows = rows.with_tool_rotation(theta)
+            ref = rows.residual(theta)
+            Jr, r = rows.jacobian(theta, residual=True)
+            assert torch.equal(Jr, rows.jacobian(theta))  # the same Jacobian either way
+            assert torch.equal(Jr[:, :3], model.jacobian(theta, ctx))  # written into the rows' buffer
+            assert_close(r, ref)
+            assert_close(rows.residual(theta, walk_once=True), ref)

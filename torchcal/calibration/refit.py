@@ -173,19 +173,21 @@ def _metric(G: torch.Tensor, pf: torch.Tensor) -> _Metric:
 
 
 def _chord(rows: Rows, J: torch.Tensor, metric: _Metric, free: torch.Tensor, x: torch.Tensor,
-           lower: torch.Tensor | None, approx: bool = True) -> tuple[torch.Tensor, int, bool, float]:
+           lower: torch.Tensor | None, approx: bool = True, r0: torch.Tensor | None = None
+           ) -> tuple[torch.Tensor, int, bool, float]:
     """(x (P,), iterations, certified, the first step's length): chord iterations ``x <- x - A^-1 (J^T r(x) + Pp x)``
     from x with the fixed Jacobian J (n, k, P) of the rows (A of `metric`: it sets the rate
     only), moving `free` (P,) only, until a step is at most APPROX_TOL of the first (J's
     fixed point reached as far as it is worth: a later Jacobian corrects it) or at most
     STEP_TOL of the residual norm; certified: that happened on the first step, i.e. J's
     Gauss-Newton step at x was already negligible (module doc, 3.). approx False: on to
-    STEP_TOL of the residual norm (J's own fixed point)."""
+    STEP_TOL of the residual norm (J's own fixed point). r0: the rows' residual (n, k)
+    at x when already evaluated (with J, `Rows.jacobian(residual=True)`)."""
     Jt = J.reshape(-1, J.shape[-1]).T  # a view: J^T r on all columns, then the free ones
     A, p2 = metric.A, metric.p2
     first = last = math.inf
     for it in range(1, MAX_CHORD + 1):
-        r = rows.residual(x).reshape(-1)
+        r = (rows.residual(x, walk_once=True) if it > 1 or r0 is None else r0).reshape(-1)
         xf = x[free]
         step = -metric.solve((Jt @ r)[free] + p2 * xf)
         size = float(step @ (A @ step)) ** 0.5
@@ -208,7 +210,8 @@ def _chord(rows: Rows, J: torch.Tensor, metric: _Metric, free: torch.Tensor, x: 
 
 
 def _solve(rows: Rows, J: torch.Tensor, metric: _Metric, free: torch.Tensor, x: torch.Tensor,
-           lower: torch.Tensor | None, certify: bool = True) -> tuple[torch.Tensor, torch.Tensor, int]:
+           lower: torch.Tensor | None, certify: bool = True, r0: torch.Tensor | None = None
+           ) -> tuple[torch.Tensor, torch.Tensor, int]:
     """(x (P,), the rows' Jacobian at the last point it was evaluated, iterations): the
     stationary point of the rows plus the prior from x, by chord iterations with J (a
     Jacobian evaluated elsewhere), then with the true Jacobian at the point reached, again
@@ -216,12 +219,13 @@ def _solve(rows: Rows, J: torch.Tensor, metric: _Metric, free: torch.Tensor, x: 
     (module doc, 2. and 3.); at most MAX_JACOBIANS of them, each one's first step at most
     MAX_GN_RATE of the one before (else Gauss-Newton converges slowly: the LM instead).
     certify False: one true Jacobian, its chord to its fixed point (the first solve of a fit with orientations,
-    whose solution sets only the tool rotation of the second, module doc)."""
-    x, its, _, _ = _chord(rows, J, metric, free, x, lower)
+    whose solution sets only the tool rotation of the second, module doc). r0: the rows'
+    residual at x when already evaluated (with J)."""
+    x, its, _, _ = _chord(rows, J, metric, free, x, lower, r0=r0)
     before = math.inf
     for _ in range(MAX_JACOBIANS):
-        J = rows.jacobian(x)
-        x, k, certified, first = _chord(rows, J, metric, free, x, lower, approx=certify)
+        J, r = rows.jacobian(x, residual=True)  # the residual at x from the same chain walk
+        x, k, certified, first = _chord(rows, J, metric, free, x, lower, approx=certify, r0=r)
         its += k
         if certified or not certify:
             return x, J, its
@@ -263,8 +267,9 @@ def refit_from(start: FitResult, m, ctx, train: torch.Tensor, *, sigma_mm: float
     if rows.rotation is not None:
         rows = rows.with_tool_rotation(start.theta)
     with torch.no_grad():
-        J0 = rows.jacobian(start.theta)
-    return _chord_fit(start, rows, J0, m.pose[train], sigma_mm=sigma_mm, sigma_deg=sigma_deg, posterior=posterior)
+        J0, r0 = rows.jacobian(start.theta, residual=True)
+    return _chord_fit(start, rows, J0, m.pose[train], sigma_mm=sigma_mm, sigma_deg=sigma_deg, posterior=posterior,
+                      r0=r0)
 
 
 def _fold_rows(full: FitResult, m, ctx, train: torch.Tensor, sigma_mm: float, sigma_deg: float) -> Rows:
@@ -274,11 +279,12 @@ def _fold_rows(full: FitResult, m, ctx, train: torch.Tensor, sigma_mm: float, si
 
 
 def _chord_fit(full: FitResult, rows: Rows, J0: torch.Tensor, pose: torch.Tensor, *, sigma_mm: float,
-               sigma_deg: float, posterior: bool) -> FitResult | None:
+               sigma_deg: float, posterior: bool, r0: torch.Tensor | None = None) -> FitResult | None:
     """The fold fit of `refit` / `refit_from` on `rows` (their tool rotation at full.theta)
     from full.theta, J0 (n, k, P) the rows' Jacobian there: the identifiability of the
     training rows, the chord solves, the `FitResult` (pose (n,) the rows' pose ids); None
-    where the chord does not apply (`_NoChord`)."""
+    where the chord does not apply (`_NoChord`); r0 the rows' residual (n, k) at
+    full.theta when already evaluated with J0."""
     model, theta = full.model, full.theta
     lim = full.plausible_limits
     scales = plausible_scales(model, lim.get("max_length_mm"), lim.get("max_angle_deg")).to(theta)
@@ -299,7 +305,7 @@ def _chord_fit(full: FitResult, rows: Rows, J0: torch.Tensor, pose: torch.Tensor
     try:
         # one factorisation serves every phase: A sets the rate, not the result
         metric = _metric(G[keep][:, keep], pf[free])
-        x, J, its = _solve(rows, J0, metric, free, theta, lower, certify=rows.rotation is None)
+        x, J, its = _solve(rows, J0, metric, free, theta, lower, certify=rows.rotation is None, r0=r0)
         if rows.rotation is not None:  # the tool-rotation step, then the second solve
             rows = rows.with_tool_rotation(x)
             x, J, k = _solve(rows, J, metric, free, x, lower)

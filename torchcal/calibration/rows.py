@@ -73,22 +73,37 @@ class Rows:
         """The same rows with the tool rotation solved at theta (P,) (the tool-rotation step)."""
         return replace(self, tool_R=tool_rotation(self.model, theta, self.ctx, self.rotation))
 
-    def residual(self, theta: torch.Tensor) -> torch.Tensor:
-        """(N, k) model - measured at theta (P,): position mm, orientation mm-equivalent."""
-        r = self.model.predict(theta, self.ctx) - self.xyz
+    def residual(self, theta: torch.Tensor, walk_once: bool = False) -> torch.Tensor:
+        """(N, k) model - measured at theta (P,): position mm, orientation mm-equivalent.
+        walk_once: with orientations, positions and orientations from one walk of the chain
+        (`CalibrationModel.predict_pose`, about 0.8x the time), equal to the two walks'
+        to rounding: for the chord iterations, whose fixed point is certified to
+        `torchcal.calibration.refit.STEP_TOL`; the LM keeps the two walks (where its
+        tolerances stop it moves with the rounding of its path, beyond 1e-6 relative)."""
         if self.rotation is None:
-            return r
-        e = so3_error(self.model.predict_rotation(theta, self.ctx) @ self.tool_R, self.rotation)
-        return torch.cat([r, -self.w_rot * e], dim=-1)
+            return self.model.predict(theta, self.ctx) - self.xyz
+        if walk_once:
+            v, R = self.model.predict_pose(theta, self.ctx)
+        else:
+            v, R = self.model.predict(theta, self.ctx), self.model.predict_rotation(theta, self.ctx)
+        e = so3_error(R @ self.tool_R, self.rotation)
+        return torch.cat([v - self.xyz, -self.w_rot * e], dim=-1)
 
-    def jacobian(self, theta: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
+    def jacobian(self, theta: torch.Tensor, out: torch.Tensor | None = None, *, residual: bool = False):
         """(N, k, P) d residual / d theta at theta (P,), analytic; written into `out`
-        (N, k, P) when given (a view of the solver's stacked Jacobian: no copy of it)."""
+        (N, k, P) when given (a view of the solver's stacked Jacobian: no copy of it).
+        residual: (J, the `residual` (N, k) at theta) from the same chain walk (equal to
+        `residual`'s to rounding; no second forward pass)."""
         if self.rotation is None:
-            J = self.model.jacobians(theta, self.ctx)[0]
-            return J if out is None else out.copy_(J)
-        J, W, R = self.model.jacobians(theta, self.ctx, rotation=True, frame=True)
-        out = J.new_empty(J.shape[0], 6, J.shape[-1]) if out is None else out
-        out[:, :3] = J
-        out[:, 3:] = so3_error_jacobian(R @ self.tool_R, self.rotation, W, -self.w_rot)
-        return out
+            J, _, v = self.model.jacobians(theta, self.ctx, position=True, out=out)
+            return (J, v - self.xyz) if residual else J
+        if out is None:
+            N, P = self.xyz.shape[0], theta.shape[-1]
+            out = theta.new_empty(N, 6, P)
+        J, W, R, v = self.model.jacobians(theta, self.ctx, rotation=True, frame=True, position=True,
+                                          out=out[:, :3])  # the position rows written in place
+        Rt = R @ self.tool_R
+        out[:, 3:] = so3_error_jacobian(Rt, self.rotation, W, -self.w_rot)
+        if not residual:
+            return out
+        return out, torch.cat([v - self.xyz, -self.w_rot * so3_error(Rt, self.rotation)], dim=-1)

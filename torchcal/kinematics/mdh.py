@@ -142,6 +142,20 @@ def fk_rotation(q, chain: Chain, params=None) -> torch.Tensor:
     return torch.stack(torch.broadcast_tensors(X, Y, Z), dim=-1)
 
 
+def tcp_frame(q, chain: Chain, params=None, *, tool_point=None) -> tuple[torch.Tensor, torch.Tensor]:
+    """(TCP position (..., 3) mm, flange rotation (..., 3, 3)), world <- flange, from one
+    walk of the link frames (`_walk`): the position of `positions` and the rotation of
+    `fk_rotation` (a chain with a plain tool) to rounding, where those two are two walks.
+    q (..., n) rad / mm, params (..., n, 5) or None, tool_point (..., 3) mm in the flange
+    frame (None: ``chain.tool[:3, 3]``); the chain's tool rotation is not applied."""
+    if tool_point is None:
+        tool_point = chain.tool[:3, 3].to(chain.table)
+    *_, (X, Y, Z, o) = _walk(q, chain, params)
+    t = tool_point.unsqueeze(-1)  # (..., 3, 1): the flange-frame coordinates, one per axis
+    p = torch.addcmul(torch.addcmul(torch.addcmul(o, X, t[..., 0, :]), Y, t[..., 1, :]), Z, t[..., 2, :])
+    return p, torch.stack(torch.broadcast_tensors(X, Y, Z), dim=-1)
+
+
 def fk_pose(q, chain: Chain, params=None) -> torch.Tensor:
     """TCP pose, world <- TCP. q (..., n) rad / mm, params (..., n, 5) or None -> (..., 4, 4) mm."""
     *_, (X, Y, Z, o) = _walk(q, chain, params)  # the flange, from the base

@@ -282,9 +282,8 @@ def test_envelope_equals_brute_force(kr):
     torch.testing.assert_close(r.dist_upper, err.norm(dim=-1).amax(1))
 
 
-@pytest.mark.parametrize("threads", (1, 3))
-def test_envelope_with_base_and_tool_frames_and_threads(kr, threads):
-    """The in-place chain kernel against Robot.fk, with a rotated base and a tool offset."""
+def _with_frames(kr, **more):
+    """`kr` with a rotated, shifted base and a tool offset (and any other fields in `more`)."""
     import dataclasses
     base = torch.eye(4, dtype=torch.float64)
     base[:3, :3] = torch.linalg.matrix_exp(torch.tensor([[0.0, -0.3, 0.2], [0.3, 0.0, -0.1],
@@ -292,7 +291,13 @@ def test_envelope_with_base_and_tool_frames_and_threads(kr, threads):
     base[:3, 3] = torch.tensor([100.0, -50.0, 20.0])
     tool = torch.eye(4, dtype=torch.float64)
     tool[:3, 3] = torch.tensor([30.0, -20.0, 250.0])
-    robot = dataclasses.replace(kr, base=base, tool=tool)
+    return dataclasses.replace(kr, base=base, tool=tool, **more)
+
+
+@pytest.mark.parametrize("threads", (1, 3))
+def test_envelope_with_base_and_tool_frames_and_threads(kr, threads):
+    """The in-place chain kernel against Robot.fk, with a rotated base and a tool offset."""
+    robot = _with_frames(kr)
     q = sample_workspace(kr, 9, seed=8)
     dev = ClearanceModel.defaults(kr).sample(kr, 40, torch.Generator().manual_seed(0))
     r = sweep(robot, q, deviations=dev, include_nominal=False, chunk=100, threads=threads)
@@ -526,20 +531,12 @@ def test_compiled_envelope_equals_the_eager_one(kr, monkeypatch, dtype):
     """The envelope by the compiled kernel (fk_kernel.c: `fk_native.error_extremes`) and by the
     eager torch kernel (`outer_positions`, where the kernel is off), with a rotated base, a tool
     offset, a prismatic joint, a ragged last vector of sets and several workers."""
-    import dataclasses
-
     from torchcal.kinematics import fk_native
     if fk_native.kernel() is None:
         pytest.skip("no C compiler here: fk_kernel.c is not built")
-    base = torch.eye(4, dtype=torch.float64)
-    base[:3, :3] = torch.linalg.matrix_exp(torch.tensor([[0.0, -0.3, 0.2], [0.3, 0.0, -0.1],
-                                                          [-0.2, 0.1, 0.0]], dtype=torch.float64))
-    base[:3, 3] = torch.tensor([100.0, -50.0, 20.0])
-    tool = torch.eye(4, dtype=torch.float64)
-    tool[:3, 3] = torch.tensor([30.0, -20.0, 250.0])
     prismatic = torch.zeros(kr.n, dtype=torch.bool)
     prismatic[2] = True
-    robot = dataclasses.replace(kr, base=base, tool=tool, prismatic=prismatic)
+    robot = _with_frames(kr, prismatic=prismatic)
     q = sample_workspace(kr, 23, seed=8)
     dev = ClearanceModel.defaults(kr).sample(kr, 37, torch.Generator().manual_seed(0)) * 20  # mm-sized errors
     runs = []

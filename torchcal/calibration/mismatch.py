@@ -719,8 +719,67 @@ def _in_frame(model, m, tool: bool = True):
         with torch.no_grad():
             return model.predict(model.zeros().to(m.xyz), ctx).detach()
     start, _ = register_frame(model, ctx, m.xyz)
+    quick = _frame_fit(model, ctx, m.xyz, start, free)
+    if quick is not None:
+        return quick
     res = fit(model, ctx, m.xyz, theta0=start, free=free, register=False, max_length_mm=None, max_angle_deg=None)
     return (m.xyz - res.residuals).detach()
+
+
+def _frame_fit(model, ctx, xyz: torch.Tensor, start: torch.Tensor, free: torch.Tensor):
+    """`_in_frame`'s fit without the kinematic chain in its loop: the predicted points (N, 3)
+    mm, or None where it does not apply (then `fit` does it). For a model of exactly
+    base_frame and a single tool_offset (every other parameter held at zero, no prior:
+    what `fit` solves for `_in_frame`) the points are ``R(r) (c + A u) + t``, c (N, 3) the
+    nominal points (base frame) and A (N, 3, 3) their derivative w.r.t. the tool offset u
+    (the chain's flange rotations: u enters linearly), both taken once from the model; the
+    same Levenberg-Marquardt (`torchcal.calibration.lm`, `fit`'s max_iter) on the same
+    residuals and Jacobian from the same start, so the same fit to rounding (a frame fit of
+    a refused file runs 20-60 iterations, each of which walked the chain twice or more).
+    None too when the identifiability analysis `fit` runs would hold a parameter; the
+    same InputError as `fit` for too few rows."""
+    from torchcal.calibration.identifiability import check_enough_rows, identifiability
+    from torchcal.calibration.lm import levenberg_marquardt
+
+    names = [e.name for e in model.effects]
+    if sorted(names) != ["base_frame", "tool_offset"] or model.effects[names.index("tool_offset")].points:
+        return None
+    frame_sl, tool_sl = (model.slices[1 + names.index(n)] for n in ("base_frame", "tool_offset"))
+    frame = model.effects[names.index("base_frame")]
+    J0 = model.jacobian(start, ctx)  # (N, 3, P) at the start, as `fit`'s identifiability takes it
+    report = identifiability(J0, model.param_names(), free, first=torch.ones_like(free))
+    if not torch.equal(report.free.cpu(), free.cpu()):
+        return None
+    check_enough_rows(report, 3 * xyz.shape[0], model, ctx, free)  # `fit`'s refusal of too few rows
+    zero = start.clone()
+    zero[frame_sl] = 0.0
+    zero[tool_sl] = 0.0
+    with torch.no_grad():
+        c = model.predict(zero, ctx)  # (N, 3) base frame, no tool offset
+    A = torch.einsum("ji,njk->nik", frame._rotation(start[frame_sl][3:6]), J0[:, :, tool_sl])  # R0^T dv/du
+    n, P = xyz.shape[0], start.shape[0]
+
+    def points(z):
+        u = z[tool_sl]
+        return c + (A @ u.unsqueeze(-1)).squeeze(-1)
+
+    def res_fn(x):
+        z = x[0]
+        return (frame.world(z[frame_sl], ctx, points(z)) - xyz).reshape(1, -1)
+
+    def jac_fn(x):
+        z = x[0]
+        dp, dv = frame.world_jacobian(z[frame_sl], ctx, points(z))
+        J = xyz.new_zeros(n, 3, P)
+        J[:, :, frame_sl] = dp
+        J[:, :, tool_sl] = dv @ A
+        return J.reshape(1, n * 3, P)
+
+    res = levenberg_marquardt(res_fn, start.unsqueeze(0), free=free.to(start.device), jacobian_fn=jac_fn,
+                              max_iter=60)
+    z = res.x[0]
+    with torch.no_grad():
+        return frame.world(z[frame_sl], ctx, points(z)).detach()
 
 
 def _registered(model, m):

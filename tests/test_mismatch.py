@@ -387,7 +387,7 @@ def test_frame_fit_is_the_fit_it_replaces(series_d):
     with the same start and free set does, on a refused file (q2 and q3 swapped: a
     large-residual fit of tens of iterations) and on the file as taken."""
     from torchcal.calibration.fit import fit
-    from torchcal.calibration.mismatch import _frame_fit
+    from torchcal.calibration.mismatch import _frame_bound_mm, _frame_fit
     from torchcal.calibration.model import CalibrationModel
     from torchcal.calibration.registration import frame_slices, register_frame
     from torchcal.effects import context_of
@@ -408,3 +408,6 @@ def test_frame_fit_is_the_fit_it_replaces(series_d):
         assert quick is not None
         assert torch.allclose(quick, mm.xyz - res.residuals, rtol=0, atol=1e-6), (quick - mm.xyz + res.residuals).abs().max()
         assert abs(float((quick - mm.xyz).norm(dim=-1).pow(2).mean().sqrt()) - rms) <= 1e-9 * max(rms, 1.0)
+        bound = _frame_bound_mm(model, mm)
+        assert 0.0 < bound <= rms * (1 + 1e-9), (bound, rms)
+        assert (bound > GROSS_MM) == (rms > GROSS_MM), (bound, rms)  # as taken: within; swapped: beyond

@@ -411,3 +411,55 @@ def test_frame_fit_is_the_fit_it_replaces(series_d):
         bound = _frame_bound_mm(model, mm)
         assert 0.0 < bound <= rms * (1 + 1e-9), (bound, rms)
         assert (bound > GROSS_MM) == (rms > GROSS_MM), (bound, rms)  # as taken: within; swapped: beyond
+
+
+@pytest.mark.parametrize("ids", ["restart", "continue"])
+def test_an_instrument_moved_within_the_gross_bound_is_named(ids):
+    """Two tracker sessions of one kr1000titan in one file, the tracker turned 0.15 deg and
+    moved 3 mm between them (pose ids restarting at 0, or going on): one frame and tool
+    offset through both leave about 6 mm, within GROSS_MM, so the file was fitted and
+    `discover` accepted clearance terms on it; now refused, naming the two parts
+    (plain-numpy robot, npsim). The same poses without the move fit."""
+    import npsim
+    from torchcal.measurements import Measurements
+
+    rob = torchcal.robot("kr1000titan")
+    q = random_poses(rob, 80, 11).numpy()
+    xyz = npsim.tracker_session(rob, q, seed=4, sag_deg=0.0)
+    th = math.radians(0.15)
+    turn = np.array([[math.cos(th), -math.sin(th), 0.0], [math.sin(th), math.cos(th), 0.0], [0.0, 0.0, 1.0]])
+    moved_xyz = np.vstack([xyz[:40], xyz[40:] @ turn.T + [3.0, -2.0, 1.0]])
+    pose = torch.cat([torch.arange(40), torch.arange(40) + (0 if ids == "restart" else 40)])
+    m = Measurements(pose, torch.as_tensor(q), torch.as_tensor(moved_xyz), source="s.csv")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the reader-side repeated-pose-id line is not the subject
+        with pytest.raises(InputError, match=r"^s.csv: two measuring frames in one file: one frame and tool offset "
+                                             r"for kr1000titan leave rms ([\d.]+) mm, but rows 1\.\.(\d+) and "
+                                             r"\d+\.\.80 \(data rows\) leave [\d.]+ and [\d.]+ mm") as info:
+            torchcal.fit(rob, m, ["base_frame", "tool_offset"])
+    one = float(re.search(r"leave rms ([\d.]+) mm", str(info.value)).group(1))
+    first = int(re.search(r"rows 1\.\.(\d+) and", str(info.value)).group(1))
+    assert one < GROSS_MM  # the case the gross check let through
+    assert 40 <= first <= 44
+    assert ("two sessions joined" in str(info.value)) == (ids == "restart")
+    still = Measurements(torch.arange(80), torch.as_tensor(q), torch.as_tensor(xyz), source="s.csv")
+    torchcal.fit(rob, still, ["base_frame", "tool_offset"])  # one session: a calibration
+
+
+@pytest.mark.parametrize("seed", [0, 4])
+def test_one_session_of_a_far_off_arm_is_not_split(seed):
+    """A single tracker session of a ur5e with large MD-H deviations (2 mm, 0.3 deg): one
+    frame and tool offset leave 5-9 mm, above the floor where two frames are looked for,
+    and no cut gives both parts a frame of their own 3 times closer: no refusal."""
+    import npsim
+    from torchcal.calibration.mismatch import SESSION_FLOOR_MM, _registered, _rms, check_robot_data
+    from torchcal.calibration.model import CalibrationModel
+    from torchcal.measurements import Measurements
+
+    rob = torchcal.robot("ur5e")
+    q = random_poses(rob, 40, 100 + seed).numpy()
+    xyz = npsim.tracker_session(rob, q, seed=seed, sag_deg=0.2, dev_scale=(2.0, 0.3))
+    m = Measurements(torch.arange(40), torch.as_tensor(q), torch.as_tensor(xyz), source="s.csv")
+    model = CalibrationModel(rob, ["base_frame", "tool_offset"])
+    assert SESSION_FLOOR_MM < _rms((_registered(model, m) - m.xyz).norm(dim=-1)) < GROSS_MM  # the search runs
+    assert check_robot_data(model, m) is None

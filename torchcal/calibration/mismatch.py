@@ -789,9 +789,9 @@ def _registered(model, m):
     return _in_frame(with_frame(model, model.zeros(), tool=True)[0], m)
 
 
-def _quick_fit(model, ctx, xyz: torch.Tensor) -> bool:
-    """True when the nominal `model` already comes within GROSS_MM as it is or, when it has
-    base_frame, after the closed-form rigid motion (no solve): the common case, decided
+def _quick_rms(model, ctx, xyz: torch.Tensor) -> float:
+    """RMS (mm) of the nominal `model` as it is or, when it has base_frame, after the
+    closed-form rigid motion (no solve): within GROSS_MM is the common case, decided
     cheaply; a frame and tool offset fitted could only come closer."""
     from torchcal.calibration.registration import kabsch
 
@@ -800,7 +800,52 @@ def _quick_fit(model, ctx, xyz: torch.Tensor) -> bool:
     if "base_frame" in [e.name for e in model.effects] and p.shape[0] >= 3:
         R, t = kabsch(p, xyz)
         p = p @ R.T + t
-    return _rms((p - xyz).norm(dim=-1)) <= GROSS_MM
+    return _rms((p - xyz).norm(dim=-1))
+
+
+SESSION_FLOOR_MM = 2.0  # one frame's rms below this: no search for a moved instrument within GROSS_MM
+SESSION_RATIO = 3.0  # each part's own frame must come this many times closer than one frame through both
+
+
+def moved_within_gross(model, m, quick_mm: float, reg: float | None = None) -> Mismatch | None:
+    """Two measuring frames in one file that one frame and tool offset fit within GROSS_MM
+    (an instrument moved by a few mm or a fraction of a degree between two sessions, or
+    midway through one): None, or a 'mismatch' naming the parts. Judged only for a model
+    with base_frame whose one-frame rms (`quick_mm`, then the registered one `reg`, computed
+    when None) exceeds
+    SESSION_FLOOR_MM: a part fits when its own frame and tool offset leave at most 1 /
+    SESSION_RATIO of the one-frame rms (`joined_sessions` at restarting pose ids, else
+    `changed_midway`). Single sessions of the simulated titan and UR10 series B and D come
+    1.0-1.2 times closer at their best cut, a 0.5 deg move 12.6 times."""
+    import dataclasses
+
+    if "base_frame" not in [e.name for e in model.effects] or quick_mm <= SESSION_FLOOR_MM:
+        return None
+    if reg is None:
+        reg = _rms((_registered(model, m) - m.xyz).norm(dim=-1))
+    if reg <= SESSION_FLOOR_MM:
+        return None
+    bound = reg / SESSION_RATIO
+
+    def fits(mm):
+        return _rms((_registered(model, mm) - mm.xyz).norm(dim=-1)) <= bound
+
+    what, name = m.source or "data", model.robot.name
+    join = joined_sessions(m, fits)
+    cut = join if join is not None else changed_midway(m, fits)
+    if cut is None:
+        return None
+    how = (f"(pose ids restart at {int(m.pose[cut])}): two sessions joined, the instrument moved between them; "
+           "calibrate on one, or register each (torchcal register)" if join is not None else
+           f"each: the instrument moved or the reflector was changed midway, by data row {cut + 1} (pose id "
+           f"{int(m.pose[cut])}) at the latest; calibrate on one part and register the other (torchcal register)")
+    parts = [m.subset(torch.arange(a, b)) for a, b in ((0, cut), (cut, len(m)))]
+    each = " and ".join(f"{_rms((_registered(model, p) - p.xyz).norm(dim=-1)):.4g}" for p in parts)
+    msg = (f"{what}: two measuring frames in one file: one frame and tool offset for {name} leave rms {reg:.4g} mm, "
+           f"but rows 1..{cut} and {cut + 1}..{len(m)} (data rows) leave {each} mm in a frame and with a tool "
+           f"offset of their own {how}")
+    return dataclasses.replace(check_points(_registered(model, m), m.xyz, None, what), rms_mm=reg,
+                               registered_rms_mm=reg, verdict="mismatch", message=msg)
 
 
 def column_mistakes(m, robot):
@@ -1057,8 +1102,9 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
     try:
         ctx = context_of(model.robot, m)
         model.check_context(ctx)
-        if _quick_fit(model, ctx, m.xyz):
-            return None
+        quick = _quick_rms(model, ctx, m.xyz)
+        if quick <= GROSS_MM:
+            return moved_within_gross(model, m, quick)
         pred = _registered(model, m)
     except InputError:
         return None  # too few rows, missing columns: the fit says it in its own words
@@ -1074,7 +1120,7 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
     if reg <= GROSS_MM:
         as_is = reg if not missing else _rms((_in_frame(model, m) - m.xyz).norm(dim=-1))
         if as_is <= GROSS_MM:
-            return None
+            return moved_within_gross(model, m, reg, reg)
         return result("frame", f"{what}: the measurements are in another frame: the nominal {name} is off by rms "
                       f"{as_is:.4g} mm with the effects given and by {reg:.4g} mm with a fitted measuring frame and "
                       f"tool offset, which the model lacks (tracker data need base_frame tool_offset; data in the "

@@ -837,13 +837,13 @@ def moved_within_gross(model, m, quick_mm: float, reg: float | None = None) -> M
         return None
     how = (f"(pose ids restart at {int(m.pose[cut])}): two sessions joined, the instrument moved between them; "
            "calibrate on one, or register each (torchcal register)" if join is not None else
-           f"each: the instrument moved or the reflector was changed midway, by data row {cut + 1} (pose id "
+           f": the instrument moved or the reflector was changed midway, by data row {cut + 1} (pose id "
            f"{int(m.pose[cut])}) at the latest; calibrate on one part and register the other (torchcal register)")
     parts = [m.subset(torch.arange(a, b)) for a, b in ((0, cut), (cut, len(m)))]
     each = " and ".join(f"{_rms((_registered(model, p) - p.xyz).norm(dim=-1)):.4g}" for p in parts)
     msg = (f"{what}: two measuring frames in one file: one frame and tool offset for {name} leave rms {reg:.4g} mm, "
            f"but rows 1..{cut} and {cut + 1}..{len(m)} (data rows) leave {each} mm in a frame and with a tool "
-           f"offset of their own {how}")
+           f"offset of their own{'' if join is None else ' '}{how}")
     return dataclasses.replace(check_points(_registered(model, m), m.xyz, None, what), rms_mm=reg,
                                registered_rms_mm=reg, verdict="mismatch", message=msg)
 

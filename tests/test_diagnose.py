@@ -15,6 +15,7 @@ verdict and changes none of it; it has its own tests (test_unexplained.py), and
 """
 
 import math
+import re
 
 import pytest
 import torch
@@ -230,3 +231,33 @@ def test_pose_level_test_of_single_row_poses():
     assert not LinearRefit(r, A, folds, rng.permutation(N)).rows_are_poses
     repeats = LinearRefit(r, A, folds, np.arange(N) // 2)
     assert not repeats.rows_are_poses and len(repeats.rb) == 3 * N // 2
+
+
+@pytest.mark.parametrize("n_poses", [12, 40])
+def test_few_poses_are_said_to_judge_little(n_poses):
+    """12 poses of a kr1000titan with 0.3 mm of hidden backlash on joint 3 (plain-numpy
+    robot, npsim): a fold refits the free parameters on fewer than 2 equations each;
+    `diagnose` found nothing and said nothing of it ("nothing accepted" read as a finding);
+    now one FewPosesWarning says how little the folds judge and how many poses would do.
+    40 poses of the same robot: no such line."""
+    import warnings
+
+    from torchcal.diagnosis.crossval import FewPosesWarning
+
+    rob = torchcal.robot("kr1000titan")
+    q = random_poses(rob, n_poses, 21)
+    xyz, _ = physics_session(rob, q.numpy(), 5, ["backlash:3"])
+    m = Measurements(torch.arange(n_poses), q, torch.as_tensor(xyz), source="s.csv")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        diagnose(rob, m, report_rest=False)
+    said = [str(w.message) for w in caught if issubclass(w.category, FewPosesWarning)]
+    if n_poses == 12:
+        assert len(said) == 1
+        assert re.match(r"s\.csv: 12 poses judge little: a fold refits (\d+) free parameters on (\d+) equations "
+                        r"\(fewer than 2 per parameter\).*measure at least (\d+) poses$", said[0])
+        free, eqs, need = map(int, re.findall(r"\d+", said[0].split("little:")[1])[:2]
+                              + re.findall(r"at least (\d+) poses", said[0]))
+        assert eqs < 2 * free and need > n_poses
+    else:
+        assert said == []

@@ -32,6 +32,7 @@ Everything is deterministic for a given seed (fold assignment).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -40,6 +41,7 @@ import torch
 from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult, fit
 from torchcal.calibration.model import CalibrationModel
 from torchcal.diagnosis.candidates import Candidate
+from torchcal.diagnosis.crossval import FewPosesWarning, few_poses
 from torchcal.diagnosis.stability import absorbing
 from torchcal.folds import fold_of_pose
 from torchcal.diagnosis.screen import prescreen
@@ -135,6 +137,10 @@ def diagnose(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
         base_fit = fit(model, ctx, m.xyz, **fit_options(m, sigma_mm=sigma_mm, sigma_deg=sigma_deg))
     specs = base_fit.model.specs()
     folds_ = fold_of_pose(m.pose, seed, folds)
+    if current is None:  # the first step (discover's round 0): once
+        few = few_poses(base_fit, m, folds_)
+        if few is not None:
+            warnings.warn(few, FewPosesWarning, stacklevel=2)
     screen = prescreen(robot, base_fit.model, specs, base_fit, m, ctx, folds_, alpha=alpha / 2, min_gain=min_gain)
     if current is None:
         current = score_current(base_fit, m, ctx, folds_, sigma_mm=sigma_mm, sigma_deg=sigma_deg)

@@ -143,3 +143,16 @@ def test_an_interrupted_split_leaves_neither_file(session, tmp_path, capsys, mon
     monkeypatch.setattr(mc, "write_measurements", real)
     assert main(["split", str(path), "--fraction", "0.5", "--out", *outs]) == 0
     assert all(Path(p).is_file() for p in outs)
+
+
+def test_a_side_of_few_poses_is_named(session, tmp_path, capsys):
+    """70 poses at --fraction 0.95: 4 validation poses, named in one warning (and the counts
+    spelt as counts); at 0.6 (28 validation poses) no warning."""
+    _, path = session
+    outs = [str(tmp_path / "a.csv"), str(tmp_path / "b.csv")]
+    assert main(["split", str(path), "--fraction", "0.95", "--out", *outs]) == 0
+    cap = capsys.readouterr()
+    assert "(4 poses, 8 rows)" in cap.out
+    assert cap.err.count("warning") == 1 and f"the validation file {outs[1]} holds 4 poses" in cap.err
+    assert main(["split", str(path), "--fraction", "0.6", "--out", *outs, "--force"]) == 0
+    assert "warning" not in capsys.readouterr().err

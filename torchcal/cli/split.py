@@ -12,6 +12,8 @@ every q column is an angle)."""
 
 from __future__ import annotations
 
+import sys
+
 from torchcal.cli._args import (add_force, add_robot, add_units, check_outputs, load_robot, read_data, units,
                                 seed_int, warnings_to_stderr)
 
@@ -55,6 +57,20 @@ def run(args) -> int:
     n_poses = int(m.pose.unique().numel())
     print(f"{args.data}: {n_poses} poses split by pose (fraction {args.fraction}, seed {args.seed}); "
           f"rows keep the approach they had in the whole session (prev_q columns)")
-    print(f"wrote {train_path} ({int(train.pose.unique().numel())} poses, {len(train)} rows)")
-    print(f"wrote {val_path} ({int(val.pose.unique().numel())} poses, {len(val)} rows)")
+    for path, part, side in ((train_path, train, "training"), (val_path, val, "validation")):
+        k = int(part.pose.unique().numel())
+        print(f"wrote {path} ({_count(k, 'pose')}, {_count(len(part), 'row')})")
+        if k < FEW_POSES:
+            sys.stderr.write(f"torchcal: warning: the {side} file {path} holds {_count(k, 'pose')}: an RMS over "
+                             f"fewer than {FEW_POSES} poses says little (choose --fraction so that each side "
+                             f"keeps at least {FEW_POSES})\n")
     return 0
+
+
+#: poses a side of a split should keep: the relative standard error of an RMS over k poses
+#: (3 independent error components each) is about 1 / sqrt(6 k), above 18 % below 5 poses
+FEW_POSES = 5
+
+
+def _count(k: int, noun: str) -> str:
+    return f"{k} {noun}" + ("" if k == 1 else "s")

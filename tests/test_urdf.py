@@ -204,3 +204,25 @@ def test_a_revolute_joint_without_limits_is_refused(tmp_path, capsys):
                  "--out", str(tmp_path / "c.json")]) == 0
     assert torch.rad2deg(robot_from_urdf(tmp_path / "c.urdf", "base", "l2").limits[1]).tolist() == \
         pytest.approx([-180.0, 180.0])
+
+
+def test_a_mimic_joint_in_the_chain_is_refused(tmp_path, capsys):
+    """A joint driven by another (<mimic>, e.g. a parallel-linkage elbow) has no command of
+    its own; it was imported as an independent joint, so the robot gained a joint its
+    controller never commands and compensate would write a command for it. Now one line
+    names it, what it mimics and the tip to end above it; the chain above it imports."""
+    from torchcal.cli import main
+
+    joints = [("j1", "revolute", "base", "l1", "0 0 0.1", "0 0 0"),
+              ("j2", "revolute", "l1", "l2", "0.3 0 0", "1.5708 0 0"),
+              ("j3", "revolute", "l2", "l3", "0.3 0 0", "0 0 0")]
+    text = _urdf("arm", joints).replace('name="j3" type="revolute">',
+                                        'name="j3" type="revolute"><mimic joint="j2" multiplier="-1"/>')
+    (tmp_path / "m.urdf").write_text(text)
+    capsys.readouterr()
+    assert main(["robot", "import", str(tmp_path / "m.urdf"), "--base", "base", "--tip", "l3",
+                 "--out", str(tmp_path / "m.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and not (tmp_path / "m.json").exists(), err
+    assert "joint 'j3': mimics joint 'j2'" in err and "--tip l2" in err
+    assert robot_from_urdf(tmp_path / "m.urdf", "base", "l2").n == 2  # the chain above it

@@ -20,7 +20,8 @@ Conversion (zero configuration, all in the base link's frame, mm):
    and F_i is rebuilt from the row, so the chain is exact whatever the choice.
 4. F_n = F_(n-1) Tz(d_n) with d_n the tip origin's height along joint n's axis; the rest of
    the tip's offset goes into `tool`.
-A continuous joint is revolute with limits -180..180 deg; a revolute or prismatic joint
+A joint with <mimic> (driven by another joint) is refused: torchcal's joints are
+independent, each commanded in its own column. A continuous joint is revolute with limits -180..180 deg; a revolute or prismatic joint
 without <limit lower upper> is refused (the URDF standard requires it); a prismatic joint's q (mm)
 adds to d.
 
@@ -138,6 +139,13 @@ def read_chain(path, base_link: str, tip_link: str) -> list[dict]:
         jtype = el.get("type")
         if jtype not in ("revolute", "continuous", "prismatic", "fixed"):
             raise InputError(f"{where}: type {jtype!r} is not supported (revolute, continuous, prismatic, fixed)")
+        mimic = el.find("mimic")
+        if mimic is not None and jtype != "fixed":  # driven by another joint: no command of its own
+            parent_link = el.find("parent").get("link")
+            raise InputError(f"{where}: mimics joint {mimic.get('joint')!r} (<mimic multiplier="
+                             f"{mimic.get('multiplier', '1')} offset={mimic.get('offset', '0')}>): torchcal models "
+                             f"independent joints only and would read it as one commanded in a column of its own; "
+                             f"end the chain above it (--tip {parent_link}) or make it fixed at its pose")
         ax = el.find("axis")
         axis = torch.tensor([float(v) for v in (ax.get("xyz") if ax is not None else "1 0 0").split()], dtype=_F)
         if jtype != "fixed":

@@ -203,3 +203,32 @@ def test_angles_in_radians_are_refused(tmp_path, edit, words):
     with pytest.raises(InputError, match=rf"^{re.escape(str(tmp_path / 'rad.json'))}: {words}"):
         torchcal.robot(tmp_path / "rad.json")
     torchcal.robot("ur5e"), robot_from_dict(SCARA)  # degrees: fine
+
+
+def test_one_joints_limits_in_radians_warn_once(tmp_path, capsys):
+    """One joint's limits copied from a URDF (radians) into a file in degrees: joint 7 read
+    as +-3.05 deg, and plan sampled its poses there in silence (each data row only warns at
+    the fit). Now one warning names the joint and its limits in degrees if they are
+    radians; a joint that truly turns +-10 deg says nothing."""
+    import warnings
+
+    from torchcal.calibration.mismatch import RobotUnitWarning
+
+    obj = json.loads(json.dumps(ARM7))
+    obj["joints"][6].update(lower=-3.0543, upper=3.0543)
+    path = tmp_path / "mixed.json"
+    path.write_text(json.dumps(obj))
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        torchcal.robot(path)
+    msgs = [str(x.message) for x in w if issubclass(x.category, RobotUnitWarning)]
+    assert msgs == [f"{path}: joints[7] limits -3.0543..3.0543 deg look like radians (-175..175 deg if they are), "
+                    "while the other joints turn up to 170 deg; robot files take degrees (lower, upper)"]
+    capsys.readouterr()
+    assert main(["plan", "--robot", str(path), "--n", "12", "--out", str(tmp_path / "p.csv")]) == 0
+    err = [ln for ln in capsys.readouterr().err.splitlines() if "look like radians" in ln]
+    assert len(err) == 1 and err[0].startswith("torchcal: warning: ")
+    obj["joints"][6].update(lower=-10, upper=10)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RobotUnitWarning)
+        robot_from_dict(obj), torchcal.robot("ur5e"), robot_from_dict(SCARA)

@@ -672,19 +672,34 @@ def check_robot_lengths(table, prismatic, limits, where: str = "robot file") -> 
                          "take millimetres (d_mm, a_mm, base, tool, prismatic limits)")
 
 
+class RobotUnitWarning(UserWarning):
+    """A robot file's value looks written in another unit (one joint's limits in radians)."""
+
+
 def check_robot_angles(table, prismatic, limits, where: str = "robot file") -> None:
     """InputError for angles a robot file holds in radians where it takes degrees:
     table (n, 5) [theta, d, a, alpha, beta] rad and limits (n, 2) (rad for a revolute
     joint) as read from the file's degrees (module docstring). Every revolute joint's
     limits within +-2 pi "degrees" (an arm whose joints all turn less than 6.3 deg); or a
     twist alpha or offset theta within 1e-3 of pi / 2 or pi "degrees" while none lies
-    beyond 2 pi "degrees" (90 deg written as 1.5708)."""
+    beyond 2 pi "degrees" (90 deg written as 1.5708). Some revolute joints' limits within
+    +-2 pi "degrees" and the others' beyond: one `RobotUnitWarning` naming the first."""
     t = torch.rad2deg(table.detach().to("cpu", torch.float64))
     rev = ~prismatic.detach().cpu().bool()
     lim = torch.rad2deg(limits.detach().to("cpu", torch.float64))[rev]
     if lim.numel() and float(lim.abs().max()) <= 2 * math.pi + 0.01:
         raise InputError(f"{where}: every revolute joint's limits lie within +-{float(lim.abs().max()):.4g} deg: "
                          "they look like radians; robot files take degrees (lower, upper)")
+    turn = lim.abs().amax(-1)  # (revolute joints,) the farthest each turns, "deg"
+    narrow = (turn <= 2 * math.pi + 0.01).nonzero().flatten().tolist()
+    if narrow:  # some joints in radians, the others in degrees (a URDF's values copied in)
+        j = int(rev.nonzero().flatten()[narrow[0]])
+        lo, hi = lim[narrow[0]].tolist()
+        more = f" (and {len(narrow) - 1} more joint(s))" if len(narrow) > 1 else ""
+        warnings.warn(f"{where}: joints[{j + 1}] limits {lo:.6g}..{hi:.6g} deg{more} look like radians "
+                      f"({math.degrees(lo):.4g}..{math.degrees(hi):.4g} deg if they are), while the other joints "
+                      f"turn up to {float(turn.max()):.4g} deg; robot files take degrees (lower, upper)",
+                      RobotUnitWarning, stacklevel=4)
     ang = t[:, [0, 3]]  # theta offsets and twists, deg
     if float(ang.abs().max()) <= 2 * math.pi + 0.01:
         near = [(j, k, float(ang[j, c])) for j in range(ang.shape[0]) for c, k in enumerate(("theta_offset_deg",

@@ -17,7 +17,9 @@ What is checked, and against what:
 
 from __future__ import annotations
 
+import json
 import math
+import re
 
 import pytest
 import torch
@@ -555,3 +557,31 @@ def test_compiled_envelope_equals_the_eager_one(kr, monkeypatch, dtype):
         err = robot.fk(q[:, None], dev[None]) - robot.fk(q)[:, None]  # (23, 37, 3)
         torch.testing.assert_close(compiled.err_lower, err.amin(1), rtol=0, atol=1e-9)
         torch.testing.assert_close(compiled.dist_upper, err.norm(dim=-1).amax(1), rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda c: c.update(clearance_mm=[0.0] * 12),
+     r"clearance_mm: every seat.s clearance is 0 \(and no tolerance box\)"),
+    (lambda c: c.update(clearance_mm=[1000 * v for v in c["clearance_mm"]]),  # micrometres
+     r"joint 1: clearances 30 \+ 20 mm over a bearing length of 80 mm tilt its axis by up to 0.625 rad"),
+    (lambda c: c.update(bearing_length_mm=[v / 1000 for v in c["bearing_length_mm"]]),  # metres
+     r"joint 1: clearances 0.03 \+ 0.02 mm over a bearing length of 0.08 mm tilt its axis by up to 0.625 rad")])
+def test_a_clearance_of_no_size_or_in_other_units_is_refused(tmp_path, capsys, edit, words):
+    """`sweep --clearance`: all clearances 0 wrote a sweep with R_set = 1 everywhere (and a
+    half-width ratio of 1e+290); clearances in micrometres or bearing lengths in metres
+    wrote distance bounds of 200 .. 540 mm on a UR5e. Now one line, exit 2, nothing written."""
+    from torchcal.cli import main
+
+    obj = {"clearance_mm": [0.03, 0.02] * 6, "bearing_length_mm": [80.0] * 6}
+    edit(obj)
+    (tmp_path / "c.json").write_text(json.dumps(obj))
+    out = tmp_path / "s.csv"
+    capsys.readouterr()
+    assert main(["sweep", "--robot", "ur5e", "--clearance", str(tmp_path / "c.json"), "--n", "10",
+                 "--samples", "10", "--allowed", "0.5", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and re.search(words, err) and not out.exists(), err
+    ok = {"clearance_mm": [0.03, 0.02] * 6, "bearing_length_mm": [80.0] * 6}
+    (tmp_path / "ok.json").write_text(json.dumps(ok))
+    assert main(["sweep", "--robot", "ur5e", "--clearance", str(tmp_path / "ok.json"), "--n", "10",
+                 "--samples", "10", "--allowed", "0.5", "--out", str(out)]) == 0

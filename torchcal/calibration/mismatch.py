@@ -614,12 +614,15 @@ def check_row_order(m, specs) -> int:
 
 def check_same_robot(model_robot, robot, where: str, what: str = "the given robot") -> None:
     """Refuse (one InputError line naming both) when `robot` is not the robot the model
-    was fitted for: another joint count, joint types, nominal table, base or tool."""
+    was fitted for: another joint count, joint types, nominal table, base or tool, and
+    what differs (`robot_differences`: a robot file of the same name with another tool
+    reads "the tool differs")."""
     if robot is None or robot.same_geometry(model_robot):
         return
+    diff = "; ".join(d for d in robot_differences(model_robot, robot) if " limits " not in d)  # not geometry
     raise InputError(f"{where}: the model is for robot {model_robot.name!r} ({model_robot.n} joints), "
                      f"but {what} is robot {robot.name!r} ({robot.n} joints) with another nominal "
-                     f"geometry; refusing to apply a model to another robot")
+                     f"geometry{f' ({diff})' if diff else ''}; refusing to apply a model to another robot")
 
 
 def robot_differences(there, here, atol: float = 1e-9) -> list[str]:

@@ -232,3 +232,19 @@ def test_one_joints_limits_in_radians_warn_once(tmp_path, capsys):
     with warnings.catch_warnings():
         warnings.simplefilter("error", RobotUnitWarning)
         robot_from_dict(obj), torchcal.robot("ur5e"), robot_from_dict(SCARA)
+
+
+def test_a_robot_file_in_micrometres_is_refused(tmp_path):
+    """Lengths in micrometres (the KR-size arm7 at 1000 x) read as a 1.8 km arm; refused
+    in one line, as lengths in metres are; a 60 m linear track passes."""
+    obj = json.loads(json.dumps(ARM7))
+    for j in obj["joints"]:
+        j.update(d_mm=1000 * j["d_mm"], a_mm=1000 * j["a_mm"])
+    (tmp_path / "um.json").write_text(json.dumps(obj))
+    with pytest.raises(InputError, match=r"um.json: the links reach 1266 m in all "
+                                         r".*look like micrometres; robot files take millimetres"):
+        torchcal.robot(tmp_path / "um.json")
+    track = json.loads(json.dumps(ARM7))
+    track["joints"].insert(0, {"type": "prismatic", "theta_offset_deg": 0, "d_mm": 0, "a_mm": 0, "alpha_deg": 0,
+                               "lower": 0, "upper": 60000})
+    assert robot_from_dict(track).n == 8

@@ -226,3 +226,21 @@ def test_a_mimic_joint_in_the_chain_is_refused(tmp_path, capsys):
     assert len(err.splitlines()) == 1 and not (tmp_path / "m.json").exists(), err
     assert "joint 'j3': mimics joint 'j2'" in err and "--tip l2" in err
     assert robot_from_urdf(tmp_path / "m.urdf", "base", "l2").n == 2  # the chain above it
+
+
+def test_a_urdf_in_millimetres_is_refused(tmp_path, capsys):
+    """A URDF exported in mm (origins 162.5 where 0.1625 m belongs) was imported as a
+    robot of 1.3 km; fit then blamed the data ('positions look like metres; pass
+    --length-unit m'). Now the import refuses it in one line naming the unit."""
+    from torchcal.cli import main
+
+    joints = [j[:4] + (" ".join(f"{1000 * float(v):g}" for v in j[4].split()),) + j[5:] for j in UR]
+    (tmp_path / "mm.urdf").write_text(_urdf("ur", joints))
+    capsys.readouterr()
+    assert main(["robot", "import", str(tmp_path / "mm.urdf"), "--base", "base_link", "--tip", "tool0",
+                 "--out", str(tmp_path / "mm.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and not (tmp_path / "mm.json").exists(), err
+    assert "the links reach 1322 m in all" in err and "look like millimetres; URDF takes metres" in err
+    path, base, tip = _write(tmp_path, "ur")  # the same in metres
+    assert robot_from_urdf(path, base, tip).n == 6

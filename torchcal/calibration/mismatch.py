@@ -105,7 +105,8 @@ Robot files (`check_robot_angles`): every revolute limit within +-2 pi "degrees"
 twist or offset of pi / 2 or pi "degrees" in a file with no angle beyond 2 pi "degrees",
 are radians written where degrees belong. (`check_robot_lengths`): an arm whose links (sum over joints of
 ``sqrt(d^2 + a^2)``, prismatic strokes included) reach less than MIN_REACH_MM = 50 mm is
-not an industrial arm; its lengths were written in metres.
+not an industrial arm; its lengths were written in metres. One that reaches more than
+MAX_REACH_MM = 100 m was written in micrometres (a URDF import: in millimetres).
 """
 
 from __future__ import annotations
@@ -123,6 +124,7 @@ GROSS_MM = 10.0
 TARGET_RATIO = 20.0
 REACH_MARGIN = 1.05
 MIN_REACH_MM = 50.0
+MAX_REACH_MM = 100_000.0  # 100 m of links and strokes: beyond the longest linear track
 WORKSPACE_POSES = 2000
 SEED_MM = 100.0  # a seed whose model point lies farther from its target is no nominal command of it
 RATIO_LIMIT = 20.0
@@ -666,9 +668,16 @@ def link_reach_mm(table: torch.Tensor, prismatic: torch.Tensor, limits: torch.Te
     return reach
 
 
-def check_robot_lengths(table, prismatic, limits, where: str = "robot file") -> None:
-    """InputError when the links reach less than MIN_REACH_MM (lengths in metres)."""
+def check_robot_lengths(table, prismatic, limits, where: str = "robot file", urdf: bool = False) -> None:
+    """InputError when the links reach less than MIN_REACH_MM (lengths in metres) or more
+    than MAX_REACH_MM (a URDF written in mm, read as metres; a robot file in micrometres).
+    urdf: the lengths were read from a URDF (metres there), named as such."""
     reach = link_reach_mm(table, prismatic, limits)
+    if reach > MAX_REACH_MM:
+        raise InputError(f"{where}: the links reach {reach / 1000:.4g} m in all (sum of sqrt(d^2 + a^2), prismatic "
+                         f"strokes included), more than any robot's {MAX_REACH_MM / 1000:g} m: the lengths look like "
+                         + ("millimetres; URDF takes metres (joint origins, prismatic limits)" if urdf else
+                            "micrometres; robot files take millimetres (d_mm, a_mm, base, tool, prismatic limits)"))
     if reach < MIN_REACH_MM:
         raise InputError(f"{where}: the links reach only {reach:.4g} mm in all (sum of sqrt(d_mm^2 + a_mm^2)), less "
                          f"than any industrial arm's {MIN_REACH_MM:g} mm: the lengths look like metres; robot files "

@@ -224,7 +224,7 @@ def test_a_mimic_joint_in_the_chain_is_refused(tmp_path, capsys):
                  "--out", str(tmp_path / "m.json")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and not (tmp_path / "m.json").exists(), err
-    assert "joint 'j3': mimics joint 'j2'" in err and "--tip l2" in err
+    assert "joint 'j3': mimics joint 'j2'" in err and "(tip link 'l2')" in err
     assert robot_from_urdf(tmp_path / "m.urdf", "base", "l2").n == 2  # the chain above it
 
 

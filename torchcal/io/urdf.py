@@ -145,7 +145,7 @@ def read_chain(path, base_link: str, tip_link: str) -> list[dict]:
             raise InputError(f"{where}: mimics joint {mimic.get('joint')!r} (<mimic multiplier="
                              f"{mimic.get('multiplier', '1')} offset={mimic.get('offset', '0')}>): torchcal models "
                              f"independent joints only and would read it as one commanded in a column of its own; "
-                             f"end the chain above it (--tip {parent_link}) or make it fixed at its pose")
+                             f"end the chain above it (tip link {parent_link!r}) or make it fixed at its pose")
         ax = el.find("axis")
         axis = torch.tensor([float(v) for v in (ax.get("xyz") if ax is not None else "1 0 0").split()], dtype=_F)
         if jtype != "fixed":

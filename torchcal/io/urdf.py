@@ -163,9 +163,27 @@ def read_chain(path, base_link: str, tip_link: str) -> list[dict]:
             else:
                 s = 1000.0 if jtype == "prismatic" else 1.0
                 lower, upper = float(lim.get("lower")) * s, float(lim.get("upper")) * s
+                _check_limits(where, jtype, lower, upper)
         out.append({"name": name, "type": jtype, "origin": _origin(el.find("origin"), where), "axis": axis,
                     "lower": lower, "upper": upper})
     return out
+
+
+MAX_URDF_TURN_RAD = 4 * math.pi  # a revolute limit beyond two turns either way: degrees in a URDF
+
+
+def _check_limits(where: str, jtype: str, lower: float, upper: float) -> None:
+    """InputError for a joint's <limit> (rad, mm for a prismatic joint as converted): not
+    finite, lower not below upper, or a revolute limit beyond MAX_URDF_TURN_RAD (degrees
+    written where URDF takes radians: 180 read as 10313 deg)."""
+    unit = "mm" if jtype == "prismatic" else "rad"
+    if not (math.isfinite(lower) and math.isfinite(upper)) or not lower < upper:
+        raise InputError(f"{where}: <limit lower={lower:g} upper={upper:g}> ({unit}): expected finite limits with "
+                         f"lower below upper")
+    turn = max(abs(lower), abs(upper))
+    if jtype != "prismatic" and turn > MAX_URDF_TURN_RAD:
+        raise InputError(f"{where}: <limit lower={lower:g} upper={upper:g}> turns {math.degrees(turn):.6g} deg, "
+                         f"beyond two turns: the limits look like degrees; URDF takes radians")
 
 
 def urdf_fk(joints: list[dict], q: torch.Tensor) -> torch.Tensor:

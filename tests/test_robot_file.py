@@ -248,3 +248,25 @@ def test_a_robot_file_in_micrometres_is_refused(tmp_path):
     track["joints"].insert(0, {"type": "prismatic", "theta_offset_deg": 0, "d_mm": 0, "a_mm": 0, "alpha_deg": 0,
                                "lower": 0, "upper": 60000})
     assert robot_from_dict(track).n == 8
+
+
+def test_a_slide_in_metres_warns_once(tmp_path):
+    """The SCARA's lift written 0..0.2 (metres) travelled 0.2 mm in silence (its links in
+    mm reach far enough for the file-wide metres check); now one warning names it."""
+    import warnings
+
+    from torchcal.calibration.mismatch import RobotUnitWarning
+
+    obj = json.loads(json.dumps(SCARA))
+    k = next(i for i, j in enumerate(obj["joints"]) if j["type"] == "prismatic")
+    lo, hi = obj["joints"][k]["lower"], obj["joints"][k]["upper"]
+    obj["joints"][k].update(lower=lo / 1000, upper=hi / 1000)
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        robot_from_dict(obj, "s.json")
+    msgs = [str(x.message) for x in w if issubclass(x.category, RobotUnitWarning)]
+    assert len(msgs) == 1 and msgs[0].startswith(f"s.json: joints[{k + 1}] (prismatic) travels only "), msgs
+    assert f"look like metres ({1000 * lo / 1000:g}..{1000 * hi / 1000:g} mm if they are)" in msgs[0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RobotUnitWarning)
+        robot_from_dict(SCARA)

@@ -124,6 +124,7 @@ GROSS_MM = 10.0
 TARGET_RATIO = 20.0
 REACH_MARGIN = 1.05
 MIN_REACH_MM = 50.0
+MIN_STROKE_MM = 1.0  # a prismatic joint travelling less: its limits were written in metres
 MAX_REACH_MM = 100_000.0  # 100 m of links and strokes: beyond the longest linear track
 WORKSPACE_POSES = 2000
 SEED_MM = 100.0  # a seed whose model point lies farther from its target is no nominal command of it
@@ -670,7 +671,9 @@ def link_reach_mm(table: torch.Tensor, prismatic: torch.Tensor, limits: torch.Te
 
 def check_robot_lengths(table, prismatic, limits, where: str = "robot file", urdf: bool = False) -> None:
     """InputError when the links reach less than MIN_REACH_MM (lengths in metres) or more
-    than MAX_REACH_MM (a URDF written in mm, read as metres; a robot file in micrometres).
+    than MAX_REACH_MM (a URDF written in mm, read as metres; a robot file in micrometres);
+    a robot file's prismatic joint travelling less than MIN_STROKE_MM among links that
+    reach farther: one `RobotUnitWarning` (its limits in metres).
     urdf: the lengths were read from a URDF (metres there), named as such."""
     reach = link_reach_mm(table, prismatic, limits)
     if reach > MAX_REACH_MM:
@@ -678,6 +681,15 @@ def check_robot_lengths(table, prismatic, limits, where: str = "robot file", urd
                          f"strokes included), more than any robot's {MAX_REACH_MM / 1000:g} m: the lengths look like "
                          + ("millimetres; URDF takes metres (joint origins, prismatic limits)" if urdf else
                             "micrometres; robot files take millimetres (d_mm, a_mm, base, tool, prismatic limits)"))
+    pris = prismatic.detach().cpu().bool()
+    stroke = (limits[:, 1] - limits[:, 0]).detach().to("cpu", torch.float64)
+    short = [j for j in range(len(pris)) if bool(pris[j]) and float(stroke[j]) < MIN_STROKE_MM]
+    if short and reach >= MIN_REACH_MM and not urdf:  # a slide in metres among links in mm
+        j = short[0]
+        lo, hi = limits[j].tolist()
+        warnings.warn(f"{where}: joints[{j + 1}] (prismatic) travels only {hi - lo:.4g} mm ({lo:g}..{hi:g}): "
+                      f"the limits look like metres ({1000 * lo:g}..{1000 * hi:g} mm if they are); robot files "
+                      "take millimetres (lower, upper)", RobotUnitWarning, stacklevel=4)
     if reach < MIN_REACH_MM:
         raise InputError(f"{where}: the links reach only {reach:.4g} mm in all (sum of sqrt(d_mm^2 + a_mm^2)), less "
                          f"than any industrial arm's {MIN_REACH_MM:g} mm: the lengths look like metres; robot files "

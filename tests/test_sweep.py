@@ -585,3 +585,21 @@ def test_a_clearance_of_no_size_or_in_other_units_is_refused(tmp_path, capsys, e
     (tmp_path / "ok.json").write_text(json.dumps(ok))
     assert main(["sweep", "--robot", "ur5e", "--clearance", str(tmp_path / "ok.json"), "--n", "10",
                  "--samples", "10", "--allowed", "0.5", "--out", str(out)]) == 0
+
+
+@pytest.mark.parametrize("allowed, words", [
+    ("0.0025", r"allowed distance error 0.0025 mm: R_set is at most 0.00\d+ at every point .*in metres\? \(2.5 mm\)"),
+    ("2.5", None),
+    ("2500", r"allowed distance error 2500 mm: R_set is 1 at every point .*in micrometres\? \(2.5 mm\)")])
+def test_an_allowed_error_in_another_unit_warns_once(tmp_path, capsys, allowed, words):
+    """`sweep --allowed` in metres (0.0025 for 2.5 mm) left R_set near 0 at every point and
+    in micrometres at 1, in silence (the partition of the first splits noise-level values,
+    of the second is refused only later). Now one warning line; the README's 2.5 mm none."""
+    capsys.readouterr()
+    assert cli.main(["sweep", "--robot", "kr1000titan", "--n", "20", "--samples", "20", "--allowed", allowed,
+                     "--no-progress", "--out", str(tmp_path / "s.csv")]) == 0
+    err = [ln for ln in capsys.readouterr().err.splitlines() if "allowed distance error" in ln]
+    if words is None:
+        assert err == []
+    else:
+        assert len(err) == 1 and err[0].startswith("torchcal: warning: ") and re.search(words, err[0]), err

@@ -223,3 +223,54 @@ def test_a_model_refitted_on_another_points_data_records_the_new_id(how):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         torchcal.evaluate(again, on[5])
+
+
+def _thermal_repeats(rob, n, lo, hi, seed, repeats=3):
+    """n poses of `rob`, each measured `repeats` times at one temperature drawn in
+    [lo, hi] degC; hidden physics: npsim.thermal_session (plain numpy link growth)."""
+    import numpy as np
+    import torch
+
+    from npsim import thermal_session
+    from torchcal.measurements import Measurements
+    from torchcal.robots.poses import random_poses
+
+    q = random_poses(rob, n, seed).repeat_interleave(repeats, dim=0)
+    temp = np.repeat(np.random.default_rng(seed + 100).uniform(lo, hi, n), repeats)
+    xyz = thermal_session(rob, q.numpy(), temp, seed=7, noise_mm=0.005)
+    return Measurements(torch.arange(n).repeat_interleave(repeats), q, torch.from_numpy(xyz),
+                        temp_c=torch.from_numpy(temp))
+
+
+@pytest.mark.parametrize("zoned", [False, True])
+def test_an_interval_calibration_records_its_conditions_and_warns_outside(zoned, tmp_path):
+    """calibrate records the temperature range its thermal effect was fitted on, as fit
+    does (MODEL.json calibrated_conditions), and evaluate / compensate of the loaded model
+    warn outside it (before: not recorded, so a per-zone model fitted at 18..26 degC was
+    used at 45 degC in silence)."""
+    import torch
+
+    from torchcal.calibration.joint_range import ConditionRangeWarning
+    from torchcal.measurements import Measurements
+
+    rob = torchcal.robot("ur5e")
+    m = _thermal_repeats(rob, 40, 18.0, 26.0, seed=3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = torchcal.calibrate(rob, m, ["thermal_expansion"],
+                                 partition=_in_memory_partition("ur5e") if zoned else None)
+    lo, hi = float(m.temp_c.min()), float(m.temp_c.max())
+    assert res.conditions == {"temp_c": [lo, hi]}
+    torchcal.save(res, tmp_path / "m.json")
+    assert json.loads((tmp_path / "m.json").read_text())["calibrated_conditions"] == {"temp_c": [lo, hi]}
+    back = torchcal.load(tmp_path / "m.json")
+    assert back.conditions == res.conditions
+    hot = Measurements(m.pose, m.q, m.xyz, temp_c=m.temp_c + 20.0)
+    for fn, words in ((lambda: torchcal.evaluate(back, hot), f"of {len(m)} rows outside the fitted"),
+                      (lambda: torchcal.compensate(back, rob.fk(m.q[:4]).detach(), temp_c=torch.full((4,), 45.0)),
+                       "temperature of 4 of 4 targets")):
+        with warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always")
+            fn()
+        msgs = [str(x.message) for x in w if issubclass(x.category, ConditionRangeWarning)]
+        assert len(msgs) == 1 and words in msgs[0], msgs

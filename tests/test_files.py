@@ -5,6 +5,7 @@ with the model file)."""
 
 from __future__ import annotations
 
+import json
 import os
 
 import pytest
@@ -65,3 +66,32 @@ def test_an_output_that_is_a_folder_is_named_as_one(tmp_path):
     with pytest.raises(InputError, match=r"out: is a folder, expected a file name$") as info:
         check_output(tmp_path / "out")
     assert not isinstance(info.value, OutputExistsError)
+
+
+def test_read_json_refuses_a_key_given_twice(tmp_path):
+    """A robot file with two "tool" matrices (an edit pasted below the old one): JSON keeps
+    the last in silence, so the fit used a tool the user may have meant to replace; one
+    line names the key and its lines (before: read, the first tool dropped)."""
+    from torchcal.io.robot_file import robot_to_dict
+
+    import torchcal
+    from torchcal import cli
+
+    obj = robot_to_dict(torchcal.robot("ur5e"))
+    text = json.dumps(obj, indent=1)
+    tool = '"tool": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 120], [0, 0, 0, 1]],\n '
+    text = text.replace('"payload_kg"', tool + '"payload_kg"')
+    p = tmp_path / "r.json"
+    p.write_text(text, encoding="utf-8")
+    lines = [i + 1 for i, ln in enumerate(text.splitlines()) if '"tool":' in ln]
+    assert len(lines) == 2
+    with pytest.raises(InputError, match=rf"key 'tool' given twice in one object \(the key is on lines "
+                                         rf"{lines[0]}, {lines[1]}\)"):
+        torchcal.robot(p)
+    out = tmp_path / "m.json"
+    assert cli.main(["plan", "--robot", str(p), "--n", "10", "--out", str(out)]) == 2
+    assert not out.exists()
+    nested = tmp_path / "n.json"  # a key twice inside a joint
+    nested.write_text(json.dumps(obj).replace('"d_mm": 0.0,', '"d_mm": 0.0, "d_mm": 5.0,', 1), encoding="utf-8")
+    with pytest.raises(InputError, match="key 'd_mm' given twice"):
+        torchcal.robot(nested)

@@ -203,3 +203,70 @@ def test_angles_in_radians_are_refused(tmp_path, edit, words):
     with pytest.raises(InputError, match=rf"^{re.escape(str(tmp_path / 'rad.json'))}: {words}"):
         torchcal.robot(tmp_path / "rad.json")
     torchcal.robot("ur5e"), robot_from_dict(SCARA)  # degrees: fine
+
+
+def test_one_joints_limits_in_radians_warn_once(tmp_path, capsys):
+    """One joint's limits copied from a URDF (radians) into a file in degrees: joint 7 read
+    as +-3.05 deg, and plan sampled its poses there in silence (each data row only warns at
+    the fit). Now one warning names the joint and its limits in degrees if they are
+    radians; a joint that truly turns +-10 deg says nothing."""
+    import warnings
+
+    from torchcal.calibration.mismatch import RobotUnitWarning
+
+    obj = json.loads(json.dumps(ARM7))
+    obj["joints"][6].update(lower=-3.0543, upper=3.0543)
+    path = tmp_path / "mixed.json"
+    path.write_text(json.dumps(obj))
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        torchcal.robot(path)
+    msgs = [str(x.message) for x in w if issubclass(x.category, RobotUnitWarning)]
+    assert msgs == [f"{path}: joints[7] limits -3.0543..3.0543 deg look like radians (-175..175 deg if they are), "
+                    "while the other joints turn up to 170 deg; robot files take degrees (lower, upper)"]
+    capsys.readouterr()
+    assert main(["plan", "--robot", str(path), "--n", "12", "--out", str(tmp_path / "p.csv")]) == 0
+    err = [ln for ln in capsys.readouterr().err.splitlines() if "look like radians" in ln]
+    assert len(err) == 1 and err[0].startswith("torchcal: warning: ")
+    obj["joints"][6].update(lower=-10, upper=10)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RobotUnitWarning)
+        robot_from_dict(obj), torchcal.robot("ur5e"), robot_from_dict(SCARA)
+
+
+def test_a_robot_file_in_micrometres_is_refused(tmp_path):
+    """Lengths in micrometres (the KR-size arm7 at 1000 x) read as a 1.8 km arm; refused
+    in one line, as lengths in metres are; a 60 m linear track passes."""
+    obj = json.loads(json.dumps(ARM7))
+    for j in obj["joints"]:
+        j.update(d_mm=1000 * j["d_mm"], a_mm=1000 * j["a_mm"])
+    (tmp_path / "um.json").write_text(json.dumps(obj))
+    with pytest.raises(InputError, match=r"um.json: the links reach 1266 m in all "
+                                         r".*look like micrometres; robot files take millimetres"):
+        torchcal.robot(tmp_path / "um.json")
+    track = json.loads(json.dumps(ARM7))
+    track["joints"].insert(0, {"type": "prismatic", "theta_offset_deg": 0, "d_mm": 0, "a_mm": 0, "alpha_deg": 0,
+                               "lower": 0, "upper": 60000})
+    assert robot_from_dict(track).n == 8
+
+
+def test_a_slide_in_metres_warns_once(tmp_path):
+    """The SCARA's lift written 0..0.2 (metres) travelled 0.2 mm in silence (its links in
+    mm reach far enough for the file-wide metres check); now one warning names it."""
+    import warnings
+
+    from torchcal.calibration.mismatch import RobotUnitWarning
+
+    obj = json.loads(json.dumps(SCARA))
+    k = next(i for i, j in enumerate(obj["joints"]) if j["type"] == "prismatic")
+    lo, hi = obj["joints"][k]["lower"], obj["joints"][k]["upper"]
+    obj["joints"][k].update(lower=lo / 1000, upper=hi / 1000)
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        robot_from_dict(obj, "s.json")
+    msgs = [str(x.message) for x in w if issubclass(x.category, RobotUnitWarning)]
+    assert len(msgs) == 1 and msgs[0].startswith(f"s.json: joints[{k + 1}] (prismatic) travels only "), msgs
+    assert f"look like metres ({1000 * lo / 1000:g}..{1000 * hi / 1000:g} mm if they are)" in msgs[0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RobotUnitWarning)
+        robot_from_dict(SCARA)

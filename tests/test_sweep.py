@@ -17,7 +17,9 @@ What is checked, and against what:
 
 from __future__ import annotations
 
+import json
 import math
+import re
 
 import pytest
 import torch
@@ -555,3 +557,49 @@ def test_compiled_envelope_equals_the_eager_one(kr, monkeypatch, dtype):
         err = robot.fk(q[:, None], dev[None]) - robot.fk(q)[:, None]  # (23, 37, 3)
         torch.testing.assert_close(compiled.err_lower, err.amin(1), rtol=0, atol=1e-9)
         torch.testing.assert_close(compiled.dist_upper, err.norm(dim=-1).amax(1), rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda c: c.update(clearance_mm=[0.0] * 12),
+     r"clearance_mm: every seat.s clearance is 0 \(and no tolerance box\)"),
+    (lambda c: c.update(clearance_mm=[1000 * v for v in c["clearance_mm"]]),  # micrometres
+     r"joint 1: clearances 30 \+ 20 mm over a bearing length of 80 mm tilt its axis by up to 0.625 rad"),
+    (lambda c: c.update(bearing_length_mm=[v / 1000 for v in c["bearing_length_mm"]]),  # metres
+     r"joint 1: clearances 0.03 \+ 0.02 mm over a bearing length of 0.08 mm tilt its axis by up to 0.625 rad")])
+def test_a_clearance_of_no_size_or_in_other_units_is_refused(tmp_path, capsys, edit, words):
+    """`sweep --clearance`: all clearances 0 wrote a sweep with R_set = 1 everywhere (and a
+    half-width ratio of 1e+290); clearances in micrometres or bearing lengths in metres
+    wrote distance bounds of 200 .. 540 mm on a UR5e. Now one line, exit 2, nothing written."""
+    from torchcal.cli import main
+
+    obj = {"clearance_mm": [0.03, 0.02] * 6, "bearing_length_mm": [80.0] * 6}
+    edit(obj)
+    (tmp_path / "c.json").write_text(json.dumps(obj))
+    out = tmp_path / "s.csv"
+    capsys.readouterr()
+    assert main(["sweep", "--robot", "ur5e", "--clearance", str(tmp_path / "c.json"), "--n", "10",
+                 "--samples", "10", "--allowed", "0.5", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and re.search(words, err) and not out.exists(), err
+    ok = {"clearance_mm": [0.03, 0.02] * 6, "bearing_length_mm": [80.0] * 6}
+    (tmp_path / "ok.json").write_text(json.dumps(ok))
+    assert main(["sweep", "--robot", "ur5e", "--clearance", str(tmp_path / "ok.json"), "--n", "10",
+                 "--samples", "10", "--allowed", "0.5", "--out", str(out)]) == 0
+
+
+@pytest.mark.parametrize("allowed, words", [
+    ("0.0025", r"allowed distance error 0.0025 mm: R_set is at most 0.00\d+ at every point .*in metres\? \(2.5 mm\)"),
+    ("2.5", None),
+    ("2500", r"allowed distance error 2500 mm: R_set is 1 at every point .*in micrometres\? \(2.5 mm\)")])
+def test_an_allowed_error_in_another_unit_warns_once(tmp_path, capsys, allowed, words):
+    """`sweep --allowed` in metres (0.0025 for 2.5 mm) left R_set near 0 at every point and
+    in micrometres at 1, in silence (the partition of the first splits noise-level values,
+    of the second is refused only later). Now one warning line; the README's 2.5 mm none."""
+    capsys.readouterr()
+    assert cli.main(["sweep", "--robot", "kr1000titan", "--n", "20", "--samples", "20", "--allowed", allowed,
+                     "--no-progress", "--out", str(tmp_path / "s.csv")]) == 0
+    err = [ln for ln in capsys.readouterr().err.splitlines() if "allowed distance error" in ln]
+    if words is None:
+        assert err == []
+    else:
+        assert len(err) == 1 and err[0].startswith("torchcal: warning: ") and re.search(words, err[0]), err

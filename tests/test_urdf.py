@@ -4,6 +4,7 @@ References: pytorch-kinematics' own FK of the URDF (float64 chain, float32-parse
 within 1e-3 mm) and a float64 re-implementation of URDF FK from the XML (`urdf_fk`)."""
 
 import math
+import re
 
 import pytest
 import torch
@@ -204,3 +205,69 @@ def test_a_revolute_joint_without_limits_is_refused(tmp_path, capsys):
                  "--out", str(tmp_path / "c.json")]) == 0
     assert torch.rad2deg(robot_from_urdf(tmp_path / "c.urdf", "base", "l2").limits[1]).tolist() == \
         pytest.approx([-180.0, 180.0])
+
+
+def test_a_mimic_joint_in_the_chain_is_refused(tmp_path, capsys):
+    """A joint driven by another (<mimic>, e.g. a parallel-linkage elbow) has no command of
+    its own; it was imported as an independent joint, so the robot gained a joint its
+    controller never commands and compensate would write a command for it. Now one line
+    names it, what it mimics and the tip to end above it; the chain above it imports."""
+    from torchcal.cli import main
+
+    joints = [("j1", "revolute", "base", "l1", "0 0 0.1", "0 0 0"),
+              ("j2", "revolute", "l1", "l2", "0.3 0 0", "1.5708 0 0"),
+              ("j3", "revolute", "l2", "l3", "0.3 0 0", "0 0 0")]
+    text = _urdf("arm", joints).replace('name="j3" type="revolute">',
+                                        'name="j3" type="revolute"><mimic joint="j2" multiplier="-1"/>')
+    (tmp_path / "m.urdf").write_text(text)
+    capsys.readouterr()
+    assert main(["robot", "import", str(tmp_path / "m.urdf"), "--base", "base", "--tip", "l3",
+                 "--out", str(tmp_path / "m.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and not (tmp_path / "m.json").exists(), err
+    assert "joint 'j3': mimics joint 'j2'" in err and "(tip link 'l2')" in err
+    assert robot_from_urdf(tmp_path / "m.urdf", "base", "l2").n == 2  # the chain above it
+
+
+def test_a_urdf_in_millimetres_is_refused(tmp_path, capsys):
+    """A URDF exported in mm (origins 162.5 where 0.1625 m belongs) was imported as a
+    robot of 1.3 km; fit then blamed the data ('positions look like metres; pass
+    --length-unit m'). Now the import refuses it in one line naming the unit."""
+    from torchcal.cli import main
+
+    joints = [j[:4] + (" ".join(f"{1000 * float(v):g}" for v in j[4].split()),) + j[5:] for j in UR]
+    (tmp_path / "mm.urdf").write_text(_urdf("ur", joints))
+    capsys.readouterr()
+    assert main(["robot", "import", str(tmp_path / "mm.urdf"), "--base", "base_link", "--tip", "tool0",
+                 "--out", str(tmp_path / "mm.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and not (tmp_path / "mm.json").exists(), err
+    assert "the links reach 1322 m in all" in err and "look like millimetres; URDF takes metres" in err
+    path, base, tip = _write(tmp_path, "ur")  # the same in metres
+    assert robot_from_urdf(path, base, tip).n == 6
+
+
+@pytest.mark.parametrize("limit, words", [
+    ('<limit lower="3.0" upper="-3.0"', r"joint 'j2': <limit lower=3 upper=-3> \(rad\): expected finite limits "
+                                        r"with lower below upper"),
+    ('<limit lower="-180" upper="180"', r"joint 'j2': <limit lower=-180 upper=180> turns 10313.2 deg, beyond two "
+                                        r"turns: the limits look like degrees; URDF takes radians")])
+def test_urdf_limits_inverted_or_in_degrees_are_refused(tmp_path, capsys, limit, words):
+    """A URDF joint with lower > upper was imported into a robot file that no command could
+    read; limits in degrees (180 where 3.1416 belongs) gave a robot turning +-10313 deg,
+    in silence. Both: one line naming the joint at import, nothing written; UR-style
+    +-2 pi limits import."""
+    from torchcal.cli import main
+
+    joints = [("j1", "revolute", "base", "l1", "0 0 0.1", "0 0 0"), ("j2", "revolute", "l1", "l2", "0.3 0 0", "0 0 0")]
+    text = _urdf("arm", joints)
+    last = text.rindex('<limit lower="-3.0" upper="3.0"')
+    (tmp_path / "a.urdf").write_text(text[:last] + limit + text[last + len('<limit lower="-3.0" upper="3.0"'):])
+    capsys.readouterr()
+    assert main(["robot", "import", str(tmp_path / "a.urdf"), "--base", "base", "--tip", "l2",
+                 "--out", str(tmp_path / "a.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and re.search(words, err) and not (tmp_path / "a.json").exists(), err
+    (tmp_path / "b.urdf").write_text(text.replace('lower="-3.0" upper="3.0"', 'lower="-6.2832" upper="6.2832"'))
+    assert torch.rad2deg(robot_from_urdf(tmp_path / "b.urdf", "base", "l2").limits).abs().max() == \
+        pytest.approx(360.0, abs=1e-3)

@@ -148,14 +148,39 @@ def write_json(path, obj, force: bool = False, inputs=()) -> Path:
     return atomic_write(path, dumps_json(obj), force=force, inputs=inputs)
 
 
+class _DuplicateKey(Exception):
+    """A key given twice in one JSON object (the parser would keep the last in silence)."""
+
+
+def _no_duplicates(pairs: list) -> dict:
+    """object_pairs_hook of `read_json`: the dict of `pairs`, _DuplicateKey(key) for a key
+    given twice in one object."""
+    seen = set()
+    for k, _ in pairs:
+        if k in seen:
+            raise _DuplicateKey(k)
+        seen.add(k)
+    return dict(pairs)
+
+
 def read_json(path, what: str = "JSON file") -> dict:
-    """Read a JSON object; one clear InputError for a missing file or bad JSON."""
+    """Read a JSON object; one clear InputError for a missing file, bad JSON or a key given
+    twice in one object (e.g. two "tool" matrices in a robot file: JSON keeps the last in
+    silence), naming the key and the lines it appears on."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: {what} does not exist")
     try:
         text = path.read_text(encoding="utf-8-sig")  # a byte order mark (Windows editors) is no content
-        obj = json.loads(text)
+        obj = json.loads(text, object_pairs_hook=_no_duplicates)
+    except _DuplicateKey as exc:
+        import re
+
+        key = exc.args[0]
+        lines = [text.count("\n", 0, m.start()) + 1 for m in re.finditer(re.escape(json.dumps(key)) + r"\s*:", text)]
+        raise InputError(f"{path}: not a valid {what}: key {key!r} given twice in one object"
+                         + (f" (the key is on lines {', '.join(map(str, lines))})" if lines else "")
+                         + "; JSON would keep the last in silence: remove one") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         first = text.split("\n", 1)[0].strip() if isinstance(exc, json.JSONDecodeError) else ""
         if isinstance(exc, json.JSONDecodeError) and not text.strip():

@@ -20,7 +20,8 @@ Conversion (zero configuration, all in the base link's frame, mm):
    and F_i is rebuilt from the row, so the chain is exact whatever the choice.
 4. F_n = F_(n-1) Tz(d_n) with d_n the tip origin's height along joint n's axis; the rest of
    the tip's offset goes into `tool`.
-A continuous joint is revolute with limits -180..180 deg; a revolute or prismatic joint
+A joint with <mimic> (driven by another joint) is refused: torchcal's joints are
+independent, each commanded in its own column. A continuous joint is revolute with limits -180..180 deg; a revolute or prismatic joint
 without <limit lower upper> is refused (the URDF standard requires it); a prismatic joint's q (mm)
 adds to d.
 
@@ -138,6 +139,13 @@ def read_chain(path, base_link: str, tip_link: str) -> list[dict]:
         jtype = el.get("type")
         if jtype not in ("revolute", "continuous", "prismatic", "fixed"):
             raise InputError(f"{where}: type {jtype!r} is not supported (revolute, continuous, prismatic, fixed)")
+        mimic = el.find("mimic")
+        if mimic is not None and jtype != "fixed":  # driven by another joint: no command of its own
+            parent_link = el.find("parent").get("link")
+            raise InputError(f"{where}: mimics joint {mimic.get('joint')!r} (<mimic multiplier="
+                             f"{mimic.get('multiplier', '1')} offset={mimic.get('offset', '0')}>): torchcal models "
+                             f"independent joints only and would read it as one commanded in a column of its own; "
+                             f"end the chain above it (tip link {parent_link!r}) or make it fixed at its pose")
         ax = el.find("axis")
         axis = torch.tensor([float(v) for v in (ax.get("xyz") if ax is not None else "1 0 0").split()], dtype=_F)
         if jtype != "fixed":
@@ -155,9 +163,27 @@ def read_chain(path, base_link: str, tip_link: str) -> list[dict]:
             else:
                 s = 1000.0 if jtype == "prismatic" else 1.0
                 lower, upper = float(lim.get("lower")) * s, float(lim.get("upper")) * s
+                _check_limits(where, jtype, lower, upper)
         out.append({"name": name, "type": jtype, "origin": _origin(el.find("origin"), where), "axis": axis,
                     "lower": lower, "upper": upper})
     return out
+
+
+MAX_URDF_TURN_RAD = 4 * math.pi  # a revolute limit beyond two turns either way: degrees in a URDF
+
+
+def _check_limits(where: str, jtype: str, lower: float, upper: float) -> None:
+    """InputError for a joint's <limit> (rad, mm for a prismatic joint as converted): not
+    finite, lower not below upper, or a revolute limit beyond MAX_URDF_TURN_RAD (degrees
+    written where URDF takes radians: 180 read as 10313 deg)."""
+    unit = "mm" if jtype == "prismatic" else "rad"
+    if not (math.isfinite(lower) and math.isfinite(upper)) or not lower < upper:
+        raise InputError(f"{where}: <limit lower={lower:g} upper={upper:g}> ({unit}): expected finite limits with "
+                         f"lower below upper")
+    turn = max(abs(lower), abs(upper))
+    if jtype != "prismatic" and turn > MAX_URDF_TURN_RAD:
+        raise InputError(f"{where}: <limit lower={lower:g} upper={upper:g}> turns {math.degrees(turn):.6g} deg, "
+                         f"beyond two turns: the limits look like degrees; URDF takes radians")
 
 
 def urdf_fk(joints: list[dict], q: torch.Tensor) -> torch.Tensor:
@@ -270,6 +296,10 @@ def robot_from_urdf(path, base_link: str, tip_link: str, name: str | None = None
     pris = [j["type"] == "prismatic" for j in moving]
     # q = 0 of a prismatic joint: the URDF's zero; theta/d offsets come from the rows
     limits = [[j["lower"], j["upper"]] for j in moving]
+    from torchcal.calibration.mismatch import check_robot_lengths
+
+    check_robot_lengths(torch.tensor(rows, dtype=_F), torch.tensor(pris), torch.tensor(limits, dtype=_F), str(path),
+                        urdf=True)  # a URDF written in millimetres
     return Robot(name or _root(path).get("name") or Path(path).stem, torch.tensor(rows, dtype=_F), torch.tensor(has_beta),
                  torch.tensor(limits, dtype=_F), base, tool, 0.0,
                  torch.tensor([0.0, 0.0, -1.0], dtype=_F), torch.tensor(pris),

@@ -55,6 +55,7 @@ import math
 import os
 import sys
 import threading
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, fields, replace
@@ -446,6 +447,31 @@ def _check_allowed(allowed_mm, allowed_axis_mm) -> None:
     if allowed_axis_mm is not None and not (isinstance(allowed_axis_mm, (int, float))
                                             and math.isfinite(allowed_axis_mm) and allowed_axis_mm > 0):
         raise InputError(f"allowed axis error must be a positive number of mm, got {allowed_axis_mm!r}")
+
+
+class AllowedErrorWarning(UserWarning):
+    """The allowed distance error of a sweep leaves R_set nil or 1 at every point: likely
+    in another unit (metres, micrometres)."""
+
+
+R_SET_NIL = 0.01  # R_set at most this at every point: the allowed error is below every point's bound
+
+
+def warn_allowed(summary: dict, allowed_mm: float, stacklevel: int = 2) -> None:
+    """One `AllowedErrorWarning` when the sweep's R_set (`SweepResult.summary()` keys) is
+    at most R_SET_NIL at every point (the allowed error `allowed_mm` far below every
+    point's distance bound: metres?) or 1 at every point with the allowed error beyond
+    every bound (micrometres?)."""
+    lo, hi = summary["dist_upper_min_mm"], summary["dist_upper_max_mm"]
+    if summary["r_set_max"] <= R_SET_NIL:
+        warnings.warn(f"allowed distance error {allowed_mm:g} mm: R_set is at most {summary['r_set_max']:.3g} at "
+                      f"every point (distance error bounds {lo:.4g} .. {hi:.4g} mm): far below every point's bound, "
+                      f"no point is near reliable; in metres? ({1000 * allowed_mm:g} mm)", AllowedErrorWarning,
+                      stacklevel=stacklevel)
+    elif summary["share_r_set_1"] >= 1.0 and allowed_mm > 10 * hi:
+        warnings.warn(f"allowed distance error {allowed_mm:g} mm: R_set is 1 at every point (distance error "
+                      f"bounds {lo:.4g} .. {hi:.4g} mm), so no partition can tell the points apart; in "
+                      f"micrometres? ({allowed_mm / 1000:g} mm)", AllowedErrorWarning, stacklevel=stacklevel)
 
 
 def sweep_states(robot, *, n_samples: int = 300, seed: int = 0, model: ClearanceModel | None = None,

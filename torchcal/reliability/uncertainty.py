@@ -98,6 +98,11 @@ KR1000_MIN_CLEARANCE_MM = (0.0,) * 12
 KR1000_BEARING_LENGTH_MM = (200.0, 137.0, 99.0, 75.6, 60.0, 50.0)
 
 MODES = ("contact", "disc")
+#: the largest axis tilt (c_1 + c_2) / L of a joint a clearance model takes, rad: the
+#: first-order map onto MD-H deviations assumes small motions (the KR 1000's are 3e-4 ..
+#: 7e-4 rad); 30 "mm" of clearance (micrometres) or a bearing length of 0.15 "mm" (metres)
+#: give 0.3 .. 0.5 rad and distance errors of hundreds of mm.
+MAX_TILT_RAD = 0.01
 
 
 @dataclass(frozen=True)
@@ -143,6 +148,17 @@ class ClearanceModel:
             raise InputError(f"ClearanceModel.bearing_length_mm: must be > 0, got {min(self.bearing_length_mm)}")
         if self.mode not in MODES:
             raise InputError(f"ClearanceModel.mode: expected one of {', '.join(MODES)}, got {self.mode!r}")
+        if max(self.clearance_mm) == 0 and self.tolerance is None:
+            raise InputError("ClearanceModel.clearance_mm: every seat's clearance is 0 (and no tolerance box): "
+                             "no state differs from the nominal robot, so R_set would be 1 everywhere")
+        tilt = [(self.clearance_mm[2 * j] + self.clearance_mm[2 * j + 1]) / self.bearing_length_mm[j] for j in range(n)]
+        j = max(range(n), key=tilt.__getitem__)
+        if tilt[j] > MAX_TILT_RAD:
+            raise InputError(f"ClearanceModel: joint {j + 1}: clearances {self.clearance_mm[2 * j]:g} + "
+                             f"{self.clearance_mm[2 * j + 1]:g} mm over a bearing length of "
+                             f"{self.bearing_length_mm[j]:g} mm tilt its axis by up to {tilt[j]:.3g} rad, beyond "
+                             f"the small motions a clearance model describes (at most {MAX_TILT_RAD:g} rad): "
+                             "clearances in micrometres or bearing lengths in metres? both take mm")
         if self.tolerance is not None:
             tol = tuple(tuple(float(x) for x in row) for row in self.tolerance)
             if len(tol) != n or any(len(row) != 5 for row in tol) or min(min(r) for r in tol) < 0:

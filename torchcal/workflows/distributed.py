@@ -313,6 +313,8 @@ def run_sweep(plan: SweepPlan, out, *, client=None, threads: int | None = None, 
             _run_on(client, plan, missing, write)
     summary = summary_of(acc)
     folder.assemble(sweep_head(plan.robot.n, plan.robot), plan.n_blocks)
+    from torchcal.reliability.sweep import warn_allowed
+    warn_allowed(summary, plan.allowed_mm, stacklevel=2)  # an allowed error in metres or micrometres
     return summary
 
 

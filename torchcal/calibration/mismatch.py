@@ -765,6 +765,17 @@ def _in_frame(model, m, tool: bool = True):
     return (m.xyz - res.residuals).detach()
 
 
+def _frame_and_tool(model):
+    """(the base_frame effect, its slice, the tool_offset's slice) of a model of exactly
+    base_frame and a single tool_offset (one offset for every point), else None: the models
+    whose nominal points the tool offset moves linearly (`_frame_fit`, `_frame_bound_mm`)."""
+    names = [e.name for e in model.effects]
+    if sorted(names) != ["base_frame", "tool_offset"] or model.effects[names.index("tool_offset")].points:
+        return None
+    i, j = names.index("base_frame"), names.index("tool_offset")
+    return model.effects[i], model.slices[1 + i], model.slices[1 + j]
+
+
 def _frame_fit(model, ctx, xyz: torch.Tensor, start: torch.Tensor, free: torch.Tensor):
     """`_in_frame`'s fit without the kinematic chain in its loop: the predicted points (N, 3)
     mm, or None where it does not apply (then `fit` does it). For a model of exactly
@@ -780,11 +791,10 @@ def _frame_fit(model, ctx, xyz: torch.Tensor, start: torch.Tensor, free: torch.T
     from torchcal.calibration.identifiability import check_enough_rows, identifiability
     from torchcal.calibration.lm import levenberg_marquardt
 
-    names = [e.name for e in model.effects]
-    if sorted(names) != ["base_frame", "tool_offset"] or model.effects[names.index("tool_offset")].points:
+    parts = _frame_and_tool(model)
+    if parts is None:
         return None
-    frame_sl, tool_sl = (model.slices[1 + names.index(n)] for n in ("base_frame", "tool_offset"))
-    frame = model.effects[names.index("base_frame")]
+    frame, frame_sl, tool_sl = parts
     J0 = model.jacobian(start, ctx)  # (N, 3, P) at the start, as `fit`'s identifiability takes it
     report = identifiability(J0, model.param_names(), free, first=torch.ones_like(free))
     if not torch.equal(report.free.cpu(), free.cpu()):
@@ -846,12 +856,12 @@ SESSION_FLOOR_MM = 2.0  # one frame's rms below this: no search for a moved inst
 SESSION_RATIO = 3.0  # each part's own frame must come this many times closer than one frame through both
 
 
-def moved_within_gross(model, m, quick_mm: float, reg: float | None = None) -> Mismatch | None:
+def moved_within_gross(model, m, quick_mm: float, pred: torch.Tensor | None = None) -> Mismatch | None:
     """Two measuring frames in one file that one frame and tool offset fit within GROSS_MM
     (an instrument moved by a few mm or a fraction of a degree between two sessions, or
     midway through one): None, or a 'mismatch' naming the parts. Judged only for a model
-    with base_frame whose one-frame rms (`quick_mm`, then the registered one `reg`, computed
-    when None) exceeds
+    with base_frame whose one-frame rms (`quick_mm`, then that of the registered points
+    `pred` (N, 3) mm, `_registered`'s, computed when None) exceeds
     SESSION_FLOOR_MM: a part fits when its own frame and tool offset leave at most 1 /
     SESSION_RATIO of the one-frame rms (`joined_sessions` at restarting pose ids, else
     `changed_midway`). Single sessions of the simulated titan and UR10 series B and D come
@@ -860,8 +870,9 @@ def moved_within_gross(model, m, quick_mm: float, reg: float | None = None) -> M
 
     if "base_frame" not in [e.name for e in model.effects] or quick_mm <= SESSION_FLOOR_MM:
         return None
-    if reg is None:
-        reg = _rms((_registered(model, m) - m.xyz).norm(dim=-1))
+    if pred is None:
+        pred = _registered(model, m)
+    reg = _rms((pred - m.xyz).norm(dim=-1))
     if reg <= SESSION_FLOOR_MM:
         return None
     bound = reg / SESSION_RATIO
@@ -883,7 +894,7 @@ def moved_within_gross(model, m, quick_mm: float, reg: float | None = None) -> M
     msg = (f"{what}: two measuring frames in one file: one frame and tool offset for {name} leave rms {reg:.4g} mm, "
            f"but rows 1..{cut} and {cut + 1}..{len(m)} (data rows) leave {each} mm in a frame and with a tool "
            f"offset of their own{'' if join is None else ' '}{how}")
-    return dataclasses.replace(check_points(_registered(model, m), m.xyz, None, what), rms_mm=reg,
+    return dataclasses.replace(check_points(pred, m.xyz, None, what), rms_mm=reg,
                                registered_rms_mm=reg, verdict="mismatch", message=msg)
 
 
@@ -1059,13 +1070,12 @@ def _frame_bound_mm(model, m) -> float:
     from torchcal.effects import context_of
 
     model = with_frame(model, model.zeros(), tool=True)[0]
-    names = [e.name for e in model.effects]
-    if sorted(names) != ["base_frame", "tool_offset"] or model.effects[names.index("tool_offset")].points \
-            or len(m) < 3:
+    parts = _frame_and_tool(model)
+    if parts is None or len(m) < 3:
         return 0.0
     ctx = context_of(model.robot, m)
     model.check_context(ctx)
-    tool_sl = model.slices[1 + names.index("tool_offset")]
+    tool_sl = parts[2]
     zero = model.zeros().to(m.xyz)
     with torch.no_grad():
         c = model.predict(zero, ctx).to(torch.float64).cpu()  # (N, 3)
@@ -1159,7 +1169,7 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
     if reg <= GROSS_MM:
         as_is = reg if not missing else _rms((_in_frame(model, m) - m.xyz).norm(dim=-1))
         if as_is <= GROSS_MM:
-            return moved_within_gross(model, m, reg, reg)
+            return moved_within_gross(model, m, reg, pred)
         return result("frame", f"{what}: the measurements are in another frame: the nominal {name} is off by rms "
                       f"{as_is:.4g} mm with the effects given and by {reg:.4g} mm with a fitted measuring frame and "
                       f"tool offset, which the model lacks (tracker data need base_frame tool_offset; data in the "

@@ -27,7 +27,7 @@ def pytest_configure(config):
     threads.apply()  # torch and numpy's / scipy's BLAS on one intra-op thread
     # What the imports made lives until the process ends: frozen (gc.freeze), the cyclic
     # collector's full collections, the ones at exit included, no longer scan it again, as
-    # `torchcal.cli.import_torch` does for a command. Here once torch is loaded, and again
+    # `torchcal.threads.apply_importing` does for a command. Here once torch is loaded, and again
     # once the test modules are collected (below).
     gc.freeze()
 

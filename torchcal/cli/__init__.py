@@ -136,16 +136,11 @@ def main(argv: list[str] | None = None) -> int:
     _Parser.command = first if first in COMMANDS else None
     args = build_parser((first,) if first in COMMANDS else ()).parse_args(argv)
     vars(args).pop(_GIVEN, None)
-    import_torch()
-    with quiet_broken_pipe():  # `torchcal ... | head` ends quietly
-        return _run(args)
-
-
-def import_torch() -> None:
-    """torch imported with its import's objects frozen: `torchcal.threads.apply_importing`."""
     from torchcal import threads
 
-    threads.apply_importing()
+    threads.apply_importing()  # torch imported with its import's objects frozen
+    with quiet_broken_pipe():  # `torchcal ... | head` ends quietly
+        return _run(args)
 
 
 def _caused_by(exc: BaseException, kind) -> bool:

@@ -274,7 +274,7 @@ def refit_from(start: FitResult, m, ctx, train: torch.Tensor, *, sigma_mm: float
 
 def _fold_rows(full: FitResult, m, ctx, train: torch.Tensor, sigma_mm: float, sigma_deg: float) -> Rows:
     """The `Rows` of full's model on the rows `train` (N,) bool of m (no tool rotation yet)."""
-    return Rows(full.model, ctx.subset(train), m.xyz[train], None if m.rotation is None else m.rotation[train],
+    return Rows(full.model, ctx.subset(train), m.xyz[train], None if m.rxyz is None else m.rotation[train],
                 orientation_weight(sigma_mm, sigma_deg))
 
 

@@ -41,7 +41,7 @@ def few_poses(fit, m, folds: np.ndarray) -> str | None:
     below that error cannot be told from it (12 simulated kr1000titan poses with backlash
     and thermal expansion, 0.15 mm of error: refit cv 0.50 mm, nothing found)."""
     free = int(fit.report.free.sum())
-    per_row = 3 if m.rotation is None else 6
+    per_row = 3 if m.rxyz is None else 6
     labels = np.unique(folds)
     train = min(int((folds != f).sum()) for f in labels) if len(labels) > 1 else len(folds)
     if free == 0 or per_row * train >= MIN_EQUATIONS_PER_PARAM * free:
@@ -85,7 +85,7 @@ def fold_fit(full, m, ctx, train: torch.Tensor, *, sigma_mm: float, sigma_deg: f
 
     lim = full.plausible_limits or {}
     return fit(full.model, ctx.subset(train), m.xyz[train], theta0=full.theta, free=full.report.free,
-               pose=m.pose[train], rotation=None if m.rotation is None else m.rotation[train],
+               pose=m.pose[train], rotation=None if m.rxyz is None else m.rotation[train],
                sigma_mm=sigma_mm, sigma_deg=sigma_deg, register=False, max_iter=REFIT_MAX_ITER,
                max_length_mm=lim.get("max_length_mm"), max_angle_deg=lim.get("max_angle_deg"),
                prior_sigma_mm=lim.get("prior_sigma_mm"), posterior=posterior, rank_shortcut=True)

@@ -195,11 +195,8 @@ def test_a_revolute_joint_without_limits_is_refused(tmp_path, capsys):
     cut = text.replace('<limit lower="-3.0" upper="3.0" effort="1" velocity="1"/></joint></robot>', "</joint></robot>")
     assert cut.count("<limit") == 1
     (tmp_path / "a.urdf").write_text(cut)
-    capsys.readouterr()
-    assert main(["robot", "import", str(tmp_path / "a.urdf"), "--base", "base", "--tip", "l2",
-                 "--out", str(tmp_path / "a.json")]) == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "'j2'" in err and "<limit" in err and not (tmp_path / "a.json").exists()
+    err = _refused_import(tmp_path, capsys, "a.urdf", "base", "l2")
+    assert "'j2'" in err and "<limit" in err
     (tmp_path / "c.urdf").write_text(cut.replace('name="j2" type="revolute"', 'name="j2" type="continuous"'))
     assert main(["robot", "import", str(tmp_path / "c.urdf"), "--base", "base", "--tip", "l2",
                  "--out", str(tmp_path / "c.json")]) == 0
@@ -207,24 +204,31 @@ def test_a_revolute_joint_without_limits_is_refused(tmp_path, capsys):
         pytest.approx([-180.0, 180.0])
 
 
+def _refused_import(tmp_path, capsys, urdf: str, base: str, tip: str) -> str:
+    """`torchcal robot import` of tmp_path / urdf refused: exit 2, one line on stderr
+    (returned), no robot file written."""
+    from torchcal.cli import main
+
+    out = tmp_path / urdf.replace(".urdf", ".json")
+    capsys.readouterr()
+    assert main(["robot", "import", str(tmp_path / urdf), "--base", base, "--tip", tip, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and not out.exists(), err
+    return err
+
+
 def test_a_mimic_joint_in_the_chain_is_refused(tmp_path, capsys):
     """A joint driven by another (<mimic>, e.g. a parallel-linkage elbow) has no command of
     its own; it was imported as an independent joint, so the robot gained a joint its
     controller never commands and compensate would write a command for it. Now one line
     names it, what it mimics and the tip to end above it; the chain above it imports."""
-    from torchcal.cli import main
-
     joints = [("j1", "revolute", "base", "l1", "0 0 0.1", "0 0 0"),
               ("j2", "revolute", "l1", "l2", "0.3 0 0", "1.5708 0 0"),
               ("j3", "revolute", "l2", "l3", "0.3 0 0", "0 0 0")]
     text = _urdf("arm", joints).replace('name="j3" type="revolute">',
                                         'name="j3" type="revolute"><mimic joint="j2" multiplier="-1"/>')
     (tmp_path / "m.urdf").write_text(text)
-    capsys.readouterr()
-    assert main(["robot", "import", str(tmp_path / "m.urdf"), "--base", "base", "--tip", "l3",
-                 "--out", str(tmp_path / "m.json")]) == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and not (tmp_path / "m.json").exists(), err
+    err = _refused_import(tmp_path, capsys, "m.urdf", "base", "l3")
     assert "joint 'j3': mimics joint 'j2'" in err and "(tip link 'l2')" in err
     assert robot_from_urdf(tmp_path / "m.urdf", "base", "l2").n == 2  # the chain above it
 
@@ -233,15 +237,9 @@ def test_a_urdf_in_millimetres_is_refused(tmp_path, capsys):
     """A URDF exported in mm (origins 162.5 where 0.1625 m belongs) was imported as a
     robot of 1.3 km; fit then blamed the data ('positions look like metres; pass
     --length-unit m'). Now the import refuses it in one line naming the unit."""
-    from torchcal.cli import main
-
     joints = [j[:4] + (" ".join(f"{1000 * float(v):g}" for v in j[4].split()),) + j[5:] for j in UR]
     (tmp_path / "mm.urdf").write_text(_urdf("ur", joints))
-    capsys.readouterr()
-    assert main(["robot", "import", str(tmp_path / "mm.urdf"), "--base", "base_link", "--tip", "tool0",
-                 "--out", str(tmp_path / "mm.json")]) == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and not (tmp_path / "mm.json").exists(), err
+    err = _refused_import(tmp_path, capsys, "mm.urdf", "base_link", "tool0")
     assert "the links reach 1322 m in all" in err and "look like millimetres; URDF takes metres" in err
     path, base, tip = _write(tmp_path, "ur")  # the same in metres
     assert robot_from_urdf(path, base, tip).n == 6
@@ -257,17 +255,12 @@ def test_urdf_limits_inverted_or_in_degrees_are_refused(tmp_path, capsys, limit,
     read; limits in degrees (180 where 3.1416 belongs) gave a robot turning +-10313 deg,
     in silence. Both: one line naming the joint at import, nothing written; UR-style
     +-2 pi limits import."""
-    from torchcal.cli import main
-
     joints = [("j1", "revolute", "base", "l1", "0 0 0.1", "0 0 0"), ("j2", "revolute", "l1", "l2", "0.3 0 0", "0 0 0")]
     text = _urdf("arm", joints)
     last = text.rindex('<limit lower="-3.0" upper="3.0"')
     (tmp_path / "a.urdf").write_text(text[:last] + limit + text[last + len('<limit lower="-3.0" upper="3.0"'):])
-    capsys.readouterr()
-    assert main(["robot", "import", str(tmp_path / "a.urdf"), "--base", "base", "--tip", "l2",
-                 "--out", str(tmp_path / "a.json")]) == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and re.search(words, err) and not (tmp_path / "a.json").exists(), err
+    err = _refused_import(tmp_path, capsys, "a.urdf", "base", "l2")
+    assert re.search(words, err), err
     (tmp_path / "b.urdf").write_text(text.replace('lower="-3.0" upper="3.0"', 'lower="-6.2832" upper="6.2832"'))
     assert torch.rad2deg(robot_from_urdf(tmp_path / "b.urdf", "base", "l2").limits).abs().max() == \
         pytest.approx(360.0, abs=1e-3)

@@ -58,7 +58,7 @@ import torchcal.cli
 torchcal.cli.import_torch()
 t["import torch"] = time.process_time()
 import torchcal, torchcal.api, torchcal.cli.fit, torchcal.effects.registry, torchcal.io.modelfile
-from torchcal.calibration.mismatch import check_units
+from torchcal.calibration.checks.units import check_units
 from torchcal.io.measurement_csv import read_measurements
 t["torchcal imports"] = time.process_time()
 data, robot_file, out = sys.argv[1:4]

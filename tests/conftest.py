@@ -4,6 +4,7 @@ torch and BLAS thread for the session)."""
 import torchcal  # first: sets OMP_WAIT_POLICY=PASSIVE before torch loads (torchcal.threads)
 
 import gc
+from pathlib import Path
 
 import pytest
 
@@ -72,3 +73,43 @@ def mdh_deviations():
         return geo
 
     return draw
+
+
+UR10_FILE = Path(__file__).resolve().parents[1] / "examples" / "ur10" / "ur10.json"
+
+
+@pytest.fixture(scope="session")
+def ur10_fitted():
+    """(UR10, the "real" UR10: a VirtualRobot in a tracker frame with compliance its model
+    lacks, the model base_frame tool_offset fitted on 60 of its poses, 40 other poses
+    measured): the data-against-a-model checks' case (tests change copies, never these)."""
+    from torchcal.robots.poses import random_poses
+    from torchcal.simulation.virtual_robot import VirtualRobot
+
+    rob = torchcal.robot(UR10_FILE)
+    # the "real" UR10 sits in a tracker frame and carries compliance its model lacks
+    vr = VirtualRobot(rob, ["base_frame", "joint_compliance:2,3"], seed=1)
+    fitted = torchcal.fit(rob, vr.measure(random_poses(rob, 60, 3), seed=4), ["base_frame", "tool_offset"])
+    val = vr.measure(random_poses(rob, 40, 5), seed=6)
+    return rob, vr, fitted, val
+
+
+@pytest.fixture(scope="session")
+def ur10_series_d():
+    """(UR10, UR10 series D, the model fitted on its odd rows): read by the column and row
+    mix-up tests (they change copies, never these)."""
+    from torchcal.io.measurement_csv import read_measurements
+
+    rob = torchcal.robot(UR10_FILE)
+    m = read_measurements(UR10_FILE.parent / "series_d.csv", robot=rob)
+    return rob, m, torchcal.fit(rob, m.subset(slice(1, None, 2)), ["base_frame", "tool_offset"])
+
+
+@pytest.fixture(scope="session")
+def titan_data():
+    """40 poses of a kr1000titan measured in its base frame (data of another robot than a UR10)."""
+    from torchcal.robots.poses import random_poses
+    from torchcal.simulation.virtual_robot import VirtualRobot
+
+    ti = torchcal.robot("kr1000titan")
+    return VirtualRobot(ti, [], seed=2).measure(random_poses(ti, 40, 7), seed=8)

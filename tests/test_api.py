@@ -124,7 +124,7 @@ def test_compensate_checks_the_callers_seeds(kr, data):
     calibrated-range warning only), seeds far from their targets named in one warning."""
     import warnings
 
-    from torchcal.calibration.mismatch import MismatchWarning
+    from torchcal.calibration.checks.verdict import MismatchWarning
 
     m, _ = data
     res = torchcal.fit(kr, m)

@@ -161,7 +161,7 @@ def test_the_models_own_calibration_positions_are_within_its_reach(cell):
     base, as beyond it, and compensate then gave that target one start only)."""
     import warnings
 
-    from torchcal.calibration.mismatch import check_targets
+    from torchcal.calibration.checks.targets import check_targets
     from torchcal.io.measurement_csv import read_measurements
 
     d, _, _ = cell
@@ -231,7 +231,8 @@ def test_commands_far_from_every_sweep_point_are_named():
     pass; one 1 m outside it (10 spacings) is named by row with its distance."""
     import warnings
 
-    from torchcal.calibration.mismatch import MismatchWarning, warn_far_from_sweep
+    from torchcal.calibration.checks.partition import warn_far_from_sweep
+    from torchcal.calibration.checks.verdict import MismatchWarning
     from torchcal.partition.zones import partition_workspace
 
     g = torch.arange(5, dtype=torch.float64) * 100.0

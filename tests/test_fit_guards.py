@@ -13,7 +13,8 @@ import torch
 
 import torchcal
 from npsim import tracker_session
-from torchcal.calibration.mismatch import GROSS_MM, check_fitted
+from torchcal.calibration.checks.robot_data import check_fitted
+from torchcal.calibration.checks.verdict import GROSS_MM
 from torchcal.cli import main
 from torchcal.errors import InputError
 from torchcal.io.measurement_csv import write_measurements

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 import torchcal
-from torchcal.calibration.mismatch import check_units, spread_mm
+from torchcal.calibration.checks.units import check_units, spread_mm
 from torchcal.cli import main
 from torchcal.errors import InputError
 from torchcal.io.measurement_csv import read_measurements, write_measurements

@@ -205,7 +205,7 @@ def _no_point_warning():
     """A PointIdWarning in the block is an error."""
     import warnings
 
-    from torchcal.calibration.mismatch import PointIdWarning
+    from torchcal.calibration.checks.model_data import PointIdWarning
 
     with warnings.catch_warnings():
         warnings.simplefilter("error", PointIdWarning)

@@ -212,7 +212,7 @@ def test_one_joints_limits_in_radians_warn_once(tmp_path, capsys):
     radians; a joint that truly turns +-10 deg says nothing."""
     import warnings
 
-    from torchcal.calibration.mismatch import RobotUnitWarning
+    from torchcal.robots.checks import RobotUnitWarning
 
     obj = json.loads(json.dumps(ARM7))
     obj["joints"][6].update(lower=-3.0543, upper=3.0543)
@@ -255,7 +255,7 @@ def test_a_slide_in_metres_warns_once(tmp_path):
     mm reach far enough for the file-wide metres check); now one warning names it."""
     import warnings
 
-    from torchcal.calibration.mismatch import RobotUnitWarning
+    from torchcal.robots.checks import RobotUnitWarning
 
     obj = json.loads(json.dumps(SCARA))
     k = next(i for i, j in enumerate(obj["joints"]) if j["type"] == "prismatic")

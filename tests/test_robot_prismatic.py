@@ -17,7 +17,7 @@ import torch
 from torchcal.cli import main
 from torchcal.io.targets_csv import read_targets
 from torchcal.errors import InputError
-from torchcal.calibration.mismatch import check_units
+from torchcal.calibration.checks.units import check_units
 from torchcal.io.measurement_csv import read_measurements
 from torchcal.io.robot_file import robot_from_dict
 

@@ -432,7 +432,7 @@ def test_a_transfer_session_that_repeats_the_searched_rows_is_refused():
                                          r"x, y, z; data row\(s\) 36, 37, 38, 39, 40\): the transfer check needs "
                                          r"the measurements of another session"):
         torchcal.discover(rob, data, ["base_frame", "tool_offset"], transfer=pasted, max_rounds=0)
-    from torchcal.calibration.mismatch import shared_rows
+    from torchcal.calibration.checks.sessions import shared_rows
 
     other = Measurements(torch.arange(40), q[40:], xyz[40:], source="o.csv")
     assert shared_rows(data, other) == [] and shared_rows(data, data) == list(range(40))

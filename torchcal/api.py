@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 from torchcal import threads
 from torchcal._lazy import attach
 from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult
-from torchcal.calibration.mismatch import check_diagnosis_data, check_robot_data_of
+from torchcal.calibration.checks.robot_data import check_diagnosis_data, check_robot_data_of
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.calibration.model import CalibrationModel
 from torchcal.errors import DataError, InputError, number_argument
@@ -172,13 +172,13 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     Measurements with several `point` ids need `tool_offset` (one offset per point).
     length_unit ('mm' or 'm') / angle_unit ('deg' or 'rad'): the units of the measurement
     file (a path is read in them; `Measurements` were read in them). Before fitting, the
-    unit check (`torchcal.calibration.mismatch.check_units`) refuses data that look like
+    unit check (`torchcal.calibration.checks.units.check_units`) refuses data that look like
     metres read as mm or radians read as degrees with one InputError line, the line the
     command line prints; so does the gross-mismatch check of the nominal robot
     (`check_robot_data_of`: another frame the model lacks, another robot, units, a
     mirrored frame, reversed joint columns, gross outliers without `robust`) and, after
     the fit, a fitted RMS beyond what any calibration leaves
-    (`torchcal.calibration.mismatch.check_fitted`).
+    (`torchcal.calibration.checks.robot_data.check_fitted`).
     residual_model: 'kernel' adds the non-physical residual stage
     (`torchcal.calibration.residual_model`) as ``res.residual_model`` only when its held-out
     gain is significant (`torchcal.diagnosis.residual_stage`, the figures in
@@ -187,7 +187,8 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     MODEL.json of ``torchcal fit``, `load` reads it back.
     """
     from torchcal.calibration.fit import fit as fit_model
-    from torchcal.calibration.mismatch import check_fitted, check_units
+    from torchcal.calibration.checks.robot_data import check_fitted
+    from torchcal.calibration.checks.units import check_units
     from torchcal.effects import context_of
 
     robot = _robot(robot_or_model)
@@ -226,7 +227,7 @@ def evaluate(model, measurements) -> Evaluation:
     """Errors of a fitted model (`FitResult`, or a MODEL.json path) on measurements.
 
     Data that cannot come from the model (another robot, a moved measuring frame, units;
-    `torchcal.calibration.mismatch`) are refused with one InputError line.
+    `torchcal.calibration.checks`) are refused with one InputError line.
 
     Rows outside the model's calibrated joint range are counted (``outside_range``) and
     named in one `CalibratedRangeWarning` (the model extrapolates there)."""
@@ -296,14 +297,15 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
                          f"{m.source or 'the data'} have: thermal_expansion, a candidate on those data, is "
                          f"scored on both sessions; add temp_c (degC) to it or drop the column from both")
     if other is not None:  # the other session's data are held to the same check (another robot, units)
-        from torchcal.calibration.mismatch import _listed, shared_rows
+        from torchcal.calibration.checks.sessions import shared_rows
+        from torchcal.calibration.checks.verdict import listed
 
         check_robot_data_of(CalibrationModel.for_measurements(model.robot, model.specs(), other), other)
         same = shared_rows(m, other)
         if same:  # the search's own rows would confirm every step it takes
             raise InputError(f"{other.source or 'transfer'}: {len(same)} of {len(other)} rows repeat rows of "
                              f"{m.source or 'the data'} (the same joint values and x, y, z; data row(s) "
-                             f"{_listed(i + 1 for i in same)}): the transfer check needs the measurements of "
+                             f"{listed(i + 1 for i in same)}): the transfer check needs the measurements of "
                              "another session, not the data searched")
     check = None if other is None else TransferCheck(other, transfer_poses, other.source or "the other session")
     with threads.for_work(_work(model, m)), _about(m):
@@ -328,7 +330,7 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
     (InputError), one without a record read with an `UnrecordedRobotWarning`
     (`torchcal.io.partition_file.load_partition`); a `Partition` is held to the record it
     was read with (``made_for``), and one without (built in memory, an older file) to its
-    geometry (`torchcal.calibration.mismatch.check_partition`: sweep points beyond the
+    geometry (`torchcal.calibration.checks.partition.check_partition`: sweep points beyond the
     robot's reach, calibration poses far from every sweep point: InputError). Returns the global interval
     fit (a `FitResult` with ``radius``), with a partition a `ZonedFit` (the global fit and
     one fit per zone); `save` writes it as the MODEL.json of ``torchcal calibrate``.
@@ -354,12 +356,12 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
     elif isinstance(robot_or_model, (CalibrationModel, FitResult)):
         model = _for_data(model, m)
     if partition is not None and partition.made_for is None:  # no record: judged by its geometry
-        from torchcal.calibration.mismatch import check_partition
+        from torchcal.calibration.checks.partition import check_partition
         check_partition(partition, model.robot, m.q, "partition")
-    from torchcal.calibration.mismatch import check_fitted
+    from torchcal.calibration.checks.robot_data import check_fitted
 
     if partition is not None:  # rows beyond the swept region: their zone is extrapolated (as compensate says)
-        from torchcal.calibration.mismatch import warn_far_from_sweep
+        from torchcal.calibration.checks.partition import warn_far_from_sweep
         warn_far_from_sweep(partition, model.robot.fk(m.q).detach(), m.source or "measurements", stacklevel=2)
     with threads.for_work(_work(model, m)), _about(m):
         check_robot_data_of(model, m)  # another frame (tracker data without base_frame tool_offset), robot, units
@@ -387,7 +389,7 @@ def compensate(model, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int =
     `Compensation`; converged solutions outside the model's calibrated joint range are
     counted (``outside_range``) and named in one `CalibratedRangeWarning`. check: targets
     inside the robot's base (metres read as mm) are refused, targets beyond its reach
-    named in a `MismatchWarning` (`torchcal.calibration.mismatch.check_targets`). A model
+    named in a `MismatchWarning` (`torchcal.calibration.checks.targets.check_targets`). A model
     with a residual stage (``model.residual_model``) is
     inverted with it (the physical model is solved for the target minus the stage's
     correction, repeated until it settles).
@@ -407,7 +409,7 @@ def register(model, measurements, *, tool: bool = False) -> FitResult:
     training rms are kept; or a robot
     (preset name, robot file, `Robot`): a registration-only model (nominal geometry in
     the best frame), calibrated on these rows. Data that no frame brings near the model
-    (another robot, units) are refused (InputError, `torchcal.calibration.mismatch`).
+    (another robot, units) are refused (InputError, `torchcal.calibration.checks`).
     Returns a `FitResult` whose ``rms_mm`` and ``residuals`` are those on `measurements`
     and whose ``registration`` records the frame and the rms before and after; for a
     per-zone model a `ZonedFit` whose zones take the global frame's change
@@ -460,7 +462,7 @@ def compensate_targets(model, targets, *, frame: str = "measuring", robot=None, 
     `CalibratedRangeWarning`.
     """
     from torchcal.calibration.compensate import compensate_targets as run
-    from torchcal.calibration.mismatch import check_same_robot
+    from torchcal.robots.checks import check_same_robot
 
     from_file = isinstance(targets, (str, Path))  # read in length_unit; a tensor is in mm
     where = str(targets) if from_file else "targets"

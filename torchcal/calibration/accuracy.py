@@ -137,7 +137,7 @@ def workspace_accuracy(model, theta: torch.Tensor, cov: torch.Tensor, *, n: int 
     import dataclasses
 
     from torchcal.calibration.joint_range import outside_range
-    from torchcal.calibration.mismatch import warn_outside_conditions
+    from torchcal.calibration.checks.ranges import warn_outside_conditions
     from torchcal.effects import make_context
     from torchcal.errors import InputError
     from torchcal.robots.workspace import sample_workspace

@@ -295,7 +295,7 @@ def nominal_start(model: CalibrationModel, theta: torch.Tensor, targets, poses=N
     model does not extrapolate); failing that, the first inside the limits. Without poses:
     256 seeded random poses inside the joint limits (`torchcal.robots.poses.random_poses`,
     seed). once: 0-based rows tried from their nearest pose only (targets beyond the
-    robot's reach, `torchcal.calibration.mismatch.check_targets`: no start reaches them).
+    robot's reach, `torchcal.calibration.checks.targets.check_targets`: no start reaches them).
 
     Returns the `Compensation` of the nominal inverse: q (M, n) rad / mm; ``converged``
     (M,) says which targets it reached (the others keep the nearest q it found, and the
@@ -370,20 +370,21 @@ def compensate_fitted(fitted, targets, q0=None, *, tol_mm: float = 1e-6, max_ite
     zone of the final solve; a target on a boundary keeps that of its second solve), so
     that `ZonedFit.predict` at the commands meets the targets. Commands whose nominal TCP
     lies far from every sweep point of the partition are named (their zone is
-    extrapolated: `torchcal.calibration.mismatch.warn_far_from_sweep`).
+    extrapolated: `torchcal.calibration.checks.partition.warn_far_from_sweep`).
 
     q0: (M, n) rad starting commands, default `nominal_start` (a target beyond the reach
     from its nearest calibration pose only, as ``torchcal compensate``). check: refuse
     targets inside the robot's base (metres read as mm), warn about those beyond its reach
-    (`torchcal.calibration.mismatch.check_targets`); refuse seeds q0 of another shape or
+    (`torchcal.calibration.checks.targets.check_targets`); refuse seeds q0 of another shape or
     beyond what a joint can turn (degrees), warn about seeds whose model point lies more
     than 100 mm from their target (`check_seeds`). A residual stage is inverted with the
     model (`with_stage`). Converged commands outside the calibrated range are counted
     (``outside_range``) and named in one `CalibratedRangeWarning` (at `stacklevel`, counted
     from the caller); targets at a temperature / payload outside the range the model was
     fitted on (``fitted.conditions``) in one `ConditionRangeWarning`."""
-    from torchcal.calibration.mismatch import (check_seeds, check_targets, warn_far_from_sweep, warn_outside_conditions,
-                                               warn_outside_range)
+    from torchcal.calibration.checks.partition import warn_far_from_sweep
+    from torchcal.calibration.checks.ranges import warn_outside_conditions, warn_outside_range
+    from torchcal.calibration.checks.targets import check_seeds, check_targets
 
     cm, theta, q_range, stage = fitted.model, fitted.theta, fitted.q_range, fitted.residual_model
     robot = cm.robot
@@ -536,7 +537,8 @@ def compensate_targets(im, targets, *, frame: str = "measuring", seeds=None, pay
     were given in before conversion to mm (mm given as metres are refused)."""
     import warnings
 
-    from torchcal.calibration.mismatch import MismatchWarning, check_seeds, check_target_conditions, check_targets
+    from torchcal.calibration.checks.targets import check_seeds, check_target_conditions, check_targets
+    from torchcal.calibration.checks.verdict import MismatchWarning
 
     if frame not in FRAMES:
         raise InputError(f"frame: expected one of {', '.join(FRAMES)}, got {frame!r}")

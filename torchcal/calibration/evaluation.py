@@ -4,7 +4,7 @@ Distance errors measured - model (the residual stage's correction subtracted whe
 has one), their summary (`torchcal.metrics.error_summary`), the orientation error when the
 data carry rx, ry, rz and the model was fitted to orientations, and the rows outside the
 calibrated joint range (`torchcal.calibration.joint_range`). Data that cannot come from
-the model are refused first (`torchcal.calibration.mismatch.check_measurements`).
+the model are refused first (`torchcal.calibration.checks.model_data.check_measurements`).
 """
 
 from __future__ import annotations
@@ -62,16 +62,18 @@ def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     `CalibratedRangeWarning` (at `stacklevel`, counted from the caller) for rows outside
     the calibrated range, one `ConditionRangeWarning` for rows at a temperature / payload
     outside the range the model was fitted on (`fm.conditions`). Data of a point id the model was not fitted on
-    (`torchcal.calibration.mismatch.point_ids_differ`): InputError for a model with one tool
+    (`torchcal.calibration.checks.model_data.point_ids_differ`): InputError for a model with one tool
     offset per point, else one `PointIdWarning`. Orientations (rx, ry, rz) that disagree
-    with the nominal tool (`torchcal.calibration.mismatch.orientation_mismatch`): one
+    with the nominal tool (`torchcal.calibration.checks.orientation.orientation_mismatch`): one
     `MismatchWarning` naming the reading that fits. A per-zone model: rows whose nominal TCP
     lies beyond its partition's swept region (their zone is extrapolated) named in one
-    `MismatchWarning` (`torchcal.calibration.mismatch.warn_far_from_sweep`)."""
+    `MismatchWarning` (`torchcal.calibration.checks.partition.warn_far_from_sweep`)."""
     from torchcal.calibration.joint_range import outside_range
-    from torchcal.calibration.mismatch import (MismatchWarning, PointIdWarning, check_measurements, enforce,
-                                               orientation_mismatch, point_ids_differ, warn_far_from_sweep,
-                                               warn_outside_conditions, warn_outside_range)
+    from torchcal.calibration.checks.model_data import PointIdWarning, check_measurements, point_ids_differ
+    from torchcal.calibration.checks.orientation import orientation_mismatch
+    from torchcal.calibration.checks.partition import warn_far_from_sweep
+    from torchcal.calibration.checks.ranges import warn_outside_conditions, warn_outside_range
+    from torchcal.calibration.checks.verdict import MismatchWarning, enforce
     from torchcal.effects import context_of
     from torchcal.metrics import error_summary
     from torchcal.rotations import so3_error

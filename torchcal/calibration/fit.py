@@ -138,7 +138,7 @@ class FitResult:
     @property
     def training_rms_mm(self) -> float | None:
         """RMS mm of the fit the model came from (None when unknown), the scale of the
-        gross-mismatch check (`torchcal.calibration.mismatch`)."""
+        gross-mismatch check (`torchcal.calibration.checks`)."""
         return None if self.training is None else self.training.get("rms_mm")
 
     @property

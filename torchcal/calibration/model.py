@@ -52,7 +52,7 @@ class CalibrationModel:
         """The model of `effects` for the data `m` (`Measurements`): with several `point`
         ids, one tool offset per point (InputError when `effects` lacks tool_offset), so
         that fit, diagnose and discover start from the same model."""
-        from torchcal.calibration.mismatch import check_row_order
+        from torchcal.calibration.checks.row_order import check_row_order
         from torchcal.errors import InputError
 
         specs = [str(s) for s in effects]

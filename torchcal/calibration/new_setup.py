@@ -19,7 +19,7 @@ def register_model(fitted, robot, m, *, tool: bool = False, stacklevel: int = 1)
     frame is estimated (base frame, and the tool offset when `tool`; `reregister`); the
     fitted model keeps its geometry, effects, covariance, calibrated range, settings, tool
     rotation, residual stage and training rms. Data that no frame brings near the model are
-    refused (InputError, `torchcal.calibration.mismatch`); an rms above 3x (`far_from_training`) the
+    refused (InputError, `torchcal.calibration.checks`); an rms above 3x (`far_from_training`) the
     training rms is a `TransferWarning` (at `stacklevel`, counted from the caller). Data of
     a point id the model was not fitted on (`point_ids_differ`) are refused unless `tool`
     re-estimates a single tool offset (the model then records their point ids)."""
@@ -28,7 +28,8 @@ def register_model(fitted, robot, m, *, tool: bool = False, stacklevel: int = 1)
 
     from torchcal.calibration.joint_range import joint_range, seed_poses
     from torchcal.calibration.registration import TransferWarning, far_from_training, reregister, undetermined_frame
-    from torchcal.calibration.mismatch import check_measurements, enforce, point_ids_differ
+    from torchcal.calibration.checks.model_data import check_measurements, point_ids_differ
+    from torchcal.calibration.checks.verdict import enforce
     from torchcal.calibration.model import CalibrationModel
     from torchcal.effects import context_of
     from torchcal.errors import InputError

@@ -1,5 +1,5 @@
 """Plausibility: the plausible size of each parameter (the unit check of measurements
-before a fit is `torchcal.calibration.mismatch.check_units`).
+before a fit is `torchcal.calibration.checks.units.check_units`).
 
 Plausible sizes (the prior of the fit, `plausible_scales`). A calibrated industrial arm
 differs from its nominal MD-H table by tenths of a mm and hundredths of a degree;

@@ -265,10 +265,10 @@ def read_data(path, robot, args=None, check: bool = True):
     Joint angles outside the preset's nominal limits are a warning (one line on
     stderr), not an error: the presets' limits are data-sheet values, and real robots
     (and other simulators' sessions) are measured at or beyond them. With `check`, the
-    unit plausibility check (torchcal.calibration.mismatch.check_units) refuses
+    unit plausibility check (torchcal.calibration.checks.units.check_units) refuses
     metres read as mm and radians read as degrees with one line naming the fix.
     """
-    from torchcal.calibration.mismatch import check_units
+    from torchcal.calibration.checks.units import check_units
     from torchcal.io.measurement_csv import FILE_WARNINGS, read_measurements
 
     u = units(args)

@@ -80,7 +80,7 @@ def run(args) -> int:
     with warnings_to_stderr(UnrecordedRobotWarning):  # a partition file without a record
         part = load_partition(args.partition, robot) if args.partition else None
     meas = read_data(args.data, robot, args)
-    from torchcal.calibration.mismatch import MismatchWarning
+    from torchcal.calibration.checks.verdict import MismatchWarning
 
     with warnings_to_stderr(MismatchWarning):  # rows beyond the swept region
         res = torchcal.calibrate(robot, meas, specs, partition=part, zone_method=args.zone_method,

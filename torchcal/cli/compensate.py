@@ -68,7 +68,7 @@ def run(args) -> int:
     from torchcal.io.targets_csv import compensation_csv
 
     check_outputs([("--out", args.out)], args.force, inputs=[args.targets, args.model])
-    from torchcal.calibration.mismatch import MismatchWarning
+    from torchcal.calibration.checks.verdict import MismatchWarning
 
     with warnings_to_stderr(CalibratedRangeWarning, MismatchWarning):  # outside the calibrated range, far seeds
         res = compensate_targets(args.model, args.targets, frame=args.frame, robot=load_robot(args.robot),

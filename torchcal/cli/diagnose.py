@@ -89,7 +89,7 @@ def run(args) -> int:
     fitted = modelfile.load(args.model, robot=robot) if args.model else None
     effects = fitted.model.specs() if args.model else args.effects or []
     m = read_data(args.data, robot, args)
-    from torchcal.calibration.mismatch import MismatchWarning
+    from torchcal.calibration.checks.verdict import MismatchWarning
     from torchcal.cli._args import sigma_deg, warnings_to_stderr
     from torchcal.cli._progress import progress
     from torchcal.diagnosis.spectral import NarrowRangeWarning

@@ -79,7 +79,7 @@ def run(args) -> int:
     from torchcal.cli._progress import progress
     from torchcal.diagnosis.spectral import NarrowRangeWarning
 
-    from torchcal.calibration.mismatch import RowOrderWarning
+    from torchcal.calibration.checks.row_order import RowOrderWarning
 
     with warnings_to_stderr(NarrowRangeWarning, RowOrderWarning), progress("discover", f"searching effects on {len(m)} rows"):
         res = api.discover(robot, m, args.effects, folds=args.folds, seed=args.seed, sigma_mm=args.sigma_mm,

@@ -44,7 +44,7 @@ def evaluate(fitted, m):
     from torchcal.api import evaluate as run
     from torchcal.calibration.joint_range import CalibratedRangeWarning
 
-    from torchcal.calibration.mismatch import MismatchWarning
+    from torchcal.calibration.checks.verdict import MismatchWarning
 
     with warnings_to_stderr(CalibratedRangeWarning, MismatchWarning):
         return run(fitted, m)

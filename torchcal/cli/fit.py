@@ -69,7 +69,7 @@ def fit_file(args):
     robot = make_robot(args.robot).to(device)
     specs = [str(s) for s in parse_specs(args.effects, robot.n)] if args.effects else []
     m = read_data(args.data, robot, args).to(device)  # the unit check that torchcal.fit repeats, before any warning line
-    from torchcal.calibration.mismatch import RowOrderWarning
+    from torchcal.calibration.checks.row_order import RowOrderWarning
     from torchcal.cli._args import warnings_to_stderr
 
     opts = dict(robust=args.robust, sigma_mm=args.sigma_mm, sigma_deg=sigma_deg(args, m), **units(args))

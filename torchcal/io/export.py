@@ -92,7 +92,7 @@ def not_the_nominal_robot(path, nominal: Robot) -> None:
     lose the nominal, and every later fit with it would start from the calibrated geometry
     (a model does not record that file's path). Any other file, a robot file of a former
     export included, is left to `check_output`."""
-    from torchcal.calibration.mismatch import robot_differences
+    from torchcal.robots.checks import robot_differences
     from torchcal.io.robot_file import load_robot_file
 
     if not Path(path).is_file():
@@ -115,7 +115,10 @@ def export(im, *, robot_file=None, urdf=None, table=None, data=None, length_unit
     cannot hold. inputs: paths never written over (the model's file, the data), beside
     the files the model came from (`sources`)."""
     from torchcal.calibration.geometry_only import calibrated_robot, measuring_frames, reflector_offsets, refit_geometry
-    from torchcal.calibration.mismatch import check_measurements, check_units, enforce, warn_outside_conditions
+    from torchcal.calibration.checks.model_data import check_measurements
+    from torchcal.calibration.checks.ranges import warn_outside_conditions
+    from torchcal.calibration.checks.units import check_units
+    from torchcal.calibration.checks.verdict import enforce
     from torchcal.calibration.plausibility import PlausibilityWarning, beyond_words
     from torchcal.io.files import all_or_none, atomic_write, check_output
     from torchcal.io.mdh_table import mdh_table_csv

@@ -83,7 +83,8 @@ from torchcal.calibration.model import CalibrationModel
 from torchcal.calibration.zone_calibration import ZonedFit
 from torchcal.effects.joint_compliance import G_NM_PER_KG_MM
 from torchcal.robots.robot import Robot
-from torchcal.io.robot_file import check_same_robot, model_robot, robot_to_dict
+from torchcal.io.robot_file import model_robot, robot_to_dict
+from torchcal.robots.checks import check_same_robot
 
 FORMAT = "torchcal-model/2"
 FORMAT_RAD = "torchcal-model/1"  # files written before version 2: values in the model's units (rad)

@@ -46,7 +46,7 @@ from pathlib import Path
 import torch
 
 from torchcal.errors import InputError
-from torchcal.calibration.mismatch import check_same_robot, robot_differences  # noqa: F401 (modelfile reads it here)
+from torchcal.robots.checks import robot_differences
 from torchcal.robots.robot import Robot
 
 JOINT_KEYS = {"type", "theta_offset_deg", "d_mm", "a_mm", "alpha_deg", "beta_deg", "lower", "upper"}
@@ -152,7 +152,7 @@ def robot_from_dict(obj, where: str = "robot file") -> Robot:
         from torchcal.reliability.uncertainty import clearance_from_dict
 
         clearance = clearance_from_dict(obj["clearance"], f"{where}: clearance", len(rows)).to_dict()
-    from torchcal.calibration.mismatch import check_robot_angles, check_robot_lengths
+    from torchcal.robots.checks import check_robot_angles, check_robot_lengths
 
     table, lims, prismatic = (torch.tensor(rows, dtype=torch.float64), torch.tensor(limits, dtype=torch.float64),
                               torch.tensor(pris))
@@ -295,7 +295,7 @@ def check_record(record: dict | None, robot: Robot, where: str, what: str) -> No
     `robot`. The same fingerprint, or the same joint count, types, MD-H table, base, tool
     and joint limits up to 1e-9 (a robot read back from a file), pass; a name alone does
     not matter. Otherwise one InputError line: `where` (the file), both robots with their
-    fingerprints, what differs (`torchcal.calibration.mismatch.robot_differences`) and
+    fingerprints, what differs (`torchcal.robots.checks.robot_differences`) and
     `what` to make again ("sweep", "sweep and partition")."""
     if record is None:
         warnings.warn(f"{where}: records no robot (a file of an older torchcal, or made from one): could not check "

@@ -296,7 +296,7 @@ def robot_from_urdf(path, base_link: str, tip_link: str, name: str | None = None
     pris = [j["type"] == "prismatic" for j in moving]
     # q = 0 of a prismatic joint: the URDF's zero; theta/d offsets come from the rows
     limits = [[j["lower"], j["upper"]] for j in moving]
-    from torchcal.calibration.mismatch import check_robot_lengths
+    from torchcal.robots.checks import check_robot_lengths
 
     check_robot_lengths(torch.tensor(rows, dtype=_F), torch.tensor(pris), torch.tensor(limits, dtype=_F), str(path),
                         urdf=True)  # a URDF written in millimetres

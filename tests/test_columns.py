@@ -1,0 +1,56 @@
+"""Joint columns mixed up and positions misaligned with the joint values
+(torchcal.calibration.checks.columns): fit and evaluate name the mistake instead of
+'another robot or units'."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import re
+
+import pytest
+import torch
+
+import torchcal
+from torchcal.errors import InputError
+
+
+@pytest.mark.parametrize("mix, phrase", [
+    (lambda q: q[:, [0, 2, 1, 3, 4, 5]], "the joint columns q2 and q3 swapped"),
+    (lambda q: torch.cat([q[:, :1], -q[:, 1:2], q[:, 2:]], 1),
+     r"the joint column q2 negated \(another sign convention\)"),
+    (lambda q: torch.cat([q[:, :1], torch.deg2rad(q[:, 1:2]), q[:, 2:]], 1),  # radians under degrees
+     r"the joint column q2 in radians \(read as degrees\)"),
+    (lambda q: torch.cat([q[:, :1], q[:, 1:2] + math.pi / 2, q[:, 2:]], 1),  # another zero (was "another robot")
+     r"the joint column q2 shifted by -90 deg \(another zero position\)"),
+])
+def test_one_joint_column_mixed_up_is_named(ur10_series_d, mix, phrase):
+    """UR10 series D with two joint columns swapped, one negated, or one in radians under
+    degrees was refused as 'another robot or units'; fit (the nominal robot in its best
+    frame) and evaluate (a fitted model) name the column. Another robot stays another
+    robot (test_another_robot_is_refused_by_evaluate_and_diagnose)."""
+    rob, m, fitted = ur10_series_d
+    bad = dataclasses.replace(m.subset(slice(0, None, 2)), q_prev=None)
+    bad = dataclasses.replace(bad, q=mix(bad.q), q_prev=None)
+    with pytest.raises(InputError, match=r"cannot come from ur10 as given: .* but within 10 mm with " + phrase +
+                                         r": check the joint columns"):
+        torchcal.fit(rob, bad, ["base_frame", "tool_offset"])
+    with pytest.raises(InputError, match=r"cannot come from the model of ur10 as given: .* with " + phrase):
+        torchcal.evaluate(fitted, bad)
+
+
+@pytest.mark.parametrize("lag, words", [(1, "1 row(s) further up"), (-2, "2 row(s) further down")])
+def test_positions_misaligned_with_the_joint_values_are_named(ur10_series_d, lag, words):
+    """UR10 series D with x, y, z shifted against the joint columns (two logs joined with a
+    row more in one) was refused as 'another robot or units'; fit and evaluate name the
+    misalignment. The rows as taken pass (the `ur10_series_d` fixture's fit)."""
+    rob, m, fitted = ur10_series_d
+    val = dataclasses.replace(m.subset(slice(0, 200)), q_prev=None, rxyz=None)
+    rows = torch.arange(max(0, -lag), len(val) - max(0, lag))
+    bad = dataclasses.replace(val.subset(rows), xyz=val.xyz[rows + lag])
+    with pytest.raises(InputError, match=r"cannot come from ur10 as given: .* but within 10 mm with each row's x, y, z "
+                                         rf"taken from {re.escape(words)}: the positions are misaligned"):
+        torchcal.fit(rob, bad, ["base_frame", "tool_offset"])
+    with pytest.raises(InputError, match=r"cannot come from the model of ur10 as given: .* taken from "
+                                         rf"{re.escape(words)}: the positions are misaligned"):
+        torchcal.evaluate(fitted, bad)

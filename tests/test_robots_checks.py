@@ -1,0 +1,54 @@
+"""A robot's own numbers and two robots (torchcal.robots.checks): a robot file in metres
+is refused, and a model given a robot file of the same name with another geometry names
+what differs."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+import torchcal
+from torchcal.errors import InputError
+from torchcal.io.measurement_csv import write_measurements
+from torchcal.io.robot_file import robot_from_dict
+from torchcal.robots.poses import random_poses
+from torchcal.simulation.virtual_robot import VirtualRobot
+
+UR10 = Path(__file__).resolve().parents[1] / "examples" / "ur10" / "ur10.json"
+
+
+def test_robot_file_in_metres_is_refused():
+    obj = json.loads(UR10.read_text())
+    for j in obj["joints"]:
+        j["d_mm"], j["a_mm"] = j["d_mm"] / 1000, j["a_mm"] / 1000
+    with pytest.raises(InputError, match="lengths look like metres"):
+        robot_from_dict(obj, "ur10_m.json")
+    robot_from_dict(json.loads(UR10.read_text()), "ur10.json")  # in mm: fine
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda d: d["tool"][2].__setitem__(3, 120.0), "(the tool differs)"),
+    (lambda d: d["joints"][1].__setitem__("a_mm", d["joints"][1]["a_mm"] + 5.0),
+     "(the MD-H table differs at joint(s) 2)")])
+def test_a_model_with_a_robot_file_of_the_same_name_names_what_differs(tmp_path, capsys, edit, words):
+    """evaluate --robot with a robot file of the model's robot but another tool (a tool
+    changed since the fit) was refused as 'another nominal geometry' without saying what
+    differs; now the line names it."""
+    from torchcal.cli import main
+    from torchcal.io.robot_file import robot_to_dict
+
+    rob = torchcal.robot("ur5e")
+    m = VirtualRobot(rob, ["base_frame"], seed=3).measure(random_poses(rob, 30, 3), noise_mm=0.01)
+    write_measurements(tmp_path / "d.csv", m)
+    torchcal.save(torchcal.fit(rob, m, ["base_frame"]), tmp_path / "m.json")
+    obj = robot_to_dict(rob)
+    edit(obj)
+    (tmp_path / "r.json").write_text(json.dumps(obj))
+    capsys.readouterr()
+    assert main(["evaluate", str(tmp_path / "d.csv"), "--model", str(tmp_path / "m.json"),
+                 "--robot", str(tmp_path / "r.json"), "--json", str(tmp_path / "e.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and not (tmp_path / "e.json").exists()
+    assert f"with another nominal geometry {words}; refusing" in err, err

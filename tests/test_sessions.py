@@ -1,0 +1,120 @@
+"""Two measuring frames in one file (torchcal.calibration.checks.sessions): two sessions
+joined, a reflector or tracker changed midway, an instrument moved within the gross bound
+are named; one session of a far-off arm is not split."""
+
+from __future__ import annotations
+
+import math
+import re
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import torchcal
+from torchcal.calibration.checks.verdict import GROSS_MM
+from torchcal.errors import InputError
+from torchcal.robots.poses import random_poses
+
+UR10 = Path(__file__).resolve().parents[1] / "examples" / "ur10" / "ur10.json"
+
+
+def test_two_sessions_in_different_frames_joined_are_named(tmp_path):
+    """UR10 series C's first 100 rows and series D's first 60 in one file (pose ids restart
+    at 0; the tracker stood elsewhere) were refused as 'another robot or units'; the line
+    now names the join and the two parts."""
+    c = (UR10.parent / "series_c.csv").read_text().splitlines()
+    d = (UR10.parent / "series_d.csv").read_text().splitlines()
+    assert c[0] == d[0]
+    (tmp_path / "cd.csv").write_text("\n".join(c[:101] + d[1:61]) + "\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the reader's repeated-pose-id line is not the subject
+        with pytest.raises(InputError, match=r"cd.csv: cannot come from ur10 in one measuring frame: .* but rows "
+                                             r"1\.\.100 and 101\.\.160 \(data rows; pose ids restart at 0\) each fit "
+                                             r"within 10 mm in a frame of their own: two sessions joined"):
+            torchcal.fit(UR10, tmp_path / "cd.csv", ["base_frame", "tool_offset"])
+
+
+@pytest.mark.parametrize("shift", ["reflector", "tracker"])
+def test_a_reflector_or_tracker_changed_midway_is_named(shift):
+    """One session (pose ids 0..79 in order) whose reflector was moved 30 mm on the flange,
+    or whose tracker was moved 40 mm, after row 40, with no new point id: refused before
+    as 'data of another robot of that size, or many corrupted rows'; now the line names
+    the two parts that each fit in a frame and tool of their own, and the change row
+    (plain-numpy robot, npsim)."""
+    import npsim
+    from torchcal.measurements import Measurements
+
+    rob = torchcal.robot("ur5e")
+    q = random_poses(rob, 80, 3).numpy()
+    a = npsim.tracker_session(rob, q[:40], seed=5, reflector_mm=(0.0, 0.0, 100.0), sag_deg=0.0)
+    if shift == "reflector":
+        b = npsim.tracker_session(rob, q[40:], seed=5, reflector_mm=(30.0, 0.0, 100.0), sag_deg=0.0)
+    else:
+        b = npsim.tracker_session(rob, q[40:], seed=5, reflector_mm=(0.0, 0.0, 100.0), sag_deg=0.0) + [40.0, 0, 0]
+    m = Measurements(torch.arange(80), torch.as_tensor(q), torch.as_tensor(np.vstack([a, b])), source="s.csv")
+    with pytest.raises(InputError, match=r"^s.csv: cannot come from ur5e in one measuring frame with one tool: .* "
+                                         r"but rows 1\.\.(\d+) and \d+\.\.80 each fit within 10 mm in a frame and "
+                                         r"with a tool offset of their own: the instrument moved or the reflector "
+                                         r"was changed midway, by data row \d+ \(pose id \d+\) at the latest") as info:
+        torchcal.fit(rob, m, ["base_frame", "tool_offset"])
+    first = int(re.search(r"rows 1\.\.(\d+) and", str(info.value)).group(1))
+    assert 40 <= first <= 50  # the change after row 40; a part may take a few rows past it
+    torchcal.fit(rob, m.subset(torch.arange(40)), ["base_frame", "tool_offset"])  # each part alone: a calibration
+
+
+@pytest.mark.parametrize("ids", ["restart", "continue"])
+def test_an_instrument_moved_within_the_gross_bound_is_named(ids):
+    """Two tracker sessions of one kr1000titan in one file, the tracker turned 0.15 deg and
+    moved 3 mm between them (pose ids restarting at 0, or going on): one frame and tool
+    offset through both leave about 6 mm, within GROSS_MM, so the file was fitted and
+    `discover` accepted clearance terms on it; now refused, naming the two parts
+    (plain-numpy robot, npsim). The same poses without the move fit."""
+    import npsim
+    from torchcal.measurements import Measurements
+
+    rob = torchcal.robot("kr1000titan")
+    q = random_poses(rob, 80, 11).numpy()
+    xyz = npsim.tracker_session(rob, q, seed=4, sag_deg=0.0)
+    th = math.radians(0.15)
+    turn = np.array([[math.cos(th), -math.sin(th), 0.0], [math.sin(th), math.cos(th), 0.0], [0.0, 0.0, 1.0]])
+    moved_xyz = np.vstack([xyz[:40], xyz[40:] @ turn.T + [3.0, -2.0, 1.0]])
+    pose = torch.cat([torch.arange(40), torch.arange(40) + (0 if ids == "restart" else 40)])
+    m = Measurements(pose, torch.as_tensor(q), torch.as_tensor(moved_xyz), source="s.csv")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the reader-side repeated-pose-id line is not the subject
+        with pytest.raises(InputError, match=r"^s.csv: two measuring frames in one file: one frame and tool offset "
+                                             r"for kr1000titan leave rms ([\d.]+) mm, but rows 1\.\.(\d+) and "
+                                             r"\d+\.\.80 \(data rows\) leave [\d.]+ and [\d.]+ mm") as info:
+            torchcal.fit(rob, m, ["base_frame", "tool_offset"])
+    one = float(re.search(r"leave rms ([\d.]+) mm", str(info.value)).group(1))
+    first = int(re.search(r"rows 1\.\.(\d+) and", str(info.value)).group(1))
+    assert one < GROSS_MM  # the case the gross check let through
+    assert 40 <= first <= 44
+    assert ("two sessions joined" in str(info.value)) == (ids == "restart")
+    still = Measurements(torch.arange(80), torch.as_tensor(q), torch.as_tensor(xyz), source="s.csv")
+    torchcal.fit(rob, still, ["base_frame", "tool_offset"])  # one session: a calibration
+
+
+@pytest.mark.parametrize("seed", [0, 4])
+def test_one_session_of_a_far_off_arm_is_not_split(seed):
+    """A single tracker session of a ur5e with large MD-H deviations (2 mm, 0.3 deg): one
+    frame and tool offset leave 5-9 mm, above the floor where two frames are looked for,
+    and no cut gives both parts a frame of their own 3 times closer: no refusal."""
+    import npsim
+    from torchcal.calibration.checks.frame_fit import registered
+    from torchcal.calibration.checks.robot_data import check_robot_data
+    from torchcal.calibration.checks.sessions import SESSION_FLOOR_MM
+    from torchcal.calibration.checks.verdict import rms_of
+    from torchcal.calibration.model import CalibrationModel
+    from torchcal.measurements import Measurements
+
+    rob = torchcal.robot("ur5e")
+    q = random_poses(rob, 40, 100 + seed).numpy()
+    xyz = npsim.tracker_session(rob, q, seed=seed, sag_deg=0.2, dev_scale=(2.0, 0.3))
+    m = Measurements(torch.arange(40), torch.as_tensor(q), torch.as_tensor(xyz), source="s.csv")
+    model = CalibrationModel(rob, ["base_frame", "tool_offset"])
+    assert SESSION_FLOOR_MM < rms_of((registered(model, m) - m.xyz).norm(dim=-1)) < GROSS_MM  # the search runs
+    assert check_robot_data(model, m) is None

@@ -1,0 +1,101 @@
+"""Joint columns mixed up and positions misaligned with the joint values: data refused as
+another robot that are this robot's with two joint columns swapped, one in radians read
+as degrees, one negated or shifted by a zero position (`column_mistakes`, `column_hint`),
+or with x, y, z a few rows off the joint values (`row_lag`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from torchcal.errors import InputError
+
+HINT_ROWS = 60  # rows (evenly spread over the file) that judge a one-column mistake
+LAGS = (1, -1, 2, -2)  # row offsets between the joint values and the positions that are tried
+
+
+def column_mistakes(m, robot):
+    """Yield (phrase, Measurements) for each one-column mistake in the joint values of `m`
+    (q (N, n) rad / mm): two adjacent q columns swapped, one revolute column in radians
+    read as degrees, one column negated (another sign convention), one revolute column
+    shifted by +-90 or 180 deg (another zero position, e.g. a controller's against the
+    MD-H table's). The rows' predecessors follow the changed q (their row order)."""
+    import dataclasses
+
+    def changed(q):
+        return dataclasses.replace(m, q=q, q_prev=None)
+
+    n = robot.n
+    for j in range(n - 1):
+        q = m.q.clone()
+        q[:, [j, j + 1]] = q[:, [j + 1, j]]
+        yield f"columns q{j + 1} and q{j + 2} swapped", changed(q)
+    rev = (~robot.prismatic.cpu()).tolist()
+    for j in range(n):
+        if rev[j]:
+            q = m.q.clone()
+            q[:, j] = q[:, j] * (180.0 / math.pi)
+            yield f"column q{j + 1} in radians (read as degrees)", changed(q)
+    for j in range(n):
+        q = m.q.clone()
+        q[:, j] = -q[:, j]
+        yield f"column q{j + 1} negated (another sign convention)", changed(q)
+    for j in range(n):
+        if rev[j]:
+            for deg in (90, -90, 180):
+                q = m.q.clone()
+                q[:, j] = q[:, j] + math.radians(deg)
+                yield f"column q{j + 1} shifted by {deg:+d} deg (another zero position)", changed(q)
+
+
+def column_hint(m, robot, fits, score=None, tries: int = 2) -> str | None:
+    """The first `column_mistakes` phrase whose corrected data `fits` (a predicate on
+    `Measurements`) accepts, else None: data refused as another robot that are this robot's
+    with one joint column mixed up. Judged on HINT_ROWS rows spread over the file. With
+    `score` (a cheap float of `Measurements`, lower is closer) only the `tries` best-scored
+    mistakes go to `fits` (an expensive predicate: the refusal stays quick)."""
+    if len(m) > HINT_ROWS:
+        m = m.subset(torch.linspace(0, len(m) - 1, HINT_ROWS).round().long())
+    cands = list(column_mistakes(m, robot))
+    if score is not None:
+        cands = sorted(cands, key=lambda c: score(c[1]))[:tries]
+    for phrase, fixed in cands:
+        try:
+            if fits(fixed):
+                return phrase
+        except InputError:
+            continue
+    return None
+
+
+def row_lag(m, fits) -> int | None:
+    """The first offset k of LAGS such that the rows with q of row i and x, y, z (and
+    rx, ry, rz) of row i + k `fits` (a predicate on `Measurements`), else None: positions
+    misaligned with the joint values by k rows over the whole file (a joined log with a
+    row more at its start). Judged on up to HINT_ROWS rows spread over the shifted rows."""
+    import dataclasses
+
+    n = len(m)
+    for k in LAGS:
+        if n - abs(k) < 3 * max(1, abs(k)) or n - abs(k) < 6:
+            continue
+        rows = torch.arange(max(0, -k), n - max(0, k))
+        if rows.numel() > HINT_ROWS:
+            rows = rows[torch.linspace(0, rows.numel() - 1, HINT_ROWS).round().long()]
+        sub = m.subset(rows)
+        moved = dataclasses.replace(sub, xyz=m.xyz[rows + k],
+                                    rxyz=None if m.rxyz is None else m.rxyz[rows + k])
+        try:
+            if fits(moved):
+                return k
+        except InputError:
+            continue
+    return None
+
+
+def lag_words(lag: int) -> str:
+    """The end of the line naming a `row_lag` (rows whose positions are `lag` rows off)."""
+    return (f"each row's x, y, z taken from {abs(lag)} row(s) {'further down' if lag > 0 else 'further up'}: the "
+            "positions are misaligned with the joint values (two logs joined with a row more in one); check the rows")

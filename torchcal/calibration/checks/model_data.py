@@ -1,0 +1,140 @@
+"""Measurements against a fitted model (`check_measurements`: evaluate, register, export,
+diagnose) and the point ids it was fitted on (`point_ids_differ`).
+
+With the model's errors d (N,) mm (`check_points`):
+
+- ``rms``: RMS of d as it is; ``registered_rms``: RMS after the best rigid motion of the
+  model's points onto the measured ones (Kabsch, `torchcal.calibration.registration`);
+  ``spread_ratio``: measured / modelled spread (RMS distance to the centroid; a rigid
+  motion leaves it unchanged, and ``|s_measured - s_model| <= registered_rms``).
+- the plausible bound B (`torchcal.calibration.checks.verdict.bound_mm`).
+- ``rms <= B``: consistent. ``rms > B`` but ``registered_rms <= B``: a rigid motion
+  explains the data, i.e. the measuring frame moved (re-register: ``torchcal register``).
+  Both beyond B: another robot, or units (the spread ratio says which is more likely: a
+  factor near 1000 or 57.3 is a unit, metres or radians), unless one joint column mixed
+  up or positions a few rows off (`torchcal.calibration.checks.columns`), or the rows
+  beyond the calibrated joint range alone, explain it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from torchcal.calibration.checks.columns import column_hint, lag_words, row_lag
+from torchcal.calibration.checks.ranges import range_warning
+from torchcal.calibration.checks.units import spread_mm, units_hint
+from torchcal.calibration.checks.verdict import Mismatch, MismatchWarning, bound_mm, listed, rms_of
+
+
+def check_points(predicted: torch.Tensor, measured: torch.Tensor, training_rms_mm: float | None = None,
+                 what: str = "data", model_name: str = "the model") -> Mismatch:
+    """Judge measured points (N, 3) mm against a model's predicted points (N, 3) mm."""
+    from torchcal.calibration.registration import kabsch
+
+    p = predicted.detach().to("cpu", torch.float64)
+    x = measured.detach().to("cpu", torch.float64)
+    rms = float((x - p).norm(dim=-1).pow(2).mean().sqrt())
+    if p.shape[0] >= 3:
+        R, t = kabsch(p, x)
+        reg = float((p @ R.T + t - x).norm(dim=-1).pow(2).mean().sqrt())
+        angle = math.degrees(math.acos(max(-1.0, min(1.0, (float(torch.trace(R)) - 1) / 2))))
+        shift = float((x.mean(0) - p.mean(0)).norm())
+    else:
+        reg, angle, shift = rms, 0.0, 0.0
+    s_p, s_x = spread_mm(p), spread_mm(x)
+    ratio = s_x / s_p if s_p > 0 else math.inf
+    b = bound_mm(training_rms_mm)
+    train = "" if training_rms_mm is None else f" ({rms / max(training_rms_mm, 1e-12):.3g} times its training rms " \
+                                               f"{training_rms_mm:.3g} mm)"
+    verdict = msg = None
+    if rms > b and reg <= b:
+        verdict = "frame"
+        msg = (f"{what}: {model_name} is off by rms {rms:.4g} mm{train}, but a rigid motion of the measuring frame "
+               f"({shift:.4g} mm, {angle:.3g} deg) brings it to {reg:.4g} mm: the measuring frame moved since the "
+               f"fit; run `torchcal register` on some of these poses (other causes: another robot, units)")
+    elif rms > b:
+        verdict = "mismatch"
+        msg = (f"{what}: cannot come from {model_name}: rms {rms:.4g} mm{train}, still {reg:.4g} mm after the best "
+               f"rigid motion, point spread {s_x:.4g} mm measured vs {s_p:.4g} mm modelled; likely causes: data of "
+               f"another robot or units (length or angle unit){units_hint(ratio)}; not a moved measuring "
+               f"frame alone (for that, `torchcal register` would do)")
+    return Mismatch(rms, reg, ratio, b, training_rms_mm, shift, angle, verdict, msg)
+
+
+def check_measurements(model, theta: torch.Tensor, m, training_rms_mm: float | None = None,
+                       what: str | None = None, q_range: torch.Tensor | None = None) -> Mismatch:
+    """`check_points` of a `CalibrationModel` at theta (P,) on `Measurements` m.
+
+    q_range: the model's calibrated joint range (2, n) rad / mm, or None. When the data are
+    off (a verdict) but its rows inside that range agree with the model (at least 3 of
+    them, RMS within the bound B), the rows outside it are the cause: the model
+    extrapolates badly there (a joint that barely moved in the calibration data leaves
+    the tool offset or its link undetermined), and the line says so instead of naming
+    another robot, units or a moved frame (the verdict, and so the refusal, stays)."""
+    import dataclasses
+
+    from torchcal.calibration.joint_range import outside_range
+    from torchcal.effects import context_of
+
+    ctx = context_of(model.robot, m)
+    model.check_context(ctx)
+    with torch.no_grad():
+        pred = model.predict(theta.to(m.xyz), ctx)
+    name = f"the model of {model.robot.name}"
+    res = check_points(pred, m.xyz, training_rms_mm, what or (m.source or "data"), name)
+    if res.verdict is None:
+        return res
+    if res.verdict == "mismatch":  # this robot with one joint column mixed up?
+        def fits(mm):
+            c = context_of(model.robot, mm)
+            with torch.no_grad():
+                return rms_of((model.predict(theta.to(mm.xyz), c) - mm.xyz).norm(dim=-1)) <= res.bound_mm
+
+        hint = column_hint(m, model.robot, fits)
+        if hint is not None:
+            return dataclasses.replace(res, fix=None, message=(
+                f"{what or (m.source or 'data')}: cannot come from {name} as given: rms {res.rms_mm:.4g} mm, but "
+                f"within {res.bound_mm:.3g} mm with the joint {hint}: check the joint columns"))
+        lag = row_lag(m, fits)
+        if lag is not None:
+            return dataclasses.replace(res, fix=None, message=(
+                f"{what or (m.source or 'data')}: cannot come from {name} as given: rms {res.rms_mm:.4g} mm, but "
+                f"within {res.bound_mm:.3g} mm with {lag_words(lag)}"))
+    if q_range is None:
+        return res
+    out = outside_range(m.q, q_range.to(m.q), model.robot.prismatic).any(dim=-1).cpu()  # (N,)
+    inside = ~out
+    if int(inside.sum()) < 3 or not bool(out.any()):
+        return res
+    d = (m.xyz - pred).detach().to("cpu", torch.float64).norm(dim=-1)
+    rms_in = rms_of(d[inside])
+    if rms_in > res.bound_mm:
+        return res
+    _, joints = range_warning(m.q, q_range.to(m.q), model.robot, None, max_joints=model.robot.n)
+    msg = (f"{what or (m.source or 'data')}: {name} is off by rms {res.rms_mm:.4g} mm, but by {rms_in:.4g} mm on "
+           f"the {int(inside.sum())} of {len(m)} rows inside its calibrated joint range; the {int(out.sum())} "
+           f"outside it ({joints}) are where it fails: it extrapolates badly beyond the joint values it was "
+           f"fitted on; fit it on data that cover them (not another robot, units or a moved measuring frame)")
+    return dataclasses.replace(res, message=msg, fix=None)
+
+
+class PointIdWarning(MismatchWarning):
+    """Data of another measured point (reflector) than the one a model was fitted on."""
+
+
+def point_ids_differ(model, m, what: str | None = None) -> str | None:
+    """One line when the `point` ids of measurements m are not among those of the data the
+    `CalibrationModel` was fitted on (``model.point_ids``, recorded in MODEL.json): its
+    tool (the fitted tool offset, or the nominal tool) is that point's, and on another
+    point's data every row is off by the distance between the two. None when they agree,
+    or when the model or the data record no point ids (older files, no point column)."""
+    if not model.point_ids or m.point is None:
+        return None
+    other = sorted(set(m.point.tolist()) - set(model.point_ids))
+    if not other:
+        return None
+    return (f"{what or m.source or 'measurements'}: point id(s) {listed(other)}, but the model was fitted on the "
+            f"data of point id(s) {listed(model.point_ids)}: its tool is that point's, so every row of another "
+            "point is off by the distance between the two (another reflector or nest?)")

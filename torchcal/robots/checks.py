@@ -1,0 +1,149 @@
+"""A robot's own numbers in another unit, and two robots that are not the same.
+
+Robot files (`check_robot_angles`): every revolute limit within +-2 pi "degrees", or a
+twist or offset of pi / 2 or pi "degrees" in a file with no angle beyond 2 pi "degrees",
+are radians written where degrees belong. (`check_robot_lengths`): an arm whose links (sum
+over joints of ``sqrt(d^2 + a^2)``, prismatic strokes included, `link_reach_mm`) reach less
+than MIN_REACH_MM = 50 mm is not an industrial arm; its lengths were written in metres. One
+that reaches more than MAX_REACH_MM = 100 m was written in micrometres (a URDF import: in
+millimetres).
+
+Robots (`check_same_robot`, `robot_differences`): a model applied to another robot than
+the one it was fitted for, and a sweep or partition file made for another robot than the
+one given (another joint count, joint types, MD-H table, base, tool or joint limits;
+`torchcal.io.robot_file.check_record` reads the file's record and names the differences in
+its one line).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import torch
+
+from torchcal.errors import InputError
+
+MIN_REACH_MM = 50.0
+MIN_STROKE_MM = 1.0  # a prismatic joint travelling less: its limits were written in metres
+MAX_REACH_MM = 100_000.0  # 100 m of links and strokes: beyond the longest linear track
+
+
+def check_same_robot(model_robot, robot, where: str, what: str = "the given robot") -> None:
+    """Refuse (one InputError line naming both) when `robot` is not the robot the model
+    was fitted for: another joint count, joint types, nominal table, base or tool, and
+    what differs (`robot_differences`: a robot file of the same name with another tool
+    reads "the tool differs")."""
+    if robot is None or robot.same_geometry(model_robot):
+        return
+    diff = "; ".join(d for d in robot_differences(model_robot, robot) if " limits " not in d)  # not geometry
+    raise InputError(f"{where}: the model is for robot {model_robot.name!r} ({model_robot.n} joints), "
+                     f"but {what} is robot {robot.name!r} ({robot.n} joints) with another nominal "
+                     f"geometry{f' ({diff})' if diff else ''}; refusing to apply a model to another robot")
+
+
+def robot_differences(there, here, atol: float = 1e-9) -> list[str]:
+    """What differs between the robot `there` (the one a file was made for) and `here`
+    (the one given): joint count, joint types, MD-H table, base, tool or joint limits,
+    each as a short phrase ("joint 2 limits -185..185 deg in the file, -170..170 deg given");
+    [] when they agree up to `atol` (mm, rad: a robot read back from a file). Names,
+    payload, gravity and the clearance model are not compared."""
+    if there.n != here.n:
+        return [f"{there.n} joints in the file, {here.n} given"]
+    a, b = there.to("cpu", torch.float64), here.to("cpu", torch.float64)
+    kinds = lambda r, j: "prismatic" if bool(r.prismatic[j]) else "revolute"  # noqa: E731
+    types = [j for j in range(a.n) if bool(a.prismatic[j]) != bool(b.prismatic[j])]
+    if types:
+        j = types[0]
+        return [f"joint {j + 1} {kinds(a, j)} in the file, {kinds(b, j)} given"]
+    out = []
+    rows = [j for j in range(a.n) if not torch.allclose(a.table[j], b.table[j], rtol=0, atol=atol)]
+    if rows:
+        out.append(f"the MD-H table differs at joint(s) {', '.join(str(j + 1) for j in rows)}")
+    out += [f"the {t} differs" for t in ("base", "tool")
+            if not torch.allclose(getattr(a, t), getattr(b, t), rtol=0, atol=atol)]
+    lim = [j for j in range(a.n) if not torch.allclose(a.limits[j], b.limits[j], rtol=0, atol=atol)]
+    if lim:
+        j, unit = lim[0], a.joint_units()[lim[0]]
+        user = lambda r: [v if unit == "mm" else math.degrees(v) for v in r.limits[j].tolist()]  # noqa: E731
+        (lo, hi), (lo2, hi2) = user(a), user(b)
+        more = f" (and {len(lim) - 1} more joint(s))" if len(lim) > 1 else ""
+        out.append(f"joint {j + 1} limits {lo:g}..{hi:g} {unit} in the file, {lo2:g}..{hi2:g} {unit} given{more}")
+    return out
+
+
+def link_reach_mm(table: torch.Tensor, prismatic: torch.Tensor, limits: torch.Tensor) -> float:
+    """Sum over joints of sqrt(d^2 + a^2) plus each prismatic joint's largest |limit|, mm;
+    table (n, 5) [theta, d, a, alpha, beta], limits (n, 2)."""
+    t = table.detach().to("cpu", torch.float64)
+    reach = float(torch.sqrt(t[:, 1] ** 2 + t[:, 2] ** 2).sum())
+    pris = prismatic.detach().cpu().bool()
+    if pris.any():
+        reach += float(limits.detach().to("cpu", torch.float64)[pris].abs().max(-1).values.sum())
+    return reach
+
+
+class RobotUnitWarning(UserWarning):
+    """A robot file's value looks written in another unit (one joint's limits in radians)."""
+
+
+def check_robot_lengths(table, prismatic, limits, where: str = "robot file", urdf: bool = False) -> None:
+    """InputError when the links reach less than MIN_REACH_MM (lengths in metres) or more
+    than MAX_REACH_MM (a URDF written in mm, read as metres; a robot file in micrometres);
+    a robot file's prismatic joint travelling less than MIN_STROKE_MM among links that
+    reach farther: one `RobotUnitWarning` (its limits in metres).
+    urdf: the lengths were read from a URDF (metres there), named as such."""
+    reach = link_reach_mm(table, prismatic, limits)
+    if reach > MAX_REACH_MM:
+        raise InputError(f"{where}: the links reach {reach / 1000:.4g} m in all (sum of sqrt(d^2 + a^2), prismatic "
+                         f"strokes included), more than any robot's {MAX_REACH_MM / 1000:g} m: the lengths look like "
+                         + ("millimetres; URDF takes metres (joint origins, prismatic limits)" if urdf else
+                            "micrometres; robot files take millimetres (d_mm, a_mm, base, tool, prismatic limits)"))
+    pris = prismatic.detach().cpu().bool()
+    stroke = (limits[:, 1] - limits[:, 0]).detach().to("cpu", torch.float64)
+    short = [j for j in range(len(pris)) if bool(pris[j]) and float(stroke[j]) < MIN_STROKE_MM]
+    if short and reach >= MIN_REACH_MM and not urdf:  # a slide in metres among links in mm
+        j = short[0]
+        lo, hi = limits[j].tolist()
+        warnings.warn(f"{where}: joints[{j + 1}] (prismatic) travels only {hi - lo:.4g} mm ({lo:g}..{hi:g}): "
+                      f"the limits look like metres ({1000 * lo:g}..{1000 * hi:g} mm if they are); robot files "
+                      "take millimetres (lower, upper)", RobotUnitWarning, stacklevel=4)
+    if reach < MIN_REACH_MM:
+        raise InputError(f"{where}: the links reach only {reach:.4g} mm in all (sum of sqrt(d_mm^2 + a_mm^2)), less "
+                         f"than any industrial arm's {MIN_REACH_MM:g} mm: the lengths look like metres; robot files "
+                         "take millimetres (d_mm, a_mm, base, tool, prismatic limits)")
+
+
+def check_robot_angles(table, prismatic, limits, where: str = "robot file") -> None:
+    """InputError for angles a robot file holds in radians where it takes degrees:
+    table (n, 5) [theta, d, a, alpha, beta] rad and limits (n, 2) (rad for a revolute
+    joint) as read from the file's degrees (module docstring). Every revolute joint's
+    limits within +-2 pi "degrees" (an arm whose joints all turn less than 6.3 deg); or a
+    twist alpha or offset theta within 1e-3 of pi / 2 or pi "degrees" while none lies
+    beyond 2 pi "degrees" (90 deg written as 1.5708). Some revolute joints' limits within
+    +-2 pi "degrees" and the others' beyond: one `RobotUnitWarning` naming the first."""
+    t = torch.rad2deg(table.detach().to("cpu", torch.float64))
+    rev = ~prismatic.detach().cpu().bool()
+    lim = torch.rad2deg(limits.detach().to("cpu", torch.float64))[rev]
+    if lim.numel() and float(lim.abs().max()) <= 2 * math.pi + 0.01:
+        raise InputError(f"{where}: every revolute joint's limits lie within +-{float(lim.abs().max()):.4g} deg: "
+                         "they look like radians; robot files take degrees (lower, upper)")
+    turn = lim.abs().amax(-1)  # (revolute joints,) the farthest each turns, "deg"
+    narrow = (turn <= 2 * math.pi + 0.01).nonzero().flatten().tolist()
+    if narrow:  # some joints in radians, the others in degrees (a URDF's values copied in)
+        j = int(rev.nonzero().flatten()[narrow[0]])
+        lo, hi = lim[narrow[0]].tolist()
+        more = f" (and {len(narrow) - 1} more joint(s))" if len(narrow) > 1 else ""
+        warnings.warn(f"{where}: joints[{j + 1}] limits {lo:.6g}..{hi:.6g} deg{more} look like radians "
+                      f"({math.degrees(lo):.4g}..{math.degrees(hi):.4g} deg if they are), while the other joints "
+                      f"turn up to {float(turn.max()):.4g} deg; robot files take degrees (lower, upper)",
+                      RobotUnitWarning, stacklevel=4)
+    ang = t[:, [0, 3]]  # theta offsets and twists, deg
+    if float(ang.abs().max()) <= 2 * math.pi + 0.01:
+        near = [(j, k, float(ang[j, c])) for j in range(ang.shape[0]) for c, k in enumerate(("theta_offset_deg",
+                                                                                            "alpha_deg"))
+                if min(abs(abs(float(ang[j, c])) - math.pi / 2), abs(abs(float(ang[j, c])) - math.pi)) < 1e-3]
+        if near:
+            j, k, v = near[0]
+            raise InputError(f"{where}: joints[{j + 1}].{k} = {v:.6g}: pi/2 or pi written in radians (and no angle "
+                             "of the file beyond 6.3 deg); robot files take degrees (e.g. 90, not 1.5708)")

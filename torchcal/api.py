@@ -74,9 +74,21 @@ def _specs(effects) -> list:
 
 
 def _sigmas(sigma_mm, sigma_deg) -> None:
-    """The measurement uncertainties that weigh orientation against position: > 0."""
+    """The measurement uncertainties that weigh orientation against position: > 0 (sigma_deg
+    None: not given, `SIGMA_DEG`)."""
     number_argument("sigma_mm", sigma_mm, above=0)
-    number_argument("sigma_deg", sigma_deg, above=0)
+    if sigma_deg is not None:
+        number_argument("sigma_deg", sigma_deg, above=0)
+
+
+def _sigma_deg(sigma_deg, m) -> float:
+    """sigma_deg for the measurements m: `SIGMA_DEG` when not given (None); given for data
+    without rx, ry, rz, where it weighs nothing, one `UnusedSigmaWarning` at the caller's
+    caller says so (`torchcal.calibration.checks.orientation.warn_unused_sigma_deg`)."""
+    from torchcal.calibration.checks.orientation import warn_unused_sigma_deg
+
+    warn_unused_sigma_deg(sigma_deg, m, stacklevel=3)
+    return SIGMA_DEG if sigma_deg is None else sigma_deg
 
 
 def _model(robot_or_model, effects=()) -> CalibrationModel:
@@ -159,14 +171,16 @@ def _work(model: CalibrationModel, m: Measurements) -> int:
 
 
 def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, max_iter: int = 60,
-        sigma_mm: float = SIGMA_MM, sigma_deg: float = SIGMA_DEG, max_length_mm: float | None = MAX_LENGTH_MM,
+        sigma_mm: float = SIGMA_MM, sigma_deg: float | None = None, max_length_mm: float | None = MAX_LENGTH_MM,
         max_angle_deg: float | None = MAX_ANGLE_DEG, length_unit: str = "mm", angle_unit: str = "deg",
         residual_model: str | None = None) -> FitResult:
     """Fit the geometric deviations plus `effects` to measured TCP positions (and
     orientations, when the measurements carry rx, ry, rz).
 
     robust: None, 'huber' or 'cauchy' (IRLS). sigma_mm / sigma_deg: measurement
-    uncertainties (mm, deg) that weigh orientation against position. max_length_mm /
+    uncertainties (mm, deg) that weigh orientation against position (sigma_deg None:
+    `SIGMA_DEG`; given for data without rx, ry, rz it weighs nothing, and one
+    `UnusedSigmaWarning` says so). max_length_mm /
     max_angle_deg: the plausible scales of the MD-H deviations, the prior of the fit
     (each None drops its own prior only; `torchcal.calibration.plausibility`).
     Measurements with several `point` ids need `tool_offset` (one offset per point).
@@ -196,6 +210,7 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     _sigmas(sigma_mm, sigma_deg)
     m = _measurements(measurements, robot, length_unit, angle_unit)
     check_units(m, robot, length_unit=length_unit, angle_unit=angle_unit, where=m.source or "measurements")
+    sigma_deg = _sigma_deg(sigma_deg, m)
     if isinstance(robot_or_model, (CalibrationModel, FitResult)):
         model = _for_data(_model(robot_or_model, effects), m)
     else:
@@ -243,7 +258,7 @@ def _set(**options) -> dict:
 
 
 def diagnose(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: int = 0, alpha: float | None = None,
-             min_gain: float | None = None, sigma_mm: float = SIGMA_MM, sigma_deg: float = SIGMA_DEG):
+             min_gain: float | None = None, sigma_mm: float = SIGMA_MM, sigma_deg: float | None = None):
     """Rank the physical effects missing from the model (`torchcal.diagnosis.diagnose.diagnose`);
     a `CalibrationModel` contributes its robot and effects. folds: cross-validation folds;
     seed: random seed of the fold assignment; alpha: family-wise error level of the tests,
@@ -262,6 +277,7 @@ def diagnose(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     model = _model(robot_or_model, effects)
     m = _measurements(measurements, model.robot)
     check_diagnosis_data(robot_or_model, model, m)
+    sigma_deg = _sigma_deg(sigma_deg, m)
     with threads.for_work(_work(model, m)), _about(m):
         return run(model.robot, m, model.specs(), folds=folds, seed=seed, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
                    **_set(alpha=alpha, min_gain=min_gain))
@@ -269,7 +285,7 @@ def diagnose(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
 
 def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: int = 0,
              max_rounds: int | None = None, alpha: float | None = None, sigma_mm: float = SIGMA_MM,
-             sigma_deg: float = SIGMA_DEG, transfer=None, transfer_poses: int = 30,
+             sigma_deg: float | None = None, transfer=None, transfer_poses: int = 30,
              residual_model: str | None = None, report_rest: bool = True):
     """Add the accepted missing effect each round (`torchcal.diagnosis.diagnose.discover`),
     for at most max_rounds rounds; folds, seed, alpha, sigma_mm, sigma_deg as in `diagnose`
@@ -291,6 +307,7 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     model = _model(robot_or_model, effects)
     m = _measurements(measurements, model.robot)
     check_robot_data_of(CalibrationModel.for_measurements(model.robot, model.specs(), m), m)
+    sigma_deg = _sigma_deg(sigma_deg, m)
     other = None if transfer is None else _measurements(transfer, model.robot)
     if other is not None and m.temp_c is not None and other.temp_c is None:  # else a traceback mid-search
         raise InputError(f"{other.source or 'transfer'}: the transfer session has no temp_c column, which "

@@ -227,16 +227,21 @@ def units(args) -> dict:
             "angle_unit": getattr(args, "angle_unit", "deg") or "deg"}
 
 
-def sigma_deg(args, m) -> float:
-    """--sigma-deg of `args` (None when not given: SIGMA_DEG) for the measurements `m`; given
-    for data without rx, ry, rz it weighs nothing, and one warning line on stderr says so."""
-    from torchcal.defaults import SIGMA_DEG
+def sigma_deg(args, m) -> float | None:
+    """--sigma-deg of `args` (None when not given: the library's default) for the
+    measurements `m`; given for data without rx, ry, rz it weighs nothing
+    (`torchcal.calibration.checks.orientation.sigma_deg_unused`), and one warning line on
+    stderr, naming the option, says so at once; the library's `UnusedSigmaWarning`, which
+    says the same with its keyword, is then ignored for the rest of the command (called
+    inside the command's warning block, `warnings_to_stderr`, which restores the filters)."""
+    from torchcal.calibration.checks.orientation import UnusedSigmaWarning, sigma_deg_unused
 
     given = getattr(args, "sigma_deg", None)
-    if given is not None and m.rxyz is None:
+    if sigma_deg_unused(given, m):
         sys.stderr.write(f"torchcal: warning: --sigma-deg {given:g} is ignored: the data have no rx, ry, rz "
                          f"columns (it weighs measured orientations against positions)\n")
-    return SIGMA_DEG if given is None else given
+        warnings.filterwarnings("ignore", category=UnusedSigmaWarning)
+    return given
 
 
 @contextmanager

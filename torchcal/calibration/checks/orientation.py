@@ -1,11 +1,13 @@
 """Measured orientations (rx, ry, rz) that cannot be the robot's tool frames
 (`orientation_mismatch`): another angle convention or unit, named when one of the usual
-readings fits (`orientation_readings`).
+readings fits (`orientation_readings`). An orientation uncertainty (sigma_deg) given for
+data without rx, ry, rz weighs nothing: one warning says so (`warn_unused_sigma_deg`).
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 
 import torch
 
@@ -83,3 +85,26 @@ def orientation_mismatch(model, m) -> str | None:
     return (f"{what}: rx, ry, rz disagree with the tool orientation of {rob.name} by rms {rms:.4g} deg after the best "
             f"measuring-frame and tool rotations (an uncalibrated arm is within a degree or so): {cause}; rx, ry, rz "
             "are fixed-axis XYZ angles, R = Rz(rz) Ry(ry) Rx(rx), in the angle unit (or drop the three columns)")
+
+
+class UnusedSigmaWarning(UserWarning):
+    """An orientation uncertainty (sigma_deg) given for data without rx, ry, rz: it weighs
+    nothing there."""
+
+
+def sigma_deg_unused(sigma_deg: float | None, m) -> bool:
+    """Whether the orientation uncertainty sigma_deg (deg; None: not given, the default)
+    was given for measurements m without rx, ry, rz: it weighs measured orientations
+    against positions, so on positions alone it changes nothing."""
+    return sigma_deg is not None and m.rxyz is None
+
+
+def warn_unused_sigma_deg(sigma_deg: float | None, m, stacklevel: int = 1) -> bool:
+    """One `UnusedSigmaWarning` when `sigma_deg_unused`; stacklevel: as for
+    `warnings.warn`, counted from the caller. Returns whether it warned."""
+    if not sigma_deg_unused(sigma_deg, m):
+        return False
+    warnings.warn(f"{m.source or 'measurements'}: sigma_deg {sigma_deg:g} is ignored: the data have no rx, ry, rz "
+                  "columns (it weighs measured orientations against positions)", UnusedSigmaWarning,
+                  stacklevel=stacklevel + 1)
+    return True

@@ -25,16 +25,19 @@ JOINS = 3  # at most this many pose-id restarts are tried as the joint between t
 def moved_within_gross(model, m, quick_mm: float, pred: torch.Tensor | None = None) -> Mismatch | None:
     """Two measuring frames in one file that one frame and tool offset fit within GROSS_MM
     (an instrument moved by a few mm or a fraction of a degree between two sessions, or
-    midway through one): None, or a 'mismatch' naming the parts. Judged only for a model
-    with base_frame whose one-frame rms (`quick_mm`, then that of the registered points
-    `pred` (N, 3) mm, `registered`'s, computed when None) exceeds
-    SESSION_FLOOR_MM: a part fits when its own frame and tool offset leave at most 1 /
-    SESSION_RATIO of the one-frame rms (`joined_sessions` at restarting pose ids, else
+    midway through one): None, or a 'mismatch' naming the parts. Judged when the model's
+    rms (`quick_mm`: as it is, or after the closed-form frame when it has base_frame), then
+    that of the registered points `pred` (N, 3) mm (`registered`'s, computed when None),
+    exceed SESSION_FLOOR_MM: a part fits when its own frame and tool offset leave at most
+    1 / SESSION_RATIO of the one-frame rms (`joined_sessions` at restarting pose ids, else
     `changed_midway`). Single sessions of the simulated titan and UR10 series B and D come
-    1.0-1.2 times closer at their best cut, a 0.5 deg move 12.6 times."""
+    1.0-1.2 times closer at their best cut, a 0.5 deg move 12.6 times. Every fit here adds a
+    frame and tool offset of its own, so the figures do not depend on the frame the data
+    are in: a model without base_frame (data in the robot's base frame) is judged alike,
+    where two frames are a base that moved (the robot mounted elsewhere) between sessions."""
     import dataclasses
 
-    if "base_frame" not in [e.name for e in model.effects] or quick_mm <= SESSION_FLOOR_MM:
+    if quick_mm <= SESSION_FLOOR_MM:
         return None
     if pred is None:
         pred = registered(model, m)
@@ -51,9 +54,11 @@ def moved_within_gross(model, m, quick_mm: float, pred: torch.Tensor | None = No
     cut = join if join is not None else changed_midway(m, fits)
     if cut is None:
         return None
-    how = (f"(pose ids restart at {int(m.pose[cut])}): two sessions joined, the instrument moved between them; "
+    moved = "the instrument" if "base_frame" in [e.name for e in model.effects] else \
+        "the robot's base (the data are in its frame: the model has no base_frame)"
+    how = (f"(pose ids restart at {int(m.pose[cut])}): two sessions joined, {moved} moved between them; "
            "calibrate on one, or register each (torchcal register)" if join is not None else
-           f": the instrument moved or the reflector was changed midway, by data row {cut + 1} (pose id "
+           f": {moved} moved or the reflector was changed midway, by data row {cut + 1} (pose id "
            f"{int(m.pose[cut])}) at the latest; calibrate on one part and register the other (torchcal register)")
     parts = [m.subset(torch.arange(a, b)) for a, b in ((0, cut), (cut, len(m)))]
     each = " and ".join(f"{rms_of((registered(model, p) - p.xyz).norm(dim=-1)):.4g}" for p in parts)

@@ -9,11 +9,14 @@ range resolves and keeps those that predict held-out poses (`search_orders`):
    the derivative of `joint_periodic:J@k...` at zero (one forward pass for the grid).
 2. One step, vectorised over the grid: for each fold (by pose; the folds of `discover`),
    the base columns X = [A, chosen orders] and the order's pair of columns are fitted to
-   the residual r on the other folds and predicted on the held-out one. With X's training
-   pseudo-inverse applied to r and to all of C at once, each order's fit is a batched 2x2
-   solve; the held-out sums of squares of all K orders come from a few matrix products.
-   As X grows by the pair chosen, each fold's basis of X and the projections are
-   updated by the pair's new directions (`_extend_basis`, `_Projected`), not recomputed.
+   the residual r on the other folds and predicted on the held-out one. Each order's fit
+   is a batched 2x2 solve, and the held-out sums of squares of all K orders come from
+   sums over rows: X^T C, C^T r and each pair's Gram matrix on each fold's rows (one pass
+   over C for all folds; a fold's training sums are the totals minus its own) and C's
+   coefficients on the fold's orthonormal basis of X (`_Projected.sums`), so no step
+   passes over C's rows per fold. As X grows by the pair chosen, each fold's basis of X
+   and these coefficients are updated by the pair's new directions (`_extend_basis`,
+   `_Projected.extended`), not recomputed.
 3. The order with the smallest held-out sum of squares is added when it cuts the held-out
    RMS by at least `MIN_ORDER_GAIN` and its F-test on all training rows (2 new columns
    beyond X) passes ``alpha / K`` (Bonferroni over the grid); repeat from 2 with it in X,
@@ -146,12 +149,13 @@ def _extend_basis(BT: np.ndarray, BV: np.ndarray, R: np.ndarray, pT: np.ndarray,
     BT (T, m): orthonormal basis of span(X_T), X's training rows (``X_T M = BT``, as from
     `_pinv_parts`); BV (V, m) = X_V M, the same combinations of X's held-out rows;
     R (m, p) = BT^T X_T. pT (T, 2), pV (V, 2): the pair's training and held-out rows.
-    Returns (Q (T, k), QV (V, k), R' (m + k, p + 2)): the pair's component orthogonal to
-    BT (one Gram-Schmidt step, then once more against the rounding), orthonormalised, so
-    that [BT, Q] spans what `_pinv_parts([X_T, pT])` spans, [BV, QV] its held-out
-    combinations, and R' = [BT, Q]^T [X_T, pT]. The same rank rule: k = the number of
-    singular values of [X_T, pT] (those of R' before the cut) above RANK_TOL times the
-    largest, minus m; 0, 1 (the remainder's dominant direction) or 2."""
+    Returns (Q (T, k), QV (V, k), R' (m + k, p + 2), W (m, 2), Mn (2, k)): the pair's
+    component orthogonal to BT (one Gram-Schmidt step, then once more against the
+    rounding), orthonormalised, so that [BT, Q] spans what `_pinv_parts([X_T, pT])` spans,
+    [BV, QV] its held-out combinations, and R' = [BT, Q]^T [X_T, pT]; Q = (pT - BT W) Mn,
+    QV = (pV - BV W) Mn. The same rank rule: k = the number of singular values of
+    [X_T, pT] (those of R' before the cut) above RANK_TOL times the largest, minus m; 0,
+    1 (the remainder's dominant direction) or 2."""
     W = BT.T @ pT
     nT, nV = pT - BT @ W, pV - BV @ W
     W2 = BT.T @ nT  # re-orthogonalisation
@@ -162,7 +166,44 @@ def _extend_basis(BT: np.ndarray, BV: np.ndarray, R: np.ndarray, pT: np.ndarray,
     rank = int((sv > RANK_TOL * (sv[0] if len(sv) else 1.0)).sum())
     k = min(max(rank - R.shape[0], 0), len(s))
     Mn = vt[:k].T / s[:k]
-    return nT @ Mn, nV @ Mn, Rn[:R.shape[0] + k]
+    return nT @ Mn, nV @ Mn, Rn[:R.shape[0] + k], W, Mn
+
+
+@dataclass
+class _Grams:
+    """What one fold's search needs of the candidate columns C (3N, 2K): sums over its
+    training rows T and its held-out rows V (`_fold_grams`), so that no step passes over
+    C's rows per fold. C (3N, 2K) with its rows sorted by fold, V (slice) the fold's
+    rows in it; XC_T, XC_V (p, 2K): X^T C on T and on V; G_T, G_V (K, 2, 2): each pair's
+    Gram matrix there; cr_T, cr_V (2K,): C^T r there."""
+
+    C: np.ndarray
+    V: slice
+    XC_T: np.ndarray
+    XC_V: np.ndarray
+    G_T: np.ndarray
+    G_V: np.ndarray
+    cr_T: np.ndarray
+    cr_V: np.ndarray
+
+
+def _fold_order(rows: np.ndarray):
+    """(order (3N,), bounds [(start, end)] per fold): the permutation that sorts the
+    stacked rows by their fold label `rows` (3N,) (stable), and each fold's slice of the
+    sorted rows."""
+    order = np.argsort(rows, kind="stable")
+    _, starts = np.unique(rows[order], return_index=True)
+    return order, list(zip(starts.tolist(), starts[1:].tolist() + [len(rows)]))
+
+
+def _fold_grams(X: np.ndarray, r: np.ndarray, C: np.ndarray, bounds: list) -> list:
+    """`_Grams` of each fold for X (3N, p), r (3N,), C (3N, 2K), their rows sorted by fold
+    and the folds' rows the slices `bounds` (`_fold_order`): one pass over C (each fold's
+    rows once), the training sums as the totals minus the fold's."""
+    K = C.shape[1] // 2
+    parts = [(X[a:b].T @ C[a:b], _pair_grams(C[a:b].reshape(b - a, K, 2)), C[a:b].T @ r[a:b]) for a, b in bounds]
+    XC, G, cr = (sum(p[i] for p in parts) for i in range(3))
+    return [_Grams(C, slice(a, b), XC - xc, xc, G - g, g, cr - c, c) for (a, b), (xc, g, c) in zip(bounds, parts)]
 
 
 @dataclass
@@ -171,73 +212,97 @@ class _Projected:
     training rows t (3N,) bool of one fold (all rows for the F-test; then V = 0).
 
     BT (T, m), BV (V, m): X's orthonormal training basis and its held-out combinations
-    (`_extend_basis`); R (m, p) = BT^T X_T; eT (T,), eV (V,): r minus its fit on X (the
-    fit's coefficients from the training rows). With C (None when not needed): Ct (T, 2K)
-    C's training rows; of D = C minus its fit on X, G (K, 2, 2) the Gram matrix of each
-    pair's training rows, b (K, 2) their products with eT, DV (V, 2K) the held-out rows."""
+    (`_extend_basis`); R (m, p) = BT^T X_T; a (m,) = BT^T r_T, r's coefficients on the
+    basis; eT (T,) = r_T - BT a, eV (V,) = r_V - BV a: r minus its fit on X (fitted on
+    the training rows). With C (g None when not needed): g, the fold's `_Grams` of C
+    (the rows of C, X and r sorted by fold, t False on the fold's slice); PT = BT^T C_T,
+    PV = BV^T C_V (m, 2K): C's coefficients on the basis. D = C minus its fit on X enters
+    only through these and g (`sums`)."""
 
     t: np.ndarray
     BT: np.ndarray
     BV: np.ndarray
     R: np.ndarray
+    a: np.ndarray
     eT: np.ndarray
     eV: np.ndarray
-    Ct: np.ndarray | None = None
-    G: np.ndarray | None = None
-    b: np.ndarray | None = None
-    DV: np.ndarray | None = None
+    g: _Grams | None = None
+    PT: np.ndarray | None = None
+    PV: np.ndarray | None = None
 
     @classmethod
-    def start(cls, X: np.ndarray, r: np.ndarray, C: np.ndarray | None, t: np.ndarray) -> "_Projected":
-        """From scratch: X (3N, p) by QR + SVD (`_pinv_parts`) on rows t."""
+    def start(cls, X: np.ndarray, r: np.ndarray, t: np.ndarray, g: _Grams | None = None) -> "_Projected":
+        """From scratch: X (3N, p) by QR + SVD (`_pinv_parts`) on rows t; g: the fold's
+        `_Grams` of C, or None. With X_T M = BT: PT = M^T X_T^T C_T, PV = M^T X_V^T C_V."""
         v = ~t
         Xt = X[t]
         BT, M = _pinv_parts(Xt)
         BV = X[v] @ M
         a = BT.T @ r[t]
-        out = cls(t, BT, BV, BT.T @ Xt, r[t] - BT @ a, r[v] - BV @ a)
-        if C is not None:
-            Ct = C[t]
-            P = BT.T @ Ct
-            DT = Ct - BT @ P
-            out.Ct, out.DV = Ct, C[v] - BV @ P
-            out.G, out.b = _pair_grams(DT.reshape(len(DT), -1, 2)), (out.eT @ DT).reshape(-1, 2)
+        out = cls(t, BT, BV, BT.T @ Xt, a, r[t] - BT @ a, r[v] - BV @ a)
+        if g is not None:
+            out.g, out.PT, out.PV = g, M.T @ g.XC_T, M.T @ g.XC_V
         return out
 
-    def extended(self, pair: np.ndarray) -> "_Projected":
-        """The same with the columns pair (3N, 2) added to X (`_extend_basis`). The new
-        directions Q (T, k) are orthonormal and orthogonal to BT, so with P = Q^T Ct
-        (= Q^T D) and a = Q^T eT: D_T - Q P, eT - Q a, and the pairs' G - P^T P, b - P^T a
-        (no pass over D's training rows)."""
+    def extended(self, pair: np.ndarray, pair_c: np.ndarray | None = None) -> "_Projected":
+        """The same with the columns pair (3N, 2) added to X (`_extend_basis`); pair_c
+        (2, 2K): pair^T C on all rows (needed when C is held). The new directions Q (T, k)
+        are orthonormal and orthogonal to BT, Q = (pT - BT W) Mn, so Q^T C_T =
+        Mn^T (pT^T C_T - W^T PT), and the same on the held-out rows: no pass over C."""
         t, v = self.t, ~self.t
-        Q, QV, R = _extend_basis(self.BT, self.BV, self.R, pair[t], pair[v])
+        Q, QV, R, W, Mn = _extend_basis(self.BT, self.BV, self.R, pair[t], pair[v])
         a = Q.T @ self.eT
-        out = _Projected(t, np.hstack([self.BT, Q]), np.hstack([self.BV, QV]), R,
+        out = _Projected(t, np.hstack([self.BT, Q]), np.hstack([self.BV, QV]), R, np.concatenate([self.a, a]),
                          self.eT - Q @ a, self.eV - QV @ a)
-        if self.Ct is not None:
-            P = Q.T @ self.Ct  # (k, 2K)
-            Pk = P.reshape(len(P), -1, 2)
-            out.Ct, out.DV = self.Ct, self.DV - QV @ P
-            out.G = self.G - np.einsum("jka,jkb->kab", Pk, Pk)
-            out.b = self.b - np.einsum("jka,j->ka", Pk, a)
+        if self.g is not None:
+            g = self.g
+            pcV = pair[v].T @ g.C[g.V]  # the held-out rows of pair are the fold's slice
+            out.g = g
+            out.PT = np.vstack([self.PT, Mn.T @ (pair_c - pcV - W.T @ self.PT)])
+            out.PV = np.vstack([self.PV, Mn.T @ (pcV - W.T @ self.PV)])
         return out
 
     def sums(self):
         """Held-out sum of squares of r on X alone (float) and on [X, pair k] for every
-        pair of C's columns (K,), the pair's coefficients fitted on the training rows."""
-        K = len(self.G)
-        DV = self.DV.reshape(-1, K, 2)
-        beta = np.linalg.solve(self.G + 1e-12 * np.eye(2), self.b[..., None])[..., 0]  # (K, 2)
-        pred = DV[..., 0] * beta[:, 0] + DV[..., 1] * beta[:, 1]  # (V, K)
-        eV = self.eV
-        return float(eV @ eV), (eV @ eV) - 2 * (eV @ pred) + np.einsum("vk,vk->k", pred, pred)
+        pair of C's columns (K,), the pair's coefficients fitted on the training rows.
+
+        From Gram matrices, per pair (D = C minus its fit on X): the training Gram
+        D_T^T D_T = G_T - PT^T PT and D_T^T eT = cr_T - PT^T a give beta; on the held-out
+        rows D_V^T eV = (cr_V - PV^T a) - PT^T BV^T eV and D_V^T D_V = G_V - PV^T PT -
+        PT^T PV + PT^T (BV^T BV) PT give |eV - D_V beta|^2."""
+        g, PT, PV, eV, BV = self.g, self.PT, self.PV, self.eV, self.BV
+        K, m = len(g.G_T), len(PT)
+        P2, PV2 = PT.reshape(m, K, 2), PV.reshape(m, K, 2)
+        G = g.G_T - np.einsum("jka,jkb->kab", P2, P2)
+        b = (g.cr_T - PT.T @ self.a).reshape(K, 2)
+        h = ((g.cr_V - PV.T @ self.a) - PT.T @ (BV.T @ eV)).reshape(K, 2)
+        cross = np.einsum("jka,jkb->kab", PV2, P2)
+        S = g.G_V - cross - cross.transpose(0, 2, 1) + np.einsum("jka,jkb->kab", P2,
+                                                                 ((BV.T @ BV) @ PT).reshape(m, K, 2))
+        beta = np.linalg.solve(G + 1e-12 * np.eye(2), b[..., None])[..., 0]  # (K, 2)
+        ee = float(eV @ eV)
+        return ee, ee - 2 * np.einsum("ka,ka->k", beta, h) + np.einsum("ka,kab,kb->k", beta, S, beta)
+
+
+def _fold_projections(X: np.ndarray, r: np.ndarray, C: np.ndarray, rows: np.ndarray):
+    """(each fold's `_Projected` of r and C on X, order): X (3N, p), r (3N,), C (3N, 2K)
+    taken in the order (3N,) that sorts the stacked rows by their fold `rows` (3N,)
+    (`_fold_order`); the projections hold rows in that order."""
+    order, bounds = _fold_order(rows)
+    X, r, C = X[order], r[order], C[order]
+    out = []
+    for g, (a, b) in zip(_fold_grams(X, r, C, bounds), bounds):
+        t = np.ones(len(r), dtype=bool)
+        t[a:b] = False
+        out.append(_Projected.start(X, r, t, g))
+    return out, order
 
 
 def held_out_sums(r: np.ndarray, X: np.ndarray, C: np.ndarray, rows: np.ndarray):
     """Held-out sums of squares of r on X alone (float) and on [X, pair k] for every pair
     of columns of C (K,), over the folds `rows` (3N,) (fold of each stacked row); from
     scratch (`search_orders` updates the folds' projections as X grows)."""
-    return _fold_sums([_Projected.start(X, r, C, rows != f) for f in np.unique(rows)])
+    return _fold_sums(_fold_projections(X, r, C, rows)[0])
 
 
 def _fold_sums(folds: list):
@@ -287,11 +352,19 @@ def search_orders(r: np.ndarray, A: np.ndarray, C: np.ndarray, grid, folds: np.n
     Cn = C / np.linalg.norm(C, axis=0).clip(1e-300)
     rows = np.repeat(np.asarray(folds), 3)
     level = alpha / max(len(grid), 1)
-    folds_p = [_Projected.start(X, r, Cn, rows != f) for f in np.unique(rows)]
-    whole = _Projected.start(X, r, None, np.ones(len(r), dtype=bool))  # all rows: the F-test
+    folds_p, order = _fold_projections(X, r, Cn, rows)  # their rows sorted by fold
+    Cs = Cn[order] if not folds_p else folds_p[0].g.C
+    whole = _Projected.start(X, r, np.ones(len(r), dtype=bool))  # all rows: the F-test
     if scale is not None:
-        UA = whole.BT
-        r_perp, C_perp = whole.eT, C - UA @ (UA.T @ C)
+        UA, perp = whole.BT, {}
+        r_perp = whole.eT
+
+        def c_perp(j: int) -> np.ndarray:
+            """(3N, 2) order j's columns C with the base columns projected out (once)."""
+            if j not in perp:
+                c = C[:, 2 * j:2 * j + 2]
+                perp[j] = c - UA @ (UA.T @ c)
+            return perp[j]
     chosen, path, ps = [], [], []
     refused = np.zeros(len(grid), dtype=bool)  # not determined beside the orders kept
     while len(chosen) < max_orders:
@@ -308,9 +381,8 @@ def search_orders(r: np.ndarray, A: np.ndarray, C: np.ndarray, grid, folds: np.n
             if scale is None:
                 best = i
                 break
-            cols = [c for j in chosen + [i] for c in (2 * j, 2 * j + 1)]
-            dof = len(r) - UA.shape[1] - len(cols)
-            if determined_orders(r_perp, C_perp[:, cols], dof, scale):
+            dof = len(r) - UA.shape[1] - 2 * (len(chosen) + 1)
+            if determined_orders(r_perp, np.hstack([c_perp(j) for j in chosen + [i]]), dof, scale):
                 best = i
                 break
             refused[i] = True
@@ -331,7 +403,9 @@ def search_orders(r: np.ndarray, A: np.ndarray, C: np.ndarray, grid, folds: np.n
         chosen.append(best)
         path.append(cv)
         ps.append(p)
-        whole, folds_p = whole1, [fp.extended(pair) for fp in folds_p]
+        pair_s = Cs[:, 2 * best:2 * best + 2]  # the rows in the folds' order
+        pair_c = pair_s.T @ Cs
+        whole, folds_p = whole1, [fp.extended(pair_s, pair_c) for fp in folds_p]
     return chosen, path, ps
 
 

@@ -56,16 +56,18 @@ def test_extend_basis_matches_qr_svd_of_the_grown_columns():
 def test_search_updates_equal_the_sums_from_scratch():
     """`_Projected.extended` (what `search_orders` does as X grows) gives the held-out sums
     that `held_out_sums` computes from scratch on the grown X."""
-    from torchcal.diagnosis.spectral import _fold_projections, _fold_sums, held_out_sums
+    from torchcal.diagnosis.spectral import _fold_sums, _with_columns, held_out_sums, search_base
 
     rng = np.random.default_rng(11)
     n3, p, K = 600, 5, 9
     X, C, r = rng.standard_normal((n3, p)), rng.standard_normal((n3, 2 * K)), rng.standard_normal(n3)
     rows = np.repeat(rng.permutation(n3 // 3) % 4, 3)
-    folds, order = _fold_projections(X, r, C, rows)
+    base = search_base(r, X, rows[::3])
+    Cs = C[base.order]  # the folds hold their rows sorted by fold
+    folds = _with_columns(base, Cs)
     for k in (3, 7):
-        pair = C[order, 2 * k:2 * k + 2]  # the folds hold their rows sorted by fold
-        folds = [fp.extended(pair, pair.T @ C[order]) for fp in folds]
+        pair = Cs[:, 2 * k:2 * k + 2]
+        folds = [fp.extended(pair, pair.T @ Cs) for fp in folds]
         X = np.hstack([X, C[:, 2 * k:2 * k + 2]])
         base, per = _fold_sums(folds)
         ref_base, ref_per = held_out_sums(r, X, C, rows)

@@ -54,6 +54,7 @@ A joint whose range resolves no order (k_min > k_max) is not searched and warned
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from dataclasses import dataclass, field
@@ -226,23 +227,26 @@ class _Projected:
     a: np.ndarray
     eT: np.ndarray
     eV: np.ndarray
+    M: np.ndarray | None = None
     g: _Grams | None = None
     PT: np.ndarray | None = None
     PV: np.ndarray | None = None
 
     @classmethod
-    def start(cls, X: np.ndarray, r: np.ndarray, t: np.ndarray, g: _Grams | None = None) -> "_Projected":
-        """From scratch: X (3N, p) by QR + SVD (`_pinv_parts`) on rows t; g: the fold's
-        `_Grams` of C, or None. With X_T M = BT: PT = M^T X_T^T C_T, PV = M^T X_V^T C_V."""
+    def start(cls, X: np.ndarray, r: np.ndarray, t: np.ndarray) -> "_Projected":
+        """From scratch, without C: X (3N, p) by QR + SVD (`_pinv_parts`, X_T M = BT; M
+        (p, m) kept for `with_columns`) on rows t."""
         v = ~t
         Xt = X[t]
         BT, M = _pinv_parts(Xt)
         BV = X[v] @ M
         a = BT.T @ r[t]
-        out = cls(t, BT, BV, BT.T @ Xt, a, r[t] - BT @ a, r[v] - BV @ a)
-        if g is not None:
-            out.g, out.PT, out.PV = g, M.T @ g.XC_T, M.T @ g.XC_V
-        return out
+        return cls(t, BT, BV, BT.T @ Xt, a, r[t] - BT @ a, r[v] - BV @ a, M)
+
+    def with_columns(self, g: _Grams) -> "_Projected":
+        """The same fold with C (its `_Grams` g) as `start` left it: PT = M^T X_T^T C_T,
+        PV = M^T X_V^T C_V."""
+        return dataclasses.replace(self, g=g, PT=self.M.T @ g.XC_T, PV=self.M.T @ g.XC_V)
 
     def extended(self, pair: np.ndarray, pair_c: np.ndarray | None = None) -> "_Projected":
         """The same with the columns pair (3N, 2) added to X (`_extend_basis`); pair_c
@@ -253,7 +257,7 @@ class _Projected:
         Q, QV, R, W, Mn = _extend_basis(self.BT, self.BV, self.R, pair[t], pair[v])
         a = Q.T @ self.eT
         out = _Projected(t, np.hstack([self.BT, Q]), np.hstack([self.BV, QV]), R, np.concatenate([self.a, a]),
-                         self.eT - Q @ a, self.eV - QV @ a)
+                         self.eT - Q @ a, self.eV - QV @ a)  # (no M: `with_columns` is for a start)
         if self.g is not None:
             g = self.g
             pcV = pair[v].T @ g.C[g.V]  # the held-out rows of pair are the fold's slice
@@ -284,25 +288,48 @@ class _Projected:
         return ee, ee - 2 * np.einsum("ka,ka->k", beta, h) + np.einsum("ka,kab,kb->k", beta, S, beta)
 
 
-def _fold_projections(X: np.ndarray, r: np.ndarray, C: np.ndarray, rows: np.ndarray):
-    """(each fold's `_Projected` of r and C on X, order): X (3N, p), r (3N,), C (3N, 2K)
-    taken in the order (3N,) that sorts the stacked rows by their fold `rows` (3N,)
-    (`_fold_order`); the projections hold rows in that order."""
-    order, bounds = _fold_order(rows)
-    X, r, C = X[order], r[order], C[order]
+@dataclass
+class SearchBase:
+    """What the searches of every joint on the same residual, base columns and folds
+    share (`search_base`): X (3N, p) the base columns scaled to unit norm and r (3N,),
+    their rows sorted by fold (order (3N,) the permutation, bounds the folds' slices,
+    `_fold_order`); folds, each fold's `_Projected` of r on X (without C); whole, the
+    same on all rows (the F-test's and the determination's)."""
+
+    X: np.ndarray
+    r: np.ndarray
+    order: np.ndarray
+    bounds: list
+    folds: list
+    whole: _Projected
+
+
+def search_base(r: np.ndarray, A: np.ndarray, folds: np.ndarray) -> SearchBase:
+    """The `SearchBase` of residual r (3N,) on base columns A (3N, p) with the folds (N,)
+    by pose: one QR per fold for every joint searched on them."""
+    order, bounds = _fold_order(np.repeat(np.asarray(folds), 3))
+    X = (A / np.linalg.norm(A, axis=0).clip(1e-300))[order]
+    r = r[order]
     out = []
-    for g, (a, b) in zip(_fold_grams(X, r, C, bounds), bounds):
+    for a, b in bounds:
         t = np.ones(len(r), dtype=bool)
         t[a:b] = False
-        out.append(_Projected.start(X, r, t, g))
-    return out, order
+        out.append(_Projected.start(X, r, t))
+    return SearchBase(X, r, order, bounds, out, _Projected.start(X, r, np.ones(len(r), dtype=bool)))
+
+
+def _with_columns(base: SearchBase, Cs: np.ndarray) -> list:
+    """Each fold of `base` with the columns Cs (3N, 2K) (rows in base's order)."""
+    return [fp.with_columns(g) for fp, g in zip(base.folds, _fold_grams(base.X, base.r, Cs, base.bounds))]
 
 
 def held_out_sums(r: np.ndarray, X: np.ndarray, C: np.ndarray, rows: np.ndarray):
     """Held-out sums of squares of r on X alone (float) and on [X, pair k] for every pair
-    of columns of C (K,), over the folds `rows` (3N,) (fold of each stacked row); from
-    scratch (`search_orders` updates the folds' projections as X grows)."""
-    return _fold_sums(_fold_projections(X, r, C, rows)[0])
+    of columns of C (K,), over the folds `rows` (3N,) (fold of each stacked row, a
+    pose's three rows in one fold); from scratch (`search_orders` updates the folds'
+    projections as X grows). X is taken with unit columns (the same span)."""
+    base = search_base(r, X, rows[::3])
+    return _fold_sums(_with_columns(base, C[base.order]))
 
 
 def _fold_sums(folds: list):
@@ -337,24 +364,24 @@ def determined_orders(r_perp: np.ndarray, C_perp: np.ndarray, dof: int, scale: f
 
 def search_orders(r: np.ndarray, A: np.ndarray, C: np.ndarray, grid, folds: np.ndarray, *,
                   alpha: float = ALPHA, max_orders: int = MAX_ORDERS, min_gain: float = MIN_ORDER_GAIN,
-                  scale: float | None = None):
+                  scale: float | None = None, base: SearchBase | None = None):
     """Greedy held-out search (module doc) of residual r (3N,) mm on base columns A (3N, p)
     over the orders `grid` (K,) with columns C (3N, 2K) (sin, cos per order), folds (N,).
     scale: the plausible size of one coefficient in C's coefficient unit (rad): an order
     is kept only when the data determine the joint's coefficients with it (step 4,
-    `determined_orders`); None: no such check.
+    `determined_orders`); None: no such check. base: `search_base`(r, A, folds) when the
+    caller already has it (the searches of several joints share it).
 
     Returns (indices into grid, in the order chosen; held-out RMS mm before and after each;
     F-test p-values).
     """
     n_rows = len(r) // 3
-    X = A / np.linalg.norm(A, axis=0).clip(1e-300)
-    Cn = C / np.linalg.norm(C, axis=0).clip(1e-300)
-    rows = np.repeat(np.asarray(folds), 3)
+    base = search_base(r, A, folds) if base is None else base  # every row below in base's order
+    C = C[base.order]
+    Cs = C / np.linalg.norm(C, axis=0).clip(1e-300)
     level = alpha / max(len(grid), 1)
-    folds_p, order = _fold_projections(X, r, Cn, rows)  # their rows sorted by fold
-    Cs = Cn[order] if not folds_p else folds_p[0].g.C
-    whole = _Projected.start(X, r, np.ones(len(r), dtype=bool))  # all rows: the F-test
+    folds_p = _with_columns(base, Cs)
+    whole = base.whole  # all rows: the F-test
     if scale is not None:
         UA, perp = whole.BT, {}
         r_perp = whole.eT
@@ -389,7 +416,7 @@ def search_orders(r: np.ndarray, A: np.ndarray, C: np.ndarray, grid, folds: np.n
         if best is None:
             break
         cv = math.sqrt(max(per[best], 0.0) / n_rows)
-        pair = Cn[:, 2 * best:2 * best + 2]
+        pair = Cs[:, 2 * best:2 * best + 2]
         whole1 = whole.extended(pair)
         e0, e1 = whole.eT, whole1.eT
         k_new = whole1.BT.shape[1] - whole.BT.shape[1]
@@ -403,9 +430,8 @@ def search_orders(r: np.ndarray, A: np.ndarray, C: np.ndarray, grid, folds: np.n
         chosen.append(best)
         path.append(cv)
         ps.append(p)
-        pair_s = Cs[:, 2 * best:2 * best + 2]  # the rows in the folds' order
-        pair_c = pair_s.T @ Cs
-        whole, folds_p = whole1, [fp.extended(pair_s, pair_c) for fp in folds_p]
+        pair_c = pair.T @ Cs
+        whole, folds_p = whole1, [fp.extended(pair, pair_c) for fp in folds_p]
     return chosen, path, ps
 
 
@@ -419,7 +445,7 @@ def grid_columns(robot, model, theta, ctx, joint: int, grid) -> np.ndarray:
 
 
 def fold_orders(robot, model, theta, ctx, r: np.ndarray, A: np.ndarray, folds: np.ndarray, joint: int,
-                **kw) -> dict:
+                bases: dict | None = None, **kw) -> dict:
     """{fold: orders} per fold of folds (N,): the orders of `joint_periodic:joint` that the
     same search (`propose_orders`: alpha, order limits, determination) finds on the OTHER
     folds' rows alone, for the refit CV of a searched candidate
@@ -436,7 +462,9 @@ def fold_orders(robot, model, theta, ctx, r: np.ndarray, A: np.ndarray, folds: n
     restricted to the rows it uses, so it is unchanged by adding A_T delta to r_T: the
     leak is zero to first order (only the curvature of the model, and the columns taken
     at the full fit, carry the held-out rows). A fold whose rows resolve no order gives
-    () without a warning (`propose_orders` warns for the data as a whole)."""
+    () without a warning (`propose_orders` warns for the data as a whole). bases: fold ->
+    the `search_base` of T's rows, filled here as needed: a dict the caller keeps for
+    the searches of several joints on the same r, A and folds."""
     q = ctx.q[:, joint - 1].detach().cpu().numpy()
     folds = np.asarray(folds)
     labels = [int(f) for f in np.unique(folds)]
@@ -456,16 +484,20 @@ def fold_orders(robot, model, theta, ctx, r: np.ndarray, A: np.ndarray, folds: n
         grid = tuple(range(lim.k_min, lim.k_max + 1))
         cols = np.arange(2 * (lim.k_min - lo), 2 * (lim.k_max - lo + 1))
         t3 = np.repeat(folds != f, 3)
-        idx, _, _ = search_orders(r[t3], A[t3], C[t3][:, cols], grid, folds[folds != f], **kw)
+        bases = {} if bases is None else bases
+        if f not in bases:
+            bases[f] = search_base(r[t3], A[t3], folds[folds != f])
+        idx, _, _ = search_orders(r[t3], A[t3], C[t3][:, cols], grid, folds[folds != f], base=bases[f], **kw)
         out[f] = tuple(grid[i] for i in idx)
     return out
 
 
 def propose_orders(robot, model, theta, ctx, r: np.ndarray, A: np.ndarray, folds: np.ndarray, joint: int,
-                   **kw) -> Search:
+                   base: SearchBase | None = None, **kw) -> Search:
     """The orders of `joint_periodic:joint` that the residual r (3N,) of `model` at theta
     (base columns A (3N, p), folds (N,) by pose) shows; module doc. Warns when the joint's
-    measured range resolves no order."""
+    measured range resolves no order. base: `search_base`(r, A, folds), shared by the
+    caller's searches of several joints (made here when None)."""
     q = ctx.q[:, joint - 1].detach().cpu().numpy()
     lim = order_limits(q)
     if lim.empty:
@@ -474,7 +506,7 @@ def propose_orders(robot, model, theta, ctx, r: np.ndarray, A: np.ndarray, folds
     grid = tuple(range(lim.k_min, lim.k_max + 1))
     C = grid_columns(robot, model, theta, ctx, joint, grid)
     kw.setdefault("scale", MAX_AMPLITUDE_ARCSEC * ARCSEC)  # the effect's plausible size (rad)
-    idx, path, ps = search_orders(r, A, C, grid, folds, **kw)
+    idx, path, ps = search_orders(r, A, C, grid, folds, base=base, **kw)
     amps = ()
     if idx:
         cols = np.hstack([C[:, 2 * i:2 * i + 2] for i in idx])

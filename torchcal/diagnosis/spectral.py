@@ -188,6 +188,22 @@ class _Grams:
     cr_V: np.ndarray
 
 
+def _appended(B: np.ndarray, Q: np.ndarray, room: int = 2 * MAX_ORDERS) -> np.ndarray:
+    """[B, Q] (n, m + k) for B (n, m), Q (n, k): written into the columns after B's when
+    B is the leading columns of a buffer with room for Q (a view, no copy: those columns
+    are then the result's), else copied into a new buffer with `room` more columns."""
+    n, m = B.shape
+    k = Q.shape[1]
+    buf = B.base
+    if (isinstance(buf, np.ndarray) and buf.ndim == 2 and buf.shape[0] == n and buf.shape[1] >= m + k
+            and B.ctypes.data == buf.ctypes.data and B.strides == buf.strides):
+        buf[:, m:m + k] = Q
+        return buf[:, :m + k]
+    buf = np.empty((n, m + k + room))
+    buf[:, :m], buf[:, m:m + k] = B, Q
+    return buf[:, :m + k]
+
+
 def _fold_order(rows: np.ndarray):
     """(order (3N,), bounds [(start, end)] per fold): the permutation that sorts the
     stacked rows by their fold label `rows` (3N,) (stable), and each fold's slice of the
@@ -252,11 +268,13 @@ class _Projected:
         """The same with the columns pair (3N, 2) added to X (`_extend_basis`); pair_c
         (2, 2K): pair^T C on all rows (needed when C is held). The new directions Q (T, k)
         are orthonormal and orthogonal to BT, Q = (pT - BT W) Mn, so Q^T C_T =
-        Mn^T (pT^T C_T - W^T PT), and the same on the held-out rows: no pass over C."""
+        Mn^T (pT^T C_T - W^T PT), and the same on the held-out rows: no pass over C.
+        The bases grow in place (`_appended`): extend a `_Projected` once (its successor
+        then owns the columns after its own)."""
         t, v = self.t, ~self.t
         Q, QV, R, W, Mn = _extend_basis(self.BT, self.BV, self.R, pair[t], pair[v])
         a = Q.T @ self.eT
-        out = _Projected(t, np.hstack([self.BT, Q]), np.hstack([self.BV, QV]), R, np.concatenate([self.a, a]),
+        out = _Projected(t, _appended(self.BT, Q), _appended(self.BV, QV), R, np.concatenate([self.a, a]),
                          self.eT - Q @ a, self.eV - QV @ a)  # (no M: `with_columns` is for a start)
         if self.g is not None:
             g = self.g
@@ -276,16 +294,19 @@ class _Projected:
         PT^T PV + PT^T (BV^T BV) PT give |eV - D_V beta|^2."""
         g, PT, PV, eV, BV = self.g, self.PT, self.PV, self.eV, self.BV
         K, m = len(g.G_T), len(PT)
-        P2, PV2 = PT.reshape(m, K, 2), PV.reshape(m, K, 2)
-        G = g.G_T - np.einsum("jka,jkb->kab", P2, P2)
+
+        def pairs(Z):  # (m, 2K) -> (K, 2, m): each pair's two rows of Z^T
+            return Z.reshape(m, K, 2).transpose(1, 2, 0)
+
+        P2 = pairs(PT)
+        G = g.G_T - P2 @ P2.transpose(0, 2, 1)
         b = (g.cr_T - PT.T @ self.a).reshape(K, 2)
         h = ((g.cr_V - PV.T @ self.a) - PT.T @ (BV.T @ eV)).reshape(K, 2)
-        cross = np.einsum("jka,jkb->kab", PV2, P2)
-        S = g.G_V - cross - cross.transpose(0, 2, 1) + np.einsum("jka,jkb->kab", P2,
-                                                                 ((BV.T @ BV) @ PT).reshape(m, K, 2))
-        beta = np.linalg.solve(G + 1e-12 * np.eye(2), b[..., None])[..., 0]  # (K, 2)
+        cross = pairs(PV) @ P2.transpose(0, 2, 1)
+        S = g.G_V - cross - cross.transpose(0, 2, 1) + P2 @ pairs((BV.T @ BV) @ PT).transpose(0, 2, 1)
+        beta = np.linalg.solve(G + 1e-12 * np.eye(2), b[..., None])  # (K, 2, 1)
         ee = float(eV @ eV)
-        return ee, ee - 2 * np.einsum("ka,ka->k", beta, h) + np.einsum("ka,kab,kb->k", beta, S, beta)
+        return ee, ee - 2 * (beta[..., 0] * h).sum(-1) + (beta.transpose(0, 2, 1) @ S @ beta)[:, 0, 0]
 
 
 @dataclass

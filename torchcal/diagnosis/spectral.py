@@ -398,8 +398,9 @@ def search_orders(r: np.ndarray, A: np.ndarray, C: np.ndarray, grid, folds: np.n
     """
     n_rows = len(r) // 3
     base = search_base(r, A, folds) if base is None else base  # every row below in base's order
-    C = C[base.order]
-    Cs = C / np.linalg.norm(C, axis=0).clip(1e-300)
+    order = base.order
+    Cs = C[order]
+    Cs /= np.linalg.norm(Cs, axis=0).clip(1e-300)  # unit columns
     level = alpha / max(len(grid), 1)
     folds_p = _with_columns(base, Cs)
     whole = base.whole  # all rows: the F-test
@@ -410,15 +411,15 @@ def search_orders(r: np.ndarray, A: np.ndarray, C: np.ndarray, grid, folds: np.n
         def c_perp(j: int) -> np.ndarray:
             """(3N, 2) order j's columns C with the base columns projected out (once)."""
             if j not in perp:
-                c = C[:, 2 * j:2 * j + 2]
+                c = C[order, 2 * j:2 * j + 2]
                 perp[j] = c - UA @ (UA.T @ c)
             return perp[j]
     chosen, path, ps = [], [], []
     refused = np.zeros(len(grid), dtype=bool)  # not determined beside the orders kept
     while len(chosen) < max_orders:
-        base, per = _fold_sums(folds_p)
+        ss0, per = _fold_sums(folds_p)
         if not path:
-            path.append(math.sqrt(base / n_rows))
+            path.append(math.sqrt(ss0 / n_rows))
         per[chosen] = np.inf
         per[refused] = np.inf
         best = None

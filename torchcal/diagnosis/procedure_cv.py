@@ -59,7 +59,7 @@ class FoldSearches:
 
     def __init__(self, current_fit, ctx, folds: np.ndarray):
         self.fit, self.ctx, self.folds = current_fit, ctx, np.asarray(folds)
-        self._ra, self._orders = None, {}
+        self._ra, self._orders, self._bases = None, {}, {}  # _bases: fold -> `search_base`, for every joint
 
     def orders(self, joint: int) -> dict:
         """{fold: the orders of `joint` found without that fold's rows}."""
@@ -69,7 +69,8 @@ class FoldSearches:
                 r = self.fit.residuals.reshape(-1).numpy(force=True)
                 A = model.jacobian(theta, self.ctx).reshape(-1, model.n_params)[:, self.fit.report.free]
                 self._ra = r, A.numpy(force=True)
-            self._orders[joint] = fold_orders(model.robot, model, theta, self.ctx, *self._ra, self.folds, joint)
+            self._orders[joint] = fold_orders(model.robot, model, theta, self.ctx, *self._ra, self.folds, joint,
+                                              bases=self._bases)
         return self._orders[joint]
 
     def specs(self, spec: str) -> dict | None:

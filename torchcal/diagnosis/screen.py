@@ -41,7 +41,7 @@ import numpy as np
 from torchcal.diagnosis.candidates import Candidate, all_candidate_columns, candidate_specs, random_clearance_basis
 from torchcal.diagnosis.crossval import LinearRefit
 from torchcal.diagnosis.selection import MIN_LL_GAIN, rank, select
-from torchcal.diagnosis.spectral import propose_orders
+from torchcal.diagnosis.spectral import propose_orders, search_base
 from torchcal.diagnosis.variance import fit_variance, variance_loglik
 from torchcal.effects.spec import parse_specs
 from torchcal.statistics import chi2_sf, f_sf
@@ -70,8 +70,10 @@ def prescreen(robot, model, specs: list, base_fit, m, ctx, folds_: np.ndarray, *
     n_eq = len(r)
     present = {s.name: s.joints for s in parse_specs(specs, robot.n)} if specs else {}
     cands_specs = candidate_specs(robot, present, ctx)
-    orders = {(n, j): (propose_orders(robot, model, theta, ctx, r, A, folds_, j[0]).orders,)
-              for n, j in cands_specs if n == "joint_periodic"}
+    searched = [j for n, j in cands_specs if n == "joint_periodic"]
+    base = search_base(r, A, folds_) if searched else None  # every joint's search shares its QRs
+    orders = {("joint_periodic", j): (propose_orders(robot, model, theta, ctx, r, A, folds_, j[0], base=base).orders,)
+              for j in searched}
     orders = {key: ks for key, ks in orders.items() if ks[0]}
     cands_specs = [(n, j) for n, j in cands_specs if n != "joint_periodic" or (n, j) in orders]
     # alpha spending: this call's first family gets alpha / 2, forward-selection step s

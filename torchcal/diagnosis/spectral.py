@@ -9,11 +9,14 @@ range resolves and keeps those that predict held-out poses (`search_orders`):
    the derivative of `joint_periodic:J@k...` at zero (one forward pass for the grid).
 2. One step, vectorised over the grid: for each fold (by pose; the folds of `discover`),
    the base columns X = [A, chosen orders] and the order's pair of columns are fitted to
-   the residual r on the other folds and predicted on the held-out one. With X's training
-   pseudo-inverse applied to r and to all of C at once, each order's fit is a batched 2x2
-   solve; the held-out sums of squares of all K orders come from a few matrix products.
-   As X grows by the pair chosen, each fold's basis of X and the projections are
-   updated by the pair's new directions (`_extend_basis`, `_Projected`), not recomputed.
+   the residual r on the other folds and predicted on the held-out one. Each order's fit
+   is a batched 2x2 solve, and the held-out sums of squares of all K orders come from
+   sums over rows: X^T C, C^T r and each pair's Gram matrix on each fold's rows (one pass
+   over C for all folds; a fold's training sums are the totals minus its own) and C's
+   coefficients on the fold's orthonormal basis of X (`_Projected.sums`), so no step
+   passes over C's rows per fold. As X grows by the pair chosen, each fold's basis of X
+   and these coefficients are updated by the pair's new directions (`_extend_basis`,
+   `_Projected.extended`), not recomputed.
 3. The order with the smallest held-out sum of squares is added when it cuts the held-out
    RMS by at least `MIN_ORDER_GAIN` and its F-test on all training rows (2 new columns
    beyond X) passes ``alpha / K`` (Bonferroni over the grid); repeat from 2 with it in X,
@@ -51,6 +54,7 @@ A joint whose range resolves no order (k_min > k_max) is not searched and warned
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from dataclasses import dataclass, field
@@ -146,12 +150,13 @@ def _extend_basis(BT: np.ndarray, BV: np.ndarray, R: np.ndarray, pT: np.ndarray,
     BT (T, m): orthonormal basis of span(X_T), X's training rows (``X_T M = BT``, as from
     `_pinv_parts`); BV (V, m) = X_V M, the same combinations of X's held-out rows;
     R (m, p) = BT^T X_T. pT (T, 2), pV (V, 2): the pair's training and held-out rows.
-    Returns (Q (T, k), QV (V, k), R' (m + k, p + 2)): the pair's component orthogonal to
-    BT (one Gram-Schmidt step, then once more against the rounding), orthonormalised, so
-    that [BT, Q] spans what `_pinv_parts([X_T, pT])` spans, [BV, QV] its held-out
-    combinations, and R' = [BT, Q]^T [X_T, pT]. The same rank rule: k = the number of
-    singular values of [X_T, pT] (those of R' before the cut) above RANK_TOL times the
-    largest, minus m; 0, 1 (the remainder's dominant direction) or 2."""
+    Returns (Q (T, k), QV (V, k), R' (m + k, p + 2), W (m, 2), Mn (2, k)): the pair's
+    component orthogonal to BT (one Gram-Schmidt step, then once more against the
+    rounding), orthonormalised, so that [BT, Q] spans what `_pinv_parts([X_T, pT])` spans,
+    [BV, QV] its held-out combinations, and R' = [BT, Q]^T [X_T, pT]; Q = (pT - BT W) Mn,
+    QV = (pV - BV W) Mn. The same rank rule: k = the number of singular values of
+    [X_T, pT] (those of R' before the cut) above RANK_TOL times the largest, minus m; 0,
+    1 (the remainder's dominant direction) or 2."""
     W = BT.T @ pT
     nT, nV = pT - BT @ W, pV - BV @ W
     W2 = BT.T @ nT  # re-orthogonalisation
@@ -162,7 +167,60 @@ def _extend_basis(BT: np.ndarray, BV: np.ndarray, R: np.ndarray, pT: np.ndarray,
     rank = int((sv > RANK_TOL * (sv[0] if len(sv) else 1.0)).sum())
     k = min(max(rank - R.shape[0], 0), len(s))
     Mn = vt[:k].T / s[:k]
-    return nT @ Mn, nV @ Mn, Rn[:R.shape[0] + k]
+    return nT @ Mn, nV @ Mn, Rn[:R.shape[0] + k], W, Mn
+
+
+@dataclass
+class _Grams:
+    """What one fold's search needs of the candidate columns C (3N, 2K): sums over its
+    training rows T and its held-out rows V (`_fold_grams`), so that no step passes over
+    C's rows per fold. C (3N, 2K) with its rows sorted by fold, V (slice) the fold's
+    rows in it; XC_T, XC_V (p, 2K): X^T C on T and on V; G_T, G_V (K, 2, 2): each pair's
+    Gram matrix there; cr_T, cr_V (2K,): C^T r there."""
+
+    C: np.ndarray
+    V: slice
+    XC_T: np.ndarray
+    XC_V: np.ndarray
+    G_T: np.ndarray
+    G_V: np.ndarray
+    cr_T: np.ndarray
+    cr_V: np.ndarray
+
+
+def _appended(B: np.ndarray, Q: np.ndarray, room: int = 2 * MAX_ORDERS) -> np.ndarray:
+    """[B, Q] (n, m + k) for B (n, m), Q (n, k): written into the columns after B's when
+    B is the leading columns of a buffer with room for Q (a view, no copy: those columns
+    are then the result's), else copied into a new buffer with `room` more columns."""
+    n, m = B.shape
+    k = Q.shape[1]
+    buf = B.base
+    if (isinstance(buf, np.ndarray) and buf.ndim == 2 and buf.shape[0] == n and buf.shape[1] >= m + k
+            and B.ctypes.data == buf.ctypes.data and B.strides == buf.strides):
+        buf[:, m:m + k] = Q
+        return buf[:, :m + k]
+    buf = np.empty((n, m + k + room))
+    buf[:, :m], buf[:, m:m + k] = B, Q
+    return buf[:, :m + k]
+
+
+def _fold_order(rows: np.ndarray):
+    """(order (3N,), bounds [(start, end)] per fold): the permutation that sorts the
+    stacked rows by their fold label `rows` (3N,) (stable), and each fold's slice of the
+    sorted rows."""
+    order = np.argsort(rows, kind="stable")
+    _, starts = np.unique(rows[order], return_index=True)
+    return order, list(zip(starts.tolist(), starts[1:].tolist() + [len(rows)]))
+
+
+def _fold_grams(X: np.ndarray, r: np.ndarray, C: np.ndarray, bounds: list) -> list:
+    """`_Grams` of each fold for X (3N, p), r (3N,), C (3N, 2K), their rows sorted by fold
+    and the folds' rows the slices `bounds` (`_fold_order`): one pass over C (each fold's
+    rows once), the training sums as the totals minus the fold's."""
+    K = C.shape[1] // 2
+    parts = [(X[a:b].T @ C[a:b], _pair_grams(C[a:b].reshape(b - a, K, 2)), C[a:b].T @ r[a:b]) for a, b in bounds]
+    XC, G, cr = (sum(p[i] for p in parts) for i in range(3))
+    return [_Grams(C, slice(a, b), XC - xc, xc, G - g, g, cr - c, c) for (a, b), (xc, g, c) in zip(bounds, parts)]
 
 
 @dataclass
@@ -171,73 +229,128 @@ class _Projected:
     training rows t (3N,) bool of one fold (all rows for the F-test; then V = 0).
 
     BT (T, m), BV (V, m): X's orthonormal training basis and its held-out combinations
-    (`_extend_basis`); R (m, p) = BT^T X_T; eT (T,), eV (V,): r minus its fit on X (the
-    fit's coefficients from the training rows). With C (None when not needed): Ct (T, 2K)
-    C's training rows; of D = C minus its fit on X, G (K, 2, 2) the Gram matrix of each
-    pair's training rows, b (K, 2) their products with eT, DV (V, 2K) the held-out rows."""
+    (`_extend_basis`); R (m, p) = BT^T X_T; a (m,) = BT^T r_T, r's coefficients on the
+    basis; eT (T,) = r_T - BT a, eV (V,) = r_V - BV a: r minus its fit on X (fitted on
+    the training rows). With C (g None when not needed): g, the fold's `_Grams` of C
+    (the rows of C, X and r sorted by fold, t False on the fold's slice); PT = BT^T C_T,
+    PV = BV^T C_V (m, 2K): C's coefficients on the basis. D = C minus its fit on X enters
+    only through these and g (`sums`)."""
 
     t: np.ndarray
     BT: np.ndarray
     BV: np.ndarray
     R: np.ndarray
+    a: np.ndarray
     eT: np.ndarray
     eV: np.ndarray
-    Ct: np.ndarray | None = None
-    G: np.ndarray | None = None
-    b: np.ndarray | None = None
-    DV: np.ndarray | None = None
+    M: np.ndarray | None = None
+    g: _Grams | None = None
+    PT: np.ndarray | None = None
+    PV: np.ndarray | None = None
 
     @classmethod
-    def start(cls, X: np.ndarray, r: np.ndarray, C: np.ndarray | None, t: np.ndarray) -> "_Projected":
-        """From scratch: X (3N, p) by QR + SVD (`_pinv_parts`) on rows t."""
+    def start(cls, X: np.ndarray, r: np.ndarray, t: np.ndarray) -> "_Projected":
+        """From scratch, without C: X (3N, p) by QR + SVD (`_pinv_parts`, X_T M = BT; M
+        (p, m) kept for `with_columns`) on rows t."""
         v = ~t
         Xt = X[t]
         BT, M = _pinv_parts(Xt)
         BV = X[v] @ M
         a = BT.T @ r[t]
-        out = cls(t, BT, BV, BT.T @ Xt, r[t] - BT @ a, r[v] - BV @ a)
-        if C is not None:
-            Ct = C[t]
-            P = BT.T @ Ct
-            DT = Ct - BT @ P
-            out.Ct, out.DV = Ct, C[v] - BV @ P
-            out.G, out.b = _pair_grams(DT.reshape(len(DT), -1, 2)), (out.eT @ DT).reshape(-1, 2)
-        return out
+        return cls(t, BT, BV, BT.T @ Xt, a, r[t] - BT @ a, r[v] - BV @ a, M)
 
-    def extended(self, pair: np.ndarray) -> "_Projected":
-        """The same with the columns pair (3N, 2) added to X (`_extend_basis`). The new
-        directions Q (T, k) are orthonormal and orthogonal to BT, so with P = Q^T Ct
-        (= Q^T D) and a = Q^T eT: D_T - Q P, eT - Q a, and the pairs' G - P^T P, b - P^T a
-        (no pass over D's training rows)."""
+    def with_columns(self, g: _Grams) -> "_Projected":
+        """The same fold with C (its `_Grams` g) as `start` left it: PT = M^T X_T^T C_T,
+        PV = M^T X_V^T C_V."""
+        return dataclasses.replace(self, g=g, PT=self.M.T @ g.XC_T, PV=self.M.T @ g.XC_V)
+
+    def extended(self, pair: np.ndarray, pair_c: np.ndarray | None = None) -> "_Projected":
+        """The same with the columns pair (3N, 2) added to X (`_extend_basis`); pair_c
+        (2, 2K): pair^T C on all rows (needed when C is held). The new directions Q (T, k)
+        are orthonormal and orthogonal to BT, Q = (pT - BT W) Mn, so Q^T C_T =
+        Mn^T (pT^T C_T - W^T PT), and the same on the held-out rows: no pass over C.
+        The bases grow in place (`_appended`): extend a `_Projected` once (its successor
+        then owns the columns after its own)."""
         t, v = self.t, ~self.t
-        Q, QV, R = _extend_basis(self.BT, self.BV, self.R, pair[t], pair[v])
+        Q, QV, R, W, Mn = _extend_basis(self.BT, self.BV, self.R, pair[t], pair[v])
         a = Q.T @ self.eT
-        out = _Projected(t, np.hstack([self.BT, Q]), np.hstack([self.BV, QV]), R,
-                         self.eT - Q @ a, self.eV - QV @ a)
-        if self.Ct is not None:
-            P = Q.T @ self.Ct  # (k, 2K)
-            Pk = P.reshape(len(P), -1, 2)
-            out.Ct, out.DV = self.Ct, self.DV - QV @ P
-            out.G = self.G - np.einsum("jka,jkb->kab", Pk, Pk)
-            out.b = self.b - np.einsum("jka,j->ka", Pk, a)
+        out = _Projected(t, _appended(self.BT, Q), _appended(self.BV, QV), R, np.concatenate([self.a, a]),
+                         self.eT - Q @ a, self.eV - QV @ a)  # (no M: `with_columns` is for a start)
+        if self.g is not None:
+            g = self.g
+            pcV = pair[v].T @ g.C[g.V]  # the held-out rows of pair are the fold's slice
+            out.g = g
+            out.PT = np.vstack([self.PT, Mn.T @ (pair_c - pcV - W.T @ self.PT)])
+            out.PV = np.vstack([self.PV, Mn.T @ (pcV - W.T @ self.PV)])
         return out
 
     def sums(self):
         """Held-out sum of squares of r on X alone (float) and on [X, pair k] for every
-        pair of C's columns (K,), the pair's coefficients fitted on the training rows."""
-        K = len(self.G)
-        DV = self.DV.reshape(-1, K, 2)
-        beta = np.linalg.solve(self.G + 1e-12 * np.eye(2), self.b[..., None])[..., 0]  # (K, 2)
-        pred = DV[..., 0] * beta[:, 0] + DV[..., 1] * beta[:, 1]  # (V, K)
-        eV = self.eV
-        return float(eV @ eV), (eV @ eV) - 2 * (eV @ pred) + np.einsum("vk,vk->k", pred, pred)
+        pair of C's columns (K,), the pair's coefficients fitted on the training rows.
+
+        From Gram matrices, per pair (D = C minus its fit on X): the training Gram
+        D_T^T D_T = G_T - PT^T PT and D_T^T eT = cr_T - PT^T a give beta; on the held-out
+        rows D_V^T eV = (cr_V - PV^T a) - PT^T BV^T eV and D_V^T D_V = G_V - PV^T PT -
+        PT^T PV + PT^T (BV^T BV) PT give |eV - D_V beta|^2."""
+        g, PT, PV, eV, BV = self.g, self.PT, self.PV, self.eV, self.BV
+        K, m = len(g.G_T), len(PT)
+
+        def pairs(Z):  # (m, 2K) -> (K, 2, m): each pair's two rows of Z^T
+            return Z.reshape(m, K, 2).transpose(1, 2, 0)
+
+        P2 = pairs(PT)
+        G = g.G_T - P2 @ P2.transpose(0, 2, 1)
+        b = (g.cr_T - PT.T @ self.a).reshape(K, 2)
+        h = ((g.cr_V - PV.T @ self.a) - PT.T @ (BV.T @ eV)).reshape(K, 2)
+        cross = pairs(PV) @ P2.transpose(0, 2, 1)
+        S = g.G_V - cross - cross.transpose(0, 2, 1) + P2 @ pairs((BV.T @ BV) @ PT).transpose(0, 2, 1)
+        beta = np.linalg.solve(G + 1e-12 * np.eye(2), b[..., None])  # (K, 2, 1)
+        ee = float(eV @ eV)
+        return ee, ee - 2 * (beta[..., 0] * h).sum(-1) + (beta.transpose(0, 2, 1) @ S @ beta)[:, 0, 0]
+
+
+@dataclass
+class SearchBase:
+    """What the searches of every joint on the same residual, base columns and folds
+    share (`search_base`): X (3N, p) the base columns scaled to unit norm and r (3N,),
+    their rows sorted by fold (order (3N,) the permutation, bounds the folds' slices,
+    `_fold_order`); folds, each fold's `_Projected` of r on X (without C); whole, the
+    same on all rows (the F-test's and the determination's)."""
+
+    X: np.ndarray
+    r: np.ndarray
+    order: np.ndarray
+    bounds: list
+    folds: list
+    whole: _Projected
+
+
+def search_base(r: np.ndarray, A: np.ndarray, folds: np.ndarray) -> SearchBase:
+    """The `SearchBase` of residual r (3N,) on base columns A (3N, p) with the folds (N,)
+    by pose: one QR per fold for every joint searched on them."""
+    order, bounds = _fold_order(np.repeat(np.asarray(folds), 3))
+    X = (A / np.linalg.norm(A, axis=0).clip(1e-300))[order]
+    r = r[order]
+    out = []
+    for a, b in bounds:
+        t = np.ones(len(r), dtype=bool)
+        t[a:b] = False
+        out.append(_Projected.start(X, r, t))
+    return SearchBase(X, r, order, bounds, out, _Projected.start(X, r, np.ones(len(r), dtype=bool)))
+
+
+def _with_columns(base: SearchBase, Cs: np.ndarray) -> list:
+    """Each fold of `base` with the columns Cs (3N, 2K) (rows in base's order)."""
+    return [fp.with_columns(g) for fp, g in zip(base.folds, _fold_grams(base.X, base.r, Cs, base.bounds))]
 
 
 def held_out_sums(r: np.ndarray, X: np.ndarray, C: np.ndarray, rows: np.ndarray):
     """Held-out sums of squares of r on X alone (float) and on [X, pair k] for every pair
-    of columns of C (K,), over the folds `rows` (3N,) (fold of each stacked row); from
-    scratch (`search_orders` updates the folds' projections as X grows)."""
-    return _fold_sums([_Projected.start(X, r, C, rows != f) for f in np.unique(rows)])
+    of columns of C (K,), over the folds `rows` (3N,) (fold of each stacked row, a
+    pose's three rows in one fold); from scratch (`search_orders` updates the folds'
+    projections as X grows). X is taken with unit columns (the same span)."""
+    base = search_base(r, X, rows[::3])
+    return _fold_sums(_with_columns(base, C[base.order]))
 
 
 def _fold_sums(folds: list):
@@ -272,32 +385,41 @@ def determined_orders(r_perp: np.ndarray, C_perp: np.ndarray, dof: int, scale: f
 
 def search_orders(r: np.ndarray, A: np.ndarray, C: np.ndarray, grid, folds: np.ndarray, *,
                   alpha: float = ALPHA, max_orders: int = MAX_ORDERS, min_gain: float = MIN_ORDER_GAIN,
-                  scale: float | None = None):
+                  scale: float | None = None, base: SearchBase | None = None):
     """Greedy held-out search (module doc) of residual r (3N,) mm on base columns A (3N, p)
     over the orders `grid` (K,) with columns C (3N, 2K) (sin, cos per order), folds (N,).
     scale: the plausible size of one coefficient in C's coefficient unit (rad): an order
     is kept only when the data determine the joint's coefficients with it (step 4,
-    `determined_orders`); None: no such check.
+    `determined_orders`); None: no such check. base: `search_base`(r, A, folds) when the
+    caller already has it (the searches of several joints share it).
 
     Returns (indices into grid, in the order chosen; held-out RMS mm before and after each;
     F-test p-values).
     """
     n_rows = len(r) // 3
-    X = A / np.linalg.norm(A, axis=0).clip(1e-300)
-    Cn = C / np.linalg.norm(C, axis=0).clip(1e-300)
-    rows = np.repeat(np.asarray(folds), 3)
+    base = search_base(r, A, folds) if base is None else base  # every row below in base's order
+    order = base.order
+    Cs = C[order]
+    Cs /= np.linalg.norm(Cs, axis=0).clip(1e-300)  # unit columns
     level = alpha / max(len(grid), 1)
-    folds_p = [_Projected.start(X, r, Cn, rows != f) for f in np.unique(rows)]
-    whole = _Projected.start(X, r, None, np.ones(len(r), dtype=bool))  # all rows: the F-test
+    folds_p = _with_columns(base, Cs)
+    whole = base.whole  # all rows: the F-test
     if scale is not None:
-        UA = whole.BT
-        r_perp, C_perp = whole.eT, C - UA @ (UA.T @ C)
+        UA, perp = whole.BT, {}
+        r_perp = whole.eT
+
+        def c_perp(j: int) -> np.ndarray:
+            """(3N, 2) order j's columns C with the base columns projected out (once)."""
+            if j not in perp:
+                c = C[order, 2 * j:2 * j + 2]
+                perp[j] = c - UA @ (UA.T @ c)
+            return perp[j]
     chosen, path, ps = [], [], []
     refused = np.zeros(len(grid), dtype=bool)  # not determined beside the orders kept
     while len(chosen) < max_orders:
-        base, per = _fold_sums(folds_p)
+        ss0, per = _fold_sums(folds_p)
         if not path:
-            path.append(math.sqrt(base / n_rows))
+            path.append(math.sqrt(ss0 / n_rows))
         per[chosen] = np.inf
         per[refused] = np.inf
         best = None
@@ -308,16 +430,15 @@ def search_orders(r: np.ndarray, A: np.ndarray, C: np.ndarray, grid, folds: np.n
             if scale is None:
                 best = i
                 break
-            cols = [c for j in chosen + [i] for c in (2 * j, 2 * j + 1)]
-            dof = len(r) - UA.shape[1] - len(cols)
-            if determined_orders(r_perp, C_perp[:, cols], dof, scale):
+            dof = len(r) - UA.shape[1] - 2 * (len(chosen) + 1)
+            if determined_orders(r_perp, np.hstack([c_perp(j) for j in chosen + [i]]), dof, scale):
                 best = i
                 break
             refused[i] = True
         if best is None:
             break
         cv = math.sqrt(max(per[best], 0.0) / n_rows)
-        pair = Cn[:, 2 * best:2 * best + 2]
+        pair = Cs[:, 2 * best:2 * best + 2]
         whole1 = whole.extended(pair)
         e0, e1 = whole.eT, whole1.eT
         k_new = whole1.BT.shape[1] - whole.BT.shape[1]
@@ -331,7 +452,8 @@ def search_orders(r: np.ndarray, A: np.ndarray, C: np.ndarray, grid, folds: np.n
         chosen.append(best)
         path.append(cv)
         ps.append(p)
-        whole, folds_p = whole1, [fp.extended(pair) for fp in folds_p]
+        pair_c = pair.T @ Cs
+        whole, folds_p = whole1, [fp.extended(pair, pair_c) for fp in folds_p]
     return chosen, path, ps
 
 
@@ -345,7 +467,7 @@ def grid_columns(robot, model, theta, ctx, joint: int, grid) -> np.ndarray:
 
 
 def fold_orders(robot, model, theta, ctx, r: np.ndarray, A: np.ndarray, folds: np.ndarray, joint: int,
-                **kw) -> dict:
+                bases: dict | None = None, **kw) -> dict:
     """{fold: orders} per fold of folds (N,): the orders of `joint_periodic:joint` that the
     same search (`propose_orders`: alpha, order limits, determination) finds on the OTHER
     folds' rows alone, for the refit CV of a searched candidate
@@ -362,7 +484,9 @@ def fold_orders(robot, model, theta, ctx, r: np.ndarray, A: np.ndarray, folds: n
     restricted to the rows it uses, so it is unchanged by adding A_T delta to r_T: the
     leak is zero to first order (only the curvature of the model, and the columns taken
     at the full fit, carry the held-out rows). A fold whose rows resolve no order gives
-    () without a warning (`propose_orders` warns for the data as a whole)."""
+    () without a warning (`propose_orders` warns for the data as a whole). bases: fold ->
+    the `search_base` of T's rows, filled here as needed: a dict the caller keeps for
+    the searches of several joints on the same r, A and folds."""
     q = ctx.q[:, joint - 1].detach().cpu().numpy()
     folds = np.asarray(folds)
     labels = [int(f) for f in np.unique(folds)]
@@ -382,16 +506,20 @@ def fold_orders(robot, model, theta, ctx, r: np.ndarray, A: np.ndarray, folds: n
         grid = tuple(range(lim.k_min, lim.k_max + 1))
         cols = np.arange(2 * (lim.k_min - lo), 2 * (lim.k_max - lo + 1))
         t3 = np.repeat(folds != f, 3)
-        idx, _, _ = search_orders(r[t3], A[t3], C[t3][:, cols], grid, folds[folds != f], **kw)
+        bases = {} if bases is None else bases
+        if f not in bases:
+            bases[f] = search_base(r[t3], A[t3], folds[folds != f])
+        idx, _, _ = search_orders(r[t3], A[t3], C[t3][:, cols], grid, folds[folds != f], base=bases[f], **kw)
         out[f] = tuple(grid[i] for i in idx)
     return out
 
 
 def propose_orders(robot, model, theta, ctx, r: np.ndarray, A: np.ndarray, folds: np.ndarray, joint: int,
-                   **kw) -> Search:
+                   base: SearchBase | None = None, **kw) -> Search:
     """The orders of `joint_periodic:joint` that the residual r (3N,) of `model` at theta
     (base columns A (3N, p), folds (N,) by pose) shows; module doc. Warns when the joint's
-    measured range resolves no order."""
+    measured range resolves no order. base: `search_base`(r, A, folds), shared by the
+    caller's searches of several joints (made here when None)."""
     q = ctx.q[:, joint - 1].detach().cpu().numpy()
     lim = order_limits(q)
     if lim.empty:
@@ -400,7 +528,7 @@ def propose_orders(robot, model, theta, ctx, r: np.ndarray, A: np.ndarray, folds
     grid = tuple(range(lim.k_min, lim.k_max + 1))
     C = grid_columns(robot, model, theta, ctx, joint, grid)
     kw.setdefault("scale", MAX_AMPLITUDE_ARCSEC * ARCSEC)  # the effect's plausible size (rad)
-    idx, path, ps = search_orders(r, A, C, grid, folds, **kw)
+    idx, path, ps = search_orders(r, A, C, grid, folds, base=base, **kw)
     amps = ()
     if idx:
         cols = np.hstack([C[:, 2 * i:2 * i + 2] for i in idx])

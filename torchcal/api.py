@@ -449,7 +449,9 @@ def compensate_targets(model, targets, *, frame: str = "measuring", robot=None, 
     effect) or "base" (the robot base frame, mapped to the measuring frame with the
     fitted base frame of the first parameter set,
     `torchcal.calibration.compensate.measuring_from_base`). robot: optional robot (preset,
-    file, Robot) the model must be for (InputError otherwise). seeds: (M, n) deg (mm for a
+    file, Robot) the model must be for (InputError otherwise); where its joint limits differ
+    from the model's, its limits are used (`torchcal.io.modelfile.with_limits_of`, one
+    `RobotLimitsWarning`). seeds: (M, n) deg (mm for a
     slide) starting commands for tensor targets, default the nominal inverse in the
     measuring frame from the nearest calibration pose
     (`torchcal.calibration.compensate.nominal_start`; a target it does not reach is still
@@ -467,7 +469,12 @@ def compensate_targets(model, targets, *, frame: str = "measuring", robot=None, 
     im = _fitted(model)
     rob = im.model.robot
     if robot is not None:
-        check_same_robot(rob, make_robot(robot), str(model) if isinstance(model, (str, Path)) else "model")
+        from torchcal.io.modelfile import with_limits_of
+
+        given, name = make_robot(robot), str(model) if isinstance(model, (str, Path)) else "model"
+        check_same_robot(rob, given, name)
+        im = with_limits_of(im, given, name, stacklevel=2)
+        rob = im.model.robot
     if isinstance(targets, (str, Path)):
         from torchcal.io.targets_csv import read_targets
 

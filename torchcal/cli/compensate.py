@@ -52,7 +52,8 @@ def add_parser(sub):
                         "tracker's) or base (the robot base frame)")
     p.add_argument("--model", required=True, help="MODEL.json (torchcal calibrate or torchcal fit)")
     p.add_argument("--out", required=True, help="output CSV of corrected joint commands (degrees)")
-    add_robot(p, required=False, what="check that the model is for this robot (the model file embeds its robot)")
+    add_robot(p, required=False, what="check that the model is for this robot (the model file embeds its robot; this one's "
+             "joint limits are used: within_limits, seeds)")
     add_units(p, "targets")
     add_force(p)
     add_effects_module(p)

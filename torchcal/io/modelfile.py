@@ -242,18 +242,69 @@ def _zone_to_dict(res, z: int, k: torch.Tensor) -> dict:
     return out
 
 
+class RobotLimitsWarning(UserWarning):
+    """The robot given with a model has the model's geometry but other joint limits: the
+    given robot's limits are used (`with_limits_of`)."""
+
+
+def with_limits_of(fitted: FitResult, robot: Robot, where: str, stacklevel: int = 1) -> FitResult:
+    """`fitted` as it is when `robot` (already checked to have its geometry,
+    `check_same_robot`) has the joint limits of the model's nominal robot; else a copy
+    whose nominal robot (of every zone too) has `robot`'s limits, with one
+    `RobotLimitsWarning` naming the first joint that differs (`robot_differences`). The
+    limits decide which commands `compensate` calls within the limits (and which seeds
+    it tries), and which rows lie outside them; the robot given is the one the user says
+    the commands are for. Geometry, effects, parameters and calibrated range are shared."""
+    import copy
+    import dataclasses
+    import warnings
+
+    from torchcal.calibration.mismatch import robot_differences
+
+    there = fitted.model.robot
+    if there.n != robot.n or torch.allclose(there.limits.detach().cpu(), robot.limits.detach().to("cpu", there.dtype),
+                                            rtol=0, atol=1e-9):
+        return fitted
+    diff = [d for d in robot_differences(there, robot) if " limits " in d]
+    warnings.warn(f"{where}: the model's robot {there.name!r} has other joint limits than the robot given "
+                  f"({diff[0].replace(' in the file,', ' in the model,') if diff else 'limits differ'}): the given "
+                  "robot's limits are used (compensate's within_limits and seeds, the rows outside the limits)",
+                  RobotLimitsWarning, stacklevel=stacklevel + 1)
+    model = copy.copy(fitted.model)
+    model.robot = dataclasses.replace(there, limits=robot.limits.to(there.limits))
+
+    def moved(f):
+        out = copy.copy(f)
+        out.model = model
+        return out
+
+    out = moved(fitted)
+    if isinstance(fitted, ZonedFit):
+        out.zones = [moved(z) for z in fitted.zones]
+    return out
+
+
 def load(path, robot: Robot | str | None = None) -> FitResult:
     """The fitted model (`FitResult`) of MODEL.json (module doc: which fields a file holds).
 
     robot: a `Robot` or a preset name / robot-file path; when given, a model of another
-    robot (joint count, types or nominal geometry) is refused with one line naming both."""
+    robot (joint count, types or nominal geometry) is refused with one line naming both,
+    and one of other joint limits is given those limits, with a warning (`with_limits_of`)."""
+    if robot is None:
+        return _load(path, None)
+    from torchcal.io.robot_file import robot as make_robot
+
+    given = make_robot(robot)
+    return with_limits_of(_load(path, given), given, str(path), stacklevel=2)
+
+
+def _load(path, robot: Robot | None) -> FitResult:
+    """`load` with the robot given resolved (None: not checked)."""
     obj = _read(path)
     if obj["format"] == FORMAT_INTERVAL:
         res = _interval_file(obj, str(path))
         if robot is not None:
-            from torchcal.io.robot_file import robot as make_robot
-
-            check_same_robot(res.model.robot, make_robot(robot), str(path))
+            check_same_robot(res.model.robot, robot, str(path))
         return res
     try:
         effects, params = obj["effects"], obj["parameters"]
@@ -270,9 +321,7 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
         raise InputError(f"{path}: model file is missing or has a bad field: {exc}") from None
     nominal = model_robot(obj, str(path))
     if robot is not None:
-        from torchcal.io.robot_file import robot as make_robot
-
-        check_same_robot(nominal, make_robot(robot), str(path))
+        check_same_robot(nominal, robot, str(path))
     try:
         model = CalibrationModel(nominal, effects, points=_point_ids(obj, str(path)))
     except InputError as exc:  # e.g. a user effect whose --effects-module is missing

@@ -44,6 +44,7 @@ Units: targets mm, joint angles rad inside (the CLI reads and writes degrees).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, replace
 
 import torch
@@ -523,6 +524,34 @@ class TargetCompensation:
                 "beyond_reach": [i + 1 for i in self.beyond_reach]}
 
 
+class PayloadAssumedWarning(UserWarning):
+    """Targets without a payload for a model whose effects read it and were fitted on loads."""
+
+
+def warn_payload_assumed(fitted, payload_kg, where: str, stacklevel: int = 1) -> bool:
+    """One `PayloadAssumedWarning` when targets give no payload (`payload_kg` None: read as
+    0 kg, as `torchcal.effects.make_context` does) to a model whose effects read the payload
+    and whose calibration data carried loads: its recorded payload range
+    (``fitted.conditions["payload_kg"]``, kg) reaches beyond the condition tolerance
+    (0.1 kg) while 0 kg lies inside it (outside it, `warn_outside_conditions` names it).
+    The commands are then those of an unloaded arm. Returns whether it warned."""
+    from torchcal.calibration.joint_range import CONDITIONS, RANGE_TOL_FRACTION
+
+    rng = (getattr(fitted, "conditions", None) or {}).get("payload_kg")
+    if payload_kg is not None or rng is None:
+        return False
+    lo, hi = rng
+    floor = next(c[4] for c in CONDITIONS if c[0] == "payload_kg")
+    tol = max(RANGE_TOL_FRACTION * (hi - lo), floor)
+    if hi <= tol or lo > tol:  # fitted unloaded (0 kg is the data's), or 0 kg outside: named as such
+        return False
+    effects = ", ".join(e.spec() for e in fitted.model.effects if e.uses_payload)
+    warnings.warn(f"{where}: no payload_kg column: compensated for 0 kg, but the model's {effects} was fitted on "
+                  f"payloads {lo:.4g} .. {hi:.4g} kg and deflects with the load; give the payload the robot will "
+                  f"carry (column payload_kg, kg)", PayloadAssumedWarning, stacklevel=stacklevel + 1)
+    return True
+
+
 def compensate_targets(im, targets, *, frame: str = "measuring", seeds=None, payload_kg=None, temp_c=None,
                        where: str = "targets", stacklevel: int = 1, length_unit: str = "mm") -> TargetCompensation:
     """``torchcal compensate`` on a fitted model `im` (a `ZonedFit`: each target in its zone):
@@ -534,8 +563,6 @@ def compensate_targets(im, targets, *, frame: str = "measuring", seeds=None, pay
     robot's base (metres read as mm) are refused, those beyond its reach listed in
     ``beyond_reach``; `where` names the targets in messages; length_unit: the unit they
     were given in before conversion to mm (mm given as metres are refused)."""
-    import warnings
-
     from torchcal.calibration.mismatch import MismatchWarning, check_seeds, check_target_conditions, check_targets
 
     if frame not in FRAMES:
@@ -547,6 +574,7 @@ def compensate_targets(im, targets, *, frame: str = "measuring", seeds=None, pay
     if not bool(torch.isfinite(t).all()):
         raise InputError("targets: positions must be finite")
     check_target_conditions(im.model, t, payload_kg, temp_c, where)
+    warn_payload_assumed(im, payload_kg, where, stacklevel=stacklevel + 1)
     given, o = t, None
     R, o_base = measuring_from_base(im.model, im.theta.to(t))
     if frame == "base":  # the solve is in the measuring frame, where the model predicts

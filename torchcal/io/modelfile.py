@@ -255,7 +255,6 @@ def with_limits_of(fitted: FitResult, robot: Robot, where: str, stacklevel: int 
     limits decide which commands `compensate` calls within the limits (and which seeds
     it tries), and which rows lie outside them; the robot given is the one the user says
     the commands are for. Geometry, effects, parameters and calibrated range are shared."""
-    import copy
     import dataclasses
     import warnings
 
@@ -270,18 +269,13 @@ def with_limits_of(fitted: FitResult, robot: Robot, where: str, stacklevel: int 
                   f"({diff[0].replace(' in the file,', ' in the model,') if diff else 'limits differ'}): the given "
                   "robot's limits are used (compensate's within_limits and seeds, the rows outside the limits)",
                   RobotLimitsWarning, stacklevel=stacklevel + 1)
-    model = copy.copy(fitted.model)
-    model.robot = dataclasses.replace(there, limits=robot.limits.to(there.limits))
-
-    def moved(f):
-        out = copy.copy(f)
-        out.model = model
-        return out
-
-    out = moved(fitted)
+    cm = fitted.model  # the same effects (their geometry is the robot's), on the robot with the given limits
+    model = CalibrationModel(dataclasses.replace(there, limits=robot.limits.to(there.limits)), cm.effects,
+                             points=cm.point_ids or None)
     if isinstance(fitted, ZonedFit):
-        out.zones = [moved(z) for z in fitted.zones]
-    return out
+        return dataclasses.replace(fitted, model=model,
+                                   zones=[dataclasses.replace(z, model=model) for z in fitted.zones])
+    return dataclasses.replace(fitted, model=model)
 
 
 def load(path, robot: Robot | str | None = None) -> FitResult:

@@ -303,9 +303,9 @@ def test_compensate_names_the_reflector_a_multi_point_model_lacks(tmp_path, caps
 @pytest.mark.parametrize("robot,seed", [("ur5e", 5), ("kr1000titan", 6)])
 def test_targets_without_a_payload_for_a_model_fitted_on_loads_are_named(robot, seed):
     """A joint-compliance model fitted on loads of 0..rated kg (plain-numpy gravity sag,
-    tests/npsim.py): targets without payload_kg are compensated for an unloaded arm, one
-    warning line says so with the fitted range; with the payload given, and for a model
-    fitted on data without a payload column, nothing is said."""
+    tests/npsim.py): targets without payload_kg are compensated for an unloaded arm (and
+    rows without it evaluated so), one warning line says so with the fitted range; with the
+    payload given, and for a model fitted on data without a payload column, nothing is said."""
     import warnings
 
     from npsim import physics_session
@@ -337,6 +337,14 @@ def test_targets_without_a_payload_for_a_model_fitted_on_loads_are_named(robot, 
     assert said == []
     _, said = run(unloaded)
     assert said == [] and unloaded.conditions["payload_kg"] == [0.0, 0.0]
+    # evaluate: the same rows without their payload column are evaluated unloaded, and said so
+    for data, model, expected in ((Measurements(m.pose, m.q, m.xyz), loaded, 1), (m, loaded, 0),
+                                  (Measurements(m.pose, m.q, m.xyz), unloaded, 0)):
+        with warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always")
+            torchcal.evaluate(model, data)
+        said = [str(x.message) for x in w if issubclass(x.category, PayloadAssumedWarning)]
+        assert len(said) == expected and all("evaluated at 0 kg" in x for x in said), said
     # what the warning is about: the unloaded commands miss under the rated load, the loaded ones do not
     at = lambda c: predict_rows(loaded.model, loaded.theta.expand(10, -1), c.compensation.q, payload_kg=rated)  # noqa: E731
     miss = float((at(bare) - targets).norm(dim=-1).max())

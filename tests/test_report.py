@@ -1,6 +1,7 @@
 """`torchcal report` and `torchcal.metrics`: the figures against plain numpy, the HTML
 self-contained, rendered by headless Chromium (skipped, with the reason, without it)."""
 
+import html
 import json
 import re
 import shutil
@@ -469,8 +470,33 @@ def test_the_report_carries_the_warning_of_held_out_rows_outside_the_fitted_temp
                      "--out", str(tmp_path / f"{name}.html"), "--json", str(tmp_path / f"{name}.json")]) == 0
         err = capsys.readouterr().err
         text = (tmp_path / f"{name}.html").read_text()
-        said = json.loads((tmp_path / f"{name}.json").read_text())["held_out"]["outside_conditions"]
+        said = json.loads((tmp_path / f"{name}.json").read_text())["held_out"]["condition_warnings"]
         if expected is None:
-            assert said is None and "Warning:" not in text and "degC" not in err
+            assert said == [] and "Warning:" not in text and "degC" not in err
         else:
-            assert expected in said and expected in text and err.count(expected) == 1
+            assert len(said) == 1 and expected in said[0] and expected in text and err.count(expected) == 1
+
+
+def test_the_report_says_when_held_out_rows_without_a_payload_meet_a_model_fitted_on_loads(tmp_path, capsys):
+    """A joint-compliance model fitted on 0..5 kg (plain-numpy gravity sag, tests/npsim.py):
+    held-out rows without their payload column are evaluated unloaded; the report says so."""
+    import torchcal
+    from torchcal.io.measurement_csv import write_measurements
+    from torchcal.measurements import Measurements
+    from torchcal.robots.poses import random_poses
+
+    from npsim import physics_session
+
+    rob = torchcal.robot("ur5e")
+    q = random_poses(rob, 100, 4)
+    xyz, load = physics_session(rob, q.numpy(), seed=4, hidden=["joint_compliance:2,3"])
+    xyz, load = torch.from_numpy(xyz), torch.from_numpy(load)
+    write_measurements(tmp_path / "train.csv", Measurements(torch.arange(70), q[:70], xyz[:70], payload_kg=load[:70]))
+    write_measurements(tmp_path / "val.csv", Measurements(torch.arange(70, 100), q[70:], xyz[70:]))
+    assert main(["fit", str(tmp_path / "train.csv"), "--robot", "ur5e", "--effects", "joint_compliance:2,3",
+                 "--out", str(tmp_path / "m.json")]) == 0
+    assert main(["report", str(tmp_path / "m.json"), "--data", str(tmp_path / "val.csv"),
+                 "--out", str(tmp_path / "r.html"), "--json", str(tmp_path / "r.json")]) == 0
+    said = json.loads((tmp_path / "r.json").read_text())["held_out"]["condition_warnings"]
+    assert len(said) == 1 and "no payload_kg column: evaluated at 0 kg" in said[0]
+    assert html.escape(said[0]) in (tmp_path / "r.html").read_text() and said[0] in capsys.readouterr().err

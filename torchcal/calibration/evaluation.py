@@ -61,13 +61,16 @@ def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     that cannot come from the model (another robot, a moved measuring frame, units); one
     `CalibratedRangeWarning` (at `stacklevel`, counted from the caller) for rows outside
     the calibrated range, one `ConditionRangeWarning` for rows at a temperature / payload
-    outside the range the model was fitted on (`fm.conditions`). Data of a point id the model was not fitted on
+    outside the range the model was fitted on (`fm.conditions`), one `PayloadAssumedWarning`
+    for data without payload_kg given to a model fitted on loads
+    (`torchcal.calibration.compensate.payload_conditions`). Data of a point id the model was not fitted on
     (`torchcal.calibration.mismatch.point_ids_differ`): InputError for a model with one tool
     offset per point, else one `PointIdWarning`. Orientations (rx, ry, rz) that disagree
     with the nominal tool (`torchcal.calibration.mismatch.orientation_mismatch`): one
     `MismatchWarning` naming the reading that fits. A per-zone model: rows whose nominal TCP
     lies beyond its partition's swept region (their zone is extrapolated) named in one
     `MismatchWarning` (`torchcal.calibration.mismatch.warn_far_from_sweep`)."""
+    from torchcal.calibration.compensate import payload_conditions
     from torchcal.calibration.joint_range import outside_range
     from torchcal.calibration.mismatch import (MismatchWarning, PointIdWarning, check_measurements, enforce,
                                                orientation_mismatch, point_ids_differ, warn_far_from_sweep,
@@ -103,8 +106,9 @@ def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     partition = getattr(fm, "partition", None)  # a per-zone model: rows beyond the swept region, zone extrapolated
     if partition is not None:
         warn_far_from_sweep(partition, cm.robot.fk(m.q).detach(), m.source or "data", stacklevel=stacklevel + 1)
-    warn_outside_conditions(getattr(fm, "conditions", None), {"temp_c": ctx.temp_c, "payload_kg": ctx.payload_kg},
-                            "rows", stacklevel=stacklevel + 1)
+    ranges = payload_conditions(fm, m.payload_kg, m.source or "data", "evaluated at", stacklevel=stacklevel + 1)
+    warn_outside_conditions(ranges, {"temp_c": ctx.temp_c, "payload_kg": ctx.payload_kg}, "rows",
+                            stacklevel=stacklevel + 1)
     q_range = fm.q_range
     outside = rows_out = None
     if q_range is not None:

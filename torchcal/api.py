@@ -29,6 +29,7 @@ from torchcal import threads
 from torchcal._lazy import attach
 from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult
 from torchcal.calibration.mismatch import check_diagnosis_data, check_robot_data_of
+from torchcal.calibration.nominal_data import warn_nominal_data
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.calibration.model import CalibrationModel
 from torchcal.errors import DataError, InputError, number_argument
@@ -178,7 +179,9 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     (`check_robot_data_of`: another frame the model lacks, another robot, units, a
     mirrored frame, reversed joint columns, gross outliers without `robust`) and, after
     the fit, a fitted RMS beyond what any calibration leaves
-    (`torchcal.calibration.mismatch.check_fitted`).
+    (`torchcal.calibration.mismatch.check_fitted`). Positions that agree with the nominal
+    robot within 0.01 mm rms (computed, e.g. the controller's TCP, not measured) get one
+    `NominalDataWarning` (`torchcal.calibration.nominal_data`).
     residual_model: 'kernel' adds the non-physical residual stage
     (`torchcal.calibration.residual_model`) as ``res.residual_model`` only when its held-out
     gain is significant (`torchcal.diagnosis.residual_stage`, the figures in
@@ -203,6 +206,7 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     model.check_context(ctx)  # a missing column first, in the fit's own words
     with threads.for_work(_work(model, m)), _about(m):
         check_robot_data_of(model, m, robust=robust is not None)  # another frame, robot, units, outliers
+        warn_nominal_data(model, m, stacklevel=2)  # the controller's positions, not measured ones
         res = fit_model(model, ctx, m.xyz, robust=robust, max_iter=max_iter, pose=m.pose, rotation=m.rotation,
                          sigma_mm=sigma_mm, sigma_deg=sigma_deg, max_length_mm=max_length_mm,
                          max_angle_deg=max_angle_deg)
@@ -290,6 +294,7 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     model = _model(robot_or_model, effects)
     m = _measurements(measurements, model.robot)
     check_robot_data_of(CalibrationModel.for_measurements(model.robot, model.specs(), m), m)
+    warn_nominal_data(CalibrationModel.for_measurements(model.robot, model.specs(), m), m, stacklevel=2)
     other = None if transfer is None else _measurements(transfer, model.robot)
     if other is not None and m.temp_c is not None and other.temp_c is None:  # else a traceback mid-search
         raise InputError(f"{other.source or 'transfer'}: the transfer session has no temp_c column, which "
@@ -321,7 +326,8 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
     The measurements are checked as `fit` checks them: data that the nominal robot cannot
     explain, or that need a measuring frame the model lacks (tracker data without
     base_frame tool_offset), are refused with one InputError line, and so is a global fit
-    still off by more than any calibrated arm. Rows whose nominal TCP lies beyond the
+    still off by more than any calibrated arm; positions that are the nominal robot's own
+    get one `NominalDataWarning` (`torchcal.calibration.nominal_data`). Rows whose nominal TCP lies beyond the
     partition's swept region are named in a `MismatchWarning` (their zone is extrapolated).
     partition: a `Partition`, a PARTITION.json path or None. A path is read for the model's
     robot: a partition made for another robot (or other joint limits) is refused
@@ -363,6 +369,7 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
         warn_far_from_sweep(partition, model.robot.fk(m.q).detach(), m.source or "measurements", stacklevel=2)
     with threads.for_work(_work(model, m)), _about(m):
         check_robot_data_of(model, m)  # another frame (tracker data without base_frame tool_offset), robot, units
+        warn_nominal_data(model, m, stacklevel=2)
         res = run(model, m, partition, zone_method, damping)
     gross = check_fitted(res.residuals, (), m.source or "data", model.robot.name)
     if gross:

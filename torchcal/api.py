@@ -30,6 +30,7 @@ from torchcal._lazy import attach
 from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult
 from torchcal.calibration.mismatch import check_diagnosis_data, check_robot_data_of
 from torchcal.calibration.nominal_data import warn_nominal_data
+from torchcal.calibration.orientation_frame import check_orientation_frame
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.calibration.model import CalibrationModel
 from torchcal.errors import DataError, InputError, number_argument
@@ -179,7 +180,8 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     (`check_robot_data_of`: another frame the model lacks, another robot, units, a
     mirrored frame, reversed joint columns, gross outliers without `robust`) and, after
     the fit, a fitted RMS beyond what any calibration leaves
-    (`torchcal.calibration.mismatch.check_fitted`). Positions that agree with the nominal
+    (`torchcal.calibration.mismatch.check_fitted`); rx, ry, rz in another frame than x, y, z
+    are refused too (`torchcal.calibration.orientation_frame`). Positions that agree with the nominal
     robot within 0.01 mm rms (computed, e.g. the controller's TCP, not measured) get one
     `NominalDataWarning` (`torchcal.calibration.nominal_data`).
     residual_model: 'kernel' adds the non-physical residual stage
@@ -207,6 +209,7 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     with threads.for_work(_work(model, m)), _about(m):
         check_robot_data_of(model, m, robust=robust is not None)  # another frame, robot, units, outliers
         warn_nominal_data(model, m, stacklevel=2)  # the controller's positions, not measured ones
+        check_orientation_frame(model, m)  # rx, ry, rz left in another frame than x, y, z
         res = fit_model(model, ctx, m.xyz, robust=robust, max_iter=max_iter, pose=m.pose, rotation=m.rotation,
                          sigma_mm=sigma_mm, sigma_deg=sigma_deg, max_length_mm=max_length_mm,
                          max_angle_deg=max_angle_deg)
@@ -265,6 +268,7 @@ def diagnose(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     model = _model(robot_or_model, effects)
     m = _measurements(measurements, model.robot)
     check_diagnosis_data(robot_or_model, model, m)
+    check_orientation_frame(model, m)  # rx, ry, rz left in another frame than x, y, z
     with threads.for_work(_work(model, m)), _about(m):
         return run(model.robot, m, model.specs(), folds=folds, seed=seed, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
                    **_set(alpha=alpha, min_gain=min_gain))
@@ -295,6 +299,7 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     m = _measurements(measurements, model.robot)
     check_robot_data_of(CalibrationModel.for_measurements(model.robot, model.specs(), m), m)
     warn_nominal_data(CalibrationModel.for_measurements(model.robot, model.specs(), m), m, stacklevel=2)
+    check_orientation_frame(model, m)
     other = None if transfer is None else _measurements(transfer, model.robot)
     if other is not None and m.temp_c is not None and other.temp_c is None:  # else a traceback mid-search
         raise InputError(f"{other.source or 'transfer'}: the transfer session has no temp_c column, which "

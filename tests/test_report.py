@@ -470,7 +470,7 @@ def test_the_report_carries_the_warning_of_held_out_rows_outside_the_fitted_temp
                      "--out", str(tmp_path / f"{name}.html"), "--json", str(tmp_path / f"{name}.json")]) == 0
         err = capsys.readouterr().err
         text = (tmp_path / f"{name}.html").read_text()
-        said = json.loads((tmp_path / f"{name}.json").read_text())["held_out"]["condition_warnings"]
+        said = json.loads((tmp_path / f"{name}.json").read_text())["held_out"]["data_warnings"]
         if expected is None:
             assert said == [] and "Warning:" not in text and "degC" not in err
         else:
@@ -497,6 +497,6 @@ def test_the_report_says_when_held_out_rows_without_a_payload_meet_a_model_fitte
                  "--out", str(tmp_path / "m.json")]) == 0
     assert main(["report", str(tmp_path / "m.json"), "--data", str(tmp_path / "val.csv"),
                  "--out", str(tmp_path / "r.html"), "--json", str(tmp_path / "r.json")]) == 0
-    said = json.loads((tmp_path / "r.json").read_text())["held_out"]["condition_warnings"]
+    said = json.loads((tmp_path / "r.json").read_text())["held_out"]["data_warnings"]
     assert len(said) == 1 and "no payload_kg column: evaluated at 0 kg" in said[0]
     assert html.escape(said[0]) in (tmp_path / "r.html").read_text() and said[0] in capsys.readouterr().err

@@ -56,6 +56,38 @@ class Evaluation:
         return out
 
 
+TOOL_GAIN = 3.0  # a tool offset of its own must bring the rms down this many times to be named
+
+
+class ReflectorWarning(UserWarning):
+    """The rows fit the model far better with a tool offset of their own: another reflector
+    (or nest) than the model's, no point column to say so."""
+
+
+def moved_tool(rms_mm: float, err: torch.Tensor, rot: torch.Tensor, training_rms_mm: float | None,
+               where: str) -> str | None:
+    """One line when the distance errors `err` (N, 3) mm (measured - model, rms `rms_mm`)
+    lie beyond FAR_FACTOR (3) times the training rms and a constant offset u (3,) mm of the
+    measured point in the tool frame, err_i ~ R_i u with `rot` (N, 3, 3) the model's tool
+    rotations in the measuring frame (linear least squares), leaves at most 1 / TOOL_GAIN
+    of it: the rows were measured at another point of the tool (another reflector or nest)
+    than the model's. None otherwise, or without a training rms."""
+    from torchcal.calibration.registration import FAR_FACTOR
+
+    if training_rms_mm is None or rms_mm <= FAR_FACTOR * training_rms_mm or err.shape[0] < 6:
+        return None
+    e, R = err.detach().to("cpu", torch.float64), rot.detach().to("cpu", torch.float64)
+    u = torch.linalg.lstsq(R.reshape(-1, 3), e.reshape(-1, 1)).solution.flatten()
+    after = float((e - R @ u).norm(dim=-1).pow(2).mean().sqrt())
+    if after * TOOL_GAIN > rms_mm:
+        return None
+    return (f"{where}: rms {rms_mm:.4g} mm ({rms_mm / training_rms_mm:.3g} times the model's training rms "
+            f"{training_rms_mm:.4g} mm), but {after:.4g} mm with the measured point moved by {float(u.norm()):.4g} mm "
+            f"on the tool ([{', '.join(f'{v:.3f}' for v in u.tolist())}] mm in the tool frame): measured at another "
+            "reflector or nest than the model's? Re-estimate its tool on some of these rows (register with the "
+            "tool), or give each reflector its own point id")
+
+
 def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     """Errors of the fitted model `fm` on measurements `m` (module doc): InputError for data
     that cannot come from the model (another robot, a moved measuring frame, units); one
@@ -63,7 +95,8 @@ def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     the calibrated range, one `ConditionRangeWarning` for rows at a temperature / payload
     outside the range the model was fitted on (`fm.conditions`), one `PayloadAssumedWarning`
     for data without payload_kg given to a model fitted on loads
-    (`torchcal.calibration.compensate.payload_conditions`). Data of a point id the model was not fitted on
+    (`torchcal.calibration.compensate.payload_conditions`). Rows of one point that fit far
+    better with a tool offset of their own (`moved_tool`): one `ReflectorWarning`. Data of a point id the model was not fitted on
     (`torchcal.calibration.mismatch.point_ids_differ`): InputError for a model with one tool
     offset per point, else one `PointIdWarning`. Orientations (rx, ry, rz) that disagree
     with the nominal tool (`torchcal.calibration.mismatch.orientation_mismatch`): one
@@ -94,6 +127,10 @@ def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     if stage is not None:
         err = err - stage.predict(m.q).to(err)
     fig = error_summary(err)
+    if other is None and (m.point is None or len(set(m.point.tolist())) == 1):  # one point, not named: its own tool?
+        tool = moved_tool(fig["rms_mm"], err, cm.predict_rotation(theta, ctx), fm.training_rms_mm, m.source or "data")
+        if tool is not None:
+            warnings.warn(tool, ReflectorWarning, stacklevel=stacklevel + 1)
     orient = orient_rows = None
     tool_r = fm.tool_rotation
     bad_rotations = orientation_mismatch(cm, m)  # rx, ry, rz in another unit or convention

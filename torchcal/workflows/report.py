@@ -66,11 +66,11 @@ class CalibrationReport:
     when not given); effects: [(spec, physics in words)]; held-out figures (None without
     data): after / before (`error_summary`), iso_after / iso_before (`iso9283`),
     verdict_after / verdict_before (`tolerance_verdict`, None without a tolerance);
-    outside_range: held-out rows outside the calibrated joint range; condition_warnings:
-    the text of evaluate's warnings about the rows' conditions, carried into the report
+    outside_range: held-out rows outside the calibrated joint range; data_warnings:
+    the text of evaluate's warnings about the held-out rows, carried into the report
     (`ConditionRangeWarning`: a temperature or payload outside the range the model's
     effects were fitted on; `PayloadAssumedWarning`: no payload column for a model fitted
-    on loads; [] when none);
+    on loads; `ReflectorWarning`: rows measured at another point of the tool; [] when none);
     zones: the paper's Table 5 on the held-out poses for a model of ``calibrate``
     (`zone_table`, else None);
     history: discover's JSON (None when not given). Per row, for the figures (not in
@@ -91,7 +91,7 @@ class CalibrationReport:
     verdict_after: dict | None = None
     verdict_before: dict | None = None
     outside_range: int | None = None
-    condition_warnings: list = field(default_factory=list)
+    data_warnings: list = field(default_factory=list)
     history: dict | None = None
     zones: list | None = None
     data: object = field(default=None, repr=False)
@@ -107,7 +107,7 @@ class CalibrationReport:
             out["held_out"] = {"after": self.after, "before": self.before, "before_model": self.before_model,
                                "iso9283_after": self.iso_after, "iso9283_before": self.iso_before,
                                "verdict_after": self.verdict_after, "verdict_before": self.verdict_before,
-                               "outside_range": self.outside_range, "condition_warnings": self.condition_warnings,
+                               "outside_range": self.outside_range, "data_warnings": self.data_warnings,
                                "zone_table": self.zones,
                                "unexplained": self.unexplained.to_dict() if self.unexplained is not None else None}
         return out
@@ -193,6 +193,7 @@ def _held_out(rep: CalibrationReport, fitted, m, effects: set, tolerance_mm) -> 
 
     from torchcal import api
     from torchcal.calibration.compensate import PayloadAssumedWarning
+    from torchcal.calibration.evaluation import ReflectorWarning
     from torchcal.calibration.joint_range import CalibratedRangeWarning, ConditionRangeWarning
     from torchcal.calibration.zone_calibration import ZonedFit
     from torchcal.diagnosis.unexplained import unexplained
@@ -203,11 +204,12 @@ def _held_out(rep: CalibrationReport, fitted, m, effects: set, tolerance_mm) -> 
         warnings.simplefilter("ignore", CalibratedRangeWarning)  # counted in outside_range
         warnings.simplefilter("always", ConditionRangeWarning)  # carried into the report, and passed on
         warnings.simplefilter("always", PayloadAssumedWarning)
+        warnings.simplefilter("always", ReflectorWarning)
         ev = api.evaluate(fitted, m)  # a ZonedFit: each row with its zone's parameters
     for w in caught:  # every other warning (and this one) reaches the caller as evaluate gave it
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    rep.condition_warnings = [str(w.message) for w in caught
-                              if issubclass(w.category, (ConditionRangeWarning, PayloadAssumedWarning))]
+    carried = (ConditionRangeWarning, PayloadAssumedWarning, ReflectorWarning)
+    rep.data_warnings = [str(w.message) for w in caught if issubclass(w.category, carried)]
     err, rep.outside_range = ev.residuals_mm, ev.outside_range
     zone = fitted.assign(robot.fk(m.q)) if isinstance(fitted, ZonedFit) else None
     if "base_frame" in effects:  # the data are in the instrument's frame: the nominal robot in its best frame

@@ -1,7 +1,8 @@
 """`evaluate` (`torchcal.calibration.evaluation`) on rows measured at another point of the
 tool than the model's (another reflector or nest, no point column to say so): one
 `ReflectorWarning` naming the offset that explains them (before: an rms of 3 or 8 mm
-printed as the model's accuracy, in silence). Rows of the model's own reflector, and rows
+printed as the model's accuracy, in silence); on rows of an instrument moved within the
+gross-mismatch bound since the fit, one `MismatchWarning` naming the motion. Rows of the model's own reflector, and rows
 where the model extrapolates badly (a hidden sag beyond the joint-2 range it was fitted
 on: 3.9 to 20 times its training rms), get none. Hidden physics: tests/npsim.py
 `tracker_session` (plain numpy: MD-H deviations, joint-2 sag, tracker frame, reflector)."""
@@ -16,6 +17,7 @@ import torch
 
 import torchcal
 from torchcal.calibration.evaluation import ReflectorWarning
+from torchcal.calibration.mismatch import MismatchWarning
 from torchcal.cli import main
 from torchcal.io.measurement_csv import write_measurements
 from torchcal.measurements import Measurements
@@ -29,10 +31,13 @@ def session(rob, q, seed, reflector=(0.0, 0.0, 290.0), sag_deg=0.05):
     return Measurements(torch.arange(len(q)), q, torch.from_numpy(xyz))
 
 
-def said(fn) -> list:
+def said(fn, frame: bool = False) -> list:
+    """The ReflectorWarning lines of fn() (frame: the moved-instrument lines)."""
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
         fn()
+    if frame:
+        return [str(x.message) for x in w if issubclass(x.category, MismatchWarning) and "instrument moved" in str(x.message)]
     return [str(x.message) for x in w if issubclass(x.category, ReflectorWarning)]
 
 
@@ -62,6 +67,26 @@ def test_a_model_that_extrapolates_badly_is_not_taken_for_another_reflector(robo
         warnings.simplefilter("ignore")
         assert torchcal.evaluate(fitted, far).rms_mm > 3 * fitted.rms_mm
     assert said(lambda: torchcal.evaluate(fitted, far)) == []
+    assert said(lambda: torchcal.evaluate(fitted, far), frame=True) == []
+
+
+@pytest.mark.parametrize("robot,seed", [("ur5e", 1), ("kr1000titan", 2)])
+def test_an_instrument_moved_within_the_gross_bound_is_named(robot, seed):
+    """The tracker turned 0.05 deg and shifted 2 mm since the fit (within the 10 mm bound of
+    the gross-mismatch check): one line naming the motion; not taken for a reflector."""
+    import numpy as np
+
+    from npsim import _rotvec
+
+    rob = torchcal.robot(robot)
+    fitted = torchcal.fit(rob, session(rob, random_poses(rob, 60, seed), seed), ["base_frame", "tool_offset"])
+    m = session(rob, random_poses(rob, 40, seed + 10), seed)
+    assert said(lambda: torchcal.evaluate(fitted, m), frame=True) == []
+    xyz = m.xyz.numpy() @ _rotvec(np.radians([0.0, 0.0, 0.05])).T + np.array([2.0, 0.0, 0.0])
+    bumped = Measurements(m.pose, m.q, torch.from_numpy(xyz))
+    msgs = said(lambda: torchcal.evaluate(fitted, bumped), frame=True)
+    assert len(msgs) == 1 and "after a rigid motion of the measuring frame" in msgs[0], msgs
+    assert said(lambda: torchcal.evaluate(fitted, bumped)) == []
 
 
 def test_the_command_line_prints_one_line_and_exits_0(tmp_path, capsys):

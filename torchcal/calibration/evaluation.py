@@ -88,6 +88,33 @@ def moved_tool(rms_mm: float, err: torch.Tensor, rot: torch.Tensor, training_rms
             "tool), or give each reflector its own point id")
 
 
+def moved_frame(rms_mm: float, err: torch.Tensor, xyz: torch.Tensor, training_rms_mm: float | None,
+                where: str) -> str | None:
+    """One line when the distance errors `err` (N, 3) mm (measured `xyz` (N, 3) mm - model,
+    rms `rms_mm`) lie beyond FAR_FACTOR (3) times the training rms and the best rigid motion
+    of the model's points onto the measured ones (Kabsch) leaves at most 1 / TOOL_GAIN of
+    it: the measuring frame moved since the fit by less than the gross-mismatch bound (a
+    tracker bumped, set up again near its old place). None otherwise, or without a
+    training rms."""
+    from torchcal.calibration.registration import FAR_FACTOR, frame_summary
+    from torchcal.rotations import kabsch
+
+    if training_rms_mm is None or rms_mm <= FAR_FACTOR * training_rms_mm or err.shape[0] < 6:
+        return None
+    x = xyz.detach().to("cpu", torch.float64)
+    p = x - err.detach().to("cpu", torch.float64)
+    R, t = kabsch(p, x)
+    after = float((p @ R.T + t - x).norm(dim=-1).pow(2).mean().sqrt())
+    if after * TOOL_GAIN > rms_mm:
+        return None
+    angle = math.degrees(math.acos(max(-1.0, min(1.0, (float(torch.trace(R)) - 1) / 2))))
+    shift = float((p @ R.T + t - p).norm(dim=-1).mean())
+    return (f"{where}: rms {rms_mm:.4g} mm ({rms_mm / training_rms_mm:.3g} times the model's training rms "
+            f"{training_rms_mm:.4g} mm), but {after:.4g} mm after a rigid motion of the measuring frame (the points "
+            f"move {shift:.4g} mm on average, {angle:.3g} deg): the instrument moved since the fit (bumped, or set up "
+            "again near its old place)? Register the model on some of these rows")
+
+
 def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     """Errors of the fitted model `fm` on measurements `m` (module doc): InputError for data
     that cannot come from the model (another robot, a moved measuring frame, units); one
@@ -96,7 +123,9 @@ def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     outside the range the model was fitted on (`fm.conditions`), one `PayloadAssumedWarning`
     for data without payload_kg given to a model fitted on loads
     (`torchcal.calibration.compensate.payload_conditions`). Rows of one point that fit far
-    better with a tool offset of their own (`moved_tool`): one `ReflectorWarning`. Data of a point id the model was not fitted on
+    better with a tool offset of their own (`moved_tool`): one `ReflectorWarning`; else with a
+measuring frame of their own (`moved_frame`, a motion within the gross-mismatch bound): one
+`MismatchWarning`. Data of a point id the model was not fitted on
     (`torchcal.calibration.mismatch.point_ids_differ`): InputError for a model with one tool
     offset per point, else one `PointIdWarning`. Orientations (rx, ry, rz) that disagree
     with the nominal tool (`torchcal.calibration.mismatch.orientation_mismatch`): one
@@ -127,10 +156,15 @@ def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     if stage is not None:
         err = err - stage.predict(m.q).to(err)
     fig = error_summary(err)
+    tool = None
     if other is None and (m.point is None or len(set(m.point.tolist())) == 1):  # one point, not named: its own tool?
         tool = moved_tool(fig["rms_mm"], err, cm.predict_rotation(theta, ctx), fm.training_rms_mm, m.source or "data")
         if tool is not None:
             warnings.warn(tool, ReflectorWarning, stacklevel=stacklevel + 1)
+    if other is None and tool is None:  # the instrument moved a little since the fit?
+        frame = moved_frame(fig["rms_mm"], err, m.xyz, fm.training_rms_mm, m.source or "data")
+        if frame is not None:
+            warnings.warn(frame, MismatchWarning, stacklevel=stacklevel + 1)
     orient = orient_rows = None
     tool_r = fm.tool_rotation
     bad_rotations = orientation_mismatch(cm, m)  # rx, ry, rz in another unit or convention

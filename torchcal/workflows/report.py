@@ -70,7 +70,9 @@ class CalibrationReport:
     the text of evaluate's warnings about the held-out rows, carried into the report
     (`ConditionRangeWarning`: a temperature or payload outside the range the model's
     effects were fitted on; `PayloadAssumedWarning`: no payload column for a model fitted
-    on loads; `ReflectorWarning`: rows measured at another point of the tool; [] when none);
+    on loads; `ReflectorWarning`: rows measured at another point of the tool;
+    `MismatchWarning`: another point id, another orientation convention, an instrument
+    moved a little since the fit, rows beyond a partition's sweep; [] when none);
     zones: the paper's Table 5 on the held-out poses for a model of ``calibrate``
     (`zone_table`, else None);
     history: discover's JSON (None when not given). Per row, for the figures (not in
@@ -194,6 +196,7 @@ def _held_out(rep: CalibrationReport, fitted, m, effects: set, tolerance_mm) -> 
     from torchcal import api
     from torchcal.calibration.compensate import PayloadAssumedWarning
     from torchcal.calibration.evaluation import ReflectorWarning
+    from torchcal.calibration.mismatch import MismatchWarning
     from torchcal.calibration.joint_range import CalibratedRangeWarning, ConditionRangeWarning
     from torchcal.calibration.zone_calibration import ZonedFit
     from torchcal.diagnosis.unexplained import unexplained
@@ -205,10 +208,11 @@ def _held_out(rep: CalibrationReport, fitted, m, effects: set, tolerance_mm) -> 
         warnings.simplefilter("always", ConditionRangeWarning)  # carried into the report, and passed on
         warnings.simplefilter("always", PayloadAssumedWarning)
         warnings.simplefilter("always", ReflectorWarning)
+        warnings.simplefilter("always", MismatchWarning)
         ev = api.evaluate(fitted, m)  # a ZonedFit: each row with its zone's parameters
     for w in caught:  # every other warning (and this one) reaches the caller as evaluate gave it
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    carried = (ConditionRangeWarning, PayloadAssumedWarning, ReflectorWarning)
+    carried = (ConditionRangeWarning, PayloadAssumedWarning, ReflectorWarning, MismatchWarning)
     rep.data_warnings = [str(w.message) for w in caught if issubclass(w.category, carried)]
     err, rep.outside_range = ev.residuals_mm, ev.outside_range
     zone = fitted.assign(robot.fk(m.q)) if isinstance(fitted, ZonedFit) else None

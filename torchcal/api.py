@@ -481,10 +481,11 @@ def compensate_targets(model, targets, *, frame: str = "measuring", robot=None, 
     im = _fitted(model)
     rob = im.model.robot
     if robot is not None:
-        from torchcal.io.modelfile import with_limits_of
+        from torchcal.io.modelfile import warn_other_gravity, with_limits_of
 
         given, name = make_robot(robot), str(model) if isinstance(model, (str, Path)) else "model"
         check_same_robot(rob, given, name)
+        warn_other_gravity(im, given, name, stacklevel=2)
         im = with_limits_of(im, given, name, stacklevel=2)
         rob = im.model.robot
     if isinstance(targets, (str, Path)):

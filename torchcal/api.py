@@ -315,6 +315,9 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
                              f"{m.source or 'the data'} (the same joint values and x, y, z; data row(s) "
                              f"{_listed(i + 1 for i in same)}): the transfer check needs the measurements of "
                              "another session, not the data searched")
+        from torchcal.diagnosis.transfer import same_session
+
+        same_session(m, other, stacklevel=2)  # the validation part of a split of the same session
     check = None if other is None else TransferCheck(other, transfer_poses, other.source or "the other session")
     with threads.for_work(_work(model, m)), _about(m):
         res = run(model.robot, m, model.specs(), folds=folds, seed=seed, sigma_mm=sigma_mm, sigma_deg=sigma_deg,

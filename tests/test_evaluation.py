@@ -99,3 +99,34 @@ def test_the_command_line_prints_one_line_and_exits_0(tmp_path, capsys):
     assert main(["evaluate", str(tmp_path / "nest2.csv"), "--model", str(tmp_path / "m.json")]) == 0
     err = capsys.readouterr().err
     assert len([x for x in err.splitlines() if "another reflector or nest" in x]) == 1
+
+
+def two_reflectors(rob, q, seed, sag_deg=0.05, swap=False):
+    """Rows of two reflectors 6 mm apart (ids 1 and 2, each pose measured at both; plain
+    numpy tracker sessions of one robot and tracker), labelled the other way round with `swap`."""
+    a = session(rob, q, seed, reflector=(0.0, 0.0, 290.0), sag_deg=sag_deg)
+    b = session(rob, q, seed, reflector=(6.0, 0.0, 290.0), sag_deg=sag_deg)
+    n = len(q)
+    point = torch.cat([torch.ones(n, dtype=torch.long), torch.full((n,), 2, dtype=torch.long)])
+    return Measurements(torch.arange(n).repeat(2), torch.cat([q, q]), torch.cat([a.xyz, b.xyz]),
+                        point=3 - point if swap else point)
+
+
+@pytest.mark.parametrize("robot,seed", [("ur5e", 1), ("puma560", 3)])
+def test_swapped_point_ids_are_named_and_honest_ones_are_not(robot, seed):
+    """Two reflectors 6 mm apart: the held-out file with ids 1 and 2 swapped is named (rms 6 mm
+    in silence before); labelled as fitted, or where the model extrapolates badly, it is not."""
+    rob = torchcal.robot(robot)
+    fitted = torchcal.fit(rob, two_reflectors(rob, random_poses(rob, 50, seed), seed), ["base_frame", "tool_offset"])
+    held = random_poses(rob, 30, seed + 10)
+    assert said(lambda: torchcal.evaluate(fitted, two_reflectors(rob, held, seed))) == []
+    msgs = said(lambda: torchcal.evaluate(fitted, two_reflectors(rob, held, seed, swap=True)))
+    assert len(msgs) == 1 and "with the point ids read 1 as 2, 2 as 1" in msgs[0], msgs
+    q = random_poses(rob, 400, 0)
+    near = (q[:, 1] - q[:, 1].median()).abs() < 0.3
+    bent = torchcal.fit(rob, two_reflectors(rob, q[near][:50], 0, sag_deg=0.3), ["base_frame", "tool_offset"])
+    far = two_reflectors(rob, q[~near][:30], 0, sag_deg=0.3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert torchcal.evaluate(bent, far).rms_mm > 3 * bent.rms_mm
+    assert said(lambda: torchcal.evaluate(bent, far)) == []

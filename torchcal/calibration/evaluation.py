@@ -115,6 +115,50 @@ def moved_frame(rms_mm: float, err: torch.Tensor, xyz: torch.Tensor, training_rm
             "again near its old place)? Register the model on some of these rows")
 
 
+MAX_POINTS_SWAPPED = 4  # point ids whose relabellings are all tried (4! = 24)
+
+
+def swapped_points(fm: FitResult, m: Measurements, rms_mm: float, stage=None) -> str | None:
+    """One line when the rows of `m` carry several point ids (at most MAX_POINTS_SWAPPED,
+    all the model's), their rms `rms_mm` lies beyond FAR_FACTOR (3) times the training rms,
+    and another assignment of the ids to the model's tool offsets leaves at most
+    1 / TOOL_GAIN of it: the point column of the file labels the reflectors otherwise than
+    the data the model was fitted on. None otherwise. stage: the residual stage, subtracted."""
+    import dataclasses
+    import itertools
+
+    from torchcal.calibration.registration import FAR_FACTOR
+    from torchcal.effects import context_of
+
+    train = fm.training_rms_mm
+    ids = sorted(set(m.point.tolist()))
+    if train is None or rms_mm <= FAR_FACTOR * train or not 2 <= len(ids) <= MAX_POINTS_SWAPPED:
+        return None
+    corr = 0.0 if stage is None else stage.predict(m.q).to(m.xyz)
+    err = {}  # point id k -> (N, 3) mm error of every row as if measured at point k
+    for k in ids:
+        as_k = dataclasses.replace(m, point=torch.full_like(m.point, k))
+        err[k] = (m.xyz - fm.predict(context_of(fm.model.robot, as_k)) - corr).detach()
+    label = m.point.to(m.xyz.device)
+    best = None
+    for perm in itertools.permutations(ids):
+        if list(perm) == ids:
+            continue
+        e = torch.zeros_like(m.xyz)
+        for k, to in zip(ids, perm):
+            rows = label == k
+            e[rows] = err[to][rows]
+        rms = float(e.norm(dim=-1).pow(2).mean().sqrt())
+        if best is None or rms < best[0]:
+            best = (rms, perm)
+    if best is None or best[0] * TOOL_GAIN > rms_mm:
+        return None
+    mapping = ", ".join(f"{k} as {to}" for k, to in zip(ids, best[1]) if k != to)
+    return (f"{m.source or 'data'}: rms {rms_mm:.4g} mm ({rms_mm / train:.3g} times the model's training rms "
+            f"{train:.4g} mm), but {best[0]:.4g} mm with the point ids read {mapping}: the point column labels the "
+            "reflectors otherwise than the data the model was fitted on? Check which reflector each id is")
+
+
 def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     """Errors of the fitted model `fm` on measurements `m` (module doc): InputError for data
     that cannot come from the model (another robot, a moved measuring frame, units); one
@@ -159,8 +203,10 @@ measuring frame of their own (`moved_frame`, a motion within the gross-mismatch 
     tool = None
     if other is None and (m.point is None or len(set(m.point.tolist())) == 1):  # one point, not named: its own tool?
         tool = moved_tool(fig["rms_mm"], err, cm.predict_rotation(theta, ctx), fm.training_rms_mm, m.source or "data")
-        if tool is not None:
-            warnings.warn(tool, ReflectorWarning, stacklevel=stacklevel + 1)
+    elif other is None:  # several points: their ids swapped?
+        tool = swapped_points(fm, m, fig["rms_mm"], stage)
+    if tool is not None:
+        warnings.warn(tool, ReflectorWarning, stacklevel=stacklevel + 1)
     if other is None and tool is None:  # the instrument moved a little since the fit?
         frame = moved_frame(fig["rms_mm"], err, m.xyz, fm.training_rms_mm, m.source or "data")
         if frame is not None:

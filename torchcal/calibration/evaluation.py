@@ -200,14 +200,17 @@ measuring frame of their own (`moved_frame`, a motion within the gross-mismatch 
     if stage is not None:
         err = err - stage.predict(m.q).to(err)
     fig = error_summary(err)
-    tool = None
-    if other is None and (m.point is None or len(set(m.point.tolist())) == 1):  # one point, not named: its own tool?
-        tool = moved_tool(fig["rms_mm"], err, cm.predict_rotation(theta, ctx), fm.training_rms_mm, m.source or "data")
-    elif other is None:  # several points: their ids swapped?
+    from torchcal.calibration.registration import FAR_FACTOR
+
+    train, tool = fm.training_rms_mm, None
+    far = other is None and train is not None and fig["rms_mm"] > FAR_FACTOR * train  # far above training: why?
+    if far and (m.point is None or len(set(m.point.tolist())) == 1):  # one point, not named: its own tool?
+        tool = moved_tool(fig["rms_mm"], err, cm.predict_rotation(theta, ctx), train, m.source or "data")
+    elif far:  # several points: their ids swapped?
         tool = swapped_points(fm, m, fig["rms_mm"], stage)
     if tool is not None:
         warnings.warn(tool, ReflectorWarning, stacklevel=stacklevel + 1)
-    if other is None and tool is None:  # the instrument moved a little since the fit?
+    if far and tool is None:  # the instrument moved a little since the fit?
         frame = moved_frame(fig["rms_mm"], err, m.xyz, fm.training_rms_mm, m.source or "data")
         if frame is not None:
             warnings.warn(frame, MismatchWarning, stacklevel=stacklevel + 1)

@@ -349,3 +349,38 @@ def test_targets_without_a_payload_for_a_model_fitted_on_loads_are_named(robot, 
     at = lambda c: predict_rows(loaded.model, loaded.theta.expand(10, -1), c.compensation.q, payload_kg=rated)  # noqa: E731
     miss = float((at(bare) - targets).norm(dim=-1).max())
     assert miss > 10 * float((at(full) - targets).norm(dim=-1).max()) and miss > 0.05
+
+
+def test_the_point_that_reaches_the_targets_is_named(tmp_path, capsys):
+    """A tracker model with a reflector 290 mm off the flange (plain-numpy session): the
+    targets are reached by the reflector, not the robot file's TCP, and a line says so with
+    the fitted offset; a model without a tool offset prints no such line."""
+    import re
+
+    from npsim import tracker_session
+    from torchcal.measurements import Measurements
+
+    rob = torchcal.robot("ur5e")
+    q = random_poses(rob, 60, 21)
+    write_measurements(tmp_path / "d.csv", Measurements(torch.arange(60), q,
+                                                        torch.from_numpy(tracker_session(rob, q.numpy(), seed=2))))
+    assert main(["fit", str(tmp_path / "d.csv"), "--robot", "ur5e", "--effects", "base_frame", "tool_offset",
+                 "--out", str(tmp_path / "m.json")]) == 0
+    t = rob.fk(random_poses(rob, 5, 22))
+    (tmp_path / "t.csv").write_text("x,y,z\n" + "".join(",".join(repr(float(v)) for v in r) + "\n" for r in t.tolist()))
+    capsys.readouterr()
+    assert main(["compensate", str(tmp_path / "t.csv"), "--model", str(tmp_path / "m.json"), "--frame", "base",
+                 "--out", str(tmp_path / "q.csv")]) == 0
+    out = capsys.readouterr().out
+    found = re.search(r"reached by the measured point of the calibration \(the reflector\): the model's tool offset "
+                      r"\[(\S+), (\S+), (\S+)\] mm", out)
+    assert found and abs(float(found.group(3)) - 290.0) < 1.0, out
+    from npsim import physics_session
+
+    xyz, _ = physics_session(rob, q.numpy(), 2, [])  # the robot base frame, the robot file's tool
+    write_measurements(tmp_path / "b.csv", Measurements(torch.arange(60), q, torch.from_numpy(xyz)))
+    assert main(["fit", str(tmp_path / "b.csv"), "--robot", "ur5e", "--out", str(tmp_path / "g.json")]) == 0
+    capsys.readouterr()
+    assert main(["compensate", str(tmp_path / "t.csv"), "--model", str(tmp_path / "g.json"),
+                 "--out", str(tmp_path / "q2.csv")]) == 0
+    assert "measured point of the calibration" not in capsys.readouterr().out

@@ -479,6 +479,9 @@ class TargetCompensation:
             calibration pose, whose configuration and tool orientation they keep).
         base_frame_fitted: the model has a base_frame effect (base-frame targets are mapped
             with it, and it holds joint 1's zero offset and d1).
+        tool_offset_mm: [x, y, z] mm, the model's fitted tool offset from the robot file's
+            tool (one measured point), None without one: the point that reaches the targets
+            is the measured point (the reflector of the calibration), not the robot file's TCP.
     """
 
     targets: torch.Tensor
@@ -492,6 +495,7 @@ class TargetCompensation:
     frame: str = "measuring"
     seeded: bool = False
     base_frame_fitted: bool = False
+    tool_offset_mm: list | None = None
 
     @property
     def residual_mm(self) -> torch.Tensor:
@@ -604,6 +608,8 @@ def compensate_targets(im, targets, *, frame: str = "measuring", seeds=None, pay
     from torchcal.calibration.zone_calibration import ZonedFit
 
     method = im.method if isinstance(im, ZonedFit) else ("global" if im.radius is not None else "fit")
+    tool = [im.theta[sl].tolist() for e, sl in zip(im.model.effects, im.model.slices[1:]) if e.name == "tool_offset"]
     return TargetCompensation(given, comp, comp.zone, rob.q_to_user(comp.q), im.zone_theta.shape[0], method,
                               rob.name, far, frame, seeds is not None,
-                              any(e.name == "base_frame" for e in im.model.effects))
+                              any(e.name == "base_frame" for e in im.model.effects),
+                              tool[0] if len(tool) == 1 and len(tool[0]) == 3 else None)

@@ -62,3 +62,40 @@ def test_register_names_rows_where_the_model_extrapolates_and_only_those(robot, 
     _, said = caught(lambda: torchcal.register(fitted, session(rob, rest[:30], 19.0, 25.0, seed + 3, moved=True)))
     assert said[ConditionRangeWarning] == [] and len(said[CalibratedRangeWarning]) == 1
     assert "registration rows lie outside the calibrated joint range (joint 1:" in said[CalibratedRangeWarning][0]
+
+
+@pytest.mark.parametrize("robot,seed", [("ur5e", 4), ("kr1000titan", 5)])
+def test_register_names_another_reflector_rather_than_a_model_that_does_not_carry_over(robot, seed):
+    """Rows of a reflector 4 mm from the model's (plain-numpy tracker sessions, a tracker
+    moved): not 'the model does not carry over' but another reflector, the offset named;
+    with the tool re-estimated, neither. A model that extrapolates badly (a 0.3 deg sag
+    beyond the joint-2 range it was fitted on) keeps the TransferWarning."""
+    from npsim import tracker_session
+    from torchcal.calibration.evaluation import ReflectorWarning
+    from torchcal.calibration.registration import TransferWarning
+
+    rob = torchcal.robot(robot)
+
+    def rows(q, s, reflector=(0.0, 0.0, 290.0), sag=0.05, moved=False):  # s: the robot and its first tracker place
+        xyz = tracker_session(rob, q.numpy(), seed=s, reflector_mm=reflector, sag_deg=sag)
+        return Measurements(torch.arange(len(q)), q, torch.from_numpy(xyz @ TURN.T + SHIFT if moved else xyz))
+
+    def said(fn):
+        with warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always")
+            fn()
+        return {c: [str(x.message) for x in w if issubclass(x.category, c)] for c in (ReflectorWarning, TransferWarning)}
+
+    fitted = torchcal.fit(rob, rows(random_poses(rob, 60, seed), seed), ["base_frame", "tool_offset"])
+    new = rows(random_poses(rob, 40, seed + 1), seed, reflector=(0.0, 4.0, 290.0), moved=True)
+    got = said(lambda: torchcal.register(fitted, new))
+    carry = [x for x in got[TransferWarning] if "does not carry over" in x]
+    assert len(got[ReflectorWarning]) == 1 and carry == [], got
+    assert "measured at another reflector or nest" in got[ReflectorWarning][0]
+    got = said(lambda: torchcal.register(fitted, new, tool=True))
+    assert got[ReflectorWarning] == [] and all("carry over" not in x for x in got[TransferWarning])
+    q = random_poses(rob, 400, 0)
+    near = (q[:, 1] - q[:, 1].median()).abs() < 0.3
+    bent = torchcal.fit(rob, rows(q[near][:60], 0, sag=0.3), ["base_frame", "tool_offset"])
+    got = said(lambda: torchcal.register(bent, rows(q[~near][:40], 0, sag=0.3)))
+    assert got[ReflectorWarning] == [] and any("does not carry over" in x for x in got[TransferWarning]), got

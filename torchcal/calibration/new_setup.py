@@ -26,7 +26,10 @@ def register_model(fitted, robot, m, *, tool: bool = False, stacklevel: int = 1)
     fitted model outside its calibrated joint range, or at a temperature / payload outside
     the range its effects were fitted on (or without a payload for a model fitted on loads),
     are named as evaluate names them (`CalibratedRangeWarning`, `ConditionRangeWarning`,
-    `PayloadAssumedWarning`): there the model extrapolates, and the frame is fitted to it."""
+    `PayloadAssumedWarning`): there the model extrapolates, and the frame is fitted to it.
+    Without `tool`, registered rows beyond 3x the training rms that a tool offset of their
+    own would bring within a third are named as another reflector (`ReflectorWarning`,
+    `torchcal.calibration.evaluation.moved_tool`) in place of the `TransferWarning`."""
     import dataclasses
     import warnings
 
@@ -65,6 +68,16 @@ def register_model(fitted, robot, m, *, tool: bool = False, stacklevel: int = 1)
                      identified=identified, q_range=q_range, conditions=conditions)
     enforce(check_measurements(res.model, res.theta, m, train, q_range=q_range))  # still off: another robot, units
     far = far_from_training(res.rms_mm, train)
+    if far is not None and not tool and (m.point is None or len(set(m.point.tolist())) == 1):
+        from torchcal.calibration.evaluation import ReflectorWarning, moved_tool
+
+        with torch.no_grad():  # the rows of another reflector than the model's, rather than terms of a session?
+            err = m.xyz - res.predict(ctx)
+            other_tool = moved_tool(res.rms_mm, err, res.model.predict_rotation(res.theta, ctx), train,
+                                    m.source or "data")
+        if other_tool is not None:
+            warnings.warn(other_tool, ReflectorWarning, stacklevel=stacklevel + 1)
+            far = None
     if far is not None:
         warnings.warn(far, TransferWarning, stacklevel=stacklevel + 1)
     poses = fitted.seed_poses if fitted is not None and fitted.seed_poses is not None else seed_poses(m.q)

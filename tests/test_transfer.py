@@ -493,3 +493,30 @@ def test_discover_says_it_before_the_search(tmp_path, monkeypatch):
     monkeypatch.setattr(importlib.import_module("torchcal.diagnosis.diagnose"), "discover", search)
     with pytest.warns(SameSessionWarning), pytest.raises(Searched):
         torchcal.api.discover(rob, tmp_path / "tr.csv", transfer=tmp_path / "va.csv")
+
+
+def test_a_transfer_session_of_another_reflector_is_named():
+    """The other session measured with a reflector 5 mm from the searched data's (plain numpy,
+    tracker moved): the frame-only registration leaves the tool's error in every transfer
+    figure, and the joint-2 term that the same reflector's session keeps is refused; one
+    `ReflectorWarning` says why. The same reflector: no warning, the term kept."""
+    from npsim import _rotvec, tracker_session
+    from torchcal.calibration.evaluation import ReflectorWarning
+
+    rob = torchcal.robot("ur5e")
+    q, q2 = random_poses(rob, 80, 1), random_poses(rob, 60, 2)
+    data = Measurements(torch.arange(80), q, torch.from_numpy(tracker_session(rob, q.numpy(), seed=1)))
+    kept = {}
+    for name, reflector in (("same", (0.0, 0.0, 290.0)), ("other", (0.0, 5.0, 290.0))):
+        xyz = tracker_session(rob, q2.numpy(), seed=1, reflector_mm=reflector)
+        xyz = xyz @ _rotvec(np.radians([0.0, 0.0, 20.0])).T + np.array([500.0, 0.0, 0.0])
+        other = Measurements(torch.arange(60), q2, torch.from_numpy(xyz))
+        with warnings.catch_warnings(record=True) as w:
+            warnings.simplefilter("always")
+            d = torchcal.discover(rob, data, ["base_frame", "tool_offset"], transfer=other, max_rounds=1,
+                                  report_rest=False)
+        said = [str(x.message) for x in w if issubclass(x.category, ReflectorWarning)]
+        kept[name] = d.final_effects
+        assert len(said) == (name == "other"), said
+    assert "with the measured point moved by 4.9" in said[0] and "registers the measuring frame only" in said[0]
+    assert len(kept["same"]) > len(kept["other"]) == 2  # what the warning is about: the step refused

@@ -185,6 +185,33 @@ class TransferCheck:
         sq = err.pow(2).sum(-1).numpy(force=True)  # (N_b,) mm^2
         return Transferred(float(np.sqrt(sq.mean())), per_pose(b, sq))
 
+    def another_tool(self, fit) -> str | None:
+        """One line when the other session's held-out rows, the model `fit` (`FitResult`,
+        the search's starting fit) registered as `score` registers it, lie beyond 3x its
+        rms and a constant offset of the measured point on the tool brings them within a
+        third (`torchcal.calibration.evaluation.moved_tool`): the session was measured with
+        another reflector or nest, whose error the frame-only registration leaves in every
+        figure, so that no step can lower them beyond chance. None otherwise."""
+        from torchcal.calibration.evaluation import moved_tool
+
+        if self.m.point is not None and len(set(self.m.point.tolist())) > 1:
+            return None
+        reg = self.registration_rows
+        a, b = self.m.subset(reg), self.m.subset(~reg)
+        robot = fit.model.robot
+        res = reregister(fit.model, fit.theta, context_of(robot, a), a.xyz.to(fit.theta), pose=a.pose)
+        with torch.no_grad():
+            ctx = context_of(robot, b)
+            err = b.xyz.to(fit.theta) - res.model.predict(res.theta, ctx)
+            rot = res.model.predict_rotation(res.theta, ctx)
+        rms = float(err.norm(dim=-1).pow(2).mean().sqrt())
+        msg = moved_tool(rms, err, rot, fit.rms_mm, self.source)
+        if msg is None:
+            return None
+        return (msg.split(": measured at")[0] + ": measured with another reflector or nest than the data searched? "
+                "The transfer check registers the measuring frame only, so that error stays in every figure and no "
+                "step can lower it beyond chance; give a session of the same reflector")
+
     def choose(self, current: Transferred, passed: list, within: Within | None = None):
         """The step to keep among `passed` (the round's candidates that met the acceptance
         rule, `Scored`s in rank order): the first that lowers the other session's error

@@ -346,7 +346,9 @@ def test_targets_without_a_payload_for_a_model_fitted_on_loads_are_named(robot, 
         said = [str(x.message) for x in w if issubclass(x.category, PayloadAssumedWarning)]
         assert len(said) == expected and all("evaluated at 0 kg" in x for x in said), said
     # what the warning is about: the unloaded commands miss under the rated load, the loaded ones do not
-    at = lambda c: predict_rows(loaded.model, loaded.theta.expand(10, -1), c.compensation.q, payload_kg=rated)  # noqa: E731
+    def at(c):
+        return predict_rows(loaded.model, loaded.theta.expand(10, -1), c.compensation.q, payload_kg=rated)
+
     miss = float((at(bare) - targets).norm(dim=-1).max())
     assert miss > 10 * float((at(full) - targets).norm(dim=-1).max()) and miss > 0.05
 

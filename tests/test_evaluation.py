@@ -37,7 +37,8 @@ def said(fn, frame: bool = False) -> list:
         warnings.simplefilter("always")
         fn()
     if frame:
-        return [str(x.message) for x in w if issubclass(x.category, MismatchWarning) and "instrument moved" in str(x.message)]
+        return [str(x.message) for x in w
+                if issubclass(x.category, MismatchWarning) and "instrument moved" in str(x.message)]
     return [str(x.message) for x in w if issubclass(x.category, ReflectorWarning)]
 
 

@@ -84,7 +84,8 @@ def test_register_names_another_reflector_rather_than_a_model_that_does_not_carr
         with warnings.catch_warnings(record=True) as w:
             warnings.simplefilter("always")
             fn()
-        return {c: [str(x.message) for x in w if issubclass(x.category, c)] for c in (ReflectorWarning, TransferWarning)}
+        return {c: [str(x.message) for x in w if issubclass(x.category, c)]
+                for c in (ReflectorWarning, TransferWarning)}
 
     fitted = torchcal.fit(rob, rows(random_poses(rob, 60, seed), seed), ["base_frame", "tool_offset"])
     new = rows(random_poses(rob, 40, seed + 1), seed, reflector=(0.0, 4.0, 290.0), moved=True)

@@ -96,7 +96,7 @@ def moved_frame(rms_mm: float, err: torch.Tensor, xyz: torch.Tensor, training_rm
     it: the measuring frame moved since the fit by less than the gross-mismatch bound (a
     tracker bumped, set up again near its old place). None otherwise, or without a
     training rms."""
-    from torchcal.calibration.registration import FAR_FACTOR, frame_summary
+    from torchcal.calibration.registration import FAR_FACTOR
     from torchcal.rotations import kabsch
 
     if training_rms_mm is None or rms_mm <= FAR_FACTOR * training_rms_mm or err.shape[0] < 6:
@@ -167,9 +167,10 @@ def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     outside the range the model was fitted on (`fm.conditions`), one `PayloadAssumedWarning`
     for data without payload_kg given to a model fitted on loads
     (`torchcal.calibration.compensate.payload_conditions`). Rows of one point that fit far
-    better with a tool offset of their own (`moved_tool`): one `ReflectorWarning`; else with a
-measuring frame of their own (`moved_frame`, a motion within the gross-mismatch bound): one
-`MismatchWarning`. Data of a point id the model was not fitted on
+    better with a tool offset of their own (`moved_tool`), or of several points with their
+    ids read otherwise (`swapped_points`): one `ReflectorWarning`; else with a measuring
+    frame of their own (`moved_frame`, a motion within the gross-mismatch bound): one
+    `MismatchWarning`. Data of a point id the model was not fitted on
     (`torchcal.calibration.mismatch.point_ids_differ`): InputError for a model with one tool
     offset per point, else one `PointIdWarning`. Orientations (rx, ry, rz) that disagree
     with the nominal tool (`torchcal.calibration.mismatch.orientation_mismatch`): one
@@ -178,6 +179,7 @@ measuring frame of their own (`moved_frame`, a motion within the gross-mismatch 
     `MismatchWarning` (`torchcal.calibration.mismatch.warn_far_from_sweep`)."""
     from torchcal.calibration.compensate import payload_conditions
     from torchcal.calibration.joint_range import outside_range
+    from torchcal.calibration.registration import FAR_FACTOR
     from torchcal.calibration.mismatch import (MismatchWarning, PointIdWarning, check_measurements, enforce,
                                                orientation_mismatch, point_ids_differ, warn_far_from_sweep,
                                                warn_outside_conditions, warn_outside_range)
@@ -200,8 +202,6 @@ measuring frame of their own (`moved_frame`, a motion within the gross-mismatch 
     if stage is not None:
         err = err - stage.predict(m.q).to(err)
     fig = error_summary(err)
-    from torchcal.calibration.registration import FAR_FACTOR
-
     train, tool = fm.training_rms_mm, None
     far = other is None and train is not None and fig["rms_mm"] > FAR_FACTOR * train  # far above training: why?
     if far and (m.point is None or len(set(m.point.tolist())) == 1):  # one point, not named: its own tool?

@@ -63,7 +63,8 @@ def register_model(fitted, robot, m, *, tool: bool = False, stacklevel: int = 1)
         ranges = payload_conditions(fitted, m.payload_kg, m.source or "data", "registered at", stacklevel + 1)
         warn_outside_conditions(ranges, {"temp_c": ctx.temp_c, "payload_kg": ctx.payload_kg}, "registration rows",
                                 stacklevel=stacklevel + 1)
-        warn_outside_range(m.q, q_range, cm.robot, "registration rows", fitted.residual_model, stacklevel=stacklevel + 1)
+        warn_outside_range(m.q, q_range, cm.robot, "registration rows", fitted.residual_model,
+                           stacklevel=stacklevel + 1)
     res = reregister(cm, theta.to(m.xyz), ctx, m.xyz, tool=tool, pose=m.pose, covariance=cov,
                      identified=identified, q_range=q_range, conditions=conditions)
     enforce(check_measurements(res.model, res.theta, m, train, q_range=q_range))  # still off: another robot, units

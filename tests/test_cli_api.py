@@ -107,9 +107,9 @@ def test_compensate_failure_line_lists_the_apis_rows(fitted, tmp_path, capsys):
     q = random_poses(rob, 6, 41)
     t = rob.fk(q)
     t[2] = torch.tensor([3000.0, 0.0, 500.0], dtype=torch.float64)  # beyond the ur5e's reach
-    targets = tmp_path / "t.csv"  # with seeds: the nominal inverse of the far target is not needed
-    targets.write_text("x,y,z," + ",".join(f"q{k}" for k in range(1, 7)) + "\n" + "".join(
-        ",".join(repr(float(v)) for v in [*t[i].tolist(), *rob.q_to_user(q[i:i + 1])[0].tolist()]) + "\n"
+    targets = tmp_path / "t.csv"  # with seeds: the nominal inverse of the far target is not needed; a payload
+    targets.write_text("x,y,z," + ",".join(f"q{k}" for k in range(1, 7)) + ",payload_kg\n" + "".join(
+        ",".join(repr(float(v)) for v in [*t[i].tolist(), *rob.q_to_user(q[i:i + 1])[0].tolist(), 2.0]) + "\n"
         for i in range(6)))
     capsys.readouterr()
     assert main(["compensate", str(targets), "--model", str(model), "--out", str(tmp_path / "q.csv")]) == 1

@@ -320,3 +320,28 @@ def test_parameters_beyond_their_plausible_size_are_named_on_export(fitted, tmp_
     assert float(cal.table[2, 1] - nominal.table[2, 1]) == pytest.approx(250.0)
     assert main(["export", str(fitted / "m.json"), "--robot-file", str(tmp_path / "ok.json")]) == 0
     assert capsys.readouterr().err == ""
+
+
+def test_export_data_without_a_payload_for_a_model_fitted_on_loads_is_named(tmp_path, capsys):
+    """`export --data` of a joint-compliance model fitted on loads (plain-numpy gravity sag,
+    tests/npsim.py): data without payload_kg get one line (its full-model figure is of an
+    unloaded arm), data with it none."""
+    from npsim import physics_session
+    from torchcal.io.measurement_csv import write_measurements
+    from torchcal.measurements import Measurements
+    from torchcal.robots.poses import random_poses
+
+    rob = torchcal.robot("ur5e")
+    q = random_poses(rob, 60, 7)
+    xyz, load = physics_session(rob, q.numpy(), seed=7, hidden=["joint_compliance:2"])
+    m = Measurements(torch.arange(60), q, torch.from_numpy(xyz), payload_kg=torch.from_numpy(load))
+    write_measurements(tmp_path / "loaded.csv", m)
+    write_measurements(tmp_path / "bare.csv", Measurements(m.pose, m.q, m.xyz))
+    assert main(["fit", str(tmp_path / "loaded.csv"), "--robot", "ur5e", "--effects", "joint_compliance:2",
+                 "--out", str(tmp_path / "m.json")]) == 0
+    for data, lines in (("loaded", 0), ("bare", 1)):
+        capsys.readouterr()
+        assert main(["export", str(tmp_path / "m.json"), "--data", str(tmp_path / f"{data}.csv"),
+                     "--robot-file", str(tmp_path / f"{data}.json")]) == 0
+        err = capsys.readouterr().err
+        assert err.count("no payload_kg column: evaluated at 0 kg") == lines and "outside the fitted" not in err, err

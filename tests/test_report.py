@@ -1,6 +1,7 @@
 """`torchcal report` and `torchcal.metrics`: the figures against plain numpy, the HTML
 self-contained, rendered by headless Chromium (skipped, with the reason, without it)."""
 
+import html
 import json
 import re
 import shutil
@@ -433,3 +434,69 @@ def test_before_of_a_tool_offset_model_fits_the_tool_on_the_nominal_robot(tmp_pa
         res.append((b - A @ p).reshape(-1, 3))
     expected = float(np.sqrt((np.linalg.norm(np.concatenate(res), axis=1) ** 2).mean()))
     assert before == pytest.approx(expected, rel=1e-4), (before, expected)
+
+
+def test_the_report_carries_the_warning_of_held_out_rows_outside_the_fitted_temperatures(tmp_path, capsys):
+    """A thermal model (plain-numpy link growth, tests/npsim.py) fitted at 18-26 degC: held-out
+    rows at 34-40 degC get evaluate's extrapolation warning on stderr, and the report handed
+    over says it too (HTML first page, JSON); held-out rows inside the range say nothing."""
+    import torchcal
+    from torchcal.io.measurement_csv import write_measurements
+    from torchcal.measurements import Measurements
+    from torchcal.robots.poses import random_poses
+
+    from npsim import thermal_session
+
+    rob = torchcal.robot("ur5e")
+
+    def session(path, n, seed, hot=0):
+        q = random_poses(rob, n, seed)
+        temp = np.random.default_rng(seed + 100).uniform(18.0, 26.0, n)
+        temp[:hot] = np.linspace(34.0, 40.0, hot)
+        xyz = thermal_session(rob, q.numpy(), temp, seed=7)
+        write_measurements(path, Measurements(torch.arange(n), q, torch.from_numpy(xyz),
+                                              temp_c=torch.from_numpy(temp)), robot=rob)
+
+    session(tmp_path / "train.csv", 80, 1)
+    session(tmp_path / "cool.csv", 30, 2)
+    session(tmp_path / "hot.csv", 30, 3, hot=7)
+    assert main(["fit", str(tmp_path / "train.csv"), "--robot", "ur5e", "--effects", "thermal_expansion",
+                 "--out", str(tmp_path / "m.json")]) == 0
+    lo, hi = json.loads((tmp_path / "m.json").read_text())["calibrated_conditions"]["temp_c"]
+    for name, expected in (("cool", None), ("hot", f"temperature of 7 of 30 rows outside the fitted {lo:.4g} .. "
+                                                    f"{hi:.4g} degC (farthest 40 degC)")):
+        capsys.readouterr()
+        assert main(["report", str(tmp_path / "m.json"), "--data", str(tmp_path / f"{name}.csv"),
+                     "--out", str(tmp_path / f"{name}.html"), "--json", str(tmp_path / f"{name}.json")]) == 0
+        err = capsys.readouterr().err
+        text = (tmp_path / f"{name}.html").read_text()
+        said = json.loads((tmp_path / f"{name}.json").read_text())["held_out"]["data_warnings"]
+        if expected is None:
+            assert said == [] and "Warning:" not in text and "degC" not in err
+        else:
+            assert len(said) == 1 and expected in said[0] and expected in text and err.count(expected) == 1
+
+
+def test_the_report_says_when_held_out_rows_without_a_payload_meet_a_model_fitted_on_loads(tmp_path, capsys):
+    """A joint-compliance model fitted on 0..5 kg (plain-numpy gravity sag, tests/npsim.py):
+    held-out rows without their payload column are evaluated unloaded; the report says so."""
+    import torchcal
+    from torchcal.io.measurement_csv import write_measurements
+    from torchcal.measurements import Measurements
+    from torchcal.robots.poses import random_poses
+
+    from npsim import physics_session
+
+    rob = torchcal.robot("ur5e")
+    q = random_poses(rob, 100, 4)
+    xyz, load = physics_session(rob, q.numpy(), seed=4, hidden=["joint_compliance:2,3"])
+    xyz, load = torch.from_numpy(xyz), torch.from_numpy(load)
+    write_measurements(tmp_path / "train.csv", Measurements(torch.arange(70), q[:70], xyz[:70], payload_kg=load[:70]))
+    write_measurements(tmp_path / "val.csv", Measurements(torch.arange(70, 100), q[70:], xyz[70:]))
+    assert main(["fit", str(tmp_path / "train.csv"), "--robot", "ur5e", "--effects", "joint_compliance:2,3",
+                 "--out", str(tmp_path / "m.json")]) == 0
+    assert main(["report", str(tmp_path / "m.json"), "--data", str(tmp_path / "val.csv"),
+                 "--out", str(tmp_path / "r.html"), "--json", str(tmp_path / "r.json")]) == 0
+    said = json.loads((tmp_path / "r.json").read_text())["held_out"]["data_warnings"]
+    assert len(said) == 1 and "no payload_kg column: evaluated at 0 kg" in said[0]
+    assert html.escape(said[0]) in (tmp_path / "r.html").read_text() and said[0] in capsys.readouterr().err

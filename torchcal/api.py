@@ -29,6 +29,8 @@ from torchcal import threads
 from torchcal._lazy import attach
 from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult
 from torchcal.calibration.checks.robot_data import check_diagnosis_data, check_robot_data_of
+from torchcal.calibration.nominal_data import warn_nominal_data
+from torchcal.calibration.orientation_frame import check_orientation_frame
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.calibration.model import CalibrationModel
 from torchcal.errors import DataError, InputError, number_argument
@@ -192,7 +194,10 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     (`check_robot_data_of`: another frame the model lacks, another robot, units, a
     mirrored frame, reversed joint columns, gross outliers without `robust`) and, after
     the fit, a fitted RMS beyond what any calibration leaves
-    (`torchcal.calibration.checks.robot_data.check_fitted`).
+    (`torchcal.calibration.checks.robot_data.check_fitted`); rx, ry, rz in another frame than x, y, z
+    are refused too (`torchcal.calibration.orientation_frame`). Positions that agree with the nominal
+    robot within 0.01 mm rms (computed, e.g. the controller's TCP, not measured) get one
+    `NominalDataWarning` (`torchcal.calibration.nominal_data`).
     residual_model: 'kernel' adds the non-physical residual stage
     (`torchcal.calibration.residual_model`) as ``res.residual_model`` only when its held-out
     gain is significant (`torchcal.diagnosis.residual_stage`, the figures in
@@ -219,6 +224,8 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     model.check_context(ctx)  # a missing column first, in the fit's own words
     with threads.for_work(_work(model, m)), _about(m):
         check_robot_data_of(model, m, robust=robust is not None)  # another frame, robot, units, outliers
+        warn_nominal_data(model, m, stacklevel=2)  # the controller's positions, not measured ones
+        check_orientation_frame(model, m)  # rx, ry, rz left in another frame than x, y, z
         res = fit_model(model, ctx, m.xyz, robust=robust, max_iter=max_iter, pose=m.pose, rotation=m.rotation,
                          sigma_mm=sigma_mm, sigma_deg=sigma_deg, max_length_mm=max_length_mm,
                          max_angle_deg=max_angle_deg)
@@ -278,6 +285,7 @@ def diagnose(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     m = _measurements(measurements, model.robot)
     check_diagnosis_data(robot_or_model, model, m)
     sigma_deg = _sigma_deg(sigma_deg, m)
+    check_orientation_frame(model, m)  # rx, ry, rz left in another frame than x, y, z
     with threads.for_work(_work(model, m)), _about(m):
         return run(model.robot, m, model.specs(), folds=folds, seed=seed, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
                    **_set(alpha=alpha, min_gain=min_gain))
@@ -308,6 +316,8 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     m = _measurements(measurements, model.robot)
     check_robot_data_of(CalibrationModel.for_measurements(model.robot, model.specs(), m), m)
     sigma_deg = _sigma_deg(sigma_deg, m)
+    warn_nominal_data(CalibrationModel.for_measurements(model.robot, model.specs(), m), m, stacklevel=2)
+    check_orientation_frame(model, m)
     other = None if transfer is None else _measurements(transfer, model.robot)
     if other is not None and m.temp_c is not None and other.temp_c is None:  # else a traceback mid-search
         raise InputError(f"{other.source or 'transfer'}: the transfer session has no temp_c column, which "
@@ -324,6 +334,9 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
                              f"{m.source or 'the data'} (the same joint values and x, y, z; data row(s) "
                              f"{listed(i + 1 for i in same)}): the transfer check needs the measurements of "
                              "another session, not the data searched")
+        from torchcal.diagnosis.transfer import same_session
+
+        same_session(m, other, stacklevel=2)  # the validation part of a split of the same session
     check = None if other is None else TransferCheck(other, transfer_poses, other.source or "the other session")
     with threads.for_work(_work(model, m)), _about(m):
         res = run(model.robot, m, model.specs(), folds=folds, seed=seed, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
@@ -340,7 +353,8 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
     The measurements are checked as `fit` checks them: data that the nominal robot cannot
     explain, or that need a measuring frame the model lacks (tracker data without
     base_frame tool_offset), are refused with one InputError line, and so is a global fit
-    still off by more than any calibrated arm. Rows whose nominal TCP lies beyond the
+    still off by more than any calibrated arm; positions that are the nominal robot's own
+    get one `NominalDataWarning` (`torchcal.calibration.nominal_data`). Rows whose nominal TCP lies beyond the
     partition's swept region are named in a `MismatchWarning` (their zone is extrapolated).
     partition: a `Partition`, a PARTITION.json path or None. A path is read for the model's
     robot: a partition made for another robot (or other joint limits) is refused
@@ -382,6 +396,7 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
         warn_far_from_sweep(partition, model.robot.fk(m.q).detach(), m.source or "measurements", stacklevel=2)
     with threads.for_work(_work(model, m)), _about(m):
         check_robot_data_of(model, m)  # another frame (tracker data without base_frame tool_offset), robot, units
+        warn_nominal_data(model, m, stacklevel=2)
         res = run(model, m, partition, zone_method, damping)
     gross = check_fitted(res.residuals, (), m.source or "data", model.robot.name)
     if gross:
@@ -468,7 +483,9 @@ def compensate_targets(model, targets, *, frame: str = "measuring", robot=None, 
     effect) or "base" (the robot base frame, mapped to the measuring frame with the
     fitted base frame of the first parameter set,
     `torchcal.calibration.compensate.measuring_from_base`). robot: optional robot (preset,
-    file, Robot) the model must be for (InputError otherwise). seeds: (M, n) deg (mm for a
+    file, Robot) the model must be for (InputError otherwise); where its joint limits differ
+    from the model's, its limits are used (`torchcal.io.modelfile.with_limits_of`, one
+    `RobotLimitsWarning`). seeds: (M, n) deg (mm for a
     slide) starting commands for tensor targets, default the nominal inverse in the
     measuring frame from the nearest calibration pose
     (`torchcal.calibration.compensate.nominal_start`; a target it does not reach is still
@@ -486,7 +503,13 @@ def compensate_targets(model, targets, *, frame: str = "measuring", robot=None, 
     im = _fitted(model)
     rob = im.model.robot
     if robot is not None:
-        check_same_robot(rob, make_robot(robot), str(model) if isinstance(model, (str, Path)) else "model")
+        from torchcal.io.modelfile import warn_other_gravity, with_limits_of
+
+        given, name = make_robot(robot), str(model) if isinstance(model, (str, Path)) else "model"
+        check_same_robot(rob, given, name)
+        warn_other_gravity(im, given, name, stacklevel=2)
+        im = with_limits_of(im, given, name, stacklevel=2)
+        rob = im.model.robot
     if isinstance(targets, (str, Path)):
         from torchcal.io.targets_csv import read_targets
 

@@ -174,6 +174,7 @@ def _summary(rep) -> str:
                    f"Errors are |measured - model| in the measurement frame. "
                    + (f"{rep.outside_range} held-out rows lie outside the joint range the model was "
                       f"calibrated on (the model extrapolates there). " if rep.outside_range else "")
+                   + "".join(f"<b>Warning:</b> {_e(w)}. " for w in getattr(rep, "data_warnings", []))
                    + "The evidence follows on the next pages.</p>")
     else:
         out.append('<p class="note">No held-out measurements were given (<code>--data</code>): the figures '

@@ -44,6 +44,7 @@ Units: targets mm, joint angles rad inside (the CLI reads and writes degrees).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, replace
 
 import torch
@@ -359,7 +360,7 @@ def with_stage(stage, model: CalibrationModel, theta, t, comp: Compensation, zon
 
 def compensate_fitted(fitted, targets, q0=None, *, tol_mm: float = 1e-6, max_iter: int = 30,
                       max_step_rad: float = 0.2, payload_kg=None, temp_c=None, check: bool = True,
-                      stacklevel: int = 1) -> Compensation:
+                      stacklevel: int = 1, where: str = "targets") -> Compensation:
     """Corrected joint commands (M, n) rad for targets (M, 3) mm in the measuring frame of a
     fitted model: a `FitResult`, or a `ZonedFit`, whose zones are those of the commands: each
     target is solved with the parameters of the zone of its seed's nominal TCP position
@@ -381,7 +382,9 @@ def compensate_fitted(fitted, targets, q0=None, *, tol_mm: float = 1e-6, max_ite
     model (`with_stage`). Converged commands outside the calibrated range are counted
     (``outside_range``) and named in one `CalibratedRangeWarning` (at `stacklevel`, counted
     from the caller); targets at a temperature / payload outside the range the model was
-    fitted on (``fitted.conditions``) in one `ConditionRangeWarning`."""
+    fitted on (``fitted.conditions``) in one `ConditionRangeWarning`; no payload_kg for a
+    model fitted on loads in one `PayloadAssumedWarning` (`payload_conditions`; `where`
+    names the targets)."""
     from torchcal.calibration.checks.partition import warn_far_from_sweep
     from torchcal.calibration.checks.ranges import warn_outside_conditions, warn_outside_range
     from torchcal.calibration.checks.targets import check_seeds, check_targets
@@ -430,7 +433,8 @@ def compensate_fitted(fitted, targets, q0=None, *, tol_mm: float = 1e-6, max_ite
                                     for f in ("q", "predicted_mm", "residual_mm", "converged", "within_limits")},
                            iterations=_put(comp.iterations, moved, comp.iterations[moved] + again.iterations))
     comp = replace(comp, zone=zone + 1)
-    warn_outside_conditions(getattr(fitted, "conditions", None), cond, "targets", stacklevel=stacklevel + 1)
+    ranges = payload_conditions(fitted, payload_kg, where, stacklevel=stacklevel + 1)  # none given: named once
+    warn_outside_conditions(ranges, cond, "targets", stacklevel=stacklevel + 1)
     if getattr(fitted, "partition", None) is not None:
         with torch.no_grad():
             warn_far_from_sweep(fitted.partition, robot.fk(comp.q), stacklevel=stacklevel + 1)
@@ -476,6 +480,9 @@ class TargetCompensation:
             calibration pose, whose configuration and tool orientation they keep).
         base_frame_fitted: the model has a base_frame effect (base-frame targets are mapped
             with it, and it holds joint 1's zero offset and d1).
+        tool_offset_mm: [x, y, z] mm, the model's fitted tool offset from the robot file's
+            tool (one measured point), None without one: the point that reaches the targets
+            is the measured point (the reflector of the calibration), not the robot file's TCP.
     """
 
     targets: torch.Tensor
@@ -489,6 +496,7 @@ class TargetCompensation:
     frame: str = "measuring"
     seeded: bool = False
     base_frame_fitted: bool = False
+    tool_offset_mm: list | None = None
 
     @property
     def residual_mm(self) -> torch.Tensor:
@@ -522,6 +530,37 @@ class TargetCompensation:
                 "not_converged": [i + 1 for i in self.not_converged],
                 "outside_limits": [i + 1 for i in self.outside_limits],
                 "beyond_reach": [i + 1 for i in self.beyond_reach]}
+
+
+class PayloadAssumedWarning(UserWarning):
+    """Targets or rows without a payload for a model whose effects read it and were fitted on loads."""
+
+
+def payload_conditions(fitted, payload_kg, where: str, done: str = "compensated for", stacklevel: int = 1):
+    """The condition ranges (``fitted.conditions``) `warn_outside_conditions` should judge,
+    after one `PayloadAssumedWarning` when targets (or rows: `done` "evaluated at") give no
+    payload (`payload_kg` None: read as 0 kg, as `torchcal.effects.make_context` does) to a
+    model whose effects read the payload and whose calibration data carried loads: its
+    recorded payload range (kg) reaches beyond the condition tolerance (max(1 % of its span,
+    0.1 kg)). The commands (or model points) are then those of an unloaded arm; the range
+    is then returned without its payload (the line has named it: not a second line saying
+    that 0 kg lies outside it)."""
+    from torchcal.calibration.joint_range import CONDITIONS, RANGE_TOL_FRACTION
+
+    ranges = getattr(fitted, "conditions", None)
+    rng = (ranges or {}).get("payload_kg")
+    if payload_kg is not None or rng is None:
+        return ranges
+    lo, hi = rng
+    floor = next(c[4] for c in CONDITIONS if c[0] == "payload_kg")
+    if hi <= max(RANGE_TOL_FRACTION * (hi - lo), floor):  # fitted unloaded: 0 kg is the data's
+        return ranges
+    effects = ", ".join(e.spec() for e in fitted.model.effects if e.uses_payload)
+    warnings.warn(f"{where}: no payload_kg column: {done} 0 kg, but the model's {effects} was fitted on "
+                  f"payloads {lo:.4g} .. {hi:.4g} kg and deflects with the load; give the payload the robot "
+                  f"{'will carry' if done.startswith('comp') else 'carried'} (column payload_kg, kg)",
+                  PayloadAssumedWarning, stacklevel=stacklevel + 1)
+    return {k: v for k, v in ranges.items() if k != "payload_kg"}
 
 
 def compensate_targets(im, targets, *, frame: str = "measuring", seeds=None, payload_kg=None, temp_c=None,
@@ -568,10 +607,13 @@ def compensate_targets(im, targets, *, frame: str = "measuring", seeds=None, pay
                           payload_kg=None if payload_kg is None else torch.as_tensor(payload_kg).to(t),
                           temp_c=None if temp_c is None else torch.as_tensor(temp_c).to(t))
         check_seeds(at, t, q0, rob, where, skip=far)
-    comp = compensate_fitted(im, t, q0, check=False, payload_kg=payload_kg, temp_c=temp_c, stacklevel=stacklevel + 1)
+    comp = compensate_fitted(im, t, q0, check=False, payload_kg=payload_kg, temp_c=temp_c, stacklevel=stacklevel + 1,
+                             where=where)
     from torchcal.calibration.zone_calibration import ZonedFit
 
     method = im.method if isinstance(im, ZonedFit) else ("global" if im.radius is not None else "fit")
+    tool = [im.theta[sl].tolist() for e, sl in zip(im.model.effects, im.model.slices[1:]) if e.name == "tool_offset"]
     return TargetCompensation(given, comp, comp.zone, rob.q_to_user(comp.q), im.zone_theta.shape[0], method,
                               rob.name, far, frame, seeds is not None,
-                              any(e.name == "base_frame" for e in im.model.effects))
+                              any(e.name == "base_frame" for e in im.model.effects),
+                              tool[0] if len(tool) == 1 and len(tool[0]) == 3 else None)

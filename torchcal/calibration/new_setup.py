@@ -22,14 +22,23 @@ def register_model(fitted, robot, m, *, tool: bool = False, stacklevel: int = 1)
     refused (InputError, `torchcal.calibration.checks`); an rms above 3x (`far_from_training`) the
     training rms is a `TransferWarning` (at `stacklevel`, counted from the caller). Data of
     a point id the model was not fitted on (`point_ids_differ`) are refused unless `tool`
-    re-estimates a single tool offset (the model then records their point ids)."""
+    re-estimates a single tool offset (the model then records their point ids). Rows of a
+    fitted model outside its calibrated joint range, or at a temperature / payload outside
+    the range its effects were fitted on (or without a payload for a model fitted on loads),
+    are named as evaluate names them (`CalibratedRangeWarning`, `ConditionRangeWarning`,
+    `PayloadAssumedWarning`): there the model extrapolates, and the frame is fitted to it.
+    Without `tool`, registered rows beyond 3x the training rms that a tool offset of their
+    own would bring within a third are named as another reflector (`ReflectorWarning`,
+    `torchcal.calibration.evaluation.moved_tool`) in place of the `TransferWarning`."""
     import dataclasses
     import warnings
 
     from torchcal.calibration.joint_range import joint_range, seed_poses
     from torchcal.calibration.registration import TransferWarning, far_from_training, reregister, undetermined_frame
+    from torchcal.calibration.compensate import payload_conditions
     from torchcal.calibration.checks.model_data import check_measurements, point_ids_differ
     from torchcal.calibration.checks.verdict import enforce
+    from torchcal.calibration.checks.ranges import warn_outside_conditions, warn_outside_range
     from torchcal.calibration.model import CalibrationModel
     from torchcal.effects import context_of
     from torchcal.errors import InputError
@@ -51,10 +60,26 @@ def register_model(fitted, robot, m, *, tool: bool = False, stacklevel: int = 1)
     cm.check_context(ctx)
     if len(m) < 3:
         raise InputError(f"{m.source or 'measurements'}: registration needs at least 3 rows, got {len(m)}")
+    if fitted is not None:  # rows where the model extrapolates: the frame is fitted to its extrapolation there
+        ranges = payload_conditions(fitted, m.payload_kg, m.source or "data", "registered at", stacklevel + 1)
+        warn_outside_conditions(ranges, {"temp_c": ctx.temp_c, "payload_kg": ctx.payload_kg}, "registration rows",
+                                stacklevel=stacklevel + 1)
+        warn_outside_range(m.q, q_range, cm.robot, "registration rows", fitted.residual_model,
+                           stacklevel=stacklevel + 1)
     res = reregister(cm, theta.to(m.xyz), ctx, m.xyz, tool=tool, pose=m.pose, covariance=cov,
                      identified=identified, q_range=q_range, conditions=conditions)
     enforce(check_measurements(res.model, res.theta, m, train, q_range=q_range))  # still off: another robot, units
     far = far_from_training(res.rms_mm, train)
+    if far is not None and not tool and (m.point is None or len(set(m.point.tolist())) == 1):
+        from torchcal.calibration.evaluation import ReflectorWarning, moved_tool
+
+        with torch.no_grad():  # the rows of another reflector than the model's, rather than terms of a session?
+            err = m.xyz - res.predict(ctx)
+            other_tool = moved_tool(res.rms_mm, err, res.model.predict_rotation(res.theta, ctx), train,
+                                    m.source or "data")
+        if other_tool is not None:
+            warnings.warn(other_tool, ReflectorWarning, stacklevel=stacklevel + 1)
+            far = None
     if far is not None:
         warnings.warn(far, TransferWarning, stacklevel=stacklevel + 1)
     poses = fitted.seed_poses if fitted is not None and fitted.seed_poses is not None else seed_poses(m.q)

@@ -43,6 +43,9 @@ import sys
 from torchcal.cli._args import add_effects_module, add_force, add_robot, add_units, check_outputs, load_robot
 
 
+TOOL_NOTE_MM = 1.0  # a tool offset beyond this is said: the targets are the reflector's, not the TCP's
+
+
 def add_parser(sub):
     p = sub.add_parser("compensate", help="corrected joint commands for target positions",
                        description=__doc__.splitlines()[0])
@@ -52,7 +55,8 @@ def add_parser(sub):
                         "tracker's) or base (the robot base frame)")
     p.add_argument("--model", required=True, help="MODEL.json (torchcal calibrate or torchcal fit)")
     p.add_argument("--out", required=True, help="output CSV of corrected joint commands (degrees)")
-    add_robot(p, required=False, what="check that the model is for this robot (the model file embeds its robot)")
+    add_robot(p, required=False, what="check that the model is for this robot (the model file embeds its robot; this one's "
+             "joint limits are used: within_limits, seeds)")
     add_units(p, "targets")
     add_force(p)
     add_effects_module(p)
@@ -83,6 +87,11 @@ def run(args) -> int:
         print("--frame base: the fitted base frame holds joint 1's zero offset and d1 (measurements cannot tell them "
               "from its rotation about z and its z shift); their errors move base-frame targets, by dtheta1 x reach "
               "and dd1; measuring-frame targets are free of them")
+    u = res.tool_offset_mm
+    if u is not None and sum(v * v for v in u) ** 0.5 > TOOL_NOTE_MM:  # which point reaches the targets
+        print(f"x,y,z are reached by the measured point of the calibration (the reflector): the model's tool offset "
+              f"[{u[0]:.3f}, {u[1]:.3f}, {u[2]:.3f}] mm from the robot file's tool, not the robot file's TCP; for "
+              "another point of the tool, move each target by its offset from the reflector")
     if not res.seeded and res.q_user.shape[-1] > 3:
         print(f"{args.targets}: no seeds (q1..qN): x,y,z fix 3 of the {res.q_user.shape[-1]} joints, so each command "
               f"keeps the arm configuration and tool orientation of the nearest calibration pose, not a chosen "

@@ -1,6 +1,7 @@
 """`torchcal evaluate DATA --model MODEL.json [--robot ROBOT] [--json OUT] [--residuals OUT.csv]
 [--plots DIR] [--rrd FILE]`: distance errors measured - model, typically on held-out poses.
-The model file embeds its nominal robot; ``--robot`` only checks it.
+The model file embeds its nominal robot; ``--robot`` checks it (another geometry is refused)
+and, when its joint limits differ, gives the model its limits, with one warning line.
 
 Prints the RMS, mean, 95th percentile and maximum of the distance error and the per-axis
 RMS (`torchcal.metrics.error_summary`, as ``torchcal report``), and ISO 9283 AP and RP
@@ -28,7 +29,7 @@ def add_parser(sub):
     p.add_argument("data", help="measurement CSV")
     p.add_argument("--model", required=True,
                    help="MODEL.json from `torchcal fit` or `calibrate` (per zone: each row with its zone's parameters)")
-    add_robot(p, required=False, what="check that the model is for this robot")
+    add_robot(p, required=False, what="check that the model is for this robot (its joint limits are used)")
     p.add_argument("--json", help="write the report here")
     p.add_argument("--residuals", metavar="OUT.csv", help="write one row per measurement (errors in mm) here")
     add_viz(p)

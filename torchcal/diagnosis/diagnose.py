@@ -240,6 +240,11 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
                **fit_options(m, sigma_mm=sigma_mm, sigma_deg=sigma_deg))
     current = None
     t_now = None if transfer is None else transfer.score(base)
+    if transfer is not None:  # another reflector in the other session: every step would be refused
+        tool = transfer.another_tool(base)
+        if tool is not None:
+            from torchcal.calibration.evaluation import ReflectorWarning
+            warnings.warn(tool, ReflectorWarning, stacklevel=2)
     for i in range(max_rounds + 1):
         d = diagnose(robot, m, folds=folds, seed=seed, base_fit=base, current=current, alpha=alpha / 2 ** i,
                      sigma_mm=sigma_mm, sigma_deg=sigma_deg, report_rest=False)  # the final model's, once, below

@@ -84,6 +84,38 @@ from torchcal.errors import InputError
 from torchcal.measurements import Measurements
 
 
+SPLIT_SHARE = 0.25  # share of the other file's rows approached from rows of the data: one session split in two
+
+
+class SameSessionWarning(UserWarning):
+    """The transfer session looks like a split of the session searched, not another session."""
+
+
+def same_session(data: Measurements, other: Measurements, stacklevel: int = 1) -> float:
+    """One `SameSessionWarning` (at `stacklevel`, counted from the caller) when at least
+    SPLIT_SHARE of the rows of `other` were approached (their ``prev_q`` columns, which
+    `torchcal split` writes from the whole session) from joint values that are, to the
+    last bit, rows of `data` but no row of `other`: the two files are parts of one
+    session (the validation part of a split), whose terms the check would confirm. A file
+    without prev_q (a session file as measured) is not judged. Returns that share."""
+    import warnings
+
+    if other.q_prev is None or len(other) == 0:
+        return 0.0
+    key = lambda t: {tuple(r) for r in t.detach().cpu().tolist()}  # noqa: E731
+    mine, theirs = key(data.q), key(other.q)
+    prev = other.q_prev.detach().cpu().tolist()
+    hits = sum(1 for r in prev if tuple(r) in mine and tuple(r) not in theirs)
+    share = hits / len(other)
+    if share >= SPLIT_SHARE:
+        warnings.warn(f"{other.source or 'transfer'}: {hits} of {len(other)} rows were approached from joint values "
+                      f"that are rows of {data.source or 'the data'} (prev_q columns): the two are parts of one "
+                      "session (a split of it), and a transfer check on them confirms the session's own terms; "
+                      "give the measurements of another session (another set-up or day)", SameSessionWarning,
+                      stacklevel=stacklevel + 1)
+    return share
+
+
 def first_poses(pose: torch.Tensor, k: int) -> torch.Tensor:
     """(N,) bool: the rows of the first `k` distinct pose ids in measurement order."""
     seen, first = set(), []
@@ -152,6 +184,33 @@ class TransferCheck:
             err = b.xyz.to(fit.theta) - res.model.predict(res.theta, context_of(robot, b))
         sq = err.pow(2).sum(-1).numpy(force=True)  # (N_b,) mm^2
         return Transferred(float(np.sqrt(sq.mean())), per_pose(b, sq))
+
+    def another_tool(self, fit) -> str | None:
+        """One line when the other session's held-out rows, the model `fit` (`FitResult`,
+        the search's starting fit) registered as `score` registers it, lie beyond 3x its
+        rms and a constant offset of the measured point on the tool brings them within a
+        third (`torchcal.calibration.evaluation.moved_tool`): the session was measured with
+        another reflector or nest, whose error the frame-only registration leaves in every
+        figure, so that no step can lower them beyond chance. None otherwise."""
+        from torchcal.calibration.evaluation import moved_tool
+
+        if self.m.point is not None and len(set(self.m.point.tolist())) > 1:
+            return None
+        reg = self.registration_rows
+        a, b = self.m.subset(reg), self.m.subset(~reg)
+        robot = fit.model.robot
+        res = reregister(fit.model, fit.theta, context_of(robot, a), a.xyz.to(fit.theta), pose=a.pose)
+        with torch.no_grad():
+            ctx = context_of(robot, b)
+            err = b.xyz.to(fit.theta) - res.model.predict(res.theta, ctx)
+            rot = res.model.predict_rotation(res.theta, ctx)
+        rms = float(err.norm(dim=-1).pow(2).mean().sqrt())
+        msg = moved_tool(rms, err, rot, fit.rms_mm, self.source)
+        if msg is None:
+            return None
+        return (msg.split(": measured at")[0] + ": measured with another reflector or nest than the data searched? "
+                "The transfer check registers the measuring frame only, so that error stays in every figure and no "
+                "step can lower it beyond chance; give a session of the same reflector")
 
     def choose(self, current: Transferred, passed: list, within: Within | None = None):
         """The step to keep among `passed` (the round's candidates that met the acceptance

@@ -114,6 +114,7 @@ def export(im, *, robot_file=None, urdf=None, table=None, data=None, length_unit
     `length_unit` / `angle_unit`, read only when the model has effects the exported robot
     cannot hold. inputs: paths never written over (the model's file, the data), beside
     the files the model came from (`sources`)."""
+    from torchcal.calibration.compensate import payload_conditions
     from torchcal.calibration.geometry_only import calibrated_robot, measuring_frames, reflector_offsets, refit_geometry
     from torchcal.calibration.checks.model_data import check_measurements
     from torchcal.calibration.checks.ranges import warn_outside_conditions
@@ -142,8 +143,8 @@ def export(im, *, robot_file=None, urdf=None, table=None, data=None, length_unit
         m = as_measurements(data, cm.robot, length_unit, angle_unit)
         check_units(m, cm.robot, length_unit=length_unit, angle_unit=angle_unit, where=m.source or "data")
         enforce(check_measurements(cm, theta.to(m.xyz), m, im.training_rms_mm, q_range=im.q_range))
-        warn_outside_conditions(getattr(im, "conditions", None), {"temp_c": m.temp_c, "payload_kg": m.payload_kg},
-                                "rows", stacklevel=3)
+        ranges = payload_conditions(im, m.payload_kg, m.source or "data", "evaluated at", stacklevel=3)
+        warn_outside_conditions(ranges, {"temp_c": m.temp_c, "payload_kg": m.payload_kg}, "rows", stacklevel=3)
         rows, refit = len(m), refit_geometry(cm, theta, m, identified=im.report.free)
         cm, theta = refit.fit.model, refit.fit.theta
         cal, rest = calibrated_robot(cm, theta)[0], []

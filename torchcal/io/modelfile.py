@@ -243,18 +243,96 @@ def _zone_to_dict(res, z: int, k: torch.Tensor) -> dict:
     return out
 
 
+class RobotLimitsWarning(UserWarning):
+    """The robot given with a model has the model's geometry but other joint limits: the
+    given robot's limits are used (`with_limits_of`)."""
+
+
+def with_limits_of(fitted: FitResult, robot: Robot, where: str, stacklevel: int = 1) -> FitResult:
+    """`fitted` as it is when `robot` (already checked to have its geometry,
+    `check_same_robot`) has the joint limits of the model's nominal robot; else a copy
+    whose nominal robot (of every zone too) has `robot`'s limits, with one
+    `RobotLimitsWarning` naming the first joint that differs (`robot_differences`). The
+    limits decide which commands `compensate` calls within the limits (and which seeds
+    it tries), and which rows lie outside them; the robot given is the one the user says
+    the commands are for. Geometry, effects, parameters and calibrated range are shared."""
+    import dataclasses
+    import warnings
+
+    from torchcal.robots.checks import robot_differences
+
+    there = fitted.model.robot
+    if there.n != robot.n or torch.allclose(there.limits.detach().cpu(), robot.limits.detach().to("cpu", there.dtype),
+                                            rtol=0, atol=1e-9):
+        return fitted
+    diff = [d for d in robot_differences(there, robot) if " limits " in d]
+    warnings.warn(f"{where}: the model's robot {there.name!r} has other joint limits than the robot given "
+                  f"({diff[0].replace(' in the file,', ' in the model,') if diff else 'limits differ'}): the given "
+                  "robot's limits are used (compensate's within_limits and seeds, the rows outside the limits)",
+                  RobotLimitsWarning, stacklevel=stacklevel + 1)
+    cm = fitted.model  # the same effects (their geometry is the robot's), on the robot with the given limits
+    model = CalibrationModel(dataclasses.replace(there, limits=robot.limits.to(there.limits)), cm.effects,
+                             points=cm.point_ids or None)
+    if isinstance(fitted, ZonedFit):
+        return dataclasses.replace(fitted, model=model,
+                                   zones=[dataclasses.replace(z, model=model) for z in fitted.zones])
+    return dataclasses.replace(fitted, model=model)
+
+
+#: effects whose deflection follows the direction of gravity in the base frame (the robot file's "gravity")
+GRAVITY_EFFECTS = ("joint_compliance", "link_bending", "axis_tilt", "base_compliance", "joint_clearance")
+
+
+class RobotGravityWarning(UserWarning):
+    """The robot given with a model has another gravity direction (mounting) than the one
+    the model's gravity-driven effects were fitted with."""
+
+
+def warn_other_gravity(fitted: FitResult, robot: Robot, where: str, stacklevel: int = 1) -> bool:
+    """One `RobotGravityWarning` when `robot` (checked to have the model's geometry) has
+    another gravity direction than the model's nominal robot and the model has effects that
+    read it (GRAVITY_EFFECTS): the model keeps the gravity it was fitted with (its
+    deflections are those of the arm as it was mounted then). Returns whether it warned."""
+    import warnings
+
+    there = fitted.model.robot
+    g0, g1 = there.gravity.detach().to("cpu", torch.float64), robot.gravity.detach().to("cpu", torch.float64)
+    reads = [e.spec() for e in fitted.model.effects if e.name in GRAVITY_EFFECTS]
+    if not reads or torch.allclose(g0, g1, rtol=0, atol=1e-6):
+        return False
+    angle = math.degrees(math.acos(max(-1.0, min(1.0, float(g0 @ g1 / (g0.norm() * g1.norm()))))))
+    warnings.warn(f"{where}: the robot given has gravity [{', '.join(f'{v:g}' for v in g1.tolist())}] in its base "
+                  f"frame, the model's robot [{', '.join(f'{v:g}' for v in g0.tolist())}] ({angle:.3g} deg apart): "
+                  f"the model's {', '.join(reads)} deflect the arm as it was mounted when fitted, and keep doing so; "
+                  "an arm mounted otherwise needs a fit of its own", RobotGravityWarning, stacklevel=stacklevel + 1)
+    return True
+
+
 def load(path, robot: Robot | str | None = None) -> FitResult:
     """The fitted model (`FitResult`) of MODEL.json (module doc: which fields a file holds).
 
     robot: a `Robot` or a preset name / robot-file path; when given, a model of another
-    robot (joint count, types or nominal geometry) is refused with one line naming both."""
+    robot (joint count, types or nominal geometry) is refused with one line naming both,
+    and one of other joint limits is given those limits, with a warning (`with_limits_of`);
+    one of another gravity direction is named for a model with gravity-driven effects
+    (`warn_other_gravity`)."""
+    if robot is None:
+        return _load(path, None)
+    from torchcal.io.robot_file import robot as make_robot
+
+    given = make_robot(robot)
+    res = _load(path, given)
+    warn_other_gravity(res, given, str(path), stacklevel=2)
+    return with_limits_of(res, given, str(path), stacklevel=2)
+
+
+def _load(path, robot: Robot | None) -> FitResult:
+    """`load` with the robot given resolved (None: not checked)."""
     obj = _read(path)
     if obj["format"] == FORMAT_INTERVAL:
         res = _interval_file(obj, str(path))
         if robot is not None:
-            from torchcal.io.robot_file import robot as make_robot
-
-            check_same_robot(res.model.robot, make_robot(robot), str(path))
+            check_same_robot(res.model.robot, robot, str(path))
         return res
     try:
         effects, params = obj["effects"], obj["parameters"]
@@ -271,9 +349,7 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
         raise InputError(f"{path}: model file is missing or has a bad field: {exc}") from None
     nominal = model_robot(obj, str(path))
     if robot is not None:
-        from torchcal.io.robot_file import robot as make_robot
-
-        check_same_robot(nominal, make_robot(robot), str(path))
+        check_same_robot(nominal, robot, str(path))
     try:
         model = CalibrationModel(nominal, effects, points=_point_ids(obj, str(path)))
     except InputError as exc:  # e.g. a user effect whose --effects-module is missing

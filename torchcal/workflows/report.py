@@ -66,6 +66,13 @@ class CalibrationReport:
     when not given); effects: [(spec, physics in words)]; held-out figures (None without
     data): after / before (`error_summary`), iso_after / iso_before (`iso9283`),
     verdict_after / verdict_before (`tolerance_verdict`, None without a tolerance);
+    outside_range: held-out rows outside the calibrated joint range; data_warnings:
+    the text of evaluate's warnings about the held-out rows, carried into the report
+    (`ConditionRangeWarning`: a temperature or payload outside the range the model's
+    effects were fitted on; `PayloadAssumedWarning`: no payload column for a model fitted
+    on loads; `ReflectorWarning`: rows measured at another point of the tool;
+    `MismatchWarning`: another point id, another orientation convention, an instrument
+    moved a little since the fit, rows beyond a partition's sweep; [] when none);
     zones: the paper's Table 5 on the held-out poses for a model of ``calibrate``
     (`zone_table`, else None);
     history: discover's JSON (None when not given). Per row, for the figures (not in
@@ -86,6 +93,7 @@ class CalibrationReport:
     verdict_after: dict | None = None
     verdict_before: dict | None = None
     outside_range: int | None = None
+    data_warnings: list = field(default_factory=list)
     history: dict | None = None
     zones: list | None = None
     data: object = field(default=None, repr=False)
@@ -101,7 +109,8 @@ class CalibrationReport:
             out["held_out"] = {"after": self.after, "before": self.before, "before_model": self.before_model,
                                "iso9283_after": self.iso_after, "iso9283_before": self.iso_before,
                                "verdict_after": self.verdict_after, "verdict_before": self.verdict_before,
-                               "outside_range": self.outside_range, "zone_table": self.zones,
+                               "outside_range": self.outside_range, "data_warnings": self.data_warnings,
+                               "zone_table": self.zones,
                                "unexplained": self.unexplained.to_dict() if self.unexplained is not None else None}
         return out
 
@@ -185,15 +194,26 @@ def _held_out(rep: CalibrationReport, fitted, m, effects: set, tolerance_mm) -> 
     import warnings
 
     from torchcal import api
-    from torchcal.calibration.joint_range import CalibratedRangeWarning
+    from torchcal.calibration.compensate import PayloadAssumedWarning
+    from torchcal.calibration.evaluation import ReflectorWarning
+    from torchcal.calibration.checks.verdict import MismatchWarning
+    from torchcal.calibration.joint_range import CalibratedRangeWarning, ConditionRangeWarning
     from torchcal.calibration.zone_calibration import ZonedFit
     from torchcal.diagnosis.unexplained import unexplained
     from torchcal.metrics import error_summary, iso9283, pose_groups, tolerance_verdict
 
     robot = fitted.model.robot
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("ignore", CalibratedRangeWarning)  # counted in outside_range
+        warnings.simplefilter("always", ConditionRangeWarning)  # carried into the report, and passed on
+        warnings.simplefilter("always", PayloadAssumedWarning)
+        warnings.simplefilter("always", ReflectorWarning)
+        warnings.simplefilter("always", MismatchWarning)
         ev = api.evaluate(fitted, m)  # a ZonedFit: each row with its zone's parameters
+    for w in caught:  # every other warning (and this one) reaches the caller as evaluate gave it
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    carried = (ConditionRangeWarning, PayloadAssumedWarning, ReflectorWarning, MismatchWarning)
+    rep.data_warnings = [str(w.message) for w in caught if issubclass(w.category, carried)]
     err, rep.outside_range = ev.residuals_mm, ev.outside_range
     zone = fitted.assign(robot.fk(m.q)) if isinstance(fitted, ZonedFit) else None
     if "base_frame" in effects:  # the data are in the instrument's frame: the nominal robot in its best frame

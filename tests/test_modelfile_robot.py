@@ -1,7 +1,5 @@
 """A model given with `--robot` (or `robot=`) of its geometry but other joint limits: the
-given robot's limits are used, with one warning line naming them (`with_limits_of`); of
-another gravity direction, for a model with gravity-driven effects: one warning line
-(`warn_other_gravity`).
+given robot's limits are used, with one warning line naming them (`with_limits_of`).
 Before, the model's own limits were used in silence: `compensate --robot` marked commands
 outside the given robot's limits `within_limits` true, and `evaluate --robot` did not name
 the rows outside them. Hidden physics: tests/npsim.py (plain numpy MD-H deviations)."""
@@ -102,31 +100,3 @@ def test_the_same_limits_say_nothing_and_the_model_in_memory_is_not_changed(setu
     q = torch.rad2deg(res.compensation.q)
     inside = torch.stack([(q[:, j] >= lo) & (q[:, j] <= hi) for j, (lo, hi) in enumerate(NARROW_DEG)]).all(0)
     assert bool((inside | ~res.compensation.within_limits).all()) and math.isfinite(float(q.abs().max()))
-
-
-def test_a_robot_mounted_otherwise_is_named_for_a_model_with_gravity_driven_effects(tmp_path, capsys):
-    """A joint-compliance model of a floor-mounted ur5e (plain-numpy gravity sag) given with a
-    ceiling-mounted robot file: one line naming both gravity directions; a geometric model
-    with it, and the compliance model with the floor robot, say nothing."""
-    from torchcal.io.modelfile import RobotGravityWarning
-
-    rob = torchcal.robot("ur5e")
-    q = random_poses(rob, 60, 8)
-    xyz, load = physics_session(rob, q.numpy(), seed=8, hidden=["joint_compliance:2"])
-    write_measurements(tmp_path / "d.csv", Measurements(torch.arange(60), q, torch.from_numpy(xyz),
-                                                        payload_kg=torch.from_numpy(load)), robot=rob)
-    for name, effects in (("jc", ["--effects", "joint_compliance:2"]), ("geo", [])):
-        assert main(["fit", str(tmp_path / "d.csv"), "--robot", "ur5e", *effects,
-                     "--out", str(tmp_path / f"{name}.json")]) == 0
-    ceiling = robot_to_dict(rob)
-    ceiling["gravity"] = [0.0, 0.0, 1.0]
-    (tmp_path / "ceiling.json").write_text(json.dumps(ceiling))
-    for model, robot, lines in (("jc", "ceiling.json", 1), ("geo", "ceiling.json", 0), ("jc", "ur5e", 0)):
-        capsys.readouterr()
-        assert main(["evaluate", str(tmp_path / "d.csv"), "--model", str(tmp_path / f"{model}.json"),
-                     "--robot", robot if robot == "ur5e" else str(tmp_path / robot)]) == 0
-        err = capsys.readouterr().err
-        assert err.count("the robot given has gravity [0, 0, 1]") == lines, err
-    with pytest.warns(RobotGravityWarning, match=r"\(180 deg apart\).*joint_compliance:2"):
-        compensate_targets(tmp_path / "jc.json", torch.tensor([[300.0, 200.0, 400.0]], dtype=torch.float64),
-                           robot=tmp_path / "ceiling.json", payload_kg=torch.tensor([1.0], dtype=torch.float64))

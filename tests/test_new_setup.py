@@ -71,7 +71,7 @@ def test_register_names_another_reflector_rather_than_a_model_that_does_not_carr
     with the tool re-estimated, neither. A model that extrapolates badly (a 0.3 deg sag
     beyond the joint-2 range it was fitted on) keeps the TransferWarning."""
     from npsim import tracker_session
-    from torchcal.calibration.evaluation import ReflectorWarning
+    from torchcal.calibration.checks.model_data import ReflectorWarning
     from torchcal.calibration.registration import TransferWarning
 
     rob = torchcal.robot(robot)

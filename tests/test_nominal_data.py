@@ -13,7 +13,7 @@ import torch
 
 import torchcal
 from torchcal.calibration.model import CalibrationModel
-from torchcal.calibration.nominal_data import NOMINAL_FLOOR_MM, NominalDataWarning, nominal_rms_mm
+from torchcal.calibration.checks.nominal_data import NOMINAL_FLOOR_MM, NominalDataWarning, nominal_rms_mm
 from torchcal.cli import main
 from torchcal.io.measurement_csv import read_measurements
 from torchcal.measurements import Measurements

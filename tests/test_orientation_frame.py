@@ -13,7 +13,7 @@ import torch
 
 import torchcal
 from torchcal.calibration.model import CalibrationModel
-from torchcal.calibration.orientation_frame import ORIENT_DEG, check_orientation_frame, position_frame
+from torchcal.calibration.checks.orientation_frame import ORIENT_DEG, check_orientation_frame, position_frame
 from torchcal.cli import main
 from torchcal.errors import InputError
 from torchcal.io.measurement_csv import read_measurements, write_measurements
@@ -77,5 +77,5 @@ def test_the_ur10_series_pass_with_a_wide_margin():
         m = read_measurements(UR10 / f"series_{s}.csv", robot=rob)
         pose = rob.fk_pose(m.q)
         F, _, _ = position_frame(pose, m.xyz)
-        from torchcal.calibration.orientation_frame import orientation_rms_deg
+        from torchcal.calibration.checks.orientation_frame import orientation_rms_deg
         assert orientation_rms_deg(pose[:, :3, :3], m.rotation, F) < ORIENT_DEG / 20

@@ -1,6 +1,7 @@
 """A robot's own numbers and two robots (torchcal.robots.checks): a robot file in metres
-is refused, and a model given a robot file of the same name with another geometry names
-what differs."""
+is refused, a model given a robot file of the same name with another geometry names
+what differs, and a model with gravity-driven effects given a robot mounted otherwise
+gets one warning line (`warn_other_gravity`)."""
 
 from __future__ import annotations
 
@@ -8,13 +9,18 @@ import json
 from pathlib import Path
 
 import pytest
+import torch
 
 import torchcal
+from torchcal.api import compensate_targets
 from torchcal.errors import InputError
 from torchcal.io.measurement_csv import write_measurements
-from torchcal.io.robot_file import robot_from_dict
+from torchcal.io.robot_file import robot_from_dict, robot_to_dict
+from torchcal.measurements import Measurements
 from torchcal.robots.poses import random_poses
 from torchcal.simulation.virtual_robot import VirtualRobot
+
+from npsim import physics_session
 
 UR10 = Path(__file__).resolve().parents[1] / "examples" / "ur10" / "ur10.json"
 
@@ -52,3 +58,32 @@ def test_a_model_with_a_robot_file_of_the_same_name_names_what_differs(tmp_path,
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and not (tmp_path / "e.json").exists()
     assert f"with another nominal geometry {words}; refusing" in err, err
+
+
+def test_a_robot_mounted_otherwise_is_named_for_a_model_with_gravity_driven_effects(tmp_path, capsys):
+    """A joint-compliance model of a floor-mounted ur5e (plain-numpy gravity sag) given with a
+    ceiling-mounted robot file: one line naming both gravity directions; a geometric model
+    with it, and the compliance model with the floor robot, say nothing."""
+    from torchcal.cli import main
+    from torchcal.robots.checks import RobotGravityWarning
+
+    rob = torchcal.robot("ur5e")
+    q = random_poses(rob, 60, 8)
+    xyz, load = physics_session(rob, q.numpy(), seed=8, hidden=["joint_compliance:2"])
+    write_measurements(tmp_path / "d.csv", Measurements(torch.arange(60), q, torch.from_numpy(xyz),
+                                                        payload_kg=torch.from_numpy(load)), robot=rob)
+    for name, effects in (("jc", ["--effects", "joint_compliance:2"]), ("geo", [])):
+        assert main(["fit", str(tmp_path / "d.csv"), "--robot", "ur5e", *effects,
+                     "--out", str(tmp_path / f"{name}.json")]) == 0
+    ceiling = robot_to_dict(rob)
+    ceiling["gravity"] = [0.0, 0.0, 1.0]
+    (tmp_path / "ceiling.json").write_text(json.dumps(ceiling))
+    for model, robot, lines in (("jc", "ceiling.json", 1), ("geo", "ceiling.json", 0), ("jc", "ur5e", 0)):
+        capsys.readouterr()
+        assert main(["evaluate", str(tmp_path / "d.csv"), "--model", str(tmp_path / f"{model}.json"),
+                     "--robot", robot if robot == "ur5e" else str(tmp_path / robot)]) == 0
+        err = capsys.readouterr().err
+        assert err.count("the robot given has gravity [0, 0, 1]") == lines, err
+    with pytest.warns(RobotGravityWarning, match=r"\(180 deg apart\).*joint_compliance:2"):
+        compensate_targets(tmp_path / "jc.json", torch.tensor([[300.0, 200.0, 400.0]], dtype=torch.float64),
+                           robot=tmp_path / "ceiling.json", payload_kg=torch.tensor([1.0], dtype=torch.float64))

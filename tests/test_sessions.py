@@ -1,6 +1,7 @@
 """Two measuring frames in one file (torchcal.calibration.checks.sessions): two sessions
 joined, a reflector or tracker changed midway, an instrument moved within the gross bound
-are named; one session of a far-off arm is not split."""
+are named; one session of a far-off arm is not split. The other part of a split of the
+session searched, given as the transfer session, is named (`same_session`)."""
 
 from __future__ import annotations
 
@@ -14,9 +15,15 @@ import pytest
 import torch
 
 import torchcal
+from torchcal.calibration.checks.sessions import SameSessionWarning, same_session
 from torchcal.calibration.checks.verdict import GROSS_MM
+from torchcal.cli import main
 from torchcal.errors import InputError
+from torchcal.io.measurement_csv import read_measurements, write_measurements
+from torchcal.measurements import Measurements
 from torchcal.robots.poses import random_poses
+
+from npsim import physics_session
 
 UR10 = Path(__file__).resolve().parents[1] / "examples" / "ur10" / "ur10.json"
 
@@ -175,3 +182,57 @@ def test_one_session_in_the_base_frame_of_a_far_off_arm_is_not_split(robot, hidd
     model = CalibrationModel(rob, [])
     assert SESSION_FLOOR_MM < rms_of((registered(model, m) - m.xyz).norm(dim=-1)) < GROSS_MM  # the search runs
     assert check_robot_data(model, m) is None
+
+
+# --------------------------------------------------------------------------- the same session split in two
+# `discover --transfer` given the other part of a split of the searched session (its validation
+# file, whose prev_q columns point into the training file) gets one `SameSessionWarning`
+# (`same_session`): the check would confirm the session's own terms. Another session, split or as
+# measured, does not. Sessions: tests/npsim.py (plain-numpy arm with hidden joint-2 compliance).
+
+
+def _split_session_file(path, rob, seed, n=120):
+    q = random_poses(rob, n, seed)
+    xyz, load = physics_session(rob, q.numpy(), seed, ["joint_compliance:2"])
+    write_measurements(path, Measurements(torch.arange(n), q, torch.from_numpy(xyz), payload_kg=torch.from_numpy(load)),
+                       robot=rob)
+    return path
+
+
+def _shares(rob, a, b) -> tuple:
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        share = same_session(read_measurements(a, robot=rob), read_measurements(b, robot=rob))
+    return share, [str(x.message) for x in w if issubclass(x.category, SameSessionWarning)]
+
+
+@pytest.mark.parametrize("robot,fraction", [("ur5e", "0.6"), ("puma560", "0.8"), ("kr1000titan", "0.5")])
+def test_a_split_of_the_same_session_is_named_and_another_session_is_not(tmp_path, robot, fraction):
+    rob = torchcal.robot(robot)
+    for name, seed in (("s1", 1), ("s2", 2)):
+        _split_session_file(tmp_path / f"{name}.csv", rob, seed)
+        assert main(["split", str(tmp_path / f"{name}.csv"), "--robot", robot, "--fraction", fraction, "--seed", "0",
+                     "--out", str(tmp_path / f"{name}_tr.csv"), str(tmp_path / f"{name}_va.csv")]) == 0
+    share, said = _shares(rob, tmp_path / "s1_tr.csv", tmp_path / "s1_va.csv")
+    assert len(said) == 1 and share > float(fraction) - 0.2 and "parts of one session" in said[0]
+    for other in ("s2_va.csv", "s2.csv", "s2_tr.csv"):  # another session: split, as measured
+        assert _shares(rob, tmp_path / "s1_tr.csv", tmp_path / other) == (0.0, [])
+
+
+def test_discover_says_it_before_the_search(tmp_path, monkeypatch):
+    rob = torchcal.robot("ur5e")
+    _split_session_file(tmp_path / "s.csv", rob, 3)
+    assert main(["split", str(tmp_path / "s.csv"), "--robot", "ur5e", "--fraction", "0.6", "--seed", "1",
+                 "--out", str(tmp_path / "tr.csv"), str(tmp_path / "va.csv")]) == 0
+
+    class Searched(Exception):
+        pass
+
+    def search(*args, **kwargs):
+        raise Searched
+
+    import importlib
+
+    monkeypatch.setattr(importlib.import_module("torchcal.diagnosis.diagnose"), "discover", search)
+    with pytest.warns(SameSessionWarning), pytest.raises(Searched):
+        torchcal.api.discover(rob, tmp_path / "tr.csv", transfer=tmp_path / "va.csv")

@@ -16,17 +16,16 @@ import torch
 import torchcal
 from torchcal.calibration.registration import TransferWarning, far_from_training
 from torchcal.cli import main
-from torchcal.diagnosis.transfer import SameSessionWarning, TransferCheck, describe_verdict, first_poses, same_session
+from torchcal.diagnosis.transfer import TransferCheck, describe_verdict, first_poses
 from torchcal.diagnosis.selection import REFIT_ALPHA
 from torchcal.errors import InputError
-from torchcal.io.measurement_csv import read_measurements, write_measurements
+from torchcal.io.measurement_csv import write_measurements
 from torchcal.io.modelfile import to_dict
 from torchcal.io.files import write_json
 from torchcal.measurements import Measurements, fixed_xyz_to_matrix
 from torchcal.robots.poses import random_poses
 from torchcal.simulation.virtual_robot import VirtualRobot
 
-from npsim import physics_session
 
 TURN = fixed_xyz_to_matrix(torch.deg2rad(torch.tensor([1.0, -2.0, 25.0], dtype=torch.float64)))
 SHIFT = torch.tensor([900.0, -400.0, 120.0], dtype=torch.float64)
@@ -441,67 +440,13 @@ def test_a_transfer_session_that_repeats_the_searched_rows_is_refused():
     assert shared_rows(data, other) == [] and shared_rows(data, data) == list(range(40))
 
 
-# --------------------------------------------------------------------------- the same session split in two
-# `discover --transfer` given the other part of a split of the searched session (its validation
-# file, whose prev_q columns point into the training file) gets one `SameSessionWarning`
-# (`same_session`): the check would confirm the session's own terms. Another session, split or as
-# measured, does not. Sessions: tests/npsim.py (plain-numpy arm with hidden joint-2 compliance).
-
-
-def _split_session_file(path, rob, seed, n=120):
-    q = random_poses(rob, n, seed)
-    xyz, load = physics_session(rob, q.numpy(), seed, ["joint_compliance:2"])
-    write_measurements(path, Measurements(torch.arange(n), q, torch.from_numpy(xyz), payload_kg=torch.from_numpy(load)),
-                       robot=rob)
-    return path
-
-
-def _shares(rob, a, b) -> tuple:
-    with warnings.catch_warnings(record=True) as w:
-        warnings.simplefilter("always")
-        share = same_session(read_measurements(a, robot=rob), read_measurements(b, robot=rob))
-    return share, [str(x.message) for x in w if issubclass(x.category, SameSessionWarning)]
-
-
-@pytest.mark.parametrize("robot,fraction", [("ur5e", "0.6"), ("puma560", "0.8"), ("kr1000titan", "0.5")])
-def test_a_split_of_the_same_session_is_named_and_another_session_is_not(tmp_path, robot, fraction):
-    rob = torchcal.robot(robot)
-    for name, seed in (("s1", 1), ("s2", 2)):
-        _split_session_file(tmp_path / f"{name}.csv", rob, seed)
-        assert main(["split", str(tmp_path / f"{name}.csv"), "--robot", robot, "--fraction", fraction, "--seed", "0",
-                     "--out", str(tmp_path / f"{name}_tr.csv"), str(tmp_path / f"{name}_va.csv")]) == 0
-    share, said = _shares(rob, tmp_path / "s1_tr.csv", tmp_path / "s1_va.csv")
-    assert len(said) == 1 and share > float(fraction) - 0.2 and "parts of one session" in said[0]
-    for other in ("s2_va.csv", "s2.csv", "s2_tr.csv"):  # another session: split, as measured
-        assert _shares(rob, tmp_path / "s1_tr.csv", tmp_path / other) == (0.0, [])
-
-
-def test_discover_says_it_before_the_search(tmp_path, monkeypatch):
-    rob = torchcal.robot("ur5e")
-    _split_session_file(tmp_path / "s.csv", rob, 3)
-    assert main(["split", str(tmp_path / "s.csv"), "--robot", "ur5e", "--fraction", "0.6", "--seed", "1",
-                 "--out", str(tmp_path / "tr.csv"), str(tmp_path / "va.csv")]) == 0
-
-    class Searched(Exception):
-        pass
-
-    def search(*args, **kwargs):
-        raise Searched
-
-    import importlib
-
-    monkeypatch.setattr(importlib.import_module("torchcal.diagnosis.diagnose"), "discover", search)
-    with pytest.warns(SameSessionWarning), pytest.raises(Searched):
-        torchcal.api.discover(rob, tmp_path / "tr.csv", transfer=tmp_path / "va.csv")
-
-
 def test_a_transfer_session_of_another_reflector_is_named():
     """The other session measured with a reflector 5 mm from the searched data's (plain numpy,
     tracker moved): the frame-only registration leaves the tool's error in every transfer
     figure, and the joint-2 term that the same reflector's session keeps is refused; one
     `ReflectorWarning` says why. The same reflector: no warning, the term kept."""
     from npsim import _rotvec, tracker_session
-    from torchcal.calibration.evaluation import ReflectorWarning
+    from torchcal.calibration.checks.model_data import ReflectorWarning
 
     rob = torchcal.robot("ur5e")
     q, q2 = random_poses(rob, 80, 1), random_poses(rob, 60, 2)

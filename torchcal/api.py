@@ -29,8 +29,8 @@ from torchcal import threads
 from torchcal._lazy import attach
 from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult
 from torchcal.calibration.checks.robot_data import check_diagnosis_data, check_robot_data_of
-from torchcal.calibration.nominal_data import warn_nominal_data
-from torchcal.calibration.orientation_frame import check_orientation_frame
+from torchcal.calibration.checks.nominal_data import warn_nominal_data
+from torchcal.calibration.checks.orientation_frame import check_orientation_frame
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.calibration.model import CalibrationModel
 from torchcal.errors import DataError, InputError, number_argument
@@ -195,9 +195,9 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     mirrored frame, reversed joint columns, gross outliers without `robust`) and, after
     the fit, a fitted RMS beyond what any calibration leaves
     (`torchcal.calibration.checks.robot_data.check_fitted`); rx, ry, rz in another frame than x, y, z
-    are refused too (`torchcal.calibration.orientation_frame`). Positions that agree with the nominal
+    are refused too (`torchcal.calibration.checks.orientation_frame`). Positions that agree with the nominal
     robot within 0.01 mm rms (computed, e.g. the controller's TCP, not measured) get one
-    `NominalDataWarning` (`torchcal.calibration.nominal_data`).
+    `NominalDataWarning` (`torchcal.calibration.checks.nominal_data`).
     residual_model: 'kernel' adds the non-physical residual stage
     (`torchcal.calibration.residual_model`) as ``res.residual_model`` only when its held-out
     gain is significant (`torchcal.diagnosis.residual_stage`, the figures in
@@ -324,7 +324,7 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
                          f"{m.source or 'the data'} have: thermal_expansion, a candidate on those data, is "
                          f"scored on both sessions; add temp_c (degC) to it or drop the column from both")
     if other is not None:  # the other session's data are held to the same check (another robot, units)
-        from torchcal.calibration.checks.sessions import shared_rows
+        from torchcal.calibration.checks.sessions import same_session, shared_rows
         from torchcal.calibration.checks.verdict import listed
 
         check_robot_data_of(CalibrationModel.for_measurements(model.robot, model.specs(), other), other)
@@ -334,8 +334,6 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
                              f"{m.source or 'the data'} (the same joint values and x, y, z; data row(s) "
                              f"{listed(i + 1 for i in same)}): the transfer check needs the measurements of "
                              "another session, not the data searched")
-        from torchcal.diagnosis.transfer import same_session
-
         same_session(m, other, stacklevel=2)  # the validation part of a split of the same session
     check = None if other is None else TransferCheck(other, transfer_poses, other.source or "the other session")
     with threads.for_work(_work(model, m)), _about(m):
@@ -354,7 +352,7 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
     explain, or that need a measuring frame the model lacks (tracker data without
     base_frame tool_offset), are refused with one InputError line, and so is a global fit
     still off by more than any calibrated arm; positions that are the nominal robot's own
-    get one `NominalDataWarning` (`torchcal.calibration.nominal_data`). Rows whose nominal TCP lies beyond the
+    get one `NominalDataWarning` (`torchcal.calibration.checks.nominal_data`). Rows whose nominal TCP lies beyond the
     partition's swept region are named in a `MismatchWarning` (their zone is extrapolated).
     partition: a `Partition`, a PARTITION.json path or None. A path is read for the model's
     robot: a partition made for another robot (or other joint limits) is refused
@@ -496,14 +494,14 @@ def compensate_targets(model, targets, *, frame: str = "measuring", robot=None, 
     `CalibratedRangeWarning`.
     """
     from torchcal.calibration.compensate import compensate_targets as run
-    from torchcal.robots.checks import check_same_robot
+    from torchcal.robots.checks import check_same_robot, warn_other_gravity
 
     from_file = isinstance(targets, (str, Path))  # read in length_unit; a tensor is in mm
     where = str(targets) if from_file else "targets"
     im = _fitted(model)
     rob = im.model.robot
     if robot is not None:
-        from torchcal.io.modelfile import warn_other_gravity, with_limits_of
+        from torchcal.io.modelfile import with_limits_of
 
         given, name = make_robot(robot), str(model) if isinstance(model, (str, Path)) else "model"
         check_same_robot(rob, given, name)

@@ -44,7 +44,6 @@ Units: targets mm, joint angles rad inside (the CLI reads and writes degrees).
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, field, replace
 
 import torch
@@ -383,10 +382,10 @@ def compensate_fitted(fitted, targets, q0=None, *, tol_mm: float = 1e-6, max_ite
     (``outside_range``) and named in one `CalibratedRangeWarning` (at `stacklevel`, counted
     from the caller); targets at a temperature / payload outside the range the model was
     fitted on (``fitted.conditions``) in one `ConditionRangeWarning`; no payload_kg for a
-    model fitted on loads in one `PayloadAssumedWarning` (`payload_conditions`; `where`
-    names the targets)."""
+    model fitted on loads in one `PayloadAssumedWarning`
+    (`torchcal.calibration.checks.ranges.payload_conditions`; `where` names the targets)."""
     from torchcal.calibration.checks.partition import warn_far_from_sweep
-    from torchcal.calibration.checks.ranges import warn_outside_conditions, warn_outside_range
+    from torchcal.calibration.checks.ranges import payload_conditions, warn_outside_conditions, warn_outside_range
     from torchcal.calibration.checks.targets import check_seeds, check_targets
 
     cm, theta, q_range, stage = fitted.model, fitted.theta, fitted.q_range, fitted.residual_model
@@ -530,37 +529,6 @@ class TargetCompensation:
                 "not_converged": [i + 1 for i in self.not_converged],
                 "outside_limits": [i + 1 for i in self.outside_limits],
                 "beyond_reach": [i + 1 for i in self.beyond_reach]}
-
-
-class PayloadAssumedWarning(UserWarning):
-    """Targets or rows without a payload for a model whose effects read it and were fitted on loads."""
-
-
-def payload_conditions(fitted, payload_kg, where: str, done: str = "compensated for", stacklevel: int = 1):
-    """The condition ranges (``fitted.conditions``) `warn_outside_conditions` should judge,
-    after one `PayloadAssumedWarning` when targets (or rows: `done` "evaluated at") give no
-    payload (`payload_kg` None: read as 0 kg, as `torchcal.effects.make_context` does) to a
-    model whose effects read the payload and whose calibration data carried loads: its
-    recorded payload range (kg) reaches beyond the condition tolerance (max(1 % of its span,
-    0.1 kg)). The commands (or model points) are then those of an unloaded arm; the range
-    is then returned without its payload (the line has named it: not a second line saying
-    that 0 kg lies outside it)."""
-    from torchcal.calibration.joint_range import CONDITIONS, RANGE_TOL_FRACTION
-
-    ranges = getattr(fitted, "conditions", None)
-    rng = (ranges or {}).get("payload_kg")
-    if payload_kg is not None or rng is None:
-        return ranges
-    lo, hi = rng
-    floor = next(c[4] for c in CONDITIONS if c[0] == "payload_kg")
-    if hi <= max(RANGE_TOL_FRACTION * (hi - lo), floor):  # fitted unloaded: 0 kg is the data's
-        return ranges
-    effects = ", ".join(e.spec() for e in fitted.model.effects if e.uses_payload)
-    warnings.warn(f"{where}: no payload_kg column: {done} 0 kg, but the model's {effects} was fitted on "
-                  f"payloads {lo:.4g} .. {hi:.4g} kg and deflects with the load; give the payload the robot "
-                  f"{'will carry' if done.startswith('comp') else 'carried'} (column payload_kg, kg)",
-                  PayloadAssumedWarning, stacklevel=stacklevel + 1)
-    return {k: v for k, v in ranges.items() if k != "payload_kg"}
 
 
 def compensate_targets(im, targets, *, frame: str = "measuring", seeds=None, payload_kg=None, temp_c=None,

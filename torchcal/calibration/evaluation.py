@@ -56,109 +56,6 @@ class Evaluation:
         return out
 
 
-TOOL_GAIN = 3.0  # a tool offset of its own must bring the rms down this many times to be named
-
-
-class ReflectorWarning(UserWarning):
-    """The rows fit the model far better with a tool offset of their own: another reflector
-    (or nest) than the model's, no point column to say so."""
-
-
-def moved_tool(rms_mm: float, err: torch.Tensor, rot: torch.Tensor, training_rms_mm: float | None,
-               where: str) -> str | None:
-    """One line when the distance errors `err` (N, 3) mm (measured - model, rms `rms_mm`)
-    lie beyond FAR_FACTOR (3) times the training rms and a constant offset u (3,) mm of the
-    measured point in the tool frame, err_i ~ R_i u with `rot` (N, 3, 3) the model's tool
-    rotations in the measuring frame (linear least squares), leaves at most 1 / TOOL_GAIN
-    of it: the rows were measured at another point of the tool (another reflector or nest)
-    than the model's. None otherwise, or without a training rms."""
-    from torchcal.calibration.registration import FAR_FACTOR
-
-    if training_rms_mm is None or rms_mm <= FAR_FACTOR * training_rms_mm or err.shape[0] < 6:
-        return None
-    e, R = err.detach().to("cpu", torch.float64), rot.detach().to("cpu", torch.float64)
-    u = torch.linalg.lstsq(R.reshape(-1, 3), e.reshape(-1, 1)).solution.flatten()
-    after = float((e - R @ u).norm(dim=-1).pow(2).mean().sqrt())
-    if after * TOOL_GAIN > rms_mm:
-        return None
-    return (f"{where}: rms {rms_mm:.4g} mm ({rms_mm / training_rms_mm:.3g} times the model's training rms "
-            f"{training_rms_mm:.4g} mm), but {after:.4g} mm with the measured point moved by {float(u.norm()):.4g} mm "
-            f"on the tool ([{', '.join(f'{v:.3f}' for v in u.tolist())}] mm in the tool frame): measured at another "
-            "reflector or nest than the model's? Re-estimate its tool on some of these rows (register with the "
-            "tool), or give each reflector its own point id")
-
-
-def moved_frame(rms_mm: float, err: torch.Tensor, xyz: torch.Tensor, training_rms_mm: float | None,
-                where: str) -> str | None:
-    """One line when the distance errors `err` (N, 3) mm (measured `xyz` (N, 3) mm - model,
-    rms `rms_mm`) lie beyond FAR_FACTOR (3) times the training rms and the best rigid motion
-    of the model's points onto the measured ones (Kabsch) leaves at most 1 / TOOL_GAIN of
-    it: the measuring frame moved since the fit by less than the gross-mismatch bound (a
-    tracker bumped, set up again near its old place). None otherwise, or without a
-    training rms."""
-    from torchcal.calibration.registration import FAR_FACTOR
-    from torchcal.rotations import kabsch
-
-    if training_rms_mm is None or rms_mm <= FAR_FACTOR * training_rms_mm or err.shape[0] < 6:
-        return None
-    x = xyz.detach().to("cpu", torch.float64)
-    p = x - err.detach().to("cpu", torch.float64)
-    R, t = kabsch(p, x)
-    after = float((p @ R.T + t - x).norm(dim=-1).pow(2).mean().sqrt())
-    if after * TOOL_GAIN > rms_mm:
-        return None
-    angle = math.degrees(math.acos(max(-1.0, min(1.0, (float(torch.trace(R)) - 1) / 2))))
-    shift = float((p @ R.T + t - p).norm(dim=-1).mean())
-    return (f"{where}: rms {rms_mm:.4g} mm ({rms_mm / training_rms_mm:.3g} times the model's training rms "
-            f"{training_rms_mm:.4g} mm), but {after:.4g} mm after a rigid motion of the measuring frame (the points "
-            f"move {shift:.4g} mm on average, {angle:.3g} deg): the instrument moved since the fit (bumped, or set up "
-            "again near its old place)? Register the model on some of these rows")
-
-
-MAX_POINTS_SWAPPED = 4  # point ids whose relabellings are all tried (4! = 24)
-
-
-def swapped_points(fm: FitResult, m: Measurements, rms_mm: float, stage=None) -> str | None:
-    """One line when the rows of `m` carry several point ids (at most MAX_POINTS_SWAPPED,
-    all the model's), their rms `rms_mm` lies beyond FAR_FACTOR (3) times the training rms,
-    and another assignment of the ids to the model's tool offsets leaves at most
-    1 / TOOL_GAIN of it: the point column of the file labels the reflectors otherwise than
-    the data the model was fitted on. None otherwise. stage: the residual stage, subtracted."""
-    import dataclasses
-    import itertools
-
-    from torchcal.calibration.registration import FAR_FACTOR
-    from torchcal.effects import context_of
-
-    train = fm.training_rms_mm
-    ids = sorted(set(m.point.tolist()))
-    if train is None or rms_mm <= FAR_FACTOR * train or not 2 <= len(ids) <= MAX_POINTS_SWAPPED:
-        return None
-    corr = 0.0 if stage is None else stage.predict(m.q).to(m.xyz)
-    err = {}  # point id k -> (N, 3) mm error of every row as if measured at point k
-    for k in ids:
-        as_k = dataclasses.replace(m, point=torch.full_like(m.point, k))
-        err[k] = (m.xyz - fm.predict(context_of(fm.model.robot, as_k)) - corr).detach()
-    label = m.point.to(m.xyz.device)
-    best = None
-    for perm in itertools.permutations(ids):
-        if list(perm) == ids:
-            continue
-        e = torch.zeros_like(m.xyz)
-        for k, to in zip(ids, perm):
-            rows = label == k
-            e[rows] = err[to][rows]
-        rms = float(e.norm(dim=-1).pow(2).mean().sqrt())
-        if best is None or rms < best[0]:
-            best = (rms, perm)
-    if best is None or best[0] * TOOL_GAIN > rms_mm:
-        return None
-    mapping = ", ".join(f"{k} as {to}" for k, to in zip(ids, best[1]) if k != to)
-    return (f"{m.source or 'data'}: rms {rms_mm:.4g} mm ({rms_mm / train:.3g} times the model's training rms "
-            f"{train:.4g} mm), but {best[0]:.4g} mm with the point ids read {mapping}: the point column labels the "
-            "reflectors otherwise than the data the model was fitted on? Check which reflector each id is")
-
-
 def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     """Errors of the fitted model `fm` on measurements `m` (module doc): InputError for data
     that cannot come from the model (another robot, a moved measuring frame, units); one
@@ -166,10 +63,11 @@ def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     the calibrated range, one `ConditionRangeWarning` for rows at a temperature / payload
     outside the range the model was fitted on (`fm.conditions`), one `PayloadAssumedWarning`
     for data without payload_kg given to a model fitted on loads
-    (`torchcal.calibration.compensate.payload_conditions`). Rows of one point that fit far
-    better with a tool offset of their own (`moved_tool`), or of several points with their
-    ids read otherwise (`swapped_points`): one `ReflectorWarning`; else with a measuring
-    frame of their own (`moved_frame`, a motion within the gross-mismatch bound): one
+    (`torchcal.calibration.checks.ranges.payload_conditions`). Rows of one point that fit far
+    better with a tool offset of their own, or of several points with their ids read
+    otherwise (`torchcal.calibration.checks.model_data.moved_tool`, `swapped_points`): one
+    `ReflectorWarning`; else with a measuring frame of their own (`moved_frame`, a motion
+    within the gross-mismatch bound): one
     `MismatchWarning`. Data of a point id the model was not fitted on
     (`torchcal.calibration.checks.model_data.point_ids_differ`): InputError for a model with one tool
     offset per point, else one `PointIdWarning`. Orientations (rx, ry, rz) that disagree
@@ -177,13 +75,13 @@ def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     `MismatchWarning` naming the reading that fits. A per-zone model: rows whose nominal TCP
     lies beyond its partition's swept region (their zone is extrapolated) named in one
     `MismatchWarning` (`torchcal.calibration.checks.partition.warn_far_from_sweep`)."""
-    from torchcal.calibration.compensate import payload_conditions
     from torchcal.calibration.joint_range import outside_range
     from torchcal.calibration.registration import FAR_FACTOR
-    from torchcal.calibration.checks.model_data import PointIdWarning, check_measurements, point_ids_differ
+    from torchcal.calibration.checks.model_data import (PointIdWarning, ReflectorWarning, check_measurements,
+                                                        moved_frame, moved_tool, point_ids_differ, swapped_points)
     from torchcal.calibration.checks.orientation import orientation_mismatch
     from torchcal.calibration.checks.partition import warn_far_from_sweep
-    from torchcal.calibration.checks.ranges import warn_outside_conditions, warn_outside_range
+    from torchcal.calibration.checks.ranges import payload_conditions, warn_outside_conditions, warn_outside_range
     from torchcal.calibration.checks.verdict import MismatchWarning, enforce
     from torchcal.effects import context_of
     from torchcal.metrics import error_summary

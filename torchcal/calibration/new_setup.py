@@ -29,16 +29,15 @@ def register_model(fitted, robot, m, *, tool: bool = False, stacklevel: int = 1)
     `PayloadAssumedWarning`): there the model extrapolates, and the frame is fitted to it.
     Without `tool`, registered rows beyond 3x the training rms that a tool offset of their
     own would bring within a third are named as another reflector (`ReflectorWarning`,
-    `torchcal.calibration.evaluation.moved_tool`) in place of the `TransferWarning`."""
+    `torchcal.calibration.checks.model_data.moved_tool`) in place of the `TransferWarning`."""
     import dataclasses
     import warnings
 
     from torchcal.calibration.joint_range import joint_range, seed_poses
     from torchcal.calibration.registration import TransferWarning, far_from_training, reregister, undetermined_frame
-    from torchcal.calibration.compensate import payload_conditions
     from torchcal.calibration.checks.model_data import check_measurements, point_ids_differ
     from torchcal.calibration.checks.verdict import enforce
-    from torchcal.calibration.checks.ranges import warn_outside_conditions, warn_outside_range
+    from torchcal.calibration.checks.ranges import payload_conditions, warn_outside_conditions, warn_outside_range
     from torchcal.calibration.model import CalibrationModel
     from torchcal.effects import context_of
     from torchcal.errors import InputError
@@ -71,7 +70,7 @@ def register_model(fitted, robot, m, *, tool: bool = False, stacklevel: int = 1)
     enforce(check_measurements(res.model, res.theta, m, train, q_range=q_range))  # still off: another robot, units
     far = far_from_training(res.rms_mm, train)
     if far is not None and not tool and (m.point is None or len(set(m.point.tolist())) == 1):
-        from torchcal.calibration.evaluation import ReflectorWarning, moved_tool
+        from torchcal.calibration.checks.model_data import ReflectorWarning, moved_tool
 
         with torch.no_grad():  # the rows of another reflector than the model's, rather than terms of a session?
             err = m.xyz - res.predict(ctx)

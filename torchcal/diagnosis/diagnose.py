@@ -243,7 +243,7 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
     if transfer is not None:  # another reflector in the other session: every step would be refused
         tool = transfer.another_tool(base)
         if tool is not None:
-            from torchcal.calibration.evaluation import ReflectorWarning
+            from torchcal.calibration.checks.model_data import ReflectorWarning
             warnings.warn(tool, ReflectorWarning, stacklevel=2)
     for i in range(max_rounds + 1):
         d = diagnose(robot, m, folds=folds, seed=seed, base_fit=base, current=current, alpha=alpha / 2 ** i,

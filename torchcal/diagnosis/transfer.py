@@ -84,38 +84,6 @@ from torchcal.errors import InputError
 from torchcal.measurements import Measurements
 
 
-SPLIT_SHARE = 0.25  # share of the other file's rows approached from rows of the data: one session split in two
-
-
-class SameSessionWarning(UserWarning):
-    """The transfer session looks like a split of the session searched, not another session."""
-
-
-def same_session(data: Measurements, other: Measurements, stacklevel: int = 1) -> float:
-    """One `SameSessionWarning` (at `stacklevel`, counted from the caller) when at least
-    SPLIT_SHARE of the rows of `other` were approached (their ``prev_q`` columns, which
-    `torchcal split` writes from the whole session) from joint values that are, to the
-    last bit, rows of `data` but no row of `other`: the two files are parts of one
-    session (the validation part of a split), whose terms the check would confirm. A file
-    without prev_q (a session file as measured) is not judged. Returns that share."""
-    import warnings
-
-    if other.q_prev is None or len(other) == 0:
-        return 0.0
-    key = lambda t: {tuple(r) for r in t.detach().cpu().tolist()}  # noqa: E731
-    mine, theirs = key(data.q), key(other.q)
-    prev = other.q_prev.detach().cpu().tolist()
-    hits = sum(1 for r in prev if tuple(r) in mine and tuple(r) not in theirs)
-    share = hits / len(other)
-    if share >= SPLIT_SHARE:
-        warnings.warn(f"{other.source or 'transfer'}: {hits} of {len(other)} rows were approached from joint values "
-                      f"that are rows of {data.source or 'the data'} (prev_q columns): the two are parts of one "
-                      "session (a split of it), and a transfer check on them confirms the session's own terms; "
-                      "give the measurements of another session (another set-up or day)", SameSessionWarning,
-                      stacklevel=stacklevel + 1)
-    return share
-
-
 def first_poses(pose: torch.Tensor, k: int) -> torch.Tensor:
     """(N,) bool: the rows of the first `k` distinct pose ids in measurement order."""
     seen, first = set(), []
@@ -189,10 +157,10 @@ class TransferCheck:
         """One line when the other session's held-out rows, the model `fit` (`FitResult`,
         the search's starting fit) registered as `score` registers it, lie beyond 3x its
         rms and a constant offset of the measured point on the tool brings them within a
-        third (`torchcal.calibration.evaluation.moved_tool`): the session was measured with
+        third (`torchcal.calibration.checks.model_data.moved_tool`): the session was measured with
         another reflector or nest, whose error the frame-only registration leaves in every
         figure, so that no step can lower them beyond chance. None otherwise."""
-        from torchcal.calibration.evaluation import moved_tool
+        from torchcal.calibration.checks.model_data import moved_tool
 
         if self.m.point is not None and len(set(self.m.point.tolist())) > 1:
             return None

@@ -114,10 +114,9 @@ def export(im, *, robot_file=None, urdf=None, table=None, data=None, length_unit
     `length_unit` / `angle_unit`, read only when the model has effects the exported robot
     cannot hold. inputs: paths never written over (the model's file, the data), beside
     the files the model came from (`sources`)."""
-    from torchcal.calibration.compensate import payload_conditions
     from torchcal.calibration.geometry_only import calibrated_robot, measuring_frames, reflector_offsets, refit_geometry
     from torchcal.calibration.checks.model_data import check_measurements
-    from torchcal.calibration.checks.ranges import warn_outside_conditions
+    from torchcal.calibration.checks.ranges import payload_conditions, warn_outside_conditions
     from torchcal.calibration.checks.units import check_units
     from torchcal.calibration.checks.verdict import enforce
     from torchcal.calibration.plausibility import PlausibilityWarning, beyond_words

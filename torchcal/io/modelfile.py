@@ -279,35 +279,6 @@ def with_limits_of(fitted: FitResult, robot: Robot, where: str, stacklevel: int 
     return dataclasses.replace(fitted, model=model)
 
 
-#: effects whose deflection follows the direction of gravity in the base frame (the robot file's "gravity")
-GRAVITY_EFFECTS = ("joint_compliance", "link_bending", "axis_tilt", "base_compliance", "joint_clearance")
-
-
-class RobotGravityWarning(UserWarning):
-    """The robot given with a model has another gravity direction (mounting) than the one
-    the model's gravity-driven effects were fitted with."""
-
-
-def warn_other_gravity(fitted: FitResult, robot: Robot, where: str, stacklevel: int = 1) -> bool:
-    """One `RobotGravityWarning` when `robot` (checked to have the model's geometry) has
-    another gravity direction than the model's nominal robot and the model has effects that
-    read it (GRAVITY_EFFECTS): the model keeps the gravity it was fitted with (its
-    deflections are those of the arm as it was mounted then). Returns whether it warned."""
-    import warnings
-
-    there = fitted.model.robot
-    g0, g1 = there.gravity.detach().to("cpu", torch.float64), robot.gravity.detach().to("cpu", torch.float64)
-    reads = [e.spec() for e in fitted.model.effects if e.name in GRAVITY_EFFECTS]
-    if not reads or torch.allclose(g0, g1, rtol=0, atol=1e-6):
-        return False
-    angle = math.degrees(math.acos(max(-1.0, min(1.0, float(g0 @ g1 / (g0.norm() * g1.norm()))))))
-    warnings.warn(f"{where}: the robot given has gravity [{', '.join(f'{v:g}' for v in g1.tolist())}] in its base "
-                  f"frame, the model's robot [{', '.join(f'{v:g}' for v in g0.tolist())}] ({angle:.3g} deg apart): "
-                  f"the model's {', '.join(reads)} deflect the arm as it was mounted when fitted, and keep doing so; "
-                  "an arm mounted otherwise needs a fit of its own", RobotGravityWarning, stacklevel=stacklevel + 1)
-    return True
-
-
 def load(path, robot: Robot | str | None = None) -> FitResult:
     """The fitted model (`FitResult`) of MODEL.json (module doc: which fields a file holds).
 
@@ -315,10 +286,12 @@ def load(path, robot: Robot | str | None = None) -> FitResult:
     robot (joint count, types or nominal geometry) is refused with one line naming both,
     and one of other joint limits is given those limits, with a warning (`with_limits_of`);
     one of another gravity direction is named for a model with gravity-driven effects
-    (`warn_other_gravity`)."""
+    (`torchcal.robots.checks.warn_other_gravity`)."""
     if robot is None:
         return _load(path, None)
     from torchcal.io.robot_file import robot as make_robot
+
+    from torchcal.robots.checks import warn_other_gravity
 
     given = make_robot(robot)
     res = _load(path, given)

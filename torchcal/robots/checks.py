@@ -12,7 +12,8 @@ Robots (`check_same_robot`, `robot_differences`): a model applied to another rob
 the one it was fitted for, and a sweep or partition file made for another robot than the
 one given (another joint count, joint types, MD-H table, base, tool or joint limits;
 `torchcal.io.robot_file.check_record` reads the file's record and names the differences in
-its one line).
+its one line). A model with gravity-driven effects given a robot of its geometry mounted
+otherwise (`warn_other_gravity`: another gravity direction) is named in one warning.
 """
 
 from __future__ import annotations
@@ -70,6 +71,34 @@ def robot_differences(there, here, atol: float = 1e-9) -> list[str]:
         more = f" (and {len(lim) - 1} more joint(s))" if len(lim) > 1 else ""
         out.append(f"joint {j + 1} limits {lo:g}..{hi:g} {unit} in the file, {lo2:g}..{hi2:g} {unit} given{more}")
     return out
+
+
+#: effects whose deflection follows the direction of gravity in the base frame (the robot file's "gravity")
+GRAVITY_EFFECTS = ("joint_compliance", "link_bending", "axis_tilt", "base_compliance", "joint_clearance")
+
+
+class RobotGravityWarning(UserWarning):
+    """The robot given with a model has another gravity direction (mounting) than the one
+    the model's gravity-driven effects were fitted with."""
+
+
+def warn_other_gravity(fitted, robot, where: str, stacklevel: int = 1) -> bool:
+    """One `RobotGravityWarning` when `robot` (a `Robot`, checked to have the geometry of the
+    fitted model `fitted`, a `FitResult`: `check_same_robot`) has another gravity direction
+    than the model's nominal robot and the model has effects that read it (GRAVITY_EFFECTS,
+    by name): the model keeps the gravity it was fitted with (its deflections are those of
+    the arm as it was mounted then). Returns whether it warned."""
+    there = fitted.model.robot
+    g0, g1 = there.gravity.detach().to("cpu", torch.float64), robot.gravity.detach().to("cpu", torch.float64)
+    reads = [e.spec() for e in fitted.model.effects if e.name in GRAVITY_EFFECTS]
+    if not reads or torch.allclose(g0, g1, rtol=0, atol=1e-6):
+        return False
+    angle = math.degrees(math.acos(max(-1.0, min(1.0, float(g0 @ g1 / (g0.norm() * g1.norm()))))))
+    warnings.warn(f"{where}: the robot given has gravity [{', '.join(f'{v:g}' for v in g1.tolist())}] in its base "
+                  f"frame, the model's robot [{', '.join(f'{v:g}' for v in g0.tolist())}] ({angle:.3g} deg apart): "
+                  f"the model's {', '.join(reads)} deflect the arm as it was mounted when fitted, and keep doing so; "
+                  "an arm mounted otherwise needs a fit of its own", RobotGravityWarning, stacklevel=stacklevel + 1)
+    return True
 
 
 def link_reach_mm(table: torch.Tensor, prismatic: torch.Tensor, limits: torch.Tensor) -> float:

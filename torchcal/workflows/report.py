@@ -194,8 +194,8 @@ def _held_out(rep: CalibrationReport, fitted, m, effects: set, tolerance_mm) -> 
     import warnings
 
     from torchcal import api
-    from torchcal.calibration.compensate import PayloadAssumedWarning
-    from torchcal.calibration.evaluation import ReflectorWarning
+    from torchcal.calibration.checks.model_data import ReflectorWarning
+    from torchcal.calibration.checks.ranges import PayloadAssumedWarning
     from torchcal.calibration.checks.verdict import MismatchWarning
     from torchcal.calibration.joint_range import CalibratedRangeWarning, ConditionRangeWarning
     from torchcal.calibration.zone_calibration import ZonedFit

@@ -2,7 +2,8 @@
 `warn_outside_range`: rows or converged commands beyond the range of
 `torchcal.calibration.joint_range`, counted and named in one `CalibratedRangeWarning`) and
 the fitted temperature or payload (`warn_outside_conditions`, one `ConditionRangeWarning`):
-the model extrapolates there.
+the model extrapolates there. No payload given to a model fitted on loads
+(`payload_conditions`, one `PayloadAssumedWarning`): read as an unloaded arm.
 """
 
 from __future__ import annotations
@@ -74,3 +75,34 @@ def warn_outside_conditions(ranges: dict | None, values: dict, what: str, stackl
     warnings.warn(f"{'; '.join(parts)}: the model extrapolates its {' and '.join(f[0] for f in found)} "
                   f"effects there", ConditionRangeWarning, stacklevel=stacklevel + 1)
     return max(f[4] for f in found)
+
+
+class PayloadAssumedWarning(UserWarning):
+    """Targets or rows without a payload for a model whose effects read it and were fitted on loads."""
+
+
+def payload_conditions(fitted, payload_kg, where: str, done: str = "compensated for", stacklevel: int = 1):
+    """The condition ranges (``fitted.conditions``) `warn_outside_conditions` should judge,
+    after one `PayloadAssumedWarning` when targets (or rows: `done` "evaluated at") give no
+    payload (`payload_kg` None: read as 0 kg, as `torchcal.effects.make_context` does) to a
+    model whose effects read the payload and whose calibration data carried loads: its
+    recorded payload range (kg) reaches beyond the condition tolerance (max(1 % of its span,
+    0.1 kg)). The commands (or model points) are then those of an unloaded arm; the range
+    is then returned without its payload (the line has named it: not a second line saying
+    that 0 kg lies outside it)."""
+    from torchcal.calibration.joint_range import CONDITIONS, RANGE_TOL_FRACTION
+
+    ranges = getattr(fitted, "conditions", None)
+    rng = (ranges or {}).get("payload_kg")
+    if payload_kg is not None or rng is None:
+        return ranges
+    lo, hi = rng
+    floor = next(c[4] for c in CONDITIONS if c[0] == "payload_kg")
+    if hi <= max(RANGE_TOL_FRACTION * (hi - lo), floor):  # fitted unloaded: 0 kg is the data's
+        return ranges
+    effects = ", ".join(e.spec() for e in fitted.model.effects if e.uses_payload)
+    warnings.warn(f"{where}: no payload_kg column: {done} 0 kg, but the model's {effects} was fitted on "
+                  f"payloads {lo:.4g} .. {hi:.4g} kg and deflects with the load; give the payload the robot "
+                  f"{'will carry' if done.startswith('comp') else 'carried'} (column payload_kg, kg)",
+                  PayloadAssumedWarning, stacklevel=stacklevel + 1)
+    return {k: v for k, v in ranges.items() if k != "payload_kg"}

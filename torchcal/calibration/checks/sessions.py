@@ -5,10 +5,14 @@ Two sessions joined in one file with the instrument moved between them
 midway through one session (`changed_midway`), each part fitting in a frame and with a tool
 offset of its own while the whole does not; also when one frame and tool fit within
 GROSS_MM (`moved_within_gross`: a move of a few mm or a fraction of a degree). Rows of one
-session repeated, to the last bit, in another (`shared_rows`): no second session.
+session repeated, to the last bit, in another (`shared_rows`): no second session. A file
+whose rows were approached from rows of another (`same_session`, by its prev_q columns):
+the two are parts of one session split in two.
 """
 
 from __future__ import annotations
+
+import warnings
 
 import torch
 
@@ -20,6 +24,7 @@ from torchcal.errors import InputError
 SESSION_FLOOR_MM = 2.0  # one frame's rms below this: no search for a moved instrument within GROSS_MM
 SESSION_RATIO = 3.0  # each part's own frame must come this many times closer than one frame through both
 JOINS = 3  # at most this many pose-id restarts are tried as the joint between two sessions
+SPLIT_SHARE = 0.25  # share of the other file's rows approached from rows of the data: one session split in two
 
 
 def moved_within_gross(model, m, quick_mm: float, pred: torch.Tensor | None = None) -> Mismatch | None:
@@ -126,3 +131,31 @@ def shared_rows(a, b) -> list[int]:
     repeat a reading exactly)."""
     seen = {tuple(r) for r in torch.cat([a.q, a.xyz], dim=1).detach().cpu().tolist()}
     return [i for i, r in enumerate(torch.cat([b.q, b.xyz], dim=1).detach().cpu().tolist()) if tuple(r) in seen]
+
+
+class SameSessionWarning(UserWarning):
+    """The transfer session looks like a split of the session searched, not another session."""
+
+
+def same_session(data, other, stacklevel: int = 1) -> float:
+    """One `SameSessionWarning` (at `stacklevel`, counted from the caller) when at least
+    SPLIT_SHARE of the rows of `other` (`Measurements`, as `data`) were approached (their
+    ``prev_q`` columns, which `torchcal split` writes from the whole session) from joint
+    values that are, to the last bit, rows of `data` but no row of `other`: the two files
+    are parts of one session (the validation part of a split), whose terms the check would
+    confirm. A file without prev_q (a session file as measured) is not judged. Returns that
+    share."""
+    if other.q_prev is None or len(other) == 0:
+        return 0.0
+    key = lambda t: {tuple(r) for r in t.detach().cpu().tolist()}  # noqa: E731
+    mine, theirs = key(data.q), key(other.q)
+    prev = other.q_prev.detach().cpu().tolist()
+    hits = sum(1 for r in prev if tuple(r) in mine and tuple(r) not in theirs)
+    share = hits / len(other)
+    if share >= SPLIT_SHARE:
+        warnings.warn(f"{other.source or 'transfer'}: {hits} of {len(other)} rows were approached from joint values "
+                      f"that are rows of {data.source or 'the data'} (prev_q columns): the two are parts of one "
+                      "session (a split of it), and a transfer check on them confirms the session's own terms; "
+                      "give the measurements of another session (another set-up or day)", SameSessionWarning,
+                      stacklevel=stacklevel + 1)
+    return share

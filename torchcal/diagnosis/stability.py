@@ -55,8 +55,8 @@ import numpy as np
 
 from torchcal.calibration.fit import fit
 from torchcal.calibration.model import CalibrationModel
-from torchcal.calibration.refit import warm_fit
 from torchcal.calibration.plausibility import determination
+from torchcal.calibration.refit import warm_fit
 from torchcal.diagnosis.crossval import held_out_errors, lm_only, per_pose
 from torchcal.diagnosis.selection import paired_p_value
 from torchcal.effects.spec import format_spec, parse_spec

@@ -35,8 +35,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult, fit
 from torchcal.calibration.model import CalibrationModel
-from torchcal.calibration.refit import warm_fit
 from torchcal.calibration.plausibility import determination, determination_words
+from torchcal.calibration.refit import warm_fit
 from torchcal.diagnosis.crossval import RefitCV, lm_only, refit_cv
 from torchcal.diagnosis.procedure_cv import FoldSearches, procedure_cv
 from torchcal.diagnosis.selection import ALPHA, MIN_GAIN, not_better, refit_decision

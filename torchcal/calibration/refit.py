@@ -63,8 +63,8 @@ solve by chord iterations, the metric A rebuilt from every fresh Jacobian (the s
 far from the fit: new parameters at zero), to the same certificate. It serves the
 candidates' full fits of `discover` (`torchcal.diagnosis.step.candidate_fit`) and the
 reduced models of its stability check (`torchcal.diagnosis.stability.without`): on UR10
-series C's training split 15 fits, all by the chord, 2.0-2.4x faster each than the LM
-`fit` (0.07 against 0.14 s CPU), fitted positions within 5e-8 mm of it, rho within 1e-11
+series C's training split 15 fits, all by the chord, 1.7-2.1x faster each than the LM
+`fit` (0.06 against 0.11 s CPU), fitted positions within 5e-8 mm of it, rho within 7e-10
 and the posterior sd within 2e-7 relative (tests/test_warm_fit.py asserts 1e-6 mm, 1e-8
 and 1e-5). None where the chord does not apply (the caller's `fit`).
 

@@ -128,3 +128,51 @@ def test_where_the_chord_does_not_apply_candidate_fit_is_the_lm_fit(monkeypatch)
     assert calls == [None]
     old = _lm_candidate(monkeypatch, base, "gear_periodic:2", m, ctx)
     assert torch.equal(new.theta, old.theta) and torch.equal(new.std, old.std)
+
+
+def test_consecutive_fold_refits_of_one_model_share_its_jacobian(monkeypatch):
+    """The stability check refits one model on the halves of every split in turn: one
+    shared Jacobian for them (`crossval._shared`), the same refits as with a fresh one
+    each time; another model, or the same one with its theta changed, gets its own."""
+    import numpy as np
+
+    import torchcal.diagnosis.crossval as cv
+
+    robot = torchcal.robot("kr1000titan")
+    q = random_poses(robot, 120, torch.Generator().manual_seed(2)).numpy()
+    xyz, _ = physics_session(robot, q, 2, ["backlash:3"])
+    m = Measurements(pose=torch.arange(120), q=torch.from_numpy(q), xyz=torch.from_numpy(xyz))
+    ctx = context_of(robot, m)
+    full = fit(CalibrationModel.for_measurements(robot, ["backlash:3"], m), ctx, m.xyz, pose=m.pose)
+    splits = [(np.arange(120) % 2), (np.arange(120) < 60).astype(np.int64)]
+    calls = []
+    monkeypatch.setattr(rf, "shared", lambda *a: calls.append(a[0]) or rf.Shared(*_fresh(*a)))
+    monkeypatch.setattr(cv, "_LAST_SHARED", [])
+
+    def refits(f, fresh=False):
+        out = []
+        for s in splits:
+            if fresh:  # the reference: a Jacobian of its own for every call
+                cv._LAST_SHARED.clear()
+            out += [res.theta for _, res in cv.fold_refits(f, m, ctx, s, sigma_mm=0.01, sigma_deg=0.01)]
+        return out
+
+    reference = refits(full, fresh=True)
+    assert len(calls) == 2
+    cv._LAST_SHARED.clear()
+    assert all(torch.equal(a, b) for a, b in zip(refits(full), reference)) and len(calls) == 3
+    other = fit(full.model, ctx, m.xyz, pose=m.pose)  # equal values, another object
+    refits(other)
+    assert len(calls) == 4
+    full.theta[0] += 1e-3  # changed in place: evaluated again
+    refits(full)
+    assert len(calls) == 5
+
+
+def _fresh(full, ctx, orientation):
+    """The fields of `refit.shared` (evaluated by the model, as it does)."""
+    with torch.no_grad():
+        if not orientation:
+            return full.theta, full.model.jacobians(full.theta, ctx)[0]
+        J, W, R = full.model.jacobians(full.theta, ctx, rotation=True, frame=True)
+    return full.theta, J, W, R

@@ -107,7 +107,7 @@ def fold_refits(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: 
         test = torch.from_numpy(folds == f)
         res = None
         if chord:
-            sh = rf.shared(full, ctx, m.rotation is not None) if sh is None else sh
+            sh = _shared(full, ctx, m.rotation is not None) if sh is None else sh
             res = rf.refit(full, sh, m, ctx, ~test, sigma_mm=sigma_mm, sigma_deg=sigma_deg, posterior=posterior)
         if res is None:  # and the other folds of this fit by the LM too: they share its conditioning
             if chord:
@@ -115,6 +115,26 @@ def fold_refits(full, m, ctx, folds: np.ndarray, *, sigma_mm: float, sigma_deg: 
             chord = False
             res = fold_fit(full, m, ctx, ~test, sigma_mm=sigma_mm, sigma_deg=sigma_deg, posterior=posterior)
         yield test, res
+
+
+#: the last shared Jacobian (`refit.shared`) with what it is of: (full held weakly, its theta,
+#: ctx, orientation, the `Shared`). The stability check refits one model on the halves of
+#: every split in turn (one `fold_refits` call per split): they share one evaluation.
+_LAST_SHARED: list = []
+
+
+def _shared(full, ctx, orientation: bool):
+    """`refit.shared(full, ctx, orientation)`, evaluated once for consecutive calls on the
+    same fitted model (by identity, its theta unchanged), context and orientation flag."""
+    from torchcal.calibration import refit as rf
+
+    if _LAST_SHARED:
+        ref, theta, c, o, sh = _LAST_SHARED
+        if ref() is full and c is ctx and o == orientation and torch.equal(theta, full.theta):
+            return sh
+    sh = rf.shared(full, ctx, orientation)
+    _LAST_SHARED[:] = [weakref.ref(full), full.theta.clone(), ctx, orientation, sh]
+    return sh
 
 
 #: the fitted models (`FitResult`, by identity, held weakly) whose fold refits the chord

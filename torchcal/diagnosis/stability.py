@@ -56,7 +56,8 @@ import numpy as np
 from torchcal.calibration.fit import fit
 from torchcal.calibration.model import CalibrationModel
 from torchcal.calibration.plausibility import determination
-from torchcal.diagnosis.crossval import held_out_errors, per_pose
+from torchcal.calibration.refit import warm_fit
+from torchcal.diagnosis.crossval import held_out_errors, lm_only, per_pose
 from torchcal.diagnosis.selection import paired_p_value
 from torchcal.effects.spec import format_spec, parse_spec
 from torchcal.errors import InputError
@@ -161,7 +162,10 @@ def without(full, spec: str, m, ctx, *, sigma_mm: float, sigma_deg: float, by: s
         if n in names:
             theta0[i] = full.theta[names.index(n)]
         free[i] &= n not in held
-    return fit(model, ctx, m.xyz, theta0=theta0, free=free, **fit_options(m, sigma_mm=sigma_mm, sigma_deg=sigma_deg))
+    res = None if lm_only(full) else warm_fit(model, ctx, m.xyz, theta0, free,
+                                              **fit_options(m, sigma_mm=sigma_mm, sigma_deg=sigma_deg))
+    return res if res is not None else \
+        fit(model, ctx, m.xyz, theta0=theta0, free=free, **fit_options(m, sigma_mm=sigma_mm, sigma_deg=sigma_deg))
 
 
 def determined_names(full, ctx) -> list:

@@ -36,7 +36,8 @@ import numpy as np
 from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult, fit
 from torchcal.calibration.model import CalibrationModel
 from torchcal.calibration.plausibility import determination, determination_words
-from torchcal.diagnosis.crossval import RefitCV, refit_cv
+from torchcal.calibration.refit import warm_fit
+from torchcal.diagnosis.crossval import RefitCV, lm_only, refit_cv
 from torchcal.diagnosis.procedure_cv import FoldSearches, procedure_cv
 from torchcal.diagnosis.selection import ALPHA, MIN_GAIN, not_better, refit_decision
 from torchcal.effects.spec import parse_specs
@@ -153,7 +154,11 @@ def candidate_fit(base: FitResult, spec: str, m, ctx, *, sigma_mm: float, sigma_
         if n in names:
             theta0[i] = base.theta[names.index(n)]
         free[i] &= n not in held  # the current model's gauge stays: the same parameters held
-    res = fit(model, ctx, m.xyz, theta0=theta0, free=free, **fit_options(m, sigma_mm=sigma_mm, sigma_deg=sigma_deg))
+    # by chord iterations (`refit.warm_fit`) unless the current fit's own refits needed the LM
+    res = None if lm_only(base) else warm_fit(model, ctx, m.xyz, theta0, free,
+                                              **fit_options(m, sigma_mm=sigma_mm, sigma_deg=sigma_deg))
+    if res is None:  # the chord does not apply: the LM's fit
+        res = fit(model, ctx, m.xyz, theta0=theta0, free=free, **fit_options(m, sigma_mm=sigma_mm, sigma_deg=sigma_deg))
     res.report.held = [n for n in model.param_names() if n in held] + res.report.held
     return res
 

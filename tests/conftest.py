@@ -36,6 +36,12 @@ def pytest_configure(config):
 @pytest.hookimpl(trylast=True)
 def pytest_collection_finish(session):
     gc.freeze()
+    # The tests allocate many short-lived objects (tensors, matplotlib artists): a young
+    # collection every 10 000 net allocations instead of 700, and the older generations
+    # 20 times rarer than theirs, cut the collector's CPU in the two test processes of
+    # `pytest -n 2` from 4.1 to 2.7 s (measured with gc.callbacks, one run each).
+    # Cycles are still collected, a little later; nothing else changes.
+    gc.set_threshold(10_000, 20, 20)
 
 
 @pytest.hookimpl(tryfirst=True)

@@ -63,15 +63,32 @@ def test_sub_command_help_does_not_import_torch(command):
     assert not {m for m in loaded if m.split(".")[0] in ("torch", "numpy")}
 
 
-def test_a_fit_imports_no_sympy_scipy_or_plotting(tmp_path):
+@pytest.fixture(scope="module")
+def fit_process(tmp_path_factory) -> tuple[Path, set, int, bool]:
+    """`torchcal fit` (UR10 series D, base_frame and tool_offset) in a fresh interpreter: the
+    model file, the modules loaded, and the collector's state after the command (the freeze
+    count, whether it is on). One process for the two tests below."""
+    data, robot = ROOT / "examples/ur10/series_d.csv", ROOT / "examples/ur10/ur10.json"
+    out = tmp_path_factory.mktemp("fit") / "m.json"
+    code = (f"import gc\nimport torchcal.cli\nrc = torchcal.cli.main(['fit', {str(data)!r}, '--robot', {str(robot)!r}, "
+            f"'--effects', 'base_frame', 'tool_offset', '--out', {str(out)!r}])\nassert rc == 0\n"
+            "print('@@gc', gc.get_freeze_count(), gc.isenabled())")
+    probe = code + "\nimport json, sys\nprint('@@' + json.dumps(sorted(sys.modules)))"
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    run = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, env=env, cwd=ROOT)
+    lines = run.stdout.splitlines()
+    gc_line = [x for x in lines if x.startswith("@@gc ")]
+    mods = [x for x in lines if x.startswith("@@") and not x.startswith("@@gc ")]
+    assert gc_line and mods, run.stderr
+    _, frozen, enabled = gc_line[-1].split()
+    return out, set(json.loads(mods[-1][2:])), int(frozen), enabled == "True"
+
+
+def test_a_fit_imports_no_sympy_scipy_or_plotting(fit_process):
     """The way to a fit (read, fit, covariance, MODEL.json) leaves out sympy (pulled in by
     torch.broadcast_shapes), scipy (its Student t quantile is `torchcal.statistics`') and
     the plotting packages."""
-    data, robot = ROOT / "examples/ur10/series_d.csv", ROOT / "examples/ur10/ur10.json"
-    out = tmp_path / "m.json"
-    code = (f"import torchcal.cli\nrc = torchcal.cli.main(['fit', {str(data)!r}, '--robot', {str(robot)!r}, "
-            f"'--effects', 'base_frame', 'tool_offset', '--out', {str(out)!r}])\nassert rc == 0")
-    loaded = _modules_after(code)
+    out, loaded, _, _ = fit_process
     assert out.is_file() and "torch" in loaded
     tops = {m.split(".")[0] for m in loaded}
     assert not tops & {"sympy", "matplotlib", "rerun", "sklearn", "scipy"}
@@ -105,12 +122,17 @@ def test_builtin_effect_names_match_the_registry():
 
 
 @pytest.mark.parametrize("torch_first", [False, True])
-def test_the_command_line_freezes_what_importing_torch_made(torch_first):
+def test_the_command_line_freezes_what_importing_torch_made(torch_first, request):
     """A command that imports torch does so with the cyclic collector off and then freezes
     the objects it made (gc.freeze: no later full collection, nor the ones at exit, scans
-    them again), and leaves the collector on. In a process that imported torch before
-    (the test suite, a program calling `main`), main leaves the collector as it is."""
-    code = ("import gc\n" + ("import torch\n" if torch_first else "") +
+    them again), and leaves the collector on (the fresh process of `fit_process`). In a
+    process that imported torch before (the test suite, a program calling `main`), main
+    leaves the collector as it is."""
+    if not torch_first:
+        _, loaded, frozen, enabled = request.getfixturevalue("fit_process")
+        assert "torch" in loaded and enabled and frozen > 50_000
+        return
+    code = ("import gc\nimport torch\n"
             "import torchcal.cli\nassert torchcal.cli.main(['robot', 'show', 'ur5e']) == 0\n"
             "print('@@', gc.get_freeze_count(), gc.isenabled())")
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
@@ -118,5 +140,4 @@ def test_the_command_line_freezes_what_importing_torch_made(torch_first):
     line = [x for x in out.stdout.splitlines() if x.startswith("@@")]
     assert line, out.stderr
     _, frozen, enabled = line[-1].split()
-    assert enabled == "True"
-    assert (int(frozen) == 0) if torch_first else (int(frozen) > 50_000)
+    assert enabled == "True" and int(frozen) == 0

@@ -142,6 +142,8 @@ def predict_rows(model: CalibrationModel, thetas: torch.Tensor, q: torch.Tensor,
     approach = approach_directions(q.detach()) if approach is None else approach
     payload = torch.zeros(M, dtype=q.dtype, device=q.device) if payload_kg is None else payload_kg
     ctx = _context(model, q, approach, payload, temp_c)
+    if M and bool((thetas == thetas[0]).all()):  # one set for every row (a global model): no grouping
+        return model.predict(thetas[0], ctx)
     uniq, inv = torch.unique(thetas, dim=0, return_inverse=True)
     out = []
     rows_of = []

@@ -3,7 +3,7 @@
 docs/paper.md section 6, "Latin hypercube sample of the workspace, repeated simulated moves to
 each point, distance-error interval per point, R_set":
 
-1. `sample_workspace`: a Latin hypercube (scipy.stats.qmc.LatinHypercube, explicit seed)
+1. `sample_workspace`: a Latin hypercube (scipy.stats.qmc.LatinHypercube's points, explicit seed)
    of joint space inside the robot's limits, filtered by a `Workspace` (TCP above the
    floor, outside the base column, within reach); rounds of fresh hypercubes are drawn
    until N points pass, and the first N are kept. The sweep draws its points in blocks

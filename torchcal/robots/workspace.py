@@ -70,28 +70,40 @@ class Workspace:
         return ok
 
 
-def _lhs(d: int, seed):
-    from scipy.stats import qmc
-    if isinstance(seed, np.random.SeedSequence):
-        seed = np.random.default_rng(seed)
-    try:
-        return qmc.LatinHypercube(d=d, rng=seed)
-    except TypeError:  # scipy < 1.15
-        return qmc.LatinHypercube(d=d, seed=seed)
+class LatinHypercube:
+    """Latin hypercubes in [0, 1)^d, the points of scipy.stats.qmc.LatinHypercube(d, rng=seed)
+    (scrambled, strength 1, no optimisation) written out in numpy: importing scipy.stats for
+    it cost about 0.65 s of CPU in every process that samples a workspace (a command, each
+    worker of a sweep). seed: an int, a numpy SeedSequence or Generator, read as scipy reads
+    ``rng``: the points come from a child spawned from ``numpy.random.default_rng(seed)``
+    (a SeedSequence's spawn counter advances). tests/test_workspace.py holds them to scipy's."""
+
+    def __init__(self, d: int, seed=None):
+        self.d = int(d)
+        self.rng = np.random.default_rng(seed).spawn(1)[0]
+
+    def random(self, n: int) -> np.ndarray:
+        """(n, d) points, one in each of the n strata [k/n, (k+1)/n) of every axis; successive
+        calls draw on from the same stream."""
+        samples = self.rng.uniform(size=(n, self.d))
+        perms = np.tile(np.arange(1, n + 1), (self.d, 1))
+        for i in range(self.d):
+            self.rng.shuffle(perms[i, :])
+        return (perms.T - samples) / n
 
 
 def sample_workspace(robot, n: int, seed=0, workspace: Workspace | None = None,
                      max_rounds: int = 50) -> torch.Tensor:
     """n joint configurations (n, dof) rad, float64 on the CPU, inside limits and workspace.
 
-    Rounds of Latin hypercubes (scipy LatinHypercube with rng=seed; seed an int or a
+    Rounds of Latin hypercubes (`LatinHypercube`: scipy's with rng=seed; seed an int or a
     numpy SeedSequence) are scaled to the joint limits and filtered by `workspace` until
     n pass; the first n are returned.
     """
     if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 1:
         raise InputError(f"number of workspace points must be a positive integer, got {n!r}")
     workspace = Workspace() if workspace is None else workspace
-    engine = _lhs(robot.n, seed)
+    engine = LatinHypercube(robot.n, seed)
     lo = robot.limits[:, 0].cpu().numpy()
     hi = robot.limits[:, 1].cpu().numpy()
     cpu = robot.to("cpu", torch.float64)

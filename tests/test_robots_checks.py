@@ -87,3 +87,43 @@ def test_a_robot_mounted_otherwise_is_named_for_a_model_with_gravity_driven_effe
     with pytest.warns(RobotGravityWarning, match=r"\(180 deg apart\).*joint_compliance:2"):
         compensate_targets(tmp_path / "jc.json", torch.tensor([[300.0, 200.0, 400.0]], dtype=torch.float64),
                            robot=tmp_path / "ceiling.json", payload_kg=torch.tensor([1.0], dtype=torch.float64))
+
+
+def _gear_session(robot, ratio: float, n: int, seed: int):
+    """(q (n, 6) rad, xyz (n, 3) mm): plain-numpy FK of `robot` whose joint 2 turns by
+    q + s1 sin(r q) + c1 cos(r q) + s2 sin(2 r q) (r the reducer ratio, amplitudes of
+    0.01..0.03 deg), 0.02 mm noise."""
+    import numpy as np
+
+    from npsim import numpy_fk
+    rng = np.random.default_rng(seed)
+    lo, hi = robot.limits[:, 0].numpy(), robot.limits[:, 1].numpy()
+    q = rng.uniform(lo, hi, size=(n, robot.n))
+    s1, c1, s2 = np.radians([0.02, -0.03, 0.01])
+    qe = q.copy()
+    qe[:, 1] += s1 * np.sin(ratio * q[:, 1]) + c1 * np.cos(ratio * q[:, 1]) + s2 * np.sin(2 * ratio * q[:, 1])
+    xyz = numpy_fk(robot, qe, np.zeros((robot.n, 5))) + rng.normal(0.0, 0.02, (n, 3))
+    return torch.from_numpy(q), torch.from_numpy(xyz)
+
+
+def test_a_gear_ratio_written_inverted_is_named_and_valid_ratios_are_not():
+    import warnings
+
+    from torchcal.robots.checks import RobotUnitWarning
+    obj = robot_to_dict(torchcal.robot("ur5e"))
+    q, xyz = _gear_session(torchcal.robot("ur5e"), 101.0, 80, seed=7)
+    m = Measurements(torch.arange(len(q)), q, xyz)
+    effects = ["gear_transmission:2"]
+    obj["gear_ratio"] = [101.0] * 6
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RobotUnitWarning)
+        right = robot_from_dict(obj, "ur5e.json")
+        for ratios in ([1, None, 121, 80.5, 1.0, 50], [220, 220, 180, 120, 120, 90]):  # direct drive, unknown
+            robot_from_dict(dict(obj, gear_ratio=ratios), "ok.json")
+    obj["gear_ratio"] = [1 / 101.0] * 6
+    with pytest.warns(RobotUnitWarning, match=r"ur5e_inv.json: gear_ratio\[1\] = 0.009901 \(and 5 more joint\(s\)\) "
+                                               r"is below 1.*inverted.*\(101 if so\)"):
+        inverted = robot_from_dict(obj, "ur5e_inv.json")
+    rms_right = torchcal.fit(right, m, effects).rms_mm
+    rms_inverted = torchcal.fit(inverted, m, effects).rms_mm
+    assert rms_right < 0.05 < 3 * rms_right < rms_inverted  # what the warning is about: the fit misses it

@@ -6,7 +6,8 @@ are radians written where degrees belong. (`check_robot_lengths`): an arm whose 
 over joints of ``sqrt(d^2 + a^2)``, prismatic strokes included, `link_reach_mm`) reach less
 than MIN_REACH_MM = 50 mm is not an industrial arm; its lengths were written in metres. One
 that reaches more than MAX_REACH_MM = 100 m was written in micrometres (a URDF import: in
-millimetres).
+millimetres). A reducer ratio below 1 (`check_gear_ratio`: the motor turning slower than
+its joint) was written inverted, joint turns per motor turn: one `RobotUnitWarning`.
 
 Robots (`check_same_robot`, `robot_differences`): a model applied to another robot than
 the one it was fitted for, and a sweep or partition file made for another robot than the
@@ -28,6 +29,7 @@ from torchcal.errors import InputError
 MIN_REACH_MM = 50.0
 MIN_STROKE_MM = 1.0  # a prismatic joint travelling less: its limits were written in metres
 MAX_REACH_MM = 100_000.0  # 100 m of links and strokes: beyond the longest linear track
+MIN_GEAR_RATIO = 1.0  # motor turns per joint turn: a direct drive's 1; less is written inverted
 
 
 def check_same_robot(model_robot, robot, where: str, what: str = "the given robot") -> None:
@@ -176,3 +178,20 @@ def check_robot_angles(table, prismatic, limits, where: str = "robot file") -> N
             j, k, v = near[0]
             raise InputError(f"{where}: joints[{j + 1}].{k} = {v:.6g}: pi/2 or pi written in radians (and no angle "
                              "of the file beyond 6.3 deg); robot files take degrees (e.g. 90, not 1.5708)")
+
+
+def check_gear_ratio(ratio, where: str = "robot file") -> None:
+    """One `RobotUnitWarning` when a reducer ratio of `ratio` (the robot file's "gear_ratio":
+    n entries, motor turns per joint turn, > 0, or None where unknown) lies below
+    MIN_GEAR_RATIO: a robot's reducers run from 1 (direct drive) to a few hundred, and
+    0.0099 is 1 / 101 written as joint turns per motor turn. `gear_transmission` would read
+    its harmonics at 1 / r^2 of the true motor-side frequency: nearly constant over the
+    joint's range, fitted as an offset and a scale (ur5e, ratio 101 written 1 / 101: fit rms
+    0.31 mm against 0.034 mm, in silence before this check)."""
+    low = [(j, float(r)) for j, r in enumerate(ratio or (), start=1) if r is not None and float(r) < MIN_GEAR_RATIO]
+    if low:
+        j, r = low[0]
+        more = f" (and {len(low) - 1} more joint(s))" if len(low) > 1 else ""
+        warnings.warn(f"{where}: gear_ratio[{j}] = {r:.4g}{more} is below {MIN_GEAR_RATIO:g}, the motor turning "
+                      f"slower than the joint: it looks inverted, joint turns per motor turn ({1 / r:.4g} if so); "
+                      "gear_ratio takes motor turns per joint turn (e.g. 101)", RobotUnitWarning, stacklevel=5)

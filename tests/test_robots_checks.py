@@ -127,3 +127,53 @@ def test_a_gear_ratio_written_inverted_is_named_and_valid_ratios_are_not():
     rms_right = torchcal.fit(right, m, effects).rms_mm
     rms_inverted = torchcal.fit(inverted, m, effects).rms_mm
     assert rms_right < 0.05 < 3 * rms_right < rms_inverted  # what the warning is about: the fit misses it
+
+
+def _robot_on_a_mount(robot, z_mm: float):
+    """`robot` with its base (world <- joint-1 frame) raised by z_mm."""
+    import dataclasses
+    B = torch.eye(4, dtype=torch.float64)
+    B[2, 3] = z_mm
+    return dataclasses.replace(robot, base=B)
+
+
+def _heights_above_base(robot, q):
+    """(N,) mm: plain-numpy TCP height above the robot's joint-1 frame (its base undone)."""
+    import numpy as np
+
+    from npsim import numpy_fk
+    return numpy_fk(_robot_on_a_mount(robot, 0.0), np.asarray(q), np.zeros((robot.n, 5)))[:, 2]
+
+
+def test_a_floor_above_the_robots_base_is_named(tmp_path):
+    """A robot file written by `torchcal export` has the measuring frame as its world frame:
+    a tracker 500 mm above the robot's base (tests/npsim.py) put the default floor z > 0
+    500 mm above the base, and `plan` drew every pose above it in silence."""
+    import warnings
+
+    from npsim import tracker_session
+    from torchcal.api import export
+    from torchcal.planning.plan import plan
+    from torchcal.robots.checks import FloorWarning
+    from torchcal.robots.workspace import Workspace
+
+    ur = torchcal.robot("ur5e")
+    q = random_poses(ur, 60, 4)
+    xyz = torch.from_numpy(tracker_session(ur, q.numpy(), seed=3))
+    res = torchcal.fit(ur, Measurements(torch.arange(60), q, xyz), ["base_frame", "tool_offset"])
+    export(res, robot_file=tmp_path / "cal.json")
+    cal = torchcal.robot(str(tmp_path / "cal.json"))
+    z = float(cal.base[2, 3])
+    assert -520 < z < -480  # the tracker's frame, 500 mm above the base
+    with pytest.warns(FloorWarning, match=rf"floor z > 0 mm lies {-z:.0f} mm above the robot's base.*"
+                                          rf"plan --floor {z:.0f}"):
+        slab = plan(cal, ["base_frame", "tool_offset"], n=20, candidates=400, seed=0)
+    assert _heights_above_base(cal, slab.q).min() > -z - 30  # what it names: no pose below the tracker's height
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", FloorWarning)
+        fixed = plan(cal, ["base_frame", "tool_offset"], n=20, candidates=400, seed=0, workspace=Workspace(z))
+        for robot in (ur, torchcal.robot(str(UR10)), torchcal.robot("kr1000titan"),
+                      _robot_on_a_mount(ur, 600.0), _robot_on_a_mount(ur, -80.0)):
+            plan(robot, ["base_frame", "tool_offset"], n=20, candidates=400, seed=1)
+    assert _heights_above_base(cal, fixed.q).min() < 200
+

@@ -8,6 +8,9 @@ than MIN_REACH_MM = 50 mm is not an industrial arm; its lengths were written in 
 that reaches more than MAX_REACH_MM = 100 m was written in micrometres (a URDF import: in
 millimetres). A reducer ratio below 1 (`check_gear_ratio`: the motor turning slower than
 its joint) was written inverted, joint turns per motor turn: one `RobotUnitWarning`.
+A workspace floor more than BASE_BELOW_FLOOR_MM above the robot's own base
+(`warn_base_below_floor`: the world frame of an exported robot file is the measuring frame)
+is named in one `FloorWarning`.
 
 Robots (`check_same_robot`, `robot_differences`): a model applied to another robot than
 the one it was fitted for, and a sweep or partition file made for another robot than the
@@ -29,6 +32,7 @@ from torchcal.errors import InputError
 MIN_REACH_MM = 50.0
 MIN_STROKE_MM = 1.0  # a prismatic joint travelling less: its limits were written in metres
 MAX_REACH_MM = 100_000.0  # 100 m of links and strokes: beyond the longest linear track
+BASE_BELOW_FLOOR_MM = 100.0  # a base this far below the workspace's floor: the floor is not the robot's
 MIN_GEAR_RATIO = 1.0  # motor turns per joint turn: a direct drive's 1; less is written inverted
 
 
@@ -195,3 +199,28 @@ def check_gear_ratio(ratio, where: str = "robot file") -> None:
         warnings.warn(f"{where}: gear_ratio[{j}] = {r:.4g}{more} is below {MIN_GEAR_RATIO:g}, the motor turning "
                       f"slower than the joint: it looks inverted, joint turns per motor turn ({1 / r:.4g} if so); "
                       "gear_ratio takes motor turns per joint turn (e.g. 101)", RobotUnitWarning, stacklevel=5)
+
+
+class FloorWarning(UserWarning):
+    """The workspace's floor lies above the robot's own base: its world frame is not the cell's."""
+
+
+def warn_base_below_floor(robot, floor_z_mm: float, stacklevel: int = 1) -> bool:
+    """One `FloorWarning` (True) when the robot's base, the origin of its joint-1 frame at
+    z = robot.base[2, 3] mm of its world frame, lies more than BASE_BELOW_FLOOR_MM below
+    the workspace floor z = floor_z_mm (`torchcal.robots.workspace.Workspace`): a robot
+    standing under its floor. The world frame of a robot file written by `torchcal export`
+    is the measuring frame (the tracker's head, e.g. 1226 mm above the UR10 of
+    examples/ur10): a floor at its z = 0 kept only the poses whose TCP lay more than 1225
+    mm above the base, and `plan` drew its 30 poses from a slab 1225..1263 mm high (the
+    robot file it was fitted with: 11..1384 mm) in silence before this check."""
+    z = float(robot.base[2, 3])
+    if z >= floor_z_mm - BASE_BELOW_FLOOR_MM:
+        return False
+    warnings.warn(f"workspace: the floor z > {floor_z_mm:g} mm lies {floor_z_mm - z:.0f} mm above the robot's base "
+                  f"(its joint-1 frame at z = {z:.0f} mm of the robot file's world frame): only poses whose TCP lies "
+                  f"that high above the base are kept; a world frame that is not the cell's (a robot file written "
+                  f"by torchcal export has the measuring frame)? Put the floor at or below the base (plan --floor "
+                  f"{z:.0f}, Workspace(floor_z_mm={z:.0f})) or use the robot file the model was fitted with",
+                  FloorWarning, stacklevel=stacklevel + 1)
+    return True

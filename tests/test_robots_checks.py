@@ -166,7 +166,7 @@ def test_a_floor_above_the_robots_base_is_named(tmp_path):
     z = float(cal.base[2, 3])
     assert -520 < z < -480  # the tracker's frame, 500 mm above the base
     with pytest.warns(FloorWarning, match=rf"floor z > 0 mm lies {-z:.0f} mm above the robot's base.*"
-                                          rf"plan --floor {z:.0f}"):
+                                          rf"a floor of {z:.0f} mm: plan's floor option"):
         slab = plan(cal, ["base_frame", "tool_offset"], n=20, candidates=400, seed=0)
     assert _heights_above_base(cal, slab.q).min() > -z - 30  # what it names: no pose below the tracker's height
     with warnings.catch_warnings():

@@ -220,7 +220,8 @@ def warn_base_below_floor(robot, floor_z_mm: float, stacklevel: int = 1) -> bool
     warnings.warn(f"workspace: the floor z > {floor_z_mm:g} mm lies {floor_z_mm - z:.0f} mm above the robot's base "
                   f"(its joint-1 frame at z = {z:.0f} mm of the robot file's world frame): only poses whose TCP lies "
                   f"that high above the base are kept; a world frame that is not the cell's (a robot file written "
-                  f"by torchcal export has the measuring frame)? Put the floor at or below the base (plan --floor "
-                  f"{z:.0f}, Workspace(floor_z_mm={z:.0f})) or use the robot file the model was fitted with",
+                  f"by torchcal export has the measuring frame)? Put the floor at or below the base (a floor of "
+                  f"{z:.0f} mm: plan's floor option, Workspace(floor_z_mm={z:.0f})) or use the robot file the "
+                  "model was fitted with",
                   FloorWarning, stacklevel=stacklevel + 1)
     return True

@@ -177,3 +177,34 @@ def test_a_floor_above_the_robots_base_is_named(tmp_path):
             plan(robot, ["base_frame", "tool_offset"], n=20, candidates=400, seed=1)
     assert _heights_above_base(cal, fixed.q).min() < 200
 
+
+
+def test_revolute_limits_beyond_two_turns_are_named():
+    """Limits in tenths of a degree (the UR10's +-360 deg written +-3600): plan drew every
+    pose with a joint beyond +-360 deg (30 of 30) in silence; now one warning names the
+    joint and its turns. The presets, the UR10's and the SCARA example's files (+-360 deg)
+    and a joint of exactly two turns say nothing."""
+    import warnings
+
+    import numpy as np
+
+    from torchcal.planning.plan import plan
+    from torchcal.robots.checks import RobotUnitWarning
+
+    obj = json.loads(UR10.read_text())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RobotUnitWarning)
+        for name in ("kr1000titan", "ur5e", "puma560"):
+            robot_from_dict(robot_to_dict(torchcal.robot(name)), name)
+        robot_from_dict(obj, "ur10.json")
+        robot_from_dict(json.loads((UR10.parents[1] / "scara.json").read_text()), "scara.json")
+        two = json.loads(UR10.read_text())
+        two["joints"][5].update(lower=-720.0, upper=720.0)
+        robot_from_dict(two, "two_turns.json")
+    for j in obj["joints"]:
+        j["lower"], j["upper"] = 10 * j["lower"], 10 * j["upper"]
+    with pytest.warns(RobotUnitWarning, match=r"tenths.json: joints\[1\] limits -3600..3600 deg \(and 5 more "
+                                               r"joint\(s\)\) turn 10 turns, beyond the 2 turns"):
+        tenths = robot_from_dict(obj, "tenths.json")
+    q = np.degrees(plan(tenths, n=30, candidates=500, seed=0).q.numpy())
+    assert (np.abs(q) > 360).any(axis=1).mean() > 0.9  # what it names: poses the robot cannot take

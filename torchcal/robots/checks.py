@@ -32,6 +32,7 @@ from torchcal.errors import InputError
 MIN_REACH_MM = 50.0
 MIN_STROKE_MM = 1.0  # a prismatic joint travelling less: its limits were written in metres
 MAX_REACH_MM = 100_000.0  # 100 m of links and strokes: beyond the longest linear track
+MAX_TURN_DEG = 720.0  # a revolute limit beyond two turns either way (a URDF's is refused there)
 BASE_BELOW_FLOOR_MM = 100.0  # a base this far below the workspace's floor: the floor is not the robot's
 MIN_GEAR_RATIO = 1.0  # motor turns per joint turn: a direct drive's 1; less is written inverted
 
@@ -156,7 +157,9 @@ def check_robot_angles(table, prismatic, limits, where: str = "robot file") -> N
     limits within +-2 pi "degrees" (an arm whose joints all turn less than 6.3 deg); or a
     twist alpha or offset theta within 1e-3 of pi / 2 or pi "degrees" while none lies
     beyond 2 pi "degrees" (90 deg written as 1.5708). Some revolute joints' limits within
-    +-2 pi "degrees" and the others' beyond: one `RobotUnitWarning` naming the first."""
+    +-2 pi "degrees" and the others' beyond: one `RobotUnitWarning` naming the first; so
+    does a revolute limit beyond MAX_TURN_DEG (two turns: tenths of a degree or encoder
+    counts, which plan and simulate would draw poses from)."""
     t = torch.rad2deg(table.detach().to("cpu", torch.float64))
     rev = ~prismatic.detach().cpu().bool()
     lim = torch.rad2deg(limits.detach().to("cpu", torch.float64))[rev]
@@ -182,6 +185,16 @@ def check_robot_angles(table, prismatic, limits, where: str = "robot file") -> N
             j, k, v = near[0]
             raise InputError(f"{where}: joints[{j + 1}].{k} = {v:.6g}: pi/2 or pi written in radians (and no angle "
                              "of the file beyond 6.3 deg); robot files take degrees (e.g. 90, not 1.5708)")
+    wide = (turn > MAX_TURN_DEG).nonzero().flatten().tolist()
+    if wide:  # limits in tenths or thousandths of a degree, or encoder counts
+        j = int(rev.nonzero().flatten()[wide[0]])
+        lo, hi = lim[wide[0]].tolist()
+        more = f" (and {len(wide) - 1} more joint(s))" if len(wide) > 1 else ""
+        warnings.warn(f"{where}: joints[{j + 1}] limits {lo:.6g}..{hi:.6g} deg{more} turn "
+                      f"{float(turn[wide[0]]) / 360:.4g} turns, beyond the {MAX_TURN_DEG / 360:g} turns of a robot "
+                      "joint: another unit (tenths or thousandths of a degree, encoder counts)? Robot files take "
+                      "degrees (lower, upper); plan, simulate and compensate draw joint values up to them",
+                      RobotUnitWarning, stacklevel=4)
 
 
 def check_gear_ratio(ratio, where: str = "robot file") -> None:

@@ -54,3 +54,26 @@ def test_positions_misaligned_with_the_joint_values_are_named(ur10_series_d, lag
     with pytest.raises(InputError, match=r"cannot come from the model of ur10 as given: .* taken from "
                                          rf"{re.escape(words)}: the positions are misaligned"):
         torchcal.evaluate(fitted, bad)
+
+
+def test_twin_column_mistakes_are_both_named():
+    """On a UR arm q1 negated and q2 shifted by 180 deg give the same points (a plain-numpy
+    ur5e session, tests/npsim.py, in a tracker's frame): the refusal named only 'q2
+    shifted by +180 deg' for data whose q1 was negated; now it names both. A q5 shifted by
+    90 deg has no twin and is named alone."""
+    import numpy as np
+
+    from npsim import tracker_session
+    from torchcal.measurements import Measurements
+    from torchcal.robots.poses import random_poses
+
+    ur = torchcal.robot("ur5e")
+    q = random_poses(ur, 60, 5)
+    xyz = torch.from_numpy(tracker_session(ur, q.numpy(), seed=5))
+    for mix, words in ((lambda q: torch.cat([-q[:, :1], q[:, 1:]], 1),
+                        r"with the joint column q2 shifted by \+180 deg \(another zero position\) or column q1 negated "
+                        r"\(another sign convention\), which give the same positions on ur5e: check the joint"),
+                       (lambda q: torch.cat([q[:, :4], q[:, 4:5] + np.pi / 2, q[:, 5:]], 1),
+                        r"with the joint column q5 shifted by -90 deg \(another zero position\): check the joint")):
+        with pytest.raises(InputError, match=r"cannot come from ur5e as given: .* but within 10 mm " + words):
+            torchcal.fit(ur, Measurements(torch.arange(60), mix(q), xyz), ["base_frame", "tool_offset"])

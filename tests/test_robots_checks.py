@@ -87,3 +87,124 @@ def test_a_robot_mounted_otherwise_is_named_for_a_model_with_gravity_driven_effe
     with pytest.warns(RobotGravityWarning, match=r"\(180 deg apart\).*joint_compliance:2"):
         compensate_targets(tmp_path / "jc.json", torch.tensor([[300.0, 200.0, 400.0]], dtype=torch.float64),
                            robot=tmp_path / "ceiling.json", payload_kg=torch.tensor([1.0], dtype=torch.float64))
+
+
+def _gear_session(robot, ratio: float, n: int, seed: int):
+    """(q (n, 6) rad, xyz (n, 3) mm): plain-numpy FK of `robot` whose joint 2 turns by
+    q + s1 sin(r q) + c1 cos(r q) + s2 sin(2 r q) (r the reducer ratio, amplitudes of
+    0.01..0.03 deg), 0.02 mm noise."""
+    import numpy as np
+
+    from npsim import numpy_fk
+    rng = np.random.default_rng(seed)
+    lo, hi = robot.limits[:, 0].numpy(), robot.limits[:, 1].numpy()
+    q = rng.uniform(lo, hi, size=(n, robot.n))
+    s1, c1, s2 = np.radians([0.02, -0.03, 0.01])
+    qe = q.copy()
+    qe[:, 1] += s1 * np.sin(ratio * q[:, 1]) + c1 * np.cos(ratio * q[:, 1]) + s2 * np.sin(2 * ratio * q[:, 1])
+    xyz = numpy_fk(robot, qe, np.zeros((robot.n, 5))) + rng.normal(0.0, 0.02, (n, 3))
+    return torch.from_numpy(q), torch.from_numpy(xyz)
+
+
+def test_a_gear_ratio_written_inverted_is_named_and_valid_ratios_are_not():
+    import warnings
+
+    from torchcal.robots.checks import RobotUnitWarning
+    obj = robot_to_dict(torchcal.robot("ur5e"))
+    q, xyz = _gear_session(torchcal.robot("ur5e"), 101.0, 80, seed=7)
+    m = Measurements(torch.arange(len(q)), q, xyz)
+    effects = ["gear_transmission:2"]
+    obj["gear_ratio"] = [101.0] * 6
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RobotUnitWarning)
+        right = robot_from_dict(obj, "ur5e.json")
+        for ratios in ([1, None, 121, 80.5, 1.0, 50], [220, 220, 180, 120, 120, 90]):  # direct drive, unknown
+            robot_from_dict(dict(obj, gear_ratio=ratios), "ok.json")
+    obj["gear_ratio"] = [1 / 101.0] * 6
+    with pytest.warns(RobotUnitWarning, match=r"ur5e_inv.json: gear_ratio\[1\] = 0.009901 \(and 5 more joint\(s\)\) "
+                                               r"is below 1.*inverted.*\(101 if so\)"):
+        inverted = robot_from_dict(obj, "ur5e_inv.json")
+    rms_right = torchcal.fit(right, m, effects).rms_mm
+    rms_inverted = torchcal.fit(inverted, m, effects).rms_mm
+    assert rms_right < 0.05 < 3 * rms_right < rms_inverted  # what the warning is about: the fit misses it
+
+
+def _robot_on_a_mount(robot, z_mm: float):
+    """`robot` with its base (world <- joint-1 frame) raised by z_mm."""
+    import dataclasses
+    B = torch.eye(4, dtype=torch.float64)
+    B[2, 3] = z_mm
+    return dataclasses.replace(robot, base=B)
+
+
+def _heights_above_base(robot, q):
+    """(N,) mm: plain-numpy TCP height above the robot's joint-1 frame (its base undone)."""
+    import numpy as np
+
+    from npsim import numpy_fk
+    return numpy_fk(_robot_on_a_mount(robot, 0.0), np.asarray(q), np.zeros((robot.n, 5)))[:, 2]
+
+
+def test_a_floor_above_the_robots_base_is_named(tmp_path):
+    """A robot file written by `torchcal export` has the measuring frame as its world frame:
+    a tracker 500 mm above the robot's base (tests/npsim.py) put the default floor z > 0
+    500 mm above the base, and `plan` drew every pose above it in silence."""
+    import warnings
+
+    from npsim import tracker_session
+    from torchcal.api import export
+    from torchcal.planning.plan import plan
+    from torchcal.robots.checks import FloorWarning
+    from torchcal.robots.workspace import Workspace
+
+    ur = torchcal.robot("ur5e")
+    q = random_poses(ur, 60, 4)
+    xyz = torch.from_numpy(tracker_session(ur, q.numpy(), seed=3))
+    res = torchcal.fit(ur, Measurements(torch.arange(60), q, xyz), ["base_frame", "tool_offset"])
+    export(res, robot_file=tmp_path / "cal.json")
+    cal = torchcal.robot(str(tmp_path / "cal.json"))
+    z = float(cal.base[2, 3])
+    assert -520 < z < -480  # the tracker's frame, 500 mm above the base
+    with pytest.warns(FloorWarning, match=rf"floor z > 0 mm lies {-z:.0f} mm above the robot's base.*"
+                                          rf"a floor of {z:.0f} mm: plan's floor option"):
+        slab = plan(cal, ["base_frame", "tool_offset"], n=20, candidates=400, seed=0)
+    assert _heights_above_base(cal, slab.q).min() > -z - 30  # what it names: no pose below the tracker's height
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", FloorWarning)
+        fixed = plan(cal, ["base_frame", "tool_offset"], n=20, candidates=400, seed=0, workspace=Workspace(z))
+        for robot in (ur, torchcal.robot(str(UR10)), torchcal.robot("kr1000titan"),
+                      _robot_on_a_mount(ur, 600.0), _robot_on_a_mount(ur, -80.0)):
+            plan(robot, ["base_frame", "tool_offset"], n=20, candidates=400, seed=1)
+    assert _heights_above_base(cal, fixed.q).min() < 200
+
+
+
+def test_revolute_limits_beyond_two_turns_are_named():
+    """Limits in tenths of a degree (the UR10's +-360 deg written +-3600): plan drew every
+    pose with a joint beyond +-360 deg (30 of 30) in silence; now one warning names the
+    joint and its turns. The presets, the UR10's and the SCARA example's files (+-360 deg)
+    and a joint of exactly two turns say nothing."""
+    import warnings
+
+    import numpy as np
+
+    from torchcal.planning.plan import plan
+    from torchcal.robots.checks import RobotUnitWarning
+
+    obj = json.loads(UR10.read_text())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RobotUnitWarning)
+        for name in ("kr1000titan", "ur5e", "puma560"):
+            robot_from_dict(robot_to_dict(torchcal.robot(name)), name)
+        robot_from_dict(obj, "ur10.json")
+        robot_from_dict(json.loads((UR10.parents[1] / "scara.json").read_text()), "scara.json")
+        two = json.loads(UR10.read_text())
+        two["joints"][5].update(lower=-720.0, upper=720.0)
+        robot_from_dict(two, "two_turns.json")
+    for j in obj["joints"]:
+        j["lower"], j["upper"] = 10 * j["lower"], 10 * j["upper"]
+    with pytest.warns(RobotUnitWarning, match=r"tenths.json: joints\[1\] limits -3600..3600 deg \(and 5 more "
+                                               r"joint\(s\)\) turn 10 turns, beyond the 2 turns"):
+        tenths = robot_from_dict(obj, "tenths.json")
+    q = np.degrees(plan(tenths, n=30, candidates=500, seed=0).q.numpy())
+    assert (np.abs(q) > 360).any(axis=1).mean() > 0.9  # what it names: poses the robot cannot take

@@ -264,3 +264,28 @@ def test_urdf_limits_inverted_or_in_degrees_are_refused(tmp_path, capsys, limit,
     (tmp_path / "b.urdf").write_text(text.replace('lower="-3.0" upper="3.0"', 'lower="-6.2832" upper="6.2832"'))
     assert torch.rad2deg(robot_from_urdf(tmp_path / "b.urdf", "base", "l2").limits).abs().max() == \
         pytest.approx(360.0, abs=1e-3)
+
+
+def test_a_base_link_mounted_on_a_wall_is_named(tmp_path):
+    """A UR arm on a wall (a fixed joint world -> base_link pitched 90 deg) imported from
+    base_link got gravity [0, 0, -1] in base_link's frame (a floor robot) in silence; now one
+    warning names the URDF's gravity [1, 0, 0] there. Imported from world (the mount in its
+    base), and the upright arms of these tests, say nothing."""
+    import warnings
+
+    from torchcal.io.urdf import MountWarning
+
+    wall = [("mount", "fixed", "world", "base_link", "0 0 1.0", "0 1.5707963268 0")] + UR
+    path = tmp_path / "wall.urdf"
+    path.write_text(_urdf("wall", wall))
+    with pytest.warns(MountWarning, match=r"base link 'base_link' is mounted 90 deg from the vertical of its root "
+                                          r"'world'.*the URDF says \[1, 0, 0\]; set \"gravity\": \[1, 0, 0\]"):
+        upright = robot_from_urdf(path, "base_link", "tool0")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MountWarning)
+        from_world = robot_from_urdf(path, "world", "tool0")
+        for key in CASES:
+            robot_from_urdf(*_write(tmp_path, key))
+    # joint 1's axis: horizontal on the wall (imported from world), vertical as the base_link import reads it
+    assert abs(float(from_world.base[:3, 2] @ from_world.gravity)) < 1e-9
+    assert abs(float(upright.base[:3, 2] @ upright.gravity)) > 1 - 1e-9

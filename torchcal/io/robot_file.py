@@ -164,7 +164,9 @@ def robot_from_dict(obj, where: str = "robot file") -> Robot:
 
 
 def _gear_ratio(where: str, v, n: int) -> tuple:
-    """The "gear_ratio" list: n entries, each a number > 0 or None (unknown)."""
+    """The "gear_ratio" list: n entries, each a number > 0 or None (unknown); one below 1
+    is named in a warning (`torchcal.robots.checks.check_gear_ratio`)."""
+    from torchcal.robots.checks import check_gear_ratio
     if not isinstance(v, list) or len(v) != n:
         raise InputError(f"{where}: gear_ratio: expected a list of {n} reducer ratios (one per joint, "
                          f"null where unknown)")
@@ -174,6 +176,7 @@ def _gear_ratio(where: str, v, n: int) -> tuple:
         if r is not None and r <= 0:
             raise InputError(f"{where}: gear_ratio[{i}]: expected a ratio > 0 or null, got {r:g}")
         out.append(r)
+    check_gear_ratio(out, where)
     return tuple(out)
 
 

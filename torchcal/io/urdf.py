@@ -239,6 +239,31 @@ def _solve_row(o, u, use_beta: bool, x_hint=None) -> list[float]:
     return [theta, float(o[2]), a, alpha, beta]
 
 
+MOUNT_TILT_DEG = 1.0  # a base link tilted more than this from its root: the floor's gravity does not hold
+
+
+class MountWarning(UserWarning):
+    """A URDF's base link mounted tilted (a wall or ceiling robot) under the root it hangs from."""
+
+
+def mount_gravity(path, base_link: str):
+    """(root link, gravity (3,) in `base_link`'s frame, tilt deg) of the fixed joints above
+    `base_link` up to the root of the URDF (or the first moving joint), the root's z taken
+    as up (ROS REP 103: gravity -z); None when `base_link` is the root."""
+    root = _root(path)
+    up = {el.find("child").get("link"): el for el in root.findall("joint")
+          if el.find("child") is not None and el.find("parent") is not None}
+    T, link = torch.eye(4, dtype=_F), base_link
+    while link in up and up[link].get("type") == "fixed":
+        el = up[link]
+        T = _origin(el.find("origin"), f"{path}: joint {el.get('name')!r}") @ T
+        link = el.find("parent").get("link")
+    if link == base_link:
+        return None
+    g = T[:3, :3].T @ torch.tensor([0.0, 0.0, -1.0], dtype=_F)
+    return link, g, math.degrees(math.acos(max(-1.0, min(1.0, -float(g[2])))))
+
+
 def robot_from_urdf(path, base_link: str, tip_link: str, name: str | None = None) -> Robot:
     """The MD-H `Robot` of the chain `base_link` -> `tip_link` of a URDF (module doc), named
     `name`, else the URDF's ``<robot name>``, else after the file."""
@@ -300,6 +325,15 @@ def robot_from_urdf(path, base_link: str, tip_link: str, name: str | None = None
 
     check_robot_lengths(torch.tensor(rows, dtype=_F), torch.tensor(pris), torch.tensor(limits, dtype=_F), str(path),
                         urdf=True)  # a URDF written in millimetres
+    mount = mount_gravity(path, base_link)
+    if mount is not None and mount[2] > MOUNT_TILT_DEG:  # a wall or ceiling robot imported from its own base
+        link, g, tilt = mount
+        import warnings
+        vec = ", ".join(f"{round(v, 6) + 0.0:.4g}" for v in g.tolist())
+        warnings.warn(f"{path}: base link {base_link!r} is mounted {tilt:.4g} deg from the vertical of its root "
+                      f"{link!r} (fixed joints): the robot file gets gravity [0, 0, -1] in {base_link!r}'s frame "
+                      f"(a floor robot), the URDF says [{vec}]; set \"gravity\": [{vec}] in the robot file or "
+                      f"import from {link!r}", MountWarning, stacklevel=2)
     return Robot(name or _root(path).get("name") or Path(path).stem, torch.tensor(rows, dtype=_F), torch.tensor(has_beta),
                  torch.tensor(limits, dtype=_F), base, tool, 0.0,
                  torch.tensor([0.0, 0.0, -1.0], dtype=_F), torch.tensor(pris),

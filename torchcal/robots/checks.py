@@ -6,7 +6,11 @@ are radians written where degrees belong. (`check_robot_lengths`): an arm whose 
 over joints of ``sqrt(d^2 + a^2)``, prismatic strokes included, `link_reach_mm`) reach less
 than MIN_REACH_MM = 50 mm is not an industrial arm; its lengths were written in metres. One
 that reaches more than MAX_REACH_MM = 100 m was written in micrometres (a URDF import: in
-millimetres).
+millimetres). A reducer ratio below 1 (`check_gear_ratio`: the motor turning slower than
+its joint) was written inverted, joint turns per motor turn: one `RobotUnitWarning`.
+A workspace floor more than BASE_BELOW_FLOOR_MM above the robot's own base
+(`warn_base_below_floor`: the world frame of an exported robot file is the measuring frame)
+is named in one `FloorWarning`.
 
 Robots (`check_same_robot`, `robot_differences`): a model applied to another robot than
 the one it was fitted for, and a sweep or partition file made for another robot than the
@@ -28,6 +32,9 @@ from torchcal.errors import InputError
 MIN_REACH_MM = 50.0
 MIN_STROKE_MM = 1.0  # a prismatic joint travelling less: its limits were written in metres
 MAX_REACH_MM = 100_000.0  # 100 m of links and strokes: beyond the longest linear track
+MAX_TURN_DEG = 720.0  # a revolute limit beyond two turns either way (a URDF's is refused there)
+BASE_BELOW_FLOOR_MM = 100.0  # a base this far below the workspace's floor: the floor is not the robot's
+MIN_GEAR_RATIO = 1.0  # motor turns per joint turn: a direct drive's 1; less is written inverted
 
 
 def check_same_robot(model_robot, robot, where: str, what: str = "the given robot") -> None:
@@ -150,7 +157,9 @@ def check_robot_angles(table, prismatic, limits, where: str = "robot file") -> N
     limits within +-2 pi "degrees" (an arm whose joints all turn less than 6.3 deg); or a
     twist alpha or offset theta within 1e-3 of pi / 2 or pi "degrees" while none lies
     beyond 2 pi "degrees" (90 deg written as 1.5708). Some revolute joints' limits within
-    +-2 pi "degrees" and the others' beyond: one `RobotUnitWarning` naming the first."""
+    +-2 pi "degrees" and the others' beyond: one `RobotUnitWarning` naming the first; so
+    does a revolute limit beyond MAX_TURN_DEG (two turns: tenths of a degree or encoder
+    counts, which plan and simulate would draw poses from)."""
     t = torch.rad2deg(table.detach().to("cpu", torch.float64))
     rev = ~prismatic.detach().cpu().bool()
     lim = torch.rad2deg(limits.detach().to("cpu", torch.float64))[rev]
@@ -176,3 +185,56 @@ def check_robot_angles(table, prismatic, limits, where: str = "robot file") -> N
             j, k, v = near[0]
             raise InputError(f"{where}: joints[{j + 1}].{k} = {v:.6g}: pi/2 or pi written in radians (and no angle "
                              "of the file beyond 6.3 deg); robot files take degrees (e.g. 90, not 1.5708)")
+    wide = (turn > MAX_TURN_DEG).nonzero().flatten().tolist()
+    if wide:  # limits in tenths or thousandths of a degree, or encoder counts
+        j = int(rev.nonzero().flatten()[wide[0]])
+        lo, hi = lim[wide[0]].tolist()
+        more = f" (and {len(wide) - 1} more joint(s))" if len(wide) > 1 else ""
+        warnings.warn(f"{where}: joints[{j + 1}] limits {lo:.6g}..{hi:.6g} deg{more} turn "
+                      f"{float(turn[wide[0]]) / 360:.4g} turns, beyond the {MAX_TURN_DEG / 360:g} turns of a robot "
+                      "joint: another unit (tenths or thousandths of a degree, encoder counts)? Robot files take "
+                      "degrees (lower, upper); plan, simulate and compensate draw joint values up to them",
+                      RobotUnitWarning, stacklevel=4)
+
+
+def check_gear_ratio(ratio, where: str = "robot file") -> None:
+    """One `RobotUnitWarning` when a reducer ratio of `ratio` (the robot file's "gear_ratio":
+    n entries, motor turns per joint turn, > 0, or None where unknown) lies below
+    MIN_GEAR_RATIO: a robot's reducers run from 1 (direct drive) to a few hundred, and
+    0.0099 is 1 / 101 written as joint turns per motor turn. `gear_transmission` would read
+    its harmonics at 1 / r^2 of the true motor-side frequency: nearly constant over the
+    joint's range, fitted as an offset and a scale (ur5e, ratio 101 written 1 / 101: fit rms
+    0.31 mm against 0.034 mm, in silence before this check)."""
+    low = [(j, float(r)) for j, r in enumerate(ratio or (), start=1) if r is not None and float(r) < MIN_GEAR_RATIO]
+    if low:
+        j, r = low[0]
+        more = f" (and {len(low) - 1} more joint(s))" if len(low) > 1 else ""
+        warnings.warn(f"{where}: gear_ratio[{j}] = {r:.4g}{more} is below {MIN_GEAR_RATIO:g}, the motor turning "
+                      f"slower than the joint: it looks inverted, joint turns per motor turn ({1 / r:.4g} if so); "
+                      "gear_ratio takes motor turns per joint turn (e.g. 101)", RobotUnitWarning, stacklevel=5)
+
+
+class FloorWarning(UserWarning):
+    """The workspace's floor lies above the robot's own base: its world frame is not the cell's."""
+
+
+def warn_base_below_floor(robot, floor_z_mm: float, stacklevel: int = 1) -> bool:
+    """One `FloorWarning` (True) when the robot's base, the origin of its joint-1 frame at
+    z = robot.base[2, 3] mm of its world frame, lies more than BASE_BELOW_FLOOR_MM below
+    the workspace floor z = floor_z_mm (`torchcal.robots.workspace.Workspace`): a robot
+    standing under its floor. The world frame of a robot file written by `torchcal export`
+    is the measuring frame (the tracker's head, e.g. 1226 mm above the UR10 of
+    examples/ur10): a floor at its z = 0 kept only the poses whose TCP lay more than 1225
+    mm above the base, and `plan` drew its 30 poses from a slab 1225..1263 mm high (the
+    robot file it was fitted with: 11..1384 mm) in silence before this check."""
+    z = float(robot.base[2, 3])
+    if z >= floor_z_mm - BASE_BELOW_FLOOR_MM:
+        return False
+    warnings.warn(f"workspace: the floor z > {floor_z_mm:g} mm lies {floor_z_mm - z:.0f} mm above the robot's base "
+                  f"(its joint-1 frame at z = {z:.0f} mm of the robot file's world frame): only poses whose TCP lies "
+                  f"that high above the base are kept; a world frame that is not the cell's (a robot file written "
+                  f"by torchcal export has the measuring frame)? Put the floor at or below the base (a floor of "
+                  f"{z:.0f} mm: plan's floor option, Workspace(floor_z_mm={z:.0f})) or use the robot file the "
+                  "model was fitted with",
+                  FloorWarning, stacklevel=stacklevel + 1)
+    return True

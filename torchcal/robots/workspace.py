@@ -98,11 +98,15 @@ def sample_workspace(robot, n: int, seed=0, workspace: Workspace | None = None,
 
     Rounds of Latin hypercubes (`LatinHypercube`: scipy's with rng=seed; seed an int or a
     numpy SeedSequence) are scaled to the joint limits and filtered by `workspace` until
-    n pass; the first n are returned.
+    n pass; the first n are returned. A floor well above the robot's own base is named in
+    one `torchcal.robots.checks.FloorWarning` (`warn_base_below_floor`).
     """
+    from torchcal.robots.checks import warn_base_below_floor
+
     if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 1:
         raise InputError(f"number of workspace points must be a positive integer, got {n!r}")
     workspace = Workspace() if workspace is None else workspace
+    warn_base_below_floor(robot, workspace.floor_z_mm, stacklevel=2)
     engine = LatinHypercube(robot.n, seed)
     lo = robot.limits[:, 0].cpu().numpy()
     hi = robot.limits[:, 1].cpu().numpy()

@@ -13,6 +13,7 @@ import torch
 from torchcal.errors import InputError
 
 HINT_ROWS = 60  # rows (evenly spread over the file) that judge a one-column mistake
+TWIN_REL = 1e-6  # mistakes whose scores agree this closely give the same points: both are named
 LAGS = (1, -1, 2, -2)  # row offsets between the joint values and the positions that are tried
 
 
@@ -55,19 +56,30 @@ def column_hint(m, robot, fits, score=None, tries: int = 2) -> str | None:
     `Measurements`) accepts, else None: data refused as another robot that are this robot's
     with one joint column mixed up. Judged on HINT_ROWS rows spread over the file. With
     `score` (a cheap float of `Measurements`, lower is closer) only the `tries` best-scored
-    mistakes go to `fits` (an expensive predicate: the refusal stays quick)."""
+    mistakes go to `fits` (an expensive predicate: the refusal stays quick), and the
+    mistakes of the same score (within TWIN_REL) that fit too are named with it, "A or B":
+    on a UR arm q1 negated and q2 shifted by 180 deg give the same points to 9 digits, and
+    naming one of them named the wrong column half the time."""
     if len(m) > HINT_ROWS:
         m = m.subset(torch.linspace(0, len(m) - 1, HINT_ROWS).round().long())
-    cands = list(column_mistakes(m, robot))
+    cands = [(None, p, f) for p, f in column_mistakes(m, robot)]
     if score is not None:
-        cands = sorted(cands, key=lambda c: score(c[1]))[:tries]
-    for phrase, fixed in cands:
-        try:
-            if fits(fixed):
-                return phrase
-        except InputError:
-            continue
+        cands = sorted(((score(f), p, f) for _, p, f in cands), key=lambda c: c[0])[:tries]
+    for i, (s, phrase, fixed) in enumerate(cands):
+        if _fits(fits, fixed):
+            twins = [p for s2, p, f in cands[i + 1:]
+                     if s is not None and s2 <= s * (1 + TWIN_REL) + 1e-9 and _fits(fits, f)]
+            return " or ".join([phrase, *twins]) + (f", which give the same positions on {robot.name}" if twins
+                                                     else "")
     return None
+
+
+def _fits(fits, mm) -> bool:
+    """fits(mm), False where it raises InputError."""
+    try:
+        return bool(fits(mm))
+    except InputError:
+        return False
 
 
 def row_lag(m, fits) -> int | None:

@@ -65,7 +65,7 @@ candidates' full fits of `discover` (`torchcal.diagnosis.step.candidate_fit`) an
 reduced models of its stability check (`torchcal.diagnosis.stability.without`): on UR10
 series C's training split 15 fits, all by the chord, 1.7-2.1x faster each than the LM
 `fit` (0.06 against 0.11 s CPU), fitted positions within 5e-8 mm of it, rho within 7e-10
-and the posterior sd within 2e-7 relative (tests/test_warm_fit.py asserts 1e-6 mm, 1e-8
+and the posterior sd within 2e-7 relative (tests/test_refit.py asserts 1e-6 mm, 1e-8
 and 1e-5). None where the chord does not apply (the caller's `fit`).
 
 `refit` returns None where this does not apply, and the caller fits with the LM: a

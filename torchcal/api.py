@@ -29,6 +29,7 @@ from torchcal import threads
 from torchcal._lazy import attach
 from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult
 from torchcal.calibration.checks.robot_data import check_diagnosis_data, check_robot_data_of
+from torchcal.calibration.checks.conditions import check_conditions
 from torchcal.calibration.checks.nominal_data import warn_nominal_data
 from torchcal.calibration.checks.orientation_frame import check_orientation_frame
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
@@ -220,8 +221,8 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
         model = _for_data(_model(robot_or_model, effects), m)
     else:
         model = CalibrationModel.for_measurements(robot, effects, m)
+    check_conditions(model, m)  # a missing column (temp_c) first, naming the file
     ctx = context_of(model.robot, m)
-    model.check_context(ctx)  # a missing column first, in the fit's own words
     with threads.for_work(_work(model, m)), _about(m):
         check_robot_data_of(model, m, robust=robust is not None)  # another frame, robot, units, outliers
         warn_nominal_data(model, m, stacklevel=2)  # the controller's positions, not measured ones
@@ -283,6 +284,7 @@ def diagnose(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     _sigmas(sigma_mm, sigma_deg)
     model = _model(robot_or_model, effects)
     m = _measurements(measurements, model.robot)
+    check_conditions(CalibrationModel.for_measurements(model.robot, model.specs(), m), m)  # a missing column
     check_diagnosis_data(robot_or_model, model, m)
     sigma_deg = _sigma_deg(sigma_deg, m)
     check_orientation_frame(model, m)  # rx, ry, rz left in another frame than x, y, z
@@ -314,6 +316,7 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     _sigmas(sigma_mm, sigma_deg)
     model = _model(robot_or_model, effects)
     m = _measurements(measurements, model.robot)
+    check_conditions(CalibrationModel.for_measurements(model.robot, model.specs(), m), m)  # a missing column
     check_robot_data_of(CalibrationModel.for_measurements(model.robot, model.specs(), m), m)
     sigma_deg = _sigma_deg(sigma_deg, m)
     warn_nominal_data(CalibrationModel.for_measurements(model.robot, model.specs(), m), m, stacklevel=2)
@@ -392,6 +395,7 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
     if partition is not None:  # rows beyond the swept region: their zone is extrapolated (as compensate says)
         from torchcal.calibration.checks.partition import warn_far_from_sweep
         warn_far_from_sweep(partition, model.robot.fk(m.q).detach(), m.source or "measurements", stacklevel=2)
+    check_conditions(model, m)  # a missing column (temp_c) first, naming the file
     with threads.for_work(_work(model, m)), _about(m):
         check_robot_data_of(model, m)  # another frame (tracker data without base_frame tool_offset), robot, units
         warn_nominal_data(model, m, stacklevel=2)

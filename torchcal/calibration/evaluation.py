@@ -82,6 +82,7 @@ def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
     from torchcal.calibration.checks.orientation import orientation_mismatch
     from torchcal.calibration.checks.partition import warn_far_from_sweep
     from torchcal.calibration.checks.ranges import payload_conditions, warn_outside_conditions, warn_outside_range
+    from torchcal.calibration.checks.conditions import check_conditions
     from torchcal.calibration.checks.verdict import MismatchWarning, enforce
     from torchcal.effects import context_of
     from torchcal.metrics import error_summary
@@ -93,8 +94,8 @@ def evaluate(fm: FitResult, m: Measurements, stacklevel: int = 1) -> Evaluation:
         raise InputError(other)
     if other is not None:
         warnings.warn(other, PointIdWarning, stacklevel=stacklevel + 1)
+    check_conditions(cm, m)  # a missing column (temp_c), naming the file
     ctx = context_of(cm.robot, m)
-    cm.check_context(ctx)
     theta = fm.theta.to(m.xyz)
     enforce(check_measurements(cm, theta, m, fm.training_rms_mm, q_range=fm.q_range))  # another robot, frame, units
     stage = fm.residual_model

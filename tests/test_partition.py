@@ -685,3 +685,46 @@ def test_cli_number_errors_name_the_option(tmp_path, capsys, opt, value):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"torchcal partition: error: {opt}: "), err
     assert not (tmp_path / "p.json").exists()
+
+
+def _robot_sweep(name, n, seed):
+    """A sweep (`torchcal.reliability.sweep`) of preset `name` at n workspace points: the
+    KR 1000's own clearance model, others 0.01 mm seats over 100 mm and 0.03 mm allowed."""
+    import torchcal
+    from torchcal.reliability.sweep import sweep
+    from torchcal.reliability.uncertainty import ClearanceModel
+    from torchcal.robots.workspace import sample_workspace
+
+    rob = torchcal.robot(name)
+    cl = None if name == "kr1000titan" else ClearanceModel([20.0] * (2 * rob.n), [0.01] * (2 * rob.n), [100.0] * rob.n)
+    return sweep(rob, sample_workspace(rob, n, seed=seed), n_samples=50, model=cl,
+                 allowed_mm=2.5 if cl is None else 0.03)
+
+
+@pytest.mark.parametrize("m,zones", [("50", "2,1"), ("3", "3,3"), ("50", "auto")])
+def test_cli_a_fuzzifier_that_merges_the_sub_zone_centers_is_refused(tmp_path, capsys, m, zones):
+    """FCM with a large m falls to its trivial fixed point (every center the level's mean):
+    the sub-zones it returns are split by rounding. Before: written, exit 0, two zones with
+    the same printed centre (e.g. 299.25, -411.33, 2164.10 and 299.24, -411.38, 2164.06 mm)."""
+    from torchcal.io.sweep_csv import write_sweep
+
+    write_sweep(_robot_sweep("kr1000titan", 60, 6), tmp_path / "sweep.csv")
+    out = tmp_path / "part.json"
+    assert cli.main(["partition", str(tmp_path / "sweep.csv"), "--levels", "2", "--zones", zones, "--m", m,
+                     "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert "the FCM sub-zones of level 1 share one center" in err and f"fuzzifier m = {m}" in err, err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("name,n,seed", [("kr1000titan", 60, 6), ("kr1000titan", 200, 1), ("ur5e", 200, 2),
+                                         ("puma560", 150, 3)])
+def test_honest_sweeps_keep_their_sub_zones_apart(name, n, seed):
+    """Sweeps of three robots with m = 1.5 and 2 (default): every partition passes, centers
+    1.3 standard deviations or more apart (far above MIN_CENTER_SEPARATION)."""
+    sw = _robot_sweep(name, n, seed)
+    for m in (1.5, 2.0):
+        for zones in ([2, 1], [3, 3], "auto"):
+            p = partition_workspace(sw.positions, sw.r_set, 2, zones, m=m, restarts=2)
+            assert p.n_zones >= 2

@@ -25,7 +25,8 @@ n_level // 2) with the lowest Xie-Beni index, among those whose zones all hold a
 least 2 sweep points per zone of its level, else it is refused; zones that end with fewer
 than `knn_neighbors` points get one `ZoneSizeWarning` (the nearest-point vote that assigns
 poses and targets to zones rarely picks them). `levels` may also be "auto" (c in `level_range` by
-Xie-Beni). Zones are numbered 1..Z level by level; within a level by descending mean
+Xie-Beni). Sub-zone centers of one level closer than MIN_CENTER_SEPARATION standard units
+are refused (FCM's trivial fixed point, an m too large). Zones are numbered 1..Z level by level; within a level by descending mean
 R_set of their points (ties: center x). Zone and level ids are 1-based, as in the paper.
 
 Fuzzy memberships of the hierarchy: level memberships u_L (L, N) from eq. 28 on R_set;
@@ -222,6 +223,11 @@ class Partition:
 
 # ---------------------------------------------------------------------- building
 
+#: two FCM sub-zone centers of one level closer than this (in the level's standard deviations)
+#: are one center: FCM's trivial fixed point (m too large); honest sweeps with m = 2 give 1.3 or more
+MIN_CENTER_SEPARATION = 0.05
+
+
 def _as_positions_r(positions, r_set):
     pos = as_points(positions, "positions")
     if pos.shape[1] != 3:
@@ -248,6 +254,21 @@ def _parse_zones(zones, n_levels):
     if len(ks) != n_levels:
         raise InputError(f"zones: {len(ks)} sub-zone counts {ks} for {n_levels} levels; expected one count per level")
     return ks
+
+
+def _check_distinct_centers(centers: torch.Tensor, f: torch.Tensor, lev: int, m: float) -> None:
+    """InputError when two FCM sub-zone centers (k, 4) of level `lev` lie closer than
+    MIN_CENTER_SEPARATION standard units apart (f (n_l, 4): the level's standardised
+    features): FCM fell to its trivial fixed point (every membership 1/k, each center the
+    level's mean), where the hard split is decided by rounding, not by the points."""
+    d = torch.cdist(centers, centers).fill_diagonal_(math.inf)
+    spread = float(f.std(dim=0, correction=0).max()) if f.shape[0] > 1 else 1.0
+    gap = float(d.min()) / max(spread, 1e-300)
+    if gap < MIN_CENTER_SEPARATION:
+        raise InputError(f"zones: the FCM sub-zones of level {lev} share one center ({gap:.2g} standard "
+                         f"deviations apart, below {MIN_CENTER_SEPARATION:g}): with fuzzifier m = {m:g} every "
+                         f"point's memberships are equal and the split is arbitrary; expected a smaller m "
+                         f"(default 2) or fewer sub-zones")
 
 
 def partition_workspace(positions, r_set, levels=4, zones="auto", *, m: float = 2.0, r_weight: float = 1.0,
@@ -359,6 +380,8 @@ def partition_workspace(positions, r_set, levels=4, zones="auto", *, m: float = 
             k = k or 1
         elif k > 1:
             sub = fcm(f.to(pos.device), k, **kw)
+        if k > 1:
+            _check_distinct_centers(sub.centers.cpu(), f, lev, m)
         if k == 1:
             sub_labels = torch.zeros(n_l, dtype=torch.int64)
             centers = torch.zeros(1, 4, dtype=torch.float64)

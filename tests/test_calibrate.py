@@ -10,6 +10,7 @@ import re
 import warnings
 
 import pytest
+import torch
 
 import torchcal
 from torchcal import cli
@@ -274,3 +275,27 @@ def test_an_interval_calibration_records_its_conditions_and_warns_outside(zoned,
             fn()
         msgs = [str(x.message) for x in w if issubclass(x.category, ConditionRangeWarning)]
         assert len(msgs) == 1 and words in msgs[0], msgs
+
+
+def test_independent_zones_with_an_empty_zone_name_the_file_and_the_counts(session, capsys, monkeypatch):
+    """--zone-method independent where the partition sends no pose to a zone: one line naming
+    the data file, the empty zone and the poses per zone (before: 'zone(s) [2] have no
+    poses ...', no file, no counts); nothing written. The damped method keeps the global
+    values there and passes."""
+    from torchcal.partition.zones import Partition
+
+    def all_in_zone_1(self, points):
+        return torch.ones(len(points), dtype=torch.int64)
+
+    monkeypatch.setattr(Partition, "assign", all_in_zone_1)
+    out = session / "independent.json"
+    assert cli.main(["calibrate", str(session / "kr1000titan.csv"), "--robot", "kr1000titan", "--effects",
+                     "base_frame", "--partition", str(session / "part.json"), "--zone-method", "independent",
+                     "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert (f"{session / 'kr1000titan.csv'}: zones 2, 3 of the partition have no poses (poses per zone: "
+            f"zone 1: 30, zone 2: 0, zone 3: 0)") in err, err
+    assert not out.exists()
+    res = torchcal.calibrate("kr1000titan", session / "kr1000titan.csv", ["base_frame"], partition=session / "part.json")
+    assert res.zone_poses == [30, 0, 0]

@@ -25,7 +25,7 @@ from torchcal.calibration.fit import RANK_TOL, FitResult
 from torchcal.calibration.intervals import PoseIntervals, identify_zones, pose_intervals
 from torchcal.calibration.model import CalibrationModel
 from torchcal.effects.context import Context
-from torchcal.errors import InputError
+from torchcal.errors import DataError, InputError
 
 __all__ = ["ZONE_METHODS", "ZonedFit", "fit_zones", "calibrate"]
 
@@ -101,7 +101,11 @@ def fit_zones(model: CalibrationModel, zones: list[PoseIntervals], glob: FitResu
     if method == "independent":
         empty = [z + 1 for z, d in enumerate(zones) if not len(d)]
         if empty:
-            raise InputError(f"zone(s) {empty} have no poses; the independent zone method needs poses in every zone")
+            counts = ", ".join(f"zone {z + 1}: {len(d)}" for z, d in enumerate(zones))
+            raise DataError(f"{'zones' if len(empty) > 1 else 'zone'} {', '.join(map(str, empty))} of the partition "
+                            f"{'have' if len(empty) > 1 else 'has'} no poses (poses per zone: {counts}); the "
+                            "independent zone method fits each zone on its own poses: measure poses there, or "
+                            "use the damped method (a zone without poses keeps the global parameters)")
         return identify_zones(model, list(zones), rank_tol=rank_tol,
                               labels=[f"zone {z + 1} (independent zone method)" for z in range(len(zones))])
     if glob is None:

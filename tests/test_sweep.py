@@ -603,3 +603,58 @@ def test_an_allowed_error_in_another_unit_warns_once(tmp_path, capsys, allowed, 
         assert err == []
     else:
         assert len(err) == 1 and err[0].startswith("torchcal: warning: ") and re.search(words, err[0]), err
+
+
+# -- R_set that does not follow from eta -----------------------------------------------------
+def _with_r_set(src, dst, r_of):
+    """Copy sweep CSV `src` to `dst` with its r_set column replaced by r_of(row index, r_set)."""
+    lines = src.read_text().splitlines()
+    out = []
+    for i, line in enumerate(lines):
+        if line.startswith("#") or line.startswith("point"):
+            out.append(line)
+            continue
+        cells = line.split(",")
+        cells[-1] = repr(r_of(len(out) - 2, float(cells[-1])))
+        out.append(",".join(cells))
+    dst.write_text("\n".join(out) + "\n")
+    return dst
+
+
+@pytest.mark.parametrize("kind", ["inverted", "another sweep"])
+def test_an_r_set_column_that_is_not_its_etas_is_refused(kr, tmp_path, capsys, kind):
+    """R_set is clip((1 + eta) / 2, 0, 1) for the sweep's distance limit. An r_set column of
+    1 - R_set or pasted from another sweep's rows (before: read, partitioned, exit 0: the
+    least reliable points became level 1) is refused by read_sweep and `torchcal partition`
+    in one line naming the file and row; nothing is written."""
+    src = tmp_path / "s.csv"
+    write_sweep(sweep(kr, sample_workspace(kr, 60, seed=6), n_samples=50), src)
+    other = sweep(kr, sample_workspace(kr, 60, seed=7), n_samples=50).r_set.tolist()
+    bad = _with_r_set(src, tmp_path / "bad.csv", (lambda i, r: 1.0 - r) if kind == "inverted"
+                      else (lambda i, r: other[i]))
+    with pytest.raises(InputError, match=r"bad\.csv: row \d+, column r_set: .* is not the R_set of its eta"):
+        read_sweep(bad)
+    out = tmp_path / "p.json"
+    assert cli.main(["partition", str(bad), "--levels", "2", "--zones", "2,1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert _one_line(err) and "is not the R_set of its eta" in err and str(bad) in err, err
+    assert ("1 - R_set in that column" in err) == (kind == "inverted"), err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("name,n,seed,allowed", [("kr1000titan", 200, 1, 2.5), ("kr1000titan", 100, 3, 1.0),
+                                                 ("ur5e", 200, 2, 0.03), ("puma560", 150, 3, 0.05),
+                                                 ("ur5e", 100, 4, 100.0)])
+def test_sweeps_of_several_robots_read_back(tmp_path, name, n, seed, allowed):
+    """Sweeps at R_set near 0, between and at 1 everywhere: each reads back (r_set and eta agree
+    to 1e-16 as written) and so does a copy with r_set rounded to 4 digits."""
+    import torchcal
+    from torchcal.reliability.uncertainty import ClearanceModel
+
+    rob = torchcal.robot(name)
+    cl = None if name == "kr1000titan" else ClearanceModel([20.0] * (2 * rob.n), [0.01] * (2 * rob.n),
+                                                          [100.0] * rob.n)
+    sw = sweep(rob, sample_workspace(rob, n, seed=seed), n_samples=50, model=cl, allowed_mm=allowed)
+    write_sweep(sw, tmp_path / "s.csv")
+    assert torch.equal(read_sweep(tmp_path / "s.csv").r_set, sw.r_set)
+    read_sweep(_with_r_set(tmp_path / "s.csv", tmp_path / "r.csv", lambda i, r: round(r, 4)))

@@ -149,6 +149,7 @@ def read_sweep(path, device=None, prismatic=None, robot=None) -> SweepResult:
                 raise InputError(f"{path}: row {r}, column {header[c]}: not finite: {v!r}")
         if not 0.0 <= data[i, -1] <= 1.0:
             raise InputError(f"{path}: row {r}, column r_set: {data[i, -1]} is outside [0, 1]")
+    _check_r_set_of_eta(path, data[:, -2], data[:, -1], [line for line, _ in rows])
     t = torch.from_numpy(data).to(device)
     k = n
     q = torch.deg2rad(t[:, :k])
@@ -160,6 +161,29 @@ def read_sweep(path, device=None, prismatic=None, robot=None) -> SweepResult:
                        err_upper=e[..., 1].contiguous(), dist_lower=t[:, k + 9], dist_upper=t[:, k + 10],
                        eta=t[:, k + 11], r_set=t[:, k + 12], point=torch.from_numpy(ids).to(device),
                        prismatic=prismatic, robot=made)
+
+
+#: largest |r_set - clip((1 + eta) / 2, 0, 1)| a sweep row may show (a file rounded to 4 digits)
+R_SET_TOL = 1e-3
+
+
+def _check_r_set_of_eta(path, eta: np.ndarray, r_set: np.ndarray, lines: list[int]) -> None:
+    """InputError naming the first row whose r_set (N,) is not the R_set its eta (N,)
+    gives: for the sweep's one crisp distance limit, R_set = clip((1 + eta) / 2, 0, 1)
+    (`torchcal.reliability.rset`). Another R_set (1 - R_set, a column edited or pasted from
+    another sweep) would make every level and zone of a partition wrong."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        want = np.clip((1.0 + eta) / 2.0, 0.0, 1.0)
+    bad = np.nonzero(np.abs(want - r_set) > R_SET_TOL)[0]
+    if not bad.size:
+        return
+    i = int(bad[0])
+    inverted = bool(np.all(np.abs(1.0 - want[bad] - r_set[bad]) <= R_SET_TOL))
+    hint = ("1 - R_set in that column (an unreliability?)" if inverted
+            else "the column edited, or pasted from another sweep or another definition of R_set")
+    raise InputError(f"{path}: row {lines[i]}, column r_set: {r_set[i]:.6g} is not the R_set of its eta "
+                     f"{eta[i]:.6g} (clip((1 + eta) / 2, 0, 1) = {want[i]:.6g}; {bad.size} of {len(r_set)} rows "
+                     f"differ by more than {R_SET_TOL:g}): {hint}; write the sweep again with torchcal sweep")
 
 
 def sweep_record(path) -> dict | None:

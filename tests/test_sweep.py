@@ -658,3 +658,24 @@ def test_sweeps_of_several_robots_read_back(tmp_path, name, n, seed, allowed):
     write_sweep(sw, tmp_path / "s.csv")
     assert torch.equal(read_sweep(tmp_path / "s.csv").r_set, sw.r_set)
     read_sweep(_with_r_set(tmp_path / "s.csv", tmp_path / "r.csv", lambda i, r: round(r, 4)))
+
+
+def test_rows_of_sweeps_with_another_allowed_error_are_refused(kr, tmp_path, capsys):
+    """Two sweeps (--allowed 2.5 and 2 mm) in one file, points renumbered: each row's r_set
+    follows from its eta, but the rows imply two allowed errors D = centre + eta x half-width
+    (before: read and partitioned, exit 0, R_set of two scales ranked together). Refused
+    naming the file, two rows and both D; each sweep alone reads back."""
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    write_sweep(sweep(kr, sample_workspace(kr, 40, seed=6), n_samples=50, allowed_mm=2.5), a)
+    write_sweep(sweep(kr, sample_workspace(kr, 30, seed=3), n_samples=50, allowed_mm=2.0), b)
+    rows_b = [line.split(",", 1) for line in b.read_text().splitlines()[2:]]
+    merged = tmp_path / "merged.csv"
+    merged.write_text(a.read_text() + "".join(f"{40 + int(p)},{rest}\n" for p, rest in rows_b))
+    read_sweep(a), read_sweep(b)
+    with pytest.raises(InputError, match=r"merged\.csv: rows \d+ and \d+: .* of 2 mm and 2\.5 mm"):
+        read_sweep(merged)
+    out = tmp_path / "p.json"
+    assert cli.main(["partition", str(merged), "--levels", "2", "--zones", "2,1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert _one_line(err) and "different --allowed" in err, err
+    assert not out.exists()

@@ -150,6 +150,7 @@ def read_sweep(path, device=None, prismatic=None, robot=None) -> SweepResult:
         if not 0.0 <= data[i, -1] <= 1.0:
             raise InputError(f"{path}: row {r}, column r_set: {data[i, -1]} is outside [0, 1]")
     _check_r_set_of_eta(path, data[:, -2], data[:, -1], [line for line, _ in rows])
+    _check_one_allowed(path, data[:, -4], data[:, -3], data[:, -2], [line for line, _ in rows])
     t = torch.from_numpy(data).to(device)
     k = n
     q = torch.deg2rad(t[:, :k])
@@ -184,6 +185,30 @@ def _check_r_set_of_eta(path, eta: np.ndarray, r_set: np.ndarray, lines: list[in
     raise InputError(f"{path}: row {lines[i]}, column r_set: {r_set[i]:.6g} is not the R_set of its eta "
                      f"{eta[i]:.6g} (clip((1 + eta) / 2, 0, 1) = {want[i]:.6g}; {bad.size} of {len(r_set)} rows "
                      f"differ by more than {R_SET_TOL:g}): {hint}; write the sweep again with torchcal sweep")
+
+
+#: largest relative spread of the allowed distance error the rows' eta imply (rounded files)
+ALLOWED_REL_TOL = 1e-3
+
+
+def _check_one_allowed(path, d_lo: np.ndarray, d_hi: np.ndarray, eta: np.ndarray, lines: list[int]) -> None:
+    """InputError naming two rows whose eta (N,) imply different allowed distance errors D
+    (mm): eta = (D - c) / r for the distance interval [d_lo, d_hi] (N,) mm of centre c and
+    radius r > 0, so D = c + eta r. One sweep has one D; rows of sweeps made with other
+    --allowed values, put in one file, give R_set values that cannot be compared."""
+    c, r = (d_lo + d_hi) / 2.0, (d_hi - d_lo) / 2.0
+    with np.errstate(over="ignore", invalid="ignore"):
+        D = c + eta * r
+    ok = np.nonzero((r > 0) & np.isfinite(D))[0]
+    if ok.size < 2:
+        return
+    lo, hi = ok[np.argmin(D[ok])], ok[np.argmax(D[ok])]
+    if D[hi] - D[lo] <= ALLOWED_REL_TOL * max(abs(D[hi]), abs(D[lo])):
+        return
+    raise InputError(f"{path}: rows {lines[lo]} and {lines[hi]}: eta and the distance interval give an allowed "
+                     f"distance error of {D[lo]:.6g} mm and {D[hi]:.6g} mm (D = centre + eta x half-width): rows of "
+                     f"sweeps made with different --allowed in one file, whose R_set cannot be compared; make "
+                     f"the sweep again with one --allowed")
 
 
 def sweep_record(path) -> dict | None:

@@ -679,3 +679,21 @@ def test_rows_of_sweeps_with_another_allowed_error_are_refused(kr, tmp_path, cap
     err = capsys.readouterr().err
     assert _one_line(err) and "different --allowed" in err, err
     assert not out.exists()
+
+
+def test_a_sweep_appended_twice_is_refused(kr, tmp_path, capsys):
+    """The rows of a sweep appended to its own file: every point twice (before: read and
+    partitioned, exit 0, every zone's point count doubled: 22, 32, 6 became 44, 64, 12, so
+    the warning on zones of fewer than 5 points falls silent). Refused naming the file, the
+    row and the row it repeats."""
+    src = tmp_path / "s.csv"
+    write_sweep(sweep(kr, sample_workspace(kr, 60, seed=6), n_samples=50), src)
+    twice = tmp_path / "twice.csv"
+    twice.write_text(src.read_text() + "\n".join(src.read_text().splitlines()[2:]) + "\n")
+    with pytest.raises(InputError, match=r"twice\.csv: row 63, column point: id 0 repeats row 3 \(60 ids repeat\)"):
+        read_sweep(twice)
+    out = tmp_path / "p.json"
+    assert cli.main(["partition", str(twice), "--levels", "2", "--zones", "2,1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert _one_line(err) and "appended twice" in err, err
+    assert not out.exists()

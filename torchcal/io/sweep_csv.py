@@ -149,6 +149,7 @@ def read_sweep(path, device=None, prismatic=None, robot=None) -> SweepResult:
                 raise InputError(f"{path}: row {r}, column {header[c]}: not finite: {v!r}")
         if not 0.0 <= data[i, -1] <= 1.0:
             raise InputError(f"{path}: row {r}, column r_set: {data[i, -1]} is outside [0, 1]")
+    _check_unique_points(path, ids, [line for line, _ in rows])
     _check_r_set_of_eta(path, data[:, -2], data[:, -1], [line for line, _ in rows])
     _check_one_allowed(path, data[:, -4], data[:, -3], data[:, -2], [line for line, _ in rows])
     t = torch.from_numpy(data).to(device)
@@ -162,6 +163,21 @@ def read_sweep(path, device=None, prismatic=None, robot=None) -> SweepResult:
                        err_upper=e[..., 1].contiguous(), dist_lower=t[:, k + 9], dist_upper=t[:, k + 10],
                        eta=t[:, k + 11], r_set=t[:, k + 12], point=torch.from_numpy(ids).to(device),
                        prismatic=prismatic, robot=made)
+
+
+def _check_unique_points(path, ids: np.ndarray, lines: list[int]) -> None:
+    """InputError naming the first row whose point id (N,) an earlier row has: a sweep
+    appended twice, or two sweeps in one file, would count its points twice in every zone."""
+    counts = np.unique(ids, return_counts=True)[1]
+    if not (counts > 1).any():
+        return
+    seen: dict[int, int] = {}
+    for i, p in enumerate(ids.tolist()):
+        if p in seen:
+            raise InputError(f"{path}: row {lines[i]}, column point: id {p} repeats row {lines[seen[p]]} "
+                             f"({int((counts > 1).sum())} ids repeat): the sweep appended twice, or two sweeps in one "
+                             f"file? each point would count twice in its zone")
+        seen[p] = i
 
 
 #: largest |r_set - clip((1 + eta) / 2, 0, 1)| a sweep row may show (a file rounded to 4 digits)

@@ -677,7 +677,7 @@ def test_rows_of_sweeps_with_another_allowed_error_are_refused(kr, tmp_path, cap
     out = tmp_path / "p.json"
     assert cli.main(["partition", str(merged), "--levels", "2", "--zones", "2,1", "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert _one_line(err) and "different --allowed" in err, err
+    assert _one_line(err) and "different allowed errors" in err, err
     assert not out.exists()
 
 

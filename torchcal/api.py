@@ -367,7 +367,7 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
     fit (a `FitResult` with ``radius``), with a partition a `ZonedFit` (the global fit and
     one fit per zone); `save` writes it as the MODEL.json of ``torchcal calibrate``.
     """
-    from torchcal.calibration.zone_calibration import calibrate as run
+    from torchcal.calibration.zone_calibration import calibrate as run, check_one_point
 
     from torchcal.partition.zones import Partition
 
@@ -395,6 +395,7 @@ def calibrate(robot_or_model, measurements, effects=(), *, partition=None, zone_
     if partition is not None:  # rows beyond the swept region: their zone is extrapolated (as compensate says)
         from torchcal.calibration.checks.partition import warn_far_from_sweep
         warn_far_from_sweep(partition, model.robot.fk(m.q).detach(), m.source or "measurements", stacklevel=2)
+    check_one_point(m)  # several reflectors: refused in calibrate's own words
     check_conditions(model, m)  # a missing column (temp_c) first, naming the file
     with threads.for_work(_work(model, m)), _about(m):
         check_robot_data_of(model, m)  # another frame (tracker data without base_frame tool_offset), robot, units

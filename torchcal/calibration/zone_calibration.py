@@ -116,6 +116,15 @@ def fit_zones(model: CalibrationModel, zones: list[PoseIntervals], glob: FitResu
     return [by_zone.get(z, glob) for z in range(len(zones))]
 
 
+def check_one_point(meas) -> None:
+    """InputError naming the file when `meas` (`Measurements`) hold several point ids:
+    interval calibration groups a pose's rows into one interval per axis."""
+    if meas.point is not None and len(set(meas.point.tolist())) > 1:
+        raise InputError(f"{meas.source or 'measurements'}: interval calibration groups the rows of a pose into "
+                         "one interval per axis, which several measured points per pose (point column) would "
+                         "mix; use fit / discover (one tool offset per point), or one point id per file")
+
+
 def calibrate(model: CalibrationModel, meas, partition=None, zone_method: str = "damped",
               damping="gcv_shared") -> FitResult:
     """Interval calibration of `meas` (`Measurements`, >= 2 rows per pose).
@@ -124,10 +133,7 @@ def calibrate(model: CalibrationModel, meas, partition=None, zone_method: str = 
     Returns the global interval fit (a `FitResult` with ``radius``) without a partition,
     else a `ZonedFit` (the global fit and one fit per zone).
     """
-    if meas.point is not None and len(set(meas.point.tolist())) > 1:
-        raise InputError(f"{meas.source or 'measurements'}: interval calibration groups the rows of a pose into "
-                         "one interval per axis, which several measured points per pose (point column) would "
-                         "mix; use fit / discover (one tool offset per point), or one point id per file")
+    check_one_point(meas)
     from dataclasses import replace
 
     from torchcal.calibration.joint_range import joint_range, seed_poses

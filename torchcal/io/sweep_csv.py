@@ -223,8 +223,8 @@ def _check_one_allowed(path, d_lo: np.ndarray, d_hi: np.ndarray, eta: np.ndarray
         return
     raise InputError(f"{path}: rows {lines[lo]} and {lines[hi]}: eta and the distance interval give an allowed "
                      f"distance error of {D[lo]:.6g} mm and {D[hi]:.6g} mm (D = centre + eta x half-width): rows of "
-                     f"sweeps made with different --allowed in one file, whose R_set cannot be compared; make "
-                     f"the sweep again with one --allowed")
+                     f"sweeps made with different allowed errors in one file, whose R_set cannot be compared; make "
+                     f"the sweep again with one allowed error")
 
 
 def sweep_record(path) -> dict | None:

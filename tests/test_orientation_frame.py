@@ -77,5 +77,5 @@ def test_the_ur10_series_pass_with_a_wide_margin():
         m = read_measurements(UR10 / f"series_{s}.csv", robot=rob)
         pose = rob.fk_pose(m.q)
         F, _, _ = position_frame(pose, m.xyz)
-        from torchcal.calibration.checks.orientation_frame import orientation_rms_deg
-        assert orientation_rms_deg(pose[:, :3, :3], m.rotation, F) < ORIENT_DEG / 20
+        from torchcal.calibration.checks.orientation import tool_rotation_rms_deg
+        assert tool_rotation_rms_deg(pose[:, :3, :3], m.rotation, F) < ORIENT_DEG / 20

@@ -116,7 +116,7 @@ def quick_rms(model, ctx, xyz: torch.Tensor) -> float:
     """RMS (mm) of the nominal `model` as it is or, when it has base_frame, after the
     closed-form rigid motion (no solve): within GROSS_MM is the common case, decided
     cheaply; a frame and tool offset fitted could only come closer."""
-    from torchcal.calibration.registration import kabsch
+    from torchcal.rotations import kabsch
 
     with torch.no_grad():
         p = model.predict(model.zeros().to(xyz), ctx)

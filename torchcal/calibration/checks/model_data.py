@@ -34,7 +34,7 @@ from torchcal.calibration.checks.verdict import Mismatch, MismatchWarning, bound
 def check_points(predicted: torch.Tensor, measured: torch.Tensor, training_rms_mm: float | None = None,
                  what: str = "data", model_name: str = "the model") -> Mismatch:
     """Judge measured points (N, 3) mm against a model's predicted points (N, 3) mm."""
-    from torchcal.calibration.registration import kabsch
+    from torchcal.rotations import kabsch
 
     p = predicted.detach().to("cpu", torch.float64)
     x = measured.detach().to("cpu", torch.float64)

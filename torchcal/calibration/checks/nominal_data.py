@@ -26,7 +26,7 @@ def nominal_rms_mm(model, m) -> float:
     """RMS distance (mm) between the positions of measurements `m` (`Measurements`) and the
     nominal robot of `model` (`CalibrationModel`, every parameter zero: the robot file's
     tool), after the closed-form rigid motion when the model has ``base_frame``."""
-    from torchcal.calibration.registration import kabsch
+    from torchcal.rotations import kabsch
     from torchcal.effects import context_of
 
     xyz = m.xyz.detach().to(torch.float64)

@@ -16,22 +16,36 @@ from torchcal.calibration.checks.verdict import rms_of
 ORIENT_DEG = 5.0  # rms angle (deg) between measured and nominal tool orientations beyond which they are not the robot's
 
 
-def _orientation_rms_deg(nominal: torch.Tensor, measured: torch.Tensor, frame: torch.Tensor,
-                         rounds: int = 10) -> float:
-    """RMS angle (deg) between measured rotations Rm (N, 3, 3) and the nominal ones A
-    (N, 3, 3) as F A X, with the measuring-frame rotation F (from `frame` (3, 3), the
-    positions' Kabsch) and the constant tool rotation X refined in turn (Procrustes each,
-    `rounds` times): a large unknown tool offset, which tilts the positions' F, does not
-    count."""
-    from torchcal.rotations import nearest_rotation, procrustes_rotation, so3_error
+def own_frame(nominal: torch.Tensor, measured: torch.Tensor, frame: torch.Tensor, rounds: int = 10) -> torch.Tensor:
+    """The measuring-frame rotation F (3, 3) that best turns the nominal rotations A (N, 3, 3)
+    onto the measured ones Rm (N, 3, 3) as F A X, starting from `frame` (3, 3) and refined in
+    turn with the constant tool rotation X (Procrustes each, `rounds` times)."""
+    from torchcal.rotations import nearest_rotation, procrustes_rotation
 
     F = frame
     for _ in range(rounds):
         x = procrustes_rotation(F @ nominal, measured)
         F = nearest_rotation((measured @ (nominal @ x).transpose(-1, -2)).sum(0))
+    return F
+
+
+def tool_rotation_rms_deg(nominal: torch.Tensor, measured: torch.Tensor, F: torch.Tensor) -> float:
+    """RMS angle (deg) between measured rotations (N, 3, 3) and F A_i X, A_i the nominal ones
+    (N, 3, 3), with the constant tool rotation X fitted (Procrustes) and F (3, 3) fixed."""
+    from torchcal.rotations import procrustes_rotation, so3_error
+
     a = F @ nominal
     x = procrustes_rotation(a, measured)
     return math.degrees(rms_of(so3_error(a @ x, measured).norm(dim=-1)))
+
+
+def _orientation_rms_deg(nominal: torch.Tensor, measured: torch.Tensor, frame: torch.Tensor,
+                         rounds: int = 10) -> float:
+    """RMS angle (deg) between measured rotations Rm (N, 3, 3) and the nominal ones A
+    (N, 3, 3) as F A X, with the measuring-frame rotation F (from `frame` (3, 3), the
+    positions' Kabsch) and the constant tool rotation X refined in turn (`own_frame`): a
+    large unknown tool offset, which tilts the positions' F, does not count."""
+    return tool_rotation_rms_deg(nominal, measured, own_frame(nominal, measured, frame, rounds))
 
 
 def orientation_readings(rxyz: torch.Tensor):
@@ -64,7 +78,7 @@ def orientation_mismatch(model, m) -> str | None:
     uncalibrated arm is within a degree or so). The line names the reading that fits
     (`orientation_readings`), if one does. None for data without rx, ry, rz, fewer than 3
     rows, or when they agree."""
-    from torchcal.calibration.registration import kabsch
+    from torchcal.rotations import kabsch
 
     if m.rxyz is None or len(m) < 3:
         return None

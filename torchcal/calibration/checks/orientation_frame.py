@@ -18,6 +18,7 @@ import math
 
 import torch
 
+from torchcal.calibration.checks.orientation import own_frame, tool_rotation_rms_deg
 from torchcal.errors import InputError
 
 ORIENT_DEG = 5.0  # rms angle (deg) beyond which orientations are not the tool's in the positions' frame
@@ -40,17 +41,6 @@ def position_frame(pose: torch.Tensor, xyz: torch.Tensor, rounds: int = ROUNDS):
     return F, f, u
 
 
-def orientation_rms_deg(nominal: torch.Tensor, measured: torch.Tensor, F: torch.Tensor) -> float:
-    """RMS angle (deg) between measured rotations (N, 3, 3) and F A_i X, A_i the nominal
-    ones (N, 3, 3), with the constant tool rotation X fitted (Procrustes) and F fixed."""
-    from torchcal.rotations import procrustes_rotation, so3_error
-
-    a = F @ nominal
-    X = procrustes_rotation(a, measured)
-    e = so3_error(a @ X, measured).norm(dim=-1)
-    return math.degrees(float(e.pow(2).mean().sqrt()))
-
-
 def check_orientation_frame(model, m) -> None:
     """InputError (one line) when the orientations of `m` (rx, ry, rz) disagree with the
     nominal tool orientations of `model`'s robot by more than ORIENT_DEG rms in the
@@ -66,18 +56,13 @@ def check_orientation_frame(model, m) -> None:
     xyz = m.xyz.detach().to("cpu", torch.float64)
     measured = m.rotation.detach().to("cpu", torch.float64)
     F, _, _ = position_frame(pose, xyz)
-    rms = orientation_rms_deg(pose[:, :3, :3], measured, F)
+    rms = tool_rotation_rms_deg(pose[:, :3, :3], measured, F)
     if rms <= ORIENT_DEG:
         return
-    from torchcal.rotations import procrustes_rotation
-
-    own = F  # the orientations' own frame, the tool rotation refined in turn
-    for _ in range(10):
-        X = procrustes_rotation(own @ pose[:, :3, :3], measured)
-        own = procrustes_rotation((pose[:, :3, :3] @ X).transpose(1, 2), measured.transpose(1, 2)).T
+    own = own_frame(pose[:, :3, :3], measured, F)  # the orientations' own frame
     turn = math.degrees(math.acos(max(-1.0, min(1.0, (float(torch.trace(own @ F.T)) - 1) / 2))))
     raise InputError(f"{m.source or 'data'}: rx, ry, rz disagree with the tool orientation of {rob.name} by rms "
                      f"{rms:.4g} deg in the measuring frame of x, y, z, but fit in a frame of their own turned "
-                     f"{turn:.4g} deg from it (to rms {orientation_rms_deg(pose[:, :3, :3], measured, own):.3g} "
+                     f"{turn:.4g} deg from it (to rms {tool_rotation_rms_deg(pose[:, :3, :3], measured, own):.3g} "
                      "deg): the orientations are in another frame than the positions (one moved by an alignment, "
                      "the other not?); give both in one frame, or drop the three columns")

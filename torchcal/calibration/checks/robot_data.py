@@ -105,7 +105,7 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
         return result("reversed", f"{what}: the joint columns are in reverse order: rms {reg:.4g} mm as given "
                       f"but within {GROSS_MM:g} mm with q{model.robot.n} .. q1 read as q1 .. q{model.robot.n}")
     def kabsch_rms(mm):  # the nominal robot rigidly moved onto the data: no solve
-        from torchcal.calibration.registration import kabsch
+        from torchcal.rotations import kabsch
 
         with torch.no_grad():
             p = model.predict(model.zeros().to(mm.xyz), context_of(model.robot, mm))

@@ -70,6 +70,7 @@ def run(args) -> int:
     from torchcal.io.files import read_json
     from torchcal.workflows.distributed import connect, plan_sweep, run_sweep
     from torchcal.reliability.sweep_blocks import DEFAULT_BLOCK
+    from torchcal.reliability.sweep import warn_samples
     from torchcal.reliability.uncertainty import ClearanceModel, clearance_from_dict
 
     from torchcal.errors import InputError
@@ -85,6 +86,7 @@ def run(args) -> int:
              if args.clearance else ClearanceModel.defaults(robot))
     plan = plan_sweep(robot, n_points=args.n, n_samples=args.samples, allowed_mm=args.allowed, seed=args.seed,
                       model=model, block=args.block or DEFAULT_BLOCK)
+    warn_samples(args.samples)  # the bounds of a few states fall far short (MIN_SAMPLES); after any refusal
     with connect(scheduler=args.scheduler) as client:
         s = run_sweep(plan, out, client=client, threads=args.workers, device=device, force=args.force,
                       progress=not args.no_progress, log=print)

@@ -155,7 +155,7 @@ def test_plan_keeps_out_of_the_column_about_joint_1_of_a_robot_on_a_moved_base(t
     (tmp_path / "r.json").write_text(json.dumps({"name": "ur5e_moved", "joints": joints, "base": base}))
     out = tmp_path / "plan.csv"
     assert main(["plan", "--robot", str(tmp_path / "r.json"), "--n", "40", "--candidates", "2000",
-                 "--out", str(out)]) == 0
+                 "--column-radius", "350", "--column-height", "1100", "--out", str(out)]) == 0  # (default: scaled)
     rows = list(csv.DictReader(out.open()))
     robot = torchcal.robot(str(tmp_path / "r.json"))
     q = np.radians([[float(r[f"q{k}"]) for k in range(1, 7)] for r in rows])

@@ -27,9 +27,11 @@ def add_parser(sub):
                    "evaluated (default: the rated payload)")
     p.add_argument("--temp", type=finite_float, default=20.0, help="temperature deg C for thermal effects (default 20)")
     p.add_argument("--floor", type=finite_float, default=0.0, help="workspace: TCP z above this, mm (default 0)")
-    p.add_argument("--column-radius", type=nonneg_float, default=350.0, help="workspace: keep-out radius "
-                   "about joint 1, mm (default 350)")
-    p.add_argument("--column-height", type=finite_float, default=1100.0, help="workspace: keep-out height above joint 1's frame, mm (default 1100)")
+    p.add_argument("--column-radius", type=nonneg_float, default=None, help="workspace: keep-out radius "
+                   "about joint 1, mm (default 350 x the arm's stretch / the KR 1000's 3037 mm: 350 on the KR 1000, "
+                   "132 on a UR5e; 0: no column)")
+    p.add_argument("--column-height", type=finite_float, default=None, help="workspace: keep-out height above "
+                   "joint 1's frame, mm (default 1100, scaled as the radius: 416 on a UR5e)")
     p.add_argument("--reach", type=share, default=0.95, help="workspace: the TCP within this share of the arm's "
                    "full stretch from the shoulder, in (0, 1] (default 0.95; 1: no limit)")
     p.add_argument("--random-plans", type=positive_int, default=20, help="random plans to compare with (default 20)")

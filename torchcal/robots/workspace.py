@@ -7,6 +7,7 @@ joint), positions in mm in the robot's base frame.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,9 +27,15 @@ class Workspace:
         column_radius_mm, column_height_mm: keep-out cylinder about the joint-1 axis (the
             base column and turntable): rejected if sqrt(x^2 + y^2) < column_radius_mm
             and z < column_height_mm, x, y, z in the joint-1 frame (the robot's ``base``
-            undone: a robot standing anywhere in the cell keeps its own column). Default 350 mm up to 1100 mm (the shoulder height
-            d1 of the KR 1000 Titan); the paper's Table 3 point 6 at radius 387 mm, z 631
-            mm is just outside.
+            undone: a robot standing anywhere in the cell keeps its own column). None
+            (default): scaled to the robot (`column`), COLUMN_MM = (350, 1100) mm times the
+            arm's full stretch (`arm_stretch`) over the KR 1000 Titan's 3037 mm: exactly
+            350 mm up to 1100 mm on the KR 1000 (its shoulder height d1; the paper's Table 3
+            point 6 at radius 387 mm, z 631 mm is just outside), 132 up to 416 mm on a
+            UR5e, 190 up to 597 mm on a UR10. The KR 1000's column kept on those arms
+            removed 53 % (UR5e), 29 % (UR10) and 62 % (puma560) of the joint vectors the
+            floor and reach keep (none of the KR 1000's; scaled: 7.5, 8.4 and 0 %). A radius below MIN_COLUMN_SHARE
+            of the stretch, thinner than any link, warns (`warn_thin_column`).
         reach_fraction: the TCP must lie within this fraction of the arm's full stretch
             from the shoulder (origin of frame 1), the stretch taken as the sum over links
             2..n of sqrt(a^2 + d^2) plus the tool offset (an upper bound): it drops the
@@ -38,18 +45,31 @@ class Workspace:
     """
 
     floor_z_mm: float = 0.0
-    column_radius_mm: float = 350.0
-    column_height_mm: float = 1100.0
+    column_radius_mm: float | None = None
+    column_height_mm: float | None = None
     reach_fraction: float = 0.95
 
     def __post_init__(self):
         for name in ("floor_z_mm", "column_radius_mm", "column_height_mm", "reach_fraction"):
-            number_argument(f"Workspace: {name}", getattr(self, name))
-        if self.column_radius_mm < 0:
+            if getattr(self, name) is not None or name in ("floor_z_mm", "reach_fraction"):
+                number_argument(f"Workspace: {name}", getattr(self, name))
+        if self.column_radius_mm is not None and self.column_radius_mm < 0:
             raise InputError(f"Workspace: column_radius_mm: expected a radius >= 0 mm, got {self.column_radius_mm!r}")
         if not 0 < self.reach_fraction <= 1:
             raise InputError(f"Workspace: reach_fraction: expected a share of the arm's full stretch in (0, 1] "
                              f"(1: no limit), got {self.reach_fraction!r}")
+
+    def column(self, robot) -> tuple[float, float]:
+        """(radius, height) mm of the keep-out column for `robot`: the values given, or
+        COLUMN_MM scaled by arm_stretch(robot) / KR1000_STRETCH_MM where None."""
+        scale = arm_stretch(robot) / KR1000_STRETCH_MM
+        r, h = self.column_radius_mm, self.column_height_mm
+        return (COLUMN_MM[0] * scale if r is None else r, COLUMN_MM[1] * scale if h is None else h)
+
+    def for_robot(self, robot) -> "Workspace":
+        """This filter with the column's defaults resolved for `robot` (numbers only)."""
+        r, h = self.column(robot)
+        return Workspace(self.floor_z_mm, r, h, self.reach_fraction)
 
     def accept(self, robot, q: torch.Tensor) -> torch.Tensor:
         """(N,) bool for q (N, n) rad."""
@@ -60,14 +80,42 @@ class Workspace:
         B = robot.base.to(p)
         local = (p - B[:3, 3]) @ B[:3, :3]  # joint-1 frame
         radial = local[:, :2].norm(dim=-1)
-        ok &= ~((radial < self.column_radius_mm) & (local[:, 2] < self.column_height_mm))
+        radius, height = self.column(robot)
+        ok &= ~((radial < radius) & (local[:, 2] < height))
         if self.reach_fraction < 1:
-            t = robot.table
-            # a prismatic joint's d reaches d + its farthest limit
-            d = torch.where(robot.prismatic[1:], (t[1:, 1, None] + robot.limits[1:]).abs().amax(-1), t[1:, 1])
-            stretch = (d ** 2 + t[1:, 2] ** 2).sqrt().sum() + robot.tool[:3, 3].norm()
-            ok &= (p - shoulder).norm(dim=-1) <= self.reach_fraction * stretch.to(p)
+            ok &= (p - shoulder).norm(dim=-1) <= self.reach_fraction * arm_stretch(robot)
         return ok
+
+
+COLUMN_MM = (350.0, 1100.0)  # the default keep-out column's radius and height on the KR 1000 Titan
+KR1000_STRETCH_MM = 3037.0  # arm_stretch of the kr1000titan preset: 1400 + 65 + 1200 + 372 mm
+MIN_COLUMN_SHARE = 0.02  # a column radius under this share of the arm's stretch is thinner than its links
+
+
+def arm_stretch(robot) -> float:
+    """The arm's full stretch from the shoulder (origin of frame 1), mm: the sum over links
+    2..n of sqrt(a^2 + d^2) (a prismatic joint's d at d + its farthest limit) plus the tool
+    offset, an upper bound of the shoulder-to-TCP distance."""
+    t = robot.table
+    d = torch.where(robot.prismatic[1:], (t[1:, 1, None] + robot.limits[1:]).abs().amax(-1), t[1:, 1])
+    return float((d ** 2 + t[1:, 2] ** 2).sqrt().sum() + robot.tool[:3, 3].norm())
+
+
+def warn_thin_column(robot, radius_mm: float, stacklevel: int = 1) -> bool:
+    """One `torchcal.robots.checks.RobotUnitWarning` (True) when a keep-out column radius
+    radius_mm > 0 lies below MIN_COLUMN_SHARE (2 %) of the arm's stretch: thinner than any
+    link of the arm (a UR5e's 1150 mm stretch: 23 mm, its base is 149 mm across), so no
+    keep-out column; metres (0.35 for 350 mm) likely. 0 turns the column off in silence."""
+    from torchcal.robots.checks import RobotUnitWarning
+
+    stretch = arm_stretch(robot)
+    if not 0 < radius_mm < MIN_COLUMN_SHARE * stretch:
+        return False
+    warnings.warn(f"workspace: column radius {radius_mm:g} mm is thinner than any link of {robot.name} (under "
+                  f"{100 * MIN_COLUMN_SHARE:g} % of its {stretch:.0f} mm stretch, {MIN_COLUMN_SHARE * stretch:.0f} mm): "
+                  f"in metres? ({1000 * radius_mm:g} mm); 0 turns the column off", RobotUnitWarning,
+                  stacklevel=stacklevel + 1)
+    return True
 
 
 class LatinHypercube:
@@ -107,6 +155,8 @@ def sample_workspace(robot, n: int, seed=0, workspace: Workspace | None = None,
         raise InputError(f"number of workspace points must be a positive integer, got {n!r}")
     workspace = Workspace() if workspace is None else workspace
     warn_base_below_floor(robot, workspace.floor_z_mm, stacklevel=2)
+    if workspace.column_radius_mm is not None:
+        warn_thin_column(robot, workspace.column_radius_mm, stacklevel=2)
     engine = LatinHypercube(robot.n, seed)
     lo = robot.limits[:, 0].cpu().numpy()
     hi = robot.limits[:, 1].cpu().numpy()

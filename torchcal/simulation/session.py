@@ -8,12 +8,35 @@ true parameters come back with the measurements (written in file units by
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import torch
 
 from torchcal.measurements import Measurements
 from torchcal.robots.robot import Robot
+
+
+#: noise (1 sigma per axis, mm) below which `simulate` warns: no instrument that measures a
+#: robot's TCP is quieter than about a micrometre (a laser tracker's noise and repeatability
+#: are a few um and up; its MPE 15 um + 6 um/m), so a smaller value is likely metres
+#: (0.00002 for 0.02 mm). 0 (noise-free data) is silent; the README's 0.02 and the tests'
+#: 0.01 .. 0.05 are 10-50x above it.
+MIN_NOISE_MM = 0.001
+
+
+class NoiseUnitWarning(UserWarning):
+    """A simulated measurement noise that no instrument has: likely in another unit."""
+
+
+def warn_noise(noise_mm: float, stacklevel: int = 2) -> bool:
+    """One `NoiseUnitWarning` (True) when 0 < noise_mm < MIN_NOISE_MM."""
+    if not 0 < noise_mm < MIN_NOISE_MM:
+        return False
+    warnings.warn(f"noise {noise_mm:g} mm is below {MIN_NOISE_MM:g} mm (1 micrometre), quieter than any laser "
+                  f"tracker: in metres? ({1000 * noise_mm:g} mm); 0 simulates noise-free data", NoiseUnitWarning,
+                  stacklevel=stacklevel + 1)
+    return True
 
 
 @dataclass
@@ -56,6 +79,7 @@ def simulate(robot: Robot, effects=(), *, n: int = 50, repeats: int = 1, noise_m
     n, repeats = number_argument("n", n, integer=True, at_least=1), number_argument("repeats", repeats, integer=True,
                                                                                      at_least=1)
     noise_mm = number_argument("noise_mm", noise_mm, at_least=0)
+    warn_noise(noise_mm, stacklevel=3)  # through torchcal.api.simulate
     specs = [str(s) for s in parse_specs(list(effects), robot.n)] if effects else []
     ps = seed if pose_seed is None else pose_seed
     q = random_poses(robot, n, torch.Generator().manual_seed(ps))

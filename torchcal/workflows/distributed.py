@@ -120,7 +120,7 @@ class SweepPlan:
                 "robot_parameters_sha256": robot_fingerprint(self.robot),
                 "clearance_states_sha256": states, "points": self.n_points, "samples": self.n_samples,
                 "allowed_mm": self.allowed_mm, "seed": self.seed, "block": self.block,
-                "workspace": asdict(self.workspace or Workspace())}
+                "workspace": asdict((self.workspace or Workspace()).for_robot(self.robot))}
 
     def compute(self, index: int, threads: int = 1, device=None) -> tuple[str, dict]:
         """Block `index` (on `device`, default the CPU): its CSV rows (torchcal.io.sweep_csv)

@@ -710,7 +710,7 @@ def test_too_few_clearance_states_warn_once(tmp_path, capsys, samples, warned):
     assert cli.main(["sweep", "--n", "4", "--samples", samples, "--no-progress", "--out", str(out)]) == 0
     err = [ln for ln in capsys.readouterr().err.splitlines() if "clearance states" in ln]
     if warned:
-        assert len(err) == 1 and err[0].startswith(f"torchcal: warning: --samples {samples}: too few"), err
+        assert len(err) == 1 and err[0].startswith(f"torchcal: warning: {samples} clearance states are too few"), err
         assert re.search(r"36-45 % under .* 30 states.* 21-31 % with the default 300; use 50 or more", err[0])
     else:
         assert err == []

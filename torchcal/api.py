@@ -207,6 +207,7 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     MODEL.json of ``torchcal fit``, `load` reads it back.
     """
     from torchcal.calibration.fit import fit as fit_model
+    from torchcal.calibration.checks.point_swap import warn_swapped_points
     from torchcal.calibration.checks.robot_data import check_fitted
     from torchcal.calibration.checks.units import check_units
     from torchcal.effects import context_of
@@ -233,6 +234,7 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     gross = check_fitted(res.residuals, res.outliers, m.source or "data", model.robot.name)
     if gross:
         raise InputError(gross)
+    warn_swapped_points(res, m, stacklevel=2)  # two reflectors' ids exchanged at a few poses
     if residual_model is not None:
         _add_stage(res, m, ctx, residual_model)
     return res

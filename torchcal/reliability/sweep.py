@@ -495,7 +495,7 @@ def warn_samples(n_samples: int, stacklevel: int = 2) -> None:
     The library's `sweep` does not call it (tests and studies sweep a few states on purpose);
     `torchcal sweep` does, before the work."""
     if n_samples < MIN_SAMPLES:
-        warnings.warn(f"--samples {n_samples}: too few clearance states for the distance-error bounds: on three "
+        warnings.warn(f"{n_samples} clearance states are too few for the distance-error bounds: on three "
                       f"robots the median point's bound lies 36-45 % under the largest error the clearance "
                       f"allows with 30 states, 65-74 % with 1, against 21-31 % with the default 300; use "
                       f"{MIN_SAMPLES} or more (docs/scale.md)", SampleCountWarning, stacklevel=stacklevel)

@@ -21,6 +21,7 @@ from torchcal.calibration.checks.columns import column_hint, lag_words, row_lag
 from torchcal.calibration.checks.frame_fit import fits_in_a_frame, in_frame, quick_rms, registered
 from torchcal.calibration.checks.model_data import check_measurements, check_points
 from torchcal.calibration.checks.orientation import orientation_mismatch
+from torchcal.calibration.checks.point_swap import message as swap_message, swapped_before_fit
 from torchcal.calibration.checks.sessions import changed_midway, joined_sessions, moved_within_gross
 from torchcal.calibration.checks.units import spread_mm, units_hint
 from torchcal.calibration.checks.verdict import GROSS_MM, OUTLIER_SHARE, Mismatch, enforce, listed, rms_of
@@ -173,7 +174,13 @@ def check_robot_data_of(model, m, robust: bool | None = None):
     (`orientation_mismatch`); fit, diagnose and discover call it."""
     found = check_robot_data(model, m, robust=robust)
     if found is not None:
-        return enforce(found)
+        try:
+            return enforce(found)
+        except InputError:
+            named = swapped_before_fit(model, m)  # reflectors' ids exchanged look like outliers or two sessions
+            if named:
+                raise InputError(swap_message(m, named) + " Correct the point column") from None
+            raise
     msg = orientation_mismatch(model, m)
     if msg is not None:
         raise InputError(msg)

@@ -85,12 +85,13 @@ def partition(d, robot) -> Path:
     from torchcal.io.sweep_csv import write_sweep
     from torchcal.reliability.sweep import sweep
     from torchcal.reliability.uncertainty import ClearanceModel
-    from torchcal.robots.workspace import sample_workspace
+    from torchcal.robots.workspace import Workspace, sample_workspace
 
     n = robot.n
     clearance = ClearanceModel((50.0,) * 2 * n, (0.03,) * 2 * n, (80.0,) * n)
-    write_sweep(sweep(robot, sample_workspace(robot, 200, seed=6), n_samples=50, model=clearance, allowed_mm=0.3),
-                d / "sweep.csv")
+    kr_column = Workspace(column_radius_mm=350.0, column_height_mm=1100.0)  # the cell's zones as drawn (default: scaled)
+    write_sweep(sweep(robot, sample_workspace(robot, 200, seed=6, workspace=kr_column), n_samples=50, model=clearance,
+                      allowed_mm=0.3), d / "sweep.csv")
     assert main(["partition", str(d / "sweep.csv"), "--levels", "2", "--zones", "2,2",
                  "--out", str(d / "part.json")]) == 0
     return d / "part.json"

@@ -9,9 +9,9 @@ with M. This study measures by how much, to pick the sample count below which
 - robots: the kr1000titan preset with its default clearance model (docs/paper.md Table 2,
   `ClearanceModel.defaults`); the ur5e and puma560 presets, which have none, with the same
   Table 2 clearances (mm) and the bearing lengths (the KR 1000's, = shaft diameter) scaled
-  by the arm's size (its full stretch, as `Workspace.reach_fraction` takes it) over the
+  by the arm's size (its full stretch, `torchcal.robots.workspace.arm_stretch`) over the
   KR 1000's: a small arm's seats sit closer, so the same clearance tilts its axes more;
-- points: N = 200 workspace points per robot (`sample_workspace`, seed 0);
+- points: N = 200 workspace points per robot (`sample_workspace`, seed 0, no keep-out column);
 - reference: the largest distance error the clearance states allow at each point, found
   by coordinate ascent on the first-order error e = J(q) D u (J the position Jacobian of
   the MD-H deviations, D `deviation_map`, u the seat offsets with |u_k| = c_k): each
@@ -37,18 +37,12 @@ from torchcal.reliability.sweep import sweep
 from torchcal.kinematics import mdh as K
 from torchcal.reliability.uncertainty import (KR1000_BEARING_LENGTH_MM, KR1000_CLEARANCE_MM, KR1000_RADII_MM,
                                               ClearanceModel, deviation_map, sample_states)
-from torchcal.robots.workspace import Workspace, sample_workspace
+from torchcal.robots.workspace import Workspace, arm_stretch as stretch, sample_workspace
 
 COUNTS = (1, 2, 3, 5, 10, 20, 30, 50, 100, 200, 300, 1000, 3000)
 M_REF = 20000
 SEEDS = range(5)
 N = 200
-
-
-def stretch(robot) -> float:
-    """Sum over links 2..n of sqrt(a^2 + d^2) plus the tool offset, mm (revolute arms)."""
-    t = robot.table
-    return float((t[1:, 1] ** 2 + t[1:, 2] ** 2).sqrt().sum() + robot.tool[:3, 3].norm())
 
 
 def clearance(robot, kr) -> ClearanceModel:

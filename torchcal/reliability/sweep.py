@@ -486,7 +486,7 @@ class SampleCountWarning(UserWarning):
 #: the states allow (coordinate ascent): the median point's bound lies 21-31 % under it with
 #: the default 300 states (12-20 % with 3000), 30-40 % with 50, 36-45 % with 30, 38-51 % with
 #: 20 and 65-74 % with 1. Below 50 it is more than 10 points further under than with the
-#: default on all three robots (at 50: 0.9, 0.8 and 0.9 points less than that on each).
+#: default on all three robots (at 50: 1.3, 0.8 and 0.9 points less than that).
 MIN_SAMPLES = 50
 
 

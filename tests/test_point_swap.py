@@ -78,3 +78,13 @@ def test_swapped_poses_needs_both_a_far_pair_and_a_gain():
     err[1][2], err[2][2] = own[2] * 2.5, own[2]  # as given within 3 median errors: not named
     err[2][3], err[1][3] = own[3] * 2.5, own[3]
     assert swapped_poses(err, point, pose) == []
+
+
+def test_discover_names_the_exchanged_poses_too(tmp_path):
+    """`discover` fits the same training file: the same warning after its last model."""
+    data = read_measurements(_session(tmp_path / "s.csv", NEAR, (4, 17)))
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        torchcal.discover(torchcal.robot("ur5e"), data, ["base_frame", "tool_offset"], max_rounds=0, report_rest=False)
+    found = [str(x.message) for x in w if "exchanged" in str(x.message)]
+    assert len(found) == 1 and "(pose ids 4, 17)" in found[0], found

@@ -344,6 +344,8 @@ def discover(robot_or_model, measurements, effects=(), *, folds: int = 5, seed: 
     with threads.for_work(_work(model, m)), _about(m):
         res = run(model.robot, m, model.specs(), folds=folds, seed=seed, sigma_mm=sigma_mm, sigma_deg=sigma_deg,
                   transfer=check, report_rest=report_rest, **_set(max_rounds=max_rounds, alpha=alpha))
+        from torchcal.calibration.checks.point_swap import warn_swapped_points
+        warn_swapped_points(res.fit, m, stacklevel=2)  # two reflectors' ids exchanged at a few poses
         if residual_model is not None:
             _add_stage(res.fit, m, context_of(model.robot, m), residual_model, folds, seed)
     return res

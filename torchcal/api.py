@@ -198,7 +198,9 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     (`torchcal.calibration.checks.robot_data.check_fitted`); rx, ry, rz in another frame than x, y, z
     are refused too (`torchcal.calibration.checks.orientation_frame`). Positions that agree with the nominal
     robot within 0.01 mm rms (computed, e.g. the controller's TCP, not measured) get one
-    `NominalDataWarning` (`torchcal.calibration.checks.nominal_data`).
+    `NominalDataWarning` (`torchcal.calibration.checks.nominal_data`). With several point ids,
+    poses at which two rows fit each other's reflector (ids exchanged) are named in one
+    `MismatchWarning` after the fit (`torchcal.calibration.checks.point_swap`).
     residual_model: 'kernel' adds the non-physical residual stage
     (`torchcal.calibration.residual_model`) as ``res.residual_model`` only when its held-out
     gain is significant (`torchcal.diagnosis.residual_stage`, the figures in

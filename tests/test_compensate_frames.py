@@ -5,6 +5,8 @@ an error the fitted model lacks) with the commands it writes."""
 from __future__ import annotations
 
 import csv
+import io
+from contextlib import redirect_stderr, redirect_stdout
 
 import numpy as np
 import pytest
@@ -78,16 +80,30 @@ def _commands(path) -> tuple[np.ndarray, list]:
     return np.radians([[float(r[f"q{k}"]) for k in range(1, 7)] for r in rows]), rows
 
 
-@pytest.mark.parametrize("frame", ["measuring", "base"])
-def test_real_robot_reaches_targets_given_in_either_frame(cell, frame, capsys):
-    d, table, q_goal = cell
+def _compensate(d, table, q_goal, frame: str):
+    """`torchcal compensate --frame frame` of the true robot's positions at q_goal (M, 6) rad,
+    no seeds: (exit status, stdout, commands (M, 6) rad, the output's rows, goal (M, 3) mm)."""
     goal = real_robot(table, q_goal, frame)
     t = _write_targets(d / f"targets_{frame}.csv", goal)
     out = d / f"q_{frame}.csv"
-    capsys.readouterr()
-    assert main(["compensate", str(t), "--model", str(d / "model.json"), "--frame", frame, "--out", str(out)]) == 0
-    assert f"in the {frame} frame" in capsys.readouterr().out
-    q, rows = _commands(out)
+    printed = io.StringIO()
+    with redirect_stdout(printed), redirect_stderr(io.StringIO()):
+        code = main(["compensate", str(t), "--model", str(d / "model.json"), "--frame", frame, "--out", str(out)])
+    return (code, printed.getvalue(), *_commands(out), goal)
+
+
+@pytest.fixture(scope="module")
+def unseeded(cell):
+    """The cell's 12 goals compensated in the measuring frame without seeds (asserted on by
+    two tests: they reach the goals; their orientation is not the goals')."""
+    return _compensate(*cell, "measuring")
+
+
+@pytest.mark.parametrize("frame", ["measuring", "base"])
+def test_real_robot_reaches_targets_given_in_either_frame(cell, unseeded, frame):
+    d, table, q_goal = cell
+    code, printed, q, rows, goal = unseeded if frame == "measuring" else _compensate(d, table, q_goal, frame)
+    assert code == 0 and f"in the {frame} frame" in printed
     assert all(r["converged"] == "true" and r["within_limits"] == "true" for r in rows)
     err = np.linalg.norm(real_robot(table, q, frame) - goal, axis=1)
     # left: the gear error no model here holds (0.01 deg at up to 3 m: about 0.5 mm), the
@@ -201,7 +217,20 @@ def zoned(tmp_path_factory):
     return d, table
 
 
-def test_a_zoned_model_solves_each_target_in_the_zone_of_its_command(zoned, capsys):
+@pytest.fixture(scope="module")
+def zoned_measuring(zoned):
+    """30 targets in the tracker frame compensated with the per-zone model (asserted on by two
+    tests): (exit status, stderr, commands (30, 6) rad, the output's rows, goal (30, 3) mm)."""
+    d, table = zoned
+    goal = real_robot(table, random_poses(KR, 30, 9).numpy(), "measuring")
+    t = _write_targets(d / "targets.csv", goal)
+    err = io.StringIO()
+    with redirect_stdout(io.StringIO()), redirect_stderr(err):
+        code = main(["compensate", str(t), "--model", str(d / "model.json"), "--out", str(d / "q.csv")])
+    return (code, err.getvalue(), *_commands(d / "q.csv"), goal)
+
+
+def test_a_zoned_model_solves_each_target_in_the_zone_of_its_command(zoned, zoned_measuring):
     """Zones belong to the robot base frame (calibrate assigns each pose by its nominal TCP
     position); targets are in the tracker frame, 3 m and 30 deg away. Each target must be
     solved with the parameters of the zone its command lands in, so that the model meets
@@ -210,11 +239,9 @@ def test_a_zoned_model_solves_each_target_in_the_zone_of_its_command(zoned, caps
     from torchcal.calibration.compensate import approach_directions, _context
 
     d, table = zoned
-    q_goal = random_poses(KR, 30, 9).numpy()
-    t = _write_targets(d / "targets.csv", real_robot(table, q_goal, "measuring"))
-    assert main(["compensate", str(t), "--model", str(d / "model.json"), "--out", str(d / "q.csv")]) == 0
-    assert "sweep point" not in capsys.readouterr().err  # every command lands among the sweep's points
-    q, rows = _commands(d / "q.csv")
+    code, err, q, rows, goal = zoned_measuring
+    assert code == 0
+    assert "sweep point" not in err  # every command lands among the sweep's points
     model = torchcal.load(d / "model.json")
     qt = torch.as_tensor(q)
     zone_of_command = model.partition.assign(KR.fk(qt)).tolist()
@@ -222,7 +249,6 @@ def test_a_zoned_model_solves_each_target_in_the_zone_of_its_command(zoned, caps
     assert len(set(zone_of_command)) > 1  # the targets span several zones
     ok = [r["converged"] == "true" for r in rows]
     pred = model.predict(_context(model.model, qt, approach_directions(qt), torch.zeros(len(qt)), None)).numpy()
-    goal = real_robot(table, q_goal, "measuring")
     assert np.linalg.norm(pred - goal, axis=1)[ok].max() < 1e-5
 
 
@@ -249,20 +275,17 @@ def test_commands_far_from_every_sweep_point_are_named():
 
 
 @pytest.mark.parametrize("frame", ["measuring", "base"])
-def test_real_robot_reaches_targets_with_a_zoned_model(zoned, frame, capsys):
+def test_real_robot_reaches_targets_with_a_zoned_model(zoned, zoned_measuring, frame):
     """The per-zone model of `calibrate --effects base_frame tool_offset` drives the plain-numpy
     robot onto targets given in either frame: its base frame holds the tracker's rotation
     about z and its height (the gauge `fit` keeps: the frames before joint 1's dtheta and
     dd), so base-frame targets are mapped by the tracker frame, not by a rotation left in
-    joint 1 (before: 30 deg and 300 mm put in joint 1, base-frame targets missed by metres)."""
+    joint 1 (before: 30 deg and 300 mm put in joint 1, base-frame targets missed by metres).
+    Measuring frame: the 30 targets of the test above; base frame: the first 12 of them."""
     d, table = zoned
-    q_goal = random_poses(KR, 12, 9).numpy()
-    goal = real_robot(table, q_goal, frame)
-    t = _write_targets(d / f"targets_{frame}.csv", goal)
-    out = d / f"q_{frame}.csv"
-    assert main(["compensate", str(t), "--model", str(d / "model.json"), "--frame", frame, "--out", str(out)]) == 0
-    capsys.readouterr()
-    q, rows = _commands(out)
+    code, _, q, rows, goal = zoned_measuring if frame == "measuring" else \
+        _compensate(d, table, random_poses(KR, 12, 9).numpy(), frame)
+    assert code == 0
     assert all(r["converged"] == "true" and r["within_limits"] == "true" for r in rows)
     assert np.linalg.norm(real_robot(table, q, frame) - goal, axis=1).max() < 1.0  # as the fit's test above
 
@@ -273,7 +296,7 @@ def _tool_rotation(table, q):
     return np.array([numpy_frames(KR, qq, table - KR.table.numpy())[-1][:3, :3] for qq in q])
 
 
-def test_without_seeds_the_output_says_the_orientation_is_not_the_users(cell, capsys):
+def test_without_seeds_the_output_says_the_orientation_is_not_the_users(cell, unseeded, capsys):
     """x,y,z fix 3 of the 6 joints: without seeds each command keeps the configuration of
     the nearest calibration pose, so the true robot reaches the point with another tool
     orientation than the goal's (178 deg at worst here); with the nominal commands as seeds
@@ -282,19 +305,20 @@ def test_without_seeds_the_output_says_the_orientation_is_not_the_users(cell, ca
     goal = real_robot(table, q_goal, "measuring")
     runs = {}
     for seeded in (False, True):
-        t = d / f"targets_seeded_{seeded}.csv"
         if seeded:
+            t = d / "targets_seeded.csv"
             t.write_text("x,y,z," + ",".join(f"q{k}" for k in range(1, 7)) + "\n" + "".join(
                 ",".join(repr(float(v)) for v in [*p, *np.degrees(qq)]) + "\n" for p, qq in zip(goal, q_goal)))
-        else:
-            _write_targets(t, goal)
-        capsys.readouterr()
-        assert main(["compensate", str(t), "--model", str(d / "model.json"), "--out", str(d / f"q_s{seeded}.csv"),
-                     "--force"]) == 0
-        q, _ = _commands(d / f"q_s{seeded}.csv")
+            capsys.readouterr()
+            assert main(["compensate", str(t), "--model", str(d / "model.json"), "--out", str(d / "q_seeded.csv")]) == 0
+            q, _ = _commands(d / "q_seeded.csv")
+            printed = capsys.readouterr().out
+        else:  # the goals as they are (x,y,z only), compensated once for this test and the one above
+            code, printed, q, _, unseeded_goal = unseeded
+            assert code == 0 and np.array_equal(unseeded_goal, goal)
         R = _tool_rotation(table, q) @ _tool_rotation(table, q_goal).transpose(0, 2, 1)
         angle = np.degrees(np.arccos(np.clip((np.trace(R, axis1=1, axis2=2) - 1) / 2, -1, 1)))
-        runs[seeded] = (angle.max(), capsys.readouterr().out)
+        runs[seeded] = (angle.max(), printed)
     assert runs[True][0] < 0.5 and runs[False][0] > 5.0, runs
     assert "orientation" in runs[False][1] and "orientation" not in runs[True][1]
 

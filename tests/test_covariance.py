@@ -5,7 +5,6 @@ weighted rows: ``X^T W X`` and ``sum w r^2``. The references are numpy / scipy."
 
 import numpy as np
 import pytest
-import scipy.linalg
 import torch
 
 from torchcal.calibration.covariance import parameter_covariance, row_covariance
@@ -22,6 +21,7 @@ def _linear_problem(N=12, P=4, seed=0):
 
 
 def _textbook(A, r, w=None):
+    import scipy.linalg
     w = np.ones(len(r)) if w is None else w
     K = A.shape[1]
     s2 = (w * r ** 2).sum() / (len(r) - K)
@@ -68,6 +68,7 @@ def test_weighted_and_held_columns():
 def test_prior_rows_give_the_gaussian_posterior():
     """With prior factors f_i (rows f_i theta_i): C = s^2 (X^T X + diag f^2)^-1, the
     posterior covariance of a Gaussian prior of sd s / f_i, s^2 = SSR / (3N - K)."""
+    import scipy.linalg
     X, r = _linear_problem(seed=3)
     A = X.reshape(-1, 4)
     f = np.array([0.0, 0.5, 2.0, 0.1])

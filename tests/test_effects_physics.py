@@ -17,7 +17,6 @@ import math
 import numpy as np
 import pytest
 import torch
-from scipy.spatial.transform import Rotation
 
 import torchcal
 from torchcal.calibration.model import CalibrationModel
@@ -116,6 +115,7 @@ def _tilted_tcp_numpy(robot, ctx, joint, tilt, moment_only=False):
     equal masses at link midpoints J..n, payload (in rated payloads) at the TCP, moment about
     o_{J-1}, normalised by the joint's reference moment; rotation tilt x (perpendicular
     part) about o_{J-1} (scipy)."""
+    from scipy.spatial.transform import Rotation
     f = ctx.frames.numpy()
     o = f[:, :, :3, 3]
     n = robot.n
@@ -140,6 +140,7 @@ def _tilted_tcp_numpy(robot, ctx, joint, tilt, moment_only=False):
 
 @pytest.mark.parametrize("joint", [2, 4, 5])
 def test_axis_tilt_rotates_the_arm_beyond_the_bearing_like_numpy(joint):
+    from scipy.spatial.transform import Rotation
     robot = TITAN
     ctx = _ctx(robot)
     # rad at the reference moment, sized so the largest tilt is 1e-4 rad (joint 2 of a

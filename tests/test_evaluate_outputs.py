@@ -6,7 +6,6 @@ import json
 
 import numpy as np
 import pytest
-from rerun.chunk import RrdReader
 
 from torchcal.cli import main
 from torchcal.cli._viz import PLOTS
@@ -68,10 +67,12 @@ def test_residuals_csv_one_row_per_measurement(session, tmp_path, capsys):
 
 
 def _entities(path) -> set[str]:
+    from rerun.chunk import RrdReader
     return {line.split()[0] for line in RrdReader(path).store().summary().splitlines()}
 
 
 def test_plots_and_recording_show_where_held_out_rows_fail(session, tmp_path, capsys):
+    from rerun.chunk import RrdReader
     data, rrd, plots = session / "test.csv", tmp_path / "e.rrd", tmp_path / "plots"
     assert main(["evaluate", str(data), "--model", str(session / "m.json"), "--rrd", str(rrd),
                  "--plots", str(plots)]) == 0

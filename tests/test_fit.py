@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import scipy.optimize
 import torch
 
 import torchcal
@@ -49,6 +48,7 @@ def narrow():
 def _map(model, ctx, m, res, strength):
     """scipy's solution of the documented objective: rows model - measured and
     strength * theta_i / s_i, over the parameters res identified, from res.theta."""
+    import scipy.optimize
     s = plausible_scales(model).numpy()
     fin = np.isfinite(s)
     factor = np.where(fin, strength / np.where(fin, s, 1.0), 0.0)
@@ -146,6 +146,7 @@ def test_robust_solve_is_a_fixed_point_of_its_kernel():
     The free set is an identifiable one, as `fit` passes to `solve`: with unidentifiable
     columns free the least-squares minimum is a valley, and two solvers end at different
     points of it (2e-3 apart along near-null directions, equal cost to 1e-6)."""
+    import scipy.optimize
     from torchcal.calibration.fit import WEIGHT_TOL, solve
     from torchcal.calibration.identifiability import identifiability
     from torchcal.calibration.robust import robust_weights

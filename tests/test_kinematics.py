@@ -21,10 +21,7 @@ import math
 
 import numpy as np
 import pytest
-import pytorch_kinematics as pk
 import torch
-from pytorch_kinematics import transforms as pk_tf
-from scipy.spatial.transform import Rotation
 
 import torchcal
 from torchcal.kinematics import mdh as K
@@ -60,6 +57,7 @@ def _random_params(robot, batch, gen, dtype=torch.float64, scale: float = 1.0) -
 
 def _rt(rpy_deg, xyz_mm) -> torch.Tensor:
     """(4, 4) float64 homogeneous transform from URDF-style rpy (deg) and xyz (mm)."""
+    from scipy.spatial.transform import Rotation
     T = torch.eye(4, dtype=torch.float64)
     T[:3, :3] = torch.from_numpy(Rotation.from_euler("xyz", rpy_deg, degrees=True).as_matrix())
     T[:3, 3] = torch.tensor(xyz_mm, dtype=torch.float64)
@@ -79,6 +77,7 @@ def _rz(theta: float) -> np.ndarray:
 
 def _static(d, a, alpha, beta) -> np.ndarray:
     """Tz(d) Tx(a) Rx(alpha) Ry(beta), (4, 4), lengths mm."""
+    from scipy.spatial.transform import Rotation
     T = np.eye(4)
     T[:3, :3] = Rotation.from_euler("XY", [alpha, beta]).as_matrix()  # intrinsic: Rx then Ry
     T[:3, 3] = [a, 0.0, d]
@@ -106,6 +105,7 @@ def _joint_origins(robot, params=None) -> list[np.ndarray]:
 
 def _urdf(robot, params=None) -> str:
     """URDF (metres) of the robot with MD-H deviations `params` (n, 5) folded in."""
+    from scipy.spatial.transform import Rotation
     origins = _joint_origins(robot, params)
     lim = robot.limits.numpy()
     links = ["base"] + [f"link{i + 1}" for i in range(robot.n)] + ["tcp"]
@@ -129,6 +129,8 @@ def _urdf(robot, params=None) -> str:
 def _pk_chain_float64(robot, params=None) -> pk.SerialChain:
     """The same serial chain built from pytorch-kinematics frames in float64 (mm),
     bypassing the URDF parser's float32 origins."""
+    import pytorch_kinematics as pk
+    from pytorch_kinematics import transforms as pk_tf
     origins = _joint_origins(robot, params)
     names = ["base"] + [f"link{i + 1}" for i in range(robot.n)] + ["tcp"]
     root = pk.Frame(names[0], link=pk.Link(names[0]), joint=pk.Joint(dtype=torch.float64))
@@ -148,6 +150,7 @@ def _pk_chain_float64(robot, params=None) -> pk.SerialChain:
 @pytest.mark.parametrize("name", PRESETS)
 @pytest.mark.parametrize("perturbed", [False, True], ids=["nominal", "perturbed+base+tool"])
 def test_fk_matches_pytorch_kinematics_urdf(name, perturbed):
+    import pytorch_kinematics as pk
     robot = torchcal.robot(name)
     gen = _gen(1)
     params = None
@@ -179,6 +182,7 @@ def test_fk_matches_pytorch_kinematics_float64(name, perturbed):
 
 def test_urdf_builder_agrees_with_float64_chain():
     """Guards the reference itself: parsed URDF and hand-built chain are one robot."""
+    import pytorch_kinematics as pk
     robot = _with_base_tool(torchcal.robot("kr1000titan"))
     params = _random_params(robot, (), _gen(3))
     q = _random_q(robot, (16,), _gen(4))

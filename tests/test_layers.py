@@ -208,8 +208,13 @@ MODEL_NAMES = ("model", "cm", "calibration_model")
 def model_attribute_writes(source: str) -> list[str]:
     """Assignments to an attribute of something named like a CalibrationModel (`MODEL_NAMES`,
     or ``<x>.model``) and setattr calls on a name, as source lines."""
+    return _attribute_writes(ast.walk(ast.parse(source)))
+
+
+def _attribute_writes(nodes) -> list[str]:
+    """`model_attribute_writes` of a file's nodes in `ast.walk` order (`_nodes`: parsed once)."""
     out = []
-    for node in ast.walk(ast.parse(source)):
+    for node in nodes:
         targets = node.targets if isinstance(node, ast.Assign) else \
             [node.target] if isinstance(node, (ast.AnnAssign, ast.AugAssign)) else []
         for t in targets:
@@ -227,7 +232,7 @@ def model_attribute_writes(source: str) -> list[str]:
 
 def test_no_module_sets_fitted_state_on_a_calibration_model():
     bad = {str(p.relative_to(ROOT)): w for p in sorted(ROOT.rglob("*.py"))
-           if p != ROOT / "calibration" / "model.py" and (w := model_attribute_writes(p.read_text()))}
+           if p != ROOT / "calibration" / "model.py" and (w := _attribute_writes(_nodes(p)))}
     assert not bad, f"attributes set on a CalibrationModel outside its class (make them FitResult fields): {bad}"
 
 

@@ -10,7 +10,6 @@
 
 import numpy as np
 import pytest
-import scipy.optimize
 import torch
 from torch.testing import assert_close
 
@@ -39,6 +38,7 @@ def residual_factory(y):
 
 
 def scipy_reference(y):
+    import scipy.optimize
     def r(p, yy):
         return p[0] * np.exp(p[1] * T) + p[2] - yy
     return np.stack([scipy.optimize.least_squares(r, x0, args=(yy,), xtol=1e-15, ftol=1e-15,

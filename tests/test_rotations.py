@@ -5,7 +5,6 @@ recovering a known rotation."""
 import numpy as np
 import pytest
 import torch
-from scipy.spatial.transform import Rotation
 from torch.testing import assert_close
 
 from torchcal.rotations import (fixed_xyz_to_matrix, kabsch, matrix_to_fixed_xyz, matrix_to_rotvec,
@@ -17,6 +16,7 @@ ANGLES = torch.tensor([[0.3, -0.7, 2.1], [0.0, 0.0, 0.0], [-2.5, 1.2, -0.4], [1.
 
 
 def test_fixed_xyz_is_scipys_extrinsic_xyz_and_round_trips():
+    from scipy.spatial.transform import Rotation
     R = fixed_xyz_to_matrix(ANGLES)
     ref = Rotation.from_euler("xyz", ANGLES.numpy()).as_matrix()
     np.testing.assert_allclose(R.numpy(), ref, rtol=0, atol=1e-14)
@@ -26,6 +26,7 @@ def test_fixed_xyz_is_scipys_extrinsic_xyz_and_round_trips():
 
 
 def test_rotvec_both_ways_against_scipy():
+    from scipy.spatial.transform import Rotation
     for r in (torch.tensor([0.2, -0.4, 1.1], dtype=torch.float64), torch.tensor([1e-9, 0.0, -2e-9], dtype=torch.float64)):
         np.testing.assert_allclose(rotvec_to_matrix(r).numpy(), Rotation.from_rotvec(r.numpy()).as_matrix(),
                                    rtol=0, atol=1e-15)

@@ -6,7 +6,6 @@ import math
 
 import numpy as np
 import pytest
-import scipy.stats
 
 from torchcal.diagnosis.candidates import Candidate
 from torchcal.diagnosis.selection import (MIN_GAIN, REFIT_ALPHA, not_better, paired_p_value, rank, refit_decision,
@@ -36,6 +35,7 @@ def test_refit_gain_floor_is_two_percent(base):
 
 
 def test_paired_p_value_is_scipys_one_sided_paired_t_test(base):
+    import scipy.stats
     rng = np.random.default_rng(2)
     cand = base - rng.normal(0.002, 0.01, size=base.size)
     ref = scipy.stats.ttest_rel(base, cand, alternative="greater").pvalue

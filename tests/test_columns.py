@@ -77,3 +77,34 @@ def test_twin_column_mistakes_are_both_named():
                         r"with the joint column q5 shifted by -90 deg \(another zero position\): check the joint")):
         with pytest.raises(InputError, match=r"cannot come from ur5e as given: .* but within 10 mm " + words):
             torchcal.fit(ur, Measurements(torch.arange(60), mix(q), xyz), ["base_frame", "tool_offset"])
+
+
+def test_a_slide_column_in_metres_is_named():
+    """The SCARA of examples/ with its lift's column (q3, prismatic, mm) written in metres:
+    refused as 'data of another robot of that size, or many corrupted rows'; fit and
+    evaluate now name the column. Plain-numpy session (tests/npsim.py), base frame."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from npsim import numpy_fk
+    from torchcal.measurements import Measurements
+    from torchcal.robots.poses import random_poses
+
+    scara = torchcal.robot(Path(__file__).resolve().parents[1] / "examples" / "scara.json")
+    q = random_poses(scara, 40, 3)
+    rng = np.random.default_rng(5)
+    dev = np.zeros((4, 5))
+    dev[:, [1, 2]] = rng.uniform(-0.5, 0.5, (4, 2))
+    dev[:, [0, 3]] = np.radians(rng.uniform(-0.02, 0.02, (4, 2)))
+    tool = np.eye(4)
+    tool[:3, 3] = [30.0, 20.0, 120.0]
+    xyz = torch.from_numpy(numpy_fk(scara, q.numpy(), dev, tool=tool) + rng.normal(0, 0.01, (40, 3)))
+    fitted = torchcal.fit(scara, Measurements(torch.arange(40), q, xyz), ["tool_offset"])
+    assert fitted.rms_mm < 0.03
+    bad = Measurements(torch.arange(40), torch.cat([q[:, :2], q[:, 2:3] / 1000, q[:, 3:]], 1), xyz)
+    words = r"with the joint column q3 \(prismatic\) in metres \(read as mm\)"
+    with pytest.raises(InputError, match=r"cannot come from scara as given: .* but within 10 mm " + words):
+        torchcal.fit(scara, bad, ["tool_offset"])
+    with pytest.raises(InputError, match=r"cannot come from the model of scara as given: .* " + words):
+        torchcal.evaluate(fitted, bad)

@@ -1,6 +1,6 @@
 """Joint columns mixed up and positions misaligned with the joint values: data refused as
 another robot that are this robot's with two joint columns swapped, one in radians read
-as degrees, one negated or shifted by a zero position (`column_mistakes`, `column_hint`),
+as degrees (a slide's in metres read as mm), one negated or shifted by a zero position (`column_mistakes`, `column_hint`),
 or with x, y, z a few rows off the joint values (`row_lag`).
 """
 
@@ -20,7 +20,7 @@ LAGS = (1, -1, 2, -2)  # row offsets between the joint values and the positions 
 def column_mistakes(m, robot):
     """Yield (phrase, Measurements) for each one-column mistake in the joint values of `m`
     (q (N, n) rad / mm): two adjacent q columns swapped, one revolute column in radians
-    read as degrees, one column negated (another sign convention), one revolute column
+    read as degrees, one prismatic column in metres read as mm, one column negated (another sign convention), one revolute column
     shifted by +-90 or 180 deg (another zero position, e.g. a controller's against the
     MD-H table's). The rows' predecessors follow the changed q (their row order)."""
     import dataclasses
@@ -39,6 +39,10 @@ def column_mistakes(m, robot):
             q = m.q.clone()
             q[:, j] = q[:, j] * (180.0 / math.pi)
             yield f"column q{j + 1} in radians (read as degrees)", changed(q)
+        else:
+            q = m.q.clone()
+            q[:, j] = q[:, j] * 1000.0
+            yield f"column q{j + 1} (prismatic) in metres (read as mm)", changed(q)
     for j in range(n):
         q = m.q.clone()
         q[:, j] = -q[:, j]

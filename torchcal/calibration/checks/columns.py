@@ -1,7 +1,8 @@
 """Joint columns mixed up and positions misaligned with the joint values: data refused as
 another robot that are this robot's with two joint columns swapped, one in radians read
-as degrees (a slide's in metres read as mm), one negated or shifted by a zero position (`column_mistakes`, `column_hint`),
-or with x, y, z a few rows off the joint values (`row_lag`).
+as degrees (a slide's in metres read as mm), one negated or shifted by a zero position
+(`column_mistakes`, `column_hint`), or with x, y, z a few rows off the joint values
+(`row_lag`).
 """
 
 from __future__ import annotations
@@ -20,9 +21,9 @@ LAGS = (1, -1, 2, -2)  # row offsets between the joint values and the positions 
 def column_mistakes(m, robot):
     """Yield (phrase, Measurements) for each one-column mistake in the joint values of `m`
     (q (N, n) rad / mm): two adjacent q columns swapped, one revolute column in radians
-    read as degrees, one prismatic column in metres read as mm, one column negated (another sign convention), one revolute column
-    shifted by +-90 or 180 deg (another zero position, e.g. a controller's against the
-    MD-H table's). The rows' predecessors follow the changed q (their row order)."""
+    read as degrees, one prismatic column in metres read as mm, one column negated (another
+    sign convention), one revolute column shifted by +-90 or 180 deg (another zero position,
+    e.g. a controller's against the MD-H table's). The rows' predecessors follow the changed q (their row order)."""
     import dataclasses
 
     def changed(q):

@@ -140,6 +140,13 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
         return result("mismatch", f"{what}: cannot come from {name} as given: rms {reg:.4g} mm with the best measuring "
                       f"frame and tool offset, but within {GROSS_MM:g} mm with the joint {hint}: check the "
                       "joint columns")
+    if proximal_table(model, m):
+        return result("mismatch", f"{what}: cannot come from {name} as given: rms {reg:.4g} mm with the best measuring "
+                      f"frame and tool offset, but within {GROSS_MM:g} mm with the robot file's a_mm and alpha_deg "
+                      "moved up one row: its table is in Craig's modified D-H convention (row i holding a and alpha "
+                      "of the link before joint i); torchcal's row i holds the link after joint i, Rz(theta) Tz(d) "
+                      "Tx(a) Rx(alpha) (docs/robots.md): move each row's a_mm and alpha_deg up one row (the last "
+                      "row's become 0, the first row's go into base)")
     s_x, s_p = spread_mm(m.xyz), spread_mm(pred)
     causes = "data of another robot or units (length or angle unit)"
     if abs(math.log(max(s_x, 1e-12) / max(s_p, 1e-12))) < math.log(1.1):  # the same size: no unit mistake
@@ -148,6 +155,23 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
     return result("mismatch", f"{what}: cannot come from {name}: rms {reg:.4g} mm with the best measuring frame "
                   f"and tool offset, point spread {s_x:.4g} mm measured vs {s_p:.4g} mm modelled; likely causes: "
                   f"{causes}{units_hint(s_x / max(s_p, 1e-12))}")
+
+
+def proximal_table(model, m) -> bool:
+    """Whether the measurements `m` come within GROSS_MM (`fits_in_a_frame`) of `model`'s
+    robot read as a table in Craig's modified D-H convention
+    (`torchcal.robots.checks.distal_from_proximal`; the model's effects kept), where they
+    do not as read: a data sheet's proximal table typed into a robot file."""
+    from torchcal.calibration.model import CalibrationModel
+    from torchcal.robots.checks import distal_from_proximal
+
+    if model.robot.n < 2:
+        return False
+    try:
+        other = CalibrationModel(distal_from_proximal(model.robot), model.specs(), points=model.point_ids or None)
+    except InputError:
+        return False
+    return fits_in_a_frame(other, m)
 
 
 def check_fitted(residuals: torch.Tensor, outliers=(), what: str = "data", name: str = "the model") -> str | None:

@@ -108,3 +108,23 @@ def test_a_slide_column_in_metres_is_named():
         torchcal.fit(scara, bad, ["tool_offset"])
     with pytest.raises(InputError, match=r"cannot come from the model of scara as given: .* " + words):
         torchcal.evaluate(fitted, bad)
+
+
+@pytest.mark.parametrize("sign, words", [(1, r"q3 \+ q2"), (-1, r"q3 - q2")])
+def test_a_coupled_j2_j3_column_is_named(sign, words):
+    """A KR 1000 session (plain numpy, tests/npsim.py, in a tracker's frame) whose q3 column
+    holds joint 3's angle against the base, q3 +- q2, as a controller with coupled J2/J3
+    (Fanuc's) reports it: refused as 'data of another robot or units'; now the column and
+    the convention are named."""
+    from npsim import tracker_session
+    from torchcal.measurements import Measurements
+    from torchcal.robots.poses import random_poses
+
+    kr = torchcal.robot("kr1000titan")
+    q = random_poses(kr, 40, 3)
+    xyz = torch.from_numpy(tracker_session(kr, q.numpy(), seed=3))
+    coupled = torch.cat([q[:, :2], q[:, 2:3] + sign * q[:, 1:2], q[:, 3:]], 1)
+    with pytest.raises(InputError, match=r"cannot come from kr1000titan as given: .* but within 10 mm with the joint "
+                                         rf"column q3 holding {words} \(joint 3's angle against the base, not link 2: "
+                                         r"a controller's coupled J2/J3 convention, e.g. Fanuc's\): check the joint"):
+        torchcal.fit(kr, Measurements(torch.arange(40), coupled, xyz), ["base_frame", "tool_offset"])

@@ -1,7 +1,7 @@
 """Joint columns mixed up and positions misaligned with the joint values: data refused as
 another robot that are this robot's with two joint columns swapped, one in radians read
-as degrees (a slide's in metres read as mm), one negated or shifted by a zero position
-(`column_mistakes`, `column_hint`), or with x, y, z a few rows off the joint values
+as degrees (a slide's in metres read as mm), one holding its angle against the base (a
+coupled J2/J3), one negated or shifted by a zero position (`column_mistakes`, `column_hint`), or with x, y, z a few rows off the joint values
 (`row_lag`).
 """
 
@@ -12,6 +12,7 @@ import math
 import torch
 
 from torchcal.errors import InputError
+from torchcal.robots.checks import PARALLEL_DEG
 
 HINT_ROWS = 60  # rows (evenly spread over the file) that judge a one-column mistake
 TWIN_REL = 1e-6  # mistakes whose scores agree this closely give the same points: both are named
@@ -21,8 +22,9 @@ LAGS = (1, -1, 2, -2)  # row offsets between the joint values and the positions 
 def column_mistakes(m, robot):
     """Yield (phrase, Measurements) for each one-column mistake in the joint values of `m`
     (q (N, n) rad / mm): two adjacent q columns swapped, one revolute column in radians
-    read as degrees, one prismatic column in metres read as mm, one column negated (another
-    sign convention), one revolute column shifted by +-90 or 180 deg (another zero position,
+    read as degrees, one prismatic column in metres read as mm, one column of a joint whose
+    axis is parallel to the one before holding the sum or difference of the two (its angle
+    against the base: Fanuc's J2/J3), one column negated (another sign convention), one revolute column shifted by +-90 or 180 deg (another zero position,
     e.g. a controller's against the MD-H table's). The rows' predecessors follow the changed q (their row order)."""
     import dataclasses
 
@@ -48,6 +50,14 @@ def column_mistakes(m, robot):
         q = m.q.clone()
         q[:, j] = -q[:, j]
         yield f"column q{j + 1} negated (another sign convention)", changed(q)
+    alpha = robot.table[:, 3].detach().cpu()
+    for j in range(1, n):  # q(j+1) against the base, not link j: parallel revolute axes (a Fanuc's J2/J3)
+        if rev[j - 1] and rev[j] and abs(math.sin(float(alpha[j - 1]))) < math.sin(math.radians(PARALLEL_DEG)):
+            for s, op in ((1, "+"), (-1, "-")):
+                q = m.q.clone()
+                q[:, j] = q[:, j] - s * q[:, j - 1]
+                yield (f"column q{j + 1} holding q{j + 1} {op} q{j} (joint {j + 1}'s angle against the base, not "
+                       f"link {j}: a controller's coupled J{j}/J{j + 1} convention, e.g. Fanuc's)"), changed(q)
     for j in range(n):
         if rev[j]:
             for deg in (90, -90, 180):

@@ -169,3 +169,43 @@ def test_beyond_doubt_frees_every_candidate_only_where_the_pivoting_would():
     assert beyond_doubt(B.T @ B, some, 20) is None
     assert identifiability(near, NAMES, some).rank == 4  # kept by the pivoting: above rank_tol, below the margin
     assert 3 < SAFE_RANK
+
+
+def _thermal(temp_c, seed=1, n=40, still=None):
+    """A plain-numpy ur5e session (tests/npsim.py) at temperatures temp_c (n,) degC; joint
+    `still` (1-based) held at 0.3 rad."""
+    import torchcal
+    from npsim import thermal_session
+    from torchcal.measurements import Measurements
+
+    ur = torchcal.robot("ur5e")
+    q = random_poses(ur, n, 3)
+    if still is not None:
+        q[:, still - 1] = 0.3
+    t = torch.as_tensor(temp_c, dtype=torch.float64)
+    return ur, Measurements(torch.arange(n), q, torch.from_numpy(thermal_session(ur, q.numpy(), t.numpy(), seed)),
+                            temp_c=t)
+
+
+def test_an_effect_the_data_cannot_identify_is_named_with_why():
+    """thermal_expansion fitted on a session at one temperature: every parameter is held,
+    so the effect changes nothing (`discover --effects thermal_expansion` listed it under
+    'final effects' as physics); `unidentified_effects` names it and `unidentified_reason`
+    the constant temp_c. On a session whose temperature varies it is identified; backlash
+    on a joint that never moves is named with the joint."""
+    import torchcal
+    from torchcal.calibration.identifiability import unidentified_effects, unidentified_reason
+
+    ur, m = _thermal(torch.full((40,), 25.0))
+    res = torchcal.fit(ur, m, ["thermal_expansion"])
+    assert unidentified_effects(res.model, res.report.held) == ["thermal_expansion"]
+    assert unidentified_reason(res.model.effects[0], m) == "temp_c is 25 degC on every row"
+    _, warm = _thermal(torch.linspace(18.0, 35.0, 40))
+    res = torchcal.fit(ur, warm, ["thermal_expansion"])
+    assert unidentified_effects(res.model, res.report.held) == []
+    _, still = _thermal(torch.full((40,), 20.0), still=4)
+    res = torchcal.fit(ur, still, ["backlash:2,4"])
+    assert unidentified_effects(res.model, res.report.held) == []  # joint 2's lost motion is identified
+    res = torchcal.fit(ur, still, ["backlash:4"])
+    assert unidentified_effects(res.model, res.report.held) == ["backlash:4"]
+    assert unidentified_reason(res.model.effects[0], still) == "q4 never moves"

@@ -124,6 +124,31 @@ def identifiability(J: torch.Tensor, names, candidate_free, rank_tol: float = RA
     return Identifiability(free, held, rank, float(s[0] / s[-1]), observability(s, n_rows), n_rows)
 
 
+def unidentified_effects(model, held) -> list[str]:
+    """Specs of `model`'s effects none of whose parameters is identifiable: every one of
+    its parameter names in `held` (an `Identifiability.held`). Such an effect changes no
+    prediction, so naming it as fitted physics claims what the data cannot tell."""
+    held = set(held)
+    return [e.spec() for e in model.effects if e.param_names() and set(e.param_names()) <= held]
+
+
+def unidentified_reason(effect, m) -> str:
+    """Why the measurements `m` can identify none of `effect`'s parameters, in words, from
+    what it reads that never varies: a temperature (uses_temperature) or payload
+    (uses_payload) the same on every row, its joints never moving; "" when none of these."""
+    out = []
+    for column, unit, used in (("temp_c", "degC", effect.uses_temperature),
+                               ("payload_kg", "kg", effect.uses_payload)):
+        v = getattr(m, column)
+        if used and v is not None and v.numel() and float(v.max() - v.min()) < 1e-9:
+            out.append(f"{column} is {float(v[0]):.6g} {unit} on every row")
+    joints = getattr(effect, "joints", None) or []
+    still = [j for j in joints if float(m.q[:, j - 1].max() - m.q[:, j - 1].min()) < 1e-12]
+    if still and len(still) == len(joints):
+        out.append(f"{', '.join(f'q{j}' for j in still)} never move{'s' if len(still) == 1 else ''}")
+    return "; ".join(out)
+
+
 def beyond_doubt(G: torch.Tensor, cand: torch.Tensor, n_rows: int,
                  rank_tol: float = RANK_TOL) -> Identifiability | None:
     """The `identifiability` report of rows whose Jacobian has the Gram matrix G (C, C) on

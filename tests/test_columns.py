@@ -170,3 +170,6 @@ def test_an_external_axis_logged_after_the_arm_and_mixed_type_swaps_are_named():
     swapped = reordered(q, scara.prismatic, [0, 2, 1, 3])
     with pytest.raises(InputError, match=r"cannot come from scara as given: .* with the joint columns q2 and q3 swapped"):
         torchcal.fit(scara, Measurements(torch.arange(40), swapped, xyz), ["tool_offset"])
+    backwards = reordered(q, scara.prismatic, [3, 2, 1, 0])
+    with pytest.raises(InputError, match=r"data: the joint columns are in reverse order: .* with q4 .. q1 read as q1 .. q4"):
+        torchcal.fit(scara, Measurements(torch.arange(40), backwards, xyz), ["tool_offset"])

@@ -17,7 +17,7 @@ import math
 
 import torch
 
-from torchcal.calibration.checks.columns import column_hint, lag_words, row_lag
+from torchcal.calibration.checks.columns import column_hint, lag_words, reordered, row_lag
 from torchcal.calibration.checks.frame_fit import fits_in_a_frame, in_frame, quick_rms, registered
 from torchcal.calibration.checks.model_data import check_measurements, check_points
 from torchcal.calibration.checks.orientation import orientation_mismatch
@@ -101,7 +101,8 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
         return result("mirrored", f"{what}: a mirror image of {name}: rms {reg:.4g} mm after the best rigid motion, "
                       f"but within {GROSS_MM:g} mm after one with a reflection; the x, y, z columns describe a "
                       "left-handed frame (two of them swapped, or one negated)")
-    if model.robot.n > 1 and fits_in_a_frame(model, dataclasses.replace(m, q=m.q.flip(-1))):
+    backwards = reordered(m.q, model.robot.prismatic, range(model.robot.n - 1, -1, -1))  # each value in its unit
+    if model.robot.n > 1 and fits_in_a_frame(model, dataclasses.replace(m, q=backwards, q_prev=None)):
         return result("reversed", f"{what}: the joint columns are in reverse order: rms {reg:.4g} mm as given "
                       f"but within {GROSS_MM:g} mm with q{model.robot.n} .. q1 read as q1 .. q{model.robot.n}")
     def kabsch_rms(mm):  # the nominal robot rigidly moved onto the data: no solve

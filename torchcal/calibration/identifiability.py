@@ -149,6 +149,19 @@ def unidentified_reason(effect, m) -> str:
     return "; ".join(out)
 
 
+def unidentified_lines(model, held, m) -> list[str]:
+    """One line per effect of `model` none of whose parameters the measurements `m`
+    identify (`unidentified_effects` of `held`): it changes nothing; why, where the rows
+    say (`unidentified_reason`). What `fit` and `calibrate` print."""
+    by_spec = {e.spec(): e for e in model.effects}
+    out = []
+    for spec in unidentified_effects(model, held):
+        why = unidentified_reason(by_spec[spec], m)
+        out.append(f"{spec}: none of its parameters is identifiable from these data (all held at nominal"
+                   f"{': ' + why if why else ''}): it changes nothing")
+    return out
+
+
 def beyond_doubt(G: torch.Tensor, cand: torch.Tensor, n_rows: int,
                  rank_tol: float = RANK_TOL) -> Identifiability | None:
     """The `identifiability` report of rows whose Jacobian has the Gram matrix G (C, C) on

@@ -143,21 +143,6 @@ def _still_joints(m) -> list[str]:
     return [f"q{j + 1} (constant {qd[0, j].item():.6g} deg)" for j, s in enumerate(span) if s < 1e-9]
 
 
-def _idle_effects(res, m) -> list[str]:
-    """One line per effect of the fit none of whose parameters the data identify (it
-    changes nothing; `identifiability.unidentified_effects`), with why where the rows say
-    (a temperature or payload the same on every row, its joints never moving)."""
-    from torchcal.calibration.identifiability import unidentified_effects, unidentified_reason
-
-    by_spec = {e.spec(): e for e in res.model.effects}
-    out = []
-    for spec in unidentified_effects(res.model, res.report.held):
-        why = unidentified_reason(by_spec[spec], m)
-        out.append(f"{spec}: none of its parameters is identifiable from these data (all held at nominal"
-                   f"{': ' + why if why else ''}): it changes nothing")
-    return out
-
-
 def _largest(res, k: int = 4) -> str:
     """The k largest fitted MD-H deviations the data determine, readable (mm, deg); those
     the prior sets are no measured deviation and are left out."""
@@ -206,6 +191,7 @@ def _robust_hint(res, robust) -> str | None:
 
 
 def run(args) -> int:
+    from torchcal.calibration.identifiability import unidentified_lines
     from torchcal.io import modelfile
     from torchcal.io.files import write_json
 
@@ -239,7 +225,7 @@ def run(args) -> int:
         still = _still_joints(m)
         if still:
             print(f"joints that never move in {args.data}: {', '.join(still)}; move them to identify more")
-        for line in _idle_effects(res, m):
+        for line in unidentified_lines(res.model, held, m):
             print(line)
     line = plausibility_line(res)
     if line:

@@ -43,25 +43,3 @@ def test_many_corrupted_rows_are_not_called_a_unit():
                                          r"no unit: data of another robot of that size, or many corrupted rows"):
         torchcal.fit(rob, bad, ["base_frame", "tool_offset"], robust="huber")
 
-
-def test_a_robot_file_in_craigs_convention_is_named():
-    """Tracker data of a Panda (plain-numpy session, tests/npsim.py) against its robot file
-    typed from Craig's modified D-H table (a and alpha one row down): refused as 'data of
-    another robot ... or many corrupted rows'; now the line names the table's convention
-    and the fix. The hand-rewritten table fits them."""
-    from npsim import tracker_session
-    from test_robots_checks import PANDA_CRAIG, panda_distal, panda_file
-    from torchcal.io.robot_file import robot_from_dict
-    from torchcal.measurements import Measurements
-    from torchcal.robots.poses import random_poses
-
-    right = robot_from_dict(panda_file(panda_distal()))
-    typed = robot_from_dict(panda_file(PANDA_CRAIG))
-    q = random_poses(right, 40, 3)
-    xyz = torch.from_numpy(tracker_session(right, q.numpy(), 3, reflector_mm=(0, 0, 150)))
-    m = Measurements(torch.arange(40), q, xyz)
-    assert torchcal.fit(right, m, ["base_frame", "tool_offset"]).rms_mm < 0.5
-    with pytest.raises(InputError, match=r"cannot come from panda as given: rms .* but within 10 mm with the robot "
-                                         r"file's a_mm and alpha_deg moved up one row: its table is in Craig's "
-                                         r"modified D-H convention"):
-        torchcal.fit(typed, m, ["base_frame", "tool_offset"])

@@ -21,6 +21,7 @@ from torchcal.calibration.checks.columns import column_hint, lag_words, reordere
 from torchcal.calibration.checks.frame_fit import fits_in_a_frame, in_frame, quick_rms, registered
 from torchcal.calibration.checks.model_data import check_measurements, check_points
 from torchcal.calibration.checks.orientation import orientation_mismatch
+from torchcal.calibration.checks.robot_table import length_typo, proximal_table
 from torchcal.calibration.checks.sessions import changed_midway, joined_sessions, moved_within_gross
 from torchcal.calibration.checks.units import spread_mm, units_hint
 from torchcal.calibration.checks.verdict import GROSS_MM, OUTLIER_SHARE, Mismatch, enforce, listed, rms_of
@@ -141,6 +142,16 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
         return result("mismatch", f"{what}: cannot come from {name} as given: rms {reg:.4g} mm with the best measuring "
                       f"frame and tool offset, but within {GROSS_MM:g} mm with the joint {hint}: check the "
                       "joint columns")
+    typo = length_typo(model, m)
+    if typo is not None:
+        (j, key, was, best), twins = typo[0], typo[1:]
+        alike = (" (or " + ", ".join(f"joints[{j2}].{k2} {b2:.1f} instead of {w2:g}" for j2, k2, w2, b2 in twins)
+                 + ": they move the points alike)") if twins else ""
+        return result("mismatch", f"{what}: cannot come from {name} as given: rms {reg:.4g} mm with the best measuring "
+                      f"frame and tool offset, but within {GROSS_MM:g} mm with the robot file's joints[{j}].{key} "
+                      f"{best:.1f} instead of {was:g}{alike}: a length mistyped in the robot file, or another "
+                      f"variant of the robot; check {'these lengths' if twins else 'that length'} against the data "
+                      "sheet")
     if proximal_table(model, m):
         return result("mismatch", f"{what}: cannot come from {name} as given: rms {reg:.4g} mm with the best measuring "
                       f"frame and tool offset, but within {GROSS_MM:g} mm with the robot file's a_mm and alpha_deg "
@@ -156,23 +167,6 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
     return result("mismatch", f"{what}: cannot come from {name}: rms {reg:.4g} mm with the best measuring frame "
                   f"and tool offset, point spread {s_x:.4g} mm measured vs {s_p:.4g} mm modelled; likely causes: "
                   f"{causes}{units_hint(s_x / max(s_p, 1e-12))}")
-
-
-def proximal_table(model, m) -> bool:
-    """Whether the measurements `m` come within GROSS_MM (`fits_in_a_frame`) of `model`'s
-    robot read as a table in Craig's modified D-H convention
-    (`torchcal.robots.checks.distal_from_proximal`; the model's effects kept), where they
-    do not as read: a data sheet's proximal table typed into a robot file."""
-    from torchcal.calibration.model import CalibrationModel
-    from torchcal.robots.checks import distal_from_proximal
-
-    if model.robot.n < 2:
-        return False
-    try:
-        other = CalibrationModel(distal_from_proximal(model.robot), model.specs(), points=model.point_ids or None)
-    except InputError:
-        return False
-    return fits_in_a_frame(other, m)
 
 
 def check_fitted(residuals: torch.Tensor, outliers=(), what: str = "data", name: str = "the model") -> str | None:

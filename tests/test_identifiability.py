@@ -209,3 +209,41 @@ def test_an_effect_the_data_cannot_identify_is_named_with_why():
     res = torchcal.fit(ur, still, ["backlash:4"])
     assert unidentified_effects(res.model, res.report.held) == ["backlash:4"]
     assert unidentified_reason(res.model.effects[0], still) == "q4 never moves"
+
+
+def test_a_fit_of_fewer_than_two_equations_per_parameter_warns():
+    """A ur5e (plain-numpy session, tests/npsim.py) fitted with joint_compliance:2,3 and
+    gear_periodic:2,3 on 20 poses: about 50 parameters on 60 equations printed an rms below
+    the noise with no word; its error on 100 new poses is several times that. One
+    FewEquationsWarning says so; the geometric fit of the same poses, and 5 repeats of 8
+    poses counted as 8 poses, are judged by their distinct poses."""
+    import re
+    import warnings
+
+    import torchcal
+    from npsim import physics_session
+    from torchcal.calibration.identifiability import FewEquationsWarning
+    from torchcal.measurements import Measurements
+
+    ur = torchcal.robot("ur5e")
+    q = random_poses(ur, 120, 3)
+    xyz, pay = physics_session(ur, q.numpy(), 1, ["joint_compliance:2"], effect_mm=0.1)
+    m = Measurements(torch.arange(120), q, torch.from_numpy(xyz), torch.from_numpy(pay))
+    train, new = m.subset(torch.arange(20)), m.subset(torch.arange(20, 120))
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        res = torchcal.fit(ur, train, ["joint_compliance:2,3", "gear_periodic:2,3"])
+    said = [str(x.message) for x in w if issubclass(x.category, FewEquationsWarning)]
+    assert len(said) == 1 and re.match(r"data: 20 distinct poses give 60 equations for \d+ identified parameters, "
+                                       r"fewer than 2 per parameter: the fit's rms understates", said[0]), said
+    assert torchcal.evaluate(res, new).rms_mm > 2 * res.rms_mm  # what it is about
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", FewEquationsWarning)
+        torchcal.fit(ur, train)
+    eight = train.subset(torch.arange(8).repeat_interleave(5))
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        torchcal.fit(ur, eight)
+    said = [str(x.message) for x in w if issubclass(x.category, FewEquationsWarning)]
+    assert len(said) == 1 and said[0].startswith("data: 8 distinct poses give 24 equations (40 rows; repeats of a "
+                                                 "pose add none)"), said

@@ -89,7 +89,7 @@ def length_typo(model, m) -> list | None:
             if fits_in_a_frame(_with_table(model, moved), m):
                 return [(j2 + 1, k2, float(table[j2, c2]), float(t2[j2, c2]))
                         for s2, j2, c2, k2, t2 in [scored[i]] + [c for c in scored if c is not scored[i]]
-                        if s2 <= s * (1 + TWIN_REL) + 1e-9]
+                        if abs(s2 - s) <= s * TWIN_REL + 1e-9]
     except InputError:
         return None
     return None

@@ -261,3 +261,20 @@ def test_few_poses_are_said_to_judge_little(n_poses):
         assert eqs < 2 * free and need > n_poses
     else:
         assert said == []
+
+
+def test_discover_does_not_name_a_given_effect_the_data_cannot_identify():
+    """`discover --effects thermal_expansion` on a session at one temperature (plain numpy,
+    tests/npsim.py): every thermal parameter is held, yet it printed 'final effects:
+    thermal_expansion'. Now it is not named; its line says why and that it changes nothing."""
+    from test_identifiability import _thermal
+
+    ur, m = _thermal(torch.full((40,), 25.0))
+    d = discover(ur, m, ["thermal_expansion"], max_rounds=0, report_rest=False)
+    assert d.final_effects == ["thermal_expansion"] and d.named == []
+    assert d.unidentified == {"thermal_expansion": "temp_c is 25 degC on every row"}
+    assert d.final_words().splitlines() == [
+        "final effects: none",
+        "  thermal_expansion: in the model, not named: none of its parameters is identifiable from these data (all "
+        "held at nominal: temp_c is 25 degC on every row): it changes nothing"]
+    assert d.to_dict()["unidentified"] == d.unidentified

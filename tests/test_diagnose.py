@@ -2,14 +2,14 @@
 brings the held-out error to the noise level, geometric-only data give no verdict, and
 `discover` finds two hidden effects with the held-out error falling at each round.
 
-Data: 160 training + 80 held-out poses, 0.02 mm noise, effects of 0.3 mm RMS at the TCP
+Data: 240 training + 120 held-out poses, 0.02 mm noise, effects of 0.3 mm RMS at the TCP
 (before the geometric fit absorbs what it can). Where an effect's physics has a plain-numpy
 simulator (tests/npsim.py: gravity deflection from link masses, lost motion, gear
 harmonics, a moved base) the "real" robot is that, not torchcal's effect classes; the
 other effects come from the project's simulator.
 
 The verdict tests call `diagnose(..., report_rest=False)`: the probe of what remains
-(`torchcal.diagnosis.unexplained`, two thirds of a diagnose on 240 rows) runs after the
+(`torchcal.diagnosis.unexplained`, two thirds of a diagnose on these 240 rows) runs after the
 verdict and changes none of it; it has its own tests (test_unexplained.py, whose
 `repeated_null` runs `diagnose` with the default and reads its `unexplained`).
 """
@@ -31,21 +31,21 @@ from torchcal.measurements import Measurements
 from torchcal.simulation.virtual_robot import VirtualRobot, random_poses
 
 NOISE = 0.02
-TRAIN, HELD = torch.arange(160), torch.arange(160, 240)
+TRAIN, HELD = torch.arange(240), torch.arange(240, 360)
 ROBOT = torchcal.robot("kr1000titan")
 
 
 def session(specs, seed=3):
     vr = VirtualRobot(ROBOT, specs, seed=seed)
-    q = random_poses(ROBOT, 240, torch.Generator().manual_seed(seed + 100))
+    q = random_poses(ROBOT, 360, torch.Generator().manual_seed(seed + 100))
     return vr, vr.measure(q, noise_mm=NOISE)
 
 
 def numpy_session(hidden, seed=3):
-    """240 poses of the plain-numpy "real" robot with the physics of `hidden`."""
-    q = random_poses(ROBOT, 240, torch.Generator().manual_seed(seed + 100))
+    """360 poses of the plain-numpy "real" robot with the physics of `hidden`."""
+    q = random_poses(ROBOT, 360, torch.Generator().manual_seed(seed + 100))
     xyz, payload = physics_session(ROBOT, q.numpy(), seed, hidden, noise_mm=NOISE)
-    return Measurements(torch.arange(240), q, torch.from_numpy(xyz), torch.from_numpy(payload))
+    return Measurements(torch.arange(360), q, torch.from_numpy(xyz), torch.from_numpy(payload))
 
 
 def held_out_rms(specs, m) -> float:

@@ -156,11 +156,11 @@ def test_random_clearance_from_another_generator_is_named(joint):
     clear = [c if i // 2 + 1 == joint else 0.0 for i, c in enumerate(KR1000_CLEARANCE_MM)]
     cm = ClearanceModel(KR1000_RADII_MM, clear, KR1000_BEARING_LENGTH_MM)
     geo = VirtualRobot(ROBOT, [], seed=1).theta[: 5 * ROBOT.n].reshape(ROBOT.n, 5)
-    q = random_poses(ROBOT, 160, torch.Generator().manual_seed(51))
+    q = random_poses(ROBOT, 240, torch.Generator().manual_seed(51))
     g = torch.Generator().manual_seed(100)
-    xyz = ROBOT.fk(q, geo + cm.sample(ROBOT, 160, seed=g)) \
-        + NOISE * torch.randn(160, 3, generator=g, dtype=torch.float64)
-    d = diagnose(ROBOT, Measurements(torch.arange(160), q, xyz), report_rest=False)
+    xyz = ROBOT.fk(q, geo + cm.sample(ROBOT, 240, seed=g)) \
+        + NOISE * torch.randn(240, 3, generator=g, dtype=torch.float64)
+    d = diagnose(ROBOT, Measurements(torch.arange(240), q, xyz), report_rest=False)
     assert d.verdict is not None and d.verdict.spec == f"joint_clearance:{joint}"
 
 

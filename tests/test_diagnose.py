@@ -10,8 +10,8 @@ other effects come from the project's simulator.
 
 The verdict tests call `diagnose(..., report_rest=False)`: the probe of what remains
 (`torchcal.diagnosis.unexplained`, two thirds of a diagnose on these 240 rows) runs after the
-verdict and changes none of it; it has its own tests (test_unexplained.py), and
-`test_diagnose_reports_where_it_fails` keeps the default.
+verdict and changes none of it; it has its own tests (test_unexplained.py, whose
+`repeated_null` runs `diagnose` with the default and reads its `unexplained`).
 """
 
 import math
@@ -124,7 +124,7 @@ def test_discover_finds_two_effects_and_error_falls_each_round():
 
 def test_diagnose_reports_where_it_fails():
     _, m = session(["gear_periodic:1"])
-    d = diagnose(ROBOT, m.subset(TRAIN)).to_dict()
+    d = diagnose(ROBOT, m.subset(TRAIN), report_rest=False).to_dict()
     per_joint = d["where"]["per_joint"]
     assert [p["joint"] for p in per_joint] == list(range(1, ROBOT.n + 1))
     assert sum(b["n"] for b in per_joint[0]["bins"]) == len(TRAIN)

@@ -109,6 +109,6 @@ def run(args) -> int:
     print(f"R_set min {s['r_set_min']:.3f}  median {s['r_set_median']:.3f}  max {s['r_set_max']:.3f}  "
           f"R_set = 1 at {100 * s['share_r_set_1']:.1f}% of the points ({n1}/{s['points']})")
     print(f"distance error upper bound {s['dist_upper_min_mm']:.3f} .. {s['dist_upper_max_mm']:.3f} mm; "
-          f"sampled / linearised half-width, median {s['linear_ratio_median']:.2f} "
+          f"{'sampled' if args.bounds == 'sampled' else 'worst-case'} / linearised half-width, median {s['linear_ratio_median']:.2f} "
           f"(max {s['linear_ratio_max']:.2f})")
     return 0

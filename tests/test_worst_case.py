@@ -143,3 +143,27 @@ def test_cli_unknown_bounds_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert exc.value.code == 2 and len(err) == 1 and "--bounds: invalid choice: 'worse'" in err[0]
     assert not out.exists()
+
+
+def test_worst_blocks_equal_the_in_process_sweep_and_do_not_mix(tmp_path):
+    from torchcal.errors import OutputExistsError
+    from torchcal.workflows.distributed import plan_sweep, run_sweep
+
+    robot = torchcal.robot("kr1000titan")
+    kw = dict(n_points=30, n_samples=20, seed=4, block=8)
+    out = tmp_path / "s.csv"
+    plan = plan_sweep(robot, bounds="worst", **kw)
+    assert plan.manifest()["bounds"] == "worst" and "bounds" not in plan_sweep(robot, **kw).manifest()
+    done = []
+
+    def stop(index):
+        done.append(index)
+        if len(done) == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(plan, out, threads=2, on_block=stop)
+    with pytest.raises((InputError, OutputExistsError), match="bounds"):  # a sampled run cannot take it up
+        run_sweep(plan_sweep(robot, **kw), out)
+    run_sweep(plan, out, threads=2)
+    assert out.read_text() == sweep_csv_text(sweep(robot, bounds="worst", **kw))

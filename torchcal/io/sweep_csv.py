@@ -95,7 +95,8 @@ def write_sweep(result: SweepResult, path, force: bool = False) -> Path:
 
 def read_sweep(path, device=None, prismatic=None, robot=None) -> SweepResult:
     """Read a sweep CSV into a `SweepResult` (linearised bounds, allowed_mm, n_samples: None;
-    ``robot``: the robot of its record, None for a file without one).
+    ``robot``: the robot of its record, None for a file without one; ``bounds`` "worst"
+    with ``dist_upper_outer`` where the header has the column dist_hi_outer, else "sampled").
 
     prismatic: optional (n,) bool, joints whose q column is mm (kept), not degrees;
         default: those of the recorded robot (or of `robot` for a file without a record).

@@ -140,7 +140,7 @@ def worst_extremes(J: torch.Tensor, deviations: torch.Tensor, cs: ClearanceSet):
     """First-order extremes of the error over the clearance set at N points (module doc).
 
     J (N, 3, 5n) mm per unit deviation (`torchcal.kinematics.mdh.param_jacobian`, world
-    frame), deviations (M, n, 5) the sampled states (the ascent starts from the one of
+    frame), deviations (M, n, 5) the sampled states (the ascents start from the STARTS of
     largest first-order |e| at each point), cs their `ClearanceSet`. Returns axis (N, 3) mm
     (the exact range is +-axis), ascent (N,) mm and outer (N,) mm, ascent <= outer.
     """
@@ -179,7 +179,7 @@ def worst_extremes(J: torch.Tensor, deviations: torch.Tensor, cs: ClearanceSet):
     grid = _grid(dt, dev_)
     ascent = torch.empty(N, dtype=dt, device=dev_)
     idx = torch.arange(N, device=dev_)  # the points still gaining, whose tensors follow
-    H = {k: h for k, h in Hs.items()}
+    H = dict(Hs)
     for _ in range(SWEEPS):
         before = e.square().sum(1)
         for k in seats:

@@ -4,6 +4,11 @@ after one line recording the robot it was made for:
     # torchcal-sweep/2 {"made_for": {"name", "fingerprint", "nominal_robot"}}
     point,q1..qN,x,y,z,ex_lo,ex_hi,ey_lo,ey_hi,ez_lo,ez_hi,dist_lo,dist_hi,eta,r_set
 
+A sweep of worst-case bounds (`torchcal sweep --bounds worst`, `SweepResult.bounds`) has
+one more column, ``dist_hi_outer`` after ``dist_hi``: its guaranteed first-order upper
+bound of the distance error (`torchcal.reliability.worst_case`); the header so says which
+bounds the rows hold, and `read_sweep` reads both.
+
 The first line is `RECORD` and one line of JSON: the robot record of
 `torchcal.io.robot_file.robot_record` (name, SHA-256 fingerprint of the nominal kinematics
 and joint limits, the robot-file dict). q in degrees (mm for a prismatic joint),
@@ -40,16 +45,18 @@ __all__ = ["sweep_columns", "sweep_head", "sweep_csv_text", "sweep_csv_rows", "w
 RECORD = "# torchcal-sweep/2 "
 
 
-def sweep_columns(n: int) -> list[str]:
-    """The header of a sweep CSV for n joints."""
+def sweep_columns(n: int, bounds: str = "sampled") -> list[str]:
+    """The header of a sweep CSV for n joints and `bounds` ("sampled" or "worst": with the
+    column dist_hi_outer)."""
+    outer = ["dist_hi_outer"] if bounds == "worst" else []
     return (["point"] + [f"q{i + 1}" for i in range(n)] + ["x", "y", "z", "ex_lo", "ex_hi", "ey_lo",
-            "ey_hi", "ez_lo", "ez_hi", "dist_lo", "dist_hi", "eta", "r_set"])
+            "ey_hi", "ez_lo", "ez_hi", "dist_lo", "dist_hi"] + outer + ["eta", "r_set"])
 
 
-def sweep_head(n: int, robot=None) -> str:
+def sweep_head(n: int, robot=None, bounds: str = "sampled") -> str:
     """The lines before the rows of a sweep CSV for n joints: the record of `robot` (when
-    given, module doc) and the column header."""
-    head = ",".join(sweep_columns(n)) + "\n"
+    given, module doc) and the column header (of `bounds`)."""
+    head = ",".join(sweep_columns(n, bounds)) + "\n"
     if robot is None:
         return head
     record = json.dumps({"made_for": robot_record(robot)}, sort_keys=True, separators=(",", ":"), allow_nan=False)
@@ -59,7 +66,7 @@ def sweep_head(n: int, robot=None) -> str:
 def sweep_csv_text(result: SweepResult) -> str:
     """The CSV text of a sweep: its robot's record (when known), the header, the rows; q in
     degrees (mm for a prismatic joint), mm."""
-    return sweep_head(result.q.shape[1], result.robot) + sweep_csv_rows(result)
+    return sweep_head(result.q.shape[1], result.robot, result.bounds) + sweep_csv_rows(result)
 
 
 def sweep_csv_rows(result: SweepResult) -> str:
@@ -69,7 +76,10 @@ def sweep_csv_rows(result: SweepResult) -> str:
         q = torch.where(result.prismatic.to(q.device), result.q, q)
     cols = [q, result.positions,
             torch.stack([result.err_lower, result.err_upper], dim=-1).reshape(-1, 6),
-            result.dist_lower[:, None], result.dist_upper[:, None], result.eta[:, None], result.r_set[:, None]]
+            result.dist_lower[:, None], result.dist_upper[:, None]]
+    if result.dist_upper_outer is not None:  # bounds "worst"
+        cols.append(result.dist_upper_outer[:, None])
+    cols += [result.eta[:, None], result.r_set[:, None]]
     data = torch.cat([c.detach().to("cpu", torch.float64) for c in cols], dim=1).numpy()
     buf = _io.StringIO()
     ids = range(len(data)) if result.point is None else result.point.tolist()
@@ -85,7 +95,8 @@ def write_sweep(result: SweepResult, path, force: bool = False) -> Path:
 
 def read_sweep(path, device=None, prismatic=None, robot=None) -> SweepResult:
     """Read a sweep CSV into a `SweepResult` (linearised bounds, allowed_mm, n_samples: None;
-    ``robot``: the robot of its record, None for a file without one).
+    ``robot``: the robot of its record, None for a file without one; ``bounds`` "worst"
+    with ``dist_upper_outer`` where the header has the column dist_hi_outer, else "sampled").
 
     prismatic: optional (n,) bool, joints whose q column is mm (kept), not degrees;
         default: those of the recorded robot (or of `robot` for a file without a record).
@@ -114,7 +125,8 @@ def read_sweep(path, device=None, prismatic=None, robot=None) -> SweepResult:
                          f"expected a sweep CSV header")
     header = [h.strip() for h in rows[0]]
     n = len([h for h in header if len(h) > 1 and h[0] == "q" and h[1:].isdigit()])
-    expected = sweep_columns(n)
+    bounds = "worst" if "dist_hi_outer" in header else "sampled"
+    expected = sweep_columns(n, bounds)
     if n == 0 or header != expected:
         raise InputError(f"{path}: {'' if top == 1 else f'line {top}: '}header must be "
                          f"{','.join(expected if n else ['point', 'q1', '...'])}, got {','.join(header)}")
@@ -151,7 +163,8 @@ def read_sweep(path, device=None, prismatic=None, robot=None) -> SweepResult:
             raise InputError(f"{path}: row {r}, column r_set: {data[i, -1]} is outside [0, 1]")
     _check_unique_points(path, ids, [line for line, _ in rows])
     _check_r_set_of_eta(path, data[:, -2], data[:, -1], [line for line, _ in rows])
-    _check_one_allowed(path, data[:, -4], data[:, -3], data[:, -2], [line for line, _ in rows])
+    x = 1 if bounds == "worst" else 0  # dist_hi_outer between dist_hi and eta
+    _check_one_allowed(path, data[:, -4 - x], data[:, -3 - x], data[:, -2], [line for line, _ in rows])
     t = torch.from_numpy(data).to(device)
     k = n
     q = torch.deg2rad(t[:, :k])
@@ -161,8 +174,9 @@ def read_sweep(path, device=None, prismatic=None, robot=None) -> SweepResult:
     e = t[:, k + 3:k + 9].reshape(-1, 3, 2)
     return SweepResult(q=q, positions=t[:, k:k + 3], err_lower=e[..., 0].contiguous(),
                        err_upper=e[..., 1].contiguous(), dist_lower=t[:, k + 9], dist_upper=t[:, k + 10],
-                       eta=t[:, k + 11], r_set=t[:, k + 12], point=torch.from_numpy(ids).to(device),
-                       prismatic=prismatic, robot=made)
+                       eta=t[:, -2], r_set=t[:, -1], point=torch.from_numpy(ids).to(device),
+                       prismatic=prismatic, robot=made, bounds=bounds,
+                       dist_upper_outer=t[:, k + 11] if x else None)
 
 
 def _check_unique_points(path, ids: np.ndarray, lines: list[int]) -> None:

@@ -13,4 +13,5 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "torchcal.reliability.sweep_blocks": ["DEFAULT_BLOCK", "block_points", "block_range", "block_seed"],
     "torchcal.reliability.uncertainty": ["ClearanceModel", "clearance_from_dict", "deviation_map",
                                          "sample_deviations", "sample_states", "states_to_deviations"],
+    "torchcal.reliability.worst_case": ["BOUNDS", "ClearanceSet", "check_bounds", "clearance_set", "worst_extremes"],
 })

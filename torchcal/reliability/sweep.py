@@ -36,7 +36,15 @@ each point, distance-error interval per point, R_set":
    envelope lies inside it up to second-order terms; the box ignores the correlations
    between deviations (one seat moves several of them), so it is wider, by the factor
    `SweepResult.linear_ratio` reports.
-5. eta (eq. 23) and R_set (eq. 24) of the distance interval for an allowed distance
+5. ``bounds="worst"`` (not the paper's; `torchcal.reliability.worst_case`): the bounds over
+   the whole clearance set instead of the M sampled states, to first order: per axis the
+   exact range (joined with the sampled one), the distance upper bound by coordinate ascent
+   from the best sampled state (the larger of it and the sampled one, so never below that),
+   and beside it `dist_upper_outer`, a guaranteed first-order upper bound (triangle
+   inequality): the true worst case lies in [dist_upper, dist_upper_outer]. eta, R_set
+   (and the linear ratio) are then those of these bounds. Needs the clearance model and
+   the nominal state in the set (include_nominal: the lower bound stays 0).
+6. eta (eq. 23) and R_set (eq. 24) of the distance interval for an allowed distance
    error [0, D] (torchcal.reliability.rset; eta with the upper limit only, see there), and,
    optionally, per axis for an allowed +-a.
 
@@ -72,6 +80,7 @@ from torchcal.errors import InputError
 from torchcal.reliability.interval import Interval, linear_hull
 from torchcal.reliability.uncertainty import ClearanceModel, sample_deviations
 from torchcal.reliability.sweep_blocks import DEFAULT_BLOCK, block_points, block_range
+from torchcal.reliability.worst_case import ClearanceSet, check_bounds, clearance_set, worst_extremes
 from torchcal.robots.workspace import Workspace
 
 
@@ -135,6 +144,11 @@ class SweepResult:
             angle (None: all revolute).
         robot: the nominal `Robot` swept (as `sweep` was given it), which the sweep CSV
             records (`torchcal.io.sweep_csv`); None where unknown.
+        bounds: "sampled" (extremes over the M states, the paper's) or "worst" (over the
+            whole clearance set, `torchcal.reliability.worst_case`): what err_*, dist_*,
+            eta and r_set are.
+        dist_upper_outer: (N,) mm with bounds "worst": a guaranteed first-order upper bound
+            of |e| (never below dist_upper); None otherwise.
     """
 
     q: torch.Tensor
@@ -155,6 +169,8 @@ class SweepResult:
     point: torch.Tensor | None = None
     prismatic: torch.Tensor | None = None
     robot: object = None
+    bounds: str = "sampled"
+    dist_upper_outer: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return self.q.shape[0]
@@ -360,7 +376,8 @@ def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_m
           seed: int = 0, model: ClearanceModel | None = None, workspace: Workspace | None = None,
           deviations: torch.Tensor | None = None, include_nominal: bool = True, linear: bool = True,
           allowed_axis_mm: float | None = None, chunk: int | None = None, threads: int | None = None,
-          block: int = DEFAULT_BLOCK, device=None, dtype=torch.float64, progress: bool = False):
+          block: int = DEFAULT_BLOCK, device=None, dtype=torch.float64, progress: bool = False,
+          bounds: str = "sampled"):
     """Sweep the workspace: error envelopes, linearised hull, eta and R_set per point.
 
     Args:
@@ -394,6 +411,9 @@ def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_m
             `torchcal.workflows.distributed.sweep_block`).
         device, dtype: where and in which float type to compute (float64 default).
         progress: tqdm progress bar on stderr (only when stderr is a terminal).
+        bounds: "sampled" (default, the paper's: the extremes of the M states) or "worst":
+            the extremes over the whole clearance set (module doc, step 5; needs `model`
+            or the robot's default one, not `deviations`, and include_nominal).
 
     Returns:
         SweepResult (tensors on `device`).
@@ -403,6 +423,9 @@ def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_m
             raise InputError(f"{name} must be a positive integer, got {v!r}")
     _check_count(block, "points per block")
     _check_allowed(allowed_mm, allowed_axis_mm)
+    check_bounds(bounds)
+    if bounds == "worst" and deviations is not None:
+        raise InputError("bounds='worst' needs the clearance model the states are drawn from, not deviations")
     device = torch.device(device) if device is not None else robot.device
     rb = robot.to(device, dtype)
     if q is not None:
@@ -415,6 +438,7 @@ def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_m
         _check_count(n_points, "number of workspace points")
     deviations, dev_box = sweep_states(robot, n_samples=n_samples, seed=seed, model=model,
                                        deviations=deviations, linear=linear)
+    cset = worst_set(robot, bounds, model, deviations, seed, include_nominal)
     deviations = deviations.to(device=device, dtype=dtype)
     gpu = rb.table.device.type != "cpu"
     chunk = chunk or (DEFAULT_CHUNK_GPU if gpu else DEFAULT_CHUNK)
@@ -432,7 +456,7 @@ def sweep(robot, q=None, *, n_points: int = 100, n_samples: int = 300, allowed_m
                     qb = q[a0:a1]
                 parts.append(_sweep_points(rb, qb, deviations, dev_box, include_nominal=include_nominal,
                                            linear=linear, allowed_mm=allowed_mm, allowed_axis_mm=allowed_axis_mm,
-                                           chunk=chunk, threads=threads, bar=bar))
+                                           chunk=chunk, threads=threads, bar=bar, clearance=cset))
     return replace(parts[0] if len(parts) == 1 else _concat(parts), robot=robot)
 
 
@@ -524,12 +548,47 @@ def sweep_states(robot, *, n_samples: int = 300, seed: int = 0, model: Clearance
     return deviations, dev_box
 
 
+def worst_set(robot, bounds: str, model, deviations, seed: int, include_nominal: bool) -> ClearanceSet | None:
+    """The `ClearanceSet` of the sweep states `deviations` (M, n, 5) for bounds "worst"
+    (model None: the robot's default), None for "sampled"; one InputError without the
+    nominal state (the worst-case lower bound is then not computed)."""
+    if check_bounds(bounds) == "sampled":
+        return None
+    if not include_nominal:
+        raise InputError("bounds='worst' keeps the nominal state in the set (include_nominal=True): "
+                         "its distance lower bound is 0")
+    model = ClearanceModel.defaults(robot) if model is None else model
+    return clearance_set(robot, model, deviations, seed)
+
+
+def _worst(rb, q, deviations, cset: ClearanceSet, threads: int, chunk: int = 2048):
+    """`worst_extremes` at the points q (N, n) in chunks of `chunk` points shared among
+    `threads` workers: axis (N, 3), ascent (N,), outer (N,) mm."""
+    N = q.shape[0]
+    axis = torch.empty(N, 3, dtype=q.dtype, device=q.device)
+    ascent, outer = torch.empty(N, dtype=q.dtype, device=q.device), torch.empty(N, dtype=q.dtype, device=q.device)
+
+    def work(a):
+        J = K.param_jacobian(q[a:a + chunk], rb.chain)  # (Nc, 3, 5n)
+        axis[a:a + chunk], ascent[a:a + chunk], outer[a:a + chunk] = worst_extremes(J, deviations, cset)
+
+    for _ in _map_chunks(work, range(0, N, chunk), threads):
+        pass
+    return axis, ascent, outer
+
+
 def _sweep_points(rb, q, deviations, dev_box, *, include_nominal, linear, allowed_mm, allowed_axis_mm,
-                  chunk, threads, bar) -> SweepResult:
-    """The sweep of the points q (N, n) against deviations (M, n, 5), both on rb's device."""
+                  chunk, threads, bar, clearance: ClearanceSet | None = None) -> SweepResult:
+    """The sweep of the points q (N, n) against deviations (M, n, 5), both on rb's device;
+    with `clearance` (`worst_set`) its worst-case bounds (module doc, step 5)."""
     gpu = q.device.type != "cpu"
-    lin_lo = lin_hi = lin_far = rs_axis = et_axis = None
+    lin_lo = lin_hi = lin_far = rs_axis = et_axis = d_out = None
     e_lo, e_hi, d_lo, d_hi = _envelope(rb, q, deviations, include_nominal, chunk, bar, threads)
+    if clearance is not None:
+        axis, ascent, outer = _worst(rb, q, deviations, clearance, threads, chunk=4096 if gpu else 2048)
+        e_lo, e_hi = torch.minimum(e_lo, -axis), torch.maximum(e_hi, axis)
+        d_hi = torch.maximum(d_hi, ascent)
+        d_out = torch.maximum(outer, d_hi)
     if linear:
         hull, lin_far = linear_bounds(rb, q, dev_box, chunk=1 << 16 if gpu else 1024, threads=threads)
         lin_lo, lin_hi = hull.lower, hull.upper
@@ -547,7 +606,8 @@ def _sweep_points(rb, q, deviations, dev_box, *, include_nominal, linear, allowe
     return SweepResult(q=q, positions=positions, err_lower=e_lo, err_upper=e_hi, dist_lower=d_lo,
                        dist_upper=d_hi, eta=et, r_set=rs, lin_lower=lin_lo, lin_upper=lin_hi,
                        lin_dist_upper=lin_far, allowed_mm=float(allowed_mm), n_samples=deviations.shape[0],
-                       r_set_axis=rs_axis, eta_axis=et_axis, prismatic=rb.prismatic if rb.chain.linear else None)
+                       r_set_axis=rs_axis, eta_axis=et_axis, prismatic=rb.prismatic if rb.chain.linear else None,
+                       bounds="sampled" if clearance is None else "worst", dist_upper_outer=d_out)
 
 
 def _concat(parts: list[SweepResult]) -> SweepResult:

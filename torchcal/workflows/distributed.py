@@ -41,7 +41,7 @@ from torchcal.io.sweep_csv import sweep_csv_rows, sweep_head
 from torchcal.reliability.interval import Interval
 from torchcal.robots.workspace import Workspace
 from torchcal.reliability.sweep import (DEFAULT_CHUNK, DEFAULT_CHUNK_GPU, SweepResult, _check_allowed,
-                                        _check_count, _serial_ops, _sweep_points, sweep_states)
+                                        _check_count, _serial_ops, _sweep_points, sweep_states, worst_set)
 from torchcal.reliability.sweep_blocks import DEFAULT_BLOCK, block_points, block_range
 
 EXTRA_HINT = "pip install 'torchcal[distributed]'"
@@ -53,7 +53,7 @@ def sweep_block(robot, index: int, *, n_points: int, deviations: torch.Tensor, d
                 allowed_mm: float = 2.5, seed: int = 0, block: int = DEFAULT_BLOCK,
                 workspace: Workspace | None = None, include_nominal: bool = True,
                 allowed_axis_mm: float | None = None, chunk: int | None = None, threads: int = 1,
-                dtype=torch.float64, device=None) -> SweepResult:
+                dtype=torch.float64, device=None, bounds: str = "sampled", model=None) -> SweepResult:
     """Block `index` of `sweep(robot, n_points=n_points, seed=seed, block=block, ...)` on
     `device` (default the CPU; chunk default per device, as in `sweep`).
 
@@ -61,9 +61,12 @@ def sweep_block(robot, index: int, *, n_points: int, deviations: torch.Tensor, d
     same for every block); the linearised hull is computed when dev_box is given. The
     result's `point` holds the global point ids; it equals the block's rows of the
     in-process sweep bit for bit (same points, same kernel on the same block), whatever
-    `threads` and `chunk` (on the same device).
+    `threads` and `chunk` (on the same device). bounds, model: as in `sweep` ("worst":
+    the bounds over the clearance set of `model`, default the robot's, from which
+    `deviations` were drawn with `seed`).
     """
     _check_allowed(allowed_mm, allowed_axis_mm)
+    cset = worst_set(robot, bounds, model, deviations, seed, include_nominal)
     device = torch.device(device or "cpu")
     gpu = device.type != "cpu"
     rb = robot.to(device, dtype)
@@ -75,7 +78,7 @@ def sweep_block(robot, index: int, *, n_points: int, deviations: torch.Tensor, d
         r = _sweep_points(rb, q, deviations.to(device=device, dtype=dtype), box, include_nominal=include_nominal,
                           linear=dev_box is not None, allowed_mm=allowed_mm, allowed_axis_mm=allowed_axis_mm,
                           chunk=chunk or (DEFAULT_CHUNK_GPU if gpu else DEFAULT_CHUNK), threads=1 if gpu else threads,
-                          bar=None)
+                          bar=None, clearance=cset)
     return SweepResult(**{**{f.name: getattr(r, f.name) for f in fields(r)},
                           "point": torch.arange(a0, a1, device=device)})
 
@@ -93,6 +96,9 @@ class SweepPlan:
         deviations: (M, n, 5) the clearance states as MD-H deviations (rad, mm).
         dev_box: Interval (n, 5) of the deviations (the linearised hull's box).
         workspace: the Workspace filter (None: default).
+        bounds: "sampled" or "worst" (`sweep`); the manifest names it for "worst" only
+            (a sampled manifest is as before), so a resumed sweep cannot mix them.
+        model: the ClearanceModel of the states (bounds "worst" needs it; None: default).
     """
 
     robot: object
@@ -104,6 +110,8 @@ class SweepPlan:
     deviations: torch.Tensor
     dev_box: Interval
     workspace: Workspace | None = None
+    bounds: str = "sampled"
+    model: object = None
 
     @property
     def n_blocks(self) -> int:
@@ -120,14 +128,16 @@ class SweepPlan:
                 "robot_parameters_sha256": robot_fingerprint(self.robot),
                 "clearance_states_sha256": states, "points": self.n_points, "samples": self.n_samples,
                 "allowed_mm": self.allowed_mm, "seed": self.seed, "block": self.block,
-                "workspace": asdict((self.workspace or Workspace()).for_robot(self.robot))}
+                "workspace": asdict((self.workspace or Workspace()).for_robot(self.robot)),
+                **({} if self.bounds == "sampled" else {"bounds": self.bounds})}
 
     def compute(self, index: int, threads: int = 1, device=None) -> tuple[str, dict]:
         """Block `index` (on `device`, default the CPU): its CSV rows (torchcal.io.sweep_csv)
         and statistics (`block_stats`)."""
         r = sweep_block(self.robot, index, n_points=self.n_points, deviations=self.deviations,
                         dev_box=self.dev_box, allowed_mm=self.allowed_mm, seed=self.seed, block=self.block,
-                        workspace=self.workspace, threads=threads, device=device)
+                        workspace=self.workspace, threads=threads, device=device, bounds=self.bounds,
+                        model=self.model)
         return sweep_csv_rows(r), block_stats(r)
 
 
@@ -139,16 +149,18 @@ def _digest(tensors) -> str:
 
 
 def plan_sweep(robot, *, n_points: int, n_samples: int = 300, allowed_mm: float = 2.5, seed: int = 0,
-               model=None, block: int = DEFAULT_BLOCK, workspace: Workspace | None = None) -> SweepPlan:
-    """The plan of `sweep(robot, n_points=..., n_samples=..., seed=..., model=..., block=...)`
-    computed block by block (the clearance states are drawn here, once)."""
+               model=None, block: int = DEFAULT_BLOCK, workspace: Workspace | None = None,
+               bounds: str = "sampled") -> SweepPlan:
+    """The plan of `sweep(robot, n_points=..., n_samples=..., seed=..., model=..., block=...,
+    bounds=...)` computed block by block (the clearance states are drawn here, once)."""
     _check_count(n_points, "number of workspace points")
     _check_count(block, "points per block")
     _check_allowed(allowed_mm, None)
     deviations, dev_box = sweep_states(robot, n_samples=n_samples, seed=seed, model=model)
+    worst_set(robot, bounds, model, deviations, seed, True)  # refuses a bad `bounds` before any block
     return SweepPlan(robot=robot.to("cpu", torch.float64), n_points=int(n_points), n_samples=int(n_samples),
                      allowed_mm=float(allowed_mm), seed=int(seed), block=int(block), deviations=deviations,
-                     dev_box=dev_box, workspace=workspace)
+                     dev_box=dev_box, workspace=workspace, bounds=bounds, model=model)
 
 
 def block_stats(r: SweepResult) -> dict:
@@ -314,7 +326,7 @@ def run_sweep(plan: SweepPlan, out, *, client=None, threads: int | None = None, 
         else:
             _run_on(client, plan, missing, write)
     summary = summary_of(acc)
-    folder.assemble(sweep_head(plan.robot.n, plan.robot), plan.n_blocks)
+    folder.assemble(sweep_head(plan.robot.n, plan.robot, bounds=plan.bounds), plan.n_blocks)
     from torchcal.reliability.sweep import warn_allowed
     warn_allowed(summary, plan.allowed_mm, stacklevel=2)  # an allowed error in metres or micrometres
     return summary

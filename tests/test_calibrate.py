@@ -299,3 +299,25 @@ def test_independent_zones_with_an_empty_zone_name_the_file_and_the_counts(sessi
     assert not out.exists()
     res = torchcal.calibrate("kr1000titan", session / "kr1000titan.csv", ["base_frame"], partition=session / "part.json")
     assert res.zone_poses == [30, 0, 0]
+
+
+def test_cli_calibrate_names_an_effect_the_data_cannot_identify(tmp_path, capsys):
+    """`torchcal calibrate --effects thermal_expansion` on repeats at one temperature (plain
+    numpy, tests/npsim.py): its parameters were listed among the held ones only; one line
+    now says the effect changes nothing and why."""
+    from npsim import thermal_session
+    from torchcal.cli import main
+    from torchcal.io.measurement_csv import write_measurements
+    from torchcal.measurements import Measurements
+    from torchcal.robots.poses import random_poses
+
+    ur = torchcal.robot("ur5e")
+    q = random_poses(ur, 20, 3).repeat_interleave(2, 0)
+    t = torch.full((40,), 25.0, dtype=torch.float64)
+    m = Measurements(torch.arange(20).repeat_interleave(2), q,
+                     torch.from_numpy(thermal_session(ur, q.numpy(), t.numpy(), 1)), temp_c=t)
+    write_measurements(tmp_path / "d.csv", m, robot=ur)
+    assert main(["calibrate", str(tmp_path / "d.csv"), "--robot", "ur5e", "--effects", "thermal_expansion",
+                 "--out", str(tmp_path / "m.json")]) == 0
+    assert ("thermal_expansion: none of its parameters is identifiable from these data (all held at nominal: "
+            "temp_c is 25 degC on every row): it changes nothing") in capsys.readouterr().out.splitlines()

@@ -28,10 +28,33 @@ def _modules_after(code: str) -> set:
     return set(json.loads(line[-1][2:]))
 
 
+HELP_STEPS = (["evaluate", "--help"], ["--version"], ["--help"]) + tuple([c, "--help"] for c in cli.COMMANDS
+                                                                         if c != "evaluate")
+
+
+@pytest.fixture(scope="module")
+def help_steps() -> dict:
+    """`import torchcal.cli`, then `main(argv)` of each of HELP_STEPS one after another in one
+    fresh interpreter (one start instead of one per step): {step: (modules loaded before
+    it, modules loaded after it)}. `evaluate --help` comes first, right after the import,
+    so its set is that of a fresh interpreter; the later sets also hold what the earlier
+    steps loaded, so a module that must not be loaded is looked for in more, not less."""
+    code = ("import json, sys\nimport torchcal.cli\nout = []\n"
+            f"for argv in {[list(a) for a in HELP_STEPS]!r}:\n"
+            "    before = sorted(sys.modules)\n"
+            "    try:\n        torchcal.cli.main(argv)\n    except SystemExit:\n        pass\n"
+            "    out.append([before, sorted(sys.modules)])\n"
+            "print('@@' + json.dumps(out))")
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT)
+    line = [x for x in run.stdout.splitlines() if x.startswith("@@")]
+    assert line, run.stderr
+    return {" ".join(a): (set(b), set(c)) for a, (b, c) in zip(HELP_STEPS, json.loads(line[-1][2:]))}
+
+
 @pytest.mark.parametrize("flag", ["--version", "--help"])
-def test_version_and_help_import_no_heavy_module(flag):
-    code = f"import torchcal.cli\ntry:\n    torchcal.cli.main([{flag!r}])\nexcept SystemExit:\n    pass"
-    loaded = _modules_after(code)
+def test_version_and_help_import_no_heavy_module(flag, help_steps):
+    _, loaded = help_steps[flag]
     assert not {m for m in loaded if m.split(".")[0] in HEAVY}
     assert "torchcal.cli.fit" not in loaded
 
@@ -45,9 +68,8 @@ def test_python_m_torchcal_version_does_not_import_torch():
     assert "torch" not in imported and "sklearn" not in imported
 
 
-def test_a_sub_command_imports_only_its_own_module():
-    code = "import torchcal.cli\ntry:\n    torchcal.cli.main(['evaluate', '--help'])\nexcept SystemExit:\n    pass"
-    loaded = _modules_after(code)
+def test_a_sub_command_imports_only_its_own_module(help_steps):
+    _, loaded = help_steps["evaluate --help"]  # the first step: a fresh interpreter's modules
     cmds = {m.rsplit(".", 1)[-1] for m in loaded if m.startswith("torchcal.cli.") and not m.startswith("torchcal.cli._")}
     assert "evaluate" in cmds
     assert "sklearn" not in {m.split(".")[0] for m in loaded}
@@ -55,11 +77,11 @@ def test_a_sub_command_imports_only_its_own_module():
 
 
 @pytest.mark.parametrize("command", cli.COMMANDS)
-def test_sub_command_help_does_not_import_torch(command):
+def test_sub_command_help_does_not_import_torch(command, help_steps):
     """The parser definitions import no torch (nor numpy): `torchcal COMMAND --help` starts at once."""
-    code = f"import torchcal.cli\ntry:\n    torchcal.cli.main([{command!r}, '--help'])\nexcept SystemExit:\n    pass"
-    loaded = _modules_after(code)
+    before, loaded = help_steps[f"{command} --help"]
     assert f"torchcal.cli.{command}" in loaded
+    assert f"torchcal.cli.{command}" not in before  # loaded by its own --help
     assert not {m for m in loaded if m.split(".")[0] in ("torch", "numpy")}
 
 

@@ -77,3 +77,99 @@ def test_twin_column_mistakes_are_both_named():
                         r"with the joint column q5 shifted by -90 deg \(another zero position\): check the joint")):
         with pytest.raises(InputError, match=r"cannot come from ur5e as given: .* but within 10 mm " + words):
             torchcal.fit(ur, Measurements(torch.arange(60), mix(q), xyz), ["base_frame", "tool_offset"])
+
+
+def test_a_slide_column_in_metres_is_named():
+    """The SCARA of examples/ with its lift's column (q3, prismatic, mm) written in metres:
+    refused as 'data of another robot of that size, or many corrupted rows'; fit and
+    evaluate now name the column. Plain-numpy session (tests/npsim.py), base frame."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from npsim import numpy_fk
+    from torchcal.measurements import Measurements
+    from torchcal.robots.poses import random_poses
+
+    scara = torchcal.robot(Path(__file__).resolve().parents[1] / "examples" / "scara.json")
+    q = random_poses(scara, 40, 3)
+    rng = np.random.default_rng(5)
+    dev = np.zeros((4, 5))
+    dev[:, [1, 2]] = rng.uniform(-0.5, 0.5, (4, 2))
+    dev[:, [0, 3]] = np.radians(rng.uniform(-0.02, 0.02, (4, 2)))
+    tool = np.eye(4)
+    tool[:3, 3] = [30.0, 20.0, 120.0]
+    xyz = torch.from_numpy(numpy_fk(scara, q.numpy(), dev, tool=tool) + rng.normal(0, 0.01, (40, 3)))
+    fitted = torchcal.fit(scara, Measurements(torch.arange(40), q, xyz), ["tool_offset"])
+    assert fitted.rms_mm < 0.03
+    bad = Measurements(torch.arange(40), torch.cat([q[:, :2], q[:, 2:3] / 1000, q[:, 3:]], 1), xyz)
+    words = r"with the joint column q3 \(prismatic\) in metres \(read as mm\)"
+    with pytest.raises(InputError, match=r"cannot come from scara as given: .* but within 10 mm " + words):
+        torchcal.fit(scara, bad, ["tool_offset"])
+    with pytest.raises(InputError, match=r"cannot come from the model of scara as given: .* " + words):
+        torchcal.evaluate(fitted, bad)
+
+
+@pytest.mark.parametrize("sign, words", [(1, r"q3 \+ q2"), (-1, r"q3 - q2")])
+def test_a_coupled_j2_j3_column_is_named(sign, words):
+    """A KR 1000 session (plain numpy, tests/npsim.py, in a tracker's frame) whose q3 column
+    holds joint 3's angle against the base, q3 +- q2, as a controller with coupled J2/J3
+    (Fanuc's) reports it: refused as 'data of another robot or units'; now the column and
+    the convention are named."""
+    from npsim import tracker_session
+    from torchcal.measurements import Measurements
+    from torchcal.robots.poses import random_poses
+
+    kr = torchcal.robot("kr1000titan")
+    q = random_poses(kr, 40, 3)
+    xyz = torch.from_numpy(tracker_session(kr, q.numpy(), seed=3))
+    coupled = torch.cat([q[:, :2], q[:, 2:3] + sign * q[:, 1:2], q[:, 3:]], 1)
+    with pytest.raises(InputError, match=r"cannot come from kr1000titan as given: .* but within 10 mm with the joint "
+                                         rf"column q3 holding {words} \(joint 3's angle against the base, not link 2: "
+                                         r"a controller's coupled J2/J3 convention, e.g. Fanuc's\): check the joint"):
+        torchcal.fit(kr, Measurements(torch.arange(40), coupled, xyz), ["base_frame", "tool_offset"])
+
+
+TRACK7 = {"name": "track7", "base": [[0, 0, 1, 0], [0, 1, 0, 0], [-1, 0, 0, 0], [0, 0, 0, 1]], "payload_kg": 5,
+          "joints": [{"type": "prismatic", "theta_offset_deg": 0, "d_mm": 0, "a_mm": 0, "alpha_deg": 90,
+                      "lower": 0, "upper": 3000}]
+          + [{"type": "revolute", "theta_offset_deg": 0, "d_mm": d, "a_mm": a, "alpha_deg": al, "lower": -360,
+              "upper": 360, **({"beta_deg": 0} if al == 0 and k < 5 else {})}
+             for k, (d, a, al) in enumerate([(162.5, 0, 90), (0, -425, 0), (0, -392.2, 0), (133.3, 0, 90),
+                                             (99.7, 0, -90), (99.6, 0, 0)])]}
+
+
+def test_an_external_axis_logged_after_the_arm_and_mixed_type_swaps_are_named():
+    """A ur5e on a horizontal track (prismatic joint 1, a plain-numpy session in a tracker's
+    frame, tests/npsim.py) whose file logs the track after the arm's six joints (KUKA's E1
+    after A6): refused as 'data of another robot or units'; now named. The SCARA of
+    examples/ with its columns q2 (deg) and q3 (the lift, mm) swapped is named too (the
+    swap moved the values without their units: 'another robot')."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from npsim import numpy_fk, tracker_session
+    from torchcal.calibration.checks.columns import reordered
+    from torchcal.io.robot_file import robot_from_dict
+    from torchcal.measurements import Measurements
+    from torchcal.robots.poses import random_poses
+
+    track = robot_from_dict(TRACK7)
+    q = random_poses(track, 40, 3)
+    xyz = torch.from_numpy(tracker_session(track, q.numpy(), 3))
+    logged = reordered(q, track.prismatic, [*range(1, 7), 0])  # the file: A1..A6, then the track
+    assert torch.allclose(logged[:, 6], torch.deg2rad(q[:, 0])) and torch.equal(logged[:, 0], torch.rad2deg(q[:, 1]))
+    with pytest.raises(InputError, match=r"cannot come from track7 as given: .* but within 10 mm with the joint "
+                                         r"columns rotated: q7 holding joint 1 and q1..q6 joints 2..7 \(an external "
+                                         r"axis, e.g. a track, logged after the arm's joints"):
+        torchcal.fit(track, Measurements(torch.arange(40), logged, xyz), ["base_frame", "tool_offset"])
+    scara = torchcal.robot(Path(__file__).resolve().parents[1] / "examples" / "scara.json")
+    q = random_poses(scara, 40, 3)
+    xyz = torch.from_numpy(numpy_fk(scara, q.numpy(), np.zeros((4, 5))))
+    swapped = reordered(q, scara.prismatic, [0, 2, 1, 3])
+    with pytest.raises(InputError, match=r"cannot come from scara as given: .* with the joint columns q2 and q3 swapped"):
+        torchcal.fit(scara, Measurements(torch.arange(40), swapped, xyz), ["tool_offset"])
+    backwards = reordered(q, scara.prismatic, [3, 2, 1, 0])
+    with pytest.raises(InputError, match=r"data: the joint columns are in reverse order: .* with q4 .. q1 read as q1 .. q4"):
+        torchcal.fit(scara, Measurements(torch.arange(40), backwards, xyz), ["tool_offset"])

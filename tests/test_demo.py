@@ -224,13 +224,24 @@ def session(tmp_path_factory):
     return d, vr, qt, t
 
 
-def test_calibrate_and_compensate_commands(session, capsys):
+@pytest.fixture(scope="module")
+def global_model(session):
+    """`calibrate` of the session without a partition (base_frame): global.json, read by the
+    two tests below."""
+    d, *_ = session
+    assert cli.main(["calibrate", str(d / "data.csv"), "--robot", "kr1000titan", "--effects", "base_frame",
+                     "--out", str(d / "global.json")]) == 0
+    return d / "global.json"
+
+
+def test_calibrate_and_compensate_commands(session, global_model, capsys):
     from torchcal.effects import make_context
 
     d, vr, qt, t = session
     for extra, name in (([], "global.json"), (["--partition", str(d / "part.json")], "zones.json")):
-        assert cli.main(["calibrate", str(d / "data.csv"), "--robot", "kr1000titan", "--effects", "base_frame",
-                         *extra, "--out", str(d / name)]) == 0
+        if extra:  # the global model: the fixture's
+            assert cli.main(["calibrate", str(d / "data.csv"), "--robot", "kr1000titan", "--effects", "base_frame",
+                             *extra, "--out", str(d / name)]) == 0
         m = json.loads((d / name).read_text())
         assert m["format"] == "torchcal-model/2"
         assert all(p["interval"][0] <= p["value"] <= p["interval"][1] for p in m["parameters"])
@@ -250,11 +261,9 @@ def test_calibrate_and_compensate_commands(session, capsys):
     capsys.readouterr()
 
 
-def test_command_errors(session, capsys):
+def test_command_errors(session, global_model, capsys):
     d, *_ = session
-    model = d / "errors_model.json"  # its own model: the test does not lean on another test's output
-    assert cli.main(["calibrate", str(d / "data.csv"), "--robot", "kr1000titan", "--effects", "base_frame",
-                     "--out", str(model)]) == 0
+    model = global_model  # the fixture's: the test does not lean on another test's output
     capsys.readouterr()
     bad = d / "bad_targets.csv"
     bad.write_text("x,y\n1,2\n")

@@ -10,8 +10,8 @@ other effects come from the project's simulator.
 
 The verdict tests call `diagnose(..., report_rest=False)`: the probe of what remains
 (`torchcal.diagnosis.unexplained`, two thirds of a diagnose on these 240 rows) runs after the
-verdict and changes none of it; it has its own tests (test_unexplained.py), and
-`test_diagnose_reports_where_it_fails` keeps the default.
+verdict and changes none of it; it has its own tests (test_unexplained.py, whose
+`repeated_null` runs `diagnose` with the default and reads its `unexplained`).
 """
 
 import math
@@ -124,7 +124,7 @@ def test_discover_finds_two_effects_and_error_falls_each_round():
 
 def test_diagnose_reports_where_it_fails():
     _, m = session(["gear_periodic:1"])
-    d = diagnose(ROBOT, m.subset(TRAIN)).to_dict()
+    d = diagnose(ROBOT, m.subset(TRAIN), report_rest=False).to_dict()
     per_joint = d["where"]["per_joint"]
     assert [p["joint"] for p in per_joint] == list(range(1, ROBOT.n + 1))
     assert sum(b["n"] for b in per_joint[0]["bins"]) == len(TRAIN)
@@ -261,3 +261,20 @@ def test_few_poses_are_said_to_judge_little(n_poses):
         assert eqs < 2 * free and need > n_poses
     else:
         assert said == []
+
+
+def test_discover_does_not_name_a_given_effect_the_data_cannot_identify():
+    """`discover --effects thermal_expansion` on a session at one temperature (plain numpy,
+    tests/npsim.py): every thermal parameter is held, yet it printed 'final effects:
+    thermal_expansion'. Now it is not named; its line says why and that it changes nothing."""
+    from test_identifiability import _thermal
+
+    ur, m = _thermal(torch.full((40,), 25.0))
+    d = discover(ur, m, ["thermal_expansion"], max_rounds=0, report_rest=False)
+    assert d.final_effects == ["thermal_expansion"] and d.named == []
+    assert d.unidentified == {"thermal_expansion": "temp_c is 25 degC on every row"}
+    assert d.final_words().splitlines() == [
+        "final effects: none",
+        "  thermal_expansion: in the model, not named: none of its parameters is identifiable from these data (all "
+        "held at nominal: temp_c is 25 degC on every row): it changes nothing"]
+    assert d.to_dict()["unidentified"] == d.unidentified

@@ -190,7 +190,7 @@ def test_diagnose_fits_orientation_exactly_as_fit_does():
     """Real UR10 rows with rx, ry, rz: diagnose's current model is torchcal.fit's, the
     orientation weighed the same way (same parameters, same tool rotation)."""
     robot = torchcal.robot(str(EXAMPLES / "ur10.json"))
-    m = read_measurements(EXAMPLES / "series_d.csv", robot=robot).subset(slice(0, 60))
+    m = read_measurements(EXAMPLES / "series_d.csv", robot=robot).subset(slice(0, 30))
     assert m.rotation is not None
     ref = torchcal.fit(robot, m, ["base_frame", "tool_offset"])
     d = diagnose(robot, m, ["base_frame", "tool_offset"], refits=0, report_rest=False)  # no probe of the rest: not asked

@@ -32,7 +32,7 @@ from torchcal.diagnosis import discover
 from torchcal.folds import fold_of_pose
 from torchcal.diagnosis.candidates import Candidate
 from torchcal.diagnosis.selection import REFIT_ALPHA
-from torchcal.diagnosis.step import score_current, score_step
+from torchcal.diagnosis.step import score_step
 from torchcal.effects import context_of
 from torchcal.effects.backlash import Backlash
 from torchcal.io.measurement_csv import read_measurements
@@ -203,13 +203,22 @@ def test_joint_clearance_magnitudes_are_bounded_at_zero():
 
 # -- the step: determined, largest refit gain, what is printed is what is held --------------
 
-def test_the_step_takes_the_largest_refit_gain_not_the_shortlist_order(seed141):
+@pytest.fixture(scope="module")
+def seed141_one_round(seed141):
+    """`discover` of seed141 with max_rounds 1 (read by the two tests below: its round 0's
+    geometric fit and scored current model are those `fit` and `score_current` give with
+    the defaults; no test changes them)."""
+    return discover(ROBOT, seed141[1], max_rounds=1, report_rest=False)
+
+
+def test_the_step_takes_the_largest_refit_gain_not_the_shortlist_order(seed141, seed141_one_round):
     """axis_tilt:4 shortlisted before gear_periodic:2, both pass: the larger refit gain wins."""
     _, m = seed141
     ctx = context_of(ROBOT, m)
     folds = fold_of_pose(m.pose, 0, 5)
-    base = fit(CalibrationModel.for_measurements(ROBOT, [], m), ctx, m.xyz, pose=m.pose)
-    current = score_current(base, m, ctx, folds)
+    round0 = seed141_one_round.diagnoses[0]  # the geometric model fitted and scored as diagnose does
+    base, current = round0.baseline_fit, round0.step.current
+    assert base.model.specs() == [] and current.effects == []
     cands = [Candidate("axis_tilt", (4,), 0.0, 0.0, 0.0, 1e-9, 2, True, 0.1, deterministic=True),
              Candidate("gear_periodic", (2,), 0.0, 0.0, 0.0, 1e-9, 8, True, 0.1, deterministic=True)]
     step = score_step(current, cands, m, ctx, folds, alpha=REFIT_ALPHA)  # diagnose's refit level
@@ -226,10 +235,9 @@ def test_the_step_takes_the_largest_refit_gain_not_the_shortlist_order(seed141):
         assert "the prior alone set them" in best.reason and all(n in best.reason for n in held)
 
 
-def test_every_accepted_line_is_in_the_final_model(seed141):
+def test_every_accepted_line_is_in_the_final_model(seed141_one_round):
     """max_rounds 1: round 1's winner is not taken (round limit), and says so."""
-    _, m = seed141
-    res = discover(ROBOT, m, max_rounds=1, report_rest=False)
+    res = seed141_one_round
     for d in res.diagnoses:
         for ln in d.step.lines():
             if ": accepted (" in ln:

@@ -224,3 +224,20 @@ def test_the_solvers_jacobian_buffer_is_rewritten_at_every_iteration(narrow):
                                                                torch.diag(prior)])[None])
     assert s.n_iter == int(ref.n_iter[0]) >= 3
     assert torch.equal(s.x, ref.x)
+
+
+def test_cli_fit_names_an_effect_the_data_cannot_identify(tmp_path, capsys):
+    """`torchcal fit --effects thermal_expansion` on a session at one temperature listed its
+    parameters among the held ones only; one line now says the effect changes nothing and
+    why (the temperature the same on every row)."""
+    from test_identifiability import _thermal
+    from torchcal.cli import main
+    from torchcal.io.measurement_csv import write_measurements
+
+    ur, m = _thermal(torch.full((40,), 25.0))
+    write_measurements(tmp_path / "d.csv", m, robot=ur)
+    assert main(["fit", str(tmp_path / "d.csv"), "--robot", "ur5e", "--effects", "thermal_expansion",
+                 "--out", str(tmp_path / "m.json")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert ("thermal_expansion: none of its parameters is identifiable from these data (all held at nominal: "
+            "temp_c is 25 degC on every row): it changes nothing") in lines

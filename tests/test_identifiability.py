@@ -169,3 +169,81 @@ def test_beyond_doubt_frees_every_candidate_only_where_the_pivoting_would():
     assert beyond_doubt(B.T @ B, some, 20) is None
     assert identifiability(near, NAMES, some).rank == 4  # kept by the pivoting: above rank_tol, below the margin
     assert 3 < SAFE_RANK
+
+
+def _thermal(temp_c, seed=1, n=40, still=None):
+    """A plain-numpy ur5e session (tests/npsim.py) at temperatures temp_c (n,) degC; joint
+    `still` (1-based) held at 0.3 rad."""
+    import torchcal
+    from npsim import thermal_session
+    from torchcal.measurements import Measurements
+
+    ur = torchcal.robot("ur5e")
+    q = random_poses(ur, n, 3)
+    if still is not None:
+        q[:, still - 1] = 0.3
+    t = torch.as_tensor(temp_c, dtype=torch.float64)
+    return ur, Measurements(torch.arange(n), q, torch.from_numpy(thermal_session(ur, q.numpy(), t.numpy(), seed)),
+                            temp_c=t)
+
+
+def test_an_effect_the_data_cannot_identify_is_named_with_why():
+    """thermal_expansion fitted on a session at one temperature: every parameter is held,
+    so the effect changes nothing (`discover --effects thermal_expansion` listed it under
+    'final effects' as physics); `unidentified_effects` names it and `unidentified_reason`
+    the constant temp_c. On a session whose temperature varies it is identified; backlash
+    on a joint that never moves is named with the joint."""
+    import torchcal
+    from torchcal.calibration.identifiability import unidentified_effects, unidentified_reason
+
+    ur, m = _thermal(torch.full((40,), 25.0))
+    res = torchcal.fit(ur, m, ["thermal_expansion"])
+    assert unidentified_effects(res.model, res.report.held) == ["thermal_expansion"]
+    assert unidentified_reason(res.model.effects[0], m) == "temp_c is 25 degC on every row"
+    _, warm = _thermal(torch.linspace(18.0, 35.0, 40))
+    res = torchcal.fit(ur, warm, ["thermal_expansion"])
+    assert unidentified_effects(res.model, res.report.held) == []
+    _, still = _thermal(torch.full((40,), 20.0), still=4)
+    res = torchcal.fit(ur, still, ["backlash:2,4"])
+    assert unidentified_effects(res.model, res.report.held) == []  # joint 2's lost motion is identified
+    res = torchcal.fit(ur, still, ["backlash:4"])
+    assert unidentified_effects(res.model, res.report.held) == ["backlash:4"]
+    assert unidentified_reason(res.model.effects[0], still) == "q4 never moves"
+
+
+def test_a_fit_of_fewer_than_two_equations_per_parameter_warns():
+    """A ur5e (plain-numpy session, tests/npsim.py) fitted with joint_compliance:2,3 and
+    gear_periodic:2,3 on 20 poses: about 50 parameters on 60 equations printed an rms below
+    the noise with no word; its error on 100 new poses is several times that. One
+    FewEquationsWarning says so; the geometric fit of the same poses, and 5 repeats of 8
+    poses counted as 8 poses, are judged by their distinct poses."""
+    import re
+    import warnings
+
+    import torchcal
+    from npsim import physics_session
+    from torchcal.calibration.identifiability import FewEquationsWarning
+    from torchcal.measurements import Measurements
+
+    ur = torchcal.robot("ur5e")
+    q = random_poses(ur, 120, 3)
+    xyz, pay = physics_session(ur, q.numpy(), 1, ["joint_compliance:2"], effect_mm=0.1)
+    m = Measurements(torch.arange(120), q, torch.from_numpy(xyz), torch.from_numpy(pay))
+    train, new = m.subset(torch.arange(20)), m.subset(torch.arange(20, 120))
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        res = torchcal.fit(ur, train, ["joint_compliance:2,3", "gear_periodic:2,3"])
+    said = [str(x.message) for x in w if issubclass(x.category, FewEquationsWarning)]
+    assert len(said) == 1 and re.match(r"data: 20 distinct poses give 60 equations for \d+ identified parameters, "
+                                       r"fewer than 2 per parameter: the fit's rms understates", said[0]), said
+    assert torchcal.evaluate(res, new).rms_mm > 2 * res.rms_mm  # what it is about
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", FewEquationsWarning)
+        torchcal.fit(ur, train)
+    eight = train.subset(torch.arange(8).repeat_interleave(5))
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        torchcal.fit(ur, eight)
+    said = [str(x.message) for x in w if issubclass(x.category, FewEquationsWarning)]
+    assert len(said) == 1 and said[0].startswith("data: 8 distinct poses give 24 equations (40 rows; repeats of a "
+                                                 "pose add none)"), said

@@ -12,6 +12,8 @@ hidden one.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 import torch
@@ -44,6 +46,15 @@ def _setup(m):
     return ctx, score_current(base, m, ctx, folds), folds, r, A
 
 
+@functools.cache
+def _prepared(n, seed):
+    """(m, ctx, current Scored, folds, r, A) of the session of n poses, `seed` (with HIDDEN):
+    several tests read the same session and fit; computed once per module (nothing here
+    changes them)."""
+    m = _session(n, seed, HIDDEN)
+    return (m, *_setup(m))
+
+
 def _candidates(ctx, current, folds, r, A, joints):
     """The pre-screen's `joint_periodic` candidates (orders searched on all rows) of `joints`."""
     model, theta = current.fit.model, current.fit.theta
@@ -63,8 +74,7 @@ def test_orders_found_where_there_is_no_periodic_error_are_not_credited_with_the
     on average); a fold where the search finds no order is predicted by the current model."""
     plain_gain, honest_gain = [], []
     for seed in range(5):
-        m = _session(100, seed, HIDDEN)
-        ctx, current, folds, r, A = _setup(m)
+        m, ctx, current, folds, r, A = _prepared(100, seed)
         cands = _candidates(ctx, current, folds, r, A, [1, 3, 4, 5, 6])
         if not cands:
             continue
@@ -87,8 +97,7 @@ def test_the_hidden_periodic_error_is_accepted_and_on_enough_poses_scored_as_bef
     CV (the folds' searches find 17 + 31, one fold at most an order more), exactly that
     figure where every fold finds the full-data orders."""
     for n, seed in ((400, 1), (100, 0)):
-        m = _session(n, seed, HIDDEN)
-        ctx, current, folds, r, A = _setup(m)
+        m, ctx, current, folds, r, A = _prepared(n, seed)
         cands = _candidates(ctx, current, folds, r, A, [2])
         assert [c.spec for c in cands] in (["joint_periodic:2@17+31"], ["joint_periodic:2@31+17"])
         step = score_step(current, cands, m, ctx, folds, **STEP)
@@ -105,8 +114,7 @@ def test_fold_search_ignores_what_the_base_columns_explain():
     """The fold searches work on the full fit's residual: adding any combination A delta of
     the base columns (what refitting the base on the fold's rows would change, to first
     order) changes no fold's orders."""
-    m = _session(100, 0, HIDDEN)
-    ctx, current, folds, r, A = _setup(m)
+    m, ctx, current, folds, r, A = _prepared(100, 0)
     model, theta = current.fit.model, current.fit.theta
     delta = np.random.default_rng(0).normal(0, 1, A.shape[1]) * (np.abs(r).max() / np.abs(A).max(0))
     got = fold_orders(UR10, model, theta, ctx, r, A, folds, 2)
@@ -114,32 +122,14 @@ def test_fold_search_ignores_what_the_base_columns_explain():
     assert fold_orders(UR10, model, theta, ctx, r + A @ delta, A, folds, 2) == got
 
 
-def test_a_step_after_a_searched_one_is_scored_on_its_fold_models():
-    """The next round's candidate is refitted in each fold on top of that fold's model of
-    the accepted periodic step (its own orders there), not of the full-data orders."""
-    from torchcal.diagnosis.step import Scored
-    from torchcal.effects.spec import parse_specs
-
-    m = _session(100, 1, HIDDEN)
-    ctx, current, folds, r, A = _setup(m)
-    acc = score_step(current, _candidates(ctx, current, folds, r, A, [2]), m, ctx, folds, **STEP).accepted
-    assert acc is not None and acc.fold_specs is not None  # some fold found other orders
-    nxt = Scored(acc.effects, "", acc.rms_mm, acc.cv_rms_mm, acc.fit, acc.cv, fold_specs=acc.fold_specs)
-    cand = Candidate("encoder_scale", (1,), 0.0, 0.0, 1.0, 0.0, 1, True, deterministic=True)
-    s = score_step(nxt, [cand], m, ctx, folds, **STEP).refits[0]
-    want = {fo: [str(x) for x in parse_specs(v + ["encoder_scale:1"], 6)] for fo, v in acc.fold_specs.items()}
-    assert s.fold_specs == want
-    assert s.fold_specs != {fo: s.effects for fo in want}
-
-
-def test_the_chord_fold_fits_of_per_fold_models_give_the_lm_figures(monkeypatch):
-    """The per-fold models' fold fits by chord iterations (`refit.refit_from`, taken on
-    every fold here) against the LM fold fits they replace (`refit_from` made to decline):
-    the same fold models and per-pose held-out errors to within 1e-6 mm^2."""
+@pytest.fixture(scope="module")
+def periodic_step():
+    """(candidates, step, calls): the step of joint 2's searched candidate on the session of
+    100 poses, seed 1, each call of `refit.refit_from` recorded in `calls` (True: the chord
+    applied; the wrapper passes its result on). The two tests below read this one step."""
     import torchcal.calibration.refit as rf
 
-    m = _session(100, 1, HIDDEN)
-    ctx, current, folds, r, A = _setup(m)
+    m, ctx, current, folds, r, A = _prepared(100, 1)
     cands = _candidates(ctx, current, folds, r, A, [2])
     calls = []
     original = rf.refit_from
@@ -149,8 +139,38 @@ def test_the_chord_fold_fits_of_per_fold_models_give_the_lm_figures(monkeypatch)
         calls.append(out is not None)
         return out
 
-    monkeypatch.setattr(rf, "refit_from", counted)
-    chord = score_step(current, cands, m, ctx, folds, **STEP).refits[0]
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(rf, "refit_from", counted)
+        step = score_step(current, cands, m, ctx, folds, **STEP)
+    return cands, step, calls
+
+
+def test_a_step_after_a_searched_one_is_scored_on_its_fold_models(periodic_step):
+    """The next round's candidate is refitted in each fold on top of that fold's model of
+    the accepted periodic step (its own orders there), not of the full-data orders."""
+    from torchcal.diagnosis.step import Scored
+    from torchcal.effects.spec import parse_specs
+
+    m, ctx, current, folds, _, _ = _prepared(100, 1)
+    acc = periodic_step[1].accepted
+    assert acc is not None and acc.fold_specs is not None  # some fold found other orders
+    nxt = Scored(acc.effects, "", acc.rms_mm, acc.cv_rms_mm, acc.fit, acc.cv, fold_specs=acc.fold_specs)
+    cand = Candidate("encoder_scale", (1,), 0.0, 0.0, 1.0, 0.0, 1, True, deterministic=True)
+    s = score_step(nxt, [cand], m, ctx, folds, **STEP).refits[0]
+    want = {fo: [str(x) for x in parse_specs(v + ["encoder_scale:1"], 6)] for fo, v in acc.fold_specs.items()}
+    assert s.fold_specs == want
+    assert s.fold_specs != {fo: s.effects for fo in want}
+
+
+def test_the_chord_fold_fits_of_per_fold_models_give_the_lm_figures(periodic_step, monkeypatch):
+    """The per-fold models' fold fits by chord iterations (`refit.refit_from`, taken on
+    every fold here) against the LM fold fits they replace (`refit_from` made to decline):
+    the same fold models and per-pose held-out errors to within 1e-6 mm^2."""
+    import torchcal.calibration.refit as rf
+
+    m, ctx, current, folds, _, _ = _prepared(100, 1)
+    cands, step, calls = periodic_step
+    chord = step.refits[0]
     assert chord.fold_specs is not None and calls and all(calls)  # per-fold models, every one by the chord
     monkeypatch.setattr(rf, "refit_from", lambda *a, **k: None)
     lm = score_step(current, cands, m, ctx, folds, **STEP).refits[0]

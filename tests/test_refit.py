@@ -59,9 +59,10 @@ def _predicted(full, res, ctx, test):
         return full.model.predict(res.theta, ctx.subset(test))
 
 
-def _compare(full, m, ctx, folds, posterior):
+def _compare(full, m, ctx, folds, posterior, lm=None):
     """Largest held-out position difference (mm) and largest relative std difference of
-    the shared refits against the LM fold fits, over the folds; asserts the shared path ran."""
+    the shared refits against the LM fold fits, over the folds; asserts the shared path ran.
+    lm: a dict that receives the LM fold fits, fold -> FitResult."""
     sh = rf.shared(full, ctx, m.rotation is not None)
     worst = worst_sd = 0.0
     for f in np.unique(folds):
@@ -69,6 +70,8 @@ def _compare(full, m, ctx, folds, posterior):
         new = rf.refit(full, sh, m, ctx, ~test, sigma_mm=0.01, sigma_deg=0.01, posterior=posterior)
         assert new is not None  # the chord refit applied (no LM fallback)
         old = fold_fit(full, m, ctx, ~test, sigma_mm=0.01, sigma_deg=0.01, posterior=posterior)
+        if lm is not None:
+            lm[int(f)] = old
         assert torch.equal(new.report.free, old.report.free)
         moved = (_predicted(full, new, ctx, test) - _predicted(full, old, ctx, test)).norm(dim=-1)
         worst = max(worst, float(moved.max()))
@@ -121,13 +124,14 @@ def test_positions_only_refit_cv_equals_the_lm_fold_refits():
     model = CalibrationModel.for_measurements(robot, ["base_frame", "gear_periodic:2"], m)
     full = fit(model, ctx, m.xyz, pose=m.pose)
     folds = fold_of_pose(m.pose, 0, 5)
-    worst, _ = _compare(full, m, ctx, folds, posterior=False)
+    lm = {}
+    worst, _ = _compare(full, m, ctx, folds, posterior=False, lm=lm)
     assert worst <= TOL_MM, worst
     new = held_out_errors(full, m, ctx, folds, sigma_mm=0.01, sigma_deg=0.01)
     old = np.zeros(len(m))
     for f in range(5):
         test = torch.from_numpy(folds == f)
-        res = fold_fit(full, m, ctx, ~test, sigma_mm=0.01, sigma_deg=0.01)
+        res = lm[f]  # the LM fold fit of the comparison above (the posterior changes no theta)
         old[test.numpy()] = (model.predict(res.theta, ctx.subset(test)) - m.xyz[test]).pow(2).sum(-1).numpy()
     assert new == pytest.approx(old, abs=1e-9)
 
@@ -194,12 +198,11 @@ def test_refit_from_a_per_fold_start_equals_the_lm_fold_fit(ur10_c, specs):
 
 
 @pytest.fixture(scope="module")
-def ur10_c_periodic():
+def ur10_c_periodic(ur10_c):
     """UR10 series C's training split (positions and orientations) and its fit with
-    base_frame, tool_offset and joint_periodic:2@20+29: the current model of a step."""
-    robot, m, ctx = _split("c")
-    model = CalibrationModel.for_measurements(robot, ["base_frame", "tool_offset", "joint_periodic:2@20+29"], m)
-    return fit(model, ctx, m.xyz, pose=m.pose, rotation=m.rotation), m, ctx
+    base_frame, tool_offset and joint_periodic:2@20+29: the current model of a step (the
+    fit of `ur10_c`, which no test changes)."""
+    return ur10_c
 
 
 def _lm_candidate(monkeypatch, base, spec, m, ctx):

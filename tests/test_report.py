@@ -349,20 +349,27 @@ def test_report_on_a_zone_calibration(tmp_path):
     assert mean("after") >= mean("before")
 
 
+@pytest.fixture(scope="module")
+def nan_model(tmp_path_factory):
+    """A fit of a simulated ur5e session (s.csv) and its MODEL.json with da2 set to NaN (nan.json)."""
+    d = tmp_path_factory.mktemp("nan")
+    assert main(["simulate", "--robot", "ur5e", "--n", "30", "--seed", "4", "--out", str(d / "s.csv")]) == 0
+    assert main(["fit", str(d / "s.csv"), "--robot", "ur5e", "--out", str(d / "m.json")]) == 0
+    obj = json.loads((d / "m.json").read_text())
+    next(p for p in obj["parameters"] if p["name"] == "da2")["value"] = float("nan")
+    (d / "nan.json").write_text(json.dumps(obj))
+    return d
+
+
 @pytest.mark.parametrize("data", [False, True])
-def test_a_model_with_nan_is_refused_with_or_without_data(tmp_path, capsys, data):
+def test_a_model_with_nan_is_refused_with_or_without_data(nan_model, tmp_path, capsys, data):
     """A parameter value NaN in MODEL.json (a hand edit, a broken copy): every other
     command refuses the file in one line; without --data the report wrote a page that
     printed 'nan' for the parameter."""
-    assert main(["simulate", "--robot", "ur5e", "--n", "30", "--seed", "4", "--out", str(tmp_path / "s.csv")]) == 0
-    assert main(["fit", str(tmp_path / "s.csv"), "--robot", "ur5e", "--out", str(tmp_path / "m.json")]) == 0
-    obj = json.loads((tmp_path / "m.json").read_text())
-    next(p for p in obj["parameters"] if p["name"] == "da2")["value"] = float("nan")
-    (tmp_path / "nan.json").write_text(json.dumps(obj))
     capsys.readouterr()
     out = tmp_path / "r.html"
-    code = main(["report", str(tmp_path / "nan.json"), "--out", str(out)]
-                + (["--data", str(tmp_path / "s.csv")] if data else []))
+    code = main(["report", str(nan_model / "nan.json"), "--out", str(out)]
+                + (["--data", str(nan_model / "s.csv")] if data else []))
     err = capsys.readouterr().err.strip()
     assert not out.exists() and code == 2
     assert len(err.splitlines()) == 1 and "da2" in err and "finite" in err

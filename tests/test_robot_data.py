@@ -42,3 +42,4 @@ def test_many_corrupted_rows_are_not_called_a_unit():
     with pytest.raises(InputError, match=r"cannot come from ur10: .*; likely causes: the spreads agree within 10 %, so "
                                          r"no unit: data of another robot of that size, or many corrupted rows"):
         torchcal.fit(rob, bad, ["base_frame", "tool_offset"], robust="huber")
+

@@ -231,7 +231,8 @@ def client():
     distributed = pytest.importorskip("dask.distributed")
     faulthandler.dump_traceback_later(WATCHDOG_S, exit=True, file=sys.__stderr__)
     cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                       dashboard_address=":0", worker_class=distributed.Nanny)
+                                       dashboard_address=":0", worker_class=distributed.Nanny,
+                                       preload=["torchcal.threads"])  # as connect(workers=N) starts them
     c = distributed.Client(cluster, timeout=60)
     c.wait_for_workers(2, timeout=60)
     faulthandler.cancel_dump_traceback_later()

@@ -75,14 +75,22 @@ def geometric_residuals(m):
     return fit(model, make_context(ROBOT, m.q, m.payload_kg, m.temp_c), m.xyz).residuals
 
 
-def test_a_bent_link_outside_the_vocabulary_is_significant_and_names_its_joint():
-    """A link that bends with joint 3's angle: a TCP error of 0.2 mm * sin(2 q3) along
-    the base z axis, which no effect of the vocabulary models."""
+@pytest.fixture(scope="module")
+def bent_link():
+    """(m, u): a link that bends with joint 3's angle, a TCP error of 0.2 mm * sin(2 q3)
+    along the base z axis, which no effect of the vocabulary models (240 poses); u: what
+    the geometric fit leaves unexplained. Read by the two tests below."""
     vr = VirtualRobot(ROBOT, [], seed=31)
     m = vr.measure(random_poses(ROBOT, 240, 32), noise_mm=NOISE, seed=33)
     bend = torch.zeros(len(m), 3, dtype=torch.float64)
     bend[:, 2] = 0.2 * torch.sin(2 * m.q[:, 2])
-    u = unexplained(ROBOT, with_error(m, bend), geometric_residuals(with_error(m, bend)))
+    m = with_error(m, bend)
+    return m, unexplained(ROBOT, m, geometric_residuals(m))
+
+
+def test_a_bent_link_outside_the_vocabulary_is_significant_and_names_its_joint(bent_link):
+    """The bent link: significant, and its joint named."""
+    m, u = bent_link
     assert u.significant
     assert [v for v, _ in u.correlates_with] == ["q3"], u.correlates_with  # not its mirror approach_q3
     assert u.rms_mm > 2 * u.noise_floor_mm  # no repeats: the floor is the estimate
@@ -181,15 +189,10 @@ def test_held_out_prediction_never_sees_the_rows_it_predicts():
     assert (a[fold != 2] - b[fold != 2]).abs().max() > 1e-3  # the other folds do see it
 
 
-def test_probe_reports_a_smooth_error_as_learnable_from_its_joint():
+def test_probe_reports_a_smooth_error_as_learnable_from_its_joint(bent_link):
     """0.2 mm * sin(2 q3) along z (the bent link): the probe's held-out RMS falls well
     below the residual's, q3 carries it, and the words say how much is learnable."""
-    vr = VirtualRobot(ROBOT, [], seed=71)
-    m = vr.measure(random_poses(ROBOT, 120, 72), noise_mm=NOISE, seed=73)
-    bend = torch.zeros(len(m), 3, dtype=torch.float64)
-    bend[:, 2] = 0.2 * torch.sin(2 * m.q[:, 2])
-    m = with_error(m, bend)
-    u = unexplained(ROBOT, m, geometric_residuals(m))
+    _, u = bent_link
     d = u.to_dict()
     assert d["significant"] and d["probe"]["p_value"] < 1e-6
     assert d["probe_left_rms_mm"] < 0.6 * d["rms_mm"], d

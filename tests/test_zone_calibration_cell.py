@@ -232,9 +232,12 @@ def test_zones_listed_out_of_order_are_refused(cell, capsys):
     assert err.count("\n") == 1 and "zones listed as [2, 1, 3, 4], expected 1..4 in order" in err and not out.exists()
 
 
-def _ur5e_independent(d) -> Path:
+@pytest.fixture(scope="module")
+def ur5e_independent(tmp_path_factory) -> Path:
     """MODEL.json of `calibrate --zone-method independent` of a UR5e cell (the tracker and
-    reflector of SETUP, 60 poses measured 3 times, zones of 10, 16, 14, 20 poses)."""
+    reflector of SETUP, 60 poses measured 3 times, zones of 10, 16, 14, 20 poses); the two
+    tests below only read it."""
+    d = tmp_path_factory.mktemp("ur5e_independent")
     ur5e = torchcal.robot("ur5e")
     part = partition(d, ur5e)
     q = np.repeat(random_poses(ur5e, 60, 7).numpy(), 3, axis=0)
@@ -246,14 +249,14 @@ def _ur5e_independent(d) -> Path:
     return d / "independent.json"
 
 
-def test_independent_zones_start_from_the_registered_frame(tmp_path, capsys):
+def test_independent_zones_start_from_the_registered_frame(ur5e_independent):
     """`--zone-method independent` fits each zone on its own from nominal; with the tracker
     2.5 m away and turned, a zone started at an identity measuring frame (no registration)
     stopped in a local minimum: on this UR5e cell zone 1 (10 poses) ended at rms 21 mm, the
     model was written (exit 0) and its commands missed the plain-numpy robot's targets by
     up to 474 mm. Each zone now starts from the closed-form registration, as `fit` does."""
     ur5e = torchcal.robot("ur5e")
-    model = torchcal.load(_ur5e_independent(tmp_path))
+    model = torchcal.load(ur5e_independent)
     assert all(z.rms_mm < 0.02 for z in model.zones), [z.rms_mm for z in model.zones]  # noise 0.01 mm per axis
     q = random_poses(ur5e, 200, 22).numpy()
     err = np.linalg.norm(predicted(model, q) - real(q, robot=ur5e), axis=1)
@@ -353,7 +356,7 @@ def test_thermal_expansion_sees_each_poses_temperatures(cell):
     assert np.sqrt(np.mean(err ** 2)) < 0.02, np.sqrt(np.mean(err ** 2))  # first row's temperature: 0.034
 
 
-def test_accuracy_of_independent_zones_says_the_figures_are_the_global_fits(tmp_path, capsys):
+def test_accuracy_of_independent_zones_says_the_figures_are_the_global_fits(ur5e_independent, capsys):
     """`accuracy` propagates MODEL.json's covariance, the global calibration's: for zones
     fitted each on its own 10-20 poses it printed a median sigma of 0.0048 mm while the
     model misses the plain-numpy robot by 0.020 mm rms (zone 1: 0.038): 4x too optimistic,
@@ -361,7 +364,7 @@ def test_accuracy_of_independent_zones_says_the_figures_are_the_global_fits(tmp_
     import re
 
     ur5e = torchcal.robot("ur5e")
-    path = _ur5e_independent(tmp_path)
+    path = ur5e_independent
     capsys.readouterr()
     assert main(["accuracy", str(path), "--n", "300"]) == 0
     cap = capsys.readouterr()

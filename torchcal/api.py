@@ -21,6 +21,7 @@ Example::
 
 from __future__ import annotations
 
+import warnings
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -32,6 +33,7 @@ from torchcal.calibration.checks.robot_data import check_diagnosis_data, check_r
 from torchcal.calibration.checks.conditions import check_conditions
 from torchcal.calibration.checks.nominal_data import warn_nominal_data
 from torchcal.calibration.checks.orientation_frame import check_orientation_frame
+from torchcal.calibration.identifiability import FewEquationsWarning, few_equations
 from torchcal.calibration.plausibility import MAX_ANGLE_DEG, MAX_LENGTH_MM
 from torchcal.calibration.model import CalibrationModel
 from torchcal.errors import DataError, InputError, number_argument
@@ -237,6 +239,9 @@ def fit(robot_or_model, measurements, effects=(), *, robust: str | None = None, 
     if gross:
         raise InputError(gross)
     warn_swapped_points(res, m, stacklevel=2)  # two reflectors' ids exchanged at a few poses
+    few = few_equations(res.report, m)
+    if few:
+        warnings.warn(few, FewEquationsWarning, stacklevel=2)
     if residual_model is not None:
         _add_stage(res, m, ctx, residual_model)
     return res

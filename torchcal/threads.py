@@ -128,6 +128,14 @@ def apply_importing() -> None:
             gc.enable()
 
 
+def dask_setup(worker) -> None:
+    """Dask's preload hook (``preload=["torchcal.threads"]``, `torchcal.workflows.distributed.connect`'s
+    local cluster): a worker process starts by `apply_importing`, as the processes of
+    `torchcal sweep --processes` do, before a task's unpickling imports torch with the
+    collector on; importing this module first also sets OMP_WAIT_POLICY before torch loads."""
+    apply_importing()
+
+
 def threads_for(elements: int, available: int) -> int:
     """Threads for a block whose largest tensors hold `elements` elements: one per
     `ELEMENTS_PER_THREAD`, between 1 and `available`."""

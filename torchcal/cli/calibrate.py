@@ -72,6 +72,7 @@ def run(args) -> int:
     import torchcal
     from torchcal.io.partition_file import load_partition
     from torchcal.io.robot_file import UnrecordedRobotWarning, robot as make_robot
+    from torchcal.calibration.identifiability import unidentified_lines
     from torchcal.effects.spec import parse_specs
 
     check_outputs([("--out", args.out)], args.force, inputs=[args.data, args.partition])
@@ -92,6 +93,8 @@ def run(args) -> int:
           f"{rep.rank} identified parameters, condition {rep.condition:.3g}")
     if rep.held:
         print(f"held (not identifiable from these poses): {', '.join(rep.held)}")
+        for line in unidentified_lines(res.model, rep.held, meas):
+            print(line)
     if part is not None:
         print(f"{'zone':>4} {'level':>5} {'poses':>5} {'rms mm':>8} {'held':>4} {'mu':>7}")
         for z, (f, poses) in enumerate(zip(res.zones, res.zone_poses)):

@@ -191,6 +191,7 @@ def _robust_hint(res, robust) -> str | None:
 
 
 def run(args) -> int:
+    from torchcal.calibration.identifiability import unidentified_lines
     from torchcal.io import modelfile
     from torchcal.io.files import write_json
 
@@ -224,6 +225,8 @@ def run(args) -> int:
         still = _still_joints(m)
         if still:
             print(f"joints that never move in {args.data}: {', '.join(still)}; move them to identify more")
+        for line in unidentified_lines(res.model, held, m):
+            print(line)
     line = plausibility_line(res)
     if line:
         print(line)

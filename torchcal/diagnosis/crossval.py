@@ -18,13 +18,13 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from torchcal.calibration.identifiability import MIN_EQUATIONS_PER_PARAM
 from torchcal.folds import fold_of_pose
 from torchcal.diagnosis.variance import fit_variances, isotropic_loglik, variance_loglik
 from torchcal.errors import InputError
 
 RANK_TOL = 1e-6
 REFIT_MAX_ITER = 30
-MIN_EQUATIONS_PER_PARAM = 2  # below this a fold's refit doubles its held-out error variance (see few_poses)
 
 
 class FewPosesWarning(UserWarning):

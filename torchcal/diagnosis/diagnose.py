@@ -39,6 +39,7 @@ import numpy as np
 import torch
 
 from torchcal.calibration.fit import SIGMA_DEG, SIGMA_MM, FitResult, fit
+from torchcal.calibration.identifiability import unidentified_effects, unidentified_reason
 from torchcal.calibration.model import CalibrationModel
 from torchcal.diagnosis.candidates import Candidate
 from torchcal.diagnosis.crossval import FewPosesWarning, few_poses
@@ -173,6 +174,7 @@ class Discovery:
     diagnoses: list
     unexplained: Unexplained | None = None  # what the final model leaves
     stability: dict = field(default_factory=dict)
+    unidentified: dict = field(default_factory=dict)  # final effect none of whose parameters is identified -> why
 
     def _fit_terms(self) -> list:
         """[(spec, Stability)] of the effects and joint parts kept as fit terms only."""
@@ -202,7 +204,7 @@ class Discovery:
 
     @property
     def named(self) -> list:
-        return [n for e in self.final_effects
+        return [n for e in self.final_effects if e not in self.unidentified
                 for n in (self.stability[e].split_spec(e)[0] if e in self.stability else [e])]
 
     def final_words(self) -> str:
@@ -212,6 +214,8 @@ class Discovery:
                 + ("it carried to the other session (the transfer check kept it): the robot's, not this session's, "
                    "but not the effect it is named after: " if self._carried(e) else "")
                 + "it absorbs structure outside the vocabulary (what is left, below)" for e, st in self._fit_terms()]
+        out += [f"  {e}: in the model, not named: none of its parameters is identifiable from these data (all held "
+                f"at nominal{': ' + why if why else ''}): it changes nothing" for e, why in self.unidentified.items()]
         return "\n".join(out)
 
     def to_dict(self) -> dict:
@@ -220,7 +224,7 @@ class Discovery:
                 "set_by_prior": list(self.fit.set_by_prior),
                 "unexplained": None if self.unexplained is None else self.unexplained.to_dict(),
                 "stability": {e: st.to_dict() for e, st in self.stability.items()}, "absorbing": self.absorbing,
-                "named": self.named, "carried": self.carried,
+                "named": self.named, "carried": self.carried, "unidentified": self.unidentified,
                 "residual_stage": self.fit.residual_test}
 
 
@@ -268,5 +272,7 @@ def discover(robot: Robot, m: Measurements, effects=(), folds: int = 5, seed: in
                                         prior_held=d.step.current.prior_held + acc.prior_held, fold_specs=acc.fold_specs)
     added = [e for e in base.model.specs() if e not in specs]  # physics or absorption (stability.py)
     rest = unexplained(robot, m, base.residuals, seed=seed) if report_rest else None
+    by_spec = {e.spec(): e for e in base.model.effects}
+    idle = {e: unidentified_reason(by_spec[e], m) for e in unidentified_effects(base.model, base.report.held)}
     return Discovery(history, base.model.specs(), base, diagnoses, rest,
-                     absorbing(base, added, m, ctx, sigma_mm=sigma_mm, sigma_deg=sigma_deg))
+                     absorbing(base, added, m, ctx, sigma_mm=sigma_mm, sigma_deg=sigma_deg), idle)

@@ -49,6 +49,7 @@ held-out error it bought is real) and is reported as absorbing, not named as phy
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -211,10 +212,25 @@ def _tested(reduced, with_e: dict, m, ctx, *, sigma_mm: float, sigma_deg: float,
     return Stability(p, name, gain, len(results), alpha)
 
 
-def stability(full, spec: str, m, ctx, *, sigma_mm: float, sigma_deg: float, alpha: float = ALPHA) -> Stability:
+def with_side(full, m, ctx, *, sigma_mm: float, sigma_deg: float) -> dict:
+    """The 'with' side of the test: split name -> (half (N,) 0/1, `extrapolated` of the
+    full model `full`), the usable splits of `halves(m)` only. It depends on full alone,
+    not on the effect tested: `absorbing` computes it once for all its effects."""
+    det_full = determined_names(full, ctx)  # the same in every split
+    out = {}
+    for name, half in halves(m).items():
+        w = extrapolated(full, m, ctx, half, sigma_mm=sigma_mm, sigma_deg=sigma_deg, determined=det_full)
+        if w is not None:
+            out[name] = (half, w)
+    return out
+
+
+def stability(full, spec: str, m, ctx, *, sigma_mm: float, sigma_deg: float, alpha: float = ALPHA,
+              with_e=None) -> Stability:
     """The extrapolation test of the effect `spec` of the fitted model `full` on
     measurements m (context ctx), per joint part for an effect on several joints; see
-    the module doc."""
+    the module doc. with_e: a callable giving `with_side` of full (computed here when
+    None; `absorbing` passes one that computes it once)."""
     parts = part_specs(spec, full.model.robot.n)
     reduced = {}
     for j, by in ({None: None} if not parts else {j: rest for j, (_, rest) in parts.items()}).items():
@@ -222,23 +238,21 @@ def stability(full, spec: str, m, ctx, *, sigma_mm: float, sigma_deg: float, alp
             reduced[j] = without(full, spec, m, ctx, sigma_mm=sigma_mm, sigma_deg=sigma_deg, by=by)
         except InputError:
             reduced[j] = None
-    with_e = {}
+    side = {}
     if any(r is not None for r in reduced.values()):
-        det_full = determined_names(full, ctx)  # the same in every split
-        for name, half in halves(m).items():
-            w = extrapolated(full, m, ctx, half, sigma_mm=sigma_mm, sigma_deg=sigma_deg, determined=det_full)
-            if w is not None:
-                with_e[name] = (half, w)
+        side = with_side(full, m, ctx, sigma_mm=sigma_mm, sigma_deg=sigma_deg) if with_e is None else with_e()
     kw = dict(sigma_mm=sigma_mm, sigma_deg=sigma_deg, alpha=alpha)
     if not parts:
-        return _tested(reduced[None], with_e, m, ctx, **kw)
-    tests = {j: (parts[j][0], _tested(reduced[j], with_e, m, ctx, **kw)) for j in parts}
+        return _tested(reduced[None], side, m, ctx, **kw)
+    tests = {j: (parts[j][0], _tested(reduced[j], side, m, ctx, **kw)) for j in parts}
     worst = max((st for _, st in tests.values()), key=lambda st: (st.splits > 0, st.p_value))
     return Stability(worst.p_value, worst.split, worst.gain_mm, worst.splits, alpha, parts=tests)
 
 
 def absorbing(full, added: list, m, ctx, *, sigma_mm: float, sigma_deg: float, alpha: float = ALPHA) -> dict:
     """spec -> `Stability` of each effect spec in `added` in the fitted model `full` (per
-    joint part for an effect on several joints)."""
-    return {spec: stability(full, spec, m, ctx, sigma_mm=sigma_mm, sigma_deg=sigma_deg, alpha=alpha)
+    joint part for an effect on several joints). The full model's side of the test
+    (`with_side`) is the same for every effect: computed once, when first needed."""
+    side = functools.cache(lambda: with_side(full, m, ctx, sigma_mm=sigma_mm, sigma_deg=sigma_deg))
+    return {spec: stability(full, spec, m, ctx, sigma_mm=sigma_mm, sigma_deg=sigma_deg, alpha=alpha, with_e=side)
             for spec in added}

@@ -209,14 +209,20 @@ def robot_to_dict(robot: Robot, effects=None) -> dict:
 
 
 def load_robot_file(path) -> Robot:
-    """The `Robot` of the robot file at `path`; one InputError line naming file and key."""
+    """The `Robot` of the robot file at `path`; one InputError line naming file and key.
+    Consecutive parallel axes without a Hayati beta are named in one warning
+    (`torchcal.robots.checks.warn_parallel_axes`; not for a model file's embedded
+    robot, which was named when the model was fitted)."""
     from torchcal.io.files import read_json
+    from torchcal.robots.checks import warn_parallel_axes
 
     p = Path(path)
     if p.suffix.lower() in (".urdf", ".xacro", ".xml") or (p.is_file() and p.read_bytes()[:200].lstrip().startswith(b"<")):
         raise InputError(f"{path}: this is a URDF (XML), not a torchcal robot file (JSON); convert it first: "
                          f"torchcal robot import {path} --base BASE_LINK --tip TIP_LINK --out ROBOT.json")
-    return robot_from_dict(read_json(path, "robot file"), str(path))
+    robot = robot_from_dict(read_json(path, "robot file"), str(path))
+    warn_parallel_axes(robot, str(path), stacklevel=2)
+    return robot
 
 
 def write_robot_file(path, robot: Robot, effects=None, force: bool = False, inputs=()) -> Path:

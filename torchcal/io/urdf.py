@@ -41,10 +41,9 @@ from pathlib import Path
 import torch
 
 from torchcal.errors import InputError
+from torchcal.robots.checks import PARALLEL_DEG  # axes closer than this are parallel (Hayati beta)
 from torchcal.robots.robot import Robot
 from torchcal.rotations import fixed_xyz_to_matrix, matrix_to_fixed_xyz
-
-PARALLEL_DEG = 1.0  # axes closer than this are treated as parallel (Hayati beta)
 
 _F = torch.float64
 

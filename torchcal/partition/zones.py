@@ -20,8 +20,9 @@ Two levels of FCM (`torchcal.partition.fcm`, m = 2 by default):
 
 Sub-zone counts per level are fixed (e.g. the paper's [3, 2, 3, 2]; 1 means "do not
 split this level") or "auto": per level the c in `zone_range` (default 2..3, clipped to
-n_level // 2) with the lowest Xie-Beni index, among those whose zones all hold at least
-`knn_neighbors` (5) sweep points (none: the level stays one zone). A fixed count needs at
+n_level // max(2, knn_neighbors): a larger c cannot give each zone `knn_neighbors` points) with
+the lowest Xie-Beni index, among those whose zones all hold at least `knn_neighbors` (5) sweep
+points (none: the level stays one zone). A fixed count needs at
 least 2 sweep points per zone of its level, else it is refused; zones that end with fewer
 than `knn_neighbors` points get one `ZoneSizeWarning` (the nearest-point vote that assigns
 poses and targets to zones rarely picks them). `levels` may also be "auto" (c in `level_range` by
@@ -283,7 +284,7 @@ def partition_workspace(positions, r_set, levels=4, zones="auto", *, m: float = 
         levels: number of levels L >= 2, or "auto" (Xie-Beni minimum in `level_range`).
         zones: sub-zone counts per level, a sequence of L integers >= 1 (paper: [3, 2, 3, 2]),
             or "auto" (per level, Xie-Beni minimum in `zone_range`, clipped to
-            n_level // 2 and to the number of distinct points, among the c whose zones all
+            n_level // max(2, knn_neighbors) and to the number of distinct points, among the c whose zones all
             hold knn_neighbors points; a level where that leaves no c in the
             range stays one zone).
         level_range, zone_range: inclusive (low, high) ranges for "auto" (defaults (2, 6)
@@ -362,8 +363,9 @@ def partition_workspace(positions, r_set, levels=4, zones="auto", *, m: float = 
         f[:, 3] *= r_weight
         f_mean.append(mean)
         f_std.append(std)
-        if ks is None:  # auto: c in zone_range, below the number of points and of distinct points
-            hi = min(zone_range[1], n_l // 2, int(torch.unique(f, dim=0).shape[0]))
+        if ks is None:  # auto: c in zone_range, below the number of points and of distinct points;
+            # c zones of knn_neighbors points each need c * knn_neighbors points: a larger c is never chosen
+            hi = min(zone_range[1], n_l // max(2, knn_neighbors), int(torch.unique(f, dim=0).shape[0]))
             k = None if hi >= zone_range[0] else 1
         else:
             k = ks[lev - 1]

@@ -239,8 +239,10 @@ def connect(*, scheduler: str | None = None, workers: int | None = None, timeout
             _check_count(workers, "number of workers")
             # silence_logs: the cluster's own warnings (a worker slow to exit at shutdown on a
             # busy machine, then stopped) are not the user's business; errors still show
+            # preload: each worker process imports torch as the command line does (torchcal.threads.dask_setup)
             cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                               dashboard_address=":0", silence_logs=logging.ERROR)
+                                               dashboard_address=":0", silence_logs=logging.ERROR,
+                                               preload=["torchcal.threads"])
             client = distributed.Client(cluster, timeout=timeout_s)
     except (OSError, TimeoutError) as exc:
         if cluster is not None:

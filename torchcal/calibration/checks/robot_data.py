@@ -17,11 +17,12 @@ import math
 
 import torch
 
-from torchcal.calibration.checks.columns import column_hint, lag_words, row_lag
+from torchcal.calibration.checks.columns import column_hint, lag_words, reordered, row_lag
 from torchcal.calibration.checks.frame_fit import fits_in_a_frame, in_frame, quick_rms, registered
 from torchcal.calibration.checks.model_data import check_measurements, check_points
 from torchcal.calibration.checks.orientation import orientation_mismatch
 from torchcal.calibration.checks.point_swap import message as swap_message, swapped_before_fit
+from torchcal.calibration.checks.robot_table import length_typo, proximal_table
 from torchcal.calibration.checks.sessions import changed_midway, joined_sessions, moved_within_gross
 from torchcal.calibration.checks.units import spread_mm, units_hint
 from torchcal.calibration.checks.verdict import GROSS_MM, OUTLIER_SHARE, Mismatch, enforce, listed, rms_of
@@ -102,7 +103,8 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
         return result("mirrored", f"{what}: a mirror image of {name}: rms {reg:.4g} mm after the best rigid motion, "
                       f"but within {GROSS_MM:g} mm after one with a reflection; the x, y, z columns describe a "
                       "left-handed frame (two of them swapped, or one negated)")
-    if model.robot.n > 1 and fits_in_a_frame(model, dataclasses.replace(m, q=m.q.flip(-1))):
+    backwards = reordered(m.q, model.robot.prismatic, range(model.robot.n - 1, -1, -1))  # each value in its unit
+    if model.robot.n > 1 and fits_in_a_frame(model, dataclasses.replace(m, q=backwards, q_prev=None)):
         return result("reversed", f"{what}: the joint columns are in reverse order: rms {reg:.4g} mm as given "
                       f"but within {GROSS_MM:g} mm with q{model.robot.n} .. q1 read as q1 .. q{model.robot.n}")
     def kabsch_rms(mm):  # the nominal robot rigidly moved onto the data: no solve
@@ -141,6 +143,23 @@ def check_robot_data(model, m, robust: bool | None = False) -> Mismatch | None:
         return result("mismatch", f"{what}: cannot come from {name} as given: rms {reg:.4g} mm with the best measuring "
                       f"frame and tool offset, but within {GROSS_MM:g} mm with the joint {hint}: check the "
                       "joint columns")
+    typo = length_typo(model, m)
+    if typo is not None:
+        (j, key, was, best), twins = typo[0], typo[1:]
+        alike = (" (or " + ", ".join(f"joints[{j2}].{k2} {b2:.1f} instead of {w2:g}" for j2, k2, w2, b2 in twins)
+                 + ": they move the points alike)") if twins else ""
+        return result("mismatch", f"{what}: cannot come from {name} as given: rms {reg:.4g} mm with the best measuring "
+                      f"frame and tool offset, but within {GROSS_MM:g} mm with the robot file's joints[{j}].{key} "
+                      f"{best:.1f} instead of {was:g}{alike}: a length mistyped in the robot file, or another "
+                      f"variant of the robot; check {'these lengths' if twins else 'that length'} against the data "
+                      "sheet")
+    if proximal_table(model, m):
+        return result("mismatch", f"{what}: cannot come from {name} as given: rms {reg:.4g} mm with the best measuring "
+                      f"frame and tool offset, but within {GROSS_MM:g} mm with the robot file's a_mm and alpha_deg "
+                      "moved up one row: its table is in Craig's modified D-H convention (row i holding a and alpha "
+                      "of the link before joint i); torchcal's row i holds the link after joint i, Rz(theta) Tz(d) "
+                      "Tx(a) Rx(alpha) (docs/robots.md): move each row's a_mm and alpha_deg up one row (the last "
+                      "row's become 0, the first row's go into base)")
     s_x, s_p = spread_mm(m.xyz), spread_mm(pred)
     causes = "data of another robot or units (length or angle unit)"
     if abs(math.log(max(s_x, 1e-12) / max(s_p, 1e-12))) < math.log(1.1):  # the same size: no unit mistake

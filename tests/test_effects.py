@@ -415,3 +415,19 @@ def test_a_base_frame_rotation_kept_per_value_follows_theta_changed_in_place(kr)
     assert not any(k.startswith("_per_value_") for e in back.effects for k in vars(e))
     for a, b in zip(outputs(back, theta), fresh):
         assert torch.equal(a, b)
+
+
+def test_clearance_directions_kept_per_context_are_those_of_the_context_at_hand(kr):
+    """joint_clearance keeps its load directions for the last context: its displacement
+    and Jacobian on contexts taken in turn (another context, then the first again) equal
+    a fresh effect's, bit for bit, and differ between the contexts."""
+    ctx1, ctx2 = (make_context(kr, random_poses(kr, 7, s)) for s in (21, 22))
+    eff = build("joint_clearance:2,3", kr)
+    p = torch.tensor([1e-3, 0.2, 2e-3, 0.1], dtype=torch.float64)
+    v1, v2 = torch.full((7, 3), 500.0, dtype=torch.float64), torch.full((7, 3), 800.0, dtype=torch.float64)
+    for ctx, v in ((ctx1, v1), (ctx2, v2), (ctx1, v1)):
+        fresh = build("joint_clearance:2,3", kr)
+        assert torch.equal(eff.displacement(p, ctx, v), fresh.displacement(p, ctx, v))
+        for a, b in zip(eff.displacement_jacobian(p, ctx, v), fresh.displacement_jacobian(p, ctx, v)):
+            assert torch.equal(a, b)
+    assert not torch.equal(eff.displacement(p, ctx1, v1), eff.displacement(p, ctx2, v1))

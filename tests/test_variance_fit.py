@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from torchcal.diagnosis.variance import fit_variances, variance_loglik
+from torchcal.diagnosis.variance import fit_variances, isotropic_loglik, variance_loglik
 
 
 def sample(K, tau, M, seed):
@@ -64,3 +64,34 @@ def test_batches_and_row_weights_equal_separate_fits_of_the_subsets():
         x_f = fit_variances(torch.from_numpy(r[keep])[None], torch.from_numpy(Bs[keep]))[0].numpy()
         np.testing.assert_allclose(x[f], x_f, atol=1e-6)
         assert variance_loglik(r[keep], Bs[keep], x[f]).sum() >= reference(r[keep], Bs[keep])[1] - 1e-7
+
+
+def test_one_basis_shared_by_the_sets_is_their_own_basis_each_bit_for_bit():
+    """Bs (M, 3, 2) shared by G sets (one eigenbasis per row, not G) gives the same bits
+    as the same basis repeated per set (G, M, 3, 2); both one term and two."""
+    for K in (1, 2):
+        r, Bs = sample(K, 0.4, 120, seed=11 + K)
+        folds = np.arange(120) % 5
+        w = torch.from_numpy(folds[None] != np.arange(5)[:, None])
+        R = torch.from_numpy(r)[None] * torch.linspace(0.5, 1.5, 5, dtype=torch.float64)[:, None, None]
+        B = torch.from_numpy(Bs)
+        shared = fit_variances(R, B, w)
+        assert torch.equal(shared, fit_variances(R, B.expand(5, -1, -1, -1).contiguous(), w))
+        assert not torch.equal(shared[0], shared[1])  # the sets differ: a real comparison
+
+
+def test_isotropic_loglik_with_a_variance_per_row_equals_the_per_set_calls():
+    """`isotropic_loglik` of all rows with each row's set's variance equals
+    `variance_loglik` of each set alone, bit for bit (the isotropic CV's batched form),
+    and the Gaussian density by hand."""
+    rng = np.random.default_rng(3)
+    r = rng.normal(size=(90, 3)) * 0.05
+    set_of_row = np.arange(90) % 4
+    logs2 = np.log(rng.uniform(1e-3, 4e-3, size=4))
+    s2 = np.array([np.exp(v) for v in logs2])
+    ll = isotropic_loglik(r, logs2[set_of_row], s2[set_of_row])
+    for g in range(4):
+        rows = set_of_row == g
+        assert np.array_equal(ll[rows], variance_loglik(r[rows], None, logs2[g:g + 1]))
+    by_hand = np.log((2 * np.pi * s2[set_of_row]) ** -1.5 * np.exp(-(r ** 2).sum(-1) / (2 * s2[set_of_row])))
+    np.testing.assert_allclose(ll, by_hand, rtol=1e-12)

@@ -20,7 +20,7 @@ import torch
 
 from torchcal.calibration.identifiability import MIN_EQUATIONS_PER_PARAM
 from torchcal.folds import fold_of_pose
-from torchcal.diagnosis.variance import fit_variances, variance_loglik
+from torchcal.diagnosis.variance import fit_variances, isotropic_loglik, variance_loglik
 from torchcal.errors import InputError
 
 RANK_TOL = 1e-6
@@ -274,17 +274,24 @@ class LinearRefit:
         return e - Bb @ (Bb.T @ e) if Bb.size else e.copy()
 
     def _fold_parts(self):
-        """(Q, r, Q^T r, per fold (test (3N,) bool, its row indices (torch), Q_t, r_t, Q_t^T Q_t,
-        Q_t^T r_t)) as torch tensors: what every `cross_validate` call shares, computed once."""
+        """(Q, r, Q^T r, r^T r, per fold (its row indices (numpy), the same (torch), Q_t, r_t,
+        Q_t^T Q_t, Q_t^T r_t, r_t^T r_t, its rows' indices in (N,) (numpy)), the training
+        weights (F, N), their row counts (F,), each row's fold index (N,)): what every
+        `cross_validate` call shares, computed once. Index arrays instead of masks: the
+        same elements in the same (ascending) order."""
         if self._parts is None:
             Q, r = torch.from_numpy(self.Q), torch.from_numpy(self.r)
+            rows3 = self.rows[::3]
             parts = []
             for f in self.folds:
-                test = self.rows == f
-                tt = torch.from_numpy(np.flatnonzero(test))  # the rows by index: a gather, not a mask
+                ti = np.flatnonzero(self.rows == f)
+                tt = torch.from_numpy(ti)  # the rows by index: a gather, not a mask
                 Qt, rt = Q[tt], r[tt]
-                parts.append((test, tt, Qt, rt, Qt.T @ Qt, Qt.T @ rt))
-            self._parts = (Q, r, Q.T @ r, parts)
+                parts.append((ti, tt, Qt, rt, Qt.T @ Qt, Qt.T @ rt, float(rt @ rt), np.flatnonzero(rows3 == f)))
+            w = torch.from_numpy(rows3[None] != self.folds[:, None])  # (F, N) training rows per fold
+            fold_of_row = np.searchsorted(self.folds, rows3)  # (N,) index of each row's fold
+            n_tr = w.sum(-1).clamp_min(1).numpy(force=True)
+            self._parts = (Q, r, Q.T @ r, float(r @ r), parts, w, n_tr, fold_of_row)
         return self._parts
 
     def cross_validate(self, B: np.ndarray, Bs: np.ndarray | None):
@@ -294,11 +301,10 @@ class LinearRefit:
         X = [Q B] is orthonormal over all rows, so the training normal matrix of a fold is
         I - X_test^T X_test (well conditioned): one small torch solve per fold.
         """
-        Q, r, Qr, parts = self._fold_parts()
+        Q, r, Qr, rr, parts, w, n_tr, fold_of_row = self._fold_parts()
         Bx = torch.from_numpy(B) if B.size else None
         held = np.empty_like(self.r)
         ll = np.empty(len(self.r) // 3)
-        rows3 = self.rows[::3]
         k = Q.shape[1] + (0 if Bx is None else Bx.shape[1])
         Xr = Qr if Bx is None else torch.cat([Qr, Bx.T @ r])
         eye = torch.eye(k, dtype=r.dtype)
@@ -307,13 +313,12 @@ class LinearRefit:
         # equations (no pass over the training rows); with random terms their rows
         train = torch.empty(len(self.folds), len(self.r), dtype=r.dtype) if random else None  # (F, 3N)
         rss = np.empty(len(self.folds))  # isotropic: training residual sum of squares per fold
-        rr = float(r @ r)
-        for i, (test, tt, Qt, rt, QtQt, Qtrt) in enumerate(parts):
+        for i, (ti, tt, Qt, rt, QtQt, Qtrt, rtrt, _) in enumerate(parts):
             if not k:
-                held[test] = self.r[test]
+                held[ti] = self.r[ti]
                 if random:
                     train[i] = r
-                rss[i] = rr - float(rt @ rt)
+                rss[i] = rr - rtrt
                 continue
             # the blocks of X_t^T X_t and X_t^T r_t for X = [Q B], the Q blocks cached
             if Bx is None:
@@ -329,21 +334,21 @@ class LinearRefit:
             pred_t = Qt @ q_
             if Bx is not None:
                 pred_t = pred_t + Bt @ b_
-            held[test] = (rt - pred_t).numpy(force=True)
+            held[ti] = (rt - pred_t).numpy(force=True)
             if random:
                 train[i] = r - (Q @ q_ if Bx is None else Q @ q_ + Bx @ b_)
             else:  # |r_T - X_T c|^2 = r_T^T r_T - 2 c^T X_T^T r_T + c^T X_T^T X_T c
-                rss[i] = rr - float(rt @ rt) - 2 * float(coef @ Xr_tr) + float(coef @ (N_tr @ coef))
+                rss[i] = rr - rtrt - 2 * float(coef @ Xr_tr) + float(coef @ (N_tr @ coef))
         # the variance model of every fold from its training rows, in one batched fit
-        w = torch.from_numpy(rows3[None] != self.folds[:, None])  # (F, N)
         if random:
             logp = fit_variances(train.reshape(len(self.folds), -1, 3), torch.from_numpy(Bs), w).numpy(force=True)
-        else:  # `fit_variances`' closed form: the log mean square of the training rows
-            n_tr = w.sum(-1).clamp_min(1).numpy(force=True)
-            logp = np.log(np.maximum(rss / 3 / n_tr, 1e-300))[:, None]
-        for i, f in enumerate(self.folds):
-            t3 = rows3 == f
-            ll[t3] = variance_loglik(held[self.rows == f].reshape(-1, 3), None if Bs is None else Bs[t3], logp[i])
+            for i, (ti, *_, t3) in enumerate(parts):
+                ll[t3] = variance_loglik(held[ti].reshape(-1, 3), Bs[t3], logp[i])
+        else:  # `fit_variances`' closed form: the log mean square of the training rows; the
+            # isotropic `variance_loglik` of all rows at once, each with its fold's variance
+            logp = np.log(np.maximum(rss / 3 / n_tr, 1e-300))  # (F,)
+            s2 = np.array([np.exp(v) for v in logp])  # each as `variance_loglik` takes it
+            ll = isotropic_loglik(held.reshape(-1, 3), logp[fold_of_row], s2[fold_of_row])
         # per pose, for the paired comparisons (repeats of a pose are one piece of evidence)
         self.last_ll = self.pose_sum(ll)  # (P,) held-out log-likelihood, nats
         self.last_sq = self.pose_sum((held.reshape(-1, 3) ** 2).sum(-1))  # (P,) mm^2

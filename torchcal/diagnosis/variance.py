@@ -19,13 +19,20 @@ def variance_loglik(r3: np.ndarray, Bs: np.ndarray | None, logp: np.ndarray) -> 
     Bs (M, 3, K): TCP displacement per mrad of random tilt; logp = [log sigma^2,
     log tau_1^2, ...]. Bs None: isotropic sigma^2 only.
     """
-    if Bs is None or not Bs.shape[-1]:  # S = sigma^2 I: log det S = 3 log sigma^2
-        return -0.5 * (3 * logp[0] + np.einsum("mi,mi->m", r3, r3) / np.exp(logp[0]) + 3 * np.log(2 * np.pi))
+    if Bs is None or not Bs.shape[-1]:
+        return isotropic_loglik(r3, logp[0], np.exp(logp[0]))
     tau = np.exp(logp[1:]).repeat(Bs.shape[-1] // (len(logp) - 1))
     S = np.exp(logp[0]) * np.eye(3)[None].repeat(len(r3), 0) + np.einsum("mik,k,mjk->mij", Bs, tau, Bs)
     sign, logdet = np.linalg.slogdet(S)
     quad = np.einsum("mi,mi->m", r3, np.linalg.solve(S, r3[..., None])[..., 0])
     return -0.5 * (logdet + quad + 3 * np.log(2 * np.pi))
+
+
+def isotropic_loglik(r3: np.ndarray, log_s2, s2) -> np.ndarray:
+    """Per-row Gaussian log-likelihood (M,) of residuals r3 (M, 3) mm with covariance
+    sigma^2 I: log_s2 = log sigma^2 and s2 = sigma^2 mm^2, scalars or per row (M,)
+    (log det S = 3 log sigma^2)."""
+    return -0.5 * (3 * log_s2 + np.einsum("mi,mi->m", r3, r3) / s2 + 3 * np.log(2 * np.pi))
 
 
 def _bmm(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -83,12 +90,13 @@ def fit_variances(r3: torch.Tensor, Bs: torch.Tensor | None, w: torch.Tensor | N
     G, M, _ = r3.shape
     w = torch.ones(G, M, dtype=r3.dtype) if w is None else w.to(r3.dtype)
     K = 0 if Bs is None else Bs.shape[-1] // 2
+    Bs_shared = Bs  # (M, 3, 2K) shared by the G sets: its per-row algebra once, not G times
     if K:
         Bs = Bs.expand(G, *Bs.shape[-3:]) if Bs.dim() == 3 else Bs
     x, lo, hi = _variance_start(r3, Bs, w, K)
     if not K:
         return x
-    nll, parts = _one_term(r3, Bs, w) if K == 1 else _terms(r3, Bs, w, K)
+    nll, parts = _one_term(r3, Bs_shared, w) if K == 1 else _terms(r3, Bs_shared, w, K)
     f, W = nll(x)
     done = torch.zeros(G, dtype=torch.bool)
     for _ in range(iters):
@@ -145,10 +153,11 @@ def _terms(r3: torch.Tensor, Bs: torch.Tensor, w: torch.Tensor, K: int):
     """(nll, parts) of `fit_variances` for K random terms, by the 3 x 3 algebra per row:
     nll(x) -> (negative log-likelihood (G,), W = S^-1 (G, M, 3, 3)); parts(W) -> (the
     gradient in the variances v = exp(x) (G, A), and over the rows, weighted, Q_ab =
-    u^T D_a W D_b u and T_ab = tr(W D_a W D_b) (G, A, A)), u = W r, D_0 = I, D_j = B_j B_j^T."""
-    G, M, _ = r3.shape
-    Bj = Bs.reshape(G, M, 3, K, 2).movedim(-2, -3)  # (G, M, K, 3, 2)
-    D = torch.cat([torch.eye(3, dtype=r3.dtype).expand(G, M, 1, 3, 3), _bmm(Bj, Bj.transpose(-1, -2))], 2)
+    u^T D_a W D_b u and T_ab = tr(W D_a W D_b) (G, A, A)), u = W r, D_0 = I, D_j = B_j B_j^T;
+    Bs (G, M, 3, 2K), or (M, 3, 2K): one basis for the G sets."""
+    lead = Bs.shape[:-2]  # (G, M), or (M,) for a basis the G sets share (D once, broadcast)
+    Bj = Bs.reshape(*lead, 3, K, 2).movedim(-2, -3)  # (..., M, K, 3, 2)
+    D = torch.cat([torch.eye(3, dtype=r3.dtype).expand(*lead, 1, 3, 3), _bmm(Bj, Bj.transpose(-1, -2))], -3)
 
     def nll(x):
         W, det = _inv3((D * x.exp()[:, None, :, None, None]).sum(2))  # (G, M, 3, 3), (G, M)

@@ -19,7 +19,7 @@ import math
 
 import torch
 
-from torchcal.effects.base import Effect
+from torchcal.effects.base import Effect, per_context
 from torchcal.rotations import skew
 
 #: plausible axis tilt (deg) and shift (mm) inside a bearing: clearances of hundredths of
@@ -78,10 +78,15 @@ class JointClearance(Effect):
     def lower_bounds(self):
         return [0.0, 0.0] * len(self.joints)  # the load pushes towards its moment and force
 
+    @per_context
+    def _directions(self, ctx):
+        """`load_directions`(ctx, J) of each joint J: the rows' data only, so the residual
+        and Jacobian evaluations of a solve on the same rows compute them once."""
+        return [load_directions(ctx, j) for j in self.joints]
+
     def displacement(self, p, ctx, v):
         out = torch.zeros_like(v)
-        for i, j in enumerate(self.joints):
-            m_dir, f_dir, _, o = load_directions(ctx, j)
+        for i, (m_dir, f_dir, _, o) in enumerate(self._directions(ctx)):
             out = out + p[2 * i] * torch.linalg.cross(m_dir, v - o) + p[2 * i + 1] * f_dir
         return out
 
@@ -89,8 +94,7 @@ class JointClearance(Effect):
         """d / d p: the columns m x (v - o) and f per joint (N, 3, 2 J); d / d v: sum of
         tilt_J [m_J]x (N, 3, 3)."""
         dp, dv = [], torch.zeros(*v.shape, 3, dtype=v.dtype, device=v.device)
-        for i, j in enumerate(self.joints):
-            m_dir, f_dir, _, o = load_directions(ctx, j)
+        for i, (m_dir, f_dir, _, o) in enumerate(self._directions(ctx)):
             dp += [torch.linalg.cross(m_dir, v - o), f_dir.expand_as(v)]
             dv = dv + p[2 * i] * skew(m_dir)
         return torch.stack(dp, dim=-1), dv

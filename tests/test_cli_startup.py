@@ -18,14 +18,19 @@ ROOT = Path(__file__).resolve().parents[1]
 HEAVY = ("torch", "sklearn", "scipy", "numpy")
 
 
+def _reported(code: str) -> list[str]:
+    """Run `code` in a fresh interpreter (this checkout first on the path); the lines it
+    printed after an '@@' marker, marker removed (asserts there is one, else shows stderr)."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT)
+    lines = [x[2:] for x in out.stdout.splitlines() if x.startswith("@@")]
+    assert lines, out.stderr
+    return lines
+
+
 def _modules_after(code: str) -> set:
     """Module names loaded by `code` in a fresh interpreter (then prints them as JSON)."""
-    probe = code + "\nimport json, sys\nprint('@@' + json.dumps(sorted(sys.modules)))"
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, env=env, cwd=ROOT)
-    line = [x for x in out.stdout.splitlines() if x.startswith("@@")]
-    assert line, out.stderr
-    return set(json.loads(line[-1][2:]))
+    return set(json.loads(_reported(code + "\nimport json, sys\nprint('@@' + json.dumps(sorted(sys.modules)))")[-1]))
 
 
 HELP_STEPS = (["evaluate", "--help"], ["--version"], ["--help"]) + tuple([c, "--help"] for c in cli.COMMANDS
@@ -45,11 +50,8 @@ def help_steps() -> dict:
             "    try:\n        torchcal.cli.main(argv)\n    except SystemExit:\n        pass\n"
             "    out.append([before, sorted(sys.modules)])\n"
             "print('@@' + json.dumps(out))")
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT)
-    line = [x for x in run.stdout.splitlines() if x.startswith("@@")]
-    assert line, run.stderr
-    return {" ".join(a): (set(b), set(c)) for a, (b, c) in zip(HELP_STEPS, json.loads(line[-1][2:]))}
+    steps = json.loads(_reported(code)[-1])
+    return {" ".join(a): (set(b), set(c)) for a, (b, c) in zip(HELP_STEPS, steps)}
 
 
 @pytest.mark.parametrize("flag", ["--version", "--help"])
@@ -95,15 +97,12 @@ def fit_process(tmp_path_factory) -> tuple[Path, set, int, bool]:
     code = (f"import gc\nimport torchcal.cli\nrc = torchcal.cli.main(['fit', {str(data)!r}, '--robot', {str(robot)!r}, "
             f"'--effects', 'base_frame', 'tool_offset', '--out', {str(out)!r}])\nassert rc == 0\n"
             "print('@@gc', gc.get_freeze_count(), gc.isenabled())")
-    probe = code + "\nimport json, sys\nprint('@@' + json.dumps(sorted(sys.modules)))"
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    run = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, env=env, cwd=ROOT)
-    lines = run.stdout.splitlines()
-    gc_line = [x for x in lines if x.startswith("@@gc ")]
-    mods = [x for x in lines if x.startswith("@@") and not x.startswith("@@gc ")]
-    assert gc_line and mods, run.stderr
+    lines = _reported(code + "\nimport json, sys\nprint('@@' + json.dumps(sorted(sys.modules)))")
+    gc_line = [x for x in lines if x.startswith("gc ")]
+    mods = [x for x in lines if not x.startswith("gc ")]
+    assert gc_line and mods, lines
     _, frozen, enabled = gc_line[-1].split()
-    return out, set(json.loads(mods[-1][2:])), int(frozen), enabled == "True"
+    return out, set(json.loads(mods[-1])), int(frozen), enabled == "True"
 
 
 def test_a_fit_imports_no_sympy_scipy_or_plotting(fit_process):
@@ -157,9 +156,5 @@ def test_the_command_line_freezes_what_importing_torch_made(torch_first, request
     code = ("import gc\nimport torch\n"
             "import torchcal.cli\nassert torchcal.cli.main(['robot', 'show', 'ur5e']) == 0\n"
             "print('@@', gc.get_freeze_count(), gc.isenabled())")
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=ROOT)
-    line = [x for x in out.stdout.splitlines() if x.startswith("@@")]
-    assert line, out.stderr
-    _, frozen, enabled = line[-1].split()
+    frozen, enabled = _reported(code)[-1].split()
     assert enabled == "True" and int(frozen) == 0

@@ -51,10 +51,24 @@ def _rgb(c) -> tuple[float, float, float]:
     return tuple(float(v) / 255.0 for v in c)
 
 
-def _new_figure(width_in: float, height_in: float) -> Figure:
-    fig = Figure(figsize=(width_in, height_in), dpi=DPI, layout="constrained")
+def _new_figure(width_in: float, height_in: float, layout: str | None = "constrained") -> Figure:
+    fig = Figure(figsize=(width_in, height_in), dpi=DPI, layout=layout)
     FigureCanvasAgg(fig)
     return fig
+
+
+def _fixed_grid(fig: Figure, nrows: int, ncols: int, *, left: float, right: float, bottom: float, top: float,
+                wspace: float, hspace: float, **kw) -> np.ndarray:
+    """(nrows, ncols) axes of `fig` (made with ``layout=None``) placed by fixed margins and
+    gaps, all in inches: no layout engine measures every tick label and title before the
+    draw (the constrained layout of a 20-panel figure cost about as much as drawing it,
+    docs/performance.md). `kw` goes to `Figure.subplots` (sharex, sharey)."""
+    w, h = fig.get_size_inches()
+    cell_w = (w - left - right - wspace * (ncols - 1)) / ncols
+    cell_h = (h - top - bottom - hspace * (nrows - 1)) / nrows
+    spec = {"left": left / w, "right": 1 - right / w, "bottom": bottom / h, "top": 1 - top / h,
+            "wspace": wspace / cell_w, "hspace": hspace / cell_h}
+    return fig.subplots(nrows, ncols, squeeze=False, gridspec_kw=spec, **kw)
 
 
 def png_bytes(fig: Figure, dpi: int = DPI) -> bytes:
@@ -411,8 +425,11 @@ def residual_vs_joints_figure(q_rad, residual_mm, *, joint_names: Sequence[str] 
     idx = C.subsample(n_pts, max_points)
     ncols = min(3, n_j)
     nrows = -(-n_j // ncols)
-    fig = _new_figure(4.6 * ncols, 3.4 * nrows + 0.6)
-    axes = np.atleast_1d(fig.subplots(nrows, ncols, sharey=True, squeeze=False)).ravel()
+    fig = _new_figure(4.6 * ncols, 3.4 * nrows + 0.6, layout=None)
+    # fixed margins (in): y tick labels + label left, x tick labels + label + the legend below,
+    # the title and suptitle above; shared y: no tick labels between the columns
+    axes = _fixed_grid(fig, nrows, ncols, left=0.8, right=0.15, bottom=0.95, top=0.6, wspace=0.3, hspace=0.8,
+                       sharey=True).ravel()
     for extra in axes[n_j:]:
         fig.delaxes(extra)
     comp_rgb = [_rgb(C.MEASURED_RGB), _rgb(C.MODEL_BEFORE_RGB), _rgb(C.AFTER_RGB)]
@@ -444,7 +461,8 @@ def residual_vs_joints_figure(q_rad, residual_mm, *, joint_names: Sequence[str] 
         ax.set_title(f"joint {j + 1}" if joint_names[j] == f"q{j + 1}" else joint_names[j])
         ax.grid(True, alpha=0.3)
     handles, labels_ = axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels_, loc="outside lower center", ncols=len(handles), frameon=False, markerscale=2.0)
+    fig.legend(handles, labels_, loc="lower center", ncols=len(handles), frameon=False, markerscale=2.0,
+               bbox_to_anchor=(0.5, 0.0))
     fig.suptitle(f"{title} ({n_pts} poses, RMS {np.sqrt(np.mean(norm ** 2)):.3f} mm)")
     return fig
 
@@ -482,8 +500,11 @@ def residual_vs_variables_figure(values, residual_mm, strengths, *, correlates=(
     idx = C.subsample(n, max_points)
     ncols = min(4, max(len(panels), 1))
     nrows = -(-max(len(panels), 1) // ncols)
-    fig = _new_figure(3.8 * ncols, 2.9 * nrows + 0.6)
-    axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+    fig = _new_figure(3.8 * ncols, 2.9 * nrows + 0.6, layout=None)
+    # fixed margins and gaps (in): y tick labels + label beside each panel, x tick labels +
+    # label and the next panel's title between the rows, the suptitle above
+    axes = _fixed_grid(fig, nrows, ncols, left=0.85, right=0.1, bottom=0.5, top=0.7, wspace=0.85,
+                       hspace=0.75).ravel()
     for ax, p in zip(axes, panels):
         ax.plot(p["x"][idx], p["y"][idx], ".", ms=2, color="0.35")
         if not p["y_label"].startswith("|"):
@@ -499,5 +520,5 @@ def residual_vs_variables_figure(values, residual_mm, strengths, *, correlates=(
         ax.set_ylabel(p["y_label"], fontsize=7 if len(p["y_label"]) > 20 else 8)
     for ax in axes[len(panels):]:
         ax.set_visible(False)
-    fig.suptitle(title)
+    fig.suptitle(title, y=1 - 0.1 / fig.get_size_inches()[1], va="top")
     return fig

@@ -71,6 +71,46 @@ def _fixed_grid(fig: Figure, nrows: int, ncols: int, *, left: float, right: floa
     return fig.subplots(nrows, ncols, squeeze=False, gridspec_kw=spec, **kw)
 
 
+OVERHANG = 0.15
+"""Inches an x tick label at the right end of an axis (e.g. "150") can reach beyond it."""
+
+
+def _widen_for_y_labels(fig: Figure, axes, beside: float, *, between: bool) -> None:
+    """Widen the left margin (and, `between`, the gaps between the columns) of `fig`'s
+    fixed grid (`_fixed_grid`, all `axes` on one grid) to the widest y tick label of `axes`
+    plus `beside` inches (the y label and the pads; a gap also OVERHANG for the last x tick
+    label of the panel to its left), where the fixed margins are narrower. The labels are those the locator and formatter will draw (default tick label size),
+    the longest of each axes measured once; no tick artists are made."""
+    from matplotlib import rcParams
+    from matplotlib.text import Text
+
+    renderer = fig.canvas.get_renderer()
+    widest = 0.0
+    for ax in axes:
+        y = ax.yaxis
+        lo, hi = sorted(y.get_view_interval())
+        locs = [v for v in y.get_majorticklocs() if lo <= v <= hi]
+        if locs:
+            label = Text(text=max(y.get_major_formatter().format_ticks(locs), key=len),
+                         fontsize=rcParams["ytick.labelsize"])
+            label.set_figure(fig)
+            widest = max(widest, label.get_window_extent(renderer).width / fig.dpi)
+    need = widest + beside
+    grid = axes[0].get_subplotspec().get_gridspec()
+    w = fig.get_size_inches()[0]
+    ncols = grid.ncols
+    cell = (grid.right - grid.left) * w / (ncols + grid.wspace * (ncols - 1))
+    gap = grid.wspace * cell
+    if need <= grid.left * w and (not between or need + OVERHANG <= gap or ncols == 1):
+        return
+    left = max(grid.left * w, need)
+    gap = max(gap, need + OVERHANG) if between else gap
+    cell = (grid.right * w - left - gap * (ncols - 1)) / ncols
+    grid.update(left=left / w, wspace=gap / cell)  # moves the axes of pyplot's figures only: place them here
+    for ax in axes:
+        ax.set_position(ax.get_subplotspec().get_position(fig))
+
+
 def png_bytes(fig: Figure, dpi: int = DPI) -> bytes:
     """`fig` (made by `_new_figure`: an Agg canvas) rendered as PNG bytes (no metadata: the
     same figure gives the same bytes). Drawn once by the canvas (`print_png`: the
@@ -460,6 +500,7 @@ def residual_vs_joints_figure(q_rad, residual_mm, *, joint_names: Sequence[str] 
             ax.set_ylabel("residual (mm)")
         ax.set_title(f"joint {j + 1}" if joint_names[j] == f"q{j + 1}" else joint_names[j])
         ax.grid(True, alpha=0.3)
+    _widen_for_y_labels(fig, axes[:n_j], 0.35, between=False)  # shared y: labels in the first column only
     handles, labels_ = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels_, loc="lower center", ncols=len(handles), frameon=False, markerscale=2.0,
                bbox_to_anchor=(0.5, 0.0))
@@ -503,7 +544,7 @@ def residual_vs_variables_figure(values, residual_mm, strengths, *, correlates=(
     fig = _new_figure(3.8 * ncols, 2.9 * nrows + 0.6, layout=None)
     # fixed margins and gaps (in): y tick labels + label beside each panel, x tick labels +
     # label and the next panel's title between the rows, the suptitle above
-    axes = _fixed_grid(fig, nrows, ncols, left=0.85, right=0.1, bottom=0.5, top=0.7, wspace=0.85,
+    axes = _fixed_grid(fig, nrows, ncols, left=0.8, right=0.1, bottom=0.5, top=0.7, wspace=0.87,
                        hspace=0.75).ravel()
     for ax, p in zip(axes, panels):
         ax.plot(p["x"][idx], p["y"][idx], ".", ms=2, color="0.35")
@@ -520,5 +561,6 @@ def residual_vs_variables_figure(values, residual_mm, strengths, *, correlates=(
         ax.set_ylabel(p["y_label"], fontsize=7 if len(p["y_label"]) > 20 else 8)
     for ax in axes[len(panels):]:
         ax.set_visible(False)
+    _widen_for_y_labels(fig, axes[:max(len(panels), 1)], 0.3, between=True)
     fig.suptitle(title, y=1 - 0.1 / fig.get_size_inches()[1], va="top")
     return fig

@@ -430,3 +430,16 @@ def test_joint_panels_and_legend_keep_their_labels_clear(figure_data, n_joints):
     fig = figures.residual_vs_joints_figure(q, res * 40.0)  # tick labels like -10.0
     assert _visible_axes(fig) == n_joints and len(fig.legends) == 1
     _texts_clear(fig)
+
+
+@pytest.mark.parametrize("box_mm", [(200.0, 1400.0), (-1300.0, 1800.0), (0.0, 5.0)])
+def test_error_map_views_keep_their_labels_clear(box_mm):
+    """The error map's fixed places: 3-D view, x-y and x-z views, colour scale and title
+    apart, for a UR-sized workspace (tick labels like -1250), a small one, one near 0."""
+    lo, hi = box_mm
+    rng = np.random.default_rng(2)
+    pos = rng.uniform(lo, hi, (300, 3))
+    fig = figures.error_map_figure(pos, rng.uniform(0.0, 0.3, 300))
+    assert [ax.get_title() for ax in fig.axes[:3]] == ["3-D", "x-y (top)", "x-z (side)"]
+    assert fig.axes[3].get_ylabel().startswith("distance error (mm")
+    _texts_clear(fig)

@@ -347,9 +347,11 @@ def error_map_figure(positions_mm, error_mm, *, title: str = "Distance error ove
     top = C.error_scale(e)
     order = np.argsort(e)  # the largest errors drawn last, on top
     worst = order[-min(5, len(order)):] if len(order) else order
-    fig = _new_figure(16.0, 5.6)
-    grid = fig.add_gridspec(1, 3, width_ratios=[1.25, 1.0, 1.0])
-    ax3 = fig.add_subplot(grid[0], projection="3d")
+    fig = _new_figure(16.0, 5.6, layout=None)
+    # fixed places (fractions of the 16 x 5.6 in figure: those the constrained layout gave
+    # before, without its pass over every label): the 3-D view, the x-y and x-z views, the
+    # colour scale; the suptitle above
+    ax3 = fig.add_axes((0.0, 0.03, 0.33, 0.88), projection="3d")
     ax3.set_box_aspect(None, zoom=0.82)  # room for the z label beside the next panel
     sc = ax3.scatter(pos[order, 0], pos[order, 1], pos[order, 2], c=e[order], cmap=C.ERROR_CMAP, vmin=0.0,
                      vmax=top, s=8, depthshade=False)
@@ -360,7 +362,7 @@ def error_map_figure(positions_mm, error_mm, *, title: str = "Distance error ove
                 linewidths=1.0, depthshade=False)
     ax3.set_title("3-D")
     for k, (i, j, lab) in enumerate([(0, 1, "x-y (top)"), (0, 2, "x-z (side)")]):
-        ax = fig.add_subplot(grid[k + 1])
+        ax = fig.add_axes((0.376 + 0.296 * k, 0.086, 0.248, 0.827))
         ax.scatter(pos[order, i], pos[order, j], c=e[order], cmap=C.ERROR_CMAP, vmin=0.0, vmax=top, s=8)
         ax.scatter(pos[worst, i], pos[worst, j], s=60, facecolors="none", edgecolors="tab:blue", linewidths=1.0,
                    label=f"{len(worst)} largest")
@@ -370,10 +372,10 @@ def error_map_figure(positions_mm, error_mm, *, title: str = "Distance error ove
         ax.set_aspect("equal", adjustable="datalim")
         ax.grid(True, alpha=0.3)
     fig.axes[-1].legend(loc="upper right", fontsize=8)
-    fig.colorbar(sc, ax=fig.axes[1:], label=f"distance error (mm; scale to the 99th percentile, {top:.3g})",
-                 shrink=0.9)
+    fig.colorbar(sc, cax=fig.add_axes((0.945, 0.127, 0.012, 0.744)),
+                 label=f"distance error (mm; scale to the 99th percentile, {top:.3g})")
     fig.suptitle(f"{title}: {len(e)} rows, RMS {float(np.sqrt(np.mean(e ** 2))) if len(e) else 0.0:.4g} mm, "
-                 f"max {float(e.max()) if len(e) else 0.0:.4g} mm")
+                 f"max {float(e.max()) if len(e) else 0.0:.4g} mm", y=0.99, va="top")
     return fig
 
 

@@ -379,3 +379,67 @@ def test_a_bin_of_too_few_rows_draws_no_rms_point():
     assert np.isfinite(y).sum() >= 6  # the filled bins keep their points
     x = np.asarray(line.get_xdata(), dtype=float)
     assert not np.isfinite(y[x < -80]).any()
+
+
+# --------------------------------------------------------------------------- fixed layout
+def _texts_clear(fig):
+    """Draw `fig`; assert each visible axes with its tick labels, axis labels and title
+    lies inside the figure and clear of every other one, and the suptitle and legends
+    clear of them all (the multi-panel figures place their axes by fixed margins, no
+    layout engine that would make room for a wide label)."""
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    page = fig.bbox
+    boxes = [ax.get_tightbbox(r) for ax in fig.axes if ax.get_visible()]
+    for b in boxes:
+        assert b.x0 >= page.x0 - 1 and b.y0 >= page.y0 - 1 and b.x1 <= page.x1 + 1 and b.y1 <= page.y1 + 1, b
+    others = [fig._suptitle.get_window_extent(r)] + [lg.get_window_extent(r) for lg in fig.legends]
+    for i, a in enumerate(boxes):
+        for b in boxes[i + 1:] + others:
+            cut = a.intersection(a, b)
+            assert cut is None or cut.width < 1 or cut.height < 1, (a, b)
+
+
+@pytest.mark.parametrize("scale_mm", [1.0, 1e-3, 30.0])
+def test_twenty_variable_panels_keep_their_labels_clear(scale_mm):
+    """The report's 20-panel figure: every panel drawn with its title, x and y label, no
+    tick label or axis label running into the next panel or out of the page, for small,
+    wide-labelled and large residuals."""
+    rng = np.random.default_rng(5)
+    n = 90
+    names = ([f"q{j}" for j in range(1, 7)] + [f"approach_q{j}" for j in range(1, 7)]
+             + [f"approach_prev_q{j}" for j in range(1, 6)] + ["temp_c", "payload_kg", "order"])
+    values = {k: rng.choice([-1.0, 0.0, 1.0], n) if k.startswith("approach") else rng.uniform(-2.5, 2.5, n)
+              for k in names}
+    values.update(temp_c=rng.uniform(19.0, 31.0, n), payload_kg=rng.uniform(0.0, 5.0, n),
+                  order=np.arange(n, dtype=float))
+    res = scale_mm * rng.normal(0.0, 1.0, (n, 3)) - 2.5 * scale_mm
+    strengths = {k: float(v) for k, v in zip(names, rng.uniform(-0.05, 0.4, len(names)))}
+    comps = {k: scale_mm * rng.normal(0.0, 1.0, n) for k in names[::2]}
+    fig = figures.residual_vs_variables_figure(values, res, strengths, correlates=("q2", "order"), components=comps)
+    shown = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(shown) == 20
+    assert all(ax.get_title() and ax.get_xlabel() and ax.get_ylabel() for ax in shown)
+    _texts_clear(fig)
+
+
+@pytest.mark.parametrize("n_joints", [1, 4, 6, 7])
+def test_joint_panels_and_legend_keep_their_labels_clear(figure_data, n_joints):
+    _, q, res = figure_data
+    q = np.tile(q, (1, 2))[:, :n_joints]
+    fig = figures.residual_vs_joints_figure(q, res * 40.0)  # tick labels like -10.0
+    assert _visible_axes(fig) == n_joints and len(fig.legends) == 1
+    _texts_clear(fig)
+
+
+@pytest.mark.parametrize("box_mm", [(200.0, 1400.0), (-1300.0, 1800.0), (0.0, 5.0)])
+def test_error_map_views_keep_their_labels_clear(box_mm):
+    """The error map's fixed places: 3-D view, x-y and x-z views, colour scale and title
+    apart, for a UR-sized workspace (tick labels like -1250), a small one, one near 0."""
+    lo, hi = box_mm
+    rng = np.random.default_rng(2)
+    pos = rng.uniform(lo, hi, (300, 3))
+    fig = figures.error_map_figure(pos, rng.uniform(0.0, 0.3, 300))
+    assert [ax.get_title() for ax in fig.axes[:3]] == ["3-D", "x-y (top)", "x-z (side)"]
+    assert fig.axes[3].get_ylabel().startswith("distance error (mm")
+    _texts_clear(fig)

@@ -51,10 +51,64 @@ def _rgb(c) -> tuple[float, float, float]:
     return tuple(float(v) / 255.0 for v in c)
 
 
-def _new_figure(width_in: float, height_in: float) -> Figure:
-    fig = Figure(figsize=(width_in, height_in), dpi=DPI, layout="constrained")
+def _new_figure(width_in: float, height_in: float, layout: str | None = "constrained") -> Figure:
+    fig = Figure(figsize=(width_in, height_in), dpi=DPI, layout=layout)
     FigureCanvasAgg(fig)
     return fig
+
+
+def _fixed_grid(fig: Figure, nrows: int, ncols: int, *, left: float, right: float, bottom: float, top: float,
+                wspace: float, hspace: float, **kw) -> np.ndarray:
+    """(nrows, ncols) axes of `fig` (made with ``layout=None``) placed by fixed margins and
+    gaps, all in inches: no layout engine measures every tick label and title before the
+    draw (the constrained layout of a 20-panel figure cost about as much as drawing it,
+    docs/performance.md). `kw` goes to `Figure.subplots` (sharex, sharey)."""
+    w, h = fig.get_size_inches()
+    cell_w = (w - left - right - wspace * (ncols - 1)) / ncols
+    cell_h = (h - top - bottom - hspace * (nrows - 1)) / nrows
+    spec = {"left": left / w, "right": 1 - right / w, "bottom": bottom / h, "top": 1 - top / h,
+            "wspace": wspace / cell_w, "hspace": hspace / cell_h}
+    return fig.subplots(nrows, ncols, squeeze=False, gridspec_kw=spec, **kw)
+
+
+OVERHANG = 0.15
+"""Inches an x tick label at the right end of an axis (e.g. "150") can reach beyond it."""
+
+
+def _widen_for_y_labels(fig: Figure, axes, beside: float, *, between: bool) -> None:
+    """Widen the left margin (and, `between`, the gaps between the columns) of `fig`'s
+    fixed grid (`_fixed_grid`, all `axes` on one grid) to the widest y tick label of `axes`
+    plus `beside` inches (the y label and the pads; a gap also OVERHANG for the last x tick
+    label of the panel to its left), where the fixed margins are narrower. The labels are those the locator and formatter will draw (default tick label size),
+    the longest of each axes measured once; no tick artists are made."""
+    from matplotlib import rcParams
+    from matplotlib.text import Text
+
+    renderer = fig.canvas.get_renderer()
+    widest = 0.0
+    for ax in axes:
+        y = ax.yaxis
+        lo, hi = sorted(y.get_view_interval())
+        locs = [v for v in y.get_majorticklocs() if lo <= v <= hi]
+        if locs:
+            label = Text(text=max(y.get_major_formatter().format_ticks(locs), key=len),
+                         fontsize=rcParams["ytick.labelsize"])
+            label.set_figure(fig)
+            widest = max(widest, label.get_window_extent(renderer).width / fig.dpi)
+    need = widest + beside
+    grid = axes[0].get_subplotspec().get_gridspec()
+    w = fig.get_size_inches()[0]
+    ncols = grid.ncols
+    cell = (grid.right - grid.left) * w / (ncols + grid.wspace * (ncols - 1))
+    gap = grid.wspace * cell
+    if need <= grid.left * w and (not between or need + OVERHANG <= gap or ncols == 1):
+        return
+    left = max(grid.left * w, need)
+    gap = max(gap, need + OVERHANG) if between else gap
+    cell = (grid.right * w - left - gap * (ncols - 1)) / ncols
+    grid.update(left=left / w, wspace=gap / cell)  # moves the axes of pyplot's figures only: place them here
+    for ax in axes:
+        ax.set_position(ax.get_subplotspec().get_position(fig))
 
 
 def png_bytes(fig: Figure, dpi: int = DPI) -> bytes:
@@ -293,9 +347,11 @@ def error_map_figure(positions_mm, error_mm, *, title: str = "Distance error ove
     top = C.error_scale(e)
     order = np.argsort(e)  # the largest errors drawn last, on top
     worst = order[-min(5, len(order)):] if len(order) else order
-    fig = _new_figure(16.0, 5.6)
-    grid = fig.add_gridspec(1, 3, width_ratios=[1.25, 1.0, 1.0])
-    ax3 = fig.add_subplot(grid[0], projection="3d")
+    fig = _new_figure(16.0, 5.6, layout=None)
+    # fixed places (fractions of the 16 x 5.6 in figure: those the constrained layout gave
+    # before, without its pass over every label): the 3-D view, the x-y and x-z views, the
+    # colour scale; the suptitle above
+    ax3 = fig.add_axes((0.0, 0.03, 0.33, 0.88), projection="3d")
     ax3.set_box_aspect(None, zoom=0.82)  # room for the z label beside the next panel
     sc = ax3.scatter(pos[order, 0], pos[order, 1], pos[order, 2], c=e[order], cmap=C.ERROR_CMAP, vmin=0.0,
                      vmax=top, s=8, depthshade=False)
@@ -306,7 +362,7 @@ def error_map_figure(positions_mm, error_mm, *, title: str = "Distance error ove
                 linewidths=1.0, depthshade=False)
     ax3.set_title("3-D")
     for k, (i, j, lab) in enumerate([(0, 1, "x-y (top)"), (0, 2, "x-z (side)")]):
-        ax = fig.add_subplot(grid[k + 1])
+        ax = fig.add_axes((0.376 + 0.296 * k, 0.086, 0.248, 0.827))
         ax.scatter(pos[order, i], pos[order, j], c=e[order], cmap=C.ERROR_CMAP, vmin=0.0, vmax=top, s=8)
         ax.scatter(pos[worst, i], pos[worst, j], s=60, facecolors="none", edgecolors="tab:blue", linewidths=1.0,
                    label=f"{len(worst)} largest")
@@ -316,10 +372,10 @@ def error_map_figure(positions_mm, error_mm, *, title: str = "Distance error ove
         ax.set_aspect("equal", adjustable="datalim")
         ax.grid(True, alpha=0.3)
     fig.axes[-1].legend(loc="upper right", fontsize=8)
-    fig.colorbar(sc, ax=fig.axes[1:], label=f"distance error (mm; scale to the 99th percentile, {top:.3g})",
-                 shrink=0.9)
+    fig.colorbar(sc, cax=fig.add_axes((0.945, 0.127, 0.012, 0.744)),
+                 label=f"distance error (mm; scale to the 99th percentile, {top:.3g})")
     fig.suptitle(f"{title}: {len(e)} rows, RMS {float(np.sqrt(np.mean(e ** 2))) if len(e) else 0.0:.4g} mm, "
-                 f"max {float(e.max()) if len(e) else 0.0:.4g} mm")
+                 f"max {float(e.max()) if len(e) else 0.0:.4g} mm", y=0.99, va="top")
     return fig
 
 
@@ -411,8 +467,11 @@ def residual_vs_joints_figure(q_rad, residual_mm, *, joint_names: Sequence[str] 
     idx = C.subsample(n_pts, max_points)
     ncols = min(3, n_j)
     nrows = -(-n_j // ncols)
-    fig = _new_figure(4.6 * ncols, 3.4 * nrows + 0.6)
-    axes = np.atleast_1d(fig.subplots(nrows, ncols, sharey=True, squeeze=False)).ravel()
+    fig = _new_figure(4.6 * ncols, 3.4 * nrows + 0.6, layout=None)
+    # fixed margins (in): y tick labels + label left, x tick labels + label + the legend below,
+    # the title and suptitle above; shared y: no tick labels between the columns
+    axes = _fixed_grid(fig, nrows, ncols, left=0.8, right=0.15, bottom=0.95, top=0.6, wspace=0.3, hspace=0.8,
+                       sharey=True).ravel()
     for extra in axes[n_j:]:
         fig.delaxes(extra)
     comp_rgb = [_rgb(C.MEASURED_RGB), _rgb(C.MODEL_BEFORE_RGB), _rgb(C.AFTER_RGB)]
@@ -443,8 +502,10 @@ def residual_vs_joints_figure(q_rad, residual_mm, *, joint_names: Sequence[str] 
             ax.set_ylabel("residual (mm)")
         ax.set_title(f"joint {j + 1}" if joint_names[j] == f"q{j + 1}" else joint_names[j])
         ax.grid(True, alpha=0.3)
+    _widen_for_y_labels(fig, axes[:n_j], 0.35, between=False)  # shared y: labels in the first column only
     handles, labels_ = axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels_, loc="outside lower center", ncols=len(handles), frameon=False, markerscale=2.0)
+    fig.legend(handles, labels_, loc="lower center", ncols=len(handles), frameon=False, markerscale=2.0,
+               bbox_to_anchor=(0.5, 0.0))
     fig.suptitle(f"{title} ({n_pts} poses, RMS {np.sqrt(np.mean(norm ** 2)):.3f} mm)")
     return fig
 
@@ -482,8 +543,11 @@ def residual_vs_variables_figure(values, residual_mm, strengths, *, correlates=(
     idx = C.subsample(n, max_points)
     ncols = min(4, max(len(panels), 1))
     nrows = -(-max(len(panels), 1) // ncols)
-    fig = _new_figure(3.8 * ncols, 2.9 * nrows + 0.6)
-    axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+    fig = _new_figure(3.8 * ncols, 2.9 * nrows + 0.6, layout=None)
+    # fixed margins and gaps (in): y tick labels + label beside each panel, x tick labels +
+    # label and the next panel's title between the rows, the suptitle above
+    axes = _fixed_grid(fig, nrows, ncols, left=0.8, right=0.1, bottom=0.5, top=0.7, wspace=0.87,
+                       hspace=0.75).ravel()
     for ax, p in zip(axes, panels):
         ax.plot(p["x"][idx], p["y"][idx], ".", ms=2, color="0.35")
         if not p["y_label"].startswith("|"):
@@ -499,5 +563,6 @@ def residual_vs_variables_figure(values, residual_mm, strengths, *, correlates=(
         ax.set_ylabel(p["y_label"], fontsize=7 if len(p["y_label"]) > 20 else 8)
     for ax in axes[len(panels):]:
         ax.set_visible(False)
-    fig.suptitle(title)
+    _widen_for_y_labels(fig, axes[:max(len(panels), 1)], 0.3, between=True)
+    fig.suptitle(title, y=1 - 0.1 / fig.get_size_inches()[1], va="top")
     return fig
